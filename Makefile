@@ -1,0 +1,36 @@
+# starnav: two commands on a fresh machine.
+#   make demo   creates .venv, installs starnav, runs the main job on built-in defaults
+#   make test   creates .venv with the dev extras, runs the test suite (slow tests excluded)
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.starnav-installed
+
+.PHONY: demo test test-slow bench lint llvm clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+llvm:
+	@bash tools/ensure-llvm.sh
+
+demo: llvm $(STAMP)
+	$(BIN)/starnav demo --out out/demo
+
+test: llvm $(STAMP)
+	$(BIN)/python -m pytest
+
+test-slow: llvm $(STAMP)
+	$(BIN)/python -m pytest -m slow
+
+bench: llvm $(STAMP)
+	$(BIN)/python benchmarks/render.py
+
+lint: $(STAMP)
+	$(BIN)/ruff check src tests benchmarks
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

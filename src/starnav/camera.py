@@ -1,0 +1,347 @@
+"""Pinhole camera with Brown-Conrady distortion, and its analytic Jacobians.
+
+Conventions (DESIGN.md)
+-----------------------
+* Camera frame: +z along the boresight, +x to the right (increasing column ``u``), +y down
+  (increasing row ``v``).
+* Pixel ``(u, v) = (0, 0)`` is the *centre* of the top-left pixel (OpenCV convention), so the
+  detector spans ``u`` in ``[-0.5, width - 0.5]``.
+* Normalised image coordinates ``x = X / Z``, ``y = Y / Z``; distortion acts on them
+  (Brown 1966; Conrady 1919; the OpenCV parametrisation ``k1, k2, k3, p1, p2``)::
+
+      r2 = x^2 + y^2
+      x_d = x (1 + k1 r2 + k2 r2^2 + k3 r2^3) + 2 p1 x y + p2 (r2 + 2 x^2)
+      y_d = y (1 + k1 r2 + k2 r2^2 + k3 r2^3) + p1 (r2 + 2 y^2) + 2 p2 x y
+      u = fx x_d + cx,   v = fy y_d + cy
+
+  with ``fx = f / pitch_x`` and ``fy = f / pitch_y`` in pixels.
+
+Units: metres for the focal length and pitch, pixels for ``u, v, fx, fy, cx, cy``, radians for
+angles, steradians for solid angles.
+
+The field of view is always *derived* from the focal length and the detector size (the AA-STR
+paper's "FoV 10 deg" is the half-angle or an error; REFERENCE.md section 1).
+
+Example
+-------
+>>> from starnav.camera import Camera
+>>> cam = Camera.preset("aa-str")
+>>> round(float(cam.fov_x_deg), 2)
+20.6
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from starnav.errors import ConfigError, GeometryError, UnknownNameError
+
+FloatArray = NDArray[np.float64]
+
+#: Iterations and tolerance [normalised units] of the fixed-point undistortion.
+UNDISTORT_MAX_ITER = 50
+UNDISTORT_TOL = 1e-14
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera with Brown-Conrady distortion.
+
+    Parameters
+    ----------
+    width, height : int
+        Detector size [pixels].
+    focal_length : float
+        Effective focal length [m].
+    pitch_x, pitch_y : float
+        Pixel pitch [m].
+    f_number : float
+        Working f-number N (entrance pupil diameter ``D = f / N``) [-].
+    cx, cy : float, optional
+        Principal point [pixels]; default the detector centre ``((W - 1)/2, (H - 1)/2)``.
+    k1, k2, k3, p1, p2 : float
+        Brown-Conrady radial and tangential coefficients [-], on normalised coordinates.
+    name : str
+        Free label.
+    """
+
+    width: int
+    height: int
+    focal_length: float
+    pitch_x: float
+    pitch_y: float
+    f_number: float
+    cx: float | None = None
+    cy: float | None = None
+    k1: float = 0.0
+    k2: float = 0.0
+    k3: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    name: str = "custom"
+
+    def __post_init__(self) -> None:
+        checks: list[tuple[str, float, bool, str]] = [
+            ("camera.width", self.width, int(self.width) == self.width and self.width >= 1,
+             "a positive integer number of pixels"),
+            ("camera.height", self.height, int(self.height) == self.height and self.height >= 1,
+             "a positive integer number of pixels"),
+            ("camera.focal_length", self.focal_length,
+             math.isfinite(self.focal_length) and self.focal_length > 0,
+             "a finite focal length > 0 m"),
+            ("camera.pitch_x", self.pitch_x, math.isfinite(self.pitch_x) and self.pitch_x > 0,
+             "a finite pixel pitch > 0 m"),
+            ("camera.pitch_y", self.pitch_y, math.isfinite(self.pitch_y) and self.pitch_y > 0,
+             "a finite pixel pitch > 0 m"),
+            ("camera.f_number", self.f_number, math.isfinite(self.f_number) and self.f_number > 0,
+             "a finite f-number > 0"),
+        ]
+        for field, value, ok, expected in checks:
+            if not ok:
+                raise ConfigError(field, value, expected)
+        if self.cx is None:
+            object.__setattr__(self, "cx", (self.width - 1) / 2.0)
+        if self.cy is None:
+            object.__setattr__(self, "cy", (self.height - 1) / 2.0)
+
+    # ------------------------------------------------------------------ presets
+    @classmethod
+    def preset(cls, name: str, **overrides: Any) -> Camera:
+        """A named camera; ``overrides`` replace any field.
+
+        Known presets: ``aa-str`` (Leonardo AA-STR MK II with the HAS2 detector:
+        f = 50.7 mm, 1024 x 1024 pixels of 18 um, N = 1.495575; REFERENCE.md section 1).
+        """
+        try:
+            base = CAMERA_PRESETS[name]
+        except KeyError:
+            raise UnknownNameError("camera preset", name, list(CAMERA_PRESETS)) from None
+        if not overrides:
+            return base
+        # the principal point follows the detector size unless it is given explicitly
+        overrides.setdefault("cx", None if "width" in overrides else base.cx)
+        overrides.setdefault("cy", None if "height" in overrides else base.cy)
+        return replace(base, **overrides)
+
+    # ------------------------------------------------------------- properties
+    @property
+    def fx(self) -> float:
+        """Focal length in pixels along x [px]."""
+        return self.focal_length / self.pitch_x
+
+    @property
+    def fy(self) -> float:
+        """Focal length in pixels along y [px]."""
+        return self.focal_length / self.pitch_y
+
+    @property
+    def K(self) -> FloatArray:
+        """Intrinsic matrix (3 x 3) [px]."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def has_distortion(self) -> bool:
+        return any(c != 0.0 for c in (self.k1, self.k2, self.k3, self.p1, self.p2))
+
+    @property
+    def fov_x(self) -> float:
+        """Full horizontal field of view of the pinhole [rad] (principal point centred)."""
+        return 2.0 * math.atan(self.width * self.pitch_x / (2.0 * self.focal_length))
+
+    @property
+    def fov_y(self) -> float:
+        """Full vertical field of view of the pinhole [rad]."""
+        return 2.0 * math.atan(self.height * self.pitch_y / (2.0 * self.focal_length))
+
+    @property
+    def fov_diagonal(self) -> float:
+        """Full diagonal field of view of the pinhole [rad]."""
+        half = math.hypot(self.width * self.pitch_x, self.height * self.pitch_y) / 2.0
+        return 2.0 * math.atan(half / self.focal_length)
+
+    @property
+    def fov_x_deg(self) -> float:
+        return math.degrees(self.fov_x)
+
+    @property
+    def ifov(self) -> float:
+        """Instantaneous field of view of one pixel on the axis, ``pitch_x / f`` [rad]."""
+        return self.pitch_x / self.focal_length
+
+    @property
+    def pixel_solid_angle(self) -> float:
+        """Solid angle of the on-axis pixel, ``pitch_x pitch_y / f^2`` [sr]."""
+        return self.pitch_x * self.pitch_y / self.focal_length**2
+
+    @property
+    def pupil_diameter(self) -> float:
+        """Entrance pupil diameter ``f / N`` [m]."""
+        return self.focal_length / self.f_number
+
+    @property
+    def pupil_area(self) -> float:
+        """Entrance pupil area [m^2]."""
+        return math.pi * self.pupil_diameter**2 / 4.0
+
+    @property
+    def etendue(self) -> float:
+        """On-axis pixel etendue ``A_pupil * Omega_pix = pi p^2 / (4 N^2)`` [m^2 sr]."""
+        return self.pupil_area * self.pixel_solid_angle
+
+    def relative_illumination(self, u: ArrayLike, v: ArrayLike) -> FloatArray:
+        """Natural vignetting ``cos^4(theta)`` of pixel ``(u, v)`` for the pinhole [-].
+
+        The flux a pixel collects from a scene of radiance ``L`` is
+        ``L * etendue * cos^4(theta)``: the pixel's solid angle shrinks as ``cos^3`` and the
+        pupil's projected area as ``cos``.
+        """
+        x = (np.asarray(u, float) - self.cx) / self.fx
+        y = (np.asarray(v, float) - self.cy) / self.fy
+        cos2 = 1.0 / (1.0 + x * x + y * y)
+        return cos2 * cos2
+
+    # ------------------------------------------------------------ distortion
+    def distort(self, xy: ArrayLike) -> FloatArray:
+        """Apply Brown-Conrady distortion to normalised coordinates ``(..., 2)`` [-]."""
+        xy = np.asarray(xy, dtype=float)
+        x, y = xy[..., 0], xy[..., 1]
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        xd = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y
+        return np.stack([xd, yd], axis=-1)
+
+    def distortion_jacobian(self, xy: ArrayLike) -> FloatArray:
+        """Jacobian ``d(x_d, y_d) / d(x, y)`` of :meth:`distort`, shape ``(..., 2, 2)``."""
+        xy = np.asarray(xy, dtype=float)
+        x, y = xy[..., 0], xy[..., 1]
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        dradial_dr2 = self.k1 + r2 * (2.0 * self.k2 + 3.0 * self.k3 * r2)
+        J = np.empty(xy.shape[:-1] + (2, 2))
+        J[..., 0, 0] = radial + 2 * x * x * dradial_dr2 + 2 * self.p1 * y + 6 * self.p2 * x
+        J[..., 0, 1] = 2 * x * y * dradial_dr2 + 2 * self.p1 * x + 2 * self.p2 * y
+        J[..., 1, 0] = 2 * x * y * dradial_dr2 + 2 * self.p1 * x + 2 * self.p2 * y
+        J[..., 1, 1] = radial + 2 * y * y * dradial_dr2 + 6 * self.p1 * y + 2 * self.p2 * x
+        return J
+
+    def undistort(self, xy_d: ArrayLike) -> FloatArray:
+        """Invert :meth:`distort` by Newton iterations on normalised coordinates [-]."""
+        xy_d = np.asarray(xy_d, dtype=float)
+        if not self.has_distortion:
+            return xy_d.copy()
+        xy = xy_d.copy()
+        for _ in range(UNDISTORT_MAX_ITER):
+            resid = self.distort(xy) - xy_d
+            J = self.distortion_jacobian(xy)
+            step = np.linalg.solve(J, resid[..., None])[..., 0]
+            xy = xy - step
+            if np.max(np.abs(step), initial=0.0) < UNDISTORT_TOL:
+                break
+        return xy
+
+    # ------------------------------------------------------------ projection
+    def project(self, points: ArrayLike, distort: bool = True) -> FloatArray:
+        """Project camera-frame points ``(..., 3)`` [any length unit] to pixels ``(..., 2)``.
+
+        Raises :class:`~starnav.errors.GeometryError` for points at or behind ``z = 0``.
+        """
+        p = np.asarray(points, dtype=float)
+        z = p[..., 2]
+        if np.any(z <= 0.0):
+            raise GeometryError("cannot project points at or behind the camera plane (z <= 0)")
+        xy = p[..., :2] / z[..., None]
+        if distort and self.has_distortion:
+            xy = self.distort(xy)
+        return np.stack([self.fx * xy[..., 0] + self.cx, self.fy * xy[..., 1] + self.cy], -1)
+
+    def project_jacobian(self, points: ArrayLike, distort: bool = True) -> FloatArray:
+        """Jacobian ``d(u, v) / d(X, Y, Z)`` of :meth:`project`, shape ``(..., 2, 3)`` [px/unit]."""
+        p = np.asarray(points, dtype=float)
+        X, Y, Z = p[..., 0], p[..., 1], p[..., 2]
+        # d(x, y)/d(X, Y, Z) for x = X/Z, y = Y/Z
+        dn = np.zeros(p.shape[:-1] + (2, 3))
+        dn[..., 0, 0] = 1.0 / Z
+        dn[..., 0, 2] = -X / Z**2
+        dn[..., 1, 1] = 1.0 / Z
+        dn[..., 1, 2] = -Y / Z**2
+        if distort and self.has_distortion:
+            xy = np.stack([X / Z, Y / Z], -1)
+            dn = self.distortion_jacobian(xy) @ dn
+        F = np.diag([self.fx, self.fy])
+        return F @ dn
+
+    def pixel_to_normalized(self, uv: ArrayLike, undistort: bool = True) -> FloatArray:
+        """Pixels ``(..., 2)`` to undistorted normalised coordinates ``(..., 2)``."""
+        uv = np.asarray(uv, dtype=float)
+        xy = np.stack([(uv[..., 0] - self.cx) / self.fx, (uv[..., 1] - self.cy) / self.fy], -1)
+        if undistort and self.has_distortion:
+            xy = self.undistort(xy)
+        return xy
+
+    def unproject(self, uv: ArrayLike, undistort: bool = True) -> FloatArray:
+        """Unit line-of-sight vectors ``(..., 3)`` in the camera frame for pixels ``(..., 2)``."""
+        xy = self.pixel_to_normalized(uv, undistort=undistort)
+        rays = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1)
+        return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+
+    def unproject_jacobian(self, uv: ArrayLike, undistort: bool = True) -> FloatArray:
+        """Jacobian ``d(s) / d(u, v)`` of :meth:`unproject` (unit vector s), ``(..., 3, 2)``."""
+        uv = np.asarray(uv, dtype=float)
+        xy = self.pixel_to_normalized(uv, undistort=undistort)
+        # d(xy)/d(uv): inverse of d(uv)/d(xy) = F Jd
+        F = np.diag([self.fx, self.fy])
+        if undistort and self.has_distortion:
+            dxy_duv = np.linalg.inv(F @ self.distortion_jacobian(xy))
+        else:
+            dxy_duv = np.broadcast_to(np.linalg.inv(F), xy.shape[:-1] + (2, 2))
+        m = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1)
+        n = np.linalg.norm(m, axis=-1)[..., None, None]
+        s = m[..., :, None] / n
+        # d(m/|m|)/dm = (I - s s^T)/|m|; dm/dxy = [[1,0],[0,1],[0,0]]
+        P = (np.eye(3) - s @ np.swapaxes(s, -1, -2)) / n
+        return P[..., :, :2] @ dxy_duv
+
+    def pixel_grid(self) -> tuple[FloatArray, FloatArray]:
+        """Pixel-centre coordinates ``(u, v)``, each ``(height, width)`` [px]."""
+        v, u = np.mgrid[0 : self.height, 0 : self.width].astype(float)
+        return u, v
+
+    def describe(self) -> dict[str, float | int | str]:
+        """Derived optical figures, for logs, manifests and ``starnav info``."""
+        return {
+            "name": self.name,
+            "width_px": self.width,
+            "height_px": self.height,
+            "focal_length_mm": self.focal_length * 1e3,
+            "pitch_um": self.pitch_x * 1e6,
+            "f_number": self.f_number,
+            "pupil_diameter_mm": self.pupil_diameter * 1e3,
+            "fov_x_deg": math.degrees(self.fov_x),
+            "fov_y_deg": math.degrees(self.fov_y),
+            "fov_diagonal_deg": math.degrees(self.fov_diagonal),
+            "ifov_urad": self.ifov * 1e6,
+            "ifov_arcsec": math.degrees(self.ifov) * 3600.0,
+            "pixel_solid_angle_sr": self.pixel_solid_angle,
+            "etendue_m2sr": self.etendue,
+        }
+
+
+#: Named cameras. ``aa-str``: REFERENCE.md section 1 (seed paper Table 1 and the ABRAM AA-STR
+#: configuration for the f-number).
+CAMERA_PRESETS: dict[str, Camera] = {
+    "aa-str": Camera(
+        width=1024,
+        height=1024,
+        focal_length=50.7e-3,
+        pitch_x=18e-6,
+        pitch_y=18e-6,
+        f_number=1.495575,
+        name="aa-str",
+    ),
+}

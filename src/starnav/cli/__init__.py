@@ -1,0 +1,1 @@
+"""starnav.cli."""

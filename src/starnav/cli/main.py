@@ -1,0 +1,179 @@
+"""The ``starnav`` command line: thin commands over the library.
+
+Each command parses its arguments, loads and validates the scenario (with ``--set a.b=value``
+overrides), calls one library function and writes its outputs plus the resolved scenario next to
+them. Errors from the library are shown as one clear line and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+import yaml
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+
+from starnav import __version__
+from starnav.errors import StarnavError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="starnav: a star tracker as a navigation camera, from photons to navigation.")
+console = Console()
+err_console = Console(stderr=True)
+
+ScenarioArg = Annotated[Path | None, typer.Argument(help="scenario YAML (default: built-in)")]
+SetOpt = Annotated[list[str] | None, typer.Option("--set", help="override a key: a.b=value")]
+
+
+def _fail(err: Exception) -> None:
+    err_console.print(f"[bold red]error:[/] {err}")
+    raise typer.Exit(code=2)
+
+
+def _load(scenario: Path | None, overrides: list[str] | None):
+    from starnav.config import load_scenario
+
+    try:
+        return load_scenario(scenario, overrides or [])
+    except StarnavError as err:
+        _fail(err)
+
+
+def progress_bar() -> Progress:
+    return Progress(TextColumn("[bold]{task.description}"), BarColumn(),
+                    TextColumn("{task.completed}/{task.total}"), TimeElapsedColumn(),
+                    TimeRemainingColumn(), console=console)
+
+
+@app.callback()
+def _main(verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False) -> None:
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+
+
+@app.command()
+def info() -> None:
+    """Versions, Mitsuba variants available, the variant chosen and the LLVM used."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from starnav.renderer import backend
+
+    table = Table(title=f"starnav {__version__}", show_header=False)
+    table.add_row("python", sys.version.split()[0])
+    table.add_row("mitsuba", mi.__version__)
+    table.add_row("drjit", dr.__version__)
+    table.add_row("variants compiled", ", ".join(mi.variants()))
+    cands = backend.llvm_candidates()
+    table.add_row("libLLVM found", ", ".join(f"{c.path} ({c.major})" for c in cands) or "none")
+    try:
+        chosen = backend.activate()
+        table.add_row("variant chosen", chosen.variant)
+        table.add_row("LLVM used", chosen.llvm_path or "not used")
+        for v, why in chosen.reasons.items():
+            table.add_row(f"skipped {v}", why)
+    except StarnavError as err:
+        table.add_row("variant chosen", f"none: {err}")
+    console.print(table)
+
+
+@app.command()
+def init(
+    out: Annotated[Path, typer.Argument(help="scenario file to write")] = Path("scenario.yaml"),
+    preset: Annotated[str, typer.Option(help="scenario preset")] = "default",
+    force: Annotated[bool, typer.Option(help="overwrite an existing file")] = False,
+) -> None:
+    """Write a commented example scenario with every key at its default."""
+    from starnav.config import EXAMPLE_HEADER, Scenario, atomic_write_text, scenario_to_dict
+
+    if out.exists() and not force:
+        _fail(StarnavError(f"{out} exists; use --force to overwrite"))
+    if preset != "default":
+        _fail(StarnavError(f"unknown preset {preset!r}; known: default"))
+    body = yaml.safe_dump(scenario_to_dict(Scenario()), sort_keys=False)
+    atomic_write_text(out, EXAMPLE_HEADER + body)
+    console.print(f"wrote {out}")
+
+
+@app.command()
+def validate(scenario: ScenarioArg = None, set_: SetOpt = None) -> None:
+    """Validate a scenario and print it fully resolved."""
+    from starnav.config import build_camera, scenario_to_dict
+
+    sc = _load(scenario, set_)
+    try:
+        cam = build_camera(sc.camera)
+    except StarnavError as err:
+        _fail(err)
+    console.print(yaml.safe_dump(scenario_to_dict(sc), sort_keys=False))
+    console.print("[green]valid[/]  camera: " + json.dumps(
+        {k: round(v, 6) if isinstance(v, float) else v for k, v in cam.describe().items()}))
+
+
+@app.command()
+def render(
+    scenario: ScenarioArg = None,
+    out: Annotated[Path, typer.Option("--out", help="output directory")] = Path("out/render"),
+    set_: SetOpt = None,
+) -> None:
+    """Render the scenario's frames to OpenEXR (channels L, Le and the AOVs)."""
+    from starnav.config import write_resolved
+    from starnav.renderer.pipeline import frame_geometries, render_to_directory
+
+    sc = _load(scenario, set_)
+    try:
+        n = len(frame_geometries(sc))
+        with progress_bar() as bar:
+            task = bar.add_task("render", total=n)
+            paths = render_to_directory(sc, out, lambda k, t: bar.update(task, completed=k))
+        write_resolved(sc, out)
+    except StarnavError as err:
+        _fail(err)
+    console.print(f"wrote {len(paths)} frame(s) to {out}")
+
+
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option("--out", help="output directory")] = Path("out/demo"),
+    set_: SetOpt = None,
+) -> None:
+    """The main job on built-in defaults: render the default Moon frame and report it."""
+    from starnav.demo import run_demo
+
+    sc = _load(None, set_)
+    try:
+        summary = run_demo(sc, out)
+    except StarnavError as err:
+        _fail(err)
+    table = Table(title="starnav demo", show_header=False)
+    for k, v in summary.items():
+        table.add_row(k, f"{v:.6g}" if isinstance(v, float) else str(v))
+    console.print(table)
+    console.print(f"outputs in [bold]{out}[/]")
+
+
+def _register_parts() -> None:
+    """Add the commands owned by the other subpackages."""
+    import importlib
+
+    for name in ("trajectory", "dem", "expose", "navigate", "hil", "dataset", "sweep"):
+        try:
+            mod = importlib.import_module(f"starnav.cli.{name}")
+        except ModuleNotFoundError as err:
+            if err.name == f"starnav.cli.{name}":
+                continue  # that part is not installed in this build
+            raise
+        mod.register(app)
+
+
+_register_parts()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    app()

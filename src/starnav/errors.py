@@ -1,0 +1,49 @@
+"""The starnav exception tree.
+
+Every error raised on purpose by starnav derives from :class:`StarnavError` and from the builtin
+it refines, so ``except ValueError`` keeps working for callers that do not know starnav. Messages
+name the offending field, the value received and what was expected.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+class StarnavError(Exception):
+    """Root of every error raised on purpose by starnav."""
+
+
+class ConfigError(StarnavError, ValueError):
+    """Invalid configuration or argument: names the field, the value and what was expected."""
+
+    def __init__(self, field: str, value: Any, expected: str) -> None:
+        self.field = field
+        self.value = value
+        self.expected = expected
+        super().__init__(f"{field} = {value!r}: expected {expected}")
+
+
+class GeometryError(StarnavError, ValueError):
+    """Impossible geometry (observer inside the Moon, target behind the camera, ...)."""
+
+
+class DataFileError(StarnavError, FileNotFoundError):
+    """A data file is missing or unreadable."""
+
+
+class BackendError(StarnavError, RuntimeError):
+    """No usable rendering backend."""
+
+
+class UnknownNameError(StarnavError, KeyError):
+    """A name not present in a registry; the message lists the known names."""
+
+    def __init__(self, kind: str, name: str, known: list[str] | tuple[str, ...]) -> None:
+        self.kind = kind
+        self.name = name
+        self.known = tuple(sorted(known))
+        super().__init__(f"unknown {kind} {name!r}; known: {', '.join(self.known)}")
+
+    def __str__(self) -> str:  # KeyError would quote the message otherwise
+        return str(self.args[0])

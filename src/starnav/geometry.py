@@ -1,0 +1,293 @@
+"""Per-frame geometry: the only geometric input of the renderer, and the truth of a frame.
+
+Frames and units
+----------------
+* All positions are **Moon-centred**, along the inertial ICRF/J2000 axes, in metres; velocities
+  in m/s; times in TDB seconds past J2000.
+* ``R_cam_to_inertial`` maps camera-frame vectors (+z boresight, +x right, +y down) to inertial:
+  ``v_inertial = R_cam_to_inertial @ v_camera``. Attitudes are stored as rotation matrices;
+  where a quaternion is needed, :func:`quat_xyzw_from_matrix` gives it **scalar-last**
+  ``(x, y, z, w)`` (the type name says so).
+* ``R_moon_to_inertial`` maps Moon body-fixed vectors (selenographic: +x towards lon 0 on the
+  equator, +z north pole) to inertial.
+
+:func:`static_geometry` builds one frame from a range, a phase angle and the Moon's offset in the
+field (the ``geometry`` section of a scenario), with no trajectory or ephemeris.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from starnav.camera import Camera
+from starnav.constants import AU, MOON_RADIUS
+from starnav.errors import GeometryError
+
+FloatArray = NDArray[np.float64]
+
+
+def _unit(v: FloatArray) -> FloatArray:
+    return v / np.linalg.norm(v)
+
+
+@dataclass(frozen=True)
+class FrameGeometry:
+    """Geometry and truth of one frame (SI, Moon-centred inertial; see module docstring).
+
+    Parameters
+    ----------
+    camera_position : (3,) array
+        Camera position relative to the Moon centre [m].
+    R_cam_to_inertial : (3, 3) array
+        True attitude, camera to inertial.
+    sun_position : (3,) array
+        Sun position relative to the Moon centre [m].
+    R_moon_to_inertial : (3, 3) array
+        Moon body-fixed to inertial.
+    epoch_tdb : float
+        Epoch [TDB s past J2000] (0 for static frames).
+    camera_velocity : (3,) array
+        Camera velocity relative to the Moon [m/s].
+    R_cam_to_inertial_measured : (3, 3) array or None
+        Attitude as known on board (true attitude plus knowledge error), for navigation.
+    moon_radius : float
+        Reference sphere radius [m].
+    index : int
+        Frame number in its sequence.
+    """
+
+    camera_position: FloatArray
+    R_cam_to_inertial: FloatArray
+    sun_position: FloatArray
+    R_moon_to_inertial: FloatArray = field(default_factory=lambda: np.eye(3))
+    epoch_tdb: float = 0.0
+    camera_velocity: FloatArray = field(default_factory=lambda: np.zeros(3))
+    R_cam_to_inertial_measured: FloatArray | None = None
+    moon_radius: float = MOON_RADIUS
+    index: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("camera_position", "sun_position", "camera_velocity"):
+            a = np.asarray(getattr(self, name), dtype=float)
+            if a.shape != (3,) or not np.all(np.isfinite(a)):
+                raise GeometryError(f"{name} must be a finite 3-vector, got {a!r}")
+            object.__setattr__(self, name, a)
+        for name in ("R_cam_to_inertial", "R_moon_to_inertial", "R_cam_to_inertial_measured"):
+            R = getattr(self, name)
+            if R is None:
+                continue
+            R = np.asarray(R, dtype=float)
+            if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-9) \
+                    or np.linalg.det(R) < 0:
+                raise GeometryError(f"{name} must be a proper rotation matrix, got {R!r}")
+            object.__setattr__(self, name, R)
+        r = float(np.linalg.norm(self.camera_position))
+        if r <= self.moon_radius:
+            raise GeometryError(
+                f"geometry.camera_position: observer at {r / 1e3:.3f} km from the Moon centre is "
+                f"inside the Moon (radius {self.moon_radius / 1e3:.1f} km); expected a range > "
+                "the Moon radius"
+            )
+
+    # ------------------------------------------------------------ derived truth
+    @property
+    def range(self) -> float:
+        """Camera to Moon-centre distance [m]."""
+        return float(np.linalg.norm(self.camera_position))
+
+    @property
+    def sun_distance(self) -> float:
+        """Sun to Moon-centre distance [m]."""
+        return float(np.linalg.norm(self.sun_position))
+
+    @property
+    def sun_direction(self) -> FloatArray:
+        """Unit vector from the Moon centre to the Sun (inertial)."""
+        return _unit(self.sun_position)
+
+    @property
+    def phase_angle(self) -> float:
+        """Sun-Moon-observer angle [rad]."""
+        c = float(np.dot(self.sun_direction, _unit(self.camera_position)))
+        return math.acos(max(-1.0, min(1.0, c)))
+
+    @property
+    def apparent_radius(self) -> float:
+        """Angular radius of the Moon seen from the camera, ``asin(R / d)`` [rad]."""
+        return math.asin(self.moon_radius / self.range)
+
+    def moon_centre_camera(self) -> FloatArray:
+        """Moon centre in the camera frame [m]."""
+        return self.R_cam_to_inertial.T @ (-self.camera_position)
+
+    def moon_centre_pixel(self, camera: Camera, distort: bool = False) -> FloatArray:
+        """Pixel of the Moon centre ``(u, v)`` [px] (pinhole unless ``distort``)."""
+        return camera.project(self.moon_centre_camera(), distort=distort)
+
+    def sun_direction_camera(self) -> FloatArray:
+        """Unit vector to the Sun from the Moon centre, in the camera frame."""
+        return self.R_cam_to_inertial.T @ self.sun_direction
+
+    def limb_points(self, camera: Camera, n: int = 360, distort: bool = False) -> FloatArray:
+        """The true limb of the reference sphere as pixel points ``(n, 2)`` [px].
+
+        The limb is the circle of tangency of the cone from the camera to the sphere; its
+        image is an ellipse in general (exact conic, not a circle fit).
+        """
+        c = -self.camera_position  # Moon centre relative to camera (inertial)
+        d = np.linalg.norm(c)
+        R = self.moon_radius
+        ch = c / d
+        # tangency circle: centre at distance (d^2 - R^2)/d along ch, radius R sqrt(d^2-R^2)/d
+        a = _unit(np.cross(ch, [0.0, 0.0, 1.0] if abs(ch[2]) < 0.9 else [1.0, 0.0, 0.0]))
+        b = np.cross(ch, a)
+        t = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+        along = (d * d - R * R) / d
+        rad = R * math.sqrt(d * d - R * R) / d
+        pts = along * ch + rad * (np.cos(t)[:, None] * a + np.sin(t)[:, None] * b)
+        pc = (self.R_cam_to_inertial.T @ pts.T).T
+        keep = pc[:, 2] > 0
+        return camera.project(pc[keep], distort=distort)
+
+
+# ---------------------------------------------------------------------------- rotations
+def look_rotation(los_camera: FloatArray, los_inertial: FloatArray, roll: float = 0.0,
+                  down_hint: FloatArray | None = None) -> FloatArray:
+    """Rotation camera -> inertial that maps the camera-frame line of sight ``los_camera`` onto
+    ``los_inertial``, with the camera's +y (down) as close as possible to ``down_hint`` (default
+    inertial -z, i.e. north up) after a rotation by ``roll`` [rad] about the line of sight."""
+    a1 = _unit(np.asarray(los_camera, float))
+    b1 = _unit(np.asarray(los_inertial, float))
+    y = np.array([0.0, 1.0, 0.0])
+    a2 = y - np.dot(y, a1) * a1
+    if np.linalg.norm(a2) < 1e-9:
+        a2 = np.array([1.0, 0.0, 0.0]) - a1[0] * a1
+    a2 = _unit(a2)
+    a3 = np.cross(a1, a2)
+    hint = np.array([0.0, 0.0, -1.0]) if down_hint is None else np.asarray(down_hint, float)
+    b2 = hint - np.dot(hint, b1) * b1
+    if np.linalg.norm(b2) < 1e-6:
+        alt = np.array([1.0, 0.0, 0.0])
+        b2 = alt - np.dot(alt, b1) * b1
+    b2 = _unit(b2)
+    b3 = np.cross(b1, b2)
+    c, s = math.cos(roll), math.sin(roll)
+    b2, b3 = c * b2 + s * b3, -s * b2 + c * b3
+    A = np.stack([a1, a2, a3], axis=1)
+    B = np.stack([b1, b2, b3], axis=1)
+    return B @ A.T
+
+
+def quat_xyzw_from_matrix(R: FloatArray) -> FloatArray:
+    """Scalar-last unit quaternion ``(x, y, z, w)`` of a rotation matrix (w >= 0)."""
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_matrix(np.asarray(R, float)).as_quat()  # scalar-last
+    return q if q[3] >= 0 else -q
+
+
+def static_geometry(
+    camera: Camera,
+    range_m: float,
+    phase_angle: float,
+    moon_offset_px: tuple[float, float] = (0.0, 0.0),
+    roll: float = 0.0,
+    sun_azimuth: float = 0.0,
+    sub_observer_lat: float = 0.0,
+    sub_observer_lon: float = 0.0,
+    sun_distance: float = AU,
+    moon_radius: float = MOON_RADIUS,
+) -> FrameGeometry:
+    """One frame from a range [m], a phase angle [rad] and the Moon centre's pixel offset.
+
+    The Moon's body-fixed axes coincide with the inertial ones. The camera sits above the
+    sub-observer point ``(lat, lon)`` [rad]; the subsolar point lies at angular distance
+    ``phase_angle`` from it, in the direction ``sun_azimuth`` [rad] measured from local east
+    towards north. The attitude puts the Moon centre at ``(cx + du, cy + dv)`` in the pinhole
+    image, north up before ``roll``.
+    """
+    if not (math.isfinite(range_m) and range_m > moon_radius):
+        raise GeometryError(
+            f"geometry.range_km = {range_m / 1e3!r}: the observer is inside the Moon; expected "
+            f"a range > {moon_radius / 1e3:.1f} km"
+        )
+    if not (0.0 <= phase_angle <= math.pi):
+        raise GeometryError(
+            f"geometry.phase_angle_deg = {math.degrees(phase_angle)!r}: expected 0..180 deg"
+        )
+    cl, sl = math.cos(sub_observer_lat), math.sin(sub_observer_lat)
+    co, so = math.cos(sub_observer_lon), math.sin(sub_observer_lon)
+    o_hat = np.array([cl * co, cl * so, sl])
+    east = np.array([-so, co, 0.0])
+    north = np.cross(o_hat, east)
+    t_hat = math.cos(sun_azimuth) * east + math.sin(sun_azimuth) * north
+    s_hat = math.cos(phase_angle) * o_hat + math.sin(phase_angle) * t_hat
+    cam_pos = range_m * o_hat
+    du, dv = moon_offset_px
+    los_cam = camera.unproject(np.array([camera.cx + du, camera.cy + dv]), undistort=False)
+    R = look_rotation(los_cam, -o_hat, roll=roll)
+    geom = FrameGeometry(
+        camera_position=cam_pos,
+        R_cam_to_inertial=R,
+        sun_position=sun_distance * s_hat,
+        moon_radius=moon_radius,
+    )
+    return geom
+
+
+def static_geometry_from_config(camera: Camera, cfg, moon_radius: float) -> FrameGeometry:
+    """:func:`static_geometry` from a :class:`~starnav.config.StaticGeometryConfig`."""
+    d = math.radians
+    return static_geometry(
+        camera,
+        range_m=cfg.range_km * 1e3,
+        phase_angle=d(cfg.phase_angle_deg),
+        moon_offset_px=tuple(cfg.moon_offset_px),
+        roll=d(cfg.roll_deg),
+        sun_azimuth=d(cfg.sun_azimuth_deg),
+        sub_observer_lat=d(cfg.sub_observer_lat_deg),
+        sub_observer_lon=d(cfg.sub_observer_lon_deg),
+        sun_distance=cfg.sun_distance_au * AU,
+        moon_radius=moon_radius,
+    )
+
+
+def geometry_to_dict(g: FrameGeometry) -> dict:
+    """JSON-safe dict of a frame's geometry and derived truth (SI, Moon-centred inertial)."""
+    d = {
+        "index": g.index,
+        "epoch_tdb_s": g.epoch_tdb,
+        "camera_position_m": g.camera_position.tolist(),
+        "camera_velocity_m_s": g.camera_velocity.tolist(),
+        "R_cam_to_inertial": g.R_cam_to_inertial.tolist(),
+        "q_cam_to_inertial_xyzw": quat_xyzw_from_matrix(g.R_cam_to_inertial).tolist(),
+        "sun_position_m": g.sun_position.tolist(),
+        "R_moon_to_inertial": g.R_moon_to_inertial.tolist(),
+        "moon_radius_m": g.moon_radius,
+        "range_m": g.range,
+        "phase_angle_rad": g.phase_angle,
+        "apparent_radius_rad": g.apparent_radius,
+    }
+    if g.R_cam_to_inertial_measured is not None:
+        d["R_cam_to_inertial_measured"] = g.R_cam_to_inertial_measured.tolist()
+    return d
+
+
+def geometry_from_dict(d: dict) -> FrameGeometry:
+    """Inverse of :func:`geometry_to_dict`."""
+    meas = d.get("R_cam_to_inertial_measured")
+    return FrameGeometry(
+        camera_position=np.array(d["camera_position_m"]),
+        R_cam_to_inertial=np.array(d["R_cam_to_inertial"]),
+        sun_position=np.array(d["sun_position_m"]),
+        R_moon_to_inertial=np.array(d["R_moon_to_inertial"]),
+        epoch_tdb=float(d["epoch_tdb_s"]),
+        camera_velocity=np.array(d["camera_velocity_m_s"]),
+        R_cam_to_inertial_measured=None if meas is None else np.array(meas),
+        moon_radius=float(d["moon_radius_m"]),
+        index=int(d["index"]),
+    )

@@ -1,0 +1,100 @@
+"""Scenario configuration: strict validation, overrides and clear errors."""
+
+from __future__ import annotations
+
+import pytest
+import yaml
+
+from starnav.config import (
+    Scenario,
+    build_camera,
+    load_scenario,
+    scenario_from_dict,
+    scenario_to_dict,
+    write_resolved,
+)
+from starnav.errors import ConfigError, DataFileError
+
+
+def test_defaults_are_the_aa_str_at_60000_km():
+    sc = Scenario()
+    cam = build_camera(sc.camera)
+    assert (cam.width, cam.height, cam.focal_length) == (1024, 1024, 50.7e-3)
+    assert sc.geometry.range_km == 60_000.0
+    assert sc.moon.photometry.model == "lambert"
+
+
+def test_unknown_key_is_rejected_with_its_name():
+    with pytest.raises(ConfigError, match="camra"):
+        scenario_from_dict({"camra": {}})
+    with pytest.raises(ConfigError, match="moon.radius"):
+        scenario_from_dict({"moon": {"radius": 1.0}})
+
+
+@pytest.mark.parametrize("data,field", [
+    ({"moon": {"albedo": -0.1}}, "moon.albedo"),
+    ({"moon": {"photometry": {"model": "phong"}}}, "moon.photometry"),
+    ({"camera": {"focal_length_mm": 0}}, "camera.focal_length_mm"),
+    ({"geometry": {"phase_angle_deg": 200}}, "geometry.phase_angle_deg"),
+    ({"moon": {"photometry": {"model": "hapke", "params": {"b": 1.5}}}}, "moon.photometry"),
+    ({"moon": {"photometry": {"model": "lambert", "params": {"b": 0.2}}}}, "moon.photometry"),
+])
+def test_bad_values_name_the_field_and_value(data, field):
+    with pytest.raises(ConfigError) as info:
+        scenario_from_dict(data)
+    assert info.value.field == field
+    assert str(info.value).startswith(field)
+
+
+def test_unknown_model_lists_known_models():
+    with pytest.raises(ConfigError, match="lommel_seeliger"):
+        scenario_from_dict({"moon": {"photometry": {"model": "phong"}}})
+
+
+def test_overrides_parse_yaml_values():
+    sc = scenario_from_dict({}, ["moon.albedo=0.2", "geometry.moon_offset_px=[10, -5]",
+                                 "render.spp=4", "camera.preset=aa-str"])
+    assert sc.moon.albedo == 0.2
+    assert sc.geometry.moon_offset_px == (10.0, -5.0)
+    assert sc.render.spp == 4
+    with pytest.raises(ConfigError, match="--set"):
+        scenario_from_dict({}, ["moon.albedo"])
+
+
+def test_models_are_frozen():
+    sc = Scenario()
+    with pytest.raises(Exception):  # noqa: B017 - pydantic's frozen-instance error
+        sc.seed = 3  # type: ignore[misc]
+
+
+def test_resolved_round_trip(tmp_path):
+    sc = scenario_from_dict({"moon": {"albedo": 0.3}, "seed": 7})
+    p = write_resolved(sc, tmp_path)
+    again = load_scenario(p)
+    assert again == sc
+    assert scenario_to_dict(again)["seed"] == 7
+    assert not list(tmp_path.glob(".*tmp"))  # no temporary file left behind
+
+
+def test_missing_and_invalid_files(tmp_path):
+    with pytest.raises(DataFileError, match="does not exist"):
+        load_scenario(tmp_path / "nope.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("camera: [unclosed")
+    with pytest.raises(ConfigError, match="YAML"):
+        load_scenario(bad)
+
+
+def test_init_example_validates(tmp_path):
+    from typer.testing import CliRunner
+
+    from starnav.cli.main import app
+
+    out = tmp_path / "s.yaml"
+    res = CliRunner().invoke(app, ["init", str(out)])
+    assert res.exit_code == 0, res.output
+    assert load_scenario(out) == Scenario()
+    assert yaml.safe_load(out.read_text())["camera"]["preset"] == "aa-str"
+    res = CliRunner().invoke(app, ["validate", str(out), "--set", "moon.albedo=-1"])
+    assert res.exit_code == 2
+    assert "moon.albedo" in res.output
