@@ -21,18 +21,15 @@ from __future__ import annotations
 
 import copy
 import os
-import tempfile
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
 from pydantic import Field, ValidationError, field_validator, model_validator
 
+from starnav.atomic import atomic_write_text
 from starnav.config_base import StrictModel
 from starnav.errors import ConfigError, DataFileError
-
-
-
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -246,7 +243,8 @@ def apply_overrides(data: dict[str, Any], overrides: list[str] | tuple[str, ...]
     return out
 
 
-def scenario_from_dict(data: dict[str, Any], overrides: list[str] | tuple[str, ...] = ()) -> Scenario:
+def scenario_from_dict(data: dict[str, Any],
+                       overrides: list[str] | tuple[str, ...] = ()) -> Scenario:
     """Validate a scenario mapping (plus ``--set`` style overrides).
 
     Raises
@@ -284,21 +282,6 @@ def load_scenario(path: str | os.PathLike[str] | None,
 def scenario_to_dict(sc: Scenario) -> dict[str, Any]:
     """JSON/YAML-safe dict of the fully resolved scenario."""
     return sc.model_dump(mode="json")
-
-
-def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file and a rename (never half-written)."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return p
 
 
 def write_resolved(sc: Scenario, directory: str | os.PathLike[str],

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from starnav.atomic import atomic_write_text
 from starnav.config import Scenario, build_camera, write_resolved
-from starnav.config import atomic_write_text
 from starnav.photometry import lambert_sphere_irradiance
 
 

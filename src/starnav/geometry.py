@@ -58,6 +58,9 @@ class FrameGeometry:
         Reference sphere radius [m].
     index : int
         Frame number in its sequence.
+    camera_state_emb : (6,) array or None
+        Spacecraft position and velocity relative to the Earth-Moon barycentre, J2000 axes
+        [m, m/s]: the navigation filter's truth (``None`` for static frames).
     """
 
     camera_position: FloatArray
@@ -69,8 +72,14 @@ class FrameGeometry:
     R_cam_to_inertial_measured: FloatArray | None = None
     moon_radius: float = MOON_RADIUS
     index: int = 0
+    camera_state_emb: FloatArray | None = None
 
     def __post_init__(self) -> None:
+        if self.camera_state_emb is not None:
+            st = np.asarray(self.camera_state_emb, dtype=float)
+            if st.shape != (6,) or not np.all(np.isfinite(st)):
+                raise GeometryError(f"camera_state_emb must be a finite 6-vector, got {st!r}")
+            object.__setattr__(self, "camera_state_emb", st)
         for name in ("camera_position", "sun_position", "camera_velocity"):
             a = np.asarray(getattr(self, name), dtype=float)
             if a.shape != (3,) or not np.all(np.isfinite(a)):
@@ -274,12 +283,15 @@ def geometry_to_dict(g: FrameGeometry) -> dict:
     }
     if g.R_cam_to_inertial_measured is not None:
         d["R_cam_to_inertial_measured"] = g.R_cam_to_inertial_measured.tolist()
+    if g.camera_state_emb is not None:
+        d["camera_state_emb_m_m_s"] = g.camera_state_emb.tolist()
     return d
 
 
 def geometry_from_dict(d: dict) -> FrameGeometry:
     """Inverse of :func:`geometry_to_dict`."""
     meas = d.get("R_cam_to_inertial_measured")
+    emb = d.get("camera_state_emb_m_m_s")
     return FrameGeometry(
         camera_position=np.array(d["camera_position_m"]),
         R_cam_to_inertial=np.array(d["R_cam_to_inertial"]),
@@ -290,4 +302,5 @@ def geometry_from_dict(d: dict) -> FrameGeometry:
         R_cam_to_inertial_measured=None if meas is None else np.array(meas),
         moon_radius=float(d["moon_radius_m"]),
         index=int(d["index"]),
+        camera_state_emb=None if emb is None else np.array(emb),
     )

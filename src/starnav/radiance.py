@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,6 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from starnav.atomic import atomic_path
 from starnav.errors import DataFileError
 
 Float32Array = NDArray[np.float32]
@@ -95,15 +95,8 @@ def write_exr(img: RadianceImage, path: str | os.PathLike[str]) -> Path:
         "type": OpenEXR.scanlineimage,
         META_ATTRIBUTE: json.dumps(img.meta, sort_keys=True),
     }
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".exr", dir=p.parent)
-    os.close(fd)
-    try:
-        with OpenEXR.File(header, channels) as f:
-            f.write(tmp)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(p, suffix=".exr") as tmp, OpenEXR.File(header, channels) as f:
+        f.write(str(tmp))
     return p
 
 

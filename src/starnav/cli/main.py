@@ -90,7 +90,8 @@ def init(
     force: Annotated[bool, typer.Option(help="overwrite an existing file")] = False,
 ) -> None:
     """Write a commented example scenario with every key at its default."""
-    from starnav.config import EXAMPLE_HEADER, Scenario, atomic_write_text, scenario_to_dict
+    from starnav.atomic import atomic_write_text
+    from starnav.config import EXAMPLE_HEADER, Scenario, scenario_to_dict
 
     if out.exists() and not force:
         _fail(StarnavError(f"{out} exists; use --force to overwrite"))

@@ -1,0 +1,68 @@
+"""``starnav trajectory``: build the scenario's trajectory, write it as CCSDS OEM plus a PNG plot.
+
+Thin command: parse, load the scenario, call :func:`starnav.scenes.build_trajectory`, write the
+OEM (at the scenario's frame cadence), the plot and the resolved scenario.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+from starnav.errors import StarnavError
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``trajectory`` command to ``app``."""
+
+    @app.command("trajectory")
+    def trajectory(
+        scenario: Annotated[Path | None, typer.Argument(
+            help="scenario YAML (default: built-in; a missing trajectory section means the "
+                 "default LUMIO-like halo)")] = None,
+        out: Annotated[Path, typer.Option("--out", help="OEM file to write")] = Path(
+            "trajectory.oem"),
+        plot: Annotated[Path | None, typer.Option(
+            "--plot", help="PNG to write (default: next to the OEM)")] = None,
+        cadence_s: Annotated[float | None, typer.Option(
+            "--cadence-s", help="OEM sample spacing [s] (default: trajectory.cadence_s)")] = None,
+        set_: Annotated[list[str] | None, typer.Option(
+            "--set", help="override a key: a.b=value")] = None,
+    ) -> None:
+        """Build the trajectory (LUMIO-like halo in the ephemeris model, or an OEM) and write
+        it as a CCSDS OEM file with a PNG plot (Moon range, phase angle, rotating-frame path)."""
+        from starnav.config import load_scenario, write_resolved
+        from starnav.scenes import build_trajectory, plot_trajectory, trajectory_summary
+        from starnav.scenes.ephemeris import format_epoch
+        from starnav.scenes.oem import write_oem
+        from starnav.scenes.schema import TrajectoryConfig
+
+        try:
+            sc = load_scenario(scenario, set_ or [])
+            cfg = sc.trajectory or TrajectoryConfig()
+            cadence = cfg.cadence_s if cadence_s is None else cadence_s
+            if not cadence > 0:
+                raise StarnavError(f"--cadence-s = {cadence!r}: expected a cadence > 0 s")
+            with console.status("building the trajectory (halo, multiple shooting)"):
+                traj = build_trajectory(cfg)
+            sampled = traj.resample(cadence)
+            write_oem(out, sampled, comments=[f"starnav trajectory, source={cfg.source}",
+                                              "states EMB-centred, ICRF axes, TDB"])
+            png = plot if plot is not None else out.with_suffix(".png")
+            plot_trajectory(traj, png)
+            write_resolved(sc, out.parent if str(out.parent) else Path("."))
+            s = trajectory_summary(traj)
+        except StarnavError as err:
+            err_console.print(f"[bold red]error:[/] {err}")
+            raise typer.Exit(code=2) from None
+        console.print(
+            f"{format_epoch(s['t_start'], precision=0)} .. {format_epoch(s['t_end'], precision=0)}"
+            f" ({s['duration_days']:.2f} d), Moon range {s['moon_range_min'] / 1e3:.0f}-"
+            f"{s['moon_range_max'] / 1e3:.0f} km")
+        console.print(f"wrote {out} ({len(sampled)} states every {cadence:g} s) and {png}")

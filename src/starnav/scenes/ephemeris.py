@@ -1,0 +1,404 @@
+"""JPL DE421 ephemeris: Sun, Earth, Moon and Earth-Moon barycentre, lunar orientation, time.
+
+Technique
+---------
+1. The ``de421`` PyPI package ships DE421 as Chebyshev coefficient arrays (one ``.npy`` per
+   body, the layout of jplephem's legacy :class:`jplephem.ephem.Ephemeris`) plus the
+   ephemeris constants (``constants.npy``). Nothing is downloaded.
+2. Positions are Chebyshev series evaluated here in vectorised numpy (many epochs per call, which
+   is what the propagators need); velocities are the analytic derivative of the same series.
+   DE421 natives are km, km/day, radians and days of TDB; they become m, m/s, rad, rad/s on the
+   way out. Inside starnav time is **TDB seconds past J2000** (JD 2451545.0 TDB).
+3. Bodies: ``sun`` and ``earthmoon`` (the Earth-Moon barycentre, EMB) are solar-system-barycentre
+   (SSB) centred; ``moon`` is geocentric. Earth and Moon about the EMB follow from the Earth/Moon
+   mass ratio EMRAT: ``r_E = -r_EM / (1 + EMRAT)``, ``r_M = r_EM EMRAT / (1 + EMRAT)``.
+4. Axes: ICRF (DE421 is aligned to ICRF; the ~20 mas frame bias to EME2000 is ignored and the
+   two names are used interchangeably at the edges).
+5. Moon body-fixed frame: the **principal-axis (PA) frame of DE421**, from the physical libration
+   Euler angles (phi, theta, psi) integrated with the orbits, a 3-1-3 sequence:
+   ``R_icrf_to_pa = R3(psi) R1(theta) R3(phi)`` (passive rotations). This is the dynamically
+   meaningful frame and the one DE421 provides directly; it is the frame starnav calls
+   "Moon body-fixed" (DESIGN.md). Lunar maps (LOLA) are published in the Mean-Earth/polar-axis
+   (ME) frame, which differs from PA by a constant rotation of (67.92", 78.56", 0.30") about
+   (z, y, x) for DE421 (Williams et al. 2008, *DE421 Lunar Orbit, Physical Librations, and
+   Surface Coordinates*, JPL IOM 335-JW,DB,WF-20080314-001): ~0.9 km on the surface.
+   ``moon_orientation(t, frame="ME")`` applies it.
+6. GM values come from the ephemeris constants (``GMS``, ``GMB``, ``EMRAT`` in AU^3/day^2 with
+   DE421's own AU), so dynamics built on this ephemeris are consistent with it.
+7. Time scales appear only at the edges: :func:`parse_epoch` turns an ISO string with an explicit
+   scale (``"2027-03-01T00:00:00 TDB"``, ``UTC``, ``TT``, or a trailing ``Z`` for UTC) into TDB
+   seconds with astropy (IAU SOFA algorithms: leap seconds, TT-TDB series).
+
+Span
+----
+The packaged DE421 covers JD 2414992.5 to 2524624.5 TDB (1899-12-04 to 2199-06-22). Any epoch
+outside raises :class:`EphemerisRangeError` naming the epoch and the span, before any work.
+
+Example
+-------
+>>> import numpy as np
+>>> from starnav.scenes.ephemeris import Ephemeris, parse_epoch
+>>> eph = Ephemeris.default()
+>>> t = parse_epoch("2000-01-01T12:00:00 TDB")
+>>> round(float(np.linalg.norm(eph.moon_geocentric(t)[0])) / 1e3)   # km
+402449
+
+Reference: W. M. Folkner, J. G. Williams, D. H. Boggs (2009), *The Planetary and Lunar
+Ephemeris DE 421*, IPN Progress Report 42-178.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import os
+import re
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from starnav.errors import ConfigError, DataFileError, StarnavError
+
+FloatArray = NDArray[np.float64]
+
+log = logging.getLogger(__name__)
+
+#: Julian date of J2000 (2000-01-01T12:00:00 TDB).
+J2000_JD = 2451545.0
+#: Seconds per day.
+DAY_S = 86_400.0
+#: Arcseconds to radians.
+_ARCSEC = math.pi / (180.0 * 3600.0)
+
+#: DE421 PA -> ME rotation angles [arcsec] about z, y, x (Williams et al. 2008, JPL IOM
+#: 335-JW,DB,WF-20080314-001, as in NAIF's ``moon_080317.tf``).
+PA_TO_ME_DE421_ARCSEC = (67.92, 78.56, 0.30)
+
+_BODIES = ("sun", "earth", "moon", "emb")
+_CENTERS = ("ssb", "emb", "earth", "moon")
+
+
+class EphemerisRangeError(StarnavError, ValueError):
+    """An epoch outside the span covered by the ephemeris."""
+
+
+# --------------------------------------------------------------------------- rotations
+def _r1(a: FloatArray) -> FloatArray:
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, s], -1),
+                     np.stack([z, -s, c], -1)], -2)
+
+
+def _r2(a: FloatArray) -> FloatArray:
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([c, z, -s], -1), np.stack([z, o, z], -1),
+                     np.stack([s, z, c], -1)], -2)
+
+
+def _r3(a: FloatArray) -> FloatArray:
+    """Passive (frame) rotation about z by ``a`` [rad], stacked over ``a``'s shape."""
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([c, s, z], -1), np.stack([-s, c, z], -1),
+                     np.stack([z, z, o], -1)], -2)
+
+
+def pa_to_me_matrix() -> FloatArray:
+    """Constant rotation taking DE421 PA components to ME components, ``v_ME = M v_PA``."""
+    az, ay, ax = (np.asarray(a * _ARCSEC) for a in PA_TO_ME_DE421_ARCSEC)
+    # frame rotations -67.92" about z, then -78.56" about y, then -0.30" about x
+    return _r1(-ax) @ _r2(-ay) @ _r3(-az)
+
+
+# --------------------------------------------------------------------------- time
+_EPOCH_RE = re.compile(
+    r"^\s*(?P<iso>\d{4}-\d{2}-\d{2}(?:[T ]\d{2}:\d{2}(?::\d{2}(?:\.\d*)?)?)?)"
+    r"\s*(?P<scale>Z|UTC|TT|TDB)?\s*$",
+    re.IGNORECASE,
+)
+
+
+def parse_epoch(text: str | float, field: str = "epoch") -> float:
+    """TDB seconds past J2000 from an ISO string with an explicit time scale.
+
+    Parameters
+    ----------
+    text : str or float
+        ``"YYYY-MM-DDTHH:MM:SS[.fff] SCALE"`` with ``SCALE`` one of ``UTC``, ``TT``, ``TDB``
+        (or a trailing ``Z`` meaning UTC). A float is taken as TDB seconds past J2000 already.
+    field : str
+        Name of the configuration field, for the error message.
+
+    Returns
+    -------
+    float
+        Epoch [TDB s past J2000].
+
+    Raises
+    ------
+    ConfigError
+        When the string has no explicit scale or is not an ISO date.
+    """
+    if isinstance(text, int | float) and not isinstance(text, bool):
+        if not math.isfinite(float(text)):
+            raise ConfigError(field, text, "a finite number of TDB seconds past J2000")
+        return float(text)
+    m = _EPOCH_RE.match(str(text))
+    if m is None or m.group("scale") is None:
+        raise ConfigError(field, text, "an ISO date with an explicit time scale, e.g. "
+                                       "'2027-03-01T00:00:00 TDB' (UTC, TT, TDB or a trailing Z)")
+    from astropy.time import Time
+
+    scale = m.group("scale").lower()
+    scale = "utc" if scale == "z" else scale
+    try:
+        t = Time(m.group("iso").replace(" ", "T"), format="isot", scale=scale)
+    except ValueError as err:
+        raise ConfigError(field, text, f"a valid calendar date ({err})") from None
+    tdb = t.tdb
+    return float(((tdb.jd1 - J2000_JD) + tdb.jd2) * DAY_S)
+
+
+def format_epoch(t: float, scale: Literal["TDB", "UTC", "TT"] = "TDB", precision: int = 6,
+                 suffix: bool = True) -> str:
+    """ISO string of an epoch given in TDB seconds past J2000.
+
+    Parameters
+    ----------
+    t : float
+        Epoch [TDB s past J2000].
+    scale : {"TDB", "UTC", "TT"}
+        Time scale of the output.
+    precision : int
+        Decimals of the seconds.
+    suffix : bool
+        Append ``" " + scale``.
+    """
+    from astropy.time import Time
+
+    day, frac = divmod(float(t), DAY_S)
+    tt = Time(J2000_JD + day, frac / DAY_S, format="jd", scale="tdb", precision=precision)
+    out = getattr(tt, scale.lower()).isot
+    return f"{out} {scale}" if suffix else out
+
+
+# --------------------------------------------------------------------------- ephemeris
+class Ephemeris:
+    """DE421 states and orientations (SI units, ICRF axes, TDB seconds past J2000).
+
+    Parameters
+    ----------
+    directory : str or os.PathLike, optional
+        Directory holding the ``jpl-*.npy`` and ``constants.npy`` files. Default: the installed
+        ``de421`` package.
+
+    Attributes
+    ----------
+    gm_sun, gm_earth, gm_moon, gm_emb : float
+        Gravitational parameters from the DE421 constants [m^3/s^2].
+    emrat : float
+        Earth/Moon mass ratio [-].
+    au : float
+        Astronomical unit of DE421 [m].
+    t_min, t_max : float
+        Span covered [TDB s past J2000].
+    """
+
+    name = "DE421"
+
+    def __init__(self, directory: str | os.PathLike[str] | None = None) -> None:
+        if directory is None:
+            try:
+                import de421
+            except ImportError as err:  # pragma: no cover - dependency of starnav
+                raise DataFileError("the 'de421' package is not installed") from err
+            directory = os.path.dirname(de421.__file__)
+        self.directory = os.fspath(directory)
+        path = os.path.join(self.directory, "constants.npy")
+        if not os.path.isfile(path):
+            raise DataFileError(f"DE421 constants file {path!r} does not exist")
+        raw = np.load(path)
+        c = {k.decode("ascii") if isinstance(k, bytes) else str(k): float(v) for k, v in raw}
+        self.constants: dict[str, float] = c
+        self.au = c["AU"] * 1e3  # km -> m
+        gm_unit = self.au**3 / DAY_S**2  # AU^3/day^2 -> m^3/s^2
+        self.emrat = c["EMRAT"]
+        self.gm_sun = c["GMS"] * gm_unit
+        self.gm_emb = c["GMB"] * gm_unit
+        self.gm_earth = self.gm_emb * self.emrat / (1.0 + self.emrat)
+        self.gm_moon = self.gm_emb / (1.0 + self.emrat)
+        self._jd_alpha = c["jalpha"]
+        self._jd_omega = c["jomega"]
+        self.t_min = (self._jd_alpha - J2000_JD) * DAY_S
+        self.t_max = (self._jd_omega - J2000_JD) * DAY_S
+        self._sets: dict[str, FloatArray] = {}
+        self._pa_to_me = pa_to_me_matrix()
+
+    @classmethod
+    @functools.cache
+    def default(cls) -> Ephemeris:
+        """The shared DE421 instance from the installed ``de421`` package (loaded once)."""
+        return cls()
+
+    # ------------------------------------------------------------------ raw series
+    def _load(self, name: str) -> FloatArray:
+        s = self._sets.get(name)
+        if s is None:
+            path = os.path.join(self.directory, f"jpl-{name}.npy")
+            if not os.path.isfile(path):
+                raise DataFileError(f"DE421 series file {path!r} does not exist")
+            s = np.load(path)
+            self._sets[name] = s
+        return s
+
+    def check_span(self, t: ArrayLike) -> None:
+        """Raise :class:`EphemerisRangeError` if any epoch is outside the DE421 span.
+
+        Parameters
+        ----------
+        t : float or array
+            Epochs [TDB s past J2000].
+        """
+        t = np.asarray(t, dtype=float)
+        if t.size == 0:
+            return
+        bad = ~((t >= self.t_min) & (t <= self.t_max))
+        if np.any(bad):
+            tb = float(t[bad].flat[0])
+            when = format_epoch(tb, precision=0) if math.isfinite(tb) and abs(tb) < 1e11 \
+                else repr(tb)
+            raise EphemerisRangeError(
+                f"epoch {when} (t = {tb!r} s TDB past J2000) is outside the {self.name} span "
+                f"{format_epoch(self.t_min, precision=0)} .. "
+                f"{format_epoch(self.t_max, precision=0)}; expected an epoch inside it")
+
+    def _chebyshev(self, name: str, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Series ``name`` and its time derivative at epochs ``t`` [TDB s]: native units
+        (km or rad) and per day; shapes ``(..., n_comp)``."""
+        t = np.asarray(t, dtype=float)
+        self.check_span(t)
+        sets = self._load(name)
+        n_sets, n_comp, n_coef = sets.shape
+        dps = (self._jd_omega - self._jd_alpha) / n_sets  # days per set
+        # offset inside the set in seconds: set starts are whole seconds (exact floats), so
+        # the subtraction keeps the full resolution of t
+        start0 = (self._jd_alpha - J2000_JD) * DAY_S
+        span = dps * DAY_S
+        tf = t.ravel()
+        idx = np.clip(np.floor((tf - start0) / span).astype(np.int64), 0, n_sets - 1)
+        x = 2.0 * (tf - (start0 + idx * span)) / span - 1.0
+        T = np.empty((n_coef, x.size))
+        dT = np.empty((n_coef, x.size))
+        T[0], T[1] = 1.0, x
+        dT[0], dT[1] = 0.0, 1.0
+        for k in range(2, n_coef):
+            T[k] = 2.0 * x * T[k - 1] - T[k - 2]
+            dT[k] = 2.0 * x * dT[k - 1] - dT[k - 2] + 2.0 * T[k - 1]
+        coef = sets[idx]  # (n, comp, coef)
+        val = np.einsum("nck,kn->nc", coef, T)
+        der = np.einsum("nck,kn->nc", coef, dT) * (2.0 / dps)
+        shape = t.shape + (n_comp,)
+        return val.reshape(shape), der.reshape(shape)
+
+    # ------------------------------------------------------------------ states
+    def moon_geocentric(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Moon relative to the Earth: position [m] and velocity [m/s], shape ``(..., 3)``."""
+        p, v = self._chebyshev("moon", t)
+        return p * 1e3, v * (1e3 / DAY_S)
+
+    def emb_ssb(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Earth-Moon barycentre relative to the SSB: position [m], velocity [m/s]."""
+        p, v = self._chebyshev("earthmoon", t)
+        return p * 1e3, v * (1e3 / DAY_S)
+
+    def sun_ssb(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Sun relative to the SSB: position [m], velocity [m/s]."""
+        p, v = self._chebyshev("sun", t)
+        return p * 1e3, v * (1e3 / DAY_S)
+
+    def state(self, body: str, t: ArrayLike, center: str = "emb") -> FloatArray:
+        """State of ``body`` relative to ``center`` along ICRF axes.
+
+        Parameters
+        ----------
+        body : {"sun", "earth", "moon", "emb"}
+        t : float or array
+            Epochs [TDB s past J2000].
+        center : {"ssb", "emb", "earth", "moon"}
+
+        Returns
+        -------
+        (..., 6) array
+            Position [m] and velocity [m/s].
+        """
+        if body not in _BODIES:
+            raise ConfigError("body", body, f"one of {', '.join(_BODIES)}")
+        if center not in _CENTERS:
+            raise ConfigError("center", center, f"one of {', '.join(_CENTERS)}")
+        return self._rel_emb(body, t) - self._rel_emb(center, t)
+
+    def _rel_emb(self, name: str, t: ArrayLike) -> FloatArray:
+        """State of ``name`` relative to the EMB (Earth and Moon never go through the SSB, so
+        they keep full precision)."""
+        t = np.asarray(t, dtype=float)
+        if name == "emb":
+            self.check_span(t)
+            return np.zeros(t.shape + (6,))
+        if name in ("earth", "moon"):
+            em = np.concatenate(self.moon_geocentric(t), axis=-1)
+            f = 1.0 / (1.0 + self.emrat)
+            return -em * f if name == "earth" else em * (1.0 - f)
+        emb = np.concatenate(self.emb_ssb(t), axis=-1)
+        if name == "ssb":
+            return -emb
+        return np.concatenate(self.sun_ssb(t), axis=-1) - emb  # sun
+
+    def positions_emb(self, t: ArrayLike) -> FloatArray:
+        """Earth, Moon and Sun positions relative to the EMB [m], shape ``(..., 3, 3)``
+        (axis -2: Earth, Moon, Sun; axis -1: x, y, z). One vectorised call for many epochs."""
+        em, _ = self.moon_geocentric(t)
+        emb, _ = self.emb_ssb(t)
+        sun, _ = self.sun_ssb(t)
+        f = 1.0 / (1.0 + self.emrat)
+        return np.stack([-em * f, em * (1.0 - f), sun - emb], axis=-2)
+
+    # ------------------------------------------------------------------ orientation
+    def librations(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """DE421 lunar libration Euler angles ``(phi, theta, psi)`` [rad] and rates [rad/s]."""
+        a, da = self._chebyshev("librations", t)
+        return a, da / DAY_S
+
+    def moon_orientation(self, t: ArrayLike, frame: Literal["PA", "ME"] = "PA") -> FloatArray:
+        """Rotation Moon body-fixed -> ICRF, ``v_icrf = R @ v_body``, shape ``(..., 3, 3)``.
+
+        Parameters
+        ----------
+        t : float or array
+            Epochs [TDB s past J2000].
+        frame : {"PA", "ME"}
+            DE421 principal axes (default) or mean-Earth/polar axes (module docstring).
+        """
+        if frame not in ("PA", "ME"):
+            raise ConfigError("moon_frame", frame, "'PA' or 'ME'")
+        a, _ = self.librations(t)
+        phi, theta, psi = a[..., 0], a[..., 1], a[..., 2]
+        icrf_to_pa = _r3(psi) @ _r1(theta) @ _r3(phi)
+        icrf_to_body = icrf_to_pa if frame == "PA" else self._pa_to_me @ icrf_to_pa
+        return np.swapaxes(icrf_to_body, -1, -2)
+
+    def moon_angular_velocity(self, t: ArrayLike) -> FloatArray:
+        """Inertial angular velocity of the Moon's PA frame, ICRF components [rad/s]."""
+        a, da = self.librations(t)
+        phi, theta = a[..., 0], a[..., 1]
+        dphi, dtheta, dpsi = da[..., 0], da[..., 1], da[..., 2]
+        # 3-1-3 Euler kinematics in inertial components
+        w = (dphi[..., None] * np.stack([np.zeros_like(phi), np.zeros_like(phi),
+                                         np.ones_like(phi)], -1)
+             + dtheta[..., None] * np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], -1)
+             + dpsi[..., None] * np.stack([np.sin(theta) * np.sin(phi),
+                                           -np.sin(theta) * np.cos(phi), np.cos(theta)], -1))
+        return w

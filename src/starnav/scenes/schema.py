@@ -1,0 +1,131 @@
+"""Scenario sections ``trajectory`` and ``pointing`` (owned by :mod:`starnav.scenes`).
+
+Units are in the key names (``_km``, ``_deg``, ``_s``, ``_days``, ``_arcsec``, ``_px``) and are
+converted to SI by :mod:`starnav.scenes.frames`. Epochs are ISO strings with an explicit time
+scale (``UTC``, ``TT``, ``TDB`` or a trailing ``Z``).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import re
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from starnav.config_base import StrictModel
+
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+#: Default first epoch of the arc.
+DEFAULT_EPOCH = "2027-03-01T00:00:00 TDB"
+#: CR3BP length unit [km] (REFERENCE.md s4), to express the halo amplitude in km.
+_LU_KM = 384_400.0
+
+_EPOCH_RE = re.compile(
+    r"^\s*\d{4}-\d{2}-\d{2}(?:[T ]\d{2}:\d{2}(?::\d{2}(?:\.\d*)?)?)?\s*(?:Z|UTC|TT|TDB)\s*$",
+    re.IGNORECASE,
+)
+
+
+class TrajectoryConfig(StrictModel):
+    """Observer trajectory and the frame epochs along it.
+
+    ``source: halo`` builds the LUMIO-like L2 quasi-halo in the ephemeris point-mass model
+    (:func:`starnav.scenes.trajectory.ephemeris_halo_arc`); ``source: oem`` reads a CCSDS OEM
+    file (``oem_path``). Frames are taken every ``cadence_s`` from ``epoch + frame_offset_s``
+    to the end of the arc (at most ``frames`` of them).
+    """
+
+    source: Literal["halo", "oem"] = Field("halo", description="LUMIO-like halo or an OEM file")
+    epoch: str | None = Field(
+        None, description=f"start of the arc, ISO with a time scale; None: {DEFAULT_EPOCH} "
+        "for a halo, the first epoch of the file for an OEM")
+    duration_days: PositiveFloat = Field(28.0, description="arc length [days]; for an OEM, "
+                                         "the span used from epoch (clipped to the file)")
+    cadence_s: PositiveFloat = Field(300.0, description="time between frames [s] (LUMIO: 5 min)")
+    frame_offset_s: NonNegativeFloat = Field(0.0, description="first frame after epoch [s]")
+    frames: Annotated[int, Field(ge=1)] | None = Field(
+        None, description="number of frames; None: every cadence step of the arc")
+    halo_z0_km: float = Field(
+        -0.065 * _LU_KM, description="out-of-plane amplitude of the CR3BP L2 halo at its x-z "
+        "plane crossing [km]; negative = southern family (REFERENCE.md s4: -0.065 LU)")
+    halo_phase_deg: Annotated[float, Field(ge=0, lt=360)] = Field(
+        0.0, description="position on the halo at epoch, as a fraction of its period [deg]")
+    step_s: PositiveFloat = Field(300.0, description="RK4 step of the ephemeris model [s]")
+    shooting_segment_s: PositiveFloat = Field(43_200.0,
+                                              description="multiple-shooting patch spacing [s]")
+    range_min_km: NonNegativeFloat = Field(35_000.0, description="minimum Moon range [km]")
+    range_max_km: PositiveFloat = Field(90_000.0, description="maximum Moon range [km]")
+    oem_path: Path | None = Field(None, description="CCSDS OEM file for source=oem")
+    moon_frame: Literal["PA", "ME"] = Field(
+        "PA", description="Moon body-fixed frame: DE421 principal axes or mean-Earth/polar")
+
+    @field_validator("epoch", mode="before")
+    @classmethod
+    def _yaml_timestamp(cls, v: object) -> object:
+        # YAML reads 2027-03-01T00:00:00Z as a UTC-aware datetime: keep its scale explicit
+        if isinstance(v, _dt.datetime) and v.tzinfo is not None:
+            utc = v.astimezone(_dt.UTC).replace(tzinfo=None)
+            return utc.isoformat(timespec="microseconds") + " UTC"
+        return v
+
+    @field_validator("epoch")
+    @classmethod
+    def _epoch_has_scale(cls, v: str | None) -> str | None:
+        if v is not None and not _EPOCH_RE.match(v):
+            raise ValueError("an ISO date with an explicit time scale, e.g. "
+                             f"'{DEFAULT_EPOCH}' (UTC, TT, TDB or a trailing Z)")
+        return v
+
+    @field_validator("halo_z0_km")
+    @classmethod
+    def _z0_range(cls, v: float) -> float:
+        lo, hi = 0.01 * _LU_KM, 0.15 * _LU_KM
+        if not (lo <= abs(v) <= hi):
+            raise ValueError(f"|halo_z0_km| between {lo:.0f} and {hi:.0f} km")
+        return v
+
+    @model_validator(mode="after")
+    def _consistent(self) -> TrajectoryConfig:
+        if self.source == "oem" and self.oem_path is None:
+            raise ValueError("trajectory.oem_path is required when source is 'oem'")
+        if self.range_min_km >= self.range_max_km:
+            raise ValueError("range_min_km must be below range_max_km")
+        if self.shooting_segment_s < self.step_s:
+            raise ValueError("shooting_segment_s must be at least step_s")
+        return self
+
+
+class PointingConfig(StrictModel):
+    """Moon-pointing attitude of the camera and its on-board knowledge.
+
+    The boresight is turned so that the Moon centre lands on a pixel offset from the principal
+    point: ``random`` draws the offset uniformly over the detector positions that keep the whole
+    disc (exact limb ellipse) at least ``edge_margin_px`` inside the detector, within
+    ``moon_offset_max_px`` of the principal point; ``fixed`` uses ``moon_offset_px``. The roll
+    about the Moon line is uniform in [0, 360) deg (``roll: random``) or ``roll_deg``. The
+    measured attitude is the true one rotated by a Gaussian error with the given 1-sigma per
+    camera axis; the true attitude is never perturbed.
+    """
+
+    moon_offset: Literal["random", "fixed"] = Field(
+        "random", description="Moon-centre placement in the image (the paper varied it randomly)")
+    moon_offset_px: tuple[float, float] = Field(
+        (0.0, 0.0), description="Moon-centre offset (du, dv) from the principal point for "
+        "moon_offset=fixed [px]")
+    moon_offset_max_px: NonNegativeFloat = Field(
+        512.0, description="largest random offset from the principal point [px]")
+    edge_margin_px: NonNegativeFloat = Field(
+        8.0, description="minimum distance between the limb and the detector edge [px]")
+    roll: Literal["random", "fixed"] = Field("random", description="roll about the Moon line")
+    roll_deg: float = Field(0.0, description="roll for roll=fixed [deg] (0: inertial north "
+                            "towards the top of the image)")
+    knowledge_cross_arcsec: NonNegativeFloat = Field(
+        5.0, description="1-sigma attitude knowledge error about the camera x and y axes "
+        "[arcsec] (assumed typical star-tracker value)")
+    knowledge_roll_arcsec: NonNegativeFloat = Field(
+        40.0, description="1-sigma attitude knowledge error about the boresight [arcsec] "
+        "(assumed; star-tracker roll is several times worse than cross-boresight)")
