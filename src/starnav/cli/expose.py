@@ -1,0 +1,63 @@
+"""``starnav expose``: radiance image -> DN frame and star-tracker readout products.
+
+Parses, loads the scenario, calls :func:`starnav.detector.expose` once and writes the DN PNG,
+the readout products and the resolved scenario. No numerical work here.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``expose`` command to ``app``."""
+
+    @app.command("expose")
+    def expose_cmd(
+        radiance: Annotated[Path, typer.Argument(help="RadianceImage OpenEXR (channel Le)")],
+        out: Annotated[Path, typer.Option("--out", help="output directory")],
+        scenario: Annotated[Path | None, typer.Option(
+            "--scenario", help="scenario YAML (camera, detector, seed); default built-ins")] = None,
+        exposure_s: Annotated[float | None, typer.Option(
+            "--exposure-s", help="exposure time [s] (overrides detector.exposure_time_s)")] = None,
+        frame_index: Annotated[int, typer.Option(
+            "--frame-index", help="frame number (selects the temporal noise)")] = 0,
+        set_: Annotated[list[str] | None, typer.Option(
+            "--set", help="override a scenario key, e.g. detector.saturation.full_well_e=8e4")
+        ] = None,
+    ) -> None:
+        """Expose the AA-STR detector to RADIANCE and write dn.png, segments.npz, windows.npz,
+        readout.json and scenario.resolved.yaml into OUT."""
+        from starnav.config import build_camera, load_scenario, write_resolved
+        from starnav.detector import expose, write_exposure
+        from starnav.errors import StarnavError
+        from starnav.radiance import read_exr
+
+        overrides = list(set_ or [])
+        if exposure_s is not None:
+            overrides.append(f"detector.exposure_time_s={exposure_s!r}")
+        try:
+            sc = load_scenario(scenario, overrides)
+            camera = build_camera(sc.camera)
+            img = read_exr(radiance)
+            frame = expose(img, camera, sc.detector, seed=sc.seed, frame_index=frame_index)
+            paths = write_exposure(frame, out)
+            write_resolved(sc, out)
+        except StarnavError as err:
+            typer.echo(f"error: {err}", err=True)
+            raise typer.Exit(code=2) from None
+        s = frame.summary()
+        typer.echo(f"exposure {frame.exposure_time * 1e3:.6g} ms, gain {frame.gain:.4g} e-/DN, "
+                   f"DN max {s['dn_max']}, saturated pixels {s['saturated_pixels']}")
+        for t in frame.timing:
+            flag = "ok" if t.feasible else "INFEASIBLE on the AA-STR"
+            typer.echo(f"  {t.mode}: {t.n_pixels} px, needs >= {t.min_exposure * 1e3:.4g} ms: "
+                       f"{flag}")
+        if frame.segments is not None:
+            typer.echo(f"  segments: {len(frame.segments)} runs, {frame.segments.n_pixels} px"
+                       + (" (truncated)" if frame.segments.truncated else ""))
+        for kind, p in paths.items():
+            typer.echo(f"  wrote {kind}: {p}")

@@ -1,0 +1,130 @@
+"""Charge generation: PRNU, dark current (DSNU, hot pixels, temperature) and shot noise.
+
+Technique
+---------
+1. **PRNU** multiplies the mean photo-electrons by a per-pixel gain ``1 + sigma_prnu z``,
+   ``z ~ N(0, 1)``, clipped at 0. The map belongs to the sensor: it is drawn from the sensor's
+   fixed-pattern stream (:mod:`starnav.detector.seeding`) and cached.
+2. **Dark current.** ``D(T) = D_ref 2^((T - T_ref) / T_2)`` [e-/s] scales the mean rate with
+   the detector temperature (the usual "doubling temperature" law of silicon). The per-pixel rate
+   is ``D(T) (1 + sigma_dsnu z)`` (DSNU, clipped at 0) and, for a fixed random fraction of
+   hot pixels, ``D(T) * hot_factor``. The mean dark charge ``D t_exp`` is added to the photo
+   charge before shot noise, so both are Poisson.
+3. **Shot noise.** ``Poisson(mu)`` per pixel (NumPy's exact sampler); above
+   ``gaussian_above_e`` the draw is ``N(mu, mu)`` (skewness ``mu^-1/2``: 3 % at 1000 e-), which
+   is ~5x faster and indistinguishable at those levels.
+
+Tuning
+------
+======================== ================ ======================================================
+knob                     default          effect
+======================== ================ ======================================================
+``sigma_fraction``       0.02             PRNU rms (ABRAM)
+``rate_e_per_s``         590 e-/s         mean dark current at ``reference_temperature_c``
+``dsnu_fraction``        0.013            DSNU rms relative to the mean
+``doubling_temperature`` 7 K              dark current x2 per 7 K
+``hot_pixel_*``          1e-4, x100       hot-pixel population
+``gaussian_above_e``     1000 e-          Gaussian shortcut of the Poisson draw
+======================== ================ ======================================================
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+from numpy.typing import NDArray
+
+from starnav.detector.seeding import fixed_pattern_rng
+
+Float32Array = NDArray[np.float32]
+
+@lru_cache(maxsize=8)
+def prnu_map(sensor_seed: int, shape: tuple[int, int], sigma: float) -> Float32Array:
+    """Frozen PRNU gain map ``1 + sigma z`` of sensor ``sensor_seed`` [-] (cached, read-only)."""
+    rng = fixed_pattern_rng(sensor_seed, "prnu")
+    g = rng.standard_normal(shape, dtype=np.float32)
+    g *= np.float32(sigma)
+    g += np.float32(1.0)
+    np.clip(g, 0.0, None, out=g)
+    g.flags.writeable = False
+    return g
+
+
+def dark_rate_at(rate_ref: float, temperature_c: float, reference_c: float,
+                 doubling_k: float) -> float:
+    """Mean dark current at ``temperature_c``: ``rate_ref 2^((T - T_ref) / T_2)`` [e-/s]."""
+    return float(rate_ref) * 2.0 ** ((temperature_c - reference_c) / doubling_k)
+
+
+@lru_cache(maxsize=8)
+def dark_pattern(sensor_seed: int, shape: tuple[int, int], dsnu: float, hot_fraction: float,
+                 hot_factor: float) -> Float32Array:
+    """Frozen relative dark-current map (mean rate = 1) of sensor ``sensor_seed`` [-].
+
+    ``1 + dsnu z`` clipped at 0, with a fixed random ``hot_fraction`` of pixels set to
+    ``hot_factor``. Multiply by the mean rate [e-/s] and the exposure [s] to get electrons.
+    """
+    rng = fixed_pattern_rng(sensor_seed, "dark_current")
+    d = rng.standard_normal(shape, dtype=np.float32)
+    d *= np.float32(dsnu)
+    d += np.float32(1.0)
+    np.clip(d, 0.0, None, out=d)
+    n_hot = int(round(hot_fraction * d.size))
+    if n_hot:
+        hot = fixed_pattern_rng(sensor_seed, "hot_pixels").choice(d.size, n_hot, replace=False)
+        d.ravel()[hot] = np.float32(hot_factor)
+    d.flags.writeable = False
+    return d
+
+
+def hot_pixel_mask(sensor_seed: int, shape: tuple[int, int],
+                   hot_fraction: float) -> NDArray[np.bool_]:
+    """Boolean map of the hot pixels of sensor ``sensor_seed`` (the draw of
+    :func:`dark_pattern`)."""
+    m = np.zeros(shape, bool)
+    n_hot = int(round(hot_fraction * m.size))
+    if n_hot:
+        m.ravel()[fixed_pattern_rng(sensor_seed, "hot_pixels").choice(m.size, n_hot,
+                                                                       replace=False)] = True
+    return m
+
+
+def add_dark_current(charge: Float32Array, pattern: Float32Array, rate: float,
+                     exposure_time: float) -> Float32Array:
+    """Mean charge plus dark charge ``pattern * rate * t`` [e-] (new array)."""
+    return charge + pattern * np.float32(rate * exposure_time)
+
+
+def shot_noise(mean: Float32Array, rng: np.random.Generator,
+               gaussian_above: float | None = 1000.0) -> Float32Array:
+    """Draw the collected charge for mean charge ``mean`` [e-] (module essay, step 3).
+
+    Parameters
+    ----------
+    mean : (H, W) float32
+        Mean charge [e-], >= 0.
+    rng : numpy.random.Generator
+        Temporal stream of this frame.
+    gaussian_above : float or None
+        Mean [e-] above which ``N(mu, mu)`` replaces ``Poisson(mu)``; ``None``: never.
+
+    Returns
+    -------
+    (H, W) float32
+        Charge [e-] (integers below ``gaussian_above``; clipped at 0 above).
+    """
+    lam = mean.astype(np.float64)
+    gauss = None
+    if gaussian_above is not None:
+        gauss = lam >= gaussian_above
+        if gauss.any():
+            lam[gauss] = 0.0
+        else:
+            gauss = None
+    out = rng.poisson(lam).astype(np.float32)
+    if gauss is not None:
+        mu = mean[gauss]
+        z = rng.standard_normal(mu.size, dtype=np.float32)
+        out[gauss] = np.maximum(mu + np.sqrt(mu) * z, 0.0)
+    return out

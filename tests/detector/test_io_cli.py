@@ -1,0 +1,70 @@
+"""Files of an exposure (PNG 16 bit, NPZ, JSON) and the ``starnav expose`` command."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import typer
+import yaml
+from typer.testing import CliRunner
+
+from starnav.cli.expose import register
+from starnav.config import build_camera, load_scenario, scenario_from_dict
+from starnav.detector import expose
+from starnav.detector.io import read_dn_png, read_segments, read_windows, write_exposure
+from starnav.radiance import RadianceImage, write_exr
+
+from .conftest import lambert_disc
+
+
+def test_write_exposure_round_trips(tmp_path, cam64):
+    le = lambert_disc(64, (30.0, 30.0), 14.0, 3e18)
+    f = expose(le, cam64, seed=4, windows=[(3, 4, 10, 12), (40, 40, 20, 24)], exposure_time=1e-3)
+    paths = write_exposure(f, tmp_path)
+    assert np.array_equal(read_dn_png(paths["dn"]), f.dn)
+    seg = read_segments(paths["segments"])
+    assert f.segments is not None
+    for name in ("row", "col_start", "length", "offset", "values", "level"):
+        assert np.array_equal(getattr(seg, name), getattr(f.segments, name))
+    assert seg.thresholds == f.segments.thresholds and seg.shape == (64, 64)
+    wins = read_windows(paths["windows"])
+    assert [(w.row0, w.col0) for w in wins] == [(3, 4), (40, 40)]
+    assert all(np.array_equal(a.dn, b.dn) for a, b in zip(wins, f.windows, strict=True))
+    summary = json.loads(paths["summary"].read_text())
+    assert summary["seed"] == 4 and summary["timing"][0]["mode"] == "segments"
+    assert not list(tmp_path.glob(".*"))        # no temporary file left behind
+
+
+def test_cli_expose_writes_the_library_result(tmp_path):
+    sc_data = {"camera": {"width": 48, "height": 40}, "seed": 17,
+               "detector": {"readout": {"windows": [
+                   {"row0": 2, "col0": 3, "height": 5, "width": 6}]}}}
+    sc_file = tmp_path / "s.yaml"
+    sc_file.write_text(yaml.safe_dump(sc_data))
+    le = np.zeros((40, 48), np.float32)
+    le[10:30, 12:40] = 2e18
+    exr = write_exr(RadianceImage(L=le * 1e-18, Le=le), tmp_path / "r.exr")
+    app = typer.Typer()
+    register(app)
+
+    @app.command("noop")        # typer needs two commands to keep the sub-command name
+    def _noop() -> None:
+        pass
+
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["expose", str(exr), "--scenario", str(sc_file), "--out",
+                                   str(out), "--exposure-s", "2e-3", "--frame-index", "3"])
+    assert res.exit_code == 0, res.output
+    assert "INFEASIBLE" in res.output
+    sc = scenario_from_dict(sc_data, ["detector.exposure_time_s=2e-3"])
+    ref = expose(le, build_camera(sc.camera), sc.detector, seed=17, frame_index=3)
+    assert np.array_equal(read_dn_png(out / "dn.png"), ref.dn)
+    assert np.array_equal(read_windows(out / "windows.npz")[0].dn, ref.windows[0].dn)
+    resolved = yaml.safe_load((out / "scenario.resolved.yaml").read_text())
+    assert resolved["detector"]["exposure_time_s"] == 2e-3
+    assert load_scenario(out / "scenario.resolved.yaml") == sc     # the resolved file reloads
+    bad = CliRunner().invoke(app, ["expose", str(exr), "--scenario", str(sc_file), "--out",
+                                   str(out), "--exposure-s", "-1"])
+    assert bad.exit_code == 2
+    assert "detector.exposure_time_s = -1" in bad.output
