@@ -29,6 +29,7 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 
 from starnav.atomic import atomic_write_text
 from starnav.config_base import StrictModel
+from starnav.dem.schema import DemConfig
 from starnav.errors import ConfigError, DataFileError
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -129,8 +130,8 @@ class MoonConfig(StrictModel):
     albedo_scale: PositiveFloat = Field(
         1.0, description="global albedo multiplier (albedo-exposure scaling studies) [-]"
     )
-    dem: dict[str, Any] | None = Field(
-        None, description="DEM source for shape=dem (see starnav.dem.schema)"
+    dem: DemConfig | None = Field(
+        None, description="DEM and albedo sources and meshing for shape=dem (starnav.dem.schema)"
     )
 
     @field_validator("albedo", mode="before")

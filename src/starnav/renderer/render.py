@@ -65,7 +65,6 @@ from starnav.renderer.scene import (
     MoonMesh,
     check_camera_for_render,
     film_channels,
-    icosphere_mesh,
     principal_point_offsets,
     sensor_fov_deg,
     spectrum_dict,
@@ -289,7 +288,7 @@ class MoonRenderer:
         self.band_1au = band_integrals(sun_1au, response)
         self._scene = None
         self._scene_key: Any = None
-        self._mesh_cache_key: Any = None
+        self._mesh_key_ref: Any = None
         self.last_timing: dict[str, float] = {}
 
     # .................................................................. backend / scene
@@ -425,7 +424,10 @@ class MoonRenderer:
         if moon.mesh is not None:
             return moon.mesh, ("mesh", id(moon.mesh))
         mesh = moon.mesh_provider(self.camera, geom)
-        return mesh, ("mesh", id(mesh))
+        # the provider's key (e.g. the cached trimesh object) says when the mesh is the same;
+        # the renderer holds a reference to it, so its id cannot be recycled meanwhile
+        self._mesh_key_ref = mesh.key if mesh.key is not None else mesh
+        return mesh, ("mesh", id(self._mesh_key_ref))
 
     # .................................................................. render
     def render(self, geom: FrameGeometry, seed: int = 0) -> RadianceImage:

@@ -51,21 +51,24 @@ class MoonMesh:
     faces: NDArray[np.int64]
     normals: NDArray[np.float64]
     albedo: NDArray[np.float64] | None = None
+    key: object = None
 
     @property
     def n_triangles(self) -> int:
         return int(self.faces.shape[0])
 
     @classmethod
-    def from_trimesh(cls, tm, albedo: NDArray[np.float64] | None = None) -> MoonMesh:
+    def from_trimesh(cls, tm, albedo: NDArray[np.float64] | None = None,
+                     key: object = None) -> MoonMesh:
         """From a ``trimesh.Trimesh`` in body-fixed metres (its vertex normals are used;
-        ``vertex_attributes['albedo']`` is used when ``albedo`` is not given)."""
+        ``vertex_attributes['albedo']`` is used when ``albedo`` is not given). ``key``
+        identifies the mesh for the renderer's scene cache (the same key: the same mesh)."""
         if albedo is None:
             albedo = tm.vertex_attributes.get("albedo") if hasattr(tm, "vertex_attributes") \
                 else None
         return cls(np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64),
                    np.asarray(tm.vertex_normals, float),
-                   None if albedo is None else np.asarray(albedo, float))
+                   None if albedo is None else np.asarray(albedo, float), key)
 
 
 @lru_cache(maxsize=4)

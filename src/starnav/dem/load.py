@@ -1,0 +1,151 @@
+"""Entry points from the configuration: :func:`load_dem` and :func:`load_albedo`.
+
+``DemConfig.source`` is ``procedural`` or a file; ``DemConfig.albedo`` (an
+:class:`~starnav.dem.schema.AlbedoConfig`) is ``None`` (keep ``moon.albedo``), ``procedural``
+(the maria/highlands map of the same procedural world as the DEM's, seed and resolution from
+``DemConfig.procedural``) or a map file. Results are kept in a small in-memory cache keyed by the
+configuration and the file's size and modification time, so the frames of a run load a DEM
+once.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any
+
+from starnav.dem.grid import AlbedoGrid, DemGrid
+from starnav.dem.schema import AlbedoConfig, DemConfig
+
+logger = logging.getLogger(__name__)
+
+_CACHE: OrderedDict[tuple[Any, ...], DemGrid | AlbedoGrid] = OrderedDict()
+#: Grids kept in memory by :func:`load_dem` / :func:`load_albedo`.
+LOAD_CACHE_SIZE = 4
+
+
+def _file_stamp(source: str) -> tuple[Any, ...]:
+    p = Path(source)
+    try:
+        st = p.stat()
+        return (str(p.resolve()), st.st_size, st.st_mtime_ns)
+    except OSError:
+        return (source,)
+
+
+def _cached(key: tuple[Any, ...], make: Any) -> Any:
+    if key in _CACHE:
+        _CACHE.move_to_end(key)
+        return _CACHE[key]
+    val = make()
+    _CACHE[key] = val
+    while len(_CACHE) > LOAD_CACHE_SIZE:
+        _CACHE.popitem(last=False)
+    return val
+
+
+def clear_cache() -> None:
+    """Forget the grids loaded so far (and the procedural worlds)."""
+    from starnav.dem import procedural
+
+    _CACHE.clear()
+    procedural._CACHE.clear()
+
+
+def as_dem_config(cfg: DemConfig | dict[str, Any] | None) -> DemConfig:
+    """A :class:`DemConfig` from a config, a plain mapping (``moon.dem`` before it is typed) or
+    ``None`` (the procedural default). Raises ``ConfigError`` naming the bad key."""
+    if cfg is None:
+        return DemConfig()
+    if isinstance(cfg, DemConfig):
+        return cfg
+    from pydantic import ValidationError
+
+    from starnav.errors import ConfigError
+
+    try:
+        return DemConfig.model_validate(cfg)
+    except ValidationError as err:
+        first = err.errors()[0]
+        field = "moon.dem." + ".".join(str(p) for p in first["loc"])
+        raise ConfigError(field, first.get("input"), first["msg"]) from None
+
+
+def load_dem(cfg: DemConfig | dict[str, Any] | None = None) -> DemGrid:
+    """The DEM a configuration describes (file or procedural).
+
+    Parameters
+    ----------
+    cfg : DemConfig or mapping or None
+        ``None`` gives the default procedural Moon.
+
+    Returns
+    -------
+    DemGrid
+        Heights [m] above the reference sphere.
+    """
+    cfg = as_dem_config(cfg)
+    if cfg.source == "procedural":
+        from starnav.dem.procedural import procedural_moon
+
+        radius = cfg.reference_radius_km * 1e3
+        key = ("proc", cfg.procedural.model_dump_json(), radius, cfg.max_pixels_per_degree)
+
+        def make() -> DemGrid:
+            g = procedural_moon(cfg.procedural, radius).dem
+            return g.resampled(cfg.max_pixels_per_degree) if cfg.max_pixels_per_degree else g
+
+        return _cached(key, make)
+    from starnav.dem.readers import read_dem
+
+    key = ("dem", _file_stamp(cfg.source), cfg.model_dump_json(exclude={"albedo", "mesh"}))
+    return _cached(key, lambda: read_dem(cfg.source, cfg))
+
+
+def load_albedo(cfg: DemConfig | AlbedoConfig | dict[str, Any] | None) -> AlbedoGrid | None:
+    """The albedo map a configuration describes, or ``None`` if it names none.
+
+    Parameters
+    ----------
+    cfg : DemConfig, AlbedoConfig, mapping or None
+        A :class:`DemConfig` (its ``albedo`` and ``procedural`` sections are used) or an
+        :class:`AlbedoConfig` alone (a procedural map then uses the default procedural world).
+
+    Returns
+    -------
+    AlbedoGrid or None
+        Values in 0..1 (``quantity`` says albedo or Hapke w).
+    """
+    if cfg is None:
+        return None
+    if isinstance(cfg, AlbedoConfig):
+        dem_cfg, acfg = DemConfig(albedo=cfg), cfg
+    else:
+        dem_cfg = as_dem_config(cfg)
+        acfg = dem_cfg.albedo
+    if acfg is None:
+        return None
+    if acfg.source == "procedural":
+        from starnav.dem.procedural import procedural_moon
+
+        radius = dem_cfg.reference_radius_km * 1e3
+        key = ("proc-albedo", dem_cfg.procedural.model_dump_json(), radius,
+               acfg.model_dump_json())
+
+        def make() -> AlbedoGrid:
+            g = procedural_moon(dem_cfg.procedural, radius).albedo
+            if acfg.quantity != g.quantity or acfg.normalize_mean is not None:
+                vals = g.values
+                if acfg.normalize_mean is not None:
+                    vals = vals * (acfg.normalize_mean / g.mean)
+                g = AlbedoGrid(vals, extent=g.extent, quantity=acfg.quantity, source=g.source)
+            if acfg.max_pixels_per_degree:
+                g = g.resampled(acfg.max_pixels_per_degree)
+            return g
+
+        return _cached(key, make)
+    from starnav.dem.readers import read_albedo
+
+    key = ("albedo", _file_stamp(acfg.source), acfg.model_dump_json())
+    return _cached(key, lambda: read_albedo(acfg.source, acfg))
