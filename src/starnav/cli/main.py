@@ -23,7 +23,8 @@ from starnav import __version__
 from starnav.errors import StarnavError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
-                  help="starnav: a star tracker as a navigation camera, from photons to navigation.")
+                  help="starnav: a star tracker as a navigation camera, from photons to "
+                  "navigation.")
 console = Console()
 err_console = Console(stderr=True)
 
