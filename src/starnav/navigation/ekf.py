@@ -1,0 +1,324 @@
+"""Extended Kalman filter of the spacecraft state from limb position fixes (EMB, J2000).
+
+The STAR Nav filter estimates the spacecraft's position and velocity about the Earth-Moon
+barycentre in J2000 from the Christian-Robinson fixes, with Gauss-Markov states that absorb a
+slowly varying bias of the image processing (saturation moves every limb point outwards).
+
+Technique
+---------
+1. **State.** ``x = (r, v, b)``: EMB-centred J2000 position [m] and velocity [m/s], plus the
+   bias states of the chosen ``bias_model``:
+
+   * ``none``: no bias state;
+   * ``additive``: ``b`` (3) [m], the fix reads ``r - r_M + b``;
+   * ``range-scale``: ``k`` (1) [-], the fix reads ``(1 + k)(r - r_M)`` (a limb bias of
+     ``beta`` px on a disc of ``R_px`` gives ``k ~ -beta / R_px``, REFERENCE.md section 4).
+
+2. **Prediction.** The 6-state and its STM ``Phi`` come from the dynamics
+   (:class:`~starnav.navigation.dynamics.Dynamics`: RK4 with the variational equations of the
+   Earth-Moon-Sun point-mass model). Each bias is a first-order Gauss-Markov process with the
+   exact discretisation ``b_k+1 = exp(-dt/tau) b_k + w``,
+   ``Var(w) = sigma^2 (1 - exp(-2 dt/tau))``. White acceleration noise of spectral density
+   ``q`` adds ``Q = q [[dt^3/3 I, dt^2/2 I], [dt^2/2 I, dt I]]``.
+   ``P = F P F^T + Q`` with ``F = blockdiag(Phi, exp(-dt/tau) I)``.
+3. **Measurement.** A fix ``z`` (camera relative to the Moon, inertial [m]) with covariance
+   ``R``; ``h(x)`` as in step 1 with the Moon's state ``r_M(t)`` from the ephemeris, ``H`` its
+   analytic Jacobian.
+4. **Gate.** Innovation ``nu = z - h(x)``, ``S = H P H^T + R``, ``NIS = nu^T S^-1 nu``; the fix
+   is rejected when ``NIS > chi2_3^-1(gate_probability)``. After
+   ``max_consecutive_rejections`` rejections in a row the next fix is accepted regardless (with
+   a warning), so a filter that has lost its way can recover.
+5. **Update.** ``K = P H^T S^-1``, ``x += K nu``, and the Joseph form
+   ``P = (I - K H) P (I - K H)^T + K R K^T`` (symmetric and positive for any gain).
+6. **No fix.** A frame without a usable limb only propagates.
+
+Tuning
+------
+==============================  =======  ====================================================
+option                          default  effect
+==============================  =======  ====================================================
+``bias_model``                  none     ``none``, ``additive`` or ``range-scale``
+``bias_sigma_m``                0        steady-state 1-sigma of each additive bias [m]
+``range_scale_sigma``           0        steady-state 1-sigma of the range-scale bias [-]
+``bias_tau_s``                  86400    correlation time of the biases [s]
+``accel_psd_m2_s3``             0        white acceleration noise density [m^2/s^3]
+``gate_probability``            0.9999   chi-square gate on the NIS; None disables the gate
+``max_consecutive_rejections``  5        then the next fix is forced in
+==============================  =======  ====================================================
+
+Example
+-------
+>>> from starnav.navigation.ekf import NavigationEkf, EkfOptions
+>>> ekf = NavigationEkf(dyn, dyn, t0, x0, P0, options=EkfOptions())    # doctest: +SKIP
+>>> ekf.predict(t1); info = ekf.update(z, R)                              # doctest: +SKIP
+
+Reference
+---------
+Seed paper (STAR Nav), step 5 of the pixel-accuracy algorithm and its reference 3 (LUMIO
+navigation). R. G. Brown and P. Y. C. Hwang, "Introduction to random signals and applied Kalman
+filtering", 4th ed., Wiley (2012): section 4.2 (Gauss-Markov discretisation), 4.7 (Joseph
+form). B. D. Tapley, B. E. Schutz and G. H. Born, "Statistical orbit determination", Elsevier
+(2004), section 4.7 (EKF with the STM).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from starnav.errors import ConfigError, UnknownNameError
+from starnav.navigation.dynamics import Dynamics, MoonEphemeris
+
+FloatArray = NDArray[np.float64]
+log = logging.getLogger(__name__)
+
+#: Number of bias states of each bias model.
+BIAS_MODELS: dict[str, int] = {"none": 0, "additive": 3, "range-scale": 1}
+
+
+@dataclass(frozen=True)
+class EkfOptions:
+    """Knobs of :class:`NavigationEkf` (see the module table)."""
+
+    bias_model: str = "none"
+    bias_sigma_m: float = 0.0
+    range_scale_sigma: float = 0.0
+    bias_tau_s: float = 86_400.0
+    accel_psd_m2_s3: float = 0.0
+    gate_probability: float | None = 0.9999
+    max_consecutive_rejections: int = 5
+
+    def __post_init__(self) -> None:
+        if self.bias_model not in BIAS_MODELS:
+            raise UnknownNameError("bias model", self.bias_model, list(BIAS_MODELS))
+        for name in ("bias_sigma_m", "range_scale_sigma", "accel_psd_m2_s3"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ConfigError(f"filter.{name}", v, "a finite value >= 0")
+        if not (math.isfinite(self.bias_tau_s) and self.bias_tau_s > 0):
+            raise ConfigError("filter.bias_tau_s", self.bias_tau_s, "a time constant > 0 s")
+        if self.gate_probability is not None and not 0.0 < self.gate_probability < 1.0:
+            raise ConfigError("filter.gate_probability", self.gate_probability,
+                              "None or a probability in (0, 1)")
+        if self.max_consecutive_rejections < 1:
+            raise ConfigError("filter.max_consecutive_rejections",
+                              self.max_consecutive_rejections, "an integer >= 1")
+
+    @property
+    def n_bias(self) -> int:
+        return BIAS_MODELS[self.bias_model]
+
+    @property
+    def bias_sigma(self) -> float:
+        """Steady-state 1-sigma of each bias state [m or -]."""
+        return self.range_scale_sigma if self.bias_model == "range-scale" else self.bias_sigma_m
+
+
+def gauss_markov_discrete(dt: float, sigma: float, tau: float) -> tuple[float, float]:
+    """Exact discretisation of a first-order Gauss-Markov process over ``dt`` [s].
+
+    Returns ``(phi, q)``: ``b_k+1 = phi b_k + w`` with ``phi = exp(-|dt|/tau)`` and
+    ``Var(w) = q = sigma^2 (1 - exp(-2 |dt|/tau))`` (``sigma`` steady-state 1-sigma,
+    ``tau`` [s] correlation time).
+    """
+    phi = math.exp(-abs(dt) / tau)
+    return phi, sigma * sigma * -math.expm1(-2.0 * abs(dt) / tau)
+
+
+def white_acceleration_q(dt: float, psd: float) -> FloatArray:
+    """Discrete process noise (6 x 6) of white acceleration of density ``psd`` [m^2/s^3]."""
+    dt = abs(dt)
+    I3 = np.eye(3)
+    return psd * np.block([[dt**3 / 3.0 * I3, dt**2 / 2.0 * I3], [dt**2 / 2.0 * I3, dt * I3]])
+
+
+def measurement_model(x: ArrayLike, moon_position: ArrayLike,
+                      bias_model: str) -> tuple[FloatArray, FloatArray]:
+    """Predicted fix ``h(x)`` [m] and its Jacobian ``H = dh/dx`` (3 x n) (module step 3).
+
+    Parameters
+    ----------
+    x : (6 + n_bias,) array
+        State: EMB-centred position [m], velocity [m/s], bias states.
+    moon_position : (3,) array
+        Moon relative to the EMB [m].
+    bias_model : str
+        ``none``, ``additive`` or ``range-scale``.
+    """
+    x = np.asarray(x, float)
+    m = x[:3] - np.asarray(moon_position, float)
+    n = x.size
+    H = np.zeros((3, n))
+    if bias_model == "none":
+        H[:, :3] = np.eye(3)
+        return m, H
+    if bias_model == "additive":
+        H[:, :3] = np.eye(3)
+        H[:, 6:9] = np.eye(3)
+        return m + x[6:9], H
+    if bias_model == "range-scale":
+        k = x[6]
+        H[:, :3] = (1.0 + k) * np.eye(3)
+        H[:, 6] = m
+        return (1.0 + k) * m, H
+    raise UnknownNameError("bias model", bias_model, list(BIAS_MODELS))
+
+
+@dataclass(frozen=True)
+class UpdateInfo:
+    """Outcome of one measurement update.
+
+    Attributes
+    ----------
+    accepted : bool
+    nis : float
+        ``nu^T S^-1 nu`` [-].
+    innovation : (3,) array
+        ``z - h(x)`` [m].
+    S : (3, 3) array
+        Innovation covariance [m^2].
+    forced : bool
+        Accepted past the gate after too many rejections.
+    """
+
+    accepted: bool
+    nis: float
+    innovation: FloatArray
+    S: FloatArray
+    forced: bool = False
+
+
+class NavigationEkf:
+    """The EKF of the module docstring.
+
+    Parameters
+    ----------
+    dynamics : Dynamics
+        Propagator of the 6-state with its STM.
+    moon : MoonEphemeris
+        Moon state relative to the EMB.
+    t0 : float
+        Epoch of the initial state [TDB s past J2000].
+    x0 : (6,) array
+        Initial EMB-centred J2000 position [m] and velocity [m/s].
+    P0 : (6, 6) array
+        Its covariance [m^2, m^2/s, m^2/s^2].
+    options : EkfOptions, optional
+        Bias model, noise, gate.
+    bias0 : (n_bias,) array, optional
+        Initial bias estimate (default zero; its covariance is the steady state).
+    """
+
+    def __init__(self, dynamics: Dynamics, moon: MoonEphemeris, t0: float, x0: ArrayLike,
+                 P0: ArrayLike, *, options: EkfOptions | None = None,
+                 bias0: ArrayLike | None = None) -> None:
+        self.options = opt = options or EkfOptions()
+        x0 = np.asarray(x0, float)
+        P0 = np.asarray(P0, float)
+        if x0.shape != (6,) or not np.all(np.isfinite(x0)):
+            raise ConfigError("filter.x0", x0, "a finite 6-state (m, m/s)")
+        if P0.shape != (6, 6) or not np.all(np.isfinite(P0)):
+            raise ConfigError("filter.P0", P0.shape, "a finite 6 x 6 covariance")
+        try:
+            np.linalg.cholesky(0.5 * (P0 + P0.T))
+        except np.linalg.LinAlgError:
+            raise ConfigError("filter.P0", "not positive definite",
+                              "a positive-definite 6 x 6 covariance") from None
+        nb = opt.n_bias
+        self.dynamics = dynamics
+        self.moon = moon
+        self.t = float(t0)
+        self.x = np.zeros(6 + nb)
+        self.x[:6] = x0
+        if nb:
+            self.x[6:] = 0.0 if bias0 is None else np.asarray(bias0, float)
+        self.P = np.zeros((6 + nb, 6 + nb))
+        self.P[:6, :6] = 0.5 * (P0 + P0.T)
+        if nb:
+            sb = opt.bias_sigma
+            if sb <= 0:
+                raise ConfigError(f"filter.{'range_scale_sigma' if nb == 1 else 'bias_sigma_m'}",
+                                  sb, f"a bias 1-sigma > 0 for bias_model={opt.bias_model!r}")
+            self.P[6:, 6:] = sb * sb * np.eye(nb)
+        self.rejections_in_a_row = 0
+        self._gate = math.inf
+        if opt.gate_probability is not None:
+            from scipy.stats import chi2
+
+            self._gate = float(chi2.ppf(opt.gate_probability, 3))
+
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return int(self.x.size)
+
+    def predict(self, t: float) -> None:
+        """Propagate state and covariance to ``t`` [TDB s] (module step 2)."""
+        t = float(t)
+        dt = t - self.t
+        if dt == 0.0:
+            return
+        opt = self.options
+        x6, Phi = self.dynamics.propagate(self.t, self.x[:6], t)
+        n, nb = self.n, opt.n_bias
+        F = np.zeros((n, n))
+        F[:6, :6] = Phi
+        Q = np.zeros((n, n))
+        if opt.accel_psd_m2_s3 > 0:
+            Q[:6, :6] = white_acceleration_q(dt, opt.accel_psd_m2_s3)
+        if nb:
+            phi_b, q_b = gauss_markov_discrete(dt, opt.bias_sigma, opt.bias_tau_s)
+            F[6:, 6:] = phi_b * np.eye(nb)
+            Q[6:, 6:] = q_b * np.eye(nb)
+            self.x[6:] *= phi_b
+        self.x[:6] = x6
+        P = F @ self.P @ F.T + Q
+        self.P = 0.5 * (P + P.T)
+        self.t = t
+
+    def predicted_measurement(self) -> tuple[FloatArray, FloatArray]:
+        """``h(x)`` [m] and ``H`` at the current epoch."""
+        moon = self.moon.moon_state(self.t)
+        return measurement_model(self.x, moon[:3], self.options.bias_model)
+
+    def update(self, z: ArrayLike, R: ArrayLike) -> UpdateInfo:
+        """Process a fix at the current epoch (module steps 3-5).
+
+        Parameters
+        ----------
+        z : (3,) array
+            Camera position relative to the Moon centre, inertial [m].
+        R : (3, 3) array
+            Its covariance [m^2].
+        """
+        z = np.asarray(z, float)
+        R = np.asarray(R, float)
+        h, H = self.predicted_measurement()
+        nu = z - h
+        S = H @ self.P @ H.T + R
+        S = 0.5 * (S + S.T)
+        nis = float(nu @ np.linalg.solve(S, nu))
+        opt = self.options
+        forced = False
+        gate = self._gate
+        if opt.gate_probability is not None:
+            if nis > gate:
+                if self.rejections_in_a_row < opt.max_consecutive_rejections:
+                    self.rejections_in_a_row += 1
+                    log.info("EKF: fix at t = %.1f s rejected (NIS %.1f > gate %.1f)", self.t,
+                             nis, gate)
+                    return UpdateInfo(False, nis, nu, S)
+                forced = True
+                log.warning("EKF: %d fixes rejected in a row; accepting the fix at t = %.1f s "
+                            "(NIS %.1f)", self.rejections_in_a_row, self.t, nis)
+        self.rejections_in_a_row = 0
+        K = np.linalg.solve(S, H @ self.P).T
+        self.x = self.x + K @ nu
+        IKH = np.eye(self.n) - K @ H
+        P = IKH @ self.P @ IKH.T + K @ R @ K.T
+        self.P = 0.5 * (P + P.T)
+        return UpdateInfo(True, nis, nu, S, forced)

@@ -1,0 +1,398 @@
+"""Pixel-accuracy limb points from star-tracker segments (the STAR Nav algorithm 2).
+
+The star tracker's *full image compressed* readout sends runs of consecutive above-threshold
+pixels ("segments", :class:`~starnav.detector.products.Segments`). The pixel-accuracy limb
+detector of the STAR Nav study turns them into limb points without ever rebuilding the image.
+
+Technique
+---------
+1. **Moon in the image.** The centroid of every segment pixel is a first guess of where the Moon
+   is (the lit part pulls it towards the Sun; it is only used to place the next step).
+2. **Sun direction in the image.** The Sun vector (inertial) is rotated into the camera frame
+   with the *measured* attitude and mapped into the image plane by the projection Jacobian at
+   the Moon's line of sight: ``d = dpi/dX (x_moon) @ s_cam``, so the image direction from the
+   Moon towards the Sun is exact for a pinhole even off-axis (:func:`sun_direction_in_image`).
+3. **Scans.** Four scans of the runs, one per image direction: the right end of the last run of
+   every row (looking at +u), the left end of the first run (-u), the bottom end of the lowest
+   run covering every column (+v) and the top end of the highest one (-v). Column ends are
+   found by painting the runs into a per-column array in row order, so no pixel is expanded.
+4. **Four sectors.** The image is split into four sectors by the two diagonals through the disc
+   centre ``c``: a scan's end point is kept only in its own sector (``+u`` ends where
+   ``du >= |dv|``, and so on), so every point is found by a scan within 45 deg of the limb
+   normal and, in each sector, the end that faces outwards is the limb, not the terminator.
+   ``c`` comes from a circle (Kasa 1976, one 3-MAD trim) fitted to the ends of the two scans
+   facing the Sun, then once more from the points kept, and the selection is redone.
+5. **Lit side.** A point is kept only if its outward direction ``n = (p - c)/|p - c|`` faces the
+   Sun: ``n . d >= min_sun_cos``. The unlit limb and any terminator point in a sector are
+   thereby rejected; the cusps (where the lit limb fades out) are trimmed by the margin.
+6. **Border.** Run ends on the detector border are where the *image* stops, not the Moon: they
+   are dropped.
+7. **Cap.** The surviving points are ordered by angle about ``c`` and, if there are more than
+   ``max_points`` (600 on the AA-STR processor), thinned to evenly spaced ones.
+
+A limb point is the centre of the lit-side end pixel: pixel accuracy, with a quantisation error
+of ``1/sqrt(12)`` px along the scan plus the bias of the threshold (a dimmer threshold moves the
+points outwards, saturation and blooming move them much further: the paper's 5-10 px).
+
+Tuning
+------
+============================  ========  ===================================================
+option                        default   effect
+============================  ========  ===================================================
+``max_points``                600       cap on the number of limb points (tracker memory)
+``min_level``                 0         ignore runs extracted below this threshold level
+``min_run_length_px``         1         ignore shorter runs (isolated hot pixels, stars)
+``min_sun_cos``               0.1       lit-side margin: ``cos`` of the largest angle between
+                                        the limb normal and the Sun direction in the image
+``drop_border_px``            1         drop points within this many pixels of the border
+``point_sigma_px``            0.5       1-sigma uncertainty assigned to each point [px]
+``point_offset_px``           0.0       every point is moved this far inwards along the
+                                        limb normal [px] (calibrates the threshold bias)
+``min_points``                3         fewer surviving points raise :class:`LimbNotFoundError`
+============================  ========  ===================================================
+
+Example
+-------
+>>> from starnav.navigation.limb import limb_points_from_segments
+>>> pts = limb_points_from_segments(segments, sun_dir_image)      # doctest: +SKIP
+>>> pts.uv.shape                                                   # doctest: +SKIP
+(412, 2)
+
+Reference
+---------
+Seed paper (STAR Nav, "What if star trackers were navigation cameras?"), section "The
+pixel-accuracy limb-based navigation algorithm", steps 1-2, and its reference 5 (figure 6).
+I. Kasa, "A circle fitting procedure and its error analysis", IEEE Trans. Instrum. Meas. 25
+(1976) 8-14.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from starnav.camera import Camera
+from starnav.detector.products import Segments
+from starnav.errors import ConfigError, StarnavError
+
+FloatArray = NDArray[np.float64]
+log = logging.getLogger(__name__)
+
+#: Default cap on the number of limb points, as on the AA-STR processor (seed paper, PIL).
+MAX_LIMB_POINTS = 600
+
+
+class LimbNotFoundError(StarnavError, ValueError):
+    """No usable limb in a frame (no segments, no Moon, or too few limb points).
+
+    ``reason`` is a short machine-readable tag: ``no-segments``, ``no-moon``,
+    ``degenerate-arc``, ``sun-on-axis`` or ``no-edge``.
+    """
+
+    def __init__(self, message: str, reason: str = "no-limb") -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class LimbScanOptions:
+    """Knobs of :func:`limb_points_from_segments` (units in the names; see the module table)."""
+
+    max_points: int = MAX_LIMB_POINTS
+    min_level: int = 0
+    min_run_length_px: int = 1
+    min_sun_cos: float = 0.1
+    drop_border_px: int = 1
+    point_sigma_px: float = 0.5
+    point_offset_px: float = 0.0
+    min_points: int = 3
+
+    def __post_init__(self) -> None:
+        if self.max_points < 3:
+            raise ConfigError("limb.max_points", self.max_points, "an integer >= 3")
+        if self.min_points < 3:
+            raise ConfigError("limb.min_points", self.min_points, "an integer >= 3")
+        if not -1.0 <= self.min_sun_cos < 1.0:
+            raise ConfigError("limb.min_sun_cos", self.min_sun_cos, "a cosine in [-1, 1)")
+        if not math.isfinite(self.point_offset_px):
+            raise ConfigError("limb.point_offset_px", self.point_offset_px, "a finite shift [px]")
+        if not (self.point_sigma_px > 0 and math.isfinite(self.point_sigma_px)):
+            raise ConfigError("limb.point_sigma_px", self.point_sigma_px, "a finite value > 0 px")
+        if self.min_run_length_px < 1 or self.drop_border_px < 0:
+            raise ConfigError("limb.min_run_length_px/drop_border_px",
+                              (self.min_run_length_px, self.drop_border_px),
+                              "min_run_length_px >= 1 and drop_border_px >= 0")
+
+
+@dataclass(frozen=True)
+class LimbPoints:
+    """Limb points of one frame.
+
+    Attributes
+    ----------
+    uv : (n, 2) array
+        Pixel coordinates ``(u, v)`` of the limb points [px] (distorted, as measured).
+    sigma_px : (n,) array
+        1-sigma isotropic uncertainty of each point [px].
+    centre_px : (2,) array
+        Centre of the circle fitted to the candidates [px].
+    radius_px : float
+        Radius of that circle [px].
+    sun_dir_image : (2,) array
+        Unit direction of the Sun in the image at the Moon [-].
+    n_candidates : int
+        Number of candidates before the sector, lit-side and cap filters.
+    source : str
+        ``"segments"`` (pixel accuracy) or ``"windows"`` (subpixel refinement).
+    """
+
+    uv: FloatArray
+    sigma_px: FloatArray
+    centre_px: FloatArray
+    radius_px: float
+    sun_dir_image: FloatArray
+    n_candidates: int
+    source: str = "segments"
+
+    def __len__(self) -> int:
+        return int(self.uv.shape[0])
+
+
+# ------------------------------------------------------------------------ geometry helpers
+def segments_centroid(segments: Segments, min_level: int = 0) -> FloatArray:
+    """Centroid ``(u, v)`` of the pixels carried by the runs [px] (unweighted by DN)."""
+    keep = segments.level >= min_level
+    L = segments.length[keep].astype(float)
+    if L.sum() <= 0:
+        raise LimbNotFoundError("segments: no run at or above the threshold level "
+                                f"{min_level}; the frame has no Moon to navigate on",
+                                "no-moon")
+    u = segments.col_start[keep] + (L - 1.0) / 2.0
+    v = segments.row[keep].astype(float)
+    return np.array([np.sum(u * L), np.sum(v * L)]) / L.sum()
+
+
+def sun_direction_in_image(camera: Camera, R_cam_to_inertial: ArrayLike,
+                           sun_direction_inertial: ArrayLike,
+                           moon_px: ArrayLike) -> FloatArray:
+    """Unit direction ``(du, dv)`` in which the Sun lies, in the image, at the Moon.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera model.
+    R_cam_to_inertial : (3, 3) array
+        Attitude (measured, on board), camera to inertial.
+    sun_direction_inertial : (3,) array
+        Direction from the Moon (or the spacecraft: the difference is ~1e-4 rad) to the Sun,
+        inertial [-]; need not be normalised.
+    moon_px : (2,) array
+        Where the Moon is in the image [px].
+
+    Returns
+    -------
+    (2,) array
+        Unit vector; the image of the Sun's direction, ``J_pi(x_moon) @ s_cam``, normalised.
+
+    Raises
+    ------
+    LimbNotFoundError
+        When the Sun is along the line of sight (full or new Moon: no lit side to pick).
+    """
+    R = np.asarray(R_cam_to_inertial, float)
+    s_cam = R.T @ np.asarray(sun_direction_inertial, float)
+    s_cam = s_cam / np.linalg.norm(s_cam)
+    x = camera.unproject(np.asarray(moon_px, float))
+    d = camera.project_jacobian(x)[:2] @ s_cam
+    nd = float(np.linalg.norm(d))
+    # the Jacobian scales with 1/z = 1 for a unit x: |d| ~ fx sin(angle to the LOS)
+    if nd < 1e-6 * camera.fx:
+        raise LimbNotFoundError("the Sun is along the line of sight to the Moon (phase 0 or "
+                                "180 deg): the lit side of the limb is undefined", "sun-on-axis")
+    return d / nd
+
+
+def fit_circle_kasa(uv: ArrayLike) -> tuple[FloatArray, float]:
+    """Algebraic least-squares circle (Kasa 1976) through points ``(n, 2)`` [px].
+
+    Returns ``(centre (2,), radius)`` [px]. Needs >= 3 non-collinear points.
+    """
+    p = np.asarray(uv, float)
+    if p.shape[0] < 3:
+        raise LimbNotFoundError(f"a circle needs >= 3 points, got {p.shape[0]}",
+                                "degenerate-arc")
+    m = p.mean(axis=0)
+    q = p - m
+    A = np.column_stack([q, np.ones(q.shape[0])])
+    b = np.sum(q * q, axis=1)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    c = sol[:2] / 2.0
+    r2 = sol[2] + c @ c
+    if not np.isfinite(r2) or r2 <= 0:
+        raise LimbNotFoundError("degenerate arc: the limb points are collinear",
+                                "degenerate-arc")
+    return c + m, float(math.sqrt(r2))
+
+
+def _robust_circle(uv: FloatArray) -> tuple[FloatArray, float]:
+    c, r = fit_circle_kasa(uv)
+    res = np.abs(np.linalg.norm(uv - c, axis=1) - r)
+    mad = float(np.median(res)) * 1.4826 + 0.5
+    keep = res <= 3.0 * mad
+    if 3 <= keep.sum() < len(uv):
+        c, r = fit_circle_kasa(uv[keep])
+    return c, r
+
+
+# ------------------------------------------------------------------------ scans
+def _row_scan(row: NDArray, c0: NDArray, c1: NDArray, right: bool) -> tuple[NDArray, NDArray]:
+    """Lit-side end per row: rightmost end (``right``) or leftmost start."""
+    if right:
+        order = np.lexsort((c1, row))
+        last = np.r_[row[order][1:] != row[order][:-1], True]
+        sel = order[last]
+        return c1[sel], row[sel]
+    order = np.lexsort((c0, row))
+    first = np.r_[True, row[order][1:] != row[order][:-1]]
+    sel = order[first]
+    return c0[sel], row[sel]
+
+
+def _column_scan(row: NDArray, c0: NDArray, c1: NDArray, width: int,
+                 down: bool) -> tuple[NDArray, NDArray]:
+    """Lit-side end per column: lowest row (``down``) or highest row covering it.
+
+    Runs are painted into a per-column array in row order (bottom-most last when ``down``), one
+    slice assignment per run: O(runs) Python steps, no per-pixel expansion.
+    """
+    order = np.argsort(row, kind="stable")
+    if not down:
+        order = order[::-1]
+    ext = np.full(width, -1, dtype=np.int64)
+    for r, a, b in zip(row[order].tolist(), c0[order].tolist(), c1[order].tolist(),
+                       strict=True):
+        ext[a:b + 1] = r
+    u = np.nonzero(ext >= 0)[0]
+    return u, ext[u]
+
+
+_SCAN_DIRECTIONS = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+
+
+def _sector_and_lit(cand: FloatArray, scan: NDArray, centre: FloatArray, d: FloatArray,
+                    min_cos: float) -> NDArray[np.bool_]:
+    """Keep a candidate if it lies in its scan's sector (within 45 deg of the scan direction,
+    seen from ``centre``) and its outward direction faces the Sun (``n . d >= min_cos``)."""
+    rel = cand - centre
+    dist = np.linalg.norm(rel, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n = rel / dist[:, None]
+    along = np.sum(n * _SCAN_DIRECTIONS[scan], axis=1)
+    return (dist > 0) & (along >= math.sqrt(0.5) - 1e-12) & (n @ d >= min_cos)
+
+
+def limb_points_from_segments(
+    segments: Segments,
+    sun_dir_image: ArrayLike,
+    *,
+    options: LimbScanOptions | None = None,
+) -> LimbPoints:
+    """Pixel-accuracy limb points from segments (steps 3-7 of the module docstring).
+
+    Parameters
+    ----------
+    segments : Segments
+        The full-image-compressed readout of one frame.
+    sun_dir_image : (2,) array
+        Direction of the Sun in the image at the Moon (:func:`sun_direction_in_image`) [-].
+    options : LimbScanOptions, optional
+        Tuning (module table).
+
+    Returns
+    -------
+    LimbPoints
+        Points [px], ordered by angle about the fitted centre.
+
+    Raises
+    ------
+    LimbNotFoundError
+        No run survives the filters, or fewer than ``options.min_points`` limb points remain
+        (a degenerate arc). The message says which.
+    """
+    opt = options or LimbScanOptions()
+    if segments is None or len(segments) == 0:
+        raise LimbNotFoundError("segments: the readout has no run above threshold (no Moon in "
+                                "the frame, or an exposure too short for the threshold)",
+                                "no-segments" if segments is None else "no-moon")
+    d = np.asarray(sun_dir_image, float)
+    d = d / np.linalg.norm(d)
+    keep = (segments.level >= opt.min_level) & (segments.length >= opt.min_run_length_px)
+    if not np.any(keep):
+        raise LimbNotFoundError(
+            f"segments: none of the {len(segments)} runs has level >= {opt.min_level} and "
+            f"length >= {opt.min_run_length_px} px", "no-moon")
+    row = segments.row[keep].astype(np.int64)
+    c0 = segments.col_start[keep].astype(np.int64)
+    L = segments.length[keep].astype(np.int64)
+    c1 = c0 + L - 1
+    H, W = segments.shape
+    if W <= 0 or H <= 0:
+        W = int(c1.max()) + 1
+        H = int(row.max()) + 1
+
+    # four scans: right/left end of every row, bottom/top end of every column
+    ur, vr = _row_scan(row, c0, c1, right=True)
+    ul, vl = _row_scan(row, c0, c1, right=False)
+    ub, vb = _column_scan(row, c0, c1, W, down=True)
+    ut, vt = _column_scan(row, c0, c1, W, down=False)
+    cand = np.concatenate([np.column_stack([ur, vr]), np.column_stack([ul, vl]),
+                           np.column_stack([ub, vb]), np.column_stack([ut, vt])]).astype(float)
+    # sector of each scan: outward direction the scan looks at (+u, -u, +v, -v)
+    scan = np.repeat(np.arange(4), [ur.size, ul.size, ub.size, ut.size])
+    b = opt.drop_border_px
+    if b > 0:
+        inside = ((cand[:, 0] >= b) & (cand[:, 0] <= W - 1 - b)
+                  & (cand[:, 1] >= b) & (cand[:, 1] <= H - 1 - b))
+        cand, scan = cand[inside], scan[inside]
+    # first centre: the scans facing the Sun (limb points, a few terminator points trimmed)
+    facing = (scan == (0 if d[0] >= 0 else 1)) | (scan == (2 if d[1] >= 0 else 3))
+    n_cand = int(facing.sum())
+    if n_cand < opt.min_points:
+        raise LimbNotFoundError(f"degenerate arc: {n_cand} limb candidates (< "
+                                f"{opt.min_points}) in {len(segments)} runs", "degenerate-arc")
+    centre, radius = _robust_circle(cand[facing])
+    ok = _sector_and_lit(cand, scan, centre, d, opt.min_sun_cos)
+    if ok.sum() >= opt.min_points:  # second pass with the centre of the lit limb alone
+        centre, radius = fit_circle_kasa(cand[ok])
+        ok = _sector_and_lit(cand, scan, centre, d, opt.min_sun_cos)
+    pts = np.unique(cand[ok], axis=0)  # a corner pixel can end a row and a column
+    if pts.shape[0] < opt.min_points:
+        raise LimbNotFoundError(
+            f"degenerate arc: {pts.shape[0]} lit limb points (< {opt.min_points}) out of "
+            f"{n_cand} candidates; the lit limb is too short or outside the field",
+            "degenerate-arc")
+    ang = np.arctan2(pts[:, 1] - centre[1], pts[:, 0] - centre[0])
+    # order along the arc: start the angle at the side opposite to the Sun
+    a0 = math.atan2(-d[1], -d[0])
+    order = np.argsort(np.mod(ang - a0, 2.0 * np.pi))
+    pts = pts[order]
+    if pts.shape[0] > opt.max_points:
+        idx = np.unique(np.round(np.linspace(0, pts.shape[0] - 1, opt.max_points)).astype(int))
+        pts = pts[idx]
+    if opt.point_offset_px != 0.0:
+        rel = pts - centre
+        pts = pts - opt.point_offset_px * rel / np.linalg.norm(rel, axis=1)[:, None]
+    log.debug("limb: %d candidates -> %d lit limb points, circle r = %.2f px",
+              n_cand, pts.shape[0], radius)
+    return LimbPoints(
+        uv=pts,
+        sigma_px=np.full(pts.shape[0], opt.point_sigma_px),
+        centre_px=centre,
+        radius_px=radius,
+        sun_dir_image=d,
+        n_candidates=n_cand,
+    )

@@ -1,0 +1,134 @@
+"""Navigation metrics against truth: limb-point errors, estimation errors, NEES and NIS.
+
+Technique
+---------
+1. **Limb-point error** (the paper's figures 8, 22, 25). The true limb of the reference body
+   seen from the true pose is the conic ``[u v 1] Q [u v 1]^T = 0`` of the pinhole image
+   (:func:`~starnav.navigation.christian_robinson.limb_conic_pixels`). Each measured point is
+   undistorted to the pinhole image and moved along the conic's gradient by Newton steps until it
+   lies on the conic; the error is the length of that path, positive outside the limb (the
+   saturation bias of the paper is positive). Its bias (mean), standard deviation and a PDF
+   (histogram density) summarise a frame or a sequence.
+2. **Estimation error** ``e = x_hat - x_true`` of position and velocity (origin-free: the
+   Moon's ephemeris cancels), and the 3-sigma bounds ``3 sqrt(diag P)``.
+3. **NEES** ``e^T P^-1 e`` over the 6 position-velocity states and **NIS**
+   ``nu^T S^-1 nu`` of every processed fix; a consistent filter has NEES ~ chi2(6) and NIS ~
+   chi2(3). :func:`chi2_band` gives the two-sided band for the mean of ``runs`` samples.
+
+Reference
+---------
+Y. Bar-Shalom, X. R. Li and T. Kirubarajan, "Estimation with applications to tracking and
+navigation", Wiley (2001), sections 5.4 (NEES, NIS) and 5.4.2 (the chi-square bands).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from starnav.camera import Camera
+from starnav.geometry import FrameGeometry
+from starnav.navigation.christian_robinson import limb_conic_pixels, shape_transform
+
+FloatArray = NDArray[np.float64]
+
+#: Newton steps when projecting a point onto the true limb conic.
+CONIC_PROJECTION_STEPS = 8
+
+
+def undistorted_pixels(camera: Camera, uv: ArrayLike) -> FloatArray:
+    """Measured pixels ``(N, 2)`` to pinhole (distortion-free) pixels [px]."""
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    if not camera.has_distortion:
+        return uv.copy()
+    xy = camera.pixel_to_normalized(uv)
+    return np.column_stack([camera.fx * xy[:, 0] + camera.cx, camera.fy * xy[:, 1] + camera.cy])
+
+
+def conic_signed_distance(Q: ArrayLike, uv: ArrayLike) -> FloatArray:
+    """Signed distance [px] of pinhole pixels ``(N, 2)`` to the conic ``Q`` (``> 0`` outside,
+    where ``p^T Q p < 0``), by Newton steps along the gradient (module step 1)."""
+    Q = np.asarray(Q, float)
+    p0 = np.asarray(uv, float).reshape(-1, 2)
+    p = p0.copy()
+    for _ in range(CONIC_PROJECTION_STEPS):
+        ph = np.column_stack([p, np.ones(p.shape[0])])
+        Qp = ph @ Q.T
+        f = np.sum(ph * Qp, axis=1)
+        g = 2.0 * Qp[:, :2]
+        p = p - (f / np.sum(g * g, axis=1))[:, None] * g
+    ph0 = np.column_stack([p0, np.ones(p0.shape[0])])
+    f0 = np.sum(ph0 * (ph0 @ Q.T), axis=1)
+    return -np.sign(f0) * np.linalg.norm(p - p0, axis=1)
+
+
+def limb_point_errors(uv: ArrayLike, camera: Camera, truth: FrameGeometry,
+                      radii_m: ArrayLike | None = None) -> FloatArray:
+    """Signed distance [px] of measured limb points to the true limb (positive outside).
+
+    Parameters
+    ----------
+    uv : (N, 2) array
+        Measured (distorted) limb points [px].
+    camera : Camera
+    truth : FrameGeometry
+        True pose (camera position, true attitude, Moon orientation and radius).
+    radii_m : (3,) array, optional
+        Body semi-axes [m]; default the sphere ``truth.moon_radius``.
+    """
+    r = (truth.moon_radius,) * 3 if radii_m is None else tuple(radii_m)
+    R_body_to_cam = truth.R_cam_to_inertial.T @ truth.R_moon_to_inertial
+    B = shape_transform(r, R_body_to_cam)
+    Q = limb_conic_pixels(camera, truth.moon_centre_camera(), B)
+    return conic_signed_distance(Q, undistorted_pixels(camera, uv))
+
+
+@dataclass(frozen=True)
+class ErrorSummary:
+    """Bias, standard deviation, RMS [unit of the input] and count of a set of errors."""
+
+    bias: float
+    std: float
+    rms: float
+    count: int
+
+    @classmethod
+    def of(cls, e: ArrayLike) -> ErrorSummary:
+        e = np.asarray(e, float).ravel()
+        e = e[np.isfinite(e)]
+        if e.size == 0:
+            return cls(math.nan, math.nan, math.nan, 0)
+        return cls(float(e.mean()), float(e.std(ddof=1)) if e.size > 1 else 0.0,
+                   float(np.sqrt(np.mean(e * e))), int(e.size))
+
+    def as_dict(self) -> dict[str, float | int]:
+        return {"bias": self.bias, "std": self.std, "rms": self.rms, "count": self.count}
+
+
+def error_pdf(e: ArrayLike, bins: int | ArrayLike = 60) -> tuple[FloatArray, FloatArray]:
+    """Histogram density of errors: ``(bin centres, density)`` (integrates to 1)."""
+    e = np.asarray(e, float).ravel()
+    e = e[np.isfinite(e)]
+    dens, edges = np.histogram(e, bins=bins, density=True)
+    return 0.5 * (edges[1:] + edges[:-1]), dens
+
+
+def nees(error: ArrayLike, P: ArrayLike) -> float | FloatArray:
+    """Normalised estimation error squared ``e^T P^-1 e`` (broadcast over leading axes)."""
+    e = np.asarray(error, float)
+    P = np.asarray(P, float)
+    sol = np.linalg.solve(P, e[..., None])[..., 0]
+    out = np.sum(e * sol, axis=-1)
+    return float(out) if np.ndim(out) == 0 else out
+
+
+def chi2_band(dof: int, runs: int = 1, probability: float = 0.95) -> tuple[float, float]:
+    """Two-sided ``probability`` band of the mean of ``runs`` chi2(``dof``) samples."""
+    from scipy.stats import chi2
+
+    a = (1.0 - probability) / 2.0
+    k = dof * runs
+    return float(chi2.ppf(a, k) / runs), float(chi2.ppf(1.0 - a, k) / runs)

@@ -1,0 +1,582 @@
+"""The limb-based VBN chain end to end: segments -> limb -> RANSAC -> fix -> EKF.
+
+Technique
+---------
+1. :func:`process_frame` - one frame to one position fix:
+
+   a. the Moon's rough image position (centroid of the segment pixels) and the Sun's direction
+      in the image from the *measured* attitude
+      (:func:`~starnav.navigation.limb.sun_direction_in_image`);
+   b. pixel-level limb points from the segments (:mod:`~starnav.navigation.limb`);
+   c. RANSAC (:mod:`~starnav.navigation.ransac`, circle or Christian-Robinson model);
+   d. if the frame carries windows and refinement is on: subpixel points, one per window, from
+      the blurred-limb fit (:mod:`~starnav.navigation.refine`), screened by their residual to
+      a first Christian-Robinson fit (``refine_outlier_px``);
+   e. the Christian-Robinson fix with its covariance, in the camera frame and in J2000
+      (:mod:`~starnav.navigation.christian_robinson`).
+
+   A frame without a usable limb returns a measurement with ``status`` (``no-segments``,
+   ``no-moon``, ``degenerate-arc``, ``sun-on-axis``, ``ransac-failed``, ``fix-failed``) and a
+   message instead of raising, so a sequence goes on.
+2. :func:`run_filter` - the EKF (:mod:`~starnav.navigation.ekf`) over a sequence of
+   measurements: every frame is a prediction, every usable fix an update.
+3. :func:`navigate` - both over a dataset, timing each stage (wall clock) and, on request, the
+   peak Python heap of the whole per-frame chain (``tracemalloc``; it slows the run, so timing
+   and memory are measured in separate passes by the benchmark).
+4. :func:`monte_carlo` - the filter re-run from initial states drawn from ``P0`` about the
+   truth, on the same measurements (the image processing does not depend on the filter).
+
+Tuning: :class:`ChainOptions` gathers the per-stage options (each documented in its module);
+:class:`~starnav.navigation.ekf.EkfOptions` the filter's.
+
+Example
+-------
+>>> from starnav.navigation import process_frame, run_filter
+>>> m = process_frame(frame, camera)                                   # doctest: +SKIP
+>>> m.status, m.position, m.covariance                                 # doctest: +SKIP
+>>> res = run_filter([m, ...], dynamics=dyn, moon=dyn, t0=t0, x0=x0, P0=P0)  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import math
+import time
+import tracemalloc
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from starnav.camera import Camera
+from starnav.errors import ConfigError
+from starnav.geometry import FrameGeometry
+from starnav.navigation.christian_robinson import (
+    ChristianRobinsonOptions,
+    FixError,
+    LimbFix,
+    christian_robinson,
+)
+from starnav.navigation.dynamics import Dynamics, MoonEphemeris
+from starnav.navigation.ekf import EkfOptions, NavigationEkf
+from starnav.navigation.frames import NavDataset, NavFrame
+from starnav.navigation.limb import (
+    LimbNotFoundError,
+    LimbPoints,
+    LimbScanOptions,
+    fit_circle_kasa,
+    limb_points_from_segments,
+    segments_centroid,
+    sun_direction_in_image,
+)
+from starnav.navigation.metrics import chi2_band, limb_point_errors, nees
+from starnav.navigation.ransac import RansacError, RansacOptions, ransac_limb
+from starnav.navigation.refine import RefineOptions, refine_limb
+
+FloatArray = NDArray[np.float64]
+log = logging.getLogger(__name__)
+
+#: Stages timed by :func:`process_frame` and :func:`navigate`, in order.
+STAGES = ("limb", "ransac", "refine", "fix", "ekf")
+
+
+@dataclass(frozen=True)
+class ChainOptions:
+    """Options of every stage of :func:`process_frame`.
+
+    Attributes
+    ----------
+    limb, ransac, refine, fix :
+        Per-stage options (see each module's table).
+    use_windows : bool
+        Refine with the frame's windows when it has some.
+    refine_outlier_px : float
+        Refined points whose residual to a first fix exceeds this are dropped [px].
+    """
+
+    limb: LimbScanOptions = field(default_factory=LimbScanOptions)
+    ransac: RansacOptions = field(default_factory=RansacOptions)
+    refine: RefineOptions = field(default_factory=RefineOptions)
+    fix: ChristianRobinsonOptions = field(default_factory=ChristianRobinsonOptions)
+    use_windows: bool = True
+    refine_outlier_px: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not self.refine_outlier_px > 0:
+            raise ConfigError("refine_outlier_px", self.refine_outlier_px, "> 0 px")
+
+
+@dataclass(frozen=True)
+class FrameMeasurement:
+    """Output of :func:`process_frame` for one frame.
+
+    Attributes
+    ----------
+    index, epoch_tdb : int, float
+        Frame number and epoch [TDB s past J2000].
+    status : str
+        ``ok`` or why there is no fix (module docstring).
+    message : str
+        Human-readable reason (empty when ``ok``).
+    limb : LimbPoints or None
+        Pixel-level limb points.
+    inliers : (N,) bool array or None
+        RANSAC consensus among ``limb``.
+    refined : LimbPoints or None
+        Subpixel points from the windows (those used in the fix).
+    fix : LimbFix or None
+        Christian-Robinson fix (camera frame).
+    position : (3,) array or None
+        Camera position relative to the Moon centre, J2000 [m].
+    covariance : (3, 3) array or None
+        Its covariance [m^2] (point noise and attitude knowledge).
+    timings_s : dict
+        Wall time of each stage [s].
+    """
+
+    index: int
+    epoch_tdb: float
+    status: str
+    message: str = ""
+    limb: LimbPoints | None = None
+    inliers: NDArray[np.bool_] | None = None
+    refined: LimbPoints | None = None
+    fix: LimbFix | None = None
+    position: FloatArray | None = None
+    covariance: FloatArray | None = None
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def usable(self) -> bool:
+        """True when the frame gives a position fix."""
+        return self.status == "ok"
+
+    @property
+    def points_used(self) -> FloatArray:
+        """The limb points the fix was computed from [px] (empty without a fix)."""
+        if self.refined is not None:
+            return self.refined.uv
+        if self.limb is not None and self.inliers is not None:
+            return self.limb.uv[self.inliers]
+        return np.empty((0, 2))
+
+
+def _fail(frame: NavFrame, status: str, message: str, timings: dict[str, float],
+          **kw: object) -> FrameMeasurement:
+    log.info("frame %s: no fix (%s): %s", frame.index, status, message)
+    return FrameMeasurement(int(frame.index), float(frame.epoch_tdb), status, message,
+                            timings_s=timings, **kw)  # type: ignore[arg-type]
+
+
+def process_frame(
+    frame: NavFrame,
+    camera: Camera,
+    *,
+    options: ChainOptions | None = None,
+    rng: np.random.Generator | None = None,
+) -> FrameMeasurement:
+    """One frame through the image processing and the Christian-Robinson fix (module step 1).
+
+    Parameters
+    ----------
+    frame : NavFrame
+        Segments, windows, measured attitude, Sun direction (see
+        :mod:`starnav.navigation.frames`).
+    camera : Camera
+        Camera model.
+    options : ChainOptions, optional
+        Per-stage options.
+    rng : numpy.random.Generator, optional
+        For RANSAC; default ``default_rng(frame.index)`` (reproducible per frame).
+
+    Returns
+    -------
+    FrameMeasurement
+        ``status == "ok"`` with ``position`` and ``covariance`` [m, m^2] in J2000, or the
+        reason there is none. Never raises for bad frame content.
+    """
+    opt = options or ChainOptions()
+    rng = rng if rng is not None else np.random.default_rng(int(frame.index))
+    tm: dict[str, float] = {}
+    R_ci = np.asarray(frame.R_cam_to_inertial_measured, float)
+    R_mi = getattr(frame, "R_moon_to_inertial", None)
+    R_body_to_cam = None if R_mi is None else R_ci.T @ np.asarray(R_mi, float)
+
+    t = time.perf_counter()
+    seg = frame.segments
+    if seg is None:
+        tm["limb"] = time.perf_counter() - t
+        return _fail(frame, "no-segments", "the frame has no segments readout", tm)
+    try:
+        centre0 = segments_centroid(seg, opt.limb.min_level) if len(seg) else None
+        if centre0 is None:
+            raise LimbNotFoundError("segments: the readout has no run above threshold (no Moon "
+                                    "in the frame, or an exposure too short for the threshold)",
+                                    "no-moon")
+        sdir = sun_direction_in_image(camera, R_ci, frame.sun_direction_inertial, centre0)
+        limb = limb_points_from_segments(seg, sdir, options=opt.limb)
+    except LimbNotFoundError as err:
+        tm["limb"] = time.perf_counter() - t
+        return _fail(frame, err.reason, str(err), tm)
+    tm["limb"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    try:
+        rr = ransac_limb(limb.uv, camera, rng=rng, options=opt.ransac, fix_options=opt.fix,
+                         R_body_to_cam=R_body_to_cam)
+    except RansacError as err:
+        tm["ransac"] = time.perf_counter() - t
+        return _fail(frame, "ransac-failed", str(err), tm, limb=limb)
+    inl = rr.inliers
+    tm["ransac"] = time.perf_counter() - t
+
+    refined = None
+    if opt.use_windows and frame.windows:
+        t = time.perf_counter()
+        if rr.model == "circle":
+            centre, radius = rr.params[:2], float(rr.params[2])
+        else:
+            centre, radius = fit_circle_kasa(limb.uv[inl])
+        try:
+            refined = refine_limb(frame.windows, centre, radius, sun_dir_image=sdir,
+                                  options=opt.refine)
+        except LimbNotFoundError as err:
+            log.info("frame %s: subpixel refinement failed (%s); pixel-level points used",
+                     frame.index, err)
+        tm["refine"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    try:
+        if refined is not None:
+            fix = christian_robinson(refined.uv, camera, sigma_px=refined.sigma_px,
+                                     R_body_to_cam=R_body_to_cam, options=opt.fix)
+            bad = np.abs(fix.residual_px) > opt.refine_outlier_px
+            if np.any(bad) and (~bad).sum() >= 3:
+                keep = ~bad
+                refined = LimbPoints(refined.uv[keep], refined.sigma_px[keep],
+                                     refined.centre_px, refined.radius_px,
+                                     refined.sun_dir_image, refined.n_candidates, "windows")
+                fix = christian_robinson(refined.uv, camera, sigma_px=refined.sigma_px,
+                                         R_body_to_cam=R_body_to_cam, options=opt.fix)
+        else:
+            fix = christian_robinson(limb.uv[inl], camera, sigma_px=limb.sigma_px[inl],
+                                     R_body_to_cam=R_body_to_cam, options=opt.fix)
+    except FixError as err:
+        tm["fix"] = time.perf_counter() - t
+        return _fail(frame, "fix-failed", str(err), tm, limb=limb, inliers=inl,
+                     refined=refined)
+    pos = fix.position_inertial(R_ci)
+    cov = fix.covariance_inertial(R_ci, opt.fix.attitude_sigma_rad)
+    tm["fix"] = time.perf_counter() - t
+    return FrameMeasurement(int(frame.index), float(frame.epoch_tdb), "ok", "", limb, inl,
+                            refined, fix, pos, cov, tm)
+
+
+# ----------------------------------------------------------------------------- filter
+@dataclass(frozen=True)
+class FilterResult:
+    """EKF history at the measurement epochs (posterior after each frame).
+
+    Attributes
+    ----------
+    epochs : (K,) array
+        [TDB s past J2000].
+    states : (K, n) array
+        EMB-centred J2000 position [m], velocity [m/s], bias states.
+    covariances : (K, n, n) array
+    has_fix : (K,) bool array
+        The frame gave a fix.
+    accepted : (K,) bool array
+        The fix passed the gate (or was forced).
+    nis : (K,) array
+        NIS of each fix (NaN without one).
+    bias_model : str
+    timings_s : (K,) array
+        Wall time of each predict + update [s].
+    """
+
+    epochs: FloatArray
+    states: FloatArray
+    covariances: FloatArray
+    has_fix: NDArray[np.bool_]
+    accepted: NDArray[np.bool_]
+    nis: FloatArray
+    bias_model: str
+    timings_s: FloatArray
+
+    def errors(self, truth: ArrayLike) -> FloatArray:
+        """Position and velocity errors ``(K, 6)`` [m, m/s] against EMB-centred truth ``(K, 6)``.
+
+        Origin-free: a Moon-centred truth gives the same errors if the Moon's state is added to
+        it first (see :func:`truth_states`)."""
+        return self.states[:, :6] - np.asarray(truth, float)
+
+    def sigma3(self) -> FloatArray:
+        """3-sigma bounds of position and velocity ``(K, 6)`` [m, m/s]."""
+        return 3.0 * np.sqrt(np.einsum("kii->ki", self.covariances[:, :6, :6]))
+
+    def nees(self, truth: ArrayLike) -> FloatArray:
+        """NEES of the 6 position-velocity states ``(K,)`` [-]."""
+        return np.asarray(nees(self.errors(truth), self.covariances[:, :6, :6]))
+
+
+def run_filter(
+    measurements: Sequence[FrameMeasurement],
+    *,
+    dynamics: Dynamics,
+    moon: MoonEphemeris,
+    t0: float,
+    x0: ArrayLike,
+    P0: ArrayLike,
+    options: EkfOptions | None = None,
+) -> FilterResult:
+    """Run the EKF over a sequence of frame measurements (module step 2).
+
+    Parameters
+    ----------
+    measurements : sequence of FrameMeasurement
+        In time order; frames without a fix only propagate.
+    dynamics : Dynamics
+        6-state propagator with STM.
+    moon : MoonEphemeris
+        Moon state relative to the EMB.
+    t0 : float
+        Epoch of ``x0`` [TDB s].
+    x0 : (6,) array
+        Initial EMB-centred J2000 state [m, m/s].
+    P0 : (6, 6) array
+        Its covariance.
+    options : EkfOptions, optional
+
+    Returns
+    -------
+    FilterResult
+    """
+    ekf = NavigationEkf(dynamics, moon, t0, x0, P0, options=options)
+    K = len(measurements)
+    n = ekf.n
+    ep = np.empty(K)
+    X = np.empty((K, n))
+    P = np.empty((K, n, n))
+    has = np.zeros(K, bool)
+    acc = np.zeros(K, bool)
+    nis = np.full(K, np.nan)
+    tms = np.empty(K)
+    for k, m in enumerate(measurements):
+        t = time.perf_counter()
+        _filter_step(ekf, m, k, has, acc, nis)
+        tms[k] = time.perf_counter() - t
+        ep[k], X[k], P[k] = ekf.t, ekf.x, ekf.P
+    return FilterResult(ep, X, P, has, acc, nis, ekf.options.bias_model, tms)
+
+
+def _filter_step(ekf: NavigationEkf, m: FrameMeasurement, k: int, has: NDArray,
+                 acc: NDArray, nis: NDArray) -> None:
+    ekf.predict(m.epoch_tdb)
+    if m.usable and m.position is not None and m.covariance is not None:
+        has[k] = True
+        info = ekf.update(m.position, m.covariance)
+        acc[k] = info.accepted
+        nis[k] = info.nis
+
+
+def truth_states(frames: Iterable[NavFrame], moon: MoonEphemeris) -> FloatArray | None:
+    """EMB-centred J2000 truth ``(K, 6)`` [m, m/s] from the frames' Moon-centred truth, or None
+    if any frame has none."""
+    out = []
+    for f in frames:
+        g: FrameGeometry | None = f.truth
+        if g is None:
+            return None
+        out.append(moon.moon_state(f.epoch_tdb)
+                   + np.concatenate([g.camera_position, g.camera_velocity]))
+    return np.array(out) if out else None
+
+
+# ----------------------------------------------------------------------------- navigate
+@dataclass(frozen=True)
+class NavigationRun:
+    """Everything :func:`navigate` produced.
+
+    Attributes
+    ----------
+    measurements : list of FrameMeasurement
+    filter : FilterResult
+    truth : (K, 6) array or None
+        EMB-centred truth at the frame epochs [m, m/s].
+    limb_errors : list of arrays
+        Per frame, the signed distance of the used limb points to the true limb [px].
+    stage_times_s : (K, len(STAGES)) array
+        Wall time per stage (:data:`STAGES`) [s]; NaN for a stage not run.
+    cpu_times_s : (K,) array
+        Process CPU time of the whole chain per frame [s].
+    peak_memory_bytes : (K,) array or None
+        Peak traced Python heap (numpy arrays included) of the chain per frame [bytes]
+        (``measure_memory``; measured in a separate pass so the timings are untraced).
+    """
+
+    measurements: list[FrameMeasurement]
+    filter: FilterResult
+    truth: FloatArray | None
+    limb_errors: list[FloatArray]
+    stage_times_s: FloatArray
+    cpu_times_s: FloatArray
+    peak_memory_bytes: FloatArray | None
+
+
+def navigate(
+    dataset: NavDataset | Sequence[NavFrame],
+    *,
+    camera: Camera | None = None,
+    dynamics: Dynamics,
+    moon: MoonEphemeris,
+    P0: ArrayLike,
+    x0: ArrayLike | None = None,
+    t0: float | None = None,
+    chain: ChainOptions | None = None,
+    ekf: EkfOptions | None = None,
+    rng: np.random.Generator | None = None,
+    measure_memory: bool = False,
+) -> NavigationRun:
+    """Process every frame and filter the fixes (module step 3).
+
+    Parameters
+    ----------
+    dataset : NavDataset or sequence of NavFrame
+        Frames in time order (a NavDataset also gives the camera).
+    camera : Camera, optional
+        Required when ``dataset`` is a plain sequence.
+    dynamics, moon :
+        Filter dynamics and Moon ephemeris.
+    P0 : (6, 6) array
+        Initial covariance [m^2, m^2/s, m^2/s^2].
+    x0 : (6,) array, optional
+        Initial EMB-centred state at ``t0``; default: the truth of the first frame plus an
+        error drawn from ``P0`` with ``rng``.
+    t0 : float, optional
+        Epoch of ``x0``; default the first frame's epoch.
+    chain, ekf : options
+    rng : numpy.random.Generator, optional
+        For the initial error and, split per frame, for RANSAC. Default ``default_rng(0)``.
+    measure_memory : bool
+        Trace the peak Python heap of each frame's chain (slower).
+
+    Returns
+    -------
+    NavigationRun
+    """
+    frames = list(dataset)
+    if not frames:
+        raise ConfigError("dataset", "0 frames", "at least one frame")
+    cam = camera if camera is not None else getattr(dataset, "camera", None)
+    if cam is None:
+        raise ConfigError("camera", None, "a Camera (the dataset does not carry one)")
+    rng = rng if rng is not None else np.random.default_rng(0)
+    chain = chain or ChainOptions()
+    truth = truth_states(frames, moon)
+    P0 = np.asarray(P0, float)
+    t0 = float(frames[0].epoch_tdb) if t0 is None else float(t0)
+    if x0 is None:
+        if truth is None:
+            raise ConfigError("x0", None, "an initial state (the frames carry no truth)")
+        x0 = truth[0] + np.linalg.cholesky(P0) @ rng.standard_normal(6)
+    frame_rngs = [np.random.default_rng(s) for s in
+                  np.random.SeedSequence(int(rng.integers(2**63))).spawn(len(frames))]
+    filt = NavigationEkf(dynamics, moon, t0, x0, P0, options=ekf)
+    K = len(frames)
+    n = filt.n
+    ep, X, P = np.empty(K), np.empty((K, n)), np.empty((K, n, n))
+    has, acc, nis = np.zeros(K, bool), np.zeros(K, bool), np.full(K, np.nan)
+    ftimes = np.empty(K)
+    stage = np.full((K, len(STAGES)), np.nan)
+    cpu = np.empty(K)
+    peak = np.empty(K) if measure_memory else None
+    meas: list[FrameMeasurement] = []
+    errs: list[FloatArray] = []
+    if measure_memory and chain.use_windows:
+        from starnav.navigation.refine import _half_tables
+
+        _half_tables()  # static table (96 kB), built once: not per-frame working memory
+    for k, f in enumerate(frames):
+        if measure_memory and peak is not None:
+            # separate traced pass (tracing slows the chain): same frame, same RNG state, a
+            # copy of the filter, so timings below stay untraced
+            fcopy = copy.deepcopy(filt)
+            rcopy = copy.deepcopy(frame_rngs[k])
+            tracemalloc.start()
+            tracemalloc.reset_peak()
+            m_mem = process_frame(f, cam, options=chain, rng=rcopy)
+            _filter_step(fcopy, m_mem, k, has.copy(), acc.copy(), nis.copy())
+            peak[k] = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+            del fcopy, m_mem
+        c0 = time.process_time()
+        m = process_frame(f, cam, options=chain, rng=frame_rngs[k])
+        t = time.perf_counter()
+        _filter_step(filt, m, k, has, acc, nis)
+        ftimes[k] = time.perf_counter() - t
+        cpu[k] = time.process_time() - c0
+        ep[k], X[k], P[k] = filt.t, filt.x, filt.P
+        for j, s in enumerate(STAGES[:-1]):
+            if s in m.timings_s:
+                stage[k, j] = m.timings_s[s]
+        stage[k, -1] = ftimes[k]
+        meas.append(m)
+        if f.truth is not None and m.points_used.size:
+            errs.append(limb_point_errors(m.points_used, cam, f.truth, chain.fix.radii_m))
+        else:
+            errs.append(np.empty(0))
+    res = FilterResult(ep, X, P, has, acc, nis, filt.options.bias_model, ftimes)
+    n_fix = int(has.sum())
+    log.info("navigate: %d frames, %d fixes, %d accepted", K, n_fix, int(acc.sum()))
+    return NavigationRun(meas, res, truth, errs, stage, cpu, peak)
+
+
+def monte_carlo(
+    measurements: Sequence[FrameMeasurement],
+    truth: ArrayLike,
+    *,
+    dynamics: Dynamics,
+    moon: MoonEphemeris,
+    P0: ArrayLike,
+    runs: int,
+    rng: np.random.Generator,
+    options: EkfOptions | None = None,
+) -> list[FilterResult]:
+    """The filter re-run ``runs`` times from ``x0 ~ N(truth[0], P0)`` (module step 4).
+
+    Parameters
+    ----------
+    measurements : sequence of FrameMeasurement
+    truth : (K, 6) array
+        EMB-centred truth at the measurement epochs [m, m/s]; ``truth[0]`` is the mean initial
+        state at the first epoch.
+    runs : int
+        Number of runs (>= 1).
+    """
+    if runs < 1:
+        raise ConfigError("runs", runs, "an integer >= 1")
+    truth = np.asarray(truth, float)
+    P0 = np.asarray(P0, float)
+    L = np.linalg.cholesky(P0)
+    t0 = float(measurements[0].epoch_tdb)
+    out = []
+    for _ in range(runs):
+        x0 = truth[0] + L @ rng.standard_normal(6)
+        out.append(run_filter(measurements, dynamics=dynamics, moon=moon, t0=t0, x0=x0, P0=P0,
+                              options=options))
+    return out
+
+
+def consistency_fraction(values: ArrayLike, dof: int, runs: int = 1,
+                         probability: float = 0.95) -> float:
+    """Fraction of finite ``values`` (NEES or NIS, averaged over ``runs``) inside their
+    two-sided chi-square ``probability`` band."""
+    lo, hi = chi2_band(dof, runs, probability)
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return math.nan
+    return float(np.mean((v >= lo) & (v <= hi)))

@@ -1,0 +1,259 @@
+"""Summary and outputs of a navigation run: estimates (CSV), metrics (JSON), figures (PNG).
+
+:func:`summarize` condenses a :class:`~starnav.navigation.pipeline.NavigationRun` (and optional
+Monte Carlo runs) into plain numbers; :func:`write_outputs` writes, into one directory,
+
+=====================  ========================================================================
+file                   content
+=====================  ========================================================================
+``estimates.csv``      per frame: epoch, status, fix, estimate, 1-sigma, errors, NIS, timings
+``metrics.json``       :func:`summarize` (limb error bias/std, final errors, consistency,
+                       timing and memory statistics)
+``limb_error_pdf.png``  figure 8/22/25 of the paper
+``position_error.png``  figure 9a/23a/26a
+``velocity_error.png``  figure 9b/23b/26b
+``consistency.png``    NEES and NIS
+``resources.png``      figure 10/24/27 (CPU time, peak memory)
+=====================  ========================================================================
+
+Every file is written to a temporary name and renamed (nothing half-written).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from starnav.atomic import atomic_write_text
+from starnav.navigation.metrics import ErrorSummary
+from starnav.navigation.pipeline import (
+    STAGES,
+    FilterResult,
+    NavigationRun,
+    consistency_fraction,
+)
+
+#: The tracker's processing budgets (seed paper, PIL; DESIGN.md budgets).
+BUDGET_MS = 5.0
+TRACKER_MEMORY_KB = 900.0
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(float(x)) else None
+
+
+def summarize(run: NavigationRun, mc: Sequence[FilterResult] = ()) -> dict[str, Any]:
+    """Plain-number summary of a run (module docstring)."""
+    f = run.filter
+    meas = run.measurements
+    statuses: dict[str, int] = {}
+    for m in meas:
+        statuses[m.status] = statuses.get(m.status, 0) + 1
+    out: dict[str, Any] = {
+        "frames": len(meas),
+        "fixes": int(f.has_fix.sum()),
+        "accepted": int(f.accepted.sum()),
+        "status_counts": statuses,
+        "bias_model": f.bias_model,
+    }
+    le = np.concatenate(run.limb_errors) if run.limb_errors else np.empty(0)
+    out["limb_error_px"] = ErrorSummary.of(le).as_dict()
+    nis = f.nis[np.isfinite(f.nis)]
+    out["nis"] = {"mean": _finite(nis.mean()) if nis.size else None,
+                  "fraction_in_95": _finite(consistency_fraction(nis, 3))}
+    if run.truth is not None:
+        e = f.errors(run.truth)
+        s3 = f.sigma3()
+        moon_rel = np.array([m.fix.range_m if m.fix is not None else np.nan for m in meas])
+        rng = float(np.nanmedian(moon_rel)) if np.any(np.isfinite(moon_rel)) else math.nan
+        ne = f.nees(run.truth)
+        out["final"] = {
+            "position_error_m": [float(x) for x in e[-1, :3]],
+            "velocity_error_m_s": [float(x) for x in e[-1, 3:]],
+            "position_error_norm_m": float(np.linalg.norm(e[-1, :3])),
+            "velocity_error_norm_m_s": float(np.linalg.norm(e[-1, 3:])),
+            "position_3sigma_m": [float(x) for x in s3[-1, :3]],
+            "velocity_3sigma_m_s": [float(x) for x in s3[-1, 3:]],
+            "position_error_fraction_of_range": _finite(np.linalg.norm(e[-1, :3]) / rng),
+        }
+        out["nees"] = {"mean": float(np.mean(ne)),
+                       "fraction_in_95": _finite(consistency_fraction(ne, 6))}
+        inside = np.mean(np.abs(e) <= s3, axis=0)
+        out["fraction_within_3sigma"] = [float(x) for x in inside]
+        if mc:
+            # pooled: every step of every run against the single-sample band (the band of the
+            # run average is too narrow for time-correlated NEES; see docs/navigation.md)
+            nees_mc = np.array([r.nees(run.truth) for r in mc])
+            fin = np.array([np.linalg.norm(r.errors(run.truth)[-1, :3]) for r in mc])
+            out["monte_carlo"] = {
+                "runs": len(mc),
+                "nees_mean": float(np.mean(nees_mc)),
+                "nees_fraction_in_95": _finite(consistency_fraction(nees_mc.ravel(), 6)),
+                "final_position_error_rms_m": float(np.sqrt(np.mean(fin**2))),
+            }
+    st = run.stage_times_s * 1e3
+    out["timing_ms"] = {
+        "stage_median": {s: _finite(np.nanmedian(st[:, j])) if np.any(np.isfinite(st[:, j]))
+                         else None for j, s in enumerate(STAGES)},
+        "chain_cpu_median": float(np.median(run.cpu_times_s) * 1e3),
+        "chain_cpu_p95": float(np.percentile(run.cpu_times_s, 95) * 1e3),
+        "budget": BUDGET_MS,
+    }
+    if run.peak_memory_bytes is not None:
+        out["memory_kb"] = {"peak_max": float(np.max(run.peak_memory_bytes) / 1024.0),
+                            "peak_median": float(np.median(run.peak_memory_bytes) / 1024.0),
+                            "tracker_budget": TRACKER_MEMORY_KB}
+    return out
+
+
+def estimates_csv(run: NavigationRun) -> str:
+    """The ``estimates.csv`` text (one row per frame; SI units, names carry them)."""
+    f = run.filter
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    head = ["index", "epoch_tdb_s", "status", "fix_x_m", "fix_y_m", "fix_z_m",
+            "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s",
+            "sx_m", "sy_m", "sz_m", "svx_m_s", "svy_m_s", "svz_m_s", "accepted", "nis"]
+    if run.truth is not None:
+        head += ["ex_m", "ey_m", "ez_m", "evx_m_s", "evy_m_s", "evz_m_s", "nees"]
+    head += [f"t_{s}_ms" for s in STAGES] + ["cpu_ms"]
+    w.writerow(head)
+    sig = np.sqrt(np.einsum("kii->ki", f.covariances[:, :6, :6]))
+    err = f.errors(run.truth) if run.truth is not None else None
+    ne = f.nees(run.truth) if run.truth is not None else None
+    for k, m in enumerate(run.measurements):
+        fix = m.position if m.position is not None else [math.nan] * 3
+        row: list[Any] = [m.index, f"{f.epochs[k]:.3f}", m.status]
+        row += [f"{v:.3f}" for v in fix]
+        row += [f"{v:.6f}" for v in f.states[k, :6]]
+        row += [f"{v:.6g}" for v in sig[k]]
+        row += [int(f.accepted[k]), f"{f.nis[k]:.6g}"]
+        if err is not None and ne is not None:
+            row += [f"{v:.6f}" for v in err[k]] + [f"{ne[k]:.6g}"]
+        row += [f"{v * 1e3:.4f}" for v in run.stage_times_s[k]]
+        row += [f"{run.cpu_times_s[k] * 1e3:.4f}"]
+        w.writerow(row)
+    return buf.getvalue()
+
+
+def write_outputs(run: NavigationRun, out_dir: str | os.PathLike[str],
+                  mc: Sequence[FilterResult] = (), plots: bool = True) -> dict[str, Path]:
+    """Write the files of the module table into ``out_dir``; returns their paths by name."""
+    from starnav.navigation import plots as P
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths: dict[str, Path] = {}
+    paths["estimates"] = out / "estimates.csv"
+    atomic_write_text(paths["estimates"], estimates_csv(run))
+    summary = summarize(run, mc)
+    paths["metrics"] = out / "metrics.json"
+    atomic_write_text(paths["metrics"], json.dumps(summary, indent=2, allow_nan=False) + "\n")
+    if not plots:
+        return paths
+    le = np.concatenate(run.limb_errors) if run.limb_errors else np.empty(0)
+    paths["limb_error_pdf"] = P.plot_limb_error_pdf(le, out / "limb_error_pdf.png")
+    f = run.filter
+    if run.truth is not None:
+        e = f.errors(run.truth)
+        mce = [r.errors(run.truth) for r in mc]
+        paths["position_error"] = P.plot_state_errors(f.epochs, e, f.sigma3(),
+                                                      out / "position_error.png", "position",
+                                                      mce)
+        paths["velocity_error"] = P.plot_state_errors(f.epochs, e, f.sigma3(),
+                                                      out / "velocity_error.png", "velocity",
+                                                      mce)
+        if mc:
+            ne = np.mean([r.nees(run.truth) for r in mc], axis=0)
+            nis = np.nanmean([r.nis for r in mc], axis=0)
+            runs = len(mc)
+        else:
+            ne, nis, runs = f.nees(run.truth), f.nis, 1
+        paths["consistency"] = P.plot_consistency(f.epochs, ne, nis, out / "consistency.png",
+                                                  runs)
+    paths["resources"] = P.plot_resources(run.cpu_times_s, run.peak_memory_bytes,
+                                          out / "resources.png", BUDGET_MS, TRACKER_MEMORY_KB)
+    return paths
+
+
+def navigate_dataset(
+    dataset: Any,
+    out_dir: str | os.PathLike[str],
+    *,
+    config: Any | None = None,
+    runs: int | None = None,
+    seed: int = 0,
+    dynamics: Any | None = None,
+    measure_memory: bool = True,
+    plots: bool = True,
+) -> dict[str, Any]:
+    """Navigate over a dataset and write every output (the library side of ``starnav navigate``).
+
+    Parameters
+    ----------
+    dataset : NavDataset
+        Frames with segments, windows, attitude, Sun direction and truth
+        (:mod:`starnav.navigation.frames`).
+    out_dir : path
+        Output directory (created).
+    config : NavigationConfig, optional
+        The ``navigation`` section; default its defaults.
+    runs : int, optional
+        Monte Carlo runs of the filter (overrides ``config.runs``); 1 = the nominal run only.
+    seed : int
+        Seed of the initial errors and of RANSAC.
+    dynamics : Dynamics and MoonEphemeris, optional
+        Default :class:`~starnav.navigation.dynamics.PointMassDynamics` with the configured step.
+    measure_memory : bool
+        Trace the peak memory per frame.
+    plots : bool
+        Write the PNG figures.
+
+    Returns
+    -------
+    dict
+        The :func:`summarize` metrics, plus ``"paths"``.
+    """
+    from starnav.navigation.dynamics import MoonEphemeris, PointMassDynamics
+    from starnav.navigation.frames import NavDataset
+    from starnav.navigation.pipeline import monte_carlo, navigate
+    from starnav.navigation.schema import NavigationConfig
+
+    if not isinstance(dataset, NavDataset):
+        missing = [a for a in ("camera", "__len__", "__iter__") if not hasattr(dataset, a)]
+        from starnav.errors import ConfigError
+
+        raise ConfigError("dataset", type(dataset).__name__,
+                          "a NavDataset (camera, len(), iteration over NavFrame); missing "
+                          + ", ".join(missing))
+    cfg = config if config is not None else NavigationConfig()
+    n_runs = cfg.runs if runs is None else int(runs)
+    dyn = dynamics if dynamics is not None else PointMassDynamics(step_s=cfg.filter.rk4_step_s)
+    if not isinstance(dyn, MoonEphemeris):
+        from starnav.errors import ConfigError
+
+        raise ConfigError("dynamics", type(dyn).__name__, "an object with moon_state(t)")
+    rng = np.random.default_rng(seed)
+    P0 = cfg.initial_covariance()
+    run = navigate(dataset, dynamics=dyn, moon=dyn, P0=P0, chain=cfg.chain_options(),
+                   ekf=cfg.ekf_options(), rng=rng, measure_memory=measure_memory)
+    mc: list[FilterResult] = []
+    if n_runs > 1 and run.truth is not None:
+        mc = monte_carlo(run.measurements, run.truth, dynamics=dyn, moon=dyn, P0=P0,
+                         runs=n_runs, rng=rng, options=cfg.ekf_options())
+    paths = write_outputs(run, out_dir, mc, plots=plots)
+    out = Path(out_dir)
+    atomic_write_text(out / "navigation_config.json",
+                       json.dumps(cfg.model_dump(mode="json"), indent=2) + "\n")
+    paths["config"] = out / "navigation_config.json"
+    summary = summarize(run, mc)
+    summary["paths"] = {k: str(v) for k, v in paths.items()}
+    return summary

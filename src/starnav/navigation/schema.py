@@ -1,0 +1,166 @@
+"""Scenario section ``navigation`` (owned by :mod:`starnav.navigation`).
+
+Units are in the key names (``_px``, ``_km``, ``_arcsec``, ``_days``); :meth:`NavigationConfig.
+chain_options` and friends convert to the SI option dataclasses of the algorithm modules.
+
+Example (YAML)::
+
+    navigation:
+      limb: {max_points: 600, min_sun_cos: 0.1}
+      refine: {enabled: true, n_windows: 16, window_size_px: 11}
+      ransac: {model: christian-robinson, threshold_px: 1.5}
+      fix: {attitude_sigma_arcsec: 5}
+      filter: {bias_model: range-scale, range_scale_sigma: 0.01, bias_tau_days: 5,
+               initial_position_sigma_km: 100, initial_velocity_sigma_m_s: 1}
+      runs: 20
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Annotated, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import Field
+
+from starnav.config_base import StrictModel
+
+if TYPE_CHECKING:
+    from starnav.navigation.ekf import EkfOptions
+    from starnav.navigation.pipeline import ChainOptions
+
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+ARCSEC = math.pi / (180.0 * 3600.0)
+DAY_S = 86_400.0
+
+
+class LimbConfig(StrictModel):
+    """Pixel-level limb points from segments (starnav.navigation.limb)."""
+
+    max_points: Annotated[int, Field(ge=3)] = Field(600, description="cap on limb points")
+    min_level: Annotated[int, Field(ge=0)] = Field(0, description="lowest threshold level used")
+    min_run_length_px: Annotated[int, Field(ge=1)] = Field(1, description="shortest run used [px]")
+    min_sun_cos: Annotated[float, Field(ge=-1, lt=1)] = Field(
+        0.1, description="lit-side margin: cos of the largest limb-normal to Sun angle [-]")
+    drop_border_px: Annotated[int, Field(ge=0)] = Field(1, description="border margin [px]")
+    point_sigma_px: PositiveFloat = Field(0.5, description="1-sigma of a pixel-level point [px]")
+    point_offset_px: float = Field(0.0, allow_inf_nan=False,
+                                   description="inward shift of every point [px]")
+
+
+class RefineConfig(StrictModel):
+    """Subpixel refinement from windows (starnav.navigation.refine)."""
+
+    enabled: bool = Field(True, description="refine with the frame's windows when present")
+    n_windows: Annotated[int, Field(ge=1, le=16)] = Field(16, description="windows planned")
+    window_size_px: Annotated[int, Field(ge=5)] = Field(11, description="window side [px]")
+    edge_model: Literal["blurred-limb", "blurred-step"] = "blurred-limb"
+    psf_sigma_px: NonNegativeFloat | None = Field(
+        None, description="Gaussian PSF sigma [px]; null: fitted per window")
+    saturation_dn: PositiveFloat = Field(4095.0, description="pixels at or above are ignored [DN]")
+    min_sigma_px: PositiveFloat = Field(0.02, description="floor of a refined point's sigma [px]")
+    outlier_px: PositiveFloat = Field(0.5, description="refined points farther from the first "
+                                                       "fix are dropped [px]")
+
+
+class RansacConfig(StrictModel):
+    """Outlier rejection (starnav.navigation.ransac)."""
+
+    model: Literal["circle", "christian-robinson"] = "circle"
+    threshold_px: PositiveFloat = Field(2.0, description="inlier threshold [px]")
+    max_iterations: Annotated[int, Field(ge=1)] = 200
+    confidence: Annotated[float, Field(gt=0, lt=1)] = 0.999
+    min_inlier_fraction: Annotated[float, Field(gt=0, le=1)] = 0.3
+
+
+class FixConfig(StrictModel):
+    """Christian-Robinson fix (starnav.navigation.christian_robinson)."""
+
+    moon_radii_km: tuple[PositiveFloat, PositiveFloat, PositiveFloat] | None = Field(
+        None, description="Moon semi-axes (a, b, c) [km]; null: the sphere of the moon section")
+    attitude_sigma_arcsec: NonNegativeFloat = Field(
+        0.0, description="attitude knowledge 1-sigma per axis [arcsec]")
+
+
+class FilterConfig(StrictModel):
+    """EKF (starnav.navigation.ekf)."""
+
+    bias_model: Literal["none", "additive", "range-scale"] = "none"
+    bias_sigma_km: NonNegativeFloat = Field(0.0, description="additive bias 1-sigma [km]")
+    range_scale_sigma: NonNegativeFloat = Field(0.0, description="range-scale bias 1-sigma [-]")
+    bias_tau_days: PositiveFloat = Field(1.0, description="bias correlation time [days]")
+    accel_psd_m2_s3: NonNegativeFloat = Field(
+        0.0, description="white acceleration noise density [m^2/s^3]")
+    gate_probability: Annotated[float, Field(gt=0, lt=1)] | None = Field(
+        0.9999, description="chi-square gate on the NIS; null disables")
+    max_consecutive_rejections: Annotated[int, Field(ge=1)] = 5
+    initial_position_sigma_km: PositiveFloat = Field(100.0, description="initial 1-sigma [km]")
+    initial_velocity_sigma_m_s: PositiveFloat = Field(1.0, description="initial 1-sigma [m/s]")
+    rk4_step_s: PositiveFloat = Field(300.0, description="RK4 step of the filter dynamics [s]")
+
+
+class NavigationConfig(StrictModel):
+    """Navigation chain settings (see :mod:`starnav.navigation`)."""
+
+    limb: LimbConfig = Field(default_factory=LimbConfig)
+    refine: RefineConfig = Field(default_factory=RefineConfig)
+    ransac: RansacConfig = Field(default_factory=RansacConfig)
+    fix: FixConfig = Field(default_factory=FixConfig)
+    filter: FilterConfig = Field(default_factory=FilterConfig)
+    runs: Annotated[int, Field(ge=1)] = Field(
+        1, description="Monte Carlo runs of the filter over initial errors")
+
+    # ---------------------------------------------------------------- conversions
+    def chain_options(self, moon_radius_m: float | None = None) -> ChainOptions:
+        """The SI :class:`~starnav.navigation.pipeline.ChainOptions` of this section.
+
+        ``moon_radius_m`` is the sphere used when ``fix.moon_radii_km`` is null (default the
+        LOLA reference radius).
+        """
+        from starnav.constants import MOON_RADIUS
+        from starnav.navigation.christian_robinson import ChristianRobinsonOptions
+        from starnav.navigation.limb import LimbScanOptions
+        from starnav.navigation.pipeline import ChainOptions
+        from starnav.navigation.ransac import RansacOptions
+        from starnav.navigation.refine import RefineOptions
+
+        L, Rf, Rs, F = self.limb, self.refine, self.ransac, self.fix
+        r = MOON_RADIUS if moon_radius_m is None else float(moon_radius_m)
+        radii = (r, r, r) if F.moon_radii_km is None else tuple(x * 1e3 for x in F.moon_radii_km)
+        return ChainOptions(
+            limb=LimbScanOptions(max_points=L.max_points, min_level=L.min_level,
+                                 min_run_length_px=L.min_run_length_px,
+                                 min_sun_cos=L.min_sun_cos, drop_border_px=L.drop_border_px,
+                                 point_sigma_px=L.point_sigma_px,
+                                 point_offset_px=L.point_offset_px),
+            ransac=RansacOptions(model=Rs.model, threshold_px=Rs.threshold_px,
+                                 max_iterations=Rs.max_iterations, confidence=Rs.confidence,
+                                 min_inlier_fraction=Rs.min_inlier_fraction),
+            refine=RefineOptions(n_windows=Rf.n_windows, size_px=Rf.window_size_px,
+                                 edge_model=Rf.edge_model, psf_sigma_px=Rf.psf_sigma_px,
+                                 saturation_dn=Rf.saturation_dn, min_sigma_px=Rf.min_sigma_px),
+            fix=ChristianRobinsonOptions(radii_m=radii,  # type: ignore[arg-type]
+                                         attitude_sigma_rad=F.attitude_sigma_arcsec * ARCSEC),
+            use_windows=Rf.enabled,
+            refine_outlier_px=Rf.outlier_px,
+        )
+
+    def ekf_options(self) -> EkfOptions:
+        """The SI :class:`~starnav.navigation.ekf.EkfOptions` of this section."""
+        from starnav.navigation.ekf import EkfOptions
+
+        f = self.filter
+        return EkfOptions(bias_model=f.bias_model, bias_sigma_m=f.bias_sigma_km * 1e3,
+                          range_scale_sigma=f.range_scale_sigma,
+                          bias_tau_s=f.bias_tau_days * DAY_S,
+                          accel_psd_m2_s3=f.accel_psd_m2_s3,
+                          gate_probability=f.gate_probability,
+                          max_consecutive_rejections=f.max_consecutive_rejections)
+
+    def initial_covariance(self) -> NDArray[np.float64]:
+        """Diagonal initial covariance (6 x 6) [m^2, m^2/s^2] from the filter's sigmas."""
+        sp = self.filter.initial_position_sigma_km * 1e3
+        sv = self.filter.initial_velocity_sigma_m_s
+        return np.diag([sp * sp] * 3 + [sv * sv] * 3)
