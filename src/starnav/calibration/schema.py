@@ -1,0 +1,442 @@
+"""Bench description (``BENCH`` YAML file) owned by :mod:`starnav.calibration`.
+
+One frozen model per part of the hardware-in-the-loop bench: the screen, the collimator, the
+misalignments of the assembly, and the knobs of each calibration step. Units are in the key
+names (``_mm``, ``_deg``, ``_px``, ``_ms``, ``_w_m2_sr_nm``); the library converts to SI on
+entry. Unknown keys are rejected and every model is frozen.
+
+Defaults are the paper's TinyV3RSE bench (seed paper, "Hardware-in-the-loop testing
+preparation"; REFERENCE.md section 5) where the paper gives a number:
+
+============================== ============================ =====================================
+quantity                       default                      source / trust
+============================== ============================ =====================================
+screen height                  65 mm                        seed paper, eq. 2
+collimator                     achromatic doublet, 180 mm   seed paper
+collimator spot RMS radius     0.49 / 0.72 / 1.49 / 2.13 px seed paper, Table 2 (Zemax); the
+                               at 0 / 3.67 / 7.32 / 9.61    table's "mm" column is in um
+                               deg                          (8.88 um / 18 um = 0.49 px)
+camera FoV used in eq. 2       10 deg (stated)              seed paper; the derived AA-STR FoV is
+                                                            20.60 deg (REFERENCE.md s1): both
+                                                            verdicts are reported
+screen pixels, bit depth       3840 x 2160, 8 bit           **representative** (4K panel of
+                                                            65 mm height), not from the paper
+screen spectral emittance      Gaussian R/G/B primaries,    **representative** LCD/OLED, not
+                               500 cd/m^2 white, gamma 2.2  measured (see
+                                                            :func:`representative_emittance`)
+collimator transmission        0.96                         **representative** (AR-coated
+                                                            cemented doublet)
+collimator distortion          k1 = 0.1 (0.33 % at 10 deg) **representative** (a doublet used
+                                                            at +-10 deg; not in the paper)
+misalignments                  all zero                     the nominal assembly; set them to
+                                                            emulate a real one
+============================== ============================ =====================================
+
+The camera, its spectral response, the detector and the Moon/Sun used by the radiometric
+calibration come from an embedded :class:`~starnav.config.Scenario` (key ``scenario``: a mapping,
+or the path of a scenario YAML relative to the bench file).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import Field, ValidationError, field_validator, model_validator
+
+from starnav.config import Scenario, apply_overrides
+from starnav.config_base import StrictModel
+from starnav.errors import ConfigError, DataFileError
+
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+Fraction = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]
+
+#: Luminous efficacy of radiation at 555 nm [lm/W] (CIE).
+KM_LM_PER_W = 683.0
+#: Rec. 709 / sRGB luminance shares of the red, green and blue primaries of a white [-].
+REC709_LUMINANCE_SHARES = (0.2126, 0.7152, 0.0722)
+#: Representative primaries: (peak nm, FWHM nm) of a white-LED LCD / RGB OLED panel.
+REPRESENTATIVE_PRIMARIES_NM = ((615.0, 35.0), (535.0, 45.0), (455.0, 25.0))
+#: Representative full-white luminance of the screen [cd/m^2].
+REPRESENTATIVE_WHITE_CD_M2 = 500.0
+
+
+# --------------------------------------------------------------------------- the screen
+def photopic_efficiency(wavelength_nm: np.ndarray) -> np.ndarray:
+    """CIE photopic luminous efficiency V(lambda), Gaussian approximation [-].
+
+    ``V = 1.019 exp(-285.4 (lambda_um - 0.559)^2)`` (a common single-Gaussian fit of the CIE
+    1924 curve, a few percent off in the wings). Only used to size the *representative* screen.
+    """
+    lam = np.asarray(wavelength_nm, float) * 1e-3
+    return 1.019 * np.exp(-285.4 * (lam - 0.559) ** 2)
+
+
+def representative_emittance(white_luminance_cd_m2: float = REPRESENTATIVE_WHITE_CD_M2,
+                             gamma: float = 2.2) -> ScreenEmittanceConfig:
+    """A representative per-channel spectral radiance of an RGB screen at full count.
+
+    Three Gaussian primaries (:data:`REPRESENTATIVE_PRIMARIES_NM`: red 615/35 nm, green
+    535/45 nm, blue 455/25 nm, peak/FWHM), each scaled so that its luminance is its Rec. 709 share
+    of a ``white_luminance_cd_m2`` white (``Lv = 683 integral L V dlambda``). This is *not* a
+    measurement of the TinyV3RSE screen (the paper measured its screen with a power meter). The
+    500 cd/m^2 white (a typical panel; ~2.0 W m^-2 sr^-1) was chosen before comparing with the
+    paper, and lands where the paper did: the screen is ~19 times too dim for the Moon at
+    rho = 0.12, and the k = 13 333 case peaks at count 13, the paper's maximum count for full
+    frames. A plausibility check, not a calibration.
+    """
+    wl = np.arange(380.0, 780.0 + 0.5, 5.0)
+    v = photopic_efficiency(wl)
+    chans = []
+    for (peak, fwhm), share in zip(REPRESENTATIVE_PRIMARIES_NM, REC709_LUMINANCE_SHARES,
+                                   strict=True):
+        s = fwhm / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+        shape = np.exp(-0.5 * ((wl - peak) / s) ** 2)
+        lv_unit = KM_LM_PER_W * float(np.trapezoid(shape * v, wl))
+        amp = share * white_luminance_cd_m2 / lv_unit
+        chans.append(tuple(float(f"{x:.6g}") for x in amp * shape))
+    return ScreenEmittanceConfig(
+        wavelengths_nm=tuple(float(x) for x in wl), red_w_m2_sr_nm=chans[0],
+        green_w_m2_sr_nm=chans[1], blue_w_m2_sr_nm=chans[2], gamma=(gamma, gamma, gamma),
+        source=f"representative: Gaussian primaries, {white_luminance_cd_m2:g} cd/m^2 white, "
+               f"gamma {gamma:g} (not measured)")
+
+
+class ScreenEmittanceConfig(StrictModel):
+    """Spectral radiance of each screen channel at full count, and its transfer curve.
+
+    A channel at count ``n`` emits ``L_c(lambda) [b + (1 - b) (n / n_max)^gamma_c]`` with ``b``
+    the black level. Measured data (spectroradiometer or power meter behind filters, the
+    paper's step 1) replace the tables; the default is :func:`representative_emittance`.
+    """
+
+    wavelengths_nm: tuple[FiniteFloat, ...] = Field(
+        description="sample wavelengths, strictly increasing [nm]")
+    red_w_m2_sr_nm: tuple[NonNegativeFloat, ...] = Field(
+        description="red channel spectral radiance at full count [W m^-2 sr^-1 nm^-1]")
+    green_w_m2_sr_nm: tuple[NonNegativeFloat, ...] = Field(
+        description="green channel spectral radiance at full count [W m^-2 sr^-1 nm^-1]")
+    blue_w_m2_sr_nm: tuple[NonNegativeFloat, ...] = Field(
+        description="blue channel spectral radiance at full count [W m^-2 sr^-1 nm^-1]")
+    gamma: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
+        (2.2, 2.2, 2.2), description="display gamma of red, green, blue [-]")
+    black_level_fraction: Annotated[float, Field(ge=0, lt=0.5, allow_inf_nan=False)] = Field(
+        0.0, description="radiance at count 0 / radiance at full count [-] (0: OLED; ~1e-3 "
+        "for an LCD)")
+    source: str = Field("measured", description="where the tables come from (free text)")
+
+    @model_validator(mode="after")
+    def _tables(self) -> ScreenEmittanceConfig:
+        n = len(self.wavelengths_nm)
+        if n < 2:
+            raise ValueError(f"wavelengths_nm has {n} sample(s): the emittance needs at least 2 "
+                             "wavelength samples (no emittance data)")
+        for name in ("red_w_m2_sr_nm", "green_w_m2_sr_nm", "blue_w_m2_sr_nm"):
+            m = len(getattr(self, name))
+            if m != n:
+                raise ValueError(f"{name} has {m} values; expected {n} (one per wavelength)")
+        if any(b <= a for a, b in zip(self.wavelengths_nm, self.wavelengths_nm[1:],
+                                      strict=False)):
+            raise ValueError("wavelengths_nm must be strictly increasing")
+        if not any(any(v > 0 for v in getattr(self, c)) for c in
+                   ("red_w_m2_sr_nm", "green_w_m2_sr_nm", "blue_w_m2_sr_nm")):
+            raise ValueError("every channel is zero: the screen emits nothing (no emittance data)")
+        return self
+
+    def channels(self) -> np.ndarray:
+        """``(3, n)`` spectral radiance of red, green, blue at full count [W m^-2 sr^-1 nm^-1]."""
+        return np.array([self.red_w_m2_sr_nm, self.green_w_m2_sr_nm, self.blue_w_m2_sr_nm])
+
+
+class ScreenConfig(StrictModel):
+    """The stimulating screen: pixel grid, physical size, counts, spectral emittance.
+
+    Screen pixel axes are defined as seen by the camera through the collimator (column index
+    along the camera's +x, row index along +y): the mirror flip of a real collimator is a
+    display setting. Pixels are square; their pitch is ``height_mm / height_px``.
+    """
+
+    width_px: Annotated[int, Field(ge=2)] = Field(
+        3840, description="columns [px] (representative 4K panel)")
+    height_px: Annotated[int, Field(ge=2)] = Field(
+        2160, description="rows [px] (representative 4K panel)")
+    height_mm: PositiveFloat = Field(65.0, description="active height h_s [mm] (seed paper)")
+    bit_depth: Annotated[int, Field(ge=1, le=16)] = Field(
+        8, description="bits per channel; counts run 0 .. 2^bits - 1")
+    emittance: ScreenEmittanceConfig | None = Field(
+        default_factory=representative_emittance,
+        description="per-channel spectral radiance and gamma; null = not measured (the "
+        "radiometric steps then refuse to run)")
+
+    @property
+    def pitch_mm(self) -> float:
+        """Pixel pitch [mm]."""
+        return self.height_mm / self.height_px
+
+    @property
+    def width_mm(self) -> float:
+        """Active width [mm]."""
+        return self.width_px * self.pitch_mm
+
+    @property
+    def max_count(self) -> int:
+        """Largest digital count [-]."""
+        return 2**self.bit_depth - 1
+
+
+# --------------------------------------------------------------------------- the collimator
+class CollimatorConfig(StrictModel):
+    """The collimating lens between the screen and the camera.
+
+    The aberration spot (seed paper Table 2, Zemax) is given as RMS radius on the AA-STR
+    detector; it is an angular blur of the collimated beam, so it is stored with the IFOV it was
+    expressed in and rescaled to any camera. Between and beyond the table the RMS radius follows
+    ``spot_model``: ``quadratic`` (least-squares ``r = a + b theta^2``, the growth of field
+    curvature/astigmatism; 0.49 + 0.0178 theta_deg^2 px fits Table 2 within 0.05 px) or
+    ``linear`` (piecewise linear, constant beyond the last field).
+    """
+
+    focal_length_mm: PositiveFloat = Field(180.0, description="f_coll [mm] (seed paper)")
+    transmission: Fraction = Field(
+        0.96, description="transmission of the doublet [-] (representative, AR-coated)")
+    nd_optical_density: NonNegativeFloat = Field(
+        0.0, description="neutral-density filter in the beam, optical density [-] "
+        "(transmission 10^-OD); dims a screen that is too bright for the exposure")
+    spot_field_deg: tuple[NonNegativeFloat, ...] = Field(
+        (0.0, 3.67, 7.32, 9.61), description="field angles of the spot table [deg] (Table 2)")
+    spot_rms_radius_px: tuple[NonNegativeFloat, ...] = Field(
+        (0.49, 0.72, 1.49, 2.13), description="spot RMS radius on the detector [px] (Table 2)")
+    spot_reference_ifov_arcsec: PositiveFloat = Field(
+        73.2301, description="IFOV of the pixels of spot_rms_radius_px [arcsec] (AA-STR: "
+        "18 um / 50.7 mm)")
+    spot_model: Literal["quadratic", "linear"] = Field(
+        "quadratic", description="interpolation of the spot table over the field")
+    distortion_k1: FiniteFloat = Field(
+        0.1, description="radial distortion of the screen-to-angle map t_d = t (1 + k1 |t|^2 "
+        "+ k2 |t|^4), t = tangent of the field angle [-] (representative: +0.33 % at 10 deg)")
+    distortion_k2: FiniteFloat = Field(0.0, description="see distortion_k1 [-]")
+    clear_aperture_mm: PositiveFloat | None = Field(
+        None, description="clear aperture diameter [mm]; null: no vignetting modelled (the "
+        "paper chose a support that does not vignette)")
+    pupil_distance_mm: NonNegativeFloat = Field(
+        50.0, description="distance from the collimator to the camera's entrance pupil [mm] "
+        "(used with clear_aperture_mm)")
+
+    @model_validator(mode="after")
+    def _spot_table(self) -> CollimatorConfig:
+        f, r = self.spot_field_deg, self.spot_rms_radius_px
+        if len(f) != len(r) or len(f) < 1:
+            raise ValueError(f"spot_field_deg ({len(f)} values) and spot_rms_radius_px "
+                             f"({len(r)} values) must have the same length >= 1")
+        if any(b <= a for a, b in zip(f, f[1:], strict=False)):
+            raise ValueError("spot_field_deg must be strictly increasing")
+        if self.spot_model == "quadratic" and len(f) < 2:
+            raise ValueError("spot_model 'quadratic' needs at least 2 spot table rows")
+        return self
+
+
+class MisalignmentConfig(StrictModel):
+    """How the assembled bench departs from the nominal one (the emulated truth).
+
+    The screen is rolled about its normal, then tilted about its column (x) and row (y) axes,
+    then shifted in its plane and along the axis (``screen_defocus_mm``, positive towards the
+    lens). The camera is rotated with respect to the collimator axis by ``camera_tilt_deg``
+    (about its x then y axes) and ``camera_roll_deg`` (about its boresight).
+    """
+
+    screen_shift_mm: tuple[FiniteFloat, FiniteFloat] = Field(
+        (0.0, 0.0), description="in-plane shift of the screen (x, y) [mm]")
+    screen_roll_deg: FiniteFloat = Field(0.0, description="screen rotation about its normal [deg]")
+    screen_tilt_deg: tuple[FiniteFloat, FiniteFloat] = Field(
+        (0.0, 0.0), description="screen tilt about its x and y axes [deg] (keystone, defocus)")
+    screen_defocus_mm: FiniteFloat = Field(
+        0.0, description="screen distance from the focal plane, + towards the lens [mm]")
+    camera_tilt_deg: tuple[FiniteFloat, FiniteFloat] = Field(
+        (0.0, 0.0), description="camera rotation about its x and y axes w.r.t. the "
+        "collimator axis [deg]")
+    camera_roll_deg: FiniteFloat = Field(0.0, description="camera rotation about its boresight "
+                                         "[deg]")
+
+    @field_validator("screen_tilt_deg", "camera_tilt_deg")
+    @classmethod
+    def _small(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if any(abs(x) > 10.0 for x in v):
+            raise ValueError(f"tilts must be within +-10 deg, got {v}")
+        return v
+
+
+# --------------------------------------------------------------------------- knobs
+class AcquisitionConfig(StrictModel):
+    """Emulated acquisition (screen -> collimator -> camera)."""
+
+    psf_levels: Annotated[int, Field(ge=1, le=32)] = Field(
+        6, description="Gaussian widths blended to emulate the field-varying collimator spot")
+    include_spot_psf: bool = Field(True, description="blur by the collimator spot and defocus")
+
+
+class GeometricCalibrationConfig(StrictModel):
+    """Dot-pattern geometric calibration (seed paper, "Geometric Calibration")."""
+
+    polynomial_order: Annotated[int, Field(ge=1, le=8)] = Field(
+        4, description="total degree of the 2-D calibration polynomials")
+    dot_grid: tuple[Annotated[int, Field(ge=2)], Annotated[int, Field(ge=2)]] = Field(
+        (17, 17), description="calibration dots along (x, y)")
+    validation_grid: tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]] = Field(
+        (12, 12), description="closed-loop validation dots along (x, y), placed between the "
+        "calibration dots")
+    dot_margin_px: NonNegativeFloat = Field(
+        24.0, description="distance of the outer dots from the detector edge [px]")
+    dot_sigma_screen_px: PositiveFloat = Field(
+        1.5, description="Gaussian dot radius on the screen (anti-aliased, sub-pixel placed) "
+        "[screen px]")
+    holdout_fraction: Annotated[float, Field(ge=0, lt=0.9)] = Field(
+        0.25, description="share of the dots kept out of the fit to measure its residual")
+    dot_peak_fraction: Fraction = Field(
+        0.5, description="auto exposure: charge of the brightest dot pixel in a preview "
+        "acquisition, as a fraction of the full well")
+    exposure_ms: PositiveFloat | None = Field(None, description="dot exposure [ms]; null: auto")
+    centroid_half_window_px: Annotated[int, Field(ge=2, le=32)] = Field(
+        7, description="half size of the centroid window [px]")
+    detection_threshold_sigma: PositiveFloat = Field(
+        10.0, description="detection threshold above the dark-subtracted background [noise "
+        "sigma]")
+    subtract_dark_frame: bool = Field(True, description="acquire a black screen and subtract it")
+
+
+class RadiometricConfig(StrictModel):
+    """Radiometric calibration and stimulus synthesis."""
+
+    quantization: Literal["dither", "nearest"] = Field(
+        "dither", description="counts from radiance: nearest level, or random dithering between "
+        "the two neighbouring levels (unbiased in radiance)")
+    headroom_fraction: Fraction = Field(
+        0.9, description="the stimulus peak uses at most this fraction of the screen's "
+        "maximum radiance")
+    disc_margin_px: Annotated[int, Field(ge=0, le=64)] = Field(
+        8, description="dilation of the Moon mask for disc-integrated comparisons [px]")
+
+
+class ScalingConfig(StrictModel):
+    """Albedo-exposure scaling (seed paper, "Scaling between exposure time and albedo")."""
+
+    render_exposure_ms: PositiveFloat = Field(
+        0.015, description="exposure of the rendered (in-orbit) image [ms] (paper: 0.015)")
+    bench_exposure_ms: PositiveFloat | None = Field(
+        None, description="exposure on the bench [ms]; null: the shortest the readout allows")
+    readout: Literal["full_frame", "windows"] = Field(
+        "full_frame", description="readout the bench exposure must allow (full frame: 200 ms, "
+        "paper eq. 1)")
+    ks_k_multiples: tuple[PositiveFloat, ...] = Field(
+        (1.0, 2.0, 4.0), description="KS experiment: factors k as multiples of the smallest k "
+        "the screen allows")
+    control_product_factor: PositiveFloat = Field(
+        1.25, description="control sample: albedo x exposure off by this factor")
+    ks_alpha: Annotated[float, Field(gt=0, lt=0.5)] = Field(
+        0.01, description="significance of each two-sample KS test (false-alarm rate)")
+
+    @field_validator("control_product_factor")
+    @classmethod
+    def _not_one(cls, v: float) -> float:
+        if abs(v - 1.0) < 1e-3:
+            raise ValueError("control_product_factor must differ from 1 (it breaks the product)")
+        return v
+
+
+class CheckConfig(StrictModel):
+    """Optical-stimulator condition (seed paper eq. 2)."""
+
+    stated_camera_fov_deg: PositiveFloat | None = Field(
+        10.0, description="camera FoV the paper put in eq. 2 [deg]; reported next to the FoV "
+        "derived from the camera (null: skip)")
+
+
+class BenchConfig(StrictModel):
+    """A hardware-in-the-loop bench: screen, collimator, assembly errors, camera, knobs."""
+
+    screen: ScreenConfig = Field(default_factory=ScreenConfig)
+    collimator: CollimatorConfig = Field(default_factory=CollimatorConfig)
+    misalignment: MisalignmentConfig = Field(default_factory=MisalignmentConfig)
+    acquisition: AcquisitionConfig = Field(default_factory=AcquisitionConfig)
+    geometric: GeometricCalibrationConfig = Field(default_factory=GeometricCalibrationConfig)
+    radiometric: RadiometricConfig = Field(default_factory=RadiometricConfig)
+    scaling: ScalingConfig = Field(default_factory=ScalingConfig)
+    check: CheckConfig = Field(default_factory=CheckConfig)
+    scenario: Scenario = Field(
+        default_factory=Scenario, description="camera, sensor response, detector, Moon and Sun "
+        "(a mapping, or a scenario file path relative to the bench file)")
+    seed: Annotated[int, Field(ge=0)] = Field(
+        7, description="seed of the bench's random streams (dithering, hold-out split, noise)")
+
+
+# --------------------------------------------------------------------------- loading
+def _validation_error(err: ValidationError) -> ConfigError:
+    first = err.errors()[0]
+    field = ".".join(str(p) for p in first["loc"]) or "<root>"
+    value = first.get("input")
+    expected = first["msg"].removeprefix("Value error, ")
+    if first.get("type") == "missing":
+        value, expected = "<missing>", "a value (required key)"
+    elif isinstance(value, dict):
+        value = "{" + ", ".join(list(value)[:6]) + (", ..." if len(value) > 6 else "") + "}"
+    if len(err.errors()) > 1:
+        expected += f" (and {len(err.errors()) - 1} more problem(s))"
+    return ConfigError(field, value, expected)
+
+
+def bench_from_dict(data: dict[str, Any] | None, overrides: list[str] | tuple[str, ...] = (),
+                    base_dir: str | os.PathLike[str] | None = None) -> BenchConfig:
+    """Validate a bench mapping (plus ``a.b=value`` overrides).
+
+    ``scenario`` may be a mapping or the path of a scenario YAML (relative to ``base_dir``).
+
+    Raises
+    ------
+    ConfigError
+        Naming the first offending field, its value and what was expected.
+    DataFileError
+        The referenced scenario file does not exist.
+    """
+    from starnav.config import load_scenario
+
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError("<bench root>", type(data).__name__, "a mapping of bench sections")
+    data = apply_overrides(data, overrides)
+    sc = data.get("scenario")
+    if isinstance(sc, str | os.PathLike):
+        p = Path(sc)
+        if not p.is_absolute() and base_dir is not None:
+            p = Path(base_dir) / p
+        data = dict(data)
+        data["scenario"] = load_scenario(p)
+    try:
+        return BenchConfig.model_validate(data)
+    except ValidationError as err:
+        raise _validation_error(err) from None
+
+
+def load_bench(path: str | os.PathLike[str] | None,
+               overrides: list[str] | tuple[str, ...] = ()) -> BenchConfig:
+    """Read and validate a bench YAML; ``None`` gives the paper's TinyV3RSE defaults."""
+    if path is None:
+        return bench_from_dict({}, overrides)
+    p = Path(path)
+    if not p.is_file():
+        raise DataFileError(f"bench file {str(p)!r} does not exist")
+    try:
+        data = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as err:
+        raise ConfigError("bench file", str(p), f"valid YAML ({err})") from None
+    return bench_from_dict(data or {}, overrides, base_dir=p.parent)
+
+
+def bench_to_dict(bench: BenchConfig) -> dict[str, Any]:
+    """JSON/YAML-safe dict of the fully resolved bench."""
+    return bench.model_dump(mode="json")

@@ -1,0 +1,32 @@
+"""Random streams of the bench emulation (DESIGN.md "Randomness").
+
+Every stochastic step takes a ``numpy.random.Generator``; the defaults come from here:
+``SeedSequence(bench.seed, spawn_key=(STAGE_HIL, purpose))``, so a bench run is reproducible and
+independent of the order in which its steps are run (``STAGE_HIL`` is registered in
+:mod:`starnav.seeding` with the other stages).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from starnav.errors import UnknownNameError
+from starnav.seeding import STAGE_HIL, generator
+
+if TYPE_CHECKING:  # pragma: no cover
+    from starnav.calibration.schema import BenchConfig
+
+#: Purpose keys (never renumber: results depend on them).
+STREAMS = {"geometric": 1, "stimulus": 2, "radiometric": 3, "scaling": 4, "end_to_end": 5,
+           "placement": 6}
+
+
+def bench_rng(cfg: BenchConfig, purpose: str) -> np.random.Generator:
+    """The generator of ``purpose`` for a :class:`~starnav.calibration.schema.BenchConfig`."""
+    try:
+        key = STREAMS[purpose]
+    except KeyError:
+        raise UnknownNameError("bench random stream", purpose, list(STREAMS)) from None
+    return generator(int(cfg.seed), STAGE_HIL, key)

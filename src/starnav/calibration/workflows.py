@@ -1,0 +1,318 @@
+"""The four bench workflows behind ``starnav hil``: check, geometric, radiometric, stimulate.
+
+Each takes a validated :class:`~starnav.calibration.schema.BenchConfig`, runs the library
+steps and returns a :class:`HilReport` (JSON-safe summary, matplotlib figures, text files);
+the CLI only writes them. The rendered reference frame is the first frame of the bench's
+scenario (``scenario.geometry`` or ``scenario.trajectory``), rendered with Mitsuba.
+
+Example
+-------
+>>> from starnav.calibration import BenchConfig
+>>> from starnav.calibration.workflows import run_check
+>>> rep = run_check(BenchConfig())
+>>> rep.summary["fills_field"]
+False
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from starnav.calibration.bench import Bench, check_bench
+from starnav.calibration.collimator import implied_fov_deg
+from starnav.calibration.geometric import (
+    GeometricCalibration,
+    NominalMapping,
+    ScreenMapping,
+    calibrate_geometry,
+)
+from starnav.calibration.schema import BenchConfig, bench_to_dict
+from starnav.errors import ConfigError, DataFileError
+from starnav.radiance import RadianceImage
+
+log = logging.getLogger(__name__)
+
+#: The paper's stated bound on the collimator focal length [mm] (seed paper, below eq. 2).
+PAPER_F_COLL_BOUND_MM = 180.07
+
+
+@dataclass
+class HilReport:
+    """What a workflow produced.
+
+    Attributes
+    ----------
+    summary : dict
+        JSON-safe results.
+    figures : dict of str -> matplotlib Figure
+        Saved as ``<name>.png``.
+    texts : dict of str -> str
+        Extra files (e.g. ``geometric_calibration.json``).
+    """
+
+    summary: dict[str, Any]
+    figures: dict[str, Any] = field(default_factory=dict)
+    texts: dict[str, str] = field(default_factory=dict)
+
+
+def render_reference(cfg: BenchConfig, albedo_scale: float = 1.0) -> RadianceImage:
+    """The first frame of the bench's scenario, rendered with ``moon.albedo_scale`` multiplied
+    by ``albedo_scale`` (renders are linear in albedo)."""
+    from starnav.renderer.pipeline import frame_geometries, renderer_from_scenario
+
+    sc = cfg.scenario
+    if albedo_scale != 1.0:
+        sc = sc.model_copy(update={"moon": sc.moon.model_copy(
+            update={"albedo_scale": sc.moon.albedo_scale * albedo_scale})})
+    frames = frame_geometries(sc)
+    if not frames:
+        raise ConfigError("scenario", "no frame", "a scenario with at least one frame")
+    return renderer_from_scenario(sc).render(frames[0], seed=sc.seed)
+
+
+# =========================================================================== check
+def run_check(cfg: BenchConfig) -> HilReport:
+    """Optical-stimulator condition (eq. 2, stated and derived FoV) and detector coverage."""
+    from starnav.calibration import plots
+
+    bench = Bench(cfg)
+    chk = check_bench(bench)
+    cam = bench.camera
+    summary = {
+        "camera": {"fov_x_deg": math.degrees(cam.fov_x), "fov_y_deg": math.degrees(cam.fov_y),
+                   "fov_diagonal_deg": math.degrees(cam.fov_diagonal),
+                   "ifov_arcsec": math.degrees(cam.ifov) * 3600},
+        "paper": {"stated_bound_f_coll_mm": PAPER_F_COLL_BOUND_MM,
+                  "fov_implied_by_that_bound_deg": implied_fov_deg(cfg.screen.height_mm,
+                                                                   PAPER_F_COLL_BOUND_MM)},
+        **chk.to_dict(),
+    }
+    return HilReport(summary, {"coverage": plots.coverage(bench, chk)})
+
+
+# =========================================================================== geometric
+def run_geometric(cfg: BenchConfig, *, moon: bool = True,
+                  image: RadianceImage | None = None) -> HilReport:
+    """Dot-pattern calibration, residuals (Fig. 12) and the displayed-Moon check (Fig. 13).
+
+    Parameters
+    ----------
+    moon : bool
+        Also display the scenario's rendered Moon through the calibration (and uncalibrated)
+        and measure where it lands.
+    image : RadianceImage, optional
+        The Moon frame to use instead of rendering the scenario's first frame.
+    """
+    from starnav.calibration import plots
+    from starnav.calibration.radiometric import compare_stimulus
+
+    bench = Bench(cfg)
+    res = calibrate_geometry(bench)
+    summary: dict[str, Any] = {"geometric": res.summary()}
+    figs = {"residuals_pdf_cdf": plots.residual_pdf_cdf(res),
+            "dot_displacements": plots.dot_displacements(res)}
+    if moon:
+        img = image if image is not None else render_reference(cfg)
+        t = cfg.scaling.render_exposure_ms * 1e-3
+        cal = compare_stimulus(bench, img, t, res.calibration, frame_base=500)
+        unc = compare_stimulus(bench, img, t, NominalMapping(bench.geometry.nominal()),
+                               frame_base=510)
+        summary["moon_placement"] = {
+            "calibrated_offset_px": cal.metrics()["centroid_offset_px"],
+            "uncalibrated_offset_px": unc.metrics()["centroid_offset_px"],
+            "goal_px": 0.5, "calibrated": cal.metrics(), "uncalibrated": unc.metrics()}
+        figs["moon_placement"] = plots.moon_placement(cal, unc)
+    summary["bench"] = bench_to_dict(cfg)
+    return HilReport(summary, figs, {"geometric_calibration.json": res.calibration.to_json()})
+
+
+def load_calibration(path: str | Path, bench: Bench) -> GeometricCalibration:
+    """Read a ``geometric_calibration.json`` written by ``hil geometric``."""
+    import json
+
+    p = Path(path)
+    if not p.is_file():
+        raise DataFileError(f"geometric calibration {str(p)!r} does not exist")
+    try:
+        d = json.loads(p.read_text())
+    except json.JSONDecodeError as err:
+        raise ConfigError("geometric calibration file", str(p), f"valid JSON ({err})") from None
+    return GeometricCalibration.from_dict(d, bench.camera)
+
+
+def _calibration(bench: Bench, calibration: GeometricCalibration | str | Path | None
+                 ) -> ScreenMapping:
+    if calibration is None:
+        log.info("no geometric calibration given: running the emulated dot calibration")
+        return calibrate_geometry(bench, validate=False).calibration
+    if isinstance(calibration, str | Path):
+        return load_calibration(calibration, bench)
+    return calibration
+
+
+# =========================================================================== radiometric
+def run_radiometric(cfg: BenchConfig,
+                    calibration: GeometricCalibration | str | Path | None = None, *,
+                    image: RadianceImage | None = None,
+                    image_scaled: RadianceImage | None = None) -> HilReport:
+    """Screen flux per count, Moon flux, the count <-> flux mapping (Fig. 14), a calibrated
+    stimulus validated against the in-orbit exposure (Figs. 15-16), the albedo-exposure
+    equivalence test (Fig. 18) and the end-to-end case (Fig. 19).
+
+    Parameters
+    ----------
+    calibration : GeometricCalibration or path, optional
+        Default: run the emulated geometric calibration first.
+    image, image_scaled : RadianceImage, optional
+        The rendered frame at the true albedo and at albedo / k (default: rendered here).
+    """
+    from starnav.calibration import plots
+    from starnav.calibration.radiometric import compare_stimulus, count_flux_mapping, moon_flux
+    from starnav.calibration.scaling import (
+        albedo_exposure_experiment,
+        bench_min_exposure,
+        end_to_end,
+        plan_scaling,
+    )
+
+    bench = Bench(cfg)
+    rad = bench.radiometry
+    mapping = _calibration(bench, calibration)
+    img = image if image is not None else render_reference(cfg)
+    mf = moon_flux(img, bench.camera)
+    cfm = count_flux_mapping(rad, bench.camera, mf.electrons_per_joule)
+    t_r = cfg.scaling.render_exposure_ms * 1e-3
+    t_b = cfg.scaling.bench_exposure_ms * 1e-3 if cfg.scaling.bench_exposure_ms else None
+    plan = plan_scaling(mf.peak_le, t_r, rad, bench_min_exposure_s=bench_min_exposure(bench),
+                        bench_exposure_s=t_b, headroom=cfg.radiometric.headroom_fraction)
+    valid = compare_stimulus(bench, img, t_r, mapping, frame_base=600)
+    ks = albedo_exposure_experiment(bench, img, t_r, mapping)
+    scaled = image_scaled if image_scaled is not None else render_reference(cfg, plan.albedo_factor)
+    e2e = end_to_end(bench, img, mapping, le_scaled=scaled, render_exposure_s=t_r,
+                     bench_exposure_s=plan.bench_exposure_s)
+    summary = {
+        "screen": {"max_count": rad.max_count, "full_white_le_e_s_m2_sr": rad.le_max,
+                   "full_white_l_w_m2_sr": float(rad.l_lut[-1]),
+                   "full_white_electron_rate_px_e_s": rad.le_max * bench.camera.etendue,
+                   "electrons_per_joule_e_j": rad.electrons_per_joule,
+                   "throughput": rad.throughput,
+                   "emittance_source": cfg.screen.emittance.source if cfg.screen.emittance
+                   else None},
+        "moon": mf.to_dict(),
+        "screen_too_dim_factor": mf.peak_le / rad.le_max,
+        "mapping_excerpt": {str(n): {"moon_equivalent_l_w_m2_sr": float(cfm.moon_equivalent_l[n]),
+                                     "moon_equivalent_flux_px_w_m2":
+                                     float(cfm.moon_equivalent_flux_px[n])}
+                            for n in sorted({1, 13, 52, 128, rad.max_count})
+                            if n <= rad.max_count},
+        "plan": plan.to_dict(),
+        "validation": valid.metrics(),
+        "albedo_exposure_ks": ks.to_dict(),
+        "end_to_end": e2e.to_dict(),
+    }
+    figs = {"count_flux_mapping": plots.count_flux(cfm, mf, plan),
+            "radiometric_validation": plots.stimulus_comparison(
+                valid, "calibrated stimulus vs in-orbit exposure (screen-limited k)"),
+            "albedo_exposure_histograms": plots.ks_histograms(ks),
+            "end_to_end": plots.end_to_end_figure(e2e)}
+    return HilReport(summary, figs, {"count_flux_mapping.json": _json(cfm.to_dict())})
+
+
+def _json(d: dict[str, Any]) -> str:
+    import json
+
+    return json.dumps(d, indent=1)
+
+
+# =========================================================================== stimulate
+FrameSink = Callable[[str, NDArray[np.uint16], NDArray[np.float64], NDArray[np.float64]], None]
+
+
+def run_stimulate(cfg: BenchConfig, dataset: str | Path, sink: FrameSink,
+                  calibration: GeometricCalibration | str | Path | None = None,
+                  progress: Callable[[int, int], None] | None = None) -> HilReport:
+    """Screen stimuli for every rendered frame of a directory, and the predicted acquisitions.
+
+    The dataset format of issue 8 does not exist yet: ``dataset`` is a directory of RadianceImage
+    EXRs as written by ``starnav render`` (``*.exr``, sorted by name). One factor k serves the
+    whole sequence (the brightest frame decides), so the bench exposure is constant.
+
+    Parameters
+    ----------
+    sink : callable
+        ``sink(frame_name, screen_counts, predicted_dn, in_orbit_dn)`` for each frame (the CLI
+        writes them as PNG).
+    calibration : GeometricCalibration or path, optional
+        Default: run the emulated geometric calibration first.
+    progress : callable, optional
+        ``progress(done, total)``.
+
+    Raises
+    ------
+    DataFileError
+        No EXR in ``dataset``.
+    ConfigError
+        A frame whose size differs from the bench camera's.
+    """
+    from starnav.calibration import plots
+    from starnav.calibration.radiometric import compare_stimulus
+    from starnav.calibration.scaling import bench_min_exposure, plan_scaling
+    from starnav.radiance import read_exr
+
+    d = Path(dataset)
+    files = sorted(d.glob("*.exr")) if d.is_dir() else []
+    if not files:
+        raise DataFileError(f"{str(d)!r} holds no RadianceImage EXR (*.exr written by "
+                            "`starnav render`)")
+    bench = Bench(cfg)
+    cam = bench.camera
+    peaks = []
+    for f in files:
+        img = read_exr(f)
+        if img.shape != (cam.height, cam.width):
+            raise ConfigError(f"{f.name} size", f"{img.shape[0]} x {img.shape[1]}",
+                              f"the bench camera's {cam.height} x {cam.width} (rows x cols)")
+        peaks.append(float(img.Le.max()))
+    if max(peaks) <= 0:
+        raise ConfigError("dataset", str(d), "at least one frame with the Moon in the field")
+    mapping = _calibration(bench, calibration)
+    t_r = cfg.scaling.render_exposure_ms * 1e-3
+    t_b = cfg.scaling.bench_exposure_ms * 1e-3 if cfg.scaling.bench_exposure_ms else None
+    plan = plan_scaling(max(peaks), t_r, bench.radiometry,
+                        bench_min_exposure_s=bench_min_exposure(bench), bench_exposure_s=t_b,
+                        headroom=cfg.radiometric.headroom_fraction)
+    frames = []
+    first = None
+    for i, f in enumerate(files):
+        img = read_exr(f)
+        if peaks[i] <= 0:
+            log.warning("%s: no Moon in the field; skipped", f.name)
+            continue
+        comp = compare_stimulus(bench, img, t_r, mapping, bench_exposure_s=plan.bench_exposure_s,
+                                frame_base=1000 + 4 * i)
+        sink(f.stem, comp.counts, comp.bench.dn, comp.orbit_dn)
+        frames.append({"frame": f.name} | comp.metrics())
+        if first is None:
+            first = comp
+        if progress is not None:
+            progress(i + 1, len(files))
+    summary = {"dataset": str(d), "dataset_format": "directory of RadianceImage EXRs "
+               "(`starnav render`); the issue-8 dataset format is not supported yet",
+               "plan": plan.to_dict(), "frames": frames}
+    figs = {}
+    if first is not None:
+        figs["first_frame"] = plots.stimulus_comparison(first, f"{frames[0]['frame']}: bench vs "
+                                                        "in orbit")
+    return HilReport(summary, figs)
+
+
+__all__ = ["HilReport", "load_calibration", "render_reference", "run_check", "run_geometric",
+           "run_radiometric", "run_stimulate"]

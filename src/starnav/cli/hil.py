@@ -1,0 +1,233 @@
+"""``starnav hil``: emulate the hardware-in-the-loop bench (screen + collimator).
+
+Thin commands: parse, load the bench file, call one function of
+:mod:`starnav.calibration.workflows`, write its figures (PNG), its JSON summary and the
+resolved bench next to them. ``BENCH`` is a bench YAML file, or ``default`` for the paper's
+TinyV3RSE bench.
+
+``hil stimulate`` takes a directory of RadianceImage EXRs as written by ``starnav render``
+(the dataset format of issue 8 does not exist yet).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+hil_app = typer.Typer(add_completion=False, no_args_is_help=True,
+                      help="Hardware-in-the-loop bench emulation: collimator check, geometric "
+                           "and radiometric calibration, screen stimuli.")
+
+BenchArg = Annotated[str, typer.Argument(help="bench YAML file, or 'default' (TinyV3RSE)")]
+SetOpt = Annotated[list[str] | None, typer.Option("--set", help="override a key: a.b=value")]
+CalOpt = Annotated[Path | None, typer.Option(
+    "--calibration", help="geometric_calibration.json from `hil geometric` (default: run the "
+    "emulated dot calibration first)")]
+
+
+def _fail(err: Exception) -> None:
+    from rich.console import Console
+
+    Console(stderr=True).print(f"[bold red]error:[/] {err}")
+    raise typer.Exit(code=2)
+
+
+def _load(bench: str, overrides: list[str] | None):
+    from starnav.calibration.schema import load_bench
+
+    return load_bench(None if bench == "default" else bench, overrides or [])
+
+
+def _atomic_bytes(path: Path, write: Any) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _write_report(report: Any, cfg: Any, out: Path, name: str) -> None:
+    import yaml
+
+    from starnav.calibration.schema import bench_to_dict
+    from starnav.config import atomic_write_text
+
+    out.mkdir(parents=True, exist_ok=True)
+    for fig_name, fig in report.figures.items():
+        _atomic_bytes(out / f"{fig_name}.png", lambda p, f=fig: f.savefig(p, dpi=110,
+                                                                         format="png"))
+    for fname, text in report.texts.items():
+        atomic_write_text(out / fname, text)
+    atomic_write_text(out / f"{name}.json", json.dumps(report.summary, indent=1, default=float))
+    atomic_write_text(out / "bench.resolved.yaml",
+                      yaml.safe_dump(bench_to_dict(cfg), sort_keys=False))
+
+
+def _table(title: str, rows: list[tuple[str, Any]]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(title=title, show_header=False)
+    for k, v in rows:
+        t.add_row(k, f"{v:.6g}" if isinstance(v, float) else str(v))
+    Console().print(t)
+
+
+@hil_app.command("check")
+def check(
+    bench: BenchArg,
+    out: Annotated[Path | None, typer.Option("--out", help="write check.json and the "
+                                             "coverage figure here")] = None,
+    set_: SetOpt = None,
+) -> None:
+    """Optical-stimulator condition (paper eq. 2) with the stated and the derived FoV, and how
+    much of the detector the screen covers."""
+    from starnav.calibration.workflows import run_check
+    from starnav.errors import StarnavError
+
+    try:
+        cfg = _load(bench, set_)
+        rep = run_check(cfg)
+        if out is not None:
+            _write_report(rep, cfg, out, "check")
+    except StarnavError as err:
+        _fail(err)
+        return
+    s = rep.summary
+    rows = [(c["fov_source"], c["sentence"]) for c in s["conditions"]]
+    rows += [("stimulated fraction", s["stimulated_fraction"]),
+             ("screen pixel on the detector (px)", s["screen_pixel_camera_px"]),
+             ("verdict", s["verdict"])]
+    _table("hil check", rows)
+
+
+@hil_app.command("geometric")
+def geometric(
+    bench: BenchArg,
+    out: Annotated[Path, typer.Option("--out", help="output directory")]
+    = Path("out/hil/geometric"),
+    no_moon: Annotated[bool, typer.Option("--no-moon", help="skip the displayed-Moon check "
+                                          "(no rendering)")] = False,
+    set_: SetOpt = None,
+) -> None:
+    """Dot-pattern geometric calibration: residual PDF/CDF, pre-warped Moon placement, and the
+    calibration polynomials (geometric_calibration.json)."""
+    from starnav.calibration.workflows import run_geometric
+    from starnav.errors import StarnavError
+
+    try:
+        cfg = _load(bench, set_)
+        rep = run_geometric(cfg, moon=not no_moon)
+        _write_report(rep, cfg, out, "geometric")
+    except StarnavError as err:
+        _fail(err)
+        return
+    g = rep.summary["geometric"]
+    rows = [("dots matched", f"{g['dots_matched']} / {g['dots_shown']}"),
+            ("uncalibrated RMS (arcsec)", g["uncalibrated"]["rms_arcsec"]),
+            ("hold-out RMS (arcsec)", g["holdout"].get("rms_arcsec", float("nan"))),
+            ("closed-loop RMS (arcsec)", g["closed_loop"].get("rms_arcsec", float("nan")))]
+    if "moon_placement" in rep.summary:
+        m = rep.summary["moon_placement"]
+        rows += [("Moon offset, calibrated (px)", m["calibrated_offset_px"]),
+                 ("Moon offset, uncalibrated (px)", m["uncalibrated_offset_px"])]
+    _table("hil geometric", rows)
+    typer.echo(f"outputs in {out}")
+
+
+@hil_app.command("radiometric")
+def radiometric(
+    bench: BenchArg,
+    out: Annotated[Path, typer.Option("--out", help="output directory")]
+    = Path("out/hil/radiometric"),
+    calibration: CalOpt = None,
+    set_: SetOpt = None,
+) -> None:
+    """Radiometric calibration: count <-> Moon flux, validated stimulus, albedo-exposure scaling
+    (KS test) and the end-to-end 0.015 ms case."""
+    from starnav.calibration.workflows import run_radiometric
+    from starnav.errors import StarnavError
+
+    try:
+        cfg = _load(bench, set_)
+        rep = run_radiometric(cfg, calibration)
+        _write_report(rep, cfg, out, "radiometric")
+    except StarnavError as err:
+        _fail(err)
+        return
+    s = rep.summary
+    ks = s["albedo_exposure_ks"]
+    e2e = s["end_to_end"]
+    _table("hil radiometric", [
+        ("screen too dim by", s["screen_too_dim_factor"]),
+        ("k (albedo / k, exposure x k)", s["plan"]["k"]),
+        ("stimulus peak count", s["plan"]["peak_count"]),
+        ("validation disc ratio", s["validation"]["disc_ratio"]),
+        ("KS scaled p-values", ", ".join(f"{c['p_value']:.3g}" for c in ks["cases"][1:])),
+        ("KS control p-value", f"{ks['control']['p_value']:.3g}"),
+        ("end-to-end disc ratio", e2e["metrics"]["disc_ratio"]),
+        ("end-to-end KS p-value", e2e["ks_p_value"]),
+    ])
+    typer.echo(f"outputs in {out}")
+
+
+@hil_app.command("stimulate")
+def stimulate(
+    bench: BenchArg,
+    dataset: Annotated[Path, typer.Argument(help="directory of RadianceImage EXRs written by "
+                                            "`starnav render`")],
+    out: Annotated[Path, typer.Option("--out", help="output directory")] = Path("out/hil/stimuli"),
+    calibration: CalOpt = None,
+    set_: SetOpt = None,
+) -> None:
+    """Screen images (counts, PNG) for every rendered frame, with the predicted bench
+    acquisition and the in-orbit exposure (16-bit DN PNG)."""
+    import imageio.v3 as iio
+    import numpy as np
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from starnav.calibration.workflows import run_stimulate
+    from starnav.errors import StarnavError
+
+    def png(path: Path, arr: Any) -> None:
+        _atomic_bytes(path, lambda p: iio.imwrite(p, arr, extension=".png"))
+
+    try:
+        cfg = _load(bench, set_)
+        dtype = np.uint8 if cfg.screen.bit_depth <= 8 else np.uint16
+
+        def sink(name: str, counts: Any, dn: Any, orbit: Any) -> None:
+            png(out / "screen" / f"{name}.png", counts.astype(dtype))
+            png(out / "predicted" / f"{name}_dn.png",
+                np.clip(np.rint(dn), 0, 65535).astype(np.uint16))
+            png(out / "orbit" / f"{name}_dn.png",
+                np.clip(np.rint(orbit), 0, 65535).astype(np.uint16))
+
+        with Progress(TextColumn("[bold]{task.description}"), BarColumn(),
+                      TextColumn("{task.completed}/{task.total}"), TimeElapsedColumn()) as bar:
+            task = bar.add_task("stimulate", total=None)
+            rep = run_stimulate(cfg, dataset, sink, calibration,
+                                lambda k, n: bar.update(task, completed=k, total=n))
+        _write_report(rep, cfg, out, "stimulate")
+    except StarnavError as err:
+        _fail(err)
+        return
+    s = rep.summary
+    _table("hil stimulate", [("frames", len(s["frames"])), ("k", s["plan"]["k"]),
+                             ("bench exposure (s)", s["plan"]["bench_exposure_s"]),
+                             ("peak count", s["plan"]["peak_count"])])
+    typer.echo(f"outputs in {out}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``hil`` sub-command group to the main ``starnav`` app."""
+    app.add_typer(hil_app, name="hil")
