@@ -630,22 +630,14 @@ def frame_mesh(scenario: Any, dem: DemGrid | None = None, albedo: AlbedoGrid | N
 def save_mesh(mesh: trimesh.Trimesh, path: Any) -> Any:
     """Write a mesh (PLY with normals and the vertex attributes as float properties) through a
     temporary file and a rename. PLY stores float32 coordinates (~0.1 m at the lunar radius)."""
-    import os
-    import tempfile
     from pathlib import Path
 
+    from starnav.atomic import atomic_path
+
     p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
     suffix = p.suffix.lstrip(".") or "ply"
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=f".{suffix}", dir=p.parent)
-    os.close(fd)
-    try:
-        mesh.export(tmp, file_type=suffix)
-        os.chmod(tmp, 0o644)  # mkstemp makes 0600 files
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(p, suffix=f".{suffix}") as tmp:
+        mesh.export(str(tmp), file_type=suffix)
     return p
 
 

@@ -45,7 +45,6 @@ import logging
 import math
 import os
 import re
-import tempfile
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -55,6 +54,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from starnav.atomic import atomic_path
 from starnav.constants import MOON_RADIUS
 from starnav.dem.grid import AlbedoGrid, DemGrid, EquirectangularGrid, area_resample_blocks
 from starnav.dem.schema import AlbedoConfig, DemConfig
@@ -693,21 +693,14 @@ def write_geotiff(grid: EquirectangularGrid, path: str | os.PathLike[str]) -> Pa
     radius = getattr(grid, "reference_radius", MOON_RADIUS)
     crs = (CRS.from_user_input("IAU_2015:30100") if radius == MOON_RADIUS
            else CRS.from_proj4(f"+proj=longlat +R={radius} +no_defs"))
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tif", dir=p.parent)
-    os.close(fd)
-    try:
-        with rasterio.open(tmp, "w", driver="GTiff", width=grid.shape[1], height=grid.shape[0],
-                           count=1, dtype="float32", crs=crs,
-                           transform=from_bounds(w, s, e, n, grid.shape[1], grid.shape[0]),
-                           compress="deflate", tiled=True) as ds:
-            ds.write(grid.values, 1)
-            if isinstance(grid, DemGrid):
-                ds.units = ("m",)
-        os.chmod(tmp, 0o644)  # mkstemp makes 0600 files
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(p, suffix=".tif") as tmp, rasterio.open(
+            tmp, "w", driver="GTiff", width=grid.shape[1], height=grid.shape[0], count=1,
+            dtype="float32", crs=crs,
+            transform=from_bounds(w, s, e, n, grid.shape[1], grid.shape[0]),
+            compress="deflate", tiled=True) as ds:
+        ds.write(grid.values, 1)
+        if isinstance(grid, DemGrid):
+            ds.units = ("m",)
     return p
 
 
