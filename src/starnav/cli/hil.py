@@ -74,11 +74,12 @@ def _write_report(report: Any, cfg: Any, out: Path, name: str) -> None:
 
 def _table(title: str, rows: list[tuple[str, Any]]) -> None:
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     t = Table(title=title, show_header=False)
     for k, v in rows:
-        t.add_row(k, f"{v:.6g}" if isinstance(v, float) else str(v))
+        t.add_row(escape(k), escape(f"{v:.6g}" if isinstance(v, float) else str(v)))
     Console().print(t)
 
 

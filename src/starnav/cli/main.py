@@ -16,6 +16,7 @@ from typing import Annotated
 import typer
 import yaml
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -84,22 +85,36 @@ def info() -> None:
     console.print(table)
 
 
+INIT_PRESETS = ("default", "exposure-study", "demo")
+
+
 @app.command()
 def init(
     out: Annotated[Path, typer.Argument(help="scenario file to write")] = Path("scenario.yaml"),
-    preset: Annotated[str, typer.Option(help="scenario preset")] = "default",
+    preset: Annotated[str, typer.Option(help=f"scenario preset: {', '.join(INIT_PRESETS)}")]
+    = "default",
     force: Annotated[bool, typer.Option(help="overwrite an existing file")] = False,
 ) -> None:
-    """Write a commented example scenario with every key at its default."""
+    """Write a commented example scenario (every key at its value for the preset)."""
     from starnav.atomic import atomic_write_text
-    from starnav.config import EXAMPLE_HEADER, Scenario, scenario_to_dict
+    from starnav.config import EXAMPLE_HEADER, Scenario, scenario_from_dict, scenario_to_dict
 
     if out.exists() and not force:
         _fail(StarnavError(f"{out} exists; use --force to overwrite"))
-    if preset != "default":
-        _fail(StarnavError(f"unknown preset {preset!r}; known: default"))
-    body = yaml.safe_dump(scenario_to_dict(Scenario()), sort_keys=False)
-    atomic_write_text(out, EXAMPLE_HEADER + body)
+    if preset == "default":
+        header, data = EXAMPLE_HEADER, scenario_to_dict(Scenario())
+    elif preset == "exposure-study":
+        from starnav.batch.presets import exposure_study_header, exposure_study_scenario
+
+        header, data = exposure_study_header(), exposure_study_scenario()
+    elif preset == "demo":
+        from starnav.batch.presets import demo_scenario
+
+        header = EXAMPLE_HEADER + "# preset: the `make demo` scenario (a LUMIO arc)\n"
+        data = scenario_to_dict(scenario_from_dict(demo_scenario()))
+    else:
+        _fail(StarnavError(f"unknown preset {preset!r}; known: {', '.join(INIT_PRESETS)}"))
+    atomic_write_text(out, header + yaml.safe_dump(data, sort_keys=False))
     console.print(f"wrote {out}")
 
 
@@ -145,33 +160,30 @@ def demo(
     out: Annotated[Path, typer.Option("--out", help="output directory")] = Path("out/demo"),
     set_: SetOpt = None,
 ) -> None:
-    """The main job on built-in defaults: render the default Moon frame and report it."""
-    from starnav.demo import run_demo
+    """The main job on built-in defaults: a short LUMIO-arc dataset at the paper's well-exposed
+    and saturated exposures, navigation on it, and the report with its figures."""
+    from starnav.batch import main_job
 
-    sc = _load(None, set_)
     try:
-        summary = run_demo(sc, out)
+        with progress_bar() as bar:
+            task = bar.add_task("demo", total=None)
+            summary = main_job(None, out, overrides=set_ or (),
+                               progress=lambda d, n: bar.update(task, completed=d, total=n))
     except StarnavError as err:
         _fail(err)
     table = Table(title="starnav demo", show_header=False)
-    for k, v in summary.items():
-        table.add_row(k, f"{v:.6g}" if isinstance(v, float) else str(v))
+    for k, v in summary.items():  # keys carry units in brackets: escape them from rich markup
+        table.add_row(escape(k), escape(f"{v:.6g}" if isinstance(v, float) else str(v)))
     console.print(table)
-    console.print(f"outputs in [bold]{out}[/]")
+    console.print(f"report: [bold]{summary['report']}[/]")
 
 
 def _register_parts() -> None:
     """Add the commands owned by the other subpackages."""
     import importlib
 
-    for name in ("trajectory", "dem", "expose", "navigate", "hil", "dataset", "sweep"):
-        try:
-            mod = importlib.import_module(f"starnav.cli.{name}")
-        except ModuleNotFoundError as err:
-            if err.name == f"starnav.cli.{name}":
-                continue  # that part is not installed in this build
-            raise
-        mod.register(app)
+    for name in ("trajectory", "dem", "expose", "dataset", "navigate", "sweep", "hil", "show"):
+        importlib.import_module(f"starnav.cli.{name}").register(app)
 
 
 _register_parts()

@@ -1,0 +1,150 @@
+"""Dask runners: a local cluster on 127.0.0.1, an existing scheduler, or this process.
+
+:func:`open_runner` is the one entry point: ``workers=0`` runs in this process (no Dask),
+``workers=N`` starts a :class:`distributed.LocalCluster` of ``N`` single-threaded worker
+processes bound to 127.0.0.1 (nannies restart a worker that dies; the scheduler re-runs its
+tasks, up to ``distributed.scheduler.allowed-failures`` = 3 deaths per task), and
+``scheduler="tcp://host:port"`` connects to a running cluster (workers must have starnav
+installed and, for datasets, share the output file system).
+
+Errors are immediate and clear: a malformed address, or a scheduler that does not answer
+within ``connect_timeout_s``, raises :class:`ClusterError` before any work starts.
+
+Example
+-------
+>>> from starnav.batch.cluster import open_runner
+>>> with open_runner(workers=2) as runner:                          # doctest: +SKIP
+...     h = runner.submit(pow, 2, 10, key="pow-2-10")
+...     [r for _, r in runner.as_completed([h])]
+[1024]
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import re
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any
+
+from starnav.dataset.runner import InProcessRunner, TaskRunner
+from starnav.errors import ConfigError, StarnavError
+
+log = logging.getLogger(__name__)
+
+#: How long to wait for a scheduler to answer [s].
+CONNECT_TIMEOUT_S = 5.0
+_ADDRESS_RE = re.compile(r"^(tcp|tls|ws|wss|inproc)://[^\s/:]+(:\d{1,5})?$")
+
+
+class ClusterError(StarnavError, ConnectionError):
+    """The Dask scheduler cannot be reached or the cluster cannot start."""
+
+
+class DaskRunner:
+    """A :class:`~starnav.dataset.runner.TaskRunner` on a ``distributed.Client``."""
+
+    def __init__(self, client: Any, description: str) -> None:
+        self.client = client
+        self.description = description
+        info = client.scheduler_info()
+        self.workers = len(info.get("workers", {}))
+
+    def submit(self, fn: Callable[..., Any], *args: Any, key: str) -> Any:
+        return self.client.submit(fn, *args, key=key, pure=False)
+
+    def as_completed(self, handles: Iterable[Any]) -> Iterator[tuple[Any, Any]]:
+        from distributed import as_completed
+
+        yield from as_completed(list(handles), loop=self.client.loop, with_results=True)
+
+
+@contextlib.contextmanager
+def quiet_logger(name: str, level: int = logging.ERROR) -> Iterator[None]:
+    """Raise logger ``name`` to ``level`` for the block (per-run filter chatter in batch mode:
+    the table carries what matters, e.g. ``accepted``)."""
+    lg = logging.getLogger(name)
+    old = lg.level
+    lg.setLevel(max(level, old))
+    try:
+        yield
+    finally:
+        lg.setLevel(old)
+
+
+def check_address(address: str) -> str:
+    """Validate a scheduler address (``tcp://host:port``)."""
+    a = str(address).strip()
+    if not _ADDRESS_RE.match(a):
+        raise ConfigError("--scheduler", address, "a Dask scheduler address such as "
+                          "tcp://10.0.0.5:8786")
+    return a
+
+
+def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Any:
+    """A ``distributed.Client`` on ``address``, or :class:`ClusterError` within ``timeout_s``."""
+    from distributed import Client
+
+    a = check_address(address)
+    try:
+        return Client(a, timeout=f"{timeout_s}s", set_as_default=False)
+    except (OSError, TimeoutError) as err:
+        raise ClusterError(f"the Dask scheduler at {a} does not answer (waited {timeout_s:g} s:"
+                           f" {type(err).__name__}); start it with `dask scheduler` or use "
+                           "--workers N for a local cluster") from None
+
+
+def default_workers() -> int:
+    """Local workers when none is asked for: the number of CPUs (at least 1)."""
+    return max(1, os.cpu_count() or 1)
+
+
+@contextlib.contextmanager
+def open_runner(workers: int | None = None, scheduler: str | None = None, *,
+                connect_timeout_s: float = CONNECT_TIMEOUT_S) -> Iterator[TaskRunner]:
+    """The runner for ``workers`` / ``scheduler`` (module docstring); closed on exit.
+
+    Parameters
+    ----------
+    workers : int, optional
+        0: this process; N >= 1: a local cluster of N processes; default the CPU count.
+        Ignored with ``scheduler``.
+    scheduler : str, optional
+        Address of an existing scheduler.
+    connect_timeout_s : float
+        How long to wait for ``scheduler`` [s].
+    """
+    if scheduler:
+        client = connect(scheduler, connect_timeout_s)
+        try:
+            yield DaskRunner(client, f"scheduler {check_address(scheduler)}")
+        finally:
+            client.close()
+        return
+    n = default_workers() if workers is None else int(workers)
+    if n < 0:
+        raise ConfigError("--workers", workers, "0 (this process) or a number of processes")
+    if n == 0:
+        yield InProcessRunner()
+        return
+    from distributed import Client, LocalCluster
+
+    quiet = contextlib.ExitStack()  # the scheduler runs here: keep its INFO lines out
+    quiet.enter_context(quiet_logger("distributed", logging.WARNING))
+    try:
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               host="127.0.0.1", dashboard_address=None,
+                               silence_logs=logging.ERROR)
+    except Exception as err:  # noqa: BLE001 - any start-up failure is reported the same way
+        quiet.close()
+        raise ClusterError(f"could not start a local Dask cluster of {n} workers: {err} (worker "
+                           "processes are spawned: a script that starts a sweep must guard its "
+                           "code with `if __name__ == '__main__':`)") from None
+    client = Client(cluster, set_as_default=False)
+    try:
+        yield DaskRunner(client, f"local cluster, {n} worker process(es)")
+    finally:
+        client.close()
+        cluster.close()
+        quiet.close()

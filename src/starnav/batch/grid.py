@@ -1,0 +1,336 @@
+"""What-if grids: ``--grid key=v1,v2`` axes, their points, and which keys reach the renderer.
+
+Technique
+---------
+1. **Axes.** Each ``--grid KEY=V1,V2,...`` is an axis: ``KEY`` a dotted scenario key
+   (``detector.exposure_time_s``), the values parsed as YAML one by one (``1.5e-5`` is a float,
+   ``true`` a bool, ``[1, 2]`` a list; commas inside brackets do not split).
+   **Linked axes**: keys joined by ``+`` vary together; each value is a list with one entry
+   per key: ``--grid "detector.exposure_time_s+detector.readout.segments.thresholds_dn=
+   [7.7e-3,[2048]],[1.5e-5,[200]]"`` gives two points, not four (the paper tuned its image
+   processing to each exposure; this is how a sweep says so).
+2. **Points.** The grid is the Cartesian product of the axes, in the order given (the last axis
+   varies fastest); point ``p`` is the base scenario with the ``--set``-style overrides of its
+   values, validated like any scenario, so a bad key or value is reported, with its name,
+   before any work.
+3. **Render groups.** Points that differ only *downstream* of the renderer share their renders.
+   Upstream (changes the radiance image): ``camera``, ``sensor_response``, ``moon``, ``sun``,
+   ``geometry``, ``trajectory``, ``pointing``, ``render`` and ``seed``. Downstream: ``detector``
+   (exposure, PSF, noise, saturation, readout), ``navigation`` and ``output``.
+   ``moon.albedo_scale`` is also downstream when the photometric model is linear in the albedo
+   (``lambert``, ``lommel_seeliger``, ``lunar_lambert``: radiance = albedo x f(geometry)): the
+   group is rendered at scale 1 and each point multiplies the radiance by its own scale, the
+   albedo-exposure equivalence the paper's HIL bench relies on (identical up to float32
+   rounding, ~1e-7). For ``hapke`` the albedo enters non-linearly and stays upstream.
+
+Example
+-------
+>>> axes = parse_grid(["detector.exposure_time_s=1.5e-5,7.7e-3", "moon.albedo_scale=1,0.5"])
+>>> [a.key for a in axes], len(axes[0].values) * len(axes[1].values)
+(['detector.exposure_time_s', 'moon.albedo_scale'], 4)
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import hashlib
+import itertools
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import yaml
+
+from starnav.errors import ConfigError
+
+if TYPE_CHECKING:
+    from starnav.config import Scenario
+
+#: Scenario sections that change the rendered radiance (module step 3).
+UPSTREAM_SECTIONS: tuple[str, ...] = ("camera", "sensor_response", "moon", "sun", "geometry",
+                                      "trajectory", "pointing", "render", "seed")
+#: Sections that act after the renderer.
+DOWNSTREAM_SECTIONS: tuple[str, ...] = ("detector", "navigation", "output")
+#: Photometric models whose radiance is proportional to the albedo.
+LINEAR_IN_ALBEDO: tuple[str, ...] = ("lambert", "lommel_seeliger", "lunar_lambert")
+#: Keys below which any sub-key is accepted (free-form mappings).
+_FREE_FORM = ("moon.photometry.params",)
+
+
+@dataclass(frozen=True)
+class GridAxis:
+    """One axis: a dotted scenario key (or linked keys joined by ``+``) and its values
+    (module step 1); a linked axis' values are tuples with one entry per key."""
+
+    key: str
+    values: tuple[Any, ...]
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """The scenario keys this axis sets."""
+        return tuple(self.key.split("+"))
+
+    def assignments(self, value: Any) -> dict[str, Any]:
+        """Key -> value of one of the axis' values."""
+        ks = self.keys
+        if len(ks) == 1:
+            return {ks[0]: value}
+        return dict(zip(ks, value, strict=True))
+
+
+@dataclass(frozen=True)
+class GridPoint:
+    """One point of the grid (module step 2).
+
+    Attributes
+    ----------
+    index : int
+    values : dict
+        Scenario key -> value (linked axes contribute one entry per key).
+    scenario : Scenario
+        The validated scenario of the point.
+    label : str
+        ``key=value, ...`` with the last component of each key.
+    render_key : str
+        Hash of the upstream configuration (points with equal keys share renders).
+    albedo_factor : float
+        Factor applied to the shared render's radiance (``moon.albedo_scale`` when it is
+        downstream, else 1).
+    """
+
+    index: int
+    values: dict[str, Any]
+    scenario: Scenario
+    label: str
+    render_key: str
+    albedo_factor: float
+
+
+def split_values(text: str) -> list[str]:
+    """Split ``text`` at commas outside brackets and quotes."""
+    out, depth, cur, quote = [], 0, [], ""
+    for ch in text:
+        if quote:
+            cur.append(ch)
+            if ch == quote:
+                quote = ""
+            continue
+        if ch in "\"'":
+            quote = ch
+        elif ch in "[({":
+            depth += 1
+        elif ch in "])}":
+            depth -= 1
+        if ch == "," and depth == 0:
+            out.append("".join(cur).strip())
+            cur = []
+        else:
+            cur.append(ch)
+    out.append("".join(cur).strip())
+    return [v for v in out if v != ""]
+
+
+def parse_axis(item: str) -> GridAxis:
+    """``KEY=V1,V2`` -> :class:`GridAxis`; a clear error for a missing key or empty values."""
+    if not isinstance(item, str) or "=" not in item:
+        raise ConfigError("--grid", item, "KEY=V1,V2,... (e.g. detector.exposure_time_s="
+                          "1.5e-5,7.7e-3)")
+    key, raw = item.split("=", 1)
+    key = "+".join(k.strip() for k in key.split("+"))
+    keys = key.split("+")
+    if any(not k or any(not part for part in k.split(".")) for k in keys):
+        raise ConfigError("--grid", item, "a dotted scenario key (or keys joined by +) "
+                          "before '='")
+    if len(set(keys)) != len(keys):
+        raise ConfigError("--grid", key, "distinct keys in a linked axis")
+    texts = split_values(raw)
+    if not texts:
+        raise ConfigError(f"--grid {key}", raw, "at least one value (the grid is empty)")
+    values = tuple(parse_value(key, t) for t in texts)
+    if len(keys) > 1:
+        for v in values:
+            if not isinstance(v, list) or len(v) != len(keys):
+                raise ConfigError(f"--grid {key}", v, f"a list of {len(keys)} values, one per "
+                                  "linked key, e.g. [7.7e-3,[2048]]")
+        values = tuple(tuple(v) for v in values)
+    return GridAxis(key, values)
+
+
+def _numbers(v: Any) -> Any:
+    """Strings that are plain numbers (YAML 1.1 reads ``1e-4`` as a string) to floats."""
+    if isinstance(v, list):
+        return [_numbers(x) for x in v]
+    if isinstance(v, dict):
+        return {k: _numbers(x) for k, x in v.items()}
+    if isinstance(v, str):
+        try:
+            return float(v) if v.strip().lower() not in ("nan", "inf", "-inf", "+inf",
+                                                          "infinity") else v
+        except ValueError:
+            return v
+    return v
+
+
+def parse_value(key: str, text: str) -> Any:
+    """One grid value: an int, else a float (``1e-4`` included, which YAML 1.1 reads as a
+    string), else YAML."""
+    for conv in (int, float):
+        try:
+            return conv(text)
+        except ValueError:
+            pass
+    try:
+        return _numbers(yaml.safe_load(text))
+    except yaml.YAMLError as err:
+        raise ConfigError(f"--grid {key}", text, f"a number or a YAML value ({err})") from None
+
+
+def set_key(data: dict[str, Any], key: str, value: Any) -> None:
+    """Set the dotted ``key`` of a nested dict to ``value`` (creating sub-dicts)."""
+    node = data
+    parts = key.split(".")
+    for part in parts[:-1]:
+        nxt = node.get(part)
+        if not isinstance(nxt, dict):
+            nxt = {}
+            node[part] = nxt
+        node = nxt
+    node[parts[-1]] = copy.deepcopy(value)
+
+
+def parse_grid(items: Sequence[str | GridAxis]) -> list[GridAxis]:
+    """Parse every ``--grid`` item; at least one axis, no key twice."""
+    axes = [a if isinstance(a, GridAxis) else parse_axis(a) for a in items]
+    if not axes:
+        raise ConfigError("--grid", "none", "at least one --grid KEY=V1[,V2...] (a single value "
+                          "gives a Monte Carlo of one scenario), or a preset")
+    seen: set[str] = set()
+    for a in axes:
+        if not a.values:
+            raise ConfigError(f"--grid {a.key}", "[]", "at least one value (the grid is empty)")
+        for k in a.keys:
+            if k in seen:
+                raise ConfigError("--grid", k, "each key once (give all its values in one "
+                                  "--grid)")
+            seen.add(k)
+    return axes
+
+
+def _flatten(d: Any, prefix: str, out: set[str]) -> None:
+    if isinstance(d, dict):
+        for k, v in d.items():
+            key = f"{prefix}{k}"
+            out.add(key)
+            _flatten(v, key + ".", out)
+
+
+def known_keys() -> set[str]:
+    """Every dotted key of a scenario (optional sections filled with their defaults)."""
+    from starnav.config import Scenario, scenario_to_dict
+    from starnav.scenes.schema import TrajectoryConfig
+
+    keys: set[str] = set()
+    _flatten(scenario_to_dict(Scenario(trajectory=TrajectoryConfig())), "", keys)
+    try:
+        from starnav.dem.schema import DemConfig
+
+        _flatten({"moon": {"dem": DemConfig().model_dump(mode="json")}}, "", keys)
+    except Exception:  # noqa: BLE001 - a DEM section without defaults only loses suggestions
+        pass
+    return keys
+
+
+def check_key(key: str, known: set[str] | None = None) -> None:
+    """Raise :class:`ConfigError` with suggestions if ``key`` is not a scenario key."""
+    known = known if known is not None else known_keys()
+    if key in known or any(key.startswith(f + ".") for f in _FREE_FORM):
+        return
+    close = difflib.get_close_matches(key, sorted(known), n=3, cutoff=0.6)
+    hint = f"; did you mean {' or '.join(close)}?" if close else ""
+    raise ConfigError("--grid", key, f"a scenario key such as detector.exposure_time_s or "
+                      f"moon.albedo_scale (unknown key{hint})")
+
+
+def _dumps(obj: Any) -> str:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"))
+
+
+def render_config(scenario: Scenario) -> tuple[dict[str, Any], float]:
+    """The scenario dict a shared render uses, and this point's albedo factor (module step 3).
+
+    The dict keeps the upstream sections of ``scenario`` (AOVs off: a sweep never uses them;
+    ``moon.albedo_scale`` at 1 when the model is linear in albedo) and the defaults of the
+    downstream ones, so that every point of a render group gives the same dict.
+    """
+    from starnav.config import Scenario, scenario_to_dict
+
+    d = scenario_to_dict(scenario)
+    blank = scenario_to_dict(Scenario())
+    up = {k: d[k] for k in UPSTREAM_SECTIONS}
+    up["render"] = dict(up["render"], aovs=False)
+    factor = 1.0
+    if scenario.moon.photometry.model in LINEAR_IN_ALBEDO:
+        factor = float(scenario.moon.albedo_scale)
+        up["moon"] = dict(up["moon"], albedo_scale=1.0)
+    for k in DOWNSTREAM_SECTIONS:
+        up[k] = blank[k]
+    return up, factor
+
+
+def render_key(config: dict[str, Any]) -> str:
+    """Short hash of a render configuration."""
+    return hashlib.sha256(_dumps(config).encode()).hexdigest()[:12]
+
+
+def _label(values: dict[str, Any]) -> str:
+    if not values:
+        return "base"
+    return ", ".join(f"{k.split('.')[-1]}={v!r}" if not isinstance(v, float)
+                     else f"{k.split('.')[-1]}={v:g}" for k, v in values.items())
+
+
+def expand(base: Scenario | dict[str, Any], axes: Sequence[GridAxis],
+           overrides: Sequence[str] = ()) -> list[GridPoint]:
+    """The grid points of ``axes`` over ``base`` (module step 2), each validated.
+
+    ``overrides`` (``--set`` items) apply to the base, before the grid values.
+
+    Raises
+    ------
+    ConfigError
+        An unknown key (with suggestions) or a value the scenario rejects (named by key).
+    """
+    from starnav.config import Scenario, apply_overrides, scenario_from_dict, scenario_to_dict
+
+    base_dict = scenario_to_dict(base) if isinstance(base, Scenario) else dict(base)
+    base_dict = apply_overrides(base_dict, list(overrides))
+    known = known_keys()
+    for a in axes:
+        for k in a.keys:
+            check_key(k, known)
+    points = []
+    for idx, combo in enumerate(itertools.product(*[a.values for a in axes])):
+        values: dict[str, Any] = {}
+        for a, v in zip(axes, combo, strict=True):
+            values.update(a.assignments(v))
+        data = copy.deepcopy(base_dict)
+        for k, v in values.items():
+            set_key(data, k, v)
+        try:
+            sc = scenario_from_dict(data)
+        except ConfigError as err:
+            raise ConfigError(f"--grid point {idx} ({_label(values)}): {err.field}", err.value,
+                              err.expected) from None
+        cfg, factor = render_config(sc)
+        points.append(GridPoint(idx, values, sc, _label(values), render_key(cfg), factor))
+    return points
+
+
+def render_groups(points: Sequence[GridPoint]) -> dict[str, list[GridPoint]]:
+    """Points by render key, in first-appearance order."""
+    groups: dict[str, list[GridPoint]] = {}
+    for p in points:
+        groups.setdefault(p.render_key, []).append(p)
+    return groups

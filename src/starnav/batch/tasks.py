@@ -1,0 +1,376 @@
+"""The three kinds of sweep task: render a frame, expose and process it, filter a point.
+
+Technique
+---------
+A sweep of ``P`` grid points, ``R`` Monte Carlo runs and ``F`` frames is the task graph
+
+.. code-block:: text
+
+    render(group g, frame k)        one per render group and frame      (shared by the group)
+      -> expose(point p, frame k)   every run r of point p: acquisitions (starnav.dataset.
+                                    acquire), on-board limb -> RANSAC -> [windows] -> fix,
+                                    limb-point errors against the true limb
+        -> filter(point p)          every run r: the EKF over the F fixes, errors vs truth
+
+:func:`render_task` returns the radiance cropped to its non-zero box (the renderer traces only
+the Moon's box, so nothing is lost) and the frame geometry; :func:`expose_task` returns small
+per-frame results (a fix, its covariance, the limb errors, counters and timings) and
+:func:`filter_task` the table rows and the series the figures need. Only small objects travel
+between workers, and no task needs a shared file system.
+
+Randomness (all through :mod:`starnav.seeding`, so a task's result does not depend on the
+worker that runs it):
+
+=================================  =============================================================
+stream                             seed
+=================================  =============================================================
+render                             ``seed_u32(seed, STAGE_RENDER, frame)`` (as datasets)
+acquisitions of run r              :func:`starnav.dataset.acquire.acquisition_seed` (run 0 =
+                                   the dataset's streams)
+RANSAC of frame k in run r         ``generator(seed, STAGE_NAVIGATION, r, k)``
+filter initial error of run r      ``generator(seed, STAGE_NAVIGATION, r)``: x0 = truth + L z,
+                                   ``L L^T = P0``
+=================================  =============================================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from starnav.batch.cluster import quiet_logger
+from starnav.seeding import STAGE_NAVIGATION, generator
+
+FloatArray = NDArray[np.float64]
+
+#: Timed stages, in order, each a column ``time_<stage>_s`` of the table.
+TIMED_STAGES: tuple[str, ...] = ("render", "detector", "plan", "limb", "ransac", "refine",
+                                 "fix", "ekf")
+
+
+# ============================================================================ results
+@dataclass(frozen=True)
+class RenderedFrame:
+    """A rendered frame, cropped to its non-zero box.
+
+    Attributes
+    ----------
+    index : int
+    geometry : FrameGeometry
+    shape : (rows, cols)
+    box : (row0, col0)
+        Top-left pixel of the crop.
+    Le : (h, w) float32
+        Electron radiance in the box [e- s^-1 m^-2 sr^-1].
+    render_s : float
+        Wall time of the render [s].
+    variant : str
+        Mitsuba variant.
+    """
+
+    index: int
+    geometry: Any
+    shape: tuple[int, int]
+    box: tuple[int, int]
+    Le: NDArray[np.float32]
+    render_s: float
+    variant: str
+
+    def electron_radiance(self, factor: float = 1.0) -> NDArray[np.float32]:
+        """Full-size electron radiance times ``factor`` [e- s^-1 m^-2 sr^-1]."""
+        out = np.zeros(self.shape, np.float32)
+        r0, c0 = self.box
+        h, w = self.Le.shape
+        le = self.Le if factor == 1.0 else self.Le * np.float32(factor)
+        out[r0:r0 + h, c0:c0 + w] = le
+        return out
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """One frame of one run of one point, after the on-board chain.
+
+    Attributes
+    ----------
+    index, run : int
+    epoch_tdb : float
+        [TDB s past J2000].
+    status : str
+        Navigation status (``ok`` or why there is no fix).
+    position, covariance : arrays or None
+        Moon-relative fix, J2000 [m] and its covariance [m^2].
+    limb_errors_px : (N,) float32
+        Signed distance of the used limb points to the true limb [px] (> 0 outside).
+    saturated_pixels : int
+    dn_max : int
+    feasible : bool
+        Both acquisitions satisfy the readout law.
+    plan_status : str
+        Window plan status (``skipped`` without windows).
+    n_windows : int
+    truth_emb : (6,) array or None
+        EMB-centred truth [m, m/s].
+    range_m : float
+        Camera to Moon-centre distance [m].
+    timings_s : dict
+        Stage wall times for this frame [s].
+    """
+
+    index: int
+    run: int
+    epoch_tdb: float
+    status: str
+    position: FloatArray | None
+    covariance: FloatArray | None
+    limb_errors_px: NDArray[np.float32]
+    saturated_pixels: int
+    dn_max: int
+    feasible: bool
+    plan_status: str
+    n_windows: int
+    truth_emb: FloatArray | None
+    range_m: float
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class PointResult:
+    """Everything a point's filter task returns.
+
+    Attributes
+    ----------
+    point : int
+    rows : list of dict
+        One table row per run (columns of :mod:`starnav.batch.table`).
+    epochs : (K,) array
+    errors : (R, K, 6) array or None
+        Estimation errors [m, m/s] per run.
+    sigma3 : (R, K, 6) array or None
+        3-sigma bounds [m, m/s] per run.
+    limb_errors_px : (N,) float32
+        Limb errors of every run, pooled.
+    """
+
+    point: int
+    rows: list[dict[str, Any]]
+    epochs: FloatArray
+    errors: FloatArray | None
+    sigma3: FloatArray | None
+    limb_errors_px: NDArray[np.float32]
+
+
+# ============================================================================ caches
+_SCENARIOS: dict[str, Any] = {}
+
+
+def _key(config: dict[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()
+
+
+def _scenario(config: dict[str, Any]) -> Any:
+    k = _key(config)
+    sc = _SCENARIOS.get(k)
+    if sc is None:
+        from starnav.config import scenario_from_dict
+
+        sc = scenario_from_dict(config)
+        if len(_SCENARIOS) > 64:
+            _SCENARIOS.clear()
+        _SCENARIOS[k] = sc
+    return sc
+
+
+# ============================================================================ tasks
+def render_task(config: dict[str, Any], index: int) -> RenderedFrame:
+    """Render frame ``index`` of the render configuration ``config`` (worker side).
+
+    The renderer and the scene are built once per worker process and configuration
+    (:class:`starnav.dataset.writer.FrameMaker`).
+    """
+    from starnav.dataset.writer import frame_maker
+
+    maker = frame_maker(config)
+    t0 = time.perf_counter()
+    geom, img = maker.render(int(index))
+    dt = time.perf_counter() - t0
+    le = np.asarray(img.Le, np.float32)
+    nz_r = np.flatnonzero(le.any(axis=1))
+    nz_c = np.flatnonzero(le.any(axis=0))
+    if nz_r.size:
+        r0, r1, c0, c1 = int(nz_r[0]), int(nz_r[-1]) + 1, int(nz_c[0]), int(nz_c[-1]) + 1
+    else:
+        r0 = r1 = c0 = c1 = 0
+    return RenderedFrame(int(index), geom, tuple(le.shape), (r0, c0),  # type: ignore[arg-type]
+                         np.ascontiguousarray(le[r0:r1, c0:c1]), dt,
+                         str(img.meta.get("render", {}).get("variant", "")))
+
+
+def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, windows: str,
+                albedo_factor: float) -> list[FrameResult]:
+    """Every run of one point on one rendered frame (worker side; module docstring).
+
+    Parameters
+    ----------
+    config : dict
+        The point's resolved scenario.
+    rendered : RenderedFrame
+    runs : int
+        Monte Carlo runs.
+    windows : {"second", "same", "none"}
+        Windows acquisition (:mod:`starnav.dataset.acquire`).
+    albedo_factor : float
+        Radiance multiplier of this point (downstream ``moon.albedo_scale``).
+    """
+    from starnav.config import build_camera
+    from starnav.dataset.acquire import acquire
+    from starnav.navigation.frames import Frame
+    from starnav.navigation.metrics import limb_point_errors
+    from starnav.navigation.pipeline import process_frame
+
+    sc = _scenario(config)
+    cam = build_camera(sc.camera)
+    chain = sc.navigation.chain_options(sc.moon.radius_km * 1e3)
+    chain = dataclasses.replace(chain, use_windows=chain.use_windows and windows != "none")
+    le = rendered.electron_radiance(albedo_factor)
+    g = rendered.geometry
+    R_meas = g.R_cam_to_inertial_measured if g.R_cam_to_inertial_measured is not None \
+        else g.R_cam_to_inertial
+    out = []
+    for r in range(int(runs)):
+        acq = acquire(le, g, cam, sc, run=r, windows=windows)
+        frame = Frame(index=g.index, epoch_tdb=g.epoch_tdb, R_cam_to_inertial_measured=R_meas,
+                      sun_direction_inertial=g.sun_position, segments=acq.segments,
+                      windows=acq.windows, truth=g, R_moon_to_inertial=g.R_moon_to_inertial)
+        m = process_frame(frame, cam, options=chain,
+                          rng=generator(sc.seed, STAGE_NAVIGATION, r, g.index))
+        pts = m.points_used
+        errs = (limb_point_errors(pts, cam, g, chain.fix.radii_m).astype(np.float32)
+                if pts.size else np.empty(0, np.float32))
+        e0 = acq.segments_exposure
+        tm = {"render": rendered.render_s, "detector": acq.timings_s["detector"],
+              "plan": acq.timings_s["plan"]}
+        tm.update({k: float(v) for k, v in m.timings_s.items()})
+        feasible = e0.feasible and (acq.windows_exposure is None or acq.windows_exposure.feasible)
+        out.append(FrameResult(
+            index=int(g.index), run=r, epoch_tdb=float(g.epoch_tdb), status=m.status,
+            position=m.position, covariance=m.covariance, limb_errors_px=errs,
+            saturated_pixels=int(np.count_nonzero(
+                e0.electrons >= sc.detector.saturation.full_well_e)),
+            dn_max=int(e0.dn.max()) if e0.dn.size else 0, feasible=bool(feasible),
+            plan_status=acq.plan_status, n_windows=len(acq.windows),
+            truth_emb=None if g.camera_state_emb is None else np.asarray(g.camera_state_emb),
+            range_m=float(g.range), timings_s=tm))
+    return out
+
+
+def _stats(x: NDArray[Any]) -> tuple[float, float, float, int]:
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return math.nan, math.nan, math.nan, 0
+    std = float(x.std(ddof=1)) if x.size > 1 else 0.0
+    return float(x.mean()), std, float(np.sqrt(np.mean(x * x))), int(x.size)
+
+
+def _median(values: list[float]) -> float:
+    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], float)
+    return float(np.median(v)) if v.size else math.nan
+
+
+def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResult]],
+                runs: int) -> PointResult:
+    """The EKF of every run of one point and its table rows (worker side).
+
+    Parameters
+    ----------
+    config : dict
+        The point's resolved scenario.
+    point : int
+        Point index.
+    frames : list (frames) of list (runs) of FrameResult
+    runs : int
+    """
+    from starnav.navigation.dynamics import PointMassDynamics
+    from starnav.navigation.pipeline import FrameMeasurement, run_filter
+
+    sc = _scenario(config)
+    nav = sc.navigation
+    frames = sorted(frames, key=lambda fr: fr[0].index)
+    K = len(frames)
+    epochs = np.array([fr[0].epoch_tdb for fr in frames])
+    has_truth = all(fr[0].truth_emb is not None for fr in frames)
+    truth = np.array([fr[0].truth_emb for fr in frames]) if has_truth else None
+    dyn = PointMassDynamics(step_s=nav.filter.rk4_step_s) if has_truth else None
+    P0 = nav.initial_covariance()
+    L0 = np.linalg.cholesky(P0)
+    rows: list[dict[str, Any]] = []
+    errs_all, s3_all, limb_all = [], [], []
+    for r in range(int(runs)):
+        fr_r = [fr[r] for fr in frames]
+        limb = np.concatenate([f.limb_errors_px for f in fr_r]) if fr_r else np.empty(0)
+        limb_all.append(limb.astype(np.float32))
+        bias, std, rms, n_pts = _stats(limb)
+        row: dict[str, Any] = {
+            "point": int(point), "run": r, "frames": K,
+            "fixes": sum(f.status == "ok" for f in fr_r),
+            "windows_planned_fraction": float(np.mean([f.plan_status == "ok" for f in fr_r]))
+            if fr_r else math.nan,
+            "saturated_pixels_median": _median([float(f.saturated_pixels) for f in fr_r]),
+            "dn_max": max((f.dn_max for f in fr_r), default=0),
+            "readout_feasible": all(f.feasible for f in fr_r),
+            "limb_points": n_pts, "limb_bias_px": bias, "limb_std_px": std,
+            "limb_rms_px": rms,
+        }
+        nav_cols = dict.fromkeys(
+            ("accepted", "final_position_error_m", "final_velocity_error_m_s",
+             "final_position_error_pct_range", "final_velocity_error_pct_speed",
+             "rms_position_error_m", "rms_velocity_error_m_s", "final_position_3sigma_m",
+             "final_velocity_3sigma_m_s", "nees_mean"), math.nan)
+        ekf_times: list[float] = []
+        if has_truth and dyn is not None and truth is not None and K:
+            meas = [FrameMeasurement(f.index, f.epoch_tdb, f.status, position=f.position,
+                                     covariance=f.covariance) for f in fr_r]
+            z = generator(sc.seed, STAGE_NAVIGATION, r).standard_normal(6)
+            x0 = truth[0] + L0 @ z
+            with quiet_logger("starnav.navigation.ekf"):
+                res = run_filter(meas, dynamics=dyn, moon=dyn, t0=float(epochs[0]), x0=x0,
+                                 P0=P0, options=nav.ekf_options())
+            e = res.errors(truth)
+            s3 = res.sigma3()
+            errs_all.append(e)
+            s3_all.append(s3)
+            ekf_times = [float(t) for t in res.timings_s]
+            ep, ev = np.linalg.norm(e[:, :3], axis=1), np.linalg.norm(e[:, 3:], axis=1)
+            speed = float(np.linalg.norm(truth[-1, 3:]))
+            nav_cols.update({
+                "accepted": int(res.accepted.sum()),
+                "final_position_error_m": float(ep[-1]),
+                "final_velocity_error_m_s": float(ev[-1]),
+                "final_position_error_pct_range": 100.0 * float(ep[-1]) / fr_r[-1].range_m,
+                "final_velocity_error_pct_speed": 100.0 * float(ev[-1]) / speed
+                if speed > 0 else math.nan,
+                "rms_position_error_m": float(np.sqrt(np.mean(ep**2))),
+                "rms_velocity_error_m_s": float(np.sqrt(np.mean(ev**2))),
+                "final_position_3sigma_m": float(np.linalg.norm(s3[-1, :3])),
+                "final_velocity_3sigma_m_s": float(np.linalg.norm(s3[-1, 3:])),
+                "nees_mean": float(np.mean(res.nees(truth))),
+            })
+        row.update(nav_cols)
+        for stage in TIMED_STAGES:
+            vals = ekf_times if stage == "ekf" else [f.timings_s.get(stage, math.nan)
+                                                     for f in fr_r]
+            row[f"time_{stage}_s"] = _median(vals)
+        rows.append(row)
+    return PointResult(
+        point=int(point), rows=rows, epochs=epochs,
+        errors=np.array(errs_all) if errs_all else None,
+        sigma3=np.array(s3_all) if s3_all else None,
+        limb_errors_px=np.concatenate(limb_all) if limb_all else np.empty(0, np.float32))

@@ -1,0 +1,157 @@
+"""``starnav dataset SCENARIO --out DIR [--resume] [--exposures T1,T2]``: a navigation dataset.
+
+Thin: parses, loads the scenario, calls :func:`starnav.dataset.generate` with a rich progress
+bar (frames done, rate, ETA) and prints a summary. The dataset format is in docs/dataset.md.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+
+def parse_floats(text: str, name: str) -> tuple[float, ...]:
+    """``"1.5e-5,7.7e-3"`` -> ``(1.5e-05, 0.0077)``; a clear error otherwise."""
+    from starnav.errors import ConfigError
+
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    if not parts:
+        raise ConfigError(name, text, "a comma-separated list of numbers")
+    try:
+        return tuple(float(p) for p in parts)
+    except ValueError:
+        raise ConfigError(name, text, "a comma-separated list of numbers, e.g. "
+                          "1.5e-5,7.7e-3") from None
+
+
+def parse_exposure_sets(items: list[str] | tuple[str, ...]
+                        ) -> tuple[tuple[float, tuple[str, ...]], ...]:
+    """``["7.7e-3:a.b=1", "7.7e-3:c=2"]`` -> ``((0.0077, ("a.b=1", "c=2")),)``."""
+    from starnav.errors import ConfigError
+
+    by: dict[float, list[str]] = {}
+    for it in items:
+        t, sep, rest = it.partition(":")
+        try:
+            tv = float(t)
+        except ValueError:
+            tv = float("nan")
+        if not sep or "=" not in rest or not tv > 0:
+            raise ConfigError("--exposure-set", it, "EXPOSURE_S:KEY=VALUE, e.g. "
+                              "7.7e-3:detector.readout.segments.thresholds_dn=[2048]")
+        by.setdefault(tv, []).append(rest.strip())
+    return tuple((t, tuple(v)) for t, v in by.items())
+
+
+def frames_progress():
+    """A rich progress bar with frames done, rate and ETA."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TextColumn("ETA"),
+                    TimeRemainingColumn())
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``dataset`` command to ``app``."""
+
+    @app.command("dataset")
+    def dataset_cmd(
+        scenario: Annotated[Path | None, typer.Argument(
+            help="scenario YAML (default: built-in)")] = None,
+        out: Annotated[Path, typer.Option("--out", help="dataset directory")] = Path(
+            "out/dataset"),
+        resume: Annotated[bool, typer.Option(
+            "--resume", help="continue an interrupted dataset in OUT")] = False,
+        exposures: Annotated[str | None, typer.Option(
+            "--exposures", help="exposure times [s], comma-separated (default: "
+            "detector.exposure_time_s)")] = None,
+        exposure_set: Annotated[list[str] | None, typer.Option(
+            "--exposure-set", help="override for one exposure, T:KEY=VALUE with a detector.* "
+            "or navigation.* key, e.g. 7.7e-3:detector.readout.segments.thresholds_dn=[2048]")
+        ] = None,
+        windows: Annotated[str, typer.Option(
+            "--windows", help="windows read from a 'second' acquisition (default), the "
+            "'same' one, or 'none'")] = "second",
+        no_radiance: Annotated[bool, typer.Option(
+            "--no-radiance", help="do not store radiance.exr")] = False,
+        workers: Annotated[int, typer.Option(
+            "--workers", min=0, help="0: this process; N: a local Dask cluster of N "
+            "processes")] = 0,
+        scheduler: Annotated[str | None, typer.Option(
+            "--scheduler", help="existing Dask scheduler tcp://HOST:PORT (shared file "
+            "system)")] = None,
+        set_: Annotated[list[str] | None, typer.Option(
+            "--set", help="override a scenario key: a.b=value")] = None,
+    ) -> None:
+        """Render, expose and read out every frame of SCENARIO into OUT (resumable)."""
+        import time
+
+        from rich.console import Console
+        from rich.table import Table
+
+        from starnav.batch.cluster import open_runner
+        from starnav.config import load_scenario
+        from starnav.dataset import DatasetOptions, generate
+        from starnav.errors import StarnavError
+
+        console = Console()
+        state = {"n": 0, "done": 0}
+        try:
+            sc = load_scenario(scenario, tuple(set_ or ()))
+            exps = None if exposures is None else parse_floats(exposures, "--exposures")
+            opts = DatasetOptions(exposures_s=exps, windows=windows, radiance=not no_radiance,
+                                  exposure_overrides=parse_exposure_sets(exposure_set or ()))
+            bar = frames_progress()
+            task = bar.add_task("frames", total=None, rate="", start=False)
+            first: dict[str, float] = {}
+
+            def progress(done: int, total: int) -> None:
+                now = time.perf_counter()
+                if "t" not in first:  # the bar appears once the set-up has passed
+                    first["t"], first["done"] = now, done
+                    bar.start()
+                    bar.start_task(task)
+                dt = now - first["t"]
+                made = done - first["done"]
+                rate = f"{made / dt:.2f} frames/s" if made and dt > 0 else ""
+                bar.update(task, completed=done, total=total, rate=rate)
+                state["n"], state["done"] = total, done
+
+            try:
+                with open_runner(workers, scheduler) as runner:
+                    summary = generate(sc, out, options=opts, resume=resume, runner=runner,
+                                       progress=progress)
+            finally:
+                bar.stop()
+        except StarnavError as err:
+            typer.echo(f"error: {err}", err=True)
+            raise typer.Exit(code=2) from None
+        except KeyboardInterrupt:
+            typer.echo(f"interrupted: {state['done']} of {state['n']} frames are in {out}; "
+                       "continue with --resume", err=True)
+            raise typer.Exit(code=130) from None
+        table = Table(title=f"dataset {out}", show_header=False)
+        table.add_row("frames", f"{summary.frames} ({summary.frames_made} made now)")
+        table.add_row("runner", summary.runner)
+        table.add_row("set-up", f"{summary.setup_s:.1f} s")
+        table.add_row("rate", f"{summary.frames_per_s:.3g} frames/s" if summary.frames_made
+                      else "nothing left to make")
+        table.add_row("elapsed", f"{summary.elapsed_s:.1f} s")
+        for name, s in summary.per_exposure.items():
+            sat = s["saturated_pixels_median"]
+            wp = s["windows_planned_fraction"]
+            table.add_row(name, f"saturated px (median) {sat:g}; windows planned in "
+                          f"{100 * wp:.0f} % of frames; readout law "
+                          f"{'ok' if s['feasible'] else 'INFEASIBLE on the AA-STR (fictitious)'}")
+        console.print(table)
+        console.print(f"manifest: {out / 'manifest.json'}")

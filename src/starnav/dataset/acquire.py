@@ -1,0 +1,326 @@
+"""Emulated star-tracker acquisitions of one frame: segments, then windows along the limb.
+
+The AA-STR cannot read a full frame below 200 ms; the STAR Nav subpixel algorithm (seed paper,
+algorithm 1) therefore alternates its two readout modes: a *full image compressed* acquisition
+gives the segments, the on-board chain finds the lit limb in them, and the next acquisition
+reads up to 16 *windows* of DN placed along that limb. This module emulates that sequence on a
+rendered :class:`~starnav.radiance.RadianceImage`.
+
+Technique
+---------
+1. **Acquisition 0 (segments).** :func:`starnav.detector.expose` at the exposure time; its
+   segments and its full DN frame (kept for analysis; the tracker never sends it) are stored.
+2. **Window plan.** The on-board pixel-level chain of :mod:`starnav.navigation` runs on the
+   segments alone (Sun direction from the *measured* attitude, limb scan, RANSAC): the
+   consensus limb points go to :func:`starnav.navigation.refine.plan_windows`, which spreads
+   ``navigation.refine.n_windows`` (<= 16) windows of ``window_size_px`` along the lit arc.
+   Windows are planned by the navigation package's own planner so that the windows the dataset
+   stores are the ones its refinement expects.
+3. **Acquisition 1 (windows).** A second exposure of the *same* radiance with the same
+   exposure time and its own temporal-noise stream reads the planned windows (``windows =
+   "second"``, the default). The two acquisitions are milliseconds apart on the tracker: at
+   1 km/s and 60 000 km the Moon moves by ~1e-5 px between them, so the geometry is shared,
+   while shot and read noise are independent, as on the real sensor. ``windows = "same"`` cuts
+   the windows out of acquisition 0 instead (cheaper; the windows then share the segments'
+   noise, which the tracker cannot do); ``"none"`` skips them.
+
+Randomness
+----------
+Every stream comes from :mod:`starnav.seeding` with fixed keys, so a frame is the same whatever
+the worker that makes it:
+
+===================================  ==================================================
+stream                               seed
+===================================  ==================================================
+acquisition ``a`` of run ``r``       ``seed`` itself for ``(r, a) = (0, 0)`` (so run 0's
+(detector temporal noise)            segments acquisition equals ``starnav expose`` of
+                                     the frame), else
+                                     ``seed_u32(seed, STAGE_DETECTOR_TEMPORAL, 1000, r, a)``
+fixed pattern (PRNU, DSNU)           ``detector.sensor_seed`` or ``seed``, for every
+                                     acquisition and run: one physical sensor
+RANSAC of the window plan            ``generator(seed, STAGE_NAVIGATION, r, frame, 1)``
+===================================  ==================================================
+
+The acquisition seed does not depend on the exposure time: the exposures of one frame are
+what-if variants of the same acquisition (common random numbers), which keeps comparisons
+between exposures free of noise-realisation differences and makes each exposure of a
+multi-exposure dataset identical to a dataset made with that exposure alone.
+
+Example
+-------
+>>> acq = acquire(radiance, geom, camera, scenario, exposure_s=1.5e-5)      # doctest: +SKIP
+>>> acq.segments, acq.windows, acq.plan_status                            # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+
+from starnav.errors import ConfigError
+from starnav.seeding import STAGE_DETECTOR_TEMPORAL, STAGE_NAVIGATION, generator, seed_u32
+
+if TYPE_CHECKING:
+    from starnav.camera import Camera
+    from starnav.config import Scenario
+    from starnav.detector import DetectorConfig, Exposure, Window
+    from starnav.geometry import FrameGeometry
+    from starnav.radiance import RadianceImage
+
+log = logging.getLogger(__name__)
+
+WindowsMode = Literal["second", "same", "none"]
+#: Known ways of reading the windows (module docstring, step 3).
+WINDOWS_MODES: tuple[str, ...] = ("second", "same", "none")
+
+#: Sub-key of the acquisition seeds inside the detector's temporal stage (never change).
+ACQUISITION_STREAM = 1000
+#: Last key of the window-plan RANSAC stream (never change).
+PLAN_STREAM = 1
+
+
+def check_windows_mode(mode: str) -> WindowsMode:
+    """Validate a windows mode name."""
+    if mode not in WINDOWS_MODES:
+        from starnav.errors import UnknownNameError
+
+        raise UnknownNameError("windows mode", mode, list(WINDOWS_MODES))
+    return mode  # type: ignore[return-value]
+
+
+def acquisition_seed(seed: int, run: int, acquisition: int) -> int:
+    """Dataset seed of acquisition ``acquisition`` of Monte Carlo run ``run`` (module table)."""
+    if run < 0 or acquisition < 0:
+        raise ConfigError("run/acquisition", (run, acquisition), "non-negative integers")
+    if run == 0 and acquisition == 0:
+        return int(seed)
+    return seed_u32(seed, STAGE_DETECTOR_TEMPORAL, ACQUISITION_STREAM, run, acquisition)
+
+
+def sensor_seed_of(scenario: Scenario) -> int:
+    """Seed of the fixed-pattern maps: ``detector.sensor_seed`` or the scenario seed."""
+    s = scenario.detector.sensor_seed
+    return int(scenario.seed if s is None else s)
+
+
+def quiet_timing(cfg: DetectorConfig) -> DetectorConfig:
+    """``cfg`` with the readout-law policy ``warn`` turned into ``ignore`` (the dataset reports
+    infeasible exposures once, in :func:`readout_feasibility`, instead of once per frame);
+    ``enforce`` is kept."""
+    t = cfg.readout.timing
+    if t.policy != "warn":
+        return cfg
+    readout = cfg.readout.model_copy(update={"timing": t.model_copy(update={"policy": "ignore"})})
+    return cfg.model_copy(update={"readout": readout})
+
+
+def readout_feasibility(scenario: Scenario, exposure_s: float) -> list[dict[str, Any]]:
+    """Readout-law check of the two acquisitions at ``exposure_s`` [s] (seed paper eq. 1).
+
+    Returns one dict per readout (``mode``, ``n_pixels``, ``min_exposure_s``, ``feasible``):
+    the segments readout scans the whole array; the windows readout reads
+    ``n_windows x window_size_px^2`` pixels.
+    """
+    from starnav.config import build_camera
+    from starnav.detector.readout import readout_timing
+    from starnav.detector.schema import WindowSpec
+
+    cam = build_camera(scenario.camera)
+    shape = (cam.height, cam.width)
+    timing = scenario.detector.readout.timing
+    r = scenario.navigation.refine
+    s = min(r.window_size_px, cam.height, cam.width)
+    wins = [WindowSpec(row0=0, col0=0, height=s, width=s)] * r.n_windows
+    return [readout_timing("segments", shape, exposure_s, timing).to_dict(),
+            readout_timing("windows", shape, exposure_s, timing, wins).to_dict()]
+
+
+@dataclass(frozen=True)
+class Acquisition:
+    """The emulated readouts of one frame at one exposure time.
+
+    Attributes
+    ----------
+    exposure_s : float
+        Exposure time [s].
+    run : int
+        Monte Carlo run (0 for datasets).
+    segments_exposure : Exposure
+        Acquisition 0: DN frame, segments, charge ledger, readout timing.
+    windows : tuple of Window
+        The windows read (empty when none could be planned or ``windows_mode == "none"``).
+    windows_exposure : Exposure or None
+        Acquisition 1 when ``windows_mode == "second"`` and windows were planned.
+    windows_mode : str
+        ``second``, ``same`` or ``none``.
+    plan_status : str
+        ``ok`` or why no window was planned (the navigation chain's status, e.g. ``no-moon``).
+    plan_message : str
+        Human-readable reason (empty when ``ok``).
+    planned : tuple of (row0, col0, height, width)
+        Window requests [px].
+    timings_s : dict
+        Wall time of ``detector`` (both acquisitions) and ``plan`` [s].
+    """
+
+    exposure_s: float
+    run: int
+    segments_exposure: Exposure
+    windows: tuple[Window, ...]
+    windows_exposure: Exposure | None
+    windows_mode: str
+    plan_status: str
+    plan_message: str
+    planned: tuple[tuple[int, int, int, int], ...]
+    timings_s: dict[str, float]
+
+    @property
+    def segments(self):
+        """Segments of acquisition 0."""
+        return self.segments_exposure.segments
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-safe, deterministic description (no wall-clock times): what ``readout.json``
+        stores."""
+        def acq(e: Exposure, role: str, index: int) -> dict[str, Any]:
+            s = e.summary()
+            s.pop("effect_time_ms", None)
+            return {"acquisition": index, "role": role, **s}
+
+        acqs = [acq(self.segments_exposure, "segments", 0)]
+        if self.windows_exposure is not None:
+            acqs.append(acq(self.windows_exposure, "windows", 1))
+        return {
+            "format": "starnav-readout",
+            "version": 1,
+            "exposure_s": self.exposure_s,
+            "run": self.run,
+            "windows_mode": self.windows_mode,
+            "windows_acquisition": (1 if self.windows_exposure is not None
+                                    else (0 if self.windows else None)),
+            "window_plan": {
+                "status": self.plan_status,
+                "message": self.plan_message,
+                "method": "segments of acquisition 0 -> navigation limb scan (measured "
+                          "attitude) -> RANSAC -> navigation.refine.plan_windows",
+                "windows_row0_col0_height_width": [list(p) for p in self.planned],
+            },
+            "acquisitions": acqs,
+            "feasible": all(e.feasible for e in
+                            [self.segments_exposure]
+                            + ([self.windows_exposure] if self.windows_exposure else [])),
+        }
+
+
+def plan_windows_from_segments(segments: Any, geom: FrameGeometry, camera: Camera,
+                               scenario: Scenario, rng: np.random.Generator
+                               ) -> tuple[str, str, list[tuple[int, int, int, int]]]:
+    """On-board window plan from one segments readout (module step 2).
+
+    Returns
+    -------
+    status, message, windows
+        ``("ok", "", [(row0, col0, height, width), ...])`` or the chain's failure status.
+    """
+    from starnav.navigation.frames import Frame
+    from starnav.navigation.pipeline import process_frame
+    from starnav.navigation.refine import plan_windows
+
+    chain = scenario.navigation.chain_options(scenario.moon.radius_km * 1e3)
+    chain = dataclasses.replace(chain, use_windows=False)
+    R_meas = (geom.R_cam_to_inertial_measured if geom.R_cam_to_inertial_measured is not None
+              else geom.R_cam_to_inertial)
+    frame = Frame(index=int(geom.index), epoch_tdb=float(geom.epoch_tdb),
+                  R_cam_to_inertial_measured=R_meas, sun_direction_inertial=geom.sun_position,
+                  segments=segments, windows=(), truth=None)
+    m = process_frame(frame, camera, options=chain, rng=rng)
+    if m.limb is None or m.inliers is None or not np.any(m.inliers):
+        return m.status, m.message or "no limb in the segments", []
+    pts = m.limb.uv[m.inliers]
+    reqs = plan_windows(pts, m.limb.centre_px, shape=(camera.height, camera.width),
+                        options=chain.refine)
+    wins = [(int(q.row0), int(q.col0), int(q.height), int(q.width)) for q in reqs]
+    if not wins:
+        return "no-windows", "the window planner returned no window", []
+    return "ok", "", wins
+
+
+def acquire(radiance: RadianceImage | Any, geom: FrameGeometry, camera: Camera,
+            scenario: Scenario, *, exposure_s: float | None = None, run: int = 0,
+            windows: str = "second") -> Acquisition:
+    """Emulate the segments acquisition, the window plan and the windows acquisition of one
+    frame (module steps 1-3).
+
+    Parameters
+    ----------
+    radiance : RadianceImage or (H, W) array
+        The rendered frame (its ``Le`` is used) or an electron radiance
+        [e- s^-1 m^-2 sr^-1].
+    geom : FrameGeometry
+        The frame's geometry: ``index`` selects the noise streams; the measured attitude and
+        the Sun position drive the on-board limb scan.
+    camera : Camera
+    scenario : Scenario
+        ``seed``, ``detector`` and ``navigation`` (limb scan, RANSAC, window plan) are used.
+    exposure_s : float, optional
+        Exposure time [s]; default ``detector.exposure_time_s``.
+    run : int
+        Monte Carlo run (0: the dataset's streams).
+    windows : {"second", "same", "none"}
+        How the windows are read (module step 3).
+
+    Returns
+    -------
+    Acquisition
+    """
+    from starnav.detector import expose
+    from starnav.detector.readout import read_windows
+
+    mode = check_windows_mode(windows)
+    t_exp = float(scenario.detector.exposure_time_s if exposure_s is None else exposure_s)
+    seed = int(scenario.seed)
+    index = int(geom.index)
+    cfg = quiet_timing(scenario.detector).model_copy(
+        update={"sensor_seed": sensor_seed_of(scenario)})
+    cfg0 = cfg.model_copy(update={"readout": cfg.readout.model_copy(
+        update={"windows": (), "modes": tuple(m for m in cfg.readout.modes if m != "windows")
+                or ("segments",)})})
+    t0 = time.perf_counter()
+    e0 = expose(radiance, camera, cfg0, seed=acquisition_seed(seed, run, 0), frame_index=index,
+                exposure_time=t_exp, windows=())
+    t_det = time.perf_counter() - t0
+    status, message, planned = "skipped", "windows mode 'none'", []
+    t_plan = 0.0
+    wins: tuple[Window, ...] = ()
+    e1 = None
+    if mode != "none":
+        t0 = time.perf_counter()
+        if e0.segments is None:
+            status, message = "no-segments", "the segments readout is not enabled"
+        else:
+            rng = generator(seed, STAGE_NAVIGATION, run, index, PLAN_STREAM)
+            status, message, planned = plan_windows_from_segments(e0.segments, geom, camera,
+                                                                  scenario, rng)
+        t_plan = time.perf_counter() - t0
+        if planned:
+            if mode == "same":
+                wins = read_windows(e0.dn, planned)
+            else:
+                cfg1 = cfg.model_copy(update={"readout": cfg.readout.model_copy(
+                    update={"modes": ("windows",), "windows": ()})})
+                t0 = time.perf_counter()
+                e1 = expose(radiance, camera, cfg1, seed=acquisition_seed(seed, run, 1),
+                            frame_index=index, exposure_time=t_exp, windows=planned)
+                t_det += time.perf_counter() - t0
+                wins = e1.windows
+    if status != "ok":
+        log.debug("frame %d, %.4g ms: no windows (%s: %s)", index, t_exp * 1e3, status, message)
+    return Acquisition(exposure_s=t_exp, run=int(run), segments_exposure=e0, windows=wins,
+                       windows_exposure=e1, windows_mode=mode, plan_status=status,
+                       plan_message=message, planned=tuple(tuple(p) for p in planned),
+                       timings_s={"detector": t_det, "plan": t_plan})

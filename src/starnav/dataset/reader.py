@@ -1,0 +1,307 @@
+"""Reading a dataset: :func:`open` gives a :class:`Dataset`, a navigation ``NavDataset``.
+
+:class:`Dataset` holds the manifest, the camera (rebuilt from the manifest's intrinsics, so it
+does not depend on the scenario schema) and one selected exposure; iterating it yields
+:class:`DatasetFrame` objects in time order. A frame implements the navigation chain's
+``NavFrame`` protocol (:mod:`starnav.navigation.frames`): ``index``, ``epoch_tdb``,
+``R_cam_to_inertial_measured``, ``sun_direction_inertial``, ``segments``, ``windows``,
+``truth`` and ``R_moon_to_inertial``; files are read on first access and cached. It also gives
+the DN image, the radiance image and the raw JSON documents.
+
+:func:`verify` re-hashes every file of every frame against the manifest.
+
+Example
+-------
+>>> import starnav.dataset as ds
+>>> data = ds.open("out/ds", exposure=7.7e-3)                    # doctest: +SKIP
+>>> len(data), data.exposures_s                                  # doctest: +SKIP
+>>> f = data[0]; f.segments, f.windows, f.truth.range            # doctest: +SKIP
+>>> from starnav.navigation.report import navigate_dataset
+>>> navigate_dataset(data, "out/nav")                            # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from starnav.dataset import format as F
+from starnav.errors import ConfigError, DataFileError
+
+log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+
+
+class DatasetFrame:
+    """One frame of a dataset at one exposure (a ``NavFrame``; files read lazily).
+
+    Attributes
+    ----------
+    index : int
+    epoch_tdb : float
+        [TDB s past J2000].
+    directory : Path
+        The frame's directory.
+    exposure_dir : Path
+        The selected exposure's directory.
+    """
+
+    def __init__(self, root: Path, entry: dict[str, Any], exposure_dirname: str) -> None:
+        self.index = int(entry["index"])
+        self.epoch_tdb = float(entry["epoch_tdb_s"])
+        self.entry = entry
+        self.directory = root / entry["directory"]
+        self.exposure_dir = self.directory / exposure_dirname
+
+    def __repr__(self) -> str:
+        return f"DatasetFrame(index={self.index}, exposure_dir={self.exposure_dir.name!r})"
+
+    # ------------------------------------------------------------------ raw documents
+    @functools.cached_property
+    def truth_dict(self) -> dict[str, Any]:
+        """``truth.json`` as a dict."""
+        return F.read_json(self.directory / F.TRUTH)
+
+    @functools.cached_property
+    def readout(self) -> dict[str, Any]:
+        """``readout.json`` of the selected exposure."""
+        return F.read_json(self.exposure_dir / F.READOUT)
+
+    # ------------------------------------------------------------------ NavFrame
+    @functools.cached_property
+    def truth(self) -> Any:
+        """True pose: :class:`~starnav.geometry.FrameGeometry` (Moon-centred, SI)."""
+        return F.geometry_of_truth(self.truth_dict)
+
+    @property
+    def R_cam_to_inertial_measured(self) -> FloatArray:
+        """On-board attitude, camera -> J2000 (true attitude if none was stored)."""
+        a = self.truth_dict["attitude"]
+        m = a.get("R_cam_to_inertial_measured")
+        return np.asarray(m if m is not None else a["R_cam_to_inertial_true"], float)
+
+    @property
+    def sun_direction_inertial(self) -> FloatArray:
+        """Unit vector from the Moon to the Sun, J2000."""
+        return np.asarray(self.truth_dict["sun"]["direction_from_moon"], float)
+
+    @property
+    def R_moon_to_inertial(self) -> FloatArray:
+        """Moon body-fixed -> J2000."""
+        return np.asarray(self.truth_dict["moon"]["R_moon_to_inertial"], float)
+
+    @functools.cached_property
+    def segments(self) -> Any:
+        """:class:`~starnav.detector.products.Segments` of acquisition 0 (None if absent)."""
+        p = self.exposure_dir / F.SEGMENTS
+        if not p.is_file():
+            return None
+        return F.segments_from_dict(F.read_json(p))
+
+    @functools.cached_property
+    def windows(self) -> tuple[Any, ...]:
+        """Windows (:class:`~starnav.detector.products.Window`) read along the limb."""
+        p = self.exposure_dir / F.WINDOWS
+        if not p.is_file():
+            return ()
+        return F.windows_from_dict(F.read_json(p))
+
+    # ------------------------------------------------------------------ images
+    def dn(self) -> NDArray[np.uint16]:
+        """Full DN frame of acquisition 0 [DN] (16-bit PNG)."""
+        from starnav.detector.io import read_dn_png
+
+        return read_dn_png(self.exposure_dir / F.DN)
+
+    def radiance(self) -> Any:
+        """:class:`~starnav.radiance.RadianceImage` (``radiance.exr``)."""
+        from starnav.radiance import read_exr
+
+        p = self.directory / F.RADIANCE
+        if not p.is_file():
+            raise DataFileError(f"{str(p)!r} does not exist (dataset made without radiance)")
+        return read_exr(p)
+
+    @property
+    def true_limb_px(self) -> FloatArray:
+        """True limb points ``(n, 2)`` [px] (with the lens distortion)."""
+        return np.asarray(self.truth_dict["limb"]["points_px"], float).reshape(-1, 2)
+
+    @property
+    def emb_state(self) -> FloatArray | None:
+        """Spacecraft state relative to the Earth-Moon barycentre, J2000 ``(6,)`` [m, m/s]."""
+        s = self.truth_dict.get("spacecraft_emb")
+        if s is None:
+            return None
+        return np.concatenate([np.asarray(s["position_m"], float),
+                               np.asarray(s["velocity_m_s"], float)])
+
+
+class Dataset:
+    """A dataset on disk at one exposure (a navigation ``NavDataset``).
+
+    Attributes
+    ----------
+    path : Path
+    manifest : dict
+    camera : Camera
+    exposure_s : float
+        The selected exposure time [s].
+    exposures_s : tuple of float
+        Every exposure time the dataset holds [s].
+    complete : bool
+    """
+
+    def __init__(self, path: Path, manifest: dict[str, Any], exposure_s: float) -> None:
+        self.path = path
+        self.manifest = manifest
+        self.camera = F.camera_from_dict(manifest["camera"])
+        self.exposures_s = tuple(float(e["exposure_s"]) for e in manifest["exposures"])
+        self.exposure_s = float(exposure_s)
+        self.exposure_dirname = F.exposure_dirname(self.exposure_s)
+        self.complete = bool(manifest.get("complete"))
+        self._entries = list(manifest["frames"])
+
+    def __repr__(self) -> str:
+        return (f"Dataset({str(self.path)!r}, frames={len(self)}, "
+                f"exposure={self.exposure_s * 1e3:.6g} ms, complete={self.complete})")
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __iter__(self) -> Iterator[DatasetFrame]:
+        for e in self._entries:
+            yield DatasetFrame(self.path, e, self.exposure_dirname)
+
+    def __getitem__(self, k: int) -> DatasetFrame:
+        return DatasetFrame(self.path, self._entries[k], self.exposure_dirname)
+
+    @property
+    def config(self) -> dict[str, Any]:
+        """The resolved scenario the dataset was made with (plain dict)."""
+        return self.manifest["config"]
+
+    def scenario(self) -> Any:
+        """The resolved scenario, validated (:class:`~starnav.config.Scenario`)."""
+        from starnav.config import scenario_from_dict
+
+        return scenario_from_dict(self.config)
+
+    def select(self, exposure: float | int) -> Dataset:
+        """The same dataset at another exposure (time in s, or its position in the list)."""
+        return Dataset(self.path, self.manifest, _pick_exposure(self.manifest, exposure))
+
+    def epochs(self) -> FloatArray:
+        """Frame epochs [TDB s past J2000]."""
+        return np.array([float(e["epoch_tdb_s"]) for e in self._entries])
+
+
+def _pick_exposure(manifest: dict[str, Any], exposure: float | int | None) -> float:
+    exps = [float(e["exposure_s"]) for e in manifest["exposures"]]
+    if not exps:
+        raise DataFileError("the manifest lists no exposure")
+    if exposure is None:
+        return exps[0]
+    if isinstance(exposure, int) and not isinstance(exposure, bool) and exposure < len(exps) \
+            and exposure not in exps:
+        return exps[exposure]
+    v = float(exposure)
+    for t in exps:
+        if math.isclose(t, v, rel_tol=1e-9):
+            return t
+    raise ConfigError("exposure", exposure,
+                      "one of the dataset's exposure times [s]: "
+                      + ", ".join(f"{t!r}" for t in exps))
+
+
+def read_manifest(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The manifest of the dataset at ``path``, checked for schema and version."""
+    root = Path(path)
+    if not root.is_dir():
+        raise DataFileError(f"dataset {str(root)!r} does not exist or is not a directory")
+    man = F.read_json(root / F.MANIFEST)
+    if man.get("schema") != F.SCHEMA:
+        raise DataFileError(f"{str(root / F.MANIFEST)!r} is not a starnav dataset manifest")
+    if int(man.get("schema_version", -1)) > F.SCHEMA_VERSION:
+        raise DataFileError(f"dataset schema version {man.get('schema_version')} is newer than "
+                            f"this starnav reads ({F.SCHEMA_VERSION}); update starnav")
+    return man
+
+
+def open(path: str | os.PathLike[str], exposure: float | int | None = None, *,  # noqa: A001
+         allow_incomplete: bool = False) -> Dataset:
+    """Open the dataset at ``path``.
+
+    Parameters
+    ----------
+    path : path
+        Dataset directory.
+    exposure : float or int, optional
+        Exposure time [s] (or its position in the manifest's list); default the first.
+    allow_incomplete : bool
+        Open a dataset whose generation has not finished (only its finished frames).
+
+    Raises
+    ------
+    DataFileError
+        Not a dataset, unreadable, or incomplete (unless ``allow_incomplete``).
+    ConfigError
+        ``exposure`` not in the dataset.
+    """
+    root = Path(path)
+    man = read_manifest(root)
+    if not man.get("complete") and not allow_incomplete:
+        raise DataFileError(
+            f"dataset {str(root)!r} is incomplete ({len(man.get('frames', []))} of "
+            f"{man.get('frames_expected')} frames): finish it with `starnav dataset ... "
+            "--resume`, or open it with allow_incomplete=True")
+    return Dataset(root, man, _pick_exposure(man, exposure))
+
+
+def verify(path: str | os.PathLike[str]) -> list[str]:
+    """Check every file of every listed frame against the manifest (size and SHA-256), and
+    look for leftovers; returns a list of problems (empty: the dataset is intact)."""
+    root = Path(path)
+    man = read_manifest(root)
+    problems: list[str] = []
+    listed = set()
+    for e in man["frames"]:
+        d = root / e["directory"]
+        listed.add(d.name)
+        if not d.is_dir():
+            problems.append(f"frame {e['index']}: directory {e['directory']} is missing")
+            continue
+        on_disk = {p.relative_to(d).as_posix() for p in d.rglob("*") if p.is_file()}
+        for rel in sorted(on_disk - set(e["files"])):
+            problems.append(f"frame {e['index']}: unlisted file {rel}")
+        for rel, meta in e["files"].items():
+            p = d / rel
+            if not p.is_file():
+                problems.append(f"frame {e['index']}: file {rel} is missing")
+            elif p.stat().st_size != meta["bytes"] or F.sha256_file(p) != meta["sha256"]:
+                problems.append(f"frame {e['index']}: file {rel} differs from the manifest")
+    for name in (F.MANIFEST, F.RESOLVED):
+        for p in root.glob(f".{name}.*"):
+            problems.append(f"temporary file {p.name} left by an interrupted write (resume to "
+                            "clean up)")
+    frames = root / F.FRAMES_DIR
+    if frames.is_dir():
+        for p in frames.iterdir():
+            if p.name.startswith(F.TMP_PREFIX):
+                problems.append(f"unfinished frame directory {p.name} (resume to clean up)")
+            elif F.is_frame_dirname(p.name) and p.name not in listed and man.get("complete"):
+                problems.append(f"frame directory {p.name} is not in the manifest")
+    if man.get("complete") and len(man["frames"]) != man.get("frames_expected"):
+        problems.append(f"complete manifest lists {len(man['frames'])} of "
+                        f"{man.get('frames_expected')} frames")
+    return problems
+

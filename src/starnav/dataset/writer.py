@@ -1,0 +1,642 @@
+"""Dataset generation: render, expose and read out every frame of a scenario, crash-safe and
+resumable, byte-identical for one seed whatever the number of workers or interruptions.
+
+Technique
+---------
+1. **Validate first.** The scenario, the exposure list, the windows mode and the output
+   directory are checked, the frame list is built (trajectory, pointing) and the rendering
+   backend chosen before anything is written.
+2. **Head of the manifest.** ``manifest.json`` is written with everything that does not depend
+   on the frames (schema version, software versions and Mitsuba variant, the fully resolved
+   scenario, options, camera intrinsics, the Sun's band irradiance at 1 AU, seeds, readout-law
+   feasibility of each exposure, the expected frame count), ``"complete": false`` and an empty
+   frame list; ``scenario.resolved.yaml`` next to it.
+3. **One frame = one task** (:func:`make_frame`): render (seed
+   ``seed_u32(seed, STAGE_RENDER, index)``), then for each exposure the emulated acquisitions
+   of :mod:`starnav.dataset.acquire`; every file goes into a temporary directory
+   ``frames/.tmp-NNNNNN-*`` which is renamed to ``frames/NNNNNN`` only when whole. A directory
+   rename is atomic: a frame is on disk whole or not at all.
+4. **Manifest last.** As frames land, the manifest is rewritten atomically (at most every
+   ``manifest_interval_s``, and at the end) with the finished frames sorted by index, each with
+   its files' sizes and SHA-256; the last write sets ``"complete": true``.
+5. **Resume.** ``resume=True`` checks that the manifest's head equals the new one (same
+   scenario, options, software), deletes temporary directories left by a crash, keeps every
+   finished frame (the manifest's entry, or one rebuilt from the files for a frame renamed
+   after the last manifest write) and makes the missing ones. Since every frame is a pure
+   function of the scenario and its index, the result is byte-identical to an uninterrupted
+   run.
+
+A lock file (``.lock``, ``flock``) stops two processes from writing one dataset; the kernel
+releases it when a process dies, so a killed run can be resumed at once.
+
+Example
+-------
+>>> from starnav.config import load_scenario
+>>> from starnav.dataset import DatasetOptions, generate
+>>> sc = load_scenario("scenario.yaml")                                    # doctest: +SKIP
+>>> opts = DatasetOptions(exposures_s=(1.5e-5, 7.7e-3))
+>>> s = generate(sc, "out/ds", options=opts)                               # doctest: +SKIP
+>>> s.frames, s.frames_per_s                                              # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import logging
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from starnav.dataset import format as F
+from starnav.dataset.acquire import (
+    acquire,
+    check_windows_mode,
+    readout_feasibility,
+    sensor_seed_of,
+)
+from starnav.dataset.runner import InProcessRunner, TaskRunner
+from starnav.errors import ConfigError, DataFileError, StarnavError
+
+if TYPE_CHECKING:
+    from starnav.config import Scenario
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[int, int], None]
+
+#: Default minimum time between two manifest rewrites while frames land [s].
+MANIFEST_INTERVAL_S = 2.0
+LOCK = ".lock"
+
+
+class DatasetLockedError(StarnavError, RuntimeError):
+    """Another process is writing the dataset."""
+
+
+# ============================================================================ options
+@dataclass(frozen=True)
+class DatasetOptions:
+    """What a dataset stores besides the scenario.
+
+    Attributes
+    ----------
+    exposures_s : tuple of float, optional
+        Exposure times [s], each in its own ``exposure_<ms>ms`` directory; default the
+        scenario's ``detector.exposure_time_s``.
+    windows : {"second", "same", "none"}
+        How the windows are read (:mod:`starnav.dataset.acquire`, step 3).
+    radiance : bool
+        Store ``radiance.exr`` (the renderer's output, with AOVs if ``render.aovs``).
+    limb_points : int
+        Points of the true limb stored in ``truth.json``.
+    exposure_overrides : tuple of (exposure_s, tuple of str)
+        ``--set``-style overrides of ``detector.*`` / ``navigation.*`` keys for one exposure
+        (e.g. a higher segment threshold for a saturated exposure, as the paper tuned its image
+        processing to each scenario).
+    """
+
+    exposures_s: tuple[float, ...] | None = None
+    windows: str = "second"
+    radiance: bool = True
+    limb_points: int = 360
+    exposure_overrides: tuple[tuple[float, tuple[str, ...]], ...] = ()
+
+    def resolved(self, scenario: Scenario) -> DatasetOptions:
+        """Validated options with the exposures filled in."""
+        exps = (scenario.detector.exposure_time_s,) if self.exposures_s is None \
+            else self.exposures_s
+        check_windows_mode(self.windows)
+        if not (isinstance(self.limb_points, int) and 8 <= self.limb_points <= 100_000):
+            raise ConfigError("limb_points", self.limb_points, "an integer in 8..100000")
+        exps = F.check_exposures(exps)
+        over = []
+        for t, items in self.exposure_overrides:
+            match = [e for e in exps if abs(e - float(t)) <= 1e-9 * abs(e)]
+            if not match:
+                raise ConfigError("exposure_overrides", t, "one of the exposures "
+                                  + ", ".join(repr(e) for e in exps))
+            for it in items:
+                key = str(it).split("=", 1)[0].strip()
+                if not key.startswith(("detector.", "navigation.")) or "=" not in str(it):
+                    raise ConfigError("exposure_overrides", it, "KEY=VALUE with a detector.* "
+                                      "or navigation.* key (what acts after the renderer)")
+            over.append((match[0], tuple(str(i) for i in items)))
+        out = DatasetOptions(exps, self.windows, bool(self.radiance), int(self.limb_points),
+                             tuple(sorted(over)))
+        for t in exps:
+            out.scenario_for(scenario, t)  # validates the overrides
+        return out
+
+    def overrides_for(self, exposure_s: float) -> tuple[str, ...]:
+        """The overrides of one exposure (empty if none)."""
+        for t, items in self.exposure_overrides:
+            if abs(t - exposure_s) <= 1e-9 * abs(t):
+                return items
+        return ()
+
+    def scenario_for(self, scenario: Scenario, exposure_s: float) -> Scenario:
+        """``scenario`` with the overrides of ``exposure_s`` applied."""
+        items = self.overrides_for(exposure_s)
+        if not items:
+            return scenario
+        from starnav.config import scenario_from_dict, scenario_to_dict
+
+        try:
+            return scenario_from_dict(scenario_to_dict(scenario), list(items))
+        except ConfigError as err:
+            raise ConfigError(f"exposure_overrides[{exposure_s!r}]: {err.field}", err.value,
+                              err.expected) from None
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["exposures_s"] = list(d["exposures_s"]) if d["exposures_s"] is not None else None
+        d["exposure_overrides"] = [[t, list(i)] for t, i in self.exposure_overrides]
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> DatasetOptions:
+        e = d.get("exposures_s")
+        over = tuple((float(t), tuple(str(x) for x in i))
+                     for t, i in d.get("exposure_overrides", ()))
+        return cls(None if e is None else tuple(float(x) for x in e), str(d["windows"]),
+                   bool(d["radiance"]), int(d["limb_points"]), over)
+
+
+@dataclass(frozen=True)
+class DatasetSummary:
+    """What :func:`generate` did.
+
+    Attributes
+    ----------
+    path : Path
+    frames : int
+        Frames in the dataset.
+    frames_made : int
+        Frames made by this call (the others were already there: resume).
+    exposures_s : tuple of float
+    elapsed_s : float
+        Wall time of this call [s].
+    frames_per_s : float
+        ``frames_made / time spent making them`` [1/s] (set-up excluded).
+    setup_s : float
+        Validation, trajectory, backend and manifest set-up [s].
+    per_exposure : dict
+        Per exposure directory: median saturated pixels, fraction of frames with windows
+        planned, whether the readout law allows the exposure.
+    runner : str
+    """
+
+    path: Path
+    frames: int
+    frames_made: int
+    exposures_s: tuple[float, ...]
+    elapsed_s: float
+    frames_per_s: float
+    setup_s: float
+    per_exposure: dict[str, dict[str, Any]] = field(default_factory=dict)
+    runner: str = ""
+
+
+# ============================================================================ head
+def _canonical_key(*parts: Any) -> str:
+    return hashlib.sha256(F.dumps(list(parts), compact=True).encode()).hexdigest()[:16]
+
+
+def dataset_head(scenario: Scenario, options: DatasetOptions, n_frames: int) -> dict[str, Any]:
+    """The frame-independent part of the manifest (module step 2); deterministic."""
+    import numpy
+
+    from starnav import __version__
+    from starnav.config import build_camera, scenario_to_dict
+    from starnav.renderer import backend
+    from starnav.spectra import (
+        band_integrals,
+        sensor_response_from_config,
+        solar_spectrum_from_config,
+    )
+
+    sc = scenario
+    opts = options.resolved(sc)
+    info = backend.activate(tuple(sc.render.variants))
+    cam = build_camera(sc.camera)
+    band = band_integrals(solar_spectrum_from_config(sc.sun),
+                          sensor_response_from_config(sc.sensor_response))
+    exposures = []
+    for t in opts.exposures_s or ():
+        exposures.append({"exposure_s": t, "directory": F.exposure_dirname(t),
+                          "overrides": list(opts.overrides_for(t)),
+                          "readout_law": readout_feasibility(opts.scenario_for(sc, t), t)})
+    return {
+        "schema": F.SCHEMA,
+        "schema_version": F.SCHEMA_VERSION,
+        "software": {"starnav": __version__, "mitsuba": info.mitsuba_version,
+                     "drjit": info.drjit_version, "variant": info.variant,
+                     "numpy": numpy.__version__},
+        "config": scenario_to_dict(sc),
+        "options": opts.to_dict(),
+        "camera": camera_to_manifest(cam),
+        "sun": {"spectrum": sc.sun.spectrum,
+                "band_irradiance_1au_w_m2": band.irradiance,
+                "band_electron_irradiance_1au_e_s_m2": band.electron_irradiance,
+                "band_nm": list(band.band_nm)},
+        "seeds": {"seed": sc.seed, "sensor_seed": sensor_seed_of(sc),
+                  "render": "seed_u32(seed, STAGE_RENDER=1, frame)",
+                  "pointing": "starnav.scenes.pointing.frame_generators(seed, frame)",
+                  "acquisitions": "starnav.dataset.acquire.acquisition_seed(seed, run=0, a)"},
+        "exposures": exposures,
+        "frames_expected": int(n_frames),
+        "layout": {"frames": f"{F.FRAMES_DIR}/NNNNNN", "truth": F.TRUTH,
+                   "radiance": F.RADIANCE if opts.radiance else None,
+                   "per_exposure": [F.DN, F.SEGMENTS, F.WINDOWS, F.READOUT]},
+    }
+
+
+def camera_to_manifest(cam: Any) -> dict[str, Any]:
+    """Camera block of the manifest (:func:`starnav.dataset.format.camera_to_dict`)."""
+    return F.camera_to_dict(cam)
+
+
+def manifest(head: dict[str, Any], entries: dict[int, dict[str, Any]],
+             complete: bool) -> dict[str, Any]:
+    """Full manifest: head, ``complete`` flag and frames sorted by index."""
+    out = dict(head)
+    out["complete"] = bool(complete)
+    out["frames_done"] = len(entries)
+    out["frames"] = [entries[i] for i in sorted(entries)]
+    return out
+
+
+# ============================================================================ frames
+class FrameMaker:
+    """Makes the frames of one scenario (renderer and scene built once per process)."""
+
+    def __init__(self, scenario: Scenario, options: DatasetOptions) -> None:
+        from starnav.config import build_camera
+        from starnav.scenes import Scene
+
+        self.scenario = scenario
+        self.options = options.resolved(scenario)
+        self.camera = build_camera(scenario.camera)
+        self.scene = Scene(scenario)
+        self._renderer: Any = None
+        self._per_exposure = {t: self.options.scenario_for(scenario, t)
+                              for t in self.options.exposures_s or ()}
+
+    def __len__(self) -> int:
+        return len(self.scene)
+
+    @property
+    def renderer(self) -> Any:
+        if self._renderer is None:
+            from starnav.renderer.pipeline import renderer_from_scenario
+
+            self._renderer = renderer_from_scenario(self.scenario)
+        return self._renderer
+
+    def render(self, index: int) -> tuple[Any, Any]:
+        """Geometry and RadianceImage of frame ``index``."""
+        from starnav.seeding import STAGE_RENDER, seed_u32
+
+        geom = self.scene.geometry(index)
+        img = self.renderer.render(geom, seed=seed_u32(self.scenario.seed, STAGE_RENDER, index))
+        return geom, img
+
+    def write_frame(self, index: int, root: Path) -> dict[str, Any]:
+        """Make frame ``index`` and move it into ``root/frames`` whole (module step 3).
+
+        Returns
+        -------
+        dict
+            The frame's manifest entry.
+        """
+        from starnav.detector.io import write_dn_png
+        from starnav.radiance import write_exr
+
+        frames = root / F.FRAMES_DIR
+        frames.mkdir(parents=True, exist_ok=True)
+        final = frames / F.frame_dirname(index)
+        if final.exists():
+            return frame_entry(root, index)
+        geom, img = self.render(index)
+        tmp = Path(tempfile.mkdtemp(prefix=f"{F.TMP_PREFIX}{F.frame_dirname(index)}-",
+                                    dir=frames))
+        try:
+            F.write_json(tmp / F.TRUTH, F.truth_to_dict(geom, self.camera,
+                                                        self.options.limb_points))
+            if self.options.radiance:
+                write_exr(img, tmp / F.RADIANCE)
+            for t in self.options.exposures_s or ():
+                d = tmp / F.exposure_dirname(t)
+                d.mkdir()
+                acq = acquire(img, geom, self.camera, self._per_exposure[t], exposure_s=t,
+                              run=0, windows=self.options.windows)
+                write_dn_png(F.uint16_image(acq.segments_exposure.dn), d / F.DN)
+                seg = acq.segments
+                if seg is not None:
+                    F.write_json(d / F.SEGMENTS, F.segments_to_dict(seg), compact=True)
+                F.write_json(d / F.WINDOWS, F.windows_to_dict(
+                    acq.windows, None if not acq.windows else
+                    (1 if acq.windows_exposure is not None else 0)), compact=True)
+                F.write_json(d / F.READOUT, {**acq.summary(),
+                                             "overrides": list(self.options.overrides_for(t))})
+            os.chmod(tmp, 0o777 & ~_umask())
+            os.rename(tmp, final)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        return frame_entry(root, index)
+
+
+def _umask() -> int:
+    m = os.umask(0)
+    os.umask(m)
+    return m
+
+
+def frame_entry(root: Path, index: int) -> dict[str, Any]:
+    """Manifest entry of a finished frame, rebuilt from its files (deterministic)."""
+    d = root / F.FRAMES_DIR / F.frame_dirname(index)
+    truth = F.read_json(d / F.TRUTH)
+    files: dict[str, dict[str, Any]] = {}
+    for p in sorted(d.rglob("*")):
+        if p.is_file():
+            rel = p.relative_to(d).as_posix()
+            files[rel] = {"bytes": p.stat().st_size, "sha256": F.sha256_file(p)}
+    exposures: dict[str, Any] = {}
+    for sub in sorted(x for x in d.iterdir() if x.is_dir()):
+        ro = F.read_json(sub / F.READOUT)
+        a0 = ro["acquisitions"][0]
+        exposures[sub.name] = {
+            "exposure_s": ro["exposure_s"],
+            "saturated_pixels": a0.get("saturated_pixels"),
+            "dn_max": a0.get("dn_max"),
+            "segment_runs": (a0.get("segments") or {}).get("runs"),
+            "windows": len(ro["window_plan"]["windows_row0_col0_height_width"]),
+            "plan_status": ro["window_plan"]["status"],
+            "feasible": ro["feasible"],
+        }
+    return {"index": int(index), "directory": f"{F.FRAMES_DIR}/{F.frame_dirname(index)}",
+            "epoch_tdb_s": truth["epoch_tdb_s"], "epoch_tdb_iso": truth["epoch_tdb_iso"],
+            "range_m": truth["moon"]["range_m"],
+            "phase_angle_rad": truth["moon"]["phase_angle_rad"],
+            "exposures": exposures, "files": files}
+
+
+#: Frame makers of this process, by scenario and options (workers keep theirs).
+_MAKERS: dict[str, FrameMaker] = {}
+_MAKERS_MAX = 4
+
+
+def frame_maker(config: dict[str, Any], options: dict[str, Any] | None = None) -> FrameMaker:
+    """The :class:`FrameMaker` of a resolved scenario dict and options, cached per process (a
+    worker builds its renderer and scene once per configuration)."""
+    options = options if options is not None else DatasetOptions().to_dict()
+    key = _canonical_key(config, options)
+    m = _MAKERS.get(key)
+    if m is None:
+        from starnav.config import scenario_from_dict
+
+        m = FrameMaker(scenario_from_dict(config), DatasetOptions.from_dict(options))
+        if len(_MAKERS) >= _MAKERS_MAX:
+            _MAKERS.pop(next(iter(_MAKERS)))
+        _MAKERS[key] = m
+    return m
+
+
+def make_frame(config: dict[str, Any], options: dict[str, Any], root: str,
+               index: int) -> dict[str, Any]:
+    """Task: make frame ``index`` of the dataset at ``root`` (picklable; runs on workers).
+
+    Parameters
+    ----------
+    config : dict
+        Resolved scenario (``scenario_to_dict``).
+    options : dict
+        ``DatasetOptions.to_dict()`` (resolved).
+    root : str
+        Dataset directory (shared file system when the workers are remote).
+    index : int
+
+    Returns
+    -------
+    dict
+        The frame's manifest entry.
+    """
+    return frame_maker(config, options).write_frame(int(index), Path(root))
+
+
+# ============================================================================ directory
+@contextlib.contextmanager
+def _locked(root: Path) -> Iterator[None]:
+    import fcntl
+
+    path = root / LOCK
+    fh = open(path, "a+")  # noqa: SIM115 - held for the whole run
+    try:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise DatasetLockedError(f"{str(root)!r} is being written by another process "
+                                     "(its .lock is held); wait for it or stop it") from None
+        try:
+            yield
+        finally:
+            with contextlib.suppress(OSError):
+                path.unlink()
+    finally:
+        fh.close()
+
+
+def check_output_dir(out: Path) -> None:
+    """Raise a clear error if ``out`` cannot be created or written (nothing is created)."""
+    p = out
+    while not p.exists():
+        if p.parent == p:
+            break
+        p = p.parent
+    if p.exists() and not p.is_dir():
+        raise DataFileError(f"output {str(out)!r}: {str(p)!r} exists and is not a directory")
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise DataFileError(f"output {str(out)!r} is not writable ({str(p)!r} does not allow "
+                            "writing for this user)")
+
+
+def _diff_keys(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> list[str]:
+    out = []
+    for k in sorted(set(a) | set(b)):
+        va, vb = a.get(k), b.get(k)
+        if isinstance(va, dict) and isinstance(vb, dict):
+            out += _diff_keys(va, vb, f"{prefix}{k}.")
+        elif F.dumps(va) != F.dumps(vb):
+            out.append(f"{prefix}{k}")
+    return out
+
+
+def _prepare(out: Path, head: dict[str, Any], resume: bool) -> dict[int, dict[str, Any]]:
+    """Check the directory against ``head`` (module step 5); returns the entries to keep."""
+    man = out / F.MANIFEST
+    if man.exists():
+        if not resume:
+            raise DataFileError(f"{str(out)!r} already holds a dataset; use --resume to "
+                                "continue it or choose another output directory")
+        old = F.read_json(man)
+        old_head = {k: v for k, v in old.items() if k not in ("complete", "frames",
+                                                                "frames_done")}
+        diff = _diff_keys(old_head, F.plain(head))
+        if diff:
+            shown = ", ".join(diff[:6]) + (" ..." if len(diff) > 6 else "")
+            raise ConfigError("--resume", str(out),
+                              f"the same scenario, options and software as the dataset being "
+                              f"resumed; these differ: {shown}")
+        return {int(e["index"]): e for e in old.get("frames", [])}
+    if out.exists():
+        if not out.is_dir():
+            raise DataFileError(f"output {str(out)!r} exists and is not a directory")
+        extra = [p.name for p in out.iterdir() if p.name != LOCK]
+        if extra:
+            raise DataFileError(f"{str(out)!r} is not empty and holds no {F.MANIFEST}: not a "
+                                "starnav dataset; choose an empty or new directory")
+    return {}
+
+
+def _clean_temporaries(out: Path) -> None:
+    """Remove the temporary files an interrupted atomic write of the manifest or of the
+    resolved scenario left in ``out`` (``.manifest.json.*``, ``.scenario.resolved.yaml.*``)."""
+    for name in (F.MANIFEST, F.RESOLVED):
+        for p in out.glob(f".{name}.*"):
+            log.info("removing the temporary file %s", p.name)
+            p.unlink(missing_ok=True)
+
+
+def _scan(out: Path, listed: dict[int, dict[str, Any]], n: int) -> dict[int, dict[str, Any]]:
+    """Remove temporary frame directories; keep listed frames found on disk and rebuild the
+    entries of finished frames the manifest does not list yet."""
+    frames = out / F.FRAMES_DIR
+    entries: dict[int, dict[str, Any]] = {}
+    if not frames.is_dir():
+        return entries
+    for p in frames.iterdir():
+        if p.name.startswith(F.TMP_PREFIX):
+            log.info("removing the unfinished frame %s", p.name)
+            shutil.rmtree(p, ignore_errors=True)
+    for p in sorted(frames.iterdir()):
+        if not (p.is_dir() and F.is_frame_dirname(p.name)):
+            continue
+        i = int(p.name)
+        if i >= n:
+            raise DataFileError(f"{str(p)!r}: frame {i} is outside the scenario's {n} frames")
+        entries[i] = listed[i] if i in listed else frame_entry(out, i)
+    return entries
+
+
+# ============================================================================ generate
+def generate(scenario: Scenario, out: str | os.PathLike[str], *,
+             options: DatasetOptions | None = None, resume: bool = False,
+             runner: TaskRunner | None = None, progress: Progress | None = None,
+             manifest_interval_s: float = MANIFEST_INTERVAL_S) -> DatasetSummary:
+    """Make (or finish) the dataset of ``scenario`` in ``out`` (module steps 1-5).
+
+    Parameters
+    ----------
+    scenario : Scenario
+    out : path
+        Dataset directory (created; must be new, empty, or a dataset to ``resume``).
+    options : DatasetOptions, optional
+        Exposures, windows mode, what to store.
+    resume : bool
+        Continue an interrupted dataset (same scenario and options).
+    runner : TaskRunner, optional
+        Where frames are made; default this process. A Dask runner
+        (:func:`starnav.batch.cluster.open_runner`) needs ``out`` on a file system its workers
+        share.
+    progress : callable, optional
+        ``progress(done, total)`` after set-up and after each frame.
+    manifest_interval_s : float
+        Minimum time between manifest rewrites [s] (the last one always happens).
+
+    Returns
+    -------
+    DatasetSummary
+
+    Raises
+    ------
+    ConfigError, DataFileError, DatasetLockedError
+        Bad options, an unwritable or foreign directory, a resume with another scenario.
+    """
+    from starnav.config import write_resolved
+    from starnav.scenes import Scene
+
+    t_start = time.perf_counter()
+    opts = (options or DatasetOptions()).resolved(scenario)
+    out = Path(out)
+    check_output_dir(out)
+    n = len(Scene(scenario))
+    if n == 0:
+        raise ConfigError("trajectory", None, "at least one frame")
+    head = dataset_head(scenario, opts, n)
+    listed = _prepare(out, head, resume)
+    out.mkdir(parents=True, exist_ok=True)
+    runner = runner or InProcessRunner()
+    with _locked(out):
+        _clean_temporaries(out)
+        fresh = not (out / F.MANIFEST).exists()
+        if fresh:
+            F.write_json(out / F.MANIFEST, manifest(head, {}, False))
+        write_resolved(scenario, out)
+        entries = _scan(out, listed, n)
+        done0 = len(entries)
+        if progress:
+            progress(done0, n)
+        todo = [i for i in range(n) if i not in entries]
+        cfg = head["config"]
+        od = opts.to_dict()
+        t_frames = time.perf_counter()
+        setup_s = t_frames - t_start
+        last = time.monotonic()
+        ok = False
+        try:
+            handles = [runner.submit(make_frame, cfg, od, str(out.absolute()), i,
+                                     key=f"frame-{i:06d}")
+                       for i in todo]
+            for _, entry in runner.as_completed(handles):
+                entries[int(entry["index"])] = entry
+                if progress:
+                    progress(len(entries), n)
+                if time.monotonic() - last >= manifest_interval_s:
+                    F.write_json(out / F.MANIFEST, manifest(head, entries, False))
+                    last = time.monotonic()
+            ok = True
+        finally:
+            F.write_json(out / F.MANIFEST, manifest(head, entries, ok and len(entries) == n))
+        made_s = time.perf_counter() - t_frames
+    per = _per_exposure(entries)
+    made = len(entries) - done0
+    return DatasetSummary(path=out, frames=len(entries), frames_made=made,
+                          exposures_s=tuple(opts.exposures_s or ()),
+                          elapsed_s=time.perf_counter() - t_start,
+                          frames_per_s=made / made_s if made and made_s > 0 else float("nan"),
+                          setup_s=setup_s, per_exposure=per, runner=runner.description)
+
+
+def _per_exposure(entries: dict[int, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    out: dict[str, dict[str, Any]] = {}
+    names = sorted({k for e in entries.values() for k in e.get("exposures", {})})
+    for name in names:
+        rows = [e["exposures"][name] for e in entries.values() if name in e["exposures"]]
+        sat = [r["saturated_pixels"] for r in rows if r["saturated_pixels"] is not None]
+        out[name] = {
+            "exposure_s": rows[0]["exposure_s"] if rows else None,
+            "saturated_pixels_median": float(np.median(sat)) if sat else None,
+            "windows_planned_fraction": float(np.mean([r["plan_status"] == "ok"
+                                                       for r in rows])) if rows else None,
+            "feasible": all(r["feasible"] for r in rows),
+        }
+    return out

@@ -1,0 +1,240 @@
+"""Dataset generation and reading: layout, manifest, reader protocols, determinism, bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import starnav.dataset as ds
+from starnav.dataset import DatasetOptions, generate, verify
+from starnav.dataset import format as F
+from starnav.errors import ConfigError, DataFileError
+
+from .conftest import small_scenario, tree_bytes
+
+
+def test_layout_manifest_and_verification(small_dataset):
+    root = small_dataset
+    man = json.loads((root / "manifest.json").read_text())
+    assert man["schema"] == "starnav-dataset" and man["schema_version"] == F.SCHEMA_VERSION
+    assert man["complete"] is True and man["frames_done"] == man["frames_expected"] == 4
+    assert [e["index"] for e in man["frames"]] == [0, 1, 2, 3]
+    assert man["software"]["variant"].endswith("spectral")
+    assert man["camera"]["width_px"] == 128
+    assert man["sun"]["band_electron_irradiance_1au_e_s_m2"] > 1e20
+    assert [e["directory"] for e in man["exposures"]] == ["exposure_0.015ms", "exposure_7.7ms"]
+    # the 0.015 ms exposure cannot read a full frame on the AA-STR (readout law)
+    law = man["exposures"][0]["readout_law"]
+    assert law[0]["mode"] == "segments" and law[0]["feasible"] is False
+    assert (root / "scenario.resolved.yaml").is_file()
+    for e in man["frames"]:
+        d = root / e["directory"]
+        names = {p.relative_to(d).as_posix() for p in d.rglob("*") if p.is_file()}
+        assert names == set(e["files"])
+        assert {"truth.json", "radiance.exr", "exposure_0.015ms/dn.png",
+                "exposure_0.015ms/segments.json", "exposure_0.015ms/windows.json",
+                "exposure_0.015ms/readout.json", "exposure_7.7ms/dn.png"} <= names
+    assert verify(root) == []
+
+
+def test_verify_finds_a_corrupted_file(small_dataset, tmp_path):
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(small_dataset, copy)
+    p = copy / "frames" / "000002" / "exposure_7.7ms" / "segments.json"
+    p.write_text(p.read_text().replace("[", "[ ", 1))
+    problems = verify(copy)
+    assert len(problems) == 1 and "frame 2" in problems[0] and "segments.json" in problems[0]
+
+
+def test_reader_implements_the_navigation_protocols(small_dataset):
+    from starnav.navigation.frames import NavDataset, NavFrame
+
+    data = ds.open(small_dataset)
+    assert isinstance(data, NavDataset) and len(data) == 4
+    assert data.exposure_s == 1.5e-5 and data.exposures_s == (1.5e-5, 7.7e-3)
+    frames = list(data)
+    assert all(isinstance(f, NavFrame) for f in frames)
+    assert np.all(np.diff([f.epoch_tdb for f in frames]) == 1800.0)
+    f = frames[1]
+    assert f.truth.index == 1 and f.truth.camera_state_emb is not None
+    assert np.allclose(np.linalg.norm(f.sun_direction_inertial), 1.0)
+    assert f.segments.n_pixels > 100 and 1 <= len(f.windows) <= 16
+    dn = f.dn()
+    assert dn.dtype == np.uint16 and dn.shape == (128, 128)
+    # the segments are the pixels of the DN frame at or above the threshold
+    th = f.segments.thresholds[0]
+    assert np.array_equal(f.segments.to_image(), np.where(dn >= th, dn, 0))
+    rad = f.radiance()
+    assert rad.Le.shape == (128, 128) and rad.Le.max() > 0
+    # another exposure of the same frames
+    sat = data.select(7.7e-3)
+    assert sat[1].dn().max() == 4095 and dn.max() < 4095
+    with pytest.raises(ConfigError, match="0.2"):
+        data.select(0.2)
+
+
+def test_navigation_runs_on_the_dataset(small_dataset, tmp_path):
+    from starnav.navigation.report import navigate_dataset
+
+    s = navigate_dataset(ds.open(small_dataset), tmp_path / "nav", plots=False,
+                         measure_memory=False)
+    assert s["frames"] == 4 and s["fixes"] >= 3
+    # 0.015 ms: pixel-accurate limb (REFERENCE.md s5), here with the windows' refinement
+    assert abs(s["limb_error_px"]["bias"]) < 0.5
+
+
+def test_each_exposure_equals_a_dataset_made_with_it_alone(small_dataset, tmp_path):
+    """Common random numbers: exposure k of a multi-exposure dataset does not depend on the
+    other exposures."""
+    out = tmp_path / "alone"
+    generate(small_scenario(), out, options=DatasetOptions(exposures_s=(7.7e-3,)))
+    for i in range(4):
+        a = tree_bytes(small_dataset / "frames" / f"{i:06d}" / "exposure_7.7ms")
+        b = tree_bytes(out / "frames" / f"{i:06d}" / "exposure_7.7ms")
+        assert a == b
+        assert ((small_dataset / "frames" / f"{i:06d}" / "radiance.exr").read_bytes()
+                == (out / "frames" / f"{i:06d}" / "radiance.exr").read_bytes())
+
+
+def test_exposure_overrides_apply_to_one_exposure(tmp_path):
+    out = tmp_path / "ov"
+    opts = DatasetOptions(exposures_s=(1.5e-5, 7.7e-3), radiance=False, exposure_overrides=(
+        (7.7e-3, ("detector.readout.segments.thresholds_dn=[2048]",)),))
+    generate(small_scenario(frames=1), out, options=opts)
+    d = ds.open(out)
+    assert d[0].segments.thresholds == (200,)
+    assert d.select(7.7e-3)[0].segments.thresholds == (2048,)
+    assert d.select(7.7e-3)[0].readout["overrides"] == [
+        "detector.readout.segments.thresholds_dn=[2048]"]
+    assert not (out / "frames" / "000000" / "radiance.exr").exists()
+    with pytest.raises(ConfigError, match="detector"):
+        DatasetOptions(exposures_s=(1e-3,), exposure_overrides=(
+            (1e-3, ("moon.albedo=0.3",)),)).resolved(small_scenario())
+
+
+def test_bad_output_directories(tmp_path, small_dataset):
+    sc = small_scenario(frames=1)
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    with pytest.raises(DataFileError, match="not a directory"):
+        generate(sc, a_file / "sub")
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    with pytest.raises(DataFileError, match="not a starnav dataset"):
+        generate(sc, foreign)
+    assert sorted(p.name for p in foreign.iterdir()) == ["notes.txt"]  # untouched
+    with pytest.raises(DataFileError, match="--resume"):
+        generate(small_scenario(), small_dataset,
+                 options=DatasetOptions(exposures_s=(1.5e-5, 7.7e-3)))
+    with pytest.raises(ConfigError, match="seed"):
+        generate(small_scenario().model_copy(update={"seed": 3}), small_dataset, resume=True,
+                 options=DatasetOptions(exposures_s=(1.5e-5, 7.7e-3)))
+    with pytest.raises(DataFileError, match="does not exist"):
+        ds.open(tmp_path / "nowhere")
+
+
+def test_incomplete_dataset_is_refused_unless_asked(tmp_path):
+    out = tmp_path / "part"
+
+    class Boom(Exception):
+        pass
+
+    def progress(done, total):
+        if done == 2:
+            raise Boom
+
+    with pytest.raises(Boom):
+        generate(small_scenario(), out, options=DatasetOptions(radiance=False),
+                 progress=progress)
+    man = json.loads((out / "manifest.json").read_text())
+    assert man["complete"] is False and man["frames_done"] == 2
+    with pytest.raises(DataFileError, match="incomplete"):
+        ds.open(out)
+    assert len(ds.open(out, allow_incomplete=True)) == 2
+    s = generate(small_scenario(), out, options=DatasetOptions(radiance=False), resume=True)
+    assert s.frames_made == 2 and verify(out) == []
+
+
+def test_one_and_two_workers_give_identical_datasets(tmp_path):
+    from starnav.batch.cluster import open_runner
+
+    opts = DatasetOptions(exposures_s=(1.5e-5, 7.7e-3))
+    generate(small_scenario(frames=6), tmp_path / "one", options=opts)
+    with open_runner(workers=2) as runner:
+        s = generate(small_scenario(frames=6), tmp_path / "two", options=opts, runner=runner)
+    assert s.runner.startswith("local cluster")
+    assert tree_bytes(tmp_path / "one") == tree_bytes(tmp_path / "two")
+
+
+def test_dataset_cli_exposures_and_summary(tmp_path):
+    import typer
+    from typer.testing import CliRunner
+
+    from starnav.cli import dataset as cli
+
+    from .conftest import write_small_yaml
+
+    app = typer.Typer()
+    cli.register(app)
+
+    @app.callback()
+    def _cb() -> None:
+        pass
+
+    yml = write_small_yaml(tmp_path / "s.yaml", frames=2)
+    out = tmp_path / "cli"
+    r = CliRunner().invoke(app, ["dataset", str(yml), "--out", str(out), "--exposures",
+                                 "1.5e-5,7.7e-3", "--no-radiance"])
+    assert r.exit_code == 0, r.output
+    assert "frames/s" in r.output and "exposure_7.7ms" in r.output
+    assert verify(out) == []
+    r = CliRunner().invoke(app, ["dataset", str(yml), "--out", str(out), "--exposures", "x"])
+    assert r.exit_code == 2 and "--exposures" in r.output
+    r = CliRunner().invoke(app, ["dataset", str(yml), "--out", str(out)])
+    assert r.exit_code == 2 and "--resume" in r.output
+
+
+
+
+def test_resume_after_a_crash_inside_a_frame(small_dataset, tmp_path):
+    """What kill -9 leaves mid-frame (a temporary frame directory, a stale manifest) is cleaned
+    up and the frame remade byte for byte."""
+    import shutil
+
+    out = tmp_path / "crashed"
+    shutil.copytree(small_dataset, out)
+    frames = out / "frames"
+    shutil.rmtree(frames / "000002")
+    partial = frames / ".tmp-000002-abcd"
+    (partial / "exposure_0.015ms").mkdir(parents=True)
+    (partial / "truth.json").write_text("{")  # half written
+    (out / ".manifest.json.x1y2.json").write_text('{"sche')  # an interrupted manifest write
+    man = json.loads((out / "manifest.json").read_text())
+    man["frames"] = [e for e in man["frames"] if e["index"] < 2]
+    man["frames_done"], man["complete"] = 2, False
+    (out / "manifest.json").write_text(F.dumps(man))
+    assert any("unfinished" in p for p in verify(out))
+    s = generate(small_scenario(), out, options=DatasetOptions(exposures_s=(1.5e-5, 7.7e-3)),
+                 resume=True)
+    assert s.frames_made == 1  # frame 3 was on disk: re-indexed from its files, not remade
+    assert not partial.exists() and verify(out) == []
+    assert tree_bytes(out) == tree_bytes(small_dataset)
+
+
+def test_a_second_writer_is_locked_out(tmp_path):
+    import fcntl
+
+    from starnav.dataset.writer import DatasetLockedError
+
+    out = tmp_path / "locked"
+    out.mkdir()
+    with open(out / ".lock", "a+") as fh:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with pytest.raises(DatasetLockedError, match="another process"):
+            generate(small_scenario(frames=1), out)
+        assert (out / ".lock").exists()  # the holder's lock is left alone
