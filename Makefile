@@ -27,7 +27,8 @@ test-slow: llvm $(STAMP)
 	$(BIN)/python -m pytest -m slow
 
 bench: llvm $(STAMP)
-	$(BIN)/python benchmarks/render.py
+	for b in render detector navigation scenes dem_mesh calibration dataset; do \
+	  echo "== benchmarks/$$b.py"; $(BIN)/python benchmarks/$$b.py || exit 1; done
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks

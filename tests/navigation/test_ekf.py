@@ -102,16 +102,20 @@ def test_white_acceleration_noise_is_the_integrated_random_walk():
     assert np.cov(r, v[:, -1])[0, 1] == pytest.approx(Q[0, 3], rel=0.08)
 
 
-@pytest.mark.parametrize("bias_model", ["none", "additive", "range-scale"])
+@pytest.mark.parametrize("bias_model", ["none", "additive", "range-scale",
+                                        "range-scale+additive"])
 def test_measurement_jacobian_matches_finite_differences(bias_model):
-    nb = {"none": 0, "additive": 3, "range-scale": 1}[bias_model]
+    nb = {"none": 0, "additive": 3, "range-scale": 1, "range-scale+additive": 4}[bias_model]
     rng = np.random.default_rng(2)
-    x = np.concatenate([[3.9e8, 2.0e7, -1.5e7], [10.0, 1000.0, -300.0],
-                        rng.normal(0, 1e3 if nb == 3 else 1e-3, nb)])
+    scale_state = bias_model.startswith("range-scale")
+    bias = rng.normal(0, 1e3, nb)
+    if scale_state:
+        bias[0] = rng.normal(0, 1e-3)
+    x = np.concatenate([[3.9e8, 2.0e7, -1.5e7], [10.0, 1000.0, -300.0], bias])
     moon = np.array([3.8e8, 1.0e6, 2.0e6])
     _, H = measurement_model(x, moon, bias_model)
     for j in range(x.size):
-        h = 1.0 if j < 6 or nb == 3 else 1e-6
+        h = 1e-6 if (j == 6 and scale_state) else 1.0
         e = np.zeros(x.size)
         e[j] = h
         fd = (measurement_model(x + e, moon, bias_model)[0]

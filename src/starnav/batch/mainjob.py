@@ -8,8 +8,8 @@ Technique
    30 minutes = 25 frames, the Moon placed at random in the field) is rendered once and
    exposed at the paper's well-exposed 0.015 ms and its saturated 7.7 ms, each with the
    segments acquisition and a windows acquisition along the limb; the 7.7 ms frames are read
-   out at a 2048 DN threshold and filtered with a range-scale Gauss-Markov bias (the paper
-   tuned its processing to each scenario; :data:`~starnav.batch.presets.
+   out at a 2048 DN threshold and filtered with range-scale and 3-axis Gauss-Markov biases
+   (the paper tuned its processing to each scenario; :data:`~starnav.batch.presets.
    DEMO_EXPOSURE_OVERRIDES`). An existing dataset of the same scenario is resumed (a second
    run only redoes what is missing).
 2. **Navigation** (:func:`starnav.navigation.report.navigate_dataset`) on each exposure, read

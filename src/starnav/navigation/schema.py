@@ -87,7 +87,7 @@ class FixConfig(StrictModel):
 class FilterConfig(StrictModel):
     """EKF (starnav.navigation.ekf)."""
 
-    bias_model: Literal["none", "additive", "range-scale"] = "none"
+    bias_model: Literal["none", "additive", "range-scale", "range-scale+additive"] = "none"
     bias_sigma_km: NonNegativeFloat = Field(0.0, description="additive bias 1-sigma [km]")
     range_scale_sigma: NonNegativeFloat = Field(0.0, description="range-scale bias 1-sigma [-]")
     bias_tau_days: PositiveFloat = Field(1.0, description="bias correlation time [days]")
