@@ -12,7 +12,8 @@ a scenario (a complete, resolved scenario dict) and a grid.
     LUMIO-like L2 halo arc at 60 000-80 000 km with an image every 30 minutes, the Moon placed
     at random in the field, and the paper's pixel-accuracy algorithm (segments only: windows
     and subpixel refinement off) with Gauss-Markov biases (range scale and a 3-axis shift) in
-    the EKF, as the paper's Gauss-Markov measurement bias. 5 Monte Carlo runs per exposure (detector noise, RANSAC and initial state).
+    the EKF, as the paper's Gauss-Markov measurement bias. 5 Monte Carlo runs per exposure
+    (detector noise, RANSAC and initial state).
 
 Example
 -------
