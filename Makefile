@@ -27,7 +27,7 @@ test-slow: llvm $(STAMP)
 	$(BIN)/python -m pytest -m slow
 
 bench: llvm $(STAMP)
-	for b in render detector navigation scenes dem_mesh calibration dataset; do \
+	for b in render detector navigation scenes dem calibration dataset; do \
 	  echo "== benchmarks/$$b.py"; $(BIN)/python benchmarks/$$b.py || exit 1; done
 
 lint: $(STAMP)

@@ -70,10 +70,19 @@ def _f(row: dict[str, Any], key: str) -> float:
     return float(v) if v is not None else math.nan
 
 
+#: Mean 6-state NEES above which a filter is not to be trusted: 3 x its expected value.
+NEES_UNTRUSTED = 18.0
+
+
 def _no_navigation(row: dict[str, Any]) -> bool:
+    """No useful navigation: few fixes, a large final error, or a filter whose covariance does
+    not describe its error (the bias states absorb anything, so the error alone can look
+    small while the estimate is not trustworthy)."""
     frames = max(_f(row, "frames"), 1.0)
     err = _f(row, "final_position_error_pct_range")
-    return _f(row, "fixes") / frames < 0.5 or not (err < 5.0)
+    nees = _f(row, "nees_mean")
+    return (_f(row, "fixes") / frames < 0.5 or not (err < 5.0)
+            or not (nees < NEES_UNTRUSTED))
 
 
 PAPER_CASES: tuple[PaperCase, ...] = (
@@ -81,8 +90,9 @@ PAPER_CASES: tuple[PaperCase, ...] = (
               "no useful navigation",
               lambda b, s: not (abs(b) < 2.5),
               _no_navigation,
-              "limb: |bias| >= 2.5 px (or no limb); navigation: fixes in < 50 % of frames or "
-              "final position error >= 5 % of range"),
+              "limb: |bias| >= 2.5 px (or no limb); navigation: fixes in < 50 % of frames, "
+              "final position error >= 5 % of range, or an inconsistent filter (mean NEES of "
+              "the 6 states >= 18, three times its expected value)"),
     PaperCase(7.7e-3, "7.7 ms (HIL, fictitious)", "~5 px bias (saturation near the limb)",
               "< 1 % in all state components",
               lambda b, s: 2.5 <= b <= 10.0,

@@ -22,7 +22,8 @@ def register(app: typer.Typer) -> None:
         scenario: Annotated[Path | None, typer.Option(
             "--scenario", help="scenario YAML (camera, detector, seed); default built-ins")] = None,
         exposure_s: Annotated[float | None, typer.Option(
-            "--exposure-s", help="exposure time [s] (overrides detector.exposure_time_s)")] = None,
+            "--exposure-s", "--exposure",
+            help="exposure time [s] (overrides detector.exposure_time_s)")] = None,
         frame_index: Annotated[int, typer.Option(
             "--frame-index", help="frame number (selects the temporal noise)")] = 0,
         set_: Annotated[list[str] | None, typer.Option(

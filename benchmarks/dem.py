@@ -11,8 +11,8 @@ the process's peak RSS so far (includes the DEM, albedo and the meshes before).
 
 Run::
 
-    DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM.so.19.1 .venv/bin/python benchmarks/dem_mesh.py
-    .venv/bin/python benchmarks/dem_mesh.py --ppd 16 --ranges 60000 10000 --repeats 5
+    DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM.so.19.1 .venv/bin/python benchmarks/dem.py
+    .venv/bin/python benchmarks/dem.py --ppd 16 --ranges 60000 10000 --repeats 5
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from starnav.dem.procedural import procedural_moon
 from starnav.dem.schema import ProceduralDemConfig
 from starnav.geometry import static_geometry
 
-logger = logging.getLogger("benchmarks.dem_mesh")
+logger = logging.getLogger("benchmarks.dem")
 
 
 def main() -> None:
