@@ -233,12 +233,9 @@ def known_keys() -> set[str]:
 
     keys: set[str] = set()
     _flatten(scenario_to_dict(Scenario(trajectory=TrajectoryConfig())), "", keys)
-    try:
-        from starnav.dem.schema import DemConfig
+    from starnav.dem.schema import DemConfig
 
-        _flatten({"moon": {"dem": DemConfig().model_dump(mode="json")}}, "", keys)
-    except Exception:  # noqa: BLE001 - a DEM section without defaults only loses suggestions
-        pass
+    _flatten({"moon": {"dem": DemConfig().model_dump(mode="json")}}, "", keys)
     return keys
 
 
