@@ -62,16 +62,14 @@ def _main(verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False) -> 
 @app.command()
 def info() -> None:
     """Versions, Mitsuba variants available, the variant chosen and the LLVM used."""
-    import drjit as dr
-    import mitsuba as mi
-
     from starnav.renderer import backend
 
+    v = backend.versions()
     table = Table(title=f"starnav {__version__}", show_header=False)
     table.add_row("python", sys.version.split()[0])
-    table.add_row("mitsuba", mi.__version__)
-    table.add_row("drjit", dr.__version__)
-    table.add_row("variants compiled", ", ".join(mi.variants()))
+    table.add_row("mitsuba", str(v["mitsuba"]))
+    table.add_row("drjit", str(v["drjit"]))
+    table.add_row("variants compiled", ", ".join(v["variants"]))
     cands = backend.llvm_candidates()
     table.add_row("libLLVM found", ", ".join(f"{c.path} ({c.major})" for c in cands) or "none")
     try:

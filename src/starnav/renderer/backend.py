@@ -187,6 +187,14 @@ def activate(preference: tuple[str, ...] | list[str] = DEFAULT_VARIANTS) -> Back
     return info
 
 
+def versions() -> dict[str, object]:
+    """Mitsuba and Dr.Jit versions and the variants compiled into this Mitsuba build."""
+    import drjit as dr
+    import mitsuba as mi
+
+    return {"mitsuba": mi.__version__, "drjit": dr.__version__, "variants": list(mi.variants())}
+
+
 def current() -> BackendInfo | None:
     """The last choice made by :func:`activate` (``None`` before the first call)."""
     return _CURRENT
