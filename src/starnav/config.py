@@ -178,6 +178,9 @@ class RenderConfig(StrictModel):
     sampler: Literal["multijitter", "stratified", "independent", "ldsampler"] = Field(
         "multijitter", description="Mitsuba sampler of the radiance pass"
     )
+    wavelength_step_nm: Annotated[float, Field(gt=0, le=50)] = Field(
+        1.0, description="grid step of the spectra handed to Mitsuba [nm]"
+    )
 
 
 class OutputConfig(StrictModel):

@@ -58,7 +58,8 @@ def renderer_from_scenario(sc: Scenario) -> MoonRenderer:
     moon = moon_model_from_scenario(sc)
     r = sc.render
     settings = RenderSettings(spp=r.spp, crop=r.crop, crop_margin_px=r.crop_margin_px,
-                              aovs=r.aovs, variants=tuple(r.variants), sampler=r.sampler)
+                              aovs=r.aovs, variants=tuple(r.variants), sampler=r.sampler,
+                              wavelength_step_nm=r.wavelength_step_nm)
     return MoonRenderer(camera, response, sun, moon, settings)
 
 
