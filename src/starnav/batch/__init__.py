@@ -15,8 +15,7 @@ See docs/sweep.md.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from starnav._lazy import lazy_exports
 
 _EXPORTS = {
     "run_sweep": "sweep", "SweepResult": "sweep", "summarize_points": "sweep",
@@ -31,14 +30,4 @@ _EXPORTS = {
 }
 
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str) -> Any:
-    mod = _EXPORTS.get(name)
-    if mod is None:
-        raise AttributeError(f"module 'starnav.batch' has no attribute {name!r}")
-    return getattr(importlib.import_module(f"starnav.batch.{mod}"), name)
-
-
-def __dir__() -> list[str]:
-    return __all__
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

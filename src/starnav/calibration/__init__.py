@@ -26,8 +26,7 @@ False
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from starnav._lazy import lazy_exports
 
 _EXPORTS = {
     "BenchConfig": "schema", "load_bench": "schema", "bench_from_dict": "schema",
@@ -50,17 +49,4 @@ _EXPORTS = {
 }
 
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str) -> Any:
-    try:
-        mod = _EXPORTS[name]
-    except KeyError:
-        raise AttributeError(f"module 'starnav.calibration' has no attribute {name!r}") from None
-    value = getattr(importlib.import_module(f"starnav.calibration.{mod}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(list(globals()) + __all__)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -15,8 +15,7 @@ The format is documented in ``docs/dataset.md`` and :mod:`starnav.dataset.format
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from starnav._lazy import lazy_exports
 
 _EXPORTS = {
     "open": "reader", "verify": "reader", "read_manifest": "reader", "Dataset": "reader",
@@ -30,14 +29,4 @@ _EXPORTS = {
 }
 
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str) -> Any:
-    mod = _EXPORTS.get(name)
-    if mod is None:
-        raise AttributeError(f"module 'starnav.dataset' has no attribute {name!r}")
-    return getattr(importlib.import_module(f"starnav.dataset.{mod}"), name)
-
-
-def __dir__() -> list[str]:
-    return __all__
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -19,9 +19,7 @@ Public API (imported lazily; this module imports nothing heavy)::
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import Any
-
+from starnav._lazy import lazy_exports
 from starnav.dem.schema import AlbedoConfig, DemConfig, MeshConfig, ProceduralDemConfig
 
 _LAZY = {
@@ -46,13 +44,4 @@ _LAZY = {
 }
 
 __all__ = ["AlbedoConfig", "DemConfig", "MeshConfig", "ProceduralDemConfig", *_LAZY]
-
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        return getattr(import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'starnav.dem' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(__all__)
+__getattr__, __dir__ = lazy_exports(__name__, _LAZY, eager=tuple(__all__))

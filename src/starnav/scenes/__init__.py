@@ -14,8 +14,7 @@ Public API (imports are lazy: importing :mod:`starnav.scenes` loads nothing heav
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from starnav._lazy import lazy_exports
 
 _EXPORTS = {
     "Ephemeris": "ephemeris", "EphemerisRangeError": "ephemeris", "parse_epoch": "ephemeris",
@@ -33,14 +32,4 @@ _EXPORTS = {
 }
 
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str) -> Any:
-    mod = _EXPORTS.get(name)
-    if mod is None:
-        raise AttributeError(f"module 'starnav.scenes' has no attribute {name!r}")
-    return getattr(importlib.import_module(f"starnav.scenes.{mod}"), name)
-
-
-def __dir__() -> list[str]:
-    return __all__
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
