@@ -168,17 +168,9 @@ def test_a_scheduler_that_does_not_answer(tmp_path):
 
 
 def test_sweep_cli(tmp_path):
-    import typer
     from typer.testing import CliRunner
 
-    from starnav.cli import sweep as cli
-
-    app = typer.Typer()
-    cli.register(app)
-
-    @app.callback()
-    def _cb() -> None:
-        pass
+    from starnav.cli.main import app  # the real command line, with every part wired in
 
     r = CliRunner().invoke(app, ["sweep", "--grid", "detector.exposure_tim=1", "--out",
                                  str(tmp_path / "x"), "--workers", "0"])

@@ -12,7 +12,6 @@ from pydantic import ValidationError
 from typer.testing import CliRunner
 
 from starnav.calibration.schema import BenchConfig, load_bench
-from starnav.cli.hil import register
 from starnav.errors import ConfigError, DataFileError
 from starnav.radiance import RadianceImage, write_exr
 
@@ -24,14 +23,9 @@ SMALL = ["--set", "scenario.camera.width=256", "--set", "scenario.camera.height=
 
 @pytest.fixture(scope="module")
 def app() -> typer.Typer:
-    a = typer.Typer()
+    from starnav.cli.main import app as main_app  # the real command line
 
-    @a.callback()
-    def _main() -> None:
-        pass
-
-    register(a)
-    return a
+    return main_app
 
 
 def test_defaults_are_the_papers_bench():

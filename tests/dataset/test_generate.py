@@ -172,19 +172,11 @@ def test_one_and_two_workers_give_identical_datasets(tmp_path):
 
 
 def test_dataset_cli_exposures_and_summary(tmp_path):
-    import typer
     from typer.testing import CliRunner
 
-    from starnav.cli import dataset as cli
+    from starnav.cli.main import app  # the real command line
 
     from .conftest import write_small_yaml
-
-    app = typer.Typer()
-    cli.register(app)
-
-    @app.callback()
-    def _cb() -> None:
-        pass
 
     yml = write_small_yaml(tmp_path / "s.yaml", frames=2)
     out = tmp_path / "cli"

@@ -12,7 +12,6 @@ import yaml
 from _dem_files import write_pds3
 from typer.testing import CliRunner
 
-from starnav.cli.dem import register
 from starnav.dem import load_albedo, load_dem
 from starnav.dem.load import as_dem_config, clear_cache
 from starnav.dem.schema import AlbedoConfig, DemConfig
@@ -20,13 +19,8 @@ from starnav.errors import ConfigError
 
 
 def _app() -> typer.Typer:
-    app = typer.Typer()
+    from starnav.cli.main import app  # the real command line
 
-    @app.callback()
-    def _root() -> None:  # a group, so that "dem" is a sub-command
-        pass
-
-    register(app)
     return app
 
 

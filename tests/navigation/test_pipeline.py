@@ -160,17 +160,10 @@ def test_navigation_config_section():
 
 
 def test_cli_navigate(cam, sequence, tmp_path, monkeypatch):
-    import typer
     from typer.testing import CliRunner
 
     from starnav.cli import navigate as cli_nav
-
-    app = typer.Typer()
-    cli_nav.register(app)
-
-    @app.command("other")
-    def _other() -> None:  # a second command keeps typer in multi-command mode
-        pass
+    from starnav.cli.main import app  # the real command line
 
     runner = CliRunner()
     res = runner.invoke(app, ["navigate", str(tmp_path / "missing"), "--out", str(tmp_path)])

@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-import typer
 import yaml
 from typer.testing import CliRunner
 
@@ -156,15 +155,8 @@ def test_fixed_pointing_in_a_scene(arc):
 
 
 def test_cli_trajectory_writes_oem_plot_and_config(tmp_path):
-    from starnav.cli.trajectory import register
+    from starnav.cli.main import app  # the real command line
     from starnav.scenes.oem import read_oem
-
-    app = typer.Typer()
-    register(app)
-
-    @app.command("noop")
-    def _noop() -> None:  # a second command keeps typer in multi-command mode
-        pass
 
     scen = tmp_path / "s.yaml"
     scen.write_text(yaml.safe_dump({"trajectory": {"duration_days": 2.0}}))
