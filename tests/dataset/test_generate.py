@@ -142,7 +142,7 @@ def test_incomplete_dataset_is_refused_unless_asked(tmp_path):
     out = tmp_path / "part"
 
     class Boom(Exception):
-        pass
+        """The crash injected into the generator."""
 
     def progress(done, total):
         if done == 2:

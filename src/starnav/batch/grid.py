@@ -32,6 +32,7 @@ Example
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import difflib
 import hashlib
@@ -177,10 +178,8 @@ def parse_value(key: str, text: str) -> Any:
     """One grid value: an int, else a float (``1e-4`` included, which YAML 1.1 reads as a
     string), else YAML."""
     for conv in (int, float):
-        try:
+        with contextlib.suppress(ValueError):
             return conv(text)
-        except ValueError:
-            pass
     try:
         return _numbers(yaml.safe_load(text))
     except yaml.YAMLError as err:
