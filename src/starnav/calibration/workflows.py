@@ -236,6 +236,34 @@ def _json(d: dict[str, Any]) -> str:
 FrameSink = Callable[[str, NDArray[np.uint16], NDArray[np.float64], NDArray[np.float64]], None]
 
 
+def png_frame_sink(out: str | Path, screen_bit_depth: int) -> FrameSink:
+    """A :data:`FrameSink` writing, per frame, the screen counts
+    (``screen/NAME.png``, 8 or 16 bit as the screen), the predicted bench acquisition and the
+    in-orbit exposure (``predicted/NAME_dn.png``, ``orbit/NAME_dn.png``, 16-bit DN), each
+    atomically."""
+    import imageio.v3 as iio
+
+    from starnav.atomic import atomic_path
+
+    out = Path(out)
+    dtype = np.uint8 if screen_bit_depth <= 8 else np.uint16
+
+    def png(path: Path, arr: NDArray[Any]) -> None:
+        with atomic_path(path, suffix=".png") as tmp:
+            iio.imwrite(tmp, arr, extension=".png")
+
+    def dn16(x: NDArray[np.float64]) -> NDArray[np.uint16]:
+        return np.clip(np.rint(x), 0, 65535).astype(np.uint16)
+
+    def sink(name: str, counts: NDArray[np.uint16], dn: NDArray[np.float64],
+             orbit: NDArray[np.float64]) -> None:
+        png(out / "screen" / f"{name}.png", counts.astype(dtype))
+        png(out / "predicted" / f"{name}_dn.png", dn16(dn))
+        png(out / "orbit" / f"{name}_dn.png", dn16(orbit))
+
+    return sink
+
+
 def run_stimulate(cfg: BenchConfig, dataset: str | Path, sink: FrameSink,
                   calibration: GeometricCalibration | str | Path | None = None,
                   progress: Callable[[int, int], None] | None = None) -> HilReport:

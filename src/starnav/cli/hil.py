@@ -12,8 +12,6 @@ TinyV3RSE bench.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -43,28 +41,16 @@ def _load(bench: str, overrides: list[str] | None):
     return load_bench(None if bench == "default" else bench, overrides or [])
 
 
-def _atomic_bytes(path: Path, write: Any) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _write_report(report: Any, cfg: Any, out: Path, name: str) -> None:
     import yaml
 
+    from starnav.atomic import atomic_path, atomic_write_text
     from starnav.calibration.schema import bench_to_dict
-    from starnav.config import atomic_write_text
 
     out.mkdir(parents=True, exist_ok=True)
     for fig_name, fig in report.figures.items():
-        _atomic_bytes(out / f"{fig_name}.png", lambda p, f=fig: f.savefig(p, dpi=110,
-                                                                         format="png"))
+        with atomic_path(out / f"{fig_name}.png") as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
     for fname, text in report.texts.items():
         atomic_write_text(out / fname, text)
     atomic_write_text(out / f"{name}.json", json.dumps(report.summary, indent=1, default=float))
@@ -192,26 +178,14 @@ def stimulate(
 ) -> None:
     """Screen images (counts, PNG) for every rendered frame, with the predicted bench
     acquisition and the in-orbit exposure (16-bit DN PNG)."""
-    import imageio.v3 as iio
-    import numpy as np
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from starnav.calibration.workflows import run_stimulate
+    from starnav.calibration.workflows import png_frame_sink, run_stimulate
     from starnav.errors import StarnavError
-
-    def png(path: Path, arr: Any) -> None:
-        _atomic_bytes(path, lambda p: iio.imwrite(p, arr, extension=".png"))
 
     try:
         cfg = _load(bench, set_)
-        dtype = np.uint8 if cfg.screen.bit_depth <= 8 else np.uint16
-
-        def sink(name: str, counts: Any, dn: Any, orbit: Any) -> None:
-            png(out / "screen" / f"{name}.png", counts.astype(dtype))
-            png(out / "predicted" / f"{name}_dn.png",
-                np.clip(np.rint(dn), 0, 65535).astype(np.uint16))
-            png(out / "orbit" / f"{name}_dn.png",
-                np.clip(np.rint(orbit), 0, 65535).astype(np.uint16))
+        sink = png_frame_sink(out, cfg.screen.bit_depth)
 
         with Progress(TextColumn("[bold]{task.description}"), BarColumn(),
                       TextColumn("{task.completed}/{task.total}"), TimeElapsedColumn()) as bar:
