@@ -42,6 +42,9 @@ def main() -> None:
                     help="camera ranges from the Moon centre [km]")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--edge-px", type=float, default=1.0)
+    ap.add_argument("--source", choices=("lola", "procedural"), default="lola",
+                    help="the packaged LOLA LDEM_4 + LROC map (default, with sub-posting "
+                    "detail) or the procedural Moon")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
 
@@ -49,11 +52,23 @@ def main() -> None:
 
     cam = Camera.preset("aa-str")
     t0 = time.perf_counter()
-    moon = procedural_moon(ProceduralDemConfig(pixels_per_degree=args.ppd))
+    detail = None
+    if args.source == "procedural":
+        moon = procedural_moon(ProceduralDemConfig(pixels_per_degree=args.ppd))
+        dem, albedo = moon.dem, moon.albedo
+        label = f"procedural DEM ({args.ppd:g} px/deg)"
+    else:
+        from starnav.dem.detail import sub_posting_detail
+        from starnav.dem.load import load_albedo, load_dem
+        from starnav.dem.schema import DemConfig
+
+        cfg = DemConfig(source="lola", albedo={"source": "lroc"})
+        dem, albedo = load_dem(cfg), load_albedo(cfg)
+        detail = sub_posting_detail(dem, cfg.detail)
+        label = "LOLA LDEM_4 + LROC albedo + sub-posting detail"
     t_dem = time.perf_counter() - t0
-    dem, albedo = moon.dem, moon.albedo
-    print(f"procedural DEM {dem.shape[0]} x {dem.shape[1]} ({args.ppd:g} px/deg): "
-          f"{t_dem:.2f} s, {dem.values.nbytes / 2**20:.0f} MB (+ albedo)")
+    print(f"{label}: {dem.shape[0]} x {dem.shape[1]}, loaded in {t_dem:.2f} s, "
+          f"{dem.values.nbytes / 2**20:.0f} MB (+ albedo)")
     opts = MeshOptions(edge_px=args.edge_px)
     t0 = time.perf_counter()
     import trimesh  # noqa: F401  (imported once per process by view_mesh; timed apart)
@@ -63,7 +78,8 @@ def main() -> None:
           f"{'peak MB':>8} {'RSS MB':>8}")
     for r_km in args.ranges:
         geom = static_geometry(cam, r_km * 1e3, math.radians(30.0))
-        kw = dict(camera_to_body=geom.R_cam_to_inertial, options=opts, cache=None)
+        kw = dict(camera_to_body=geom.R_cam_to_inertial, options=opts, cache=None,
+                  detail=detail)
         t0 = time.perf_counter()
         m = view_mesh(dem, cam, geom.camera_position, albedo, **kw)
         cold = time.perf_counter() - t0

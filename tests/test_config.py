@@ -21,7 +21,13 @@ def test_defaults_are_the_aa_str_at_60000_km():
     cam = build_camera(sc.camera)
     assert (cam.width, cam.height, cam.focal_length) == (1024, 1024, 50.7e-3)
     assert sc.geometry.range_km == 60_000.0
-    assert sc.moon.photometry.model == "lambert"
+    # the real Moon by default: LOLA terrain, LROC albedo, ROLO-calibrated Hapke, lunar colour
+    assert sc.moon.shape == "dem"
+    assert (sc.moon.dem.source, sc.moon.dem.albedo.source) == ("lola", "lroc")
+    assert sc.moon.photometry.model == "hapke"
+    assert sc.moon.photometry.preset == "rolo-calibrated"
+    assert sc.moon.photometry.spectral_shape == "rolo"
+    assert sc.moon.albedo is None
 
 
 def test_unknown_key_is_rejected_with_its_name():
@@ -33,6 +39,10 @@ def test_unknown_key_is_rejected_with_its_name():
 
 @pytest.mark.parametrize("data,field", [
     ({"moon": {"albedo": -0.1}}, "moon.albedo"),
+    ({"moon": {"albedo": 5}}, "moon.albedo"),
+    ({"moon": {"photometry": {"preset": "helfenstein"}}}, "moon.photometry.preset"),
+    ({"moon": {"dem": {"albedo": {"source": "x.tif", "quantity": "normal_albedo",
+                                  "contrast_exponent": 0.5}}}}, "moon.dem.albedo"),
     ({"moon": {"photometry": {"model": "phong"}}}, "moon.photometry"),
     ({"camera": {"focal_length_mm": 0}}, "camera.focal_length_mm"),
     ({"geometry": {"phase_angle_deg": 200}}, "geometry.phase_angle_deg"),

@@ -86,13 +86,21 @@ class SensorResponseConfig(StrictModel):
 class PhotometryConfig(StrictModel):
     """Photometric model of the lunar surface and its parameters.
 
-    ``model``: ``lambert``, ``lommel_seeliger``, ``lunar_lambert`` (McEwen) or ``hapke``
-    (Hapke 2012). ``params`` overrides the model's defaults (e.g. Hapke ``b``, ``c``,
-    ``bs0``, ``hs``, ``bc0``, ``hc``, ``theta_bar_deg``).
+    ``model``: ``hapke`` (Hapke 2012, the default), ``lambert``, ``lommel_seeliger`` or
+    ``lunar_lambert`` (McEwen). ``preset`` picks Hapke's parameter set: ``rolo-calibrated`` (the
+    phase-function and opposition parameters fitted to the ROLO model with the real albedo map,
+    :mod:`starnav.lunar_calibration`) or ``sato2014`` (Sato et al. 2014 as published);
+    ``params`` overrides single values (``b``, ``c``, ``bs0``, ``hs``, ``bc0``, ``hc``,
+    ``theta_bar_deg``). ``spectral_shape``: ``rolo`` gives the reflectance the Moon's colour
+    (ROLO's A(lambda) relative to 550 nm), ``grey`` a flat one (the analytic test cases).
     """
 
-    model: str = "lambert"
+    model: str = "hapke"
+    preset: Literal["rolo-calibrated", "sato2014"] = Field(
+        "rolo-calibrated", description="Hapke parameter set (ignored by the other models)")
     params: dict[str, float] = Field(default_factory=dict)
+    spectral_shape: Literal["rolo", "grey"] = Field(
+        "rolo", description="reflectance colour: ROLO lunar reddening (1 at 550 nm) or flat")
 
     @model_validator(mode="after")
     def _known_model(self) -> PhotometryConfig:
@@ -104,41 +112,68 @@ class PhotometryConfig(StrictModel):
             raise ValueError(str(err)) from None
         return self
 
+    def resolved_params(self) -> dict[str, float]:
+        """The model's parameters: the preset (Hapke) with ``params`` on top."""
+        from starnav.photometry import get_model, hapke_preset
+
+        base = hapke_preset(self.preset) if self.model == "hapke" else {}
+        return get_model(self.model).check_params({**base, **self.params})
+
 
 class AlbedoMapConfig(StrictModel):
     """Single-channel albedo map over selenographic longitude (columns, -180..180 deg from the
-    left edge) and latitude (rows, +90 deg at the top), equirectangular."""
+    left edge) and latitude (rows, +90 deg at the top), equirectangular. ``quantity``: the
+    values are normal albedos (any model) or Hapke single-scattering albedos (Hapke only)."""
 
     path: Path
     scale: PositiveFloat = Field(1.0, description="multiplier applied to the decoded map [-]")
+    quantity: Literal["normal_albedo", "hapke_w"] = Field(
+        "normal_albedo", description="what the map's values are")
+
+
+def _default_real_moon() -> DemConfig:
+    """LOLA LDEM_4 terrain with the LROC WAC albedo map, both shipped with starnav."""
+    return DemConfig(source="lola", albedo={"source": "lroc"})
 
 
 class MoonConfig(StrictModel):
-    """The Moon: shape, photometry and albedo."""
+    """The Moon: shape, photometry and albedo.
+
+    ``albedo`` is the **normal albedo** at 550 nm (:mod:`starnav.photometry`: every model derives
+    its own parameter from it): a number (a uniform Moon, or the mean of a relative albedo map
+    such as the default LROC one) or a map file (``shape: sphere``). ``None`` (the default) is the
+    ROLO-calibrated mean normal albedo of the real Moon.
+    """
 
     shape: Literal["sphere", "mesh", "dem"] = Field(
-        "sphere", description="exact sphere, icosphere mesh, or DEM mesh (starnav.dem)"
+        "dem", description="exact sphere, icosphere mesh, or DEM mesh (starnav.dem; default: "
+        "the real Moon, LOLA terrain and LROC albedo)"
     )
     radius_km: PositiveFloat = Field(1737.4, description="reference sphere radius [km]")
     mesh_subdivisions: Annotated[int, Field(ge=0, le=9)] = Field(
         7, description="icosphere subdivisions for shape=mesh (7 -> 327 680 triangles)"
     )
     photometry: PhotometryConfig = Field(default_factory=PhotometryConfig)
-    albedo: NonNegativeFloat | AlbedoMapConfig = Field(
-        0.12, description="constant albedo (model's own meaning) or a map"
+    albedo: NonNegativeFloat | AlbedoMapConfig | None = Field(
+        None, description="normal albedo at 550 nm [-]: a number, a map, or None for the "
+        "ROLO-calibrated real Moon"
     )
     albedo_scale: PositiveFloat = Field(
-        1.0, description="global albedo multiplier (albedo-exposure scaling studies) [-]"
+        1.0, description="global radiance multiplier (albedo-exposure scaling studies) [-]"
     )
-    dem: DemConfig | None = Field(
-        None, description="DEM and albedo sources and meshing for shape=dem (starnav.dem.schema)"
+    dem: DemConfig = Field(
+        default_factory=_default_real_moon,
+        description="DEM and albedo sources and meshing for shape=dem (starnav.dem.schema)"
     )
 
     @field_validator("albedo", mode="before")
     @classmethod
     def _albedo_sign(cls, v: Any) -> Any:
-        if isinstance(v, int | float) and v < 0:
-            raise ValueError(f"albedo must be >= 0, got {v}")
+        if isinstance(v, int | float) and not isinstance(v, bool):
+            if v < 0:
+                raise ValueError(f"the normal albedo must be >= 0, got {v}")
+            if v > 1:
+                raise ValueError(f"a normal albedo is at most 1 (the Moon's is ~0.12), got {v}")
         return v
 
 

@@ -34,8 +34,34 @@ References
   doi:10.1002/2013JE004580 (lunar defaults b = 0.25, c = 0.30, B_S0 = 2.2, h_S = 0.07,
   B_C0 = 0, h_C = 1, mean slope 23.66 deg).
 
-The lunar-Lambert polynomial is published for phase angles up to about 120 deg; beyond, it can
-go negative and the result is clipped at 0.
+One physical albedo
+-------------------
+Users give the Moon's **normal albedo** ``A_n`` (the reflectance of a surface element seen and lit
+head-on, ``A_n = pi r(0, 0, 0)``: Hapke 2012, section 10.D), as a number or a map. Each model
+derives its own parameter from it (:func:`model_albedo_parameter`, inverse
+:func:`normal_albedo`):
+
+=================== ============================================ ============================
+model               normal albedo of its parameter               parameter from ``A_n``
+=================== ============================================ ============================
+``lambert``         ``A_n = rho``                                ``rho = A_n``
+``lommel_seeliger`` ``A_n = w / 8``  (``r(0,0,0) = w / (8 pi)``)  ``w = 8 A_n``
+``lunar_lambert``   ``A_n = A``      (``L(0) = 1``)              ``A = A_n``
+``hapke``           ``pi r_Hapke(0, 0, 0; w, params)``, which    ``w`` by monotone inversion
+                    includes the opposition surges               (an error if ``w > 1``)
+=================== ============================================ ============================
+
+So the same ``moon.albedo: 0.12`` gives every model the same head-on brightness; their phase
+laws then differ (which is what they are for).
+
+Validity
+--------
+The lunar-Lambert polynomial L(g) is fitted up to about 100 deg (McEwen 1991) and turns negative
+at 103.9 deg. Beyond its zero it is clamped at L = 0 (pure Lambert, the physical limit of the
+mixture of a Lommel-Seeliger and a Lambert term with non-negative weights), and
+:func:`validity_warning` says so. The ROLO-calibrated Hapke parameters
+(:data:`HAPKE_ROLO_CALIBRATED`) are fitted over the ROLO model's range (1.55-97 deg): beyond it
+they are an extrapolation of a physical model, which :func:`validity_warning` also reports.
 """
 
 from __future__ import annotations
@@ -61,6 +87,22 @@ HAPKE_LUNAR_DEFAULTS: dict[str, float] = {
     "hc": 1.0,
     "theta_bar_deg": 23.66,
 }
+
+#: Names of the Hapke parameter sets (:func:`hapke_preset`).
+HAPKE_PRESETS = ("rolo-calibrated", "sato2014")
+
+
+def hapke_preset(name: str) -> dict[str, float]:
+    """Hapke parameters of a named set: ``sato2014`` (:data:`HAPKE_LUNAR_DEFAULTS`, as published)
+    or ``rolo-calibrated`` (fitted to the ROLO lunar model, :mod:`starnav.lunar_calibration`)."""
+    if name == "sato2014":
+        return dict(HAPKE_LUNAR_DEFAULTS)
+    if name == "rolo-calibrated":
+        from starnav.lunar_calibration import lunar_calibration
+
+        return dict(lunar_calibration().hapke)
+    raise UnknownNameError("Hapke parameter preset", name, list(HAPKE_PRESETS))
+
 
 #: Lunar-Lambert L(g) polynomial coefficients, g in degrees (McEwen 1991; USGS ISIS).
 LUNAR_LAMBERT_COEFFS = (1.0, -0.019, 2.42e-4, -1.46e-6)
@@ -122,16 +164,24 @@ def lommel_seeliger(i: ArrayLike, e: ArrayLike, g: ArrayLike, albedo: ArrayLike)
     return np.where(lit, np.asarray(albedo, float) / (4 * math.pi) * mu0 / den, 0.0)
 
 
+#: Phase angle [rad] where McEwen's L(g) polynomial reaches zero (103.9 deg); beyond it L is
+#: clamped at 0 (pure Lambert). Root of the cubic, computed once.
+LUNAR_LAMBERT_L_ZERO = math.radians(float(min(
+    r.real for r in np.roots(LUNAR_LAMBERT_COEFFS[::-1]) if abs(r.imag) < 1e-9 and r.real > 0)))
+
+
 def lunar_lambert_L(g: ArrayLike) -> FloatArray:
-    """McEwen's limb-darkening weight L(g), ``g`` in radians (polynomial in degrees)."""
+    """McEwen's limb-darkening weight L(g), ``g`` in radians (polynomial in degrees), clamped
+    at 0 beyond :data:`LUNAR_LAMBERT_L_ZERO` (the polynomial's fitted range ends near 100 deg;
+    past its root it would make the reflectance negative near the terminator)."""
     gd = np.degrees(np.asarray(g, float))
     c0, c1, c2, c3 = LUNAR_LAMBERT_COEFFS
-    return c0 + gd * (c1 + gd * (c2 + gd * c3))
+    return np.maximum(c0 + gd * (c1 + gd * (c2 + gd * c3)), 0.0)
 
 
 def lunar_lambert(i: ArrayLike, e: ArrayLike, g: ArrayLike, albedo: ArrayLike) -> FloatArray:
-    """Lunar-Lambert (McEwen 1991): ``r = A/pi [2 L mu0/(mu0+mu) + (1-L) mu0]`` [sr^-1],
-    clipped at 0."""
+    """Lunar-Lambert (McEwen 1991): ``r = A/pi [2 L mu0/(mu0+mu) + (1-L) mu0]`` [sr^-1], with
+    ``L(g)`` clamped at 0 past its root (then ``r`` is Lambert's, never negative)."""
     mu0, mu = _cosines(i, e)
     lit = (mu0 > 0) & (mu > 0)
     L = lunar_lambert_L(g)
@@ -246,6 +296,79 @@ def hapke(i: ArrayLike, e: ArrayLike, g: ArrayLike, albedo: ArrayLike, psi: Arra
     r = (w / (4 * math.pi) * mu0e / (mu0e + mue) * (p * shadow_hiding(g, bs0, hs) + multiple)
          * coherent_backscatter(g, bc0, hc) * S)
     return np.where(lit, r, 0.0)
+
+
+# ------------------------------------------------------------------------------ normal albedo
+#: Grid of Hapke ``w`` used to invert the normal albedo (monotone; interpolation error < 1e-7).
+_HAPKE_W_GRID = np.linspace(0.0, 1.0, 4097)
+
+
+def normal_albedo(name: str, parameter: ArrayLike, **params: float) -> FloatArray:
+    """Normal albedo ``A_n = pi r(0, 0, 0)`` [-] of model ``name`` with albedo parameter
+    ``parameter`` (rho, w, A or Hapke w; see the module docstring)."""
+    model = get_model(name)
+    p = model.check_params(params)
+    x = np.asarray(parameter, float)
+    zero = np.zeros_like(x)
+    return math.pi * model.function(zero, zero, zero, x, **p)
+
+
+def model_albedo_parameter(name: str, normal: ArrayLike, field: str = "moon.albedo",
+                           **params: float) -> FloatArray:
+    """The albedo parameter of model ``name`` that gives the normal albedo ``normal`` [-].
+
+    Lambert's rho and lunar-Lambert's A equal ``A_n``; Lommel-Seeliger's ``w = 8 A_n``; Hapke's
+    ``w`` inverts :func:`normal_albedo` (monotone in ``w``) on a fine grid.
+
+    Raises
+    ------
+    ConfigError
+        naming ``field`` if ``normal`` is negative or not finite, or if a Hapke surface with
+        these parameters cannot be that bright (``w`` would exceed 1).
+    """
+    a = np.asarray(normal, float)
+    if a.size and (not np.all(np.isfinite(a)) or float(np.min(a)) < 0.0):
+        raise ConfigError(field, float(np.min(a)) if a.size else a,
+                          "finite normal albedos >= 0")
+    model = get_model(name)
+    p = model.check_params(params)
+    if name in ("lambert", "lunar_lambert"):
+        return a.copy()
+    if name == "lommel_seeliger":
+        return 8.0 * a
+    if name == "hapke":
+        table = normal_albedo("hapke", _HAPKE_W_GRID, **p)
+        a_max = float(table[-1])
+        if a.size and float(np.max(a)) > a_max * (1 + 1e-9):
+            raise ConfigError(field, float(np.max(a)),
+                              f"a normal albedo <= {a_max:.4g}: with these Hapke parameters it "
+                              "needs a single-scattering albedo hapke_w > 1")
+        return np.interp(a, table, _HAPKE_W_GRID)
+    # a registered model without an explicit rule: invert numerically like Hapke
+    table = normal_albedo(name, _HAPKE_W_GRID, **p)
+    return np.interp(a, table, _HAPKE_W_GRID)  # pragma: no cover
+
+
+def validity_warning(name: str, phase: float, calibrated: bool = False) -> str | None:
+    """Why model ``name`` is outside its validity at ``phase`` [rad], or ``None``.
+
+    ``calibrated`` says the parameters are the ROLO fit (valid over 1.55-97 deg).
+    """
+    deg = math.degrees(phase)
+    if name == "lunar_lambert" and phase > LUNAR_LAMBERT_L_ZERO:
+        return (f"lunar-Lambert at phase {deg:.1f} deg: past the root of McEwen's L(g) "
+                f"({math.degrees(LUNAR_LAMBERT_L_ZERO):.1f} deg) L is clamped at 0 (Lambert)")
+    if name == "hapke" and calibrated and not (ROLO_PHASE_RANGE[0] <= phase
+                                                 <= ROLO_PHASE_RANGE[1]):
+        return (f"Hapke with the ROLO-calibrated parameters at phase {deg:.1f} deg: the fit "
+                f"covers {math.degrees(ROLO_PHASE_RANGE[0]):.2f}-"
+                f"{math.degrees(ROLO_PHASE_RANGE[1]):.0f} deg; beyond it the brightness is the "
+                "physical model's extrapolation, not a measured one")
+    return None
+
+
+#: Phase range [rad] of the ROLO model's fit (Kieffer & Stone 2005): 1.55-97 deg.
+ROLO_PHASE_RANGE = (math.radians(1.55), math.radians(97.0))
 
 
 #: Registry of photometric models by name.

@@ -30,10 +30,13 @@ def test_renders_are_shared_downstream_only():
     pts = expand({}, parse_grid(["detector.exposure_time_s=1e-5,1e-3",
                                  "moon.albedo_scale=1,0.25",
                                  "navigation.ransac.threshold_px=1,2"]))
-    assert len(render_groups(pts)) == 1  # Lambert: albedo_scale is downstream
+    assert len(render_groups(pts)) == 1  # albedo_scale multiplies the reflectance: downstream
     assert sorted({p.albedo_factor for p in pts}) == [0.25, 1.0]
+    # for every model, Hapke included (its *albedo* enters non-linearly, its scale does not)
     pts = expand({}, parse_grid(["moon.photometry.model=hapke",
                                  "moon.albedo_scale=1,0.5"]))
+    assert len(render_groups(pts)) == 1 and {p.albedo_factor for p in pts} == {1.0, 0.5}
+    pts = expand({}, parse_grid(["moon.albedo=0.1,0.2"]))
     assert len(render_groups(pts)) == 2 and {p.albedo_factor for p in pts} == {1.0}
     pts = expand({}, parse_grid(["render.spp=4,8", "detector.exposure_time_s=1e-5,1e-3"]))
     assert [len(g) for g in render_groups(pts).values()] == [2, 2]

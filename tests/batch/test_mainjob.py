@@ -27,12 +27,30 @@ def test_main_job_makes_dataset_navigation_and_report(tmp_path):
             assert (tmp_path / "demo" / "navigation" / e / f).is_file()
     assert verify(tmp_path / "demo" / "dataset") == []
     assert s["frames"] == 4 and calls[-1] == (7, 7) and calls[0][0] == 0
+    # one figure: the middle frame (index 2) rendered, next to its DN frames at both exposures
+    _assert_report_shows_radiance_next_to_dn(tmp_path / "demo", text, index=2)
     assert math.isfinite(s["0.015 ms: limb bias [px]"])
     # the saturated limb lies farther out than the well-exposed one
     assert s["7.7 ms: limb bias [px]"] > s["0.015 ms: limb bias [px]"] + 0.5
     # a second run resumes the finished dataset instead of remaking it
     s2 = main_job(small_scenario(frames=4), tmp_path / "demo")
     assert s2["frames"] == 4 and s2["0.015 ms: limb bias [px]"] == s["0.015 ms: limb bias [px]"]
+
+
+def _assert_report_shows_radiance_next_to_dn(out, text, index):
+    import json
+
+    import imageio.v3 as iio
+
+    from starnav.batch.mainjob import FRAME_FIGURE
+
+    assert f"![rendered radiance and detector DN frames]({FRAME_FIGURE})" in text
+    manifest = json.loads((out / "dataset" / "manifest.json").read_text())
+    entry = next(f for f in manifest["frames"] if f["index"] == index)
+    # the caption names the frame and its epoch: radiance and DN are of the same epoch
+    assert f"frame {index} | range" in text and entry["epoch_tdb_iso"] in text
+    fig = iio.imread(out / FRAME_FIGURE)
+    assert fig.dtype == np.uint8 and fig.shape[1] > 2.5 * fig.shape[0]  # 3 panels in a row
 
 
 def test_main_job_needs_a_trajectory(tmp_path):

@@ -73,8 +73,8 @@ def test_simple_models_match_closed_forms(model):
     if model == "lunar_lambert":
         gd = np.degrees(g)
         Lg = 1 - 0.019 * gd + 2.42e-4 * gd**2 - 1.46e-6 * gd**3  # McEwen 1991 / USGS ISIS
-        closed[model] = np.maximum(albedo / math.pi * (2 * Lg * mu0 / (mu0 + mu) + (1 - Lg)
-                                                         * mu0), 0)
+        Lg = np.maximum(Lg, 0.0)  # clamped past its root (103.9 deg): Lambert there
+        closed[model] = albedo / math.pi * (2 * Lg * mu0 / (mu0 + mu) + (1 - Lg) * mu0)
     ref = ph.reflectance(model, i, e, g, albedo)
     assert np.allclose(ref, closed[model], rtol=1e-12)
     got = eval_plugin(model, albedo, i, e, psi)
@@ -86,6 +86,21 @@ def test_lunar_lambert_limits():
     i, e = np.array([0.3, 1.0]), np.array([0.5, 0.2])
     assert np.allclose(ph.lunar_lambert(i, e, 0.0, 0.2),
                        2 * 0.2 / math.pi * np.cos(i) / (np.cos(i) + np.cos(e)))
+
+
+def test_lunar_lambert_past_its_root_is_lambert_not_negative():
+    """McEwen's L(g) cubic has its root at 103.9 deg; the 28-day LUMIO arc reaches 164 deg.
+    Past the root L is clamped at 0: the reflectance is Lambert's (never negative, never
+    silently clipped by the renderer)."""
+    assert math.degrees(ph.LUNAR_LAMBERT_L_ZERO) == pytest.approx(103.95, abs=0.01)
+    g = np.radians([110.0, 140.0, 164.0])
+    i, e = np.radians([60.0, 80.0, 85.0]), np.radians([50.0, 60.0, 79.0])
+    assert np.allclose(ph.lunar_lambert(i, e, g, 0.2), 0.2 * np.cos(i) / math.pi, rtol=1e-12)
+    # azimuth pi between the planes: phase = i + e = 110, 140, 164 deg, as above
+    got = eval_plugin("lunar_lambert", 0.2, i, e, np.full(3, math.pi))
+    assert np.allclose(got, 0.2 * np.cos(i) / math.pi, rtol=PLUGIN_RTOL, atol=1e-7)
+    assert ph.validity_warning("lunar_lambert", math.radians(120.0)) is not None
+    assert ph.validity_warning("lunar_lambert", math.radians(90.0)) is None
 
 
 def test_hapke_plugin_matches_numpy():

@@ -20,7 +20,7 @@ from starnav._lazy import lazy_exports
 _EXPORTS = {
     "run_sweep": "sweep", "SweepResult": "sweep", "summarize_points": "sweep",
     "parse_grid": "grid", "expand": "grid", "GridAxis": "grid", "GridPoint": "grid",
-    "UPSTREAM_SECTIONS": "grid", "LINEAR_IN_ALBEDO": "grid",
+    "UPSTREAM_SECTIONS": "grid",
     "open_runner": "cluster", "ClusterError": "cluster",
     "COLUMNS": "table", "TIMING_COLUMNS": "table", "read_table": "table",
     "exposure_study_scenario": "presets", "exposure_study_header": "presets",

@@ -17,11 +17,11 @@ Technique
    Upstream (changes the radiance image): ``camera``, ``sensor_response``, ``moon``, ``sun``,
    ``geometry``, ``trajectory``, ``pointing``, ``render`` and ``seed``. Downstream: ``detector``
    (exposure, PSF, noise, saturation, readout), ``navigation`` and ``output``.
-   ``moon.albedo_scale`` is also downstream when the photometric model is linear in the albedo
-   (``lambert``, ``lommel_seeliger``, ``lunar_lambert``: radiance = albedo x f(geometry)): the
-   group is rendered at scale 1 and each point multiplies the radiance by its own scale, the
-   albedo-exposure equivalence the paper's HIL bench relies on (identical up to float32
-   rounding, ~1e-7). For ``hapke`` the albedo enters non-linearly and stays upstream.
+   ``moon.albedo_scale`` is also downstream: it multiplies the reflectance of every photometric
+   model (the renderer's BSDF ``scale``), so the group is rendered at scale 1 and each point
+   multiplies the radiance by its own scale, the albedo-exposure equivalence the paper's HIL
+   bench relies on (identical up to float32 rounding, ~1e-7). The albedo itself
+   (``moon.albedo``) enters Hapke non-linearly and stays upstream.
 
 Example
 -------
@@ -54,8 +54,6 @@ UPSTREAM_SECTIONS: tuple[str, ...] = ("camera", "sensor_response", "moon", "sun"
                                       "trajectory", "pointing", "render", "seed")
 #: Sections that act after the renderer.
 DOWNSTREAM_SECTIONS: tuple[str, ...] = ("detector", "navigation", "output")
-#: Photometric models whose radiance is proportional to the albedo.
-LINEAR_IN_ALBEDO: tuple[str, ...] = ("lambert", "lommel_seeliger", "lunar_lambert")
 #: Keys below which any sub-key is accepted (free-form mappings).
 _FREE_FORM = ("moon.photometry.params",)
 
@@ -257,7 +255,7 @@ def render_config(scenario: Scenario) -> tuple[dict[str, Any], float]:
     """The scenario dict a shared render uses, and this point's albedo factor (module step 3).
 
     The dict keeps the upstream sections of ``scenario`` (AOVs off: a sweep never uses them;
-    ``moon.albedo_scale`` at 1 when the model is linear in albedo) and the defaults of the
+    ``moon.albedo_scale`` at 1: it is a radiance factor for every model) and the defaults of the
     downstream ones, so that every point of a render group gives the same dict.
     """
     from starnav.config import Scenario, scenario_to_dict
@@ -267,9 +265,9 @@ def render_config(scenario: Scenario) -> tuple[dict[str, Any], float]:
     up = {k: d[k] for k in UPSTREAM_SECTIONS}
     up["render"] = dict(up["render"], aovs=False)
     factor = 1.0
-    if scenario.moon.photometry.model in LINEAR_IN_ALBEDO:
-        factor = float(scenario.moon.albedo_scale)
-        up["moon"] = dict(up["moon"], albedo_scale=1.0)
+    # moon.albedo_scale multiplies the reflectance of every model (renderer.bsdfs): downstream
+    factor = float(scenario.moon.albedo_scale)
+    up["moon"] = dict(up["moon"], albedo_scale=1.0)
     for k in DOWNSTREAM_SECTIONS:
         up[k] = blank[k]
     return up, factor

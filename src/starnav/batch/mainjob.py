@@ -3,21 +3,23 @@
 Technique
 ---------
 1. **Dataset** (:func:`starnav.dataset.generate`): the demo scenario
-   (:func:`starnav.batch.presets.demo_scenario`: the AA-STR, 1024 x 1024, a Lambert Moon of
-   albedo 0.12, 12 hours of the LUMIO-like L2 halo at 70 000-80 000 km with an image every
-   30 minutes = 25 frames, the Moon placed at random in the field) is rendered once and
-   exposed at the paper's well-exposed 0.015 ms and its saturated 7.7 ms, each with the
-   segments acquisition and a windows acquisition along the limb; the 7.7 ms frames are read
-   out at a 2048 DN threshold and filtered with range-scale and 3-axis Gauss-Markov biases
-   (the paper tuned its processing to each scenario; :data:`~starnav.batch.presets.
-   DEMO_EXPOSURE_OVERRIDES`). An existing dataset of the same scenario is resumed (a second
-   run only redoes what is missing).
+   (:func:`starnav.batch.presets.demo_scenario`: the AA-STR, 1024 x 1024, the real Moon (LOLA
+   terrain, LROC albedo, ROLO-calibrated Hapke: the defaults), 12 hours of the LUMIO-like L2
+   halo at 70 000-80 000 km with an image every 30 minutes = 25 frames, the Moon placed at
+   random in the field) is rendered once and exposed at the paper's well-exposed 0.015 ms and
+   its saturated 7.7 ms, each with the segments acquisition and a windows acquisition along the
+   limb; the 7.7 ms frames are read out at a 2048 DN threshold and filtered with range-scale and
+   3-axis Gauss-Markov biases (the paper tuned its processing to each scenario;
+   :data:`~starnav.batch.presets.DEMO_EXPOSURE_OVERRIDES`). An existing dataset of the same
+   scenario is resumed (a second run only redoes what is missing).
 2. **Navigation** (:func:`starnav.navigation.report.navigate_dataset`) on each exposure, read
    back with :func:`starnav.dataset.open`: limb from the segments, RANSAC, subpixel refinement in
    the windows, Christian-Robinson fix, EKF; estimates, metrics and the paper's figures per
    exposure.
 3. **Report** ``report.md``: set-up, per-exposure results, the comparison with the paper and
-   links to the figures; the returned summary says where it is.
+   links to the figures, among them one frame (the middle one of the arc) as rendered (band
+   radiance, :mod:`starnav.preview` stretch) next to the detector's DN frames of the same epoch
+   at each exposure (``figures/frame_radiance_dn.png``); the returned summary says where it is.
 
 Budget: ``make demo`` must finish in 5 minutes on a 2-core machine, pip install included; the
 job itself takes about one minute there (measured numbers in docs/sweep.md).
@@ -54,6 +56,9 @@ if TYPE_CHECKING:
     from starnav.config import Scenario
 
 log = logging.getLogger(__name__)
+
+#: The report's radiance-next-to-DN figure, relative to the output directory.
+FRAME_FIGURE = "figures/frame_radiance_dn.png"
 
 
 def _g(x: Any, fmt: str = ".3g", scale: float = 1.0) -> str:
@@ -149,7 +154,9 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
             progress(n + j + 1, total)
     nav_s = time.perf_counter() - t_nav
     write_resolved(sc, out)
-    report = _write_report(out, sc, ds_summary, nav, nav_s, time.perf_counter() - t0, opts)
+    frame_fig = _frame_figure(out, sc, opts, ds_summary.exposures_s)
+    report = _write_report(out, sc, ds_summary, nav, nav_s, time.perf_counter() - t0, opts,
+                           frame_fig)
     if progress:
         progress(total, total)
     summary: dict[str, Any] = {
@@ -170,8 +177,36 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
     return summary
 
 
+def _frame_figure(out: Path, sc: Scenario, opts: Any, exposures_s: Sequence[float]
+                  ) -> tuple[str, str] | None:
+    """Draw the middle frame's rendered radiance next to its DN frames, one per exposure
+    (:func:`starnav.preview.plot_radiance_and_dn`); returns the PNG's path relative to ``out``
+    and its caption, or None if the dataset holds no frame or no radiance."""
+    from starnav.dataset import open as open_dataset
+    from starnav.errors import DataFileError
+    from starnav.preview import frame_caption, plot_radiance_and_dn
+
+    data = open_dataset(out / "dataset", exposure=exposures_s[0])
+    if len(data) == 0:
+        return None
+    k = len(data) // 2
+    frame = data[k]
+    try:
+        img = frame.radiance()
+    except DataFileError as err:
+        log.warning("no radiance/DN figure in the report: %s", err)
+        return None
+    dn = [(f"{t * 1e3:g} ms", data.select(t)[k].dn(),
+           2 ** opts.scenario_for(sc, t).detector.adc.bits - 1) for t in exposures_s]
+    epoch = frame.entry.get("epoch_tdb_iso")
+    title = frame_caption(img.meta, frame.index) + (f" | {epoch}" if epoch else "")
+    plot_radiance_and_dn(img, dn, out / FRAME_FIGURE, title=title)
+    return FRAME_FIGURE, title
+
+
 def _write_report(out: Path, sc: Scenario, ds: Any, nav: dict[float, dict[str, Any]],
-                  nav_s: float, elapsed: float, opts: Any) -> Path:
+                  nav_s: float, elapsed: float, opts: Any,
+                  frame_fig: tuple[str, str] | None = None) -> Path:
     from starnav.batch.report import describe_scenario
     from starnav.dataset.format import exposure_dirname
 
@@ -219,6 +254,14 @@ def _write_report(out: Path, sc: Scenario, ds: Any, nav: dict[float, dict[str, A
           "demo also refines the limb in the windows, which the paper ran only in PIL. "
           "`starnav sweep --preset exposure-study` runs the paper's four exposures with the "
           "pixel-level algorithm and Monte Carlo runs.", "", "## Figures", ""]
+    if frame_fig:
+        L += ["### One frame: rendered radiance and detector DN", "",
+              f"{frame_fig[1]}: the middle frame of the arc as rendered (band radiance, "
+              "linear from 0 to the 99.9th percentile of the lit pixels, sRGB-encoded for "
+              "display) next to the detector's DN frame of the same epoch at each exposure "
+              "(linear from 0 to the ADC full scale, same encoding: saturated pixels are "
+              "white).", "",
+              f"![rendered radiance and detector DN frames]({frame_fig[0]})", ""]
     for t in nav:
         d = f"navigation/{exposure_dirname(t)}"
         L += [f"### {t * 1e3:g} ms", "",

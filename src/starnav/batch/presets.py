@@ -8,7 +8,8 @@ a scenario (a complete, resolved scenario dict) and a grid.
 ``exposure-study``
     The four scenarios of the paper: 200 ms (the unmodified tracker), 7.7 ms (the saturation
     robustness limit, fictitious), 0.18 ms (the firmware limit) and 0.015 ms (well exposed),
-    on the AA-STR (1024 x 1024, f = 50.7 mm), a Lambert Moon of albedo 0.12 along a one-day
+    on the AA-STR (1024 x 1024, f = 50.7 mm), the real Moon (LOLA terrain, LROC albedo,
+    ROLO-calibrated Hapke photometry: the defaults) along a one-day
     LUMIO-like L2 halo arc at 60 000-80 000 km with an image every 30 minutes, the Moon placed
     at random in the field, and the paper's pixel-accuracy algorithm (segments only: windows
     and subpixel refinement off) with Gauss-Markov biases (range scale and a 3-axis shift) in
@@ -139,7 +140,7 @@ def _resolved(partial: dict[str, Any]) -> dict[str, Any]:
 #: The exposure study's scenario, as the keys that differ from the defaults.
 EXPOSURE_STUDY: dict[str, Any] = {
     "camera": {"preset": "aa-str"},
-    "moon": {"shape": "sphere", "photometry": {"model": "lambert"}, "albedo": 0.12},
+    # the moon: the default real Moon (LOLA LDEM_4, LROC albedo, ROLO-calibrated Hapke)
     "trajectory": {"source": "halo", "duration_days": 1.0, "cadence_s": 1800.0},
     "pointing": {"moon_offset": "random", "moon_offset_max_px": 300.0},
     "render": {"spp": 16, "aovs": False},
@@ -188,7 +189,7 @@ def exposure_study_header() -> str:
 #: The demo's scenario (``make demo``): see :mod:`starnav.batch.mainjob`.
 DEMO: dict[str, Any] = {
     "camera": {"preset": "aa-str"},
-    "moon": {"shape": "sphere", "photometry": {"model": "lambert"}, "albedo": 0.12},
+    # the moon: the default real Moon (LOLA LDEM_4, LROC albedo, ROLO-calibrated Hapke)
     "trajectory": {"source": "halo", "duration_days": 0.5, "cadence_s": 1800.0},
     "pointing": {"moon_offset": "random", "moon_offset_max_px": 300.0},
     "render": {"spp": 8, "aovs": False},

@@ -103,8 +103,9 @@ def paper_comparison(summary: Sequence[dict[str, Any]]) -> list[str]:
             "Caveats: the paper's limb errors are measured on real HIL acquisitions of a "
             "defocused, aberrated optics with the TinyV3RSE collimator; here every detector "
             "effect (PSF, stray light, blooming, crosstalk) is modelled with the assumptions "
-            "listed in docs/detector.md, and the Moon is the scenario's (a Lambert sphere by "
-            "default, no DEM). The saturated cases depend most on those assumptions.", ""]
+            "listed in docs/detector.md, and the Moon is the scenario's (by default the real "
+            "Moon: LOLA LDEM_4 terrain, LROC albedo, Hapke photometry calibrated to ROLO "
+            "within 2 %). The saturated cases depend most on those assumptions.", ""]
     return out
 
 

@@ -10,15 +10,14 @@ from typing import Annotated
 
 import typer
 
+from starnav.cli._output import fail
+
 dem_app = typer.Typer(add_completion=False, no_args_is_help=True,
                       help="Lunar DEMs: inspect files, export view-adapted meshes.")
 
 
 def _fail(err: Exception) -> None:
-    from rich.console import Console
-
-    Console(stderr=True).print(f"[bold red]error:[/] {err}")
-    raise typer.Exit(code=2)
+    fail(err)
 
 
 @dem_app.command("info")

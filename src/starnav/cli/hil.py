@@ -17,6 +17,8 @@ from typing import Annotated, Any
 
 import typer
 
+from starnav.cli._output import fail
+
 hil_app = typer.Typer(add_completion=False, no_args_is_help=True,
                       help="Hardware-in-the-loop bench emulation: collimator check, geometric "
                            "and radiometric calibration, screen stimuli.")
@@ -29,10 +31,7 @@ CalOpt = Annotated[Path | None, typer.Option(
 
 
 def _fail(err: Exception) -> None:
-    from rich.console import Console
-
-    Console(stderr=True).print(f"[bold red]error:[/] {err}")
-    raise typer.Exit(code=2)
+    fail(err)
 
 
 def _load(bench: str, overrides: list[str] | None):

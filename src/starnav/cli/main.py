@@ -15,27 +15,26 @@ from typing import Annotated
 
 import typer
 import yaml
-from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
 from starnav import __version__
+from starnav.cli._output import console, fail
 from starnav.errors import StarnavError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="starnav: a star tracker as a navigation camera, from photons to "
                   "navigation.")
-console = Console()
-err_console = Console(stderr=True)
+#: Errors: stderr, never wrapped nor cropped (``soft_wrap``), whatever the terminal width, so a
+#: message and the paths in it stay on one line (rich wraps at 80 columns when not on a terminal).
 
 ScenarioArg = Annotated[Path | None, typer.Argument(help="scenario YAML (default: built-in)")]
 SetOpt = Annotated[list[str] | None, typer.Option("--set", help="override a key: a.b=value")]
 
 
 def _fail(err: Exception) -> None:
-    err_console.print(f"[bold red]error:[/] {err}")
-    raise typer.Exit(code=2)
+    fail(err)
 
 
 def _load(scenario: Path | None, overrides: list[str] | None):
@@ -136,6 +135,9 @@ def render(
     scenario: ScenarioArg = None,
     out: Annotated[Path, typer.Option("--out", help="output directory")] = Path("out/render"),
     set_: SetOpt = None,
+    preview: Annotated[bool, typer.Option(
+        "--preview", help="also write an 8-bit PNG per frame next to its EXR: L from 0 to the "
+        "99.9th percentile of the lit pixels, labelled (starnav.preview)")] = False,
 ) -> None:
     """Render the scenario's frames to OpenEXR (channels L, Le and the AOVs)."""
     from starnav.config import write_resolved
@@ -147,10 +149,15 @@ def render(
         with progress_bar() as bar:
             task = bar.add_task("render", total=n)
             paths = render_to_directory(sc, out, lambda k, t: bar.update(task, completed=k))
+        if preview:
+            from starnav.preview import write_previews
+
+            write_previews(paths)
         write_resolved(sc, out)
     except StarnavError as err:
         _fail(err)
-    console.print(f"wrote {len(paths)} frame(s) to {out}")
+    console.print(f"wrote {len(paths)} frame(s) to {out}" + (" (EXR + preview PNG)" if preview
+                                                             else ""))
 
 
 @app.command()

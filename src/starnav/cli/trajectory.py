@@ -10,12 +10,9 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 
+from starnav.cli._output import console, fail
 from starnav.errors import StarnavError
-
-console = Console()
-err_console = Console(stderr=True)
 
 
 def register(app: typer.Typer) -> None:
@@ -59,8 +56,7 @@ def register(app: typer.Typer) -> None:
             write_resolved(sc, out.parent if str(out.parent) else Path("."))
             s = trajectory_summary(traj)
         except StarnavError as err:
-            err_console.print(f"[bold red]error:[/] {err}")
-            raise typer.Exit(code=2) from None
+            fail(err)
         console.print(
             f"{format_epoch(s['t_start'], precision=0)} .. {format_epoch(s['t_end'], precision=0)}"
             f" ({s['duration_days']:.2f} d), Moon range {s['moon_range_min'] / 1e3:.0f}-"

@@ -54,8 +54,9 @@ FloatArray = NDArray[np.float64]
 #: Largest |height| accepted above/below the reference sphere [m]. The Moon's relief spans
 #: about -9.1 to +10.8 km (LOLA); 100 km catches radii or kilometres passed as metres.
 MAX_ABS_HEIGHT = 100_000.0
-#: Tolerance on angular extents (rounding of labels and transforms) [rad].
-EXTENT_TOL = 1e-6
+#: Tolerance on angular extents (rounding of labels and transforms) [rad]. LOLA's LDEM_4 label
+#: gives MAP_SCALE = 7.58084 km/px, rounded: over 1440 samples the span is 2 pi + 1.3e-6 rad.
+EXTENT_TOL = 1e-5
 #: Full circle [rad].
 TWO_PI = 2.0 * math.pi
 HALF_PI = 0.5 * math.pi
@@ -191,6 +192,8 @@ class EquirectangularGrid:
         v = np.ascontiguousarray(v, dtype=np.float32)
         west, east, south, north = (float(e) for e in extent)
         self._check_extent(west, east, south, north)
+        if abs((east - west) - TWO_PI) <= EXTENT_TOL:
+            east = west + TWO_PI  # a global grid: wrap exactly
         self._check_values(v, west, north, (east - west) / v.shape[1],
                            (north - south) / v.shape[0])
         v.flags.writeable = False
@@ -493,21 +496,22 @@ class AlbedoGrid(EquirectangularGrid):
         Values in ``[0, 1]`` [-], row 0 northernmost.
     extent : (west, east, south, north)
         Cell-edge extent [rad].
-    quantity : {'albedo', 'hapke_w'}
-        What the values are: the photometric model's albedo, or the Hapke single-scattering
-        albedo ``w``.
+    quantity : {'normal_albedo', 'hapke_w', 'relative'}
+        What the values are: the physical normal albedo, the Hapke single-scattering albedo
+        ``w``, or a relative brightness pattern still to be scaled
+        (:class:`~starnav.dem.schema.AlbedoConfig`).
     source : str
         Provenance.
     """
 
     value_name = "albedo"
     field = "albedo"
-    QUANTITIES: ClassVar[tuple[str, ...]] = ("albedo", "hapke_w")
+    QUANTITIES: ClassVar[tuple[str, ...]] = ("normal_albedo", "hapke_w", "relative")
 
     def __init__(self, albedo: ArrayLike,
                  extent: tuple[float, float, float, float] = (-math.pi, math.pi, -HALF_PI,
                                                                HALF_PI),
-                 quantity: str = "albedo", source: str = "") -> None:
+                 quantity: str = "normal_albedo", source: str = "") -> None:
         if quantity not in self.QUANTITIES:
             raise ConfigError("albedo.quantity", quantity, f"one of {', '.join(self.QUANTITIES)}")
         self.quantity = quantity

@@ -45,6 +45,24 @@ def _cached(key: tuple[Any, ...], make: Any) -> Any:
     return val
 
 
+#: Source names that stand for data shipped inside the package (``starnav.data``).
+PACKAGED_SOURCES = {
+    "dem": {"lola": "lola/LDEM_4.LBL"},
+    "albedo": {"lroc": "albedo/lroc_wac_grey_2048.tif"},
+}
+
+
+def packaged_source(source: str, kind: str) -> str:
+    """The file a source name stands for: a packaged data set (``lola``, ``lroc``) or the
+    name itself (a path)."""
+    rel = PACKAGED_SOURCES[kind].get(source)
+    if rel is None:
+        return source
+    from starnav.data import packaged_path
+
+    return str(packaged_path(rel))
+
+
 def clear_cache() -> None:
     """Forget the grids loaded so far (and the procedural worlds)."""
     from starnav.dem import procedural
@@ -99,8 +117,9 @@ def load_dem(cfg: DemConfig | dict[str, Any] | None = None) -> DemGrid:
         return _cached(key, make)
     from starnav.dem.readers import read_dem
 
-    key = ("dem", _file_stamp(cfg.source), cfg.model_dump_json(exclude={"albedo", "mesh"}))
-    return _cached(key, lambda: read_dem(cfg.source, cfg))
+    path = packaged_source(cfg.source, "dem")
+    key = ("dem", _file_stamp(path), cfg.model_dump_json(exclude={"albedo", "mesh"}))
+    return _cached(key, lambda: read_dem(path, cfg))
 
 
 def load_albedo(cfg: DemConfig | AlbedoConfig | dict[str, Any] | None) -> AlbedoGrid | None:
@@ -135,11 +154,14 @@ def load_albedo(cfg: DemConfig | AlbedoConfig | dict[str, Any] | None) -> Albedo
 
         def make() -> AlbedoGrid:
             g = procedural_moon(dem_cfg.procedural, radius).albedo
-            if acfg.quantity != g.quantity or acfg.normalize_mean is not None:
+            quantity = acfg.resolved_quantity()
+            if quantity == "relative" and acfg.normalize_mean is not None:
+                quantity = "normal_albedo"
+            if quantity != g.quantity or acfg.normalize_mean is not None:
                 vals = g.values
                 if acfg.normalize_mean is not None:
                     vals = vals * (acfg.normalize_mean / g.mean)
-                g = AlbedoGrid(vals, extent=g.extent, quantity=acfg.quantity, source=g.source)
+                g = AlbedoGrid(vals, extent=g.extent, quantity=quantity, source=g.source)
             if acfg.max_pixels_per_degree:
                 g = g.resampled(acfg.max_pixels_per_degree)
             return g
@@ -147,5 +169,6 @@ def load_albedo(cfg: DemConfig | AlbedoConfig | dict[str, Any] | None) -> Albedo
         return _cached(key, make)
     from starnav.dem.readers import read_albedo
 
-    key = ("albedo", _file_stamp(acfg.source), acfg.model_dump_json())
-    return _cached(key, lambda: read_albedo(acfg.source, acfg))
+    path = packaged_source(acfg.source, "albedo")
+    key = ("albedo", _file_stamp(path), acfg.model_dump_json())
+    return _cached(key, lambda: read_albedo(path, acfg))

@@ -32,6 +32,10 @@ Technique
 5. **Heights and albedo** are sampled bilinearly at each vertex from the DEM's mip level whose
    cells are no larger than the local vertex spacing (no aliasing of fine DEMs by distant,
    sparse vertices). Normals are area-weighted averages of the face normals.
+   With a :class:`~starnav.dem.detail.SubPostingDetail`, vertices spaced more finely than a
+   DEM cell also get fractal relief below the posting (:mod:`starnav.dem.detail`; the cap and
+   frustum margins include its bound ``max_detail_m``, and the normals are those of the
+   refined surface); a view whose spacing is nowhere finer than the posting is unchanged.
 6. **Cache.** Meshes are kept per (DEM, albedo, resolution level, cap, frustum) key in an LRU.
    With ``cache_quantum_px > 0`` the key is quantised (sub-camera direction to that many
    pixels, range to 1/8 octave) and the mesh is made conservative for the whole cell of the
@@ -85,6 +89,7 @@ from starnav.errors import ConfigError, GeometryError
 if TYPE_CHECKING:
     import trimesh
 
+    from starnav.dem.detail import SubPostingDetail
     from starnav.dem.schema import MeshConfig
 
 logger = logging.getLogger(__name__)
@@ -463,7 +468,8 @@ def _sample_by_level(grid: EquirectangularGrid, lat: FloatArray, lon: FloatArray
 def view_mesh(dem: DemGrid, camera: Camera, camera_position_body_m: ArrayLike,
               albedo: AlbedoGrid | None = None, *, camera_to_body: ArrayLike | None = None,
               options: MeshOptions | None = None,
-              cache: MeshCache | None = MESH_CACHE) -> trimesh.Trimesh:
+              cache: MeshCache | None = MESH_CACHE,
+              detail: SubPostingDetail | None = None) -> trimesh.Trimesh:
     """The mesh of the part of the Moon visible from a camera position.
 
     Parameters
@@ -484,6 +490,11 @@ def view_mesh(dem: DemGrid, camera: Camera, camera_position_body_m: ArrayLike,
         Edge size, margins, budget, cache quantum.
     cache : MeshCache or None
         Where meshes are kept (``None``: no caching).
+    detail : SubPostingDetail, optional
+        Fractal relief added below the DEM's posting to the vertices whose spacing is finer
+        than a DEM cell (:func:`starnav.dem.detail.sub_posting_detail`); the cap and the
+        terrain bounds then include ``detail.max_detail_m``. A view whose footprint is nowhere
+        finer than the posting gets the same mesh as without it.
 
     Returns
     -------
@@ -517,13 +528,13 @@ def view_mesh(dem: DemGrid, camera: Camera, camera_position_body_m: ArrayLike,
             raise GeometryError(f"camera_to_body must be a rotation matrix, got {cam_to_body!r}")
     view = _quantise_view(c, camera, cam_to_body, opts, R)
     key = (dem.uid, None if albedo is None else albedo.uid, _opts_key(opts), view,
-           round(R, 3))
+           round(R, 3), None if detail is None else detail.key)
     if cache is not None:
         hit = cache.get(key)
         if hit is not None:
             return hit
     t0 = time.perf_counter()
-    mesh = _build(dem, albedo, view, opts, R, r_lo, r_hi, max(abs(h_min), abs(h_max)))
+    mesh = _build(dem, albedo, view, opts, R, r_lo, r_hi, max(abs(h_min), abs(h_max)), detail)
     mesh.metadata["starnav"]["seconds"] = time.perf_counter() - t0
     logger.info("view mesh: %d vertices, %d faces, cap %.3f deg, %.3f s",
                 len(mesh.vertices), len(mesh.faces),
@@ -540,12 +551,18 @@ def _opts_key(opts: MeshOptions) -> tuple[Any, ...]:
     return tuple(v for k, v in asdict(opts).items() if k != "cache_size")
 
 
-def _build(dem: DemGrid, albedo: AlbedoGrid | None, view: _View, opts: MeshOptions, R: float,
-           r_lo: float, r_hi: float, h_abs: float) -> trimesh.Trimesh:
-    import trimesh
+@dataclass
+class _Layout:
+    edge: float                # projected edge used [px]
+    rings: list[_Ring]
+    ring_spacing: FloatArray   # vertex spacing on each kept ring [m]
+    theta_h: float
+    theta_cap: float
 
-    o = np.asarray(view.o)
-    e1, e2 = _frame(o)
+
+def _layout(view: _View, opts: MeshOptions, R: float, r_lo: float, r_hi: float, h_abs: float,
+            e1: FloatArray, e2: FloatArray) -> _Layout:
+    """Rings and arcs of the mesh (edges coarsened to the vertex budget)."""
     edge = opts.edge_px
     for _attempt in range(4):
         thetas, spacing, theta_h, theta_cap = _ring_thetas(view, R, r_lo, r_hi, edge, opts)
@@ -558,16 +575,37 @@ def _build(dem: DemGrid, albedo: AlbedoGrid | None, view: _View, opts: MeshOptio
         logger.warning("view mesh: %d vertices exceed max_vertices=%d; edge %.3g -> %.3g px",
                        nv, opts.max_vertices, edge, new)
         edge = new
+    ring_spacing = {float(t): float(s) for t, s in zip(thetas, spacing, strict=True)}
+    sp = np.array([min(ring_spacing[r.theta], 2.0 * math.pi * R * math.sin(r.theta) / r.n
+                       if r.n > 1 else ring_spacing[r.theta]) for r in rings])
+    return _Layout(edge, rings, sp, theta_h, theta_cap)
+
+
+def _build(dem: DemGrid, albedo: AlbedoGrid | None, view: _View, opts: MeshOptions, R: float,
+           r_lo: float, r_hi: float, h_abs: float,
+           detail: SubPostingDetail | None = None) -> trimesh.Trimesh:
+    import trimesh
+
+    o = np.asarray(view.o)
+    e1, e2 = _frame(o)
+    lay = _layout(view, opts, R, r_lo, r_hi, h_abs, e1, e2)
+    if detail is not None and not (lay.rings and lay.ring_spacing.min() < detail.posting):
+        detail = None  # footprint nowhere finer than the posting: the mesh of the DEM alone
+    if detail is not None:  # bounds widened by the largest detail, then laid out again
+        r_lo, r_hi = r_lo - detail.max_detail_m, r_hi + detail.max_detail_m
+        h_abs += detail.max_detail_m
+        if view.d_near <= r_hi:
+            raise GeometryError(
+                f"camera at {view.d_near / 1e3:.3f} km from the Moon centre is not above the "
+                f"highest terrain with its sub-posting detail ({r_hi / 1e3:.3f} km)")
+        lay = _layout(view, opts, R, r_lo, r_hi, h_abs, e1, e2)
+    rings, edge, theta_h, theta_cap = lay.rings, lay.edge, lay.theta_h, lay.theta_cap
     if not rings:
         raise GeometryError("no part of the Moon lies in the field of view (nothing to mesh)")
     # vertex directions
     th = np.concatenate([np.full(r.k.size, r.theta) for r in rings])
     phi = np.concatenate([r.k * (2.0 * math.pi / r.n) for r in rings])
-    ring_spacing = {float(t): float(s) for t, s in zip(thetas, spacing, strict=True)}
-    sp = np.concatenate([np.full(r.k.size, min(ring_spacing[r.theta],
-                                               2.0 * math.pi * R * math.sin(r.theta) / r.n
-                                               if r.n > 1 else ring_spacing[r.theta]))
-                         for r in rings])
+    sp = np.repeat(lay.ring_spacing, [r.k.size for r in rings])
     st, ct = np.sin(th), np.cos(th)
     u = (ct[:, None] * o[None, :]
          + (st * np.cos(phi))[:, None] * e1[None, :]
@@ -576,7 +614,14 @@ def _build(dem: DemGrid, albedo: AlbedoGrid | None, view: _View, opts: MeshOptio
     lat = np.arctan2(u[:, 2], np.hypot(u[:, 0], u[:, 1]))
     lon = (np.arctan2(u[:, 1], u[:, 0]) + math.pi) % (2.0 * math.pi) - math.pi
     heights, level = _sample_by_level(dem, lat, lon, sp, R)
-    verts = u * (R + heights.astype(np.float64))[:, None]
+    n_detail = 0
+    if detail is None:
+        verts = u * (R + heights.astype(np.float64))[:, None]
+    else:
+        h64 = heights.astype(np.float64) + detail.heights(u, sp)
+        n_detail = int(np.count_nonzero(sp < detail.posting))
+        verts = u * (R + h64)[:, None]
+        heights = h64.astype(np.float32)
     # faces
     faces = [_stitch_rings(a, b) for a, b in zip(rings[:-1], rings[1:], strict=True)]
     f = np.concatenate(faces) if faces else np.zeros((0, 3), np.int64)
@@ -598,6 +643,8 @@ def _build(dem: DemGrid, albedo: AlbedoGrid | None, view: _View, opts: MeshOptio
         "edge_px": edge, "dem_level": level, "sub_camera_direction": list(view.o),
         "range_m": (view.d_near, view.d_far),
     }
+    if detail is not None:
+        mesh.metadata["starnav"]["detail"] = {**detail.summary(), "vertices": n_detail}
     return mesh
 
 
@@ -607,9 +654,11 @@ def frame_mesh(scenario: Any, dem: DemGrid | None = None, albedo: AlbedoGrid | N
 
     Loads the DEM and albedo of ``scenario.moon.dem`` unless given, builds the camera and the
     frame geometry (:func:`starnav.geometry.static_geometry_from_config`), and calls
-    :func:`view_mesh` with the camera position and attitude in the Moon body-fixed frame.
+    :func:`view_mesh` with the camera position and attitude in the Moon body-fixed frame and
+    the sub-posting detail of ``moon.dem.detail``.
     """
     from starnav.config import build_camera
+    from starnav.dem.detail import sub_posting_detail
     from starnav.dem.load import as_dem_config, load_albedo, load_dem
     from starnav.geometry import static_geometry_from_config
 
@@ -624,7 +673,8 @@ def frame_mesh(scenario: Any, dem: DemGrid | None = None, albedo: AlbedoGrid | N
     Rb = geom.R_moon_to_inertial.T
     return view_mesh(dem, camera, Rb @ geom.camera_position, albedo,
                      camera_to_body=Rb @ geom.R_cam_to_inertial,
-                     options=MeshOptions.from_config(cfg.mesh), cache=cache)
+                     options=MeshOptions.from_config(cfg.mesh), cache=cache,
+                     detail=sub_posting_detail(dem, cfg.detail))
 
 
 def save_mesh(mesh: trimesh.Trimesh, path: Any) -> Any:

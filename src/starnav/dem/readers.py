@@ -591,7 +591,8 @@ def read_albedo(path: str | os.PathLike[str], cfg: AlbedoConfig | None = None) -
     Returns
     -------
     AlbedoGrid
-        Values in 0..1 of ``cfg.quantity`` (``albedo`` or ``hapke_w``).
+        Values in 0..1 of ``cfg.quantity`` (a relative map scaled by ``normalize_mean`` becomes
+        ``normal_albedo``).
     """
     p = Path(path)
     cfg = cfg or AlbedoConfig(source=str(p))
@@ -626,10 +627,17 @@ def read_albedo(path: str | os.PathLike[str], cfg: AlbedoConfig | None = None) -
     if rd.mask is not None:
         acc = _nan_masked(acc, rd.mask.any(axis=0), p)
     extent = rd.extent if rd.extent is not None else fallback
+    quantity = cfg.resolved_quantity()
+    if quantity == "relative":
+        q = cfg.resolved_contrast_exponent()
+        if q != 1.0:
+            acc = np.power(np.clip(acc, 0.0, None), np.float32(q)).astype(np.float32)
     if cfg.normalize_mean is not None:
-        tmp = AlbedoGrid(np.clip(acc, 0, 1), extent=extent, quantity=cfg.quantity)
+        tmp = AlbedoGrid(np.clip(acc, 0, 1), extent=extent, quantity=quantity)
         acc *= np.float32(cfg.normalize_mean / max(tmp.mean, 1e-12))
-    g = AlbedoGrid(acc, extent=extent, quantity=cfg.quantity, source=f"{fmt}:{p}")
+        if quantity == "relative":
+            quantity = "normal_albedo"
+    g = AlbedoGrid(acc, extent=extent, quantity=quantity, source=f"{fmt}:{p}")
     if fmt == "npy" and cfg.max_pixels_per_degree is not None:
         g = g.resampled(cfg.max_pixels_per_degree)
     logger.info("read albedo %s: %r, mean %.4f", p.name, g, g.mean)

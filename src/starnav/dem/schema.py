@@ -127,15 +127,28 @@ class AlbedoConfig(StrictModel):
     * ``reflectance``: values already in reflectance (float maps).
     * ``auto``: ``svs-8bit`` for 8-bit, ``linear`` for other integers, ``reflectance`` for floats.
 
-    ``quantity`` says what the numbers are: ``albedo`` (the photometric model's albedo) or
-    ``hapke_w`` (Hapke single-scattering albedo). Several bands (RGB) are decoded separately and
-    averaged unless ``band`` picks one.
+    ``quantity`` says what the numbers are: ``normal_albedo`` (the physical normal albedo, which
+    every photometric model converts to its own parameter), ``hapke_w`` (Hapke single-scattering
+    albedo: the Hapke model only) or ``relative`` (a relative brightness pattern, e.g. a visual
+    mosaic: its values are raised to ``contrast_exponent`` and scaled to the mean normal albedo
+    given by ``normalize_mean``, else by ``moon.albedo``, else, for the packaged map, by the
+    ROLO calibration). Several bands (RGB) are decoded separately and averaged unless ``band``
+    picks one.
+
+    ``source: lroc`` is the LROC WAC mosaic shipped with starnav (a linear relative grey map,
+    :mod:`starnav.lunar_calibration`); its ``contrast_exponent`` defaults to the calibrated one.
     """
 
-    source: str = Field("procedural", description="'procedural' or a map file path")
+    source: str = Field("procedural", description="'procedural', 'lroc' (packaged LROC WAC "
+                        "mosaic) or a map file path")
     format: Literal["auto", "geotiff", "npy"] = "auto"
     decoding: Literal["auto", "svs-8bit", "linear", "reflectance"] = "auto"
-    quantity: Literal["albedo", "hapke_w"] = "albedo"
+    quantity: Literal["normal_albedo", "hapke_w", "relative"] | None = Field(
+        None, description="what the values are; default 'relative' for 'lroc', else "
+        "'normal_albedo'")
+    contrast_exponent: PositiveFloat | None = Field(
+        None, description="relative maps: values ** exponent before scaling; default the "
+        "calibrated one for 'lroc', else 1 [-]")
     gamma: PositiveFloat = Field(2.8, description="svs-8bit gamma [-]")
     domain: tuple[float, float] = Field(
         (0.16, 0.40), description="svs-8bit encoded intensity range mapped to 0..255 [-]"
@@ -159,6 +172,29 @@ class AlbedoConfig(StrictModel):
         (-180.0, 180.0, -90.0, 90.0),
         description="(west, east, south, north) edges for files without georeferencing [deg]",
     )
+
+    def resolved_quantity(self) -> str:
+        """``quantity``, or its default for the source."""
+        if self.quantity is not None:
+            return self.quantity
+        return "relative" if self.source == "lroc" else "normal_albedo"
+
+    def resolved_contrast_exponent(self) -> float:
+        """``contrast_exponent``, or its default (calibrated for ``lroc``, else 1)."""
+        if self.contrast_exponent is not None:
+            return float(self.contrast_exponent)
+        if self.source == "lroc":
+            from starnav.lunar_calibration import lunar_calibration
+
+            return lunar_calibration().contrast_exponent
+        return 1.0
+
+    @model_validator(mode="after")
+    def _contrast_for_relative(self) -> AlbedoConfig:
+        if self.contrast_exponent is not None and self.resolved_quantity() != "relative":
+            raise ValueError(f"contrast_exponent applies to quantity 'relative' maps only, got "
+                             f"quantity {self.resolved_quantity()!r}")
+        return self
 
     @field_validator("domain")
     @classmethod
@@ -200,6 +236,37 @@ class MeshConfig(StrictModel):
     )
 
 
+class DetailConfig(StrictModel):
+    """Fractal relief added below the DEM's posting where the mesh is finer than the DEM
+    (see :mod:`starnav.dem.detail` for the model).
+
+    Octaves of band-limited noise of wavelengths ``posting / 2^k`` continue the DEM's own
+    structure function ``S(r) = S(posting) (r / posting)^H`` below the posting; nothing is added
+    where the pixel footprint is coarser than the posting (the mesh is then unchanged).
+    """
+
+    enabled: bool = Field(True, description="refine meshes finer than the DEM's posting")
+    hurst_exponent: Annotated[float, Field(gt=0, le=1.0, allow_inf_nan=False)] | Literal[
+        "measured"] = Field(
+        0.9, description="Hurst exponent H of the relief below the posting [-]; 'measured': "
+        "from the DEM's structure function at 1 to 4 cells"
+    )
+    amplitude: Literal["regional", "global"] = Field(
+        "regional", description="DEM roughness the detail continues: measured per window of "
+        "roughness_window_km (rough highlands, smooth maria) or one global value"
+    )
+    roughness_window_km: PositiveFloat = Field(
+        100.0, description="window over which the DEM's roughness is measured (regional) [km]"
+    )
+    seed: Annotated[int, Field(ge=0)] = Field(1, description="seed of the detail noise")
+    min_wavelength_km: PositiveFloat = Field(
+        0.05, description="shortest detail wavelength, whatever the pixel footprint [km]"
+    )
+    max_rms_slope_deg: Annotated[float, Field(gt=0, le=60.0, allow_inf_nan=False)] = Field(
+        30.0, description="cap on the RMS slope of the detail, all octaves together [deg]"
+    )
+
+
 class DemConfig(StrictModel):
     """Lunar terrain for ``moon.shape: dem``.
 
@@ -212,7 +279,8 @@ class DemConfig(StrictModel):
     ``auto`` with values above half the reference radius), the reference radius is subtracted.
     """
 
-    source: str = Field("procedural", description="'procedural' or a DEM file path")
+    source: str = Field("procedural", description="'procedural', 'lola' (the packaged LOLA "
+                        "LDEM_4, 4 px/deg) or a DEM file path")
     format: Literal["auto", "pds3", "geotiff", "svs-geotiff", "npy"] = "auto"
     units: Literal["auto", "m", "km"] = Field(
         "auto", description="unit of the decoded values (auto: from the file or format)"
@@ -237,6 +305,10 @@ class DemConfig(StrictModel):
         None, description="albedo map; None keeps moon.albedo (constant or its map)"
     )
     mesh: MeshConfig = Field(default_factory=MeshConfig)
+    detail: DetailConfig = Field(
+        default_factory=DetailConfig,
+        description="fractal relief below the DEM's posting for close views (starnav.dem.detail)"
+    )
 
     @field_validator("extent_deg")
     @classmethod

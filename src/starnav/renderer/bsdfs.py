@@ -12,7 +12,12 @@ facets is neglected, as in every photometric model here).
 
 The albedo is a Mitsuba texture (``uniform``, a single-channel ``bitmap`` over the sphere's
 (u, v), or a ``mesh_attribute`` per vertex); it is evaluated as a wavelength-independent value
-(grey albedo), so RGB textures, which vanish outside 360-830 nm, are never involved.
+(grey albedo), so RGB textures, which vanish outside 360-830 nm, are never involved. Two optional
+properties multiply the reflectance: ``spectral_shape``, a spectrum texture (``regular``) giving
+the Moon's colour as a factor of wavelength (1 at the reference wavelength of the normal albedo:
+the ROLO-derived lunar reddening by default, see :mod:`starnav.lunar_calibration`), and
+``scale``, a plain factor (``moon.albedo_scale``: radiance is exactly linear in it, whatever the
+model, which is what the albedo-exposure scaling needs).
 
 Plugins are registered by name with :func:`register_plugins`, which must be called again after
 every variant switch (``backend.activate`` does it).
@@ -55,6 +60,8 @@ def _define_classes() -> dict[str, type]:
             else:
                 alb = mi.load_dict({"type": "uniform", "value": 0.12})
             self.albedo = alb
+            self.scale = float(props["scale"]) if "scale" in props else 1.0
+            self.spectral = props["spectral_shape"] if "spectral_shape" in props else None
             self.m_flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
             self.m_components = [self.m_flags]
 
@@ -67,7 +74,16 @@ def _define_classes() -> dict[str, type]:
             alb = self.albedo.eval_1(si, active)
             lit = active & (mu > 0) & (mu0 > 0)
             r = self._r(si, wo, dr.maximum(mu0, 1e-7), dr.maximum(mu, 1e-7), cos_g, alb)
-            return dr.select(lit, dr.maximum(r, 0.0), 0.0), lit
+            r = dr.select(lit, dr.maximum(r, 0.0), 0.0)
+            if self.scale != 1.0:
+                r = r * self.scale
+            return r, lit
+
+        def _spectrum(self, value, si, active):
+            """``value`` (a Float) times the spectral shape at the sample's wavelengths."""
+            if self.spectral is None:
+                return mi.Spectrum(value)
+            return mi.Spectrum(value) * self.spectral.eval(si, active)
 
         def sample(self, ctx, si, sample1, sample2, active=True):
             bs = mi.BSDFSample3f()
@@ -79,11 +95,11 @@ def _define_classes() -> dict[str, type]:
             bs.sampled_component = mi.UInt32(0)
             val, lit = self._value(si, wo, active)
             weight = dr.select(lit & (bs.pdf > 0), val / dr.maximum(bs.pdf, 1e-12), 0.0)
-            return bs, mi.Spectrum(weight)
+            return bs, self._spectrum(weight, si, active)
 
         def eval(self, ctx, si, wo, active=True):
             val, _ = self._value(si, wo, active)
-            return mi.Spectrum(val)
+            return self._spectrum(val, si, active)
 
         def pdf(self, ctx, si, wo, active=True):
             ok = (mi.Frame3f.cos_theta(si.wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)
@@ -122,7 +138,7 @@ def _define_classes() -> dict[str, type]:
         def _r(self, si, wo, mu0, mu, cos_g, alb):
             gd = dr.acos(cos_g) * (180.0 / math.pi)
             c0, c1, c2, c3 = LUNAR_LAMBERT_COEFFS
-            L = c0 + gd * (c1 + gd * (c2 + gd * c3))
+            L = dr.maximum(c0 + gd * (c1 + gd * (c2 + gd * c3)), 0.0)  # clamped past its root
             return alb * INV_PI * (2.0 * L * mu0 / (mu0 + mu) + (1.0 - L) * mu0)
 
 

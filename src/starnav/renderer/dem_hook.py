@@ -3,40 +3,62 @@ of a real or procedural DEM, rebuilt (or taken from the DEM cache) for each fram
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from starnav.camera import Camera
 from starnav.geometry import FrameGeometry
-from starnav.renderer.render import AlbedoMap, MoonModel
+from starnav.renderer.render import MoonModel
 from starnav.renderer.scene import MoonMesh
 
 if TYPE_CHECKING:
     from starnav.config import Scenario
 
 
-def dem_moon_model(sc: Scenario, albedo: float | AlbedoMap) -> MoonModel:
+def dem_moon_model(sc: Scenario, common: dict[str, Any]) -> MoonModel:
     """A mesh :class:`MoonModel` whose mesh comes from ``sc.moon.dem`` for each view.
 
-    The DEM (and its albedo grid, if the DEM section names one) is loaded here, so bad files are
-    reported before any rendering. Per-vertex albedo from the DEM's albedo source takes
-    precedence over ``moon.albedo``; ``moon.albedo_scale`` multiplies either.
+    The DEM and its albedo grid are loaded here, so bad files are reported before any
+    rendering. The grid's values become the model's albedo parameter per vertex: a relative map
+    is first scaled to the scenario's mean normal albedo (``moon.albedo``, else the
+    ROLO-calibrated one), a normal-albedo map is converted, a ``hapke_w`` map is used as it is
+    (Hapke only). Without an albedo grid the constant ``common['albedo']`` applies.
+    ``moon.albedo_scale`` multiplies the reflectance, whatever the source.
     """
+    from starnav.dem.detail import sub_posting_detail
     from starnav.dem.load import as_dem_config, load_albedo, load_dem
     from starnav.dem.mesh import MeshOptions, view_mesh
+    from starnav.renderer.pipeline import albedo_parameter, mean_normal_albedo
 
     cfg = as_dem_config(sc.moon.dem)
     dem = load_dem(cfg)
     albedo_grid = load_albedo(cfg)
     options = MeshOptions.from_config(cfg.mesh)
+    detail = sub_posting_detail(dem, cfg.detail) if cfg.detail.enabled else None
+    model, params = common["model"], common["params"]
+    quantity = None if albedo_grid is None else albedo_grid.quantity
+    factor = 1.0
+    if quantity == "relative":
+        factor = mean_normal_albedo(sc) / max(albedo_grid.mean, 1e-12)
+        quantity = "normal_albedo"
+    if albedo_grid is not None:
+        # fail now, not at the first frame: the brightest value must be reachable
+        albedo_parameter(np.array([albedo_grid.values.max() * factor]), quantity, model,
+                         params, "moon.dem.albedo")
 
     def provider(camera: Camera, geom: FrameGeometry) -> MoonMesh:
         Rb = geom.R_moon_to_inertial.T
         tm = view_mesh(dem, camera, Rb @ geom.camera_position, albedo_grid,
-                       camera_to_body=Rb @ geom.R_cam_to_inertial, options=options)
-        return MoonMesh.from_trimesh(tm, key=tm)
+                       camera_to_body=Rb @ geom.R_cam_to_inertial, options=options,
+                       detail=detail)
+        alb = None
+        if albedo_grid is not None:
+            raw = np.asarray(tm.vertex_attributes["albedo"], float) * factor
+            alb = albedo_parameter(raw, quantity, model, params, "moon.dem.albedo")
+        return MoonMesh.from_trimesh(tm, albedo=alb, key=tm)
 
     h_min, h_max = dem.height_range
-    m = sc.moon
-    return MoonModel("mesh", dem.reference_radius, m.photometry.model, dict(m.photometry.params),
-                     albedo, m.albedo_scale, mesh_provider=provider,
-                     max_height=max(float(h_max), 0.0))
+    extra = 0.0 if detail is None else float(detail.max_detail_m)
+    return MoonModel("mesh", mesh_provider=provider, max_height=max(float(h_max), 0.0) + extra,
+                     **{**common, "radius": dem.reference_radius})

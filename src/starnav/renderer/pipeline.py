@@ -8,10 +8,15 @@ import math
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from starnav.config import Scenario, build_camera
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from starnav.config import AlbedoMapConfig, Scenario, build_camera
 from starnav.constants import AU
 from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry, static_geometry_from_config
+from starnav.lunar_calibration import lunar_calibration
+from starnav.photometry import model_albedo_parameter
 from starnav.radiance import RadianceImage, write_exr
 from starnav.renderer.render import (
     AlbedoMap,
@@ -28,25 +33,67 @@ log = logging.getLogger(__name__)
 
 
 def moon_model_from_scenario(sc: Scenario) -> MoonModel:
-    """The :class:`MoonModel` of a scenario (albedo maps are read here, so a missing file is
-    reported before any rendering)."""
+    """The :class:`MoonModel` of a scenario: the normal albedo (number or map) converted to the
+    photometric model's own parameter, the spectral shape and the parameter preset resolved.
+    Albedo maps and DEMs are read here, so a missing file is reported before any rendering."""
     m = sc.moon
     radius = m.radius_km * 1e3
+    model = m.photometry.model
+    params = m.photometry.resolved_params()
+    spectral = (lunar_calibration().spectral_shape()
+                if m.photometry.spectral_shape == "rolo" else None)
+    calibrated = model == "hapke" and m.photometry.preset == "rolo-calibrated"
     albedo: float | AlbedoMap
-    if isinstance(m.albedo, int | float):
-        albedo = float(m.albedo)
+    if isinstance(m.albedo, AlbedoMapConfig):
+        amap = load_albedo_map(m.albedo.path, m.albedo.scale)
+        albedo = AlbedoMap(albedo_parameter(amap.values, m.albedo.quantity, model, params,
+                                            "moon.albedo.path").astype(np.float32), amap.source)
     else:
-        albedo = load_albedo_map(m.albedo.path, m.albedo.scale)
+        albedo = float(albedo_parameter(mean_normal_albedo(sc), "normal_albedo", model, params,
+                                        "moon.albedo"))
+    common = dict(model=model, params=params, albedo=albedo, albedo_scale=m.albedo_scale,
+                  spectral_shape=spectral, calibrated=calibrated, radius=radius)
     if m.shape == "sphere":
-        return MoonModel("sphere", radius, m.photometry.model, dict(m.photometry.params), albedo,
-                         m.albedo_scale)
+        return MoonModel("sphere", **common)
     if m.shape == "mesh":
-        mesh = icosphere_mesh(radius, m.mesh_subdivisions)
-        return MoonModel("mesh", radius, m.photometry.model, dict(m.photometry.params), albedo,
-                         m.albedo_scale, mesh=mesh)
+        return MoonModel("mesh", mesh=icosphere_mesh(radius, m.mesh_subdivisions), **common)
     from starnav.renderer.dem_hook import dem_moon_model
 
-    return dem_moon_model(sc, albedo)
+    return dem_moon_model(sc, common)
+
+
+def mean_normal_albedo(sc: Scenario) -> float:
+    """The scenario's (mean) normal albedo: ``moon.albedo`` when a number, else the
+    ROLO-calibrated mean normal albedo of the real Moon [-]."""
+    if isinstance(sc.moon.albedo, int | float):
+        return float(sc.moon.albedo)
+    return lunar_calibration().mean_normal_albedo
+
+
+def albedo_parameter(values: ArrayLike, quantity: str, model: str, params: dict[str, float],
+                     field: str) -> NDArray[np.float64]:
+    """The photometric model's albedo parameter from albedo values of ``quantity``
+    (``normal_albedo`` or ``hapke_w``; :func:`starnav.photometry.model_albedo_parameter`).
+
+    Raises
+    ------
+    ConfigError
+        a ``hapke_w`` map for another model than Hapke (naming ``field``), or a normal albedo
+        that the model cannot reach (Hapke ``w`` > 1).
+    """
+    v = np.asarray(values, float)
+    if quantity == "hapke_w":
+        if model != "hapke":
+            raise ConfigError(field, "quantity hapke_w",
+                              f"a normal_albedo map for photometric model {model!r} (a Hapke "
+                              "single-scattering albedo means nothing to it)")
+        if v.size and (float(v.min()) < 0.0 or float(v.max()) > 1.0):
+            raise ConfigError(field, f"hapke_w {float(v.min()):.4g}..{float(v.max()):.4g}",
+                              "Hapke single-scattering albedos within [0, 1]")
+        return v
+    if quantity != "normal_albedo":
+        raise ConfigError(field, f"quantity {quantity}", "normal_albedo or hapke_w")
+    return model_albedo_parameter(model, v, field=field, **params)
 
 
 def renderer_from_scenario(sc: Scenario) -> MoonRenderer:

@@ -59,12 +59,15 @@ from starnav.camera import Camera
 from starnav.constants import AU, MOON_RADIUS
 from starnav.errors import ConfigError, DataFileError
 from starnav.geometry import FrameGeometry, geometry_to_dict
-from starnav.photometry import get_model
+from starnav.photometry import get_model, validity_warning
 from starnav.radiance import RadianceImage
 from starnav.renderer.scene import (
+    FAR_CLIP_KM,
     KM,
+    NEAR_CLIP_MIN_KM,
     MoonMesh,
     check_camera_for_render,
+    clip_planes,
     film_channels,
     principal_point_offsets,
     regular_spectrum_dict,
@@ -147,9 +150,14 @@ class MoonModel:
     params : dict
         Model parameters (defaults filled in and checked).
     albedo : float or AlbedoMap
-        Constant albedo or a map; the meaning is the model's (see :mod:`starnav.photometry`).
+        Constant albedo or a map: the **model's own parameter** (rho, w, A or Hapke w), which
+        :func:`starnav.photometry.model_albedo_parameter` derives from the normal albedo.
     albedo_scale : float
-        Global multiplier (albedo-exposure scaling).
+        Global multiplier of the reflectance (albedo-exposure scaling): radiance is exactly
+        proportional to it, for every model.
+    spectral_shape : Spectrum, optional
+        Reflectance factor versus wavelength (1 at the normal albedo's reference wavelength);
+        ``None`` is grey.
     mesh : MoonMesh, optional
         Fixed body-fixed mesh (e.g. an icosphere).
     mesh_provider : callable, optional
@@ -167,6 +175,8 @@ class MoonModel:
     mesh: MoonMesh | None = None
     mesh_provider: Any = None
     max_height: float = 0.0
+    spectral_shape: Spectrum | None = None
+    calibrated: bool = False
 
     def __post_init__(self) -> None:
         if self.shape not in ("sphere", "mesh"):
@@ -181,9 +191,10 @@ class MoonModel:
             raise ConfigError("moon.shape", "mesh", "a mesh or a mesh provider")
 
     def albedo_key(self) -> Any:
+        spec = None if self.spectral_shape is None else id(self.spectral_shape)
         if isinstance(self.albedo, AlbedoMap):
-            return ("map", id(self.albedo), self.albedo_scale)
-        return ("const", float(self.albedo), self.albedo_scale)
+            return ("map", id(self.albedo), self.albedo_scale, spec)
+        return ("const", float(self.albedo), self.albedo_scale, spec)
 
 
 #: Mitsuba samplers allowed for the radiance pass. Jittered strata (``multijitter``,
@@ -295,6 +306,7 @@ class MoonRenderer:
         self._scene_key: Any = None
         self._mesh_key_ref: Any = None
         self.last_timing: dict[str, float] = {}
+        self._warned: set[str] = set()
 
     # .................................................................. backend / scene
     def _activate(self):
@@ -309,8 +321,7 @@ class MoonRenderer:
         if mesh is not None and (mesh.albedo is not None or isinstance(moon.albedo, AlbedoMap)):
             return {"type": "mesh_attribute", "name": "vertex_albedo"}
         if isinstance(moon.albedo, AlbedoMap):
-            arr = np.ascontiguousarray(moon.albedo.values[:, :, None] * moon.albedo_scale,
-                                       dtype=np.float32)
+            arr = np.ascontiguousarray(moon.albedo.values[:, :, None], dtype=np.float32)
             return {
                 "type": "bitmap",
                 "bitmap": mi.Bitmap(arr),
@@ -321,7 +332,7 @@ class MoonRenderer:
                 # -180 deg: shift u by one half.
                 "to_uv": mi.ScalarTransform4f().translate([0.5, 0.0, 0.0]),
             }
-        return {"type": "uniform", "value": float(moon.albedo) * moon.albedo_scale}
+        return {"type": "uniform", "value": float(moon.albedo)}
 
     def _mitsuba_mesh(self, mesh: MoonMesh, bsdf: dict):
         import drjit as dr
@@ -339,13 +350,13 @@ class MoonRenderer:
         params.update()
         if mesh.albedo is not None or isinstance(self.moon.albedo, AlbedoMap):
             if mesh.albedo is not None:
-                alb = mesh.albedo * self.moon.albedo_scale
+                alb = np.asarray(mesh.albedo, float)
             else:
                 v = mesh.vertices
                 r = np.linalg.norm(v, axis=1)
                 lat = np.arcsin(np.clip(v[:, 2] / r, -1, 1))
                 lon = np.arctan2(v[:, 1], v[:, 0])
-                alb = self.moon.albedo.sample(lat, lon) * self.moon.albedo_scale
+                alb = self.moon.albedo.sample(lat, lon)
             m.add_attribute("vertex_albedo", 1, mi.Float(alb.astype(np.float32)))
         return m
 
@@ -355,7 +366,11 @@ class MoonRenderer:
         from starnav.renderer.bsdfs import PLUGIN_NAMES
 
         cam = self.camera
-        bsdf = {"type": PLUGIN_NAMES[self.moon.model], "albedo": self._albedo_texture(mesh)}
+        bsdf = {"type": PLUGIN_NAMES[self.moon.model], "albedo": self._albedo_texture(mesh),
+                "scale": float(self.moon.albedo_scale)}
+        if self.moon.spectral_shape is not None:
+            bsdf["spectral_shape"] = regular_spectrum_dict(self.moon.spectral_shape,
+                                                           self.settings.wavelength_step_nm)
         if self.moon.model == "hapke":
             bsdf.update(self.moon.params)
         if mesh is None:
@@ -373,8 +388,9 @@ class MoonRenderer:
             "fov_axis": "x",
             "principal_point_offset_x": px,
             "principal_point_offset_y": py,
-            "near_clip": 1e-3,
-            "far_clip": 1e9,
+            # both clip planes are set per frame in render() (see scene.clip_planes)
+            "near_clip": NEAR_CLIP_MIN_KM,
+            "far_clip": FAR_CLIP_KM,
             "to_world": mi.ScalarTransform4f(np.eye(4)),
         }
         ch = self.channels
@@ -435,6 +451,15 @@ class MoonRenderer:
         self._mesh_key_ref = mesh.key if mesh.key is not None else mesh
         return mesh, ("mesh", id(self._mesh_key_ref))
 
+    def _check_validity(self, geom: FrameGeometry) -> None:
+        """Log once per renderer each way the photometric model is outside its validity."""
+        why = validity_warning(self.moon.model, geom.phase_angle, self.moon.calibrated)
+        if why is not None:
+            key = why.split(" at phase")[0]
+            if key not in self._warned:
+                self._warned.add(key)
+                log.warning("%s (first frame: %d; reported once)", why, geom.index)
+
     # .................................................................. render
     def render(self, geom: FrameGeometry, seed: int = 0) -> RadianceImage:
         """Render one frame; ``seed`` seeds Mitsuba's sampler (deterministic per seed)."""
@@ -450,6 +475,7 @@ class MoonRenderer:
                                 self.settings.crop_margin_px)
         if box is not None and not self.settings.crop:
             box = (0, 0, W, H)
+        self._check_validity(geom)
         mesh, mesh_key = self._mesh(geom)
         scene, info = self._scene_for(mesh, mesh_key)
         sun_scale = (AU / geom.sun_distance) ** 2
@@ -469,9 +495,17 @@ class MoonRenderer:
             params["sun.to_world"] = mi.ScalarTransform4f().look_at(
                 origin=[0.0, 0.0, 0.0], target=(-sun_dir_b).tolist(),
                 up=_any_perpendicular(sun_dir_b).tolist())
+            # rays start on the near plane, put just in front of the Moon: float32 hit points
+            # from a far ray origin would shadow themselves (scene.py module docstring)
+            r_b = self.moon.radius + self.moon.max_height
+            if mesh is not None:
+                r_b = max(r_b, mesh.bounding_radius)
+            near_km, far_km = clip_planes(geom.moon_centre_camera(), r_b)
             for name in ("sensor", "sensor_aov"):
                 params[f"{name}.film.crop_offset"] = mi.ScalarPoint2u(u0, v0)
                 params[f"{name}.film.crop_size"] = mi.ScalarVector2u(bw, bh)
+                params[f"{name}.near_clip"] = near_km
+                params[f"{name}.far_clip"] = far_km
             params.update()
             t0 = time.perf_counter()
             img = np.asarray(mi.render(scene, sensor=0, seed=int(seed) & 0xFFFFFFFF,
@@ -516,6 +550,7 @@ class MoonRenderer:
                 "albedo": (self.moon.albedo.source if isinstance(self.moon.albedo, AlbedoMap)
                            else float(self.moon.albedo)),
                 "albedo_scale": self.moon.albedo_scale,
+                "spectral_shape": "grey" if self.moon.spectral_shape is None else "rolo",
                 "triangles": None if mesh is None else mesh.n_triangles,
             },
             "render": {

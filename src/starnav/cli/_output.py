@@ -1,0 +1,26 @@
+"""The CLI's consoles and its one error printer (every command's errors look alike).
+
+Errors are printed on one line whatever the terminal width (``soft_wrap``): a message names a
+field, a value and what was expected, and a test or a user grepping for it must find it whole.
+"""
+
+from __future__ import annotations
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+
+console = Console()
+err_console = Console(stderr=True, soft_wrap=True)
+
+
+def print_error(err: Exception | str) -> None:
+    """Print ``error: <message>`` as one line on stderr (never wrapped; rich markup in the
+    message, e.g. a list in brackets, is printed as it is)."""
+    err_console.print(f"[bold red]error:[/] {escape(str(err))}", soft_wrap=True)
+
+
+def fail(err: Exception | str) -> None:
+    """Print the error and exit with status 2 (bad input)."""
+    print_error(err)
+    raise typer.Exit(code=2)
