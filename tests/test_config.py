@@ -108,3 +108,21 @@ def test_init_example_validates(tmp_path):
     res = CliRunner().invoke(app, ["validate", str(out), "--set", "moon.albedo=-1"])
     assert res.exit_code == 2
     assert "moon.albedo" in res.output
+
+
+@pytest.mark.parametrize("dem,source,albedo", [
+    ({}, "lola", "lroc"),
+    ({"mesh": {"edge_px": 2.0}}, "lola", "lroc"),           # a tweak keeps the real Moon
+    ({"albedo": {"normalize_mean": 0.1}}, "lola", "lroc"),
+    ({"source": "procedural"}, "procedural", "procedural"),
+    ({"source": "my_dem.lbl"}, "my_dem.lbl", None),          # a user's DEM: uniform albedo
+    ({"albedo": None}, "lola", None),                        # explicit: no map
+])
+def test_a_partial_dem_section_keeps_the_real_moon_defaults(dem, source, albedo):
+    cfg = scenario_from_dict({"moon": {"dem": dem}}).moon.dem
+    assert cfg.source == source
+    assert (None if cfg.albedo is None else cfg.albedo.source) == albedo
+    # the same through a command-line override
+    if dem == {"mesh": {"edge_px": 2.0}}:
+        sc = scenario_from_dict({}, ["moon.dem.mesh.edge_px=2"])
+        assert (sc.moon.dem.source, sc.moon.dem.albedo.source) == ("lola", "lroc")

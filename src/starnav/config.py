@@ -166,6 +166,25 @@ class MoonConfig(StrictModel):
         description="DEM and albedo sources and meshing for shape=dem (starnav.dem.schema)"
     )
 
+    @field_validator("dem", mode="before")
+    @classmethod
+    def _real_moon_defaults(cls, v: Any) -> Any:
+        """Keys missing from a given ``dem`` section take the real-Moon defaults (as
+        ``starnav init`` shows them), not the bare DemConfig's: ``source: lola``, and an albedo
+        map that goes with the source (``lroc`` for ``lola``, the procedural map for
+        ``procedural``, none for a user's file). An explicit ``albedo: null`` is kept."""
+        if not isinstance(v, dict):
+            return v
+        v = dict(v)
+        source = v.setdefault("source", "lola")
+        default_albedo = {"lola": "lroc", "procedural": "procedural"}.get(source)
+        if "albedo" not in v:
+            if default_albedo is not None:
+                v["albedo"] = {"source": default_albedo}
+        elif isinstance(v["albedo"], dict) and "source" not in v["albedo"]:
+            v["albedo"] = {"source": default_albedo or "procedural", **v["albedo"]}
+        return v
+
     @field_validator("albedo", mode="before")
     @classmethod
     def _albedo_sign(cls, v: Any) -> Any:

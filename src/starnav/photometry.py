@@ -69,6 +69,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -303,6 +304,15 @@ def hapke(i: ArrayLike, e: ArrayLike, g: ArrayLike, albedo: ArrayLike, psi: Arra
 _HAPKE_W_GRID = np.linspace(0.0, 1.0, 4097)
 
 
+@lru_cache(maxsize=16)
+def _hapke_normal_albedo_table(params: tuple[tuple[str, float], ...]) -> FloatArray:
+    """Hapke's normal albedo on :data:`_HAPKE_W_GRID` for one parameter set (cached: the
+    renderer converts every view-adapted mesh's albedo with it)."""
+    table = normal_albedo("hapke", _HAPKE_W_GRID, **dict(params))
+    table.flags.writeable = False
+    return table
+
+
 def normal_albedo(name: str, parameter: ArrayLike, **params: float) -> FloatArray:
     """Normal albedo ``A_n = pi r(0, 0, 0)`` [-] of model ``name`` with albedo parameter
     ``parameter`` (rho, w, A or Hapke w; see the module docstring)."""
@@ -337,7 +347,7 @@ def model_albedo_parameter(name: str, normal: ArrayLike, field: str = "moon.albe
     if name == "lommel_seeliger":
         return 8.0 * a
     if name == "hapke":
-        table = normal_albedo("hapke", _HAPKE_W_GRID, **p)
+        table = _hapke_normal_albedo_table(tuple(sorted(p.items())))
         a_max = float(table[-1])
         if a.size and float(np.max(a)) > a_max * (1 + 1e-9):
             raise ConfigError(field, float(np.max(a)),

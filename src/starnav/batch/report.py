@@ -31,6 +31,25 @@ def _g(x: Any, fmt: str = ".3g", scale: float = 1.0) -> str:
     return "-" if not math.isfinite(v) else format(v, fmt)
 
 
+def describe_moon(sc: Scenario) -> str:
+    """One line on the scenario's Moon: shape and sources, photometry, albedo, colour."""
+    m = sc.moon
+    if m.shape == "dem":
+        alb = m.dem.albedo.source if m.dem.albedo is not None else "uniform"
+        shape = f"DEM {m.dem.source} with albedo map {alb}"
+    else:
+        shape = m.shape
+    phot = m.photometry.model + (f" ({m.photometry.preset})" if m.photometry.model == "hapke"
+                                 else "")
+    if m.albedo is None:
+        albedo = "mean normal albedo: ROLO-calibrated"
+    elif isinstance(m.albedo, int | float):
+        albedo = f"normal albedo {m.albedo:g}"
+    else:
+        albedo = f"albedo map {m.albedo.path}"
+    return f"{shape}, {phot}, {albedo}, colour {m.photometry.spectral_shape}"
+
+
 def describe_scenario(sc: Scenario) -> list[str]:
     """Bullet lines describing a scenario's set-up."""
     from starnav.config import build_camera
@@ -39,8 +58,8 @@ def describe_scenario(sc: Scenario) -> list[str]:
     m = sc.moon
     lines = [f"- camera: {sc.camera.preset}, {cam.width} x {cam.height} px, f = "
              f"{cam.focal_length * 1e3:.4g} mm, IFOV {cam.ifov * 1e6:.1f} urad",
-             f"- Moon: {m.shape}, {m.photometry.model}, albedo {m.albedo}, "
-             f"albedo_scale {m.albedo_scale:g}; render {sc.render.spp} spp"]
+             f"- Moon: {describe_moon(sc)}; albedo_scale {m.albedo_scale:g}; render "
+             f"{sc.render.spp} spp"]
     t = sc.trajectory
     if t is None:
         g = sc.geometry

@@ -307,6 +307,9 @@ class MoonRenderer:
         self._mesh_key_ref: Any = None
         self.last_timing: dict[str, float] = {}
         self._warned: set[str] = set()
+        self._clip: dict[int, tuple[float, float]] = {}
+        self._spectra: dict[Any, tuple[Spectrum, dict]] = {}
+        self._sun_band = sun_irradiance_in_band(sun_1au, response)
 
     # .................................................................. backend / scene
     def _activate(self):
@@ -349,16 +352,19 @@ class MoonRenderer:
         params["vertex_normals"] = dr.ravel(mi.TensorXf(mesh.normals.astype(np.float32)))
         params.update()
         if mesh.albedo is not None or isinstance(self.moon.albedo, AlbedoMap):
-            if mesh.albedo is not None:
-                alb = np.asarray(mesh.albedo, float)
-            else:
-                v = mesh.vertices
-                r = np.linalg.norm(v, axis=1)
-                lat = np.arcsin(np.clip(v[:, 2] / r, -1, 1))
-                lon = np.arctan2(v[:, 1], v[:, 0])
-                alb = self.moon.albedo.sample(lat, lon)
-            m.add_attribute("vertex_albedo", 1, mi.Float(alb.astype(np.float32)))
+            m.add_attribute("vertex_albedo", 1,
+                            mi.Float(self._vertex_albedo(mesh).astype(np.float32)))
         return m
+
+    def _vertex_albedo(self, mesh: MoonMesh) -> NDArray[np.float64]:
+        """The albedo parameter per vertex: the mesh's own, or the map's at the vertices."""
+        if mesh.albedo is not None:
+            return np.asarray(mesh.albedo, float)
+        v = mesh.vertices
+        r = np.linalg.norm(v, axis=1)
+        lat = np.arcsin(np.clip(v[:, 2] / r, -1, 1))
+        lon = np.arctan2(v[:, 1], v[:, 0])
+        return self.moon.albedo.sample(lat, lon)
 
     def _build_scene(self, mesh: MoonMesh | None):
         import mitsuba as mi
@@ -369,8 +375,7 @@ class MoonRenderer:
         bsdf = {"type": PLUGIN_NAMES[self.moon.model], "albedo": self._albedo_texture(mesh),
                 "scale": float(self.moon.albedo_scale)}
         if self.moon.spectral_shape is not None:
-            bsdf["spectral_shape"] = regular_spectrum_dict(self.moon.spectral_shape,
-                                                           self.settings.wavelength_step_nm)
+            bsdf["spectral_shape"] = self._spectrum_dict("shape", self.moon.spectral_shape)
         if self.moon.model == "hapke":
             bsdf.update(self.moon.params)
         if mesh is None:
@@ -402,8 +407,8 @@ class MoonRenderer:
                 "width": cam.width,
                 "height": cam.height,
                 "rfilter": {"type": "box"},
-                "L": regular_spectrum_dict(ch.L, self.settings.wavelength_step_nm),
-                "Le": regular_spectrum_dict(ch.Le, self.settings.wavelength_step_nm),
+                "L": self._spectrum_dict("L", ch.L),
+                "Le": self._spectrum_dict("Le", ch.Le),
             },
         })
         aov_sensor = dict(common)
@@ -412,12 +417,12 @@ class MoonRenderer:
             "film": {"type": "hdrfilm", "width": cam.width, "height": cam.height,
                      "rfilter": {"type": "box"}, "pixel_format": "rgb"},
         })
-        sun = sun_irradiance_in_band(self.sun_1au, self.response)
+        sun = self._sun_band
         scene = mi.load_dict({
             "type": "scene",
             "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0},
             "sun": {"type": "directional", "direction": [0.0, 0.0, 1.0],
-                    "irradiance": regular_spectrum_dict(sun, self.settings.wavelength_step_nm)},
+                    "irradiance": self._spectrum_dict("sun", sun)},
             "moon": moon_shape,
             "sensor": radiance_sensor,
             "sensor_aov": aov_sensor,
@@ -425,6 +430,14 @@ class MoonRenderer:
         self._aov_integrator = mi.load_dict({
             "type": "aov", "aovs": "pp:position,nn:sh_normal"})
         return scene
+
+    def _spectrum_dict(self, name: str, sp: Spectrum) -> dict:
+        """:func:`regular_spectrum_dict` of ``sp``, formatted once per renderer (the scene is
+        rebuilt for every view-adapted mesh)."""
+        key = (name, id(sp), self.settings.wavelength_step_nm)
+        if key not in self._spectra:
+            self._spectra[key] = (sp, regular_spectrum_dict(sp, self.settings.wavelength_step_nm))
+        return dict(self._spectra[key][1])
 
     def _scene_for(self, mesh: MoonMesh | None, mesh_key: Any):
         info = self._activate()
@@ -500,12 +513,17 @@ class MoonRenderer:
             r_b = self.moon.radius + self.moon.max_height
             if mesh is not None:
                 r_b = max(r_b, mesh.bounding_radius)
-            near_km, far_km = clip_planes(geom.moon_centre_camera(), r_b)
+            clip = clip_planes(geom.moon_centre_camera(), r_b)
+            # the clip distances are literals in the compiled kernels: touching them (even with
+            # the same value) recompiles, so they are set only when they change
+            set_clip = clip != self._clip.get(id(scene))
             for name in ("sensor", "sensor_aov"):
                 params[f"{name}.film.crop_offset"] = mi.ScalarPoint2u(u0, v0)
                 params[f"{name}.film.crop_size"] = mi.ScalarVector2u(bw, bh)
-                params[f"{name}.near_clip"] = near_km
-                params[f"{name}.far_clip"] = far_km
+                if set_clip:
+                    params[f"{name}.near_clip"] = clip[0]
+                    params[f"{name}.far_clip"] = clip[1]
+            self._clip = {id(scene): clip}
             params.update()
             t0 = time.perf_counter()
             img = np.asarray(mi.render(scene, sensor=0, seed=int(seed) & 0xFFFFFFFF,
