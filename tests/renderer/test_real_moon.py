@@ -157,3 +157,28 @@ def test_known_features_land_where_the_camera_projects_them(full_moon, name, lat
         assert inner < 0.8 * ring, (name, inner, ring)
     else:
         assert inner > 1.1 * ring, (name, inner, ring)
+
+
+def test_frames_past_the_calibrated_phases_warn_once(caplog):
+    """The 28-day LUMIO arc reaches 164 deg; ROLO (and so the calibration) stops at 97 deg:
+    the renderer says so, once per run, and the frame is still physical (finite, >= 0)."""
+    import logging
+
+    cam = {"width": 96, "height": 96}
+    sc = scenario_from_dict({"camera": cam, "render": {"spp": 1},
+                             "moon": {"shape": "sphere"},
+                             "geometry": {"range_km": 400_000.0, "phase_angle_deg": 140.0}})
+    r = renderer_from_scenario(sc)
+    with caplog.at_level(logging.WARNING, logger="starnav.renderer.render"):
+        for _ in range(2):
+            img = r.render(frame_geometries(sc)[0])
+    msgs = [m for m in caplog.messages if "ROLO-calibrated" in m]
+    assert len(msgs) == 1 and "140.0 deg" in msgs[0]
+    assert np.all(np.isfinite(img.L)) and img.L.min() >= 0 and img.L.max() > 0
+    # inside the fitted range: no warning
+    caplog.clear()
+    sc60 = scenario_from_dict({"camera": cam, "render": {"spp": 1}, "moon": {"shape": "sphere"},
+                               "geometry": {"range_km": 400_000.0, "phase_angle_deg": 60.0}})
+    with caplog.at_level(logging.WARNING, logger="starnav.renderer.render"):
+        renderer_from_scenario(sc60).render(frame_geometries(sc60)[0])
+    assert not [m for m in caplog.messages if "ROLO-calibrated" in m]
