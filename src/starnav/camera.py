@@ -344,4 +344,22 @@ CAMERA_PRESETS: dict[str, Camera] = {
         f_number=1.495575,
         name="aa-str",
     ),
+    # SMART-1 AMIE, the 512 x 512 quadrant read through the NONE filter (NAIF ID -238110), from
+    # the instrument kernel data/amie/calib/SMART1_AMIE_V01.TI (v0.1, 2005-01-19):
+    #   INS-238110_FOCAL_LENGTH = 154.7 (mm)      INS-238110_F/RATIO = 10.0
+    #   INS-238110_PIXEL_SIZE = (14, 14) (um)     INS-238110_PIXEL_SAMPLES/_LINES = 512
+    #   INS-238110_CCD_CENTER = (256.5, 256.5): 1-based, counted from the quadrant's origin, i.e.
+    #     the detector centre (255.5, 255.5) in starnav's 0-based pixel-centre convention
+    #   INS-238110_FOV_REF_ANGLE = INS-238110_FOV_CROSS_ANGLE = 1.325 deg (half-angles: 2.65 deg)
+    #   INS-238110_IFOV = 0.000090 rad (rounded; 14 um / 154.7 mm = 9.05e-5 rad)
+    # No distortion model is published ("Optical Distortion": not available).
+    "amie": Camera(
+        width=512,
+        height=512,
+        focal_length=154.7e-3,
+        pitch_x=14e-6,
+        pitch_y=14e-6,
+        f_number=10.0,
+        name="amie",
+    ),
 }

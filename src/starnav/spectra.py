@@ -172,6 +172,39 @@ AA_STR_TRANSMISSION = (0.41, 0.687, 0.915, 0.954, 0.967, 0.977, 0.979, 0.982, 0.
 
 SENSOR_PRESETS = {"aa-str": (AA_STR_BAND_EDGES_NM, AA_STR_QE, AA_STR_TRANSMISSION)}
 
+#: SMART-1 AMIE NONE filter: the measured spectral curve (optics and filter transmission, per
+#: mille), package-relative table and the scale of its ``NONE`` column (per mille -> fraction).
+AMIE_RESPONSE_TABLE = "amie/calib/amie_spectral_response_none.csv"
+AMIE_RESPONSE_SCALE = 1e-3
+#: AMIE detector quantum efficiency, flat: the AMIE user manual's "efficiency > 15 % at
+#: 640 nm", as the ABRAM AMIE validation applies it (``andrepiz/abram``
+#: test/validation/amie/validation_amie.yml: QE 0.15 in every band times the measured curve as
+#: transmittance). Without it the simulated AMIE frames are 4-6x brighter than the real ones.
+AMIE_QUANTUM_EFFICIENCY = 0.15
+
+
+@lru_cache(maxsize=1)
+def amie_none_response() -> Spectrum:
+    """The SMART-1 AMIE NONE-filter system response ``QE x T`` [e-/photon], 400-1100 nm.
+
+    ``T`` is the measured curve (39 samples, piecewise linear, zero outside its support), read
+    lazily from the packaged table :data:`AMIE_RESPONSE_TABLE`: column ``Lambda`` [nm], column
+    ``NONE`` [per mille]; ``QE`` is :data:`AMIE_QUANTUM_EFFICIENCY` (0.15, flat). Source:
+    ``andrepiz/abram`` test/validation/amie (``get_amie_spectral_response.m`` scales the column
+    by 1e-3 and uses it as the transmittance, with QE 0.15 from the AMIE user manual); the
+    instrument kernel ``SMART1_AMIE_V01.TI`` quotes the band as centre 800 nm, width 700 nm.
+    """
+    from starnav.data import packaged_path
+
+    path = packaged_path(AMIE_RESPONSE_TABLE)
+    table = np.loadtxt(path, delimiter=",", comments="#", skiprows=2, ndmin=2)
+    return Spectrum(table[:, 0], table[:, 1] * AMIE_RESPONSE_SCALE * AMIE_QUANTUM_EFFICIENCY,
+                    "e-/photon")
+
+
+#: Sensor responses tabulated as samples (piecewise linear), each built lazily by its loader.
+SAMPLED_SENSOR_PRESETS = {"amie": amie_none_response}
+
 
 def banded(edges_nm: FloatArray, values: FloatArray, unit: str = "") -> Spectrum:
     """A piecewise-constant spectrum over bands ``[edges[i], edges[i+1]]``.
@@ -233,15 +266,20 @@ def sensor_response(
     kind: str = "bands",
 ) -> SensorResponse:
     """The sensor's QE x T: a preset, or a table (``bands``: n + 1 edges and n values,
-    piecewise constant; ``samples``: n wavelengths and n values, piecewise linear)."""
+    piecewise constant; ``samples``: n wavelengths and n values, piecewise linear).
+
+    Presets: ``aa-str`` (band table, :data:`SENSOR_PRESETS`) and ``amie`` (the measured SMART-1
+    AMIE NONE-filter curve, sampled, :func:`amie_none_response`)."""
     if wavelengths_nm is None:
         if preset is None:
             raise ConfigError("sensor_response", None, "a preset name or a table")
+        if preset in SAMPLED_SENSOR_PRESETS:
+            return SensorResponse(SAMPLED_SENSOR_PRESETS[preset](), preset)
         try:
             edges, q, t = SENSOR_PRESETS[preset]
         except KeyError:
-            raise UnknownNameError("sensor response preset", preset, list(SENSOR_PRESETS)) \
-                from None
+            raise UnknownNameError("sensor response preset", preset,
+                                   [*SENSOR_PRESETS, *SAMPLED_SENSOR_PRESETS]) from None
         return SensorResponse(banded(edges, np.multiply(q, t), "e-/photon"), preset)
     wl = np.asarray(wavelengths_nm, float)
     q = np.ones(wl.size - (kind == "bands")) if qe is None else np.asarray(qe, float)

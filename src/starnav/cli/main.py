@@ -187,7 +187,8 @@ def _register_parts() -> None:
     """Add the commands owned by the other subpackages."""
     import importlib
 
-    for name in ("trajectory", "dem", "expose", "dataset", "navigate", "sweep", "hil", "show"):
+    for name in ("trajectory", "dem", "expose", "dataset", "navigate", "sweep", "hil", "show",
+                 "real"):
         importlib.import_module(f"starnav.cli.{name}").register(app)
 
 

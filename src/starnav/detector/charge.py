@@ -114,7 +114,9 @@ def shot_noise(mean: Float32Array, rng: np.random.Generator,
     (H, W) float32
         Charge [e-] (integers below ``gaussian_above``; clipped at 0 above).
     """
-    lam = mean.astype(np.float64)
+    # a PSF applied by FFT leaves round-off of either sign (~1e-2 e-) where there is no light:
+    # a negative mean charge is zero charge
+    lam = np.maximum(mean.astype(np.float64), 0.0)
     gauss = None
     if gaussian_above is not None:
         gauss = lam >= gaussian_above

@@ -1,0 +1,46 @@
+"""``starnav real``: starnav held against real images (SMART-1 AMIE frames of the Moon).
+
+Thin commands: parse, call one library function, print where the outputs are.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from starnav.cli._output import console, fail
+
+real_app = typer.Typer(add_completion=False, no_args_is_help=True,
+                       help="Real images: compare starnav with real frames of the Moon.")
+
+
+@real_app.command("amie")
+def amie(
+    frames: Annotated[list[Path] | None, typer.Argument(
+        help="raw AMIE .IMG files (PDS3, attached label); default: the packaged Moon frames")]
+    = None,
+    out: Annotated[Path, typer.Option("--out", help="output directory")] = Path("out/amie"),
+    spp: Annotated[int, typer.Option("--spp", min=1, help="render samples per pixel")] = 16,
+) -> None:
+    """Rebuild each frame's view from its label, render and expose it with the AMIE camera on the
+    real Moon, compare (signal, pixels, limb), navigate on the real frame; write report.md,
+    results.json and figures/."""
+    from starnav.errors import StarnavError
+    from starnav.reference.amie.validate import AmieOptions, run_amie_validation
+
+    try:
+        summary = run_amie_validation(frames or None, out, AmieOptions(spp=spp))
+    except StarnavError as err:
+        fail(err)
+        return
+    for r in summary["frames"]:
+        console.print(f"{r.name}: signal sim/real {r.signal_ratio:.3f}, limb rms "
+                      f"{r.limb_diff_rms_px:.2f} px, range error {r.nav_range_error_pct:+.3f} %",
+                      soft_wrap=True)
+    console.print(f"report: {summary['report']}", soft_wrap=True)
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(real_app, name="real")

@@ -1,0 +1,77 @@
+"""The SMART-1 AMIE camera as a starnav scenario: camera, sensor response and detector.
+
+=========================== ================================ ======================================
+quantity                    value                            source / trust
+=========================== ================================ ======================================
+focal length, f-number      154.7 mm, f/10                   instrument kernel SMART1_AMIE_V01.TI
+pixels                      14 um, NONE quadrant 512 x 512   instrument kernel; data README
+spectral response           measured NONE-filter curve       calib/amie_spectral_response_none.csv
+                            (transmission) x QE 0.15         (AMIE user manual via the ABRAM AMIE
+                                                             validation; spectra.AMIE_...)
+gain                        280 e-/DN                        every frame's label
+ADC                         10 bit (DN = stored >> 6)        label SCALING_FACTOR 0.015625
+bias, flat                  master frames of the NONE quad.  calib/ (applied to the *real* frames;
+                                                             the simulation is made bias-free and
+                                                             flat, and compared after calibration)
+optics PSF                  diffraction-limited Gaussian,    f/10 at the band's 800 nm centre:
+                            sigma = 0.42 lambda N / pitch    sigma = 0.24 px (assumption: the
+                                                             optics' real PSF is not published)
+full well                   300 000 e- (the 10-bit ADC       assumption: saturation is set by the
+                            clips first, at 286 440 e-)      ADC; no blooming modelled
+full well (manual)          300 000 e-                       AMIE user manual via ABRAM
+read noise                  154 e- (0.55 DN)                 the calibrated dark sky's rms,
+                                                             0.51-0.62 DN on the six frames
+dark current, PRNU,         off                              the real frames are bias- and
+stray light, ghosts, smear                                   flat-corrected and exposures are
+                                                             5-40 ms
+=========================== ================================ ======================================
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+#: Diffraction-limited Gaussian sigma [px]: 0.42 lambda N / pitch at 800 nm, f/10, 14 um.
+AMIE_PSF_SIGMA_PX = 0.42 * 800e-9 * 10.0 / 14e-6
+#: Gain [e-/DN] (label).
+AMIE_GAIN_E_PER_DN = 280.0
+#: Read noise [e-]: the calibrated dark sky's rms (0.51-0.62 DN) x the gain.
+AMIE_READ_NOISE_E = 0.55 * AMIE_GAIN_E_PER_DN
+#: ADC resolution [bit].
+AMIE_BITS = 10
+
+
+def amie_detector(exposure_s: float) -> dict[str, Any]:
+    """The ``detector`` section of an AMIE scenario (see the module table)."""
+    return {
+        "exposure_time_s": float(exposure_s),
+        "optics": {
+            "radiometry": {"relative_illumination": False},
+            "aberration": {"enabled": True, "defocus_radius_px": 0.0,
+                           "defocus_radius_edge_px": 0.0, "sigma_px": AMIE_PSF_SIGMA_PX,
+                           "sigma_radial_edge_px": AMIE_PSF_SIGMA_PX,
+                           "sigma_tangential_edge_px": AMIE_PSF_SIGMA_PX},
+            "distortion": {"enabled": False},
+            "stray_light": {"enabled": False},
+            "ghosts": {"enabled": False},
+        },
+        "smear": {"rolling_shutter": {"enabled": False}, "transfer": {"enabled": False}},
+        "charge": {"prnu": {"enabled": False}, "dark_current": {"enabled": False}},
+        "saturation": {"full_well_e": 300_000.0, "blooming": {"enabled": False}},
+        "signal": {"ipc": {"enabled": False}, "electrical_crosstalk": {"enabled": False},
+                   "nonlinearity": {"enabled": False},
+                   "read_noise": {"sigma_e": AMIE_READ_NOISE_E}},
+        "adc": {"bits": AMIE_BITS, "gain_e_per_dn": AMIE_GAIN_E_PER_DN, "offset_dn": 0.0},
+        "readout": {"modes": ["full_frame"], "timing": {"policy": "ignore"}},
+    }
+
+
+def amie_scenario(exposure_s: float, spp: int = 16) -> dict[str, Any]:
+    """A scenario dict for an AMIE frame: the ``amie`` camera and response, the AMIE detector,
+    the default (real, ROLO-calibrated) Moon. The geometry is given per frame."""
+    return {
+        "camera": {"preset": "amie"},
+        "sensor_response": {"preset": "amie"},
+        "detector": amie_detector(exposure_s),
+        "render": {"spp": int(spp)},
+    }
