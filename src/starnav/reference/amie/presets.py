@@ -16,9 +16,8 @@ bias, flat                  master frames of the NONE quad.  calib/ (applied to 
 optics PSF                  diffraction-limited Gaussian,    f/10 at the band's 800 nm centre:
                             sigma = 0.42 lambda N / pitch    sigma = 0.24 px (assumption: the
                                                              optics' real PSF is not published)
-full well                   300 000 e- (the 10-bit ADC       assumption: saturation is set by the
-                            clips first, at 286 440 e-)      ADC; no blooming modelled
-full well (manual)          300 000 e-                       AMIE user manual via ABRAM
+full well                   300 000 e- (the 10-bit ADC       AMIE user manual via ABRAM; the ADC
+                            clips first, at 286 440 e-)      sets saturation; no blooming modelled
 read noise                  154 e- (0.55 DN)                 the calibrated dark sky's rms,
                                                              0.51-0.62 DN on the six frames
 dark current, PRNU,         off                              the real frames are bias- and
