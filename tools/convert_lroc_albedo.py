@@ -33,8 +33,7 @@ contrast exponent) are calibrated against the ROLO lunar model elsewhere
 
 Usage::
 
-    .venv/bin/python tools/convert_lroc_albedo.py \\
-        --src /work/shared/data/albedo/lroc_color_poles_4k.jpg
+    .venv/bin/python tools/convert_lroc_albedo.py     # the source kept in tools/sources/albedo
 """
 
 from __future__ import annotations
@@ -52,7 +51,8 @@ from starnav.atomic import atomic_path
 from starnav.dem.grid import area_resample_blocks
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_SRC = Path("/work/shared/data/albedo/lroc_color_poles_4k.jpg")
+#: The source mosaic, kept in the repository with its licence (tools/sources/albedo/).
+DEFAULT_SRC = ROOT / "tools" / "sources" / "albedo" / "lroc_color_poles_4k.jpg"
 DEFAULT_OUT = ROOT / "src" / "starnav" / "data" / "albedo" / "lroc_wac_grey_2048.tif"
 #: Output grid (columns, rows).
 OUT_SHAPE = (1024, 2048)

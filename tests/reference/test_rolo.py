@@ -1,8 +1,10 @@
 """The ROLO lunar model (Kieffer & Stone 2005, model 311g) against published and hand-made numbers.
 
 Sources of the numbers (next to each test):
-* data README = /work/shared/data/README.md, section rolo/ (sanity values of A);
-* REFERENCE.md section 6 (band irradiances over 425-1025 nm, the Moon's redness);
+* data README = the project's reference-data README, section rolo/, copied into
+  src/starnav/data/rolo/PROVENANCE.md ("Sanity values" and "Reference numbers");
+* REFERENCE.md section 6 (band irradiances over 425-1025 nm, the Moon's redness), copied into
+  the same file ("Reference numbers");
 * Kieffer & Stone 2005, AJ 129:2887, Table 4 (coefficients, Apollo factors), Eq. 8.
 """
 
