@@ -12,10 +12,11 @@ Technique
 2. **Geometry from the label.** Epoch UTC -> TDB; Sun and Moon from DE421 and the Moon's
    orientation from its librations; the spacecraft from the label's spacecraft-to-Moon vector
    (J2000); the camera attitude from the label's boresight and reticle corners (Wahba).
-3. **Limb on the real frame** (the navigation chain, as a star tracker would run it): segments
-   above ``threshold_sigma`` times the dark sky's noise, pixel-level limb points on the lit side,
-   RANSAC, subpixel refinement in windows along the limb (PSF-aware edge fit), then a
-   Christian-Robinson fix: the Moon-centre direction and range in the camera frame.
+3. **Limb on the real frame**: the tracker's own chain
+   (:func:`starnav.navigation.pipeline.process_frame`) as on board: segments above
+   ``threshold_sigma`` times the dark sky's noise (and a fraction of the peak), pixel-level
+   limb points on the lit side, RANSAC, 16 windows planned along the limb and refined (PSF-aware
+   edge fit), then a Christian-Robinson fix: the Moon-centre direction and range.
 4. **Attitude refinement.** The label pointing is off by up to ~1 deg (2004-05-04): the smallest
    rotation that moves the label-predicted Moon-centre direction onto the measured one (roll
    kept from the label) is applied. Nothing else is adjusted per frame.
@@ -37,7 +38,6 @@ option                default effect
 ``threshold_sigma``   8       segment threshold above the dark sky [its rms]
 ``threshold_peak_``   0.1     ... and at least this fraction of the Moon's peak (the real
 ``fraction``                  optics' halo: the limb must land inside a refinement window)
-``n_windows``         48      refinement windows along the lit limb (16 per batch)
 ``window_px``         11      side of a refinement window [px]
 ``interior_erode_px`` 4       pixels eroded from the disc for the per-pixel comparison
 ``seed``              1       RANSAC and detector noise
@@ -46,19 +46,44 @@ option                default effect
 
 from __future__ import annotations
 
+import io
 import json
 import logging
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
-from starnav.atomic import atomic_write_text
+from starnav.atomic import atomic_write_bytes, atomic_write_text
 from starnav.camera import Camera
+from starnav.config import build_camera, scenario_from_dict
+from starnav.detector.chain import expose
+from starnav.detector.readout import extract_segments
+from starnav.detector.schema import DetectorConfig
 from starnav.errors import StarnavError
+from starnav.navigation.frames import Frame
+from starnav.navigation.limb import LimbScanOptions
+from starnav.navigation.pipeline import ChainOptions, process_frame
+from starnav.navigation.refine import RefineOptions, cut_windows, plan_windows
+from starnav.reference.amie.frame import (
+    AMIE_FRAMES,
+    calibrate,
+    packaged_frame,
+    read_amie,
+)
+from starnav.reference.amie.geometry import (
+    amie_epoch_tdb,
+    attitude_from_reticle,
+    frame_geometry,
+    refine_attitude,
+)
+from starnav.reference.amie.presets import AMIE_GAIN_E_PER_DN, amie_scenario
+from starnav.reference.rolo import rolo_geometry
+from starnav.renderer.pipeline import renderer_from_scenario
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +96,6 @@ class AmieOptions:
 
     spp: int = 16
     threshold_sigma: float = 8.0
-    n_windows: int = 48
     window_px: int = 11
     interior_erode_px: int = 4
     threshold_peak_fraction: float = 0.1
@@ -119,56 +143,38 @@ class AmieFrameResult:
 def _solve_limb(dn: NDArray[np.integer], camera: Camera, R_cam_to_inertial: FloatArray,
                 sun_dir_inertial: FloatArray, threshold_dn: int, saturation_dn: int,
                 options: AmieOptions) -> LimbSolution:
-    """Segments -> pixel-level limb -> RANSAC -> windows refinement -> Christian-Robinson."""
-    from starnav.detector.readout import extract_segments
-    from starnav.navigation.christian_robinson import christian_robinson
-    from starnav.navigation.limb import (
-        LimbScanOptions,
-        limb_points_from_segments,
-        segments_centroid,
-        sun_direction_in_image,
-    )
-    from starnav.navigation.ransac import RansacOptions, ransac_limb
-    from starnav.navigation.refine import RefineOptions, WindowRequest, cut_windows, refine_limb
+    """The tracker's own chain (:func:`starnav.navigation.pipeline.process_frame`), run as on
+    board: a segments readout -> pixel-level limb and RANSAC -> up to 16 windows planned along
+    the consensus limb (:func:`~starnav.navigation.refine.plan_windows`) and cut from the
+    image -> subpixel refinement and the Christian-Robinson fix.
 
-    segs = extract_segments(np.asarray(dn), [int(threshold_dn)])
-    guess = segments_centroid(segs)
-    sun_img = sun_direction_in_image(camera, R_cam_to_inertial, sun_dir_inertial, guess)
-    limb = limb_points_from_segments(segs, sun_img,
-                                     options=LimbScanOptions(min_run_length_px=2,
-                                                             max_points=2000))
+    Raises
+    ------
+    StarnavError
+        The chain gives no fix (its status and message).
+    """
+    chain = ChainOptions(limb=LimbScanOptions(min_run_length_px=2, max_points=2000),
+                         refine=RefineOptions(size_px=options.window_px,
+                                              saturation_dn=float(saturation_dn),
+                                              min_contrast_dn=5.0))
+    frame = Frame(index=0, epoch_tdb=0.0, R_cam_to_inertial_measured=R_cam_to_inertial,
+                  sun_direction_inertial=sun_dir_inertial,
+                  segments=extract_segments(np.asarray(dn), [int(threshold_dn)]))
     rng = np.random.default_rng(options.seed)
-    rs = ransac_limb(limb.uv, camera, rng=rng, options=RansacOptions(threshold_px=2.0))
-    uv = limb.uv[rs.inliers]
-    centre = np.asarray(rs.params[:2], float)
-    radius = float(rs.params[2])
-    # windows every k-th point along the arc, refined 16 at a time
-    order = np.argsort(np.arctan2(uv[:, 1] - centre[1], uv[:, 0] - centre[0]))
-    uv = uv[order]
-    k = max(1, len(uv) // options.n_windows)
-    H, W = dn.shape
-    s = options.window_px
-    reqs = []
-    for u, v in uv[::k][:options.n_windows]:
-        r0 = int(np.clip(round(v) - s // 2, 0, H - s))
-        c0 = int(np.clip(round(u) - s // 2, 0, W - s))
-        reqs.append(WindowRequest(r0, c0, s, s))
-    wins = cut_windows(dn, reqs)
-    ropt = RefineOptions(size_px=s, saturation_dn=float(saturation_dn), min_contrast_dn=5.0)
-    pts, sig = [], []
-    for i in range(0, len(wins), 16):
-        try:
-            fine = refine_limb(wins[i:i + 16], centre, radius, options=ropt)
-        except StarnavError:
-            continue
-        pts.append(fine.uv)
-        sig.append(fine.sigma_px)
-    if not pts:
-        fine_uv, fine_sig = uv, np.full(len(uv), 0.5)
-    else:
-        fine_uv, fine_sig = np.concatenate(pts), np.concatenate(sig)
-    fix = christian_robinson(fine_uv, camera, sigma_px=fine_sig)
-    return LimbSolution(fine_uv, fine_sig, fix.centre_camera, fix.range_m, centre, radius)
+    first = process_frame(frame, camera, options=replace(chain, use_windows=False), rng=rng)
+    if first.limb is None or first.inliers is None:
+        raise StarnavError(f"no limb on the frame: {first.status}: {first.message}")
+    plan = plan_windows(first.limb.uv[first.inliers], first.limb.centre_px, shape=dn.shape,
+                        options=chain.refine)
+    m = process_frame(replace(frame, windows=tuple(cut_windows(dn, plan))), camera,
+                      options=chain, rng=np.random.default_rng(options.seed))
+    if not m.usable:
+        raise StarnavError(f"no fix on the frame: {m.status}: {m.message}")
+    pts = m.refined if m.refined is not None else m.limb
+    uv = m.points_used
+    sigma = pts.sigma_px if m.refined is not None else m.limb.sigma_px[m.inliers]
+    return LimbSolution(uv, sigma, m.fix.centre_camera, m.fix.range_m,
+                        np.asarray(first.limb.centre_px, float), float(first.limb.radius_px))
 
 
 def centre_direction_known_range(uv: FloatArray, camera: Camera, apparent_radius_rad: float,
@@ -204,23 +210,6 @@ def _registration_shift(a: FloatArray, b: FloatArray) -> tuple[float, float]:
 
     (du, dv), _ = cv2.phaseCorrelate(np.float32(b), np.float32(a))
     return float(du), float(dv)
-
-
-def _radial_profile_diff(real: LimbSolution, sim: LimbSolution) -> FloatArray:
-    """Radial distance sim - real [px] of the two limbs at the real points' position angles,
-    about the real limb's centre (sim radius interpolated in angle)."""
-    c = real.centre_px
-    ang_r = np.arctan2(real.uv[:, 1] - c[1], real.uv[:, 0] - c[0])
-    rad_r = np.hypot(real.uv[:, 0] - c[0], real.uv[:, 1] - c[1])
-    ang_s = np.arctan2(sim.uv[:, 1] - c[1], sim.uv[:, 0] - c[0])
-    rad_s = np.hypot(sim.uv[:, 0] - c[0], sim.uv[:, 1] - c[1])
-    o = np.argsort(ang_s)
-    ang_s, rad_s = ang_s[o], rad_s[o]
-    span = ang_s.max() - ang_s.min()
-    keep = (ang_r >= ang_s.min()) & (ang_r <= ang_s.max()) if span < math.pi else \
-        np.ones(ang_r.shape, bool)
-    interp = np.interp(ang_r[keep], ang_s, rad_s, period=2 * math.pi)
-    return interp - rad_r[keep]
 
 
 def edge_radii(image: FloatArray, centre_px: FloatArray, angles: FloatArray,
@@ -262,22 +251,6 @@ def analyse_frame(path: str | Path, options: AmieOptions | None = None
         Images for the figures: ``real_e_s``, ``sim_e_s`` (registered), ``mask``, the limb
         solutions and the Sun direction in the image.
     """
-    from scipy import ndimage
-
-    from starnav.config import build_camera, scenario_from_dict
-    from starnav.detector.chain import expose
-    from starnav.detector.schema import DetectorConfig
-    from starnav.reference.amie.frame import calibrate, read_amie
-    from starnav.reference.amie.geometry import (
-        amie_epoch_tdb,
-        attitude_from_reticle,
-        frame_geometry,
-        refine_attitude,
-    )
-    from starnav.reference.amie.presets import AMIE_GAIN_E_PER_DN, amie_scenario
-    from starnav.reference.rolo import rolo_geometry
-    from starnav.renderer.pipeline import renderer_from_scenario
-
     opt = options or AmieOptions()
     frame = read_amie(path)
     cal = calibrate(frame)
@@ -413,10 +386,6 @@ def linearity(short: str | Path, long: str | Path) -> dict[str, float]:
     """Signal ratio of two frames of the same scene at two exposures against the exposure ratio
     (the detector's linearity and the exposure timing): background-subtracted electrons summed
     over the Moon (pixels above 8 sigma of the dark sky, grown by 6 px, in either frame)."""
-    from scipy import ndimage
-
-    from starnav.reference.amie.frame import calibrate, read_amie
-
     a, b = calibrate(read_amie(short)), calibrate(read_amie(long))
     thr_a = 8.0 * a.background_rms_dn * a.gain_e_per_dn
     thr_b = 8.0 * b.background_rms_dn * b.gain_e_per_dn
@@ -461,8 +430,6 @@ def frame_figure(res: AmieFrameResult, images: dict[str, Any], path: Path) -> Pa
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from starnav.atomic import atomic_write_bytes
-
     real, sim = images["real_e_s"], images["sim_e_s"]
     rs, cs = _crop_box(images["region"])
     vmax = float(np.percentile(real[images["region"]], 99.5)) if images["region"].any() else 1.0
@@ -496,8 +463,6 @@ def frame_figure(res: AmieFrameResult, images: dict[str, Any], path: Path) -> Pa
                  f"{res.exposure_ms:g} ms; signal sim/real {res.signal_ratio:.3f}, limb "
                  f"{res.limb_diff_mean_px:+.2f} px (rms {res.limb_diff_rms_px:.2f})")
     fig.tight_layout()
-    import io
-
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90)
     plt.close(fig)
@@ -584,12 +549,8 @@ def run_amie_validation(paths: list[str | Path] | None, out_dir: str | Path,
         ``report``, ``results`` (paths), ``frames`` (list of :class:`AmieFrameResult`),
         ``linearity``.
     """
-    from starnav.reference.amie.frame import read_amie
-
     out = Path(out_dir)
     if paths is None:
-        from starnav.reference.amie.frame import AMIE_FRAMES, packaged_frame
-
         paths = [packaged_frame(n) for n in AMIE_FRAMES if "040326" not in str(n)]
     paths = [Path(p) for p in paths]
     frames = [read_amie(p) for p in paths]   # every file is read (and refused) before work
