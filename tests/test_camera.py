@@ -119,3 +119,20 @@ def test_unknown_preset_lists_known():
 def test_projecting_behind_camera_is_an_error(aa_str):
     with pytest.raises(GeometryError):
         aa_str.project(np.array([0.0, 0.0, -1.0]))
+
+
+def test_pixel_solid_angles_sum_to_the_field_of_view():
+    """The per-pixel solid angles of a centred pinhole sum to the exact solid angle of its
+    rectangular field, 4 arcsin(a b / sqrt((a^2 + f^2)(b^2 + f^2))) with a, b the half sides of
+    the detector (the solid angle of a rectangular pyramid)."""
+    import math
+
+    from starnav.camera import Camera
+
+    cam = Camera.preset("aa-str")
+    a, b, f = cam.width * cam.pitch_x / 2, cam.height * cam.pitch_y / 2, cam.focal_length
+    exact = 4 * math.asin(a * b / math.sqrt((a * a + f * f) * (b * b + f * f)))
+    om = cam.pixel_solid_angles()
+    assert om.shape == (cam.height, cam.width)
+    assert om.sum() == pytest.approx(exact, rel=1e-5)
+    assert om.max() == pytest.approx(cam.pixel_solid_angle, rel=1e-6)

@@ -22,7 +22,6 @@ import pytest
 from starnav import photometry as ph
 from starnav.config import scenario_from_dict
 from starnav.errors import ConfigError
-from starnav.renderer.pipeline import albedo_parameter
 
 SATO = ph.HAPKE_LUNAR_DEFAULTS
 
@@ -78,12 +77,12 @@ def test_hapke_w_above_one_is_a_clear_error():
 
 def test_a_map_whose_quantity_does_not_fit_the_model_is_an_error():
     with pytest.raises(ConfigError, match=r"moon\.dem\.albedo.*normal_albedo map.*'lambert'"):
-        albedo_parameter(np.full(4, 0.2), "hapke_w", "lambert", {}, "moon.dem.albedo")
+        ph.albedo_parameter(np.full(4, 0.2), "hapke_w", "lambert", {}, "moon.dem.albedo")
     with pytest.raises(ConfigError, match=r"hapke_w.*within \[0, 1\]"):
-        albedo_parameter(np.array([0.2, 1.3]), "hapke_w", "hapke", dict(SATO), "moon.albedo")
+        ph.albedo_parameter(np.array([0.2, 1.3]), "hapke_w", "hapke", dict(SATO), "moon.albedo")
     # a Hapke w map passes through unchanged for Hapke
     w = np.array([0.1, 0.3])
-    assert np.array_equal(albedo_parameter(w, "hapke_w", "hapke", dict(SATO), "f"), w)
+    assert np.array_equal(ph.albedo_parameter(w, "hapke_w", "hapke", dict(SATO), "f"), w)
     # contrast exponents belong to relative maps only
     with pytest.raises(ConfigError, match="contrast_exponent"):
         scenario_from_dict({"moon": {"dem": {"albedo": {

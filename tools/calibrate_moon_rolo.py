@@ -127,11 +127,7 @@ def terrain_factor(geoms: list[tuple[float, float]], k: float, q: float,
             renderer = renderer_from_scenario(sc)
         geom = frame_geometries(sc)[0]
         img = renderer.render(geom, seed=7)
-        cam = build_camera(sc.camera)
-        u, v = cam.pixel_grid()
-        x, y = (u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy
-        omega = cam.pixel_solid_angle / (1 + x * x + y * y) ** 1.5
-        e_render = float(np.sum(img.L * omega))
+        e_render = float(np.sum(img.L * build_camera(sc.camera).pixel_solid_angles()))
         e_band = img.meta["sun"]["band_irradiance_w_m2"]
         a_quad = disc.reflectance([(g, phi)], k, q, params)[0]
         out.append(e_render / (a_quad * e_band * (renderer.moon.radius / geom.range) ** 2))

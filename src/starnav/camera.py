@@ -312,6 +312,16 @@ class Camera:
         v, u = np.mgrid[0 : self.height, 0 : self.width].astype(float)
         return u, v
 
+    def pixel_solid_angles(self) -> FloatArray:
+        """Solid angle of every pixel of the pinhole, ``(height, width)`` [sr]: the on-axis
+        value times ``cos^3`` of the pixel centre's off-axis angle (distortion ignored: the
+        renderer's image is undistorted). Summed with a radiance image it gives the irradiance
+        at the aperture."""
+        u, v = self.pixel_grid()
+        x = (u - self.cx) / self.fx
+        y = (v - self.cy) / self.fy
+        return self.pixel_solid_angle / (1.0 + x * x + y * y) ** 1.5
+
     def describe(self) -> dict[str, float | int | str]:
         """Derived optical figures, for logs, manifests and ``starnav info``."""
         return {

@@ -75,6 +75,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from starnav.errors import ConfigError, UnknownNameError
+from starnav.lunar_calibration import lunar_calibration
 
 FloatArray = NDArray[np.float64]
 
@@ -99,8 +100,6 @@ def hapke_preset(name: str) -> dict[str, float]:
     if name == "sato2014":
         return dict(HAPKE_LUNAR_DEFAULTS)
     if name == "rolo-calibrated":
-        from starnav.lunar_calibration import lunar_calibration
-
         return dict(lunar_calibration().hapke)
     raise UnknownNameError("Hapke parameter preset", name, list(HAPKE_PRESETS))
 
@@ -357,6 +356,32 @@ def model_albedo_parameter(name: str, normal: ArrayLike, field: str = "moon.albe
     # a registered model without an explicit rule: invert numerically like Hapke
     table = normal_albedo(name, _HAPKE_W_GRID, **p)
     return np.interp(a, table, _HAPKE_W_GRID)  # pragma: no cover
+
+
+def albedo_parameter(values: ArrayLike, quantity: str, model: str, params: dict[str, float],
+                     field: str) -> FloatArray:
+    """The photometric model's albedo parameter from albedo values of ``quantity``
+    (``normal_albedo`` or ``hapke_w``; :func:`starnav.photometry.model_albedo_parameter`).
+
+    Raises
+    ------
+    ConfigError
+        a ``hapke_w`` map for another model than Hapke (naming ``field``), or a normal albedo
+        that the model cannot reach (Hapke ``w`` > 1).
+    """
+    v = np.asarray(values, float)
+    if quantity == "hapke_w":
+        if model != "hapke":
+            raise ConfigError(field, "quantity hapke_w",
+                              f"a normal_albedo map for photometric model {model!r} (a Hapke "
+                              "single-scattering albedo means nothing to it)")
+        if v.size and (float(v.min()) < 0.0 or float(v.max()) > 1.0):
+            raise ConfigError(field, f"hapke_w {float(v.min()):.4g}..{float(v.max()):.4g}",
+                              "Hapke single-scattering albedos within [0, 1]")
+        return v
+    if quantity != "normal_albedo":
+        raise ConfigError(field, f"quantity {quantity}", "normal_albedo or hapke_w")
+    return model_albedo_parameter(model, v, field=field, **params)
 
 
 def validity_warning(name: str, phase: float, calibrated: bool = False) -> str | None:

@@ -32,6 +32,7 @@ from typing import Annotated, Literal
 from pydantic import Field, field_validator, model_validator
 
 from starnav.config_base import StrictModel
+from starnav.lunar_calibration import lunar_calibration
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -184,8 +185,6 @@ class AlbedoConfig(StrictModel):
         if self.contrast_exponent is not None:
             return float(self.contrast_exponent)
         if self.source == "lroc":
-            from starnav.lunar_calibration import lunar_calibration
-
             return lunar_calibration().contrast_exponent
         return 1.0
 

@@ -8,7 +8,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from starnav.camera import Camera
+from starnav.dem.detail import sub_posting_detail
+from starnav.dem.load import as_dem_config, load_albedo, load_dem
+from starnav.dem.mesh import MeshOptions, view_mesh
 from starnav.geometry import FrameGeometry
+from starnav.photometry import albedo_parameter
 from starnav.renderer.render import MoonModel
 from starnav.renderer.scene import MoonMesh
 
@@ -16,21 +20,18 @@ if TYPE_CHECKING:
     from starnav.config import Scenario
 
 
-def dem_moon_model(sc: Scenario, common: dict[str, Any]) -> MoonModel:
+def dem_moon_model(sc: Scenario, common: dict[str, Any], mean_normal_albedo: float
+                   ) -> MoonModel:
     """A mesh :class:`MoonModel` whose mesh comes from ``sc.moon.dem`` for each view.
 
     The DEM and its albedo grid are loaded here, so bad files are reported before any
     rendering. The grid's values become the model's albedo parameter per vertex: a relative map
-    is first scaled to the scenario's mean normal albedo (``moon.albedo``, else the
-    ROLO-calibrated one), a normal-albedo map is converted, a ``hapke_w`` map is used as it is
+    is first scaled to ``mean_normal_albedo`` (the scenario's ``moon.albedo``, else the
+    ROLO-calibrated one: :func:`starnav.renderer.pipeline.mean_normal_albedo`), a normal-albedo
+    map is converted, a ``hapke_w`` map is used as it is
     (Hapke only). Without an albedo grid the constant ``common['albedo']`` applies.
     ``moon.albedo_scale`` multiplies the reflectance, whatever the source.
     """
-    from starnav.dem.detail import sub_posting_detail
-    from starnav.dem.load import as_dem_config, load_albedo, load_dem
-    from starnav.dem.mesh import MeshOptions, view_mesh
-    from starnav.renderer.pipeline import albedo_parameter, mean_normal_albedo
-
     cfg = as_dem_config(sc.moon.dem)
     dem = load_dem(cfg)
     albedo_grid = load_albedo(cfg)
@@ -40,7 +41,7 @@ def dem_moon_model(sc: Scenario, common: dict[str, Any]) -> MoonModel:
     quantity = None if albedo_grid is None else albedo_grid.quantity
     factor = 1.0
     if quantity == "relative":
-        factor = mean_normal_albedo(sc) / max(albedo_grid.mean, 1e-12)
+        factor = mean_normal_albedo / max(albedo_grid.mean, 1e-12)
         quantity = "normal_albedo"
     if albedo_grid is not None:
         # fail now, not at the first frame: the brightest value must be reachable

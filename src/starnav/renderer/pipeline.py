@@ -9,14 +9,13 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
 
 from starnav.config import AlbedoMapConfig, Scenario, build_camera
 from starnav.constants import AU
 from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry, static_geometry_from_config
 from starnav.lunar_calibration import lunar_calibration
-from starnav.photometry import model_albedo_parameter
+from starnav.photometry import albedo_parameter
 from starnav.radiance import RadianceImage, write_exr
 from starnav.renderer.render import (
     AlbedoMap,
@@ -57,9 +56,9 @@ def moon_model_from_scenario(sc: Scenario) -> MoonModel:
         return MoonModel("sphere", **common)
     if m.shape == "mesh":
         return MoonModel("mesh", mesh=icosphere_mesh(radius, m.mesh_subdivisions), **common)
-    from starnav.renderer.dem_hook import dem_moon_model
+    from starnav.renderer.dem_hook import dem_moon_model  # loads starnav.dem only when needed
 
-    return dem_moon_model(sc, common)
+    return dem_moon_model(sc, common, mean_normal_albedo(sc))
 
 
 def mean_normal_albedo(sc: Scenario) -> float:
@@ -68,32 +67,6 @@ def mean_normal_albedo(sc: Scenario) -> float:
     if isinstance(sc.moon.albedo, int | float):
         return float(sc.moon.albedo)
     return lunar_calibration().mean_normal_albedo
-
-
-def albedo_parameter(values: ArrayLike, quantity: str, model: str, params: dict[str, float],
-                     field: str) -> NDArray[np.float64]:
-    """The photometric model's albedo parameter from albedo values of ``quantity``
-    (``normal_albedo`` or ``hapke_w``; :func:`starnav.photometry.model_albedo_parameter`).
-
-    Raises
-    ------
-    ConfigError
-        a ``hapke_w`` map for another model than Hapke (naming ``field``), or a normal albedo
-        that the model cannot reach (Hapke ``w`` > 1).
-    """
-    v = np.asarray(values, float)
-    if quantity == "hapke_w":
-        if model != "hapke":
-            raise ConfigError(field, "quantity hapke_w",
-                              f"a normal_albedo map for photometric model {model!r} (a Hapke "
-                              "single-scattering albedo means nothing to it)")
-        if v.size and (float(v.min()) < 0.0 or float(v.max()) > 1.0):
-            raise ConfigError(field, f"hapke_w {float(v.min()):.4g}..{float(v.max()):.4g}",
-                              "Hapke single-scattering albedos within [0, 1]")
-        return v
-    if quantity != "normal_albedo":
-        raise ConfigError(field, f"quantity {quantity}", "normal_albedo or hapke_w")
-    return model_albedo_parameter(model, v, field=field, **params)
 
 
 def renderer_from_scenario(sc: Scenario) -> MoonRenderer:
