@@ -19,6 +19,7 @@ from starnav.constants import PLANCK_H, SPEED_OF_LIGHT
 from starnav.errors import UnknownNameError
 from starnav.spectra import (
     AMIE_RESPONSE_TABLE,
+    amie_quantum_efficiency,
     band_integrals,
     sensor_response,
     solar_spectrum,
@@ -65,11 +66,15 @@ def test_amie_preset_is_listed_and_overridable():
 
 
 # --------------------------------------------------------------------------- response
+#: the flat QE of the preset: measured on Vega (tests/reference/test_amie_vega.py re-derives it)
+QE = amie_quantum_efficiency()
+
 def _table() -> tuple[np.ndarray, np.ndarray]:
     from starnav.data import packaged_path
 
     t = np.loadtxt(packaged_path(AMIE_RESPONSE_TABLE), delimiter=",", skiprows=2)
-    return t[:, 0], t[:, 1] * 1e-3 * 0.15   # per mille, times the manual's QE 0.15 (ABRAM)
+    # per mille, times the flat QE measured on Vega (packaged stellar calibration)
+    return t[:, 0], t[:, 1] * 1e-3 * QE
 
 
 def test_amie_response_is_the_packaged_table():
@@ -78,9 +83,9 @@ def test_amie_response_is_the_packaged_table():
     assert resp.name == "amie"
     np.testing.assert_array_equal(resp.response.wavelengths, wl)
     np.testing.assert_allclose(resp.response.values, s, rtol=1e-15)
-    # a fraction (QE 0.15 x T), T peaking at 0.504 near 790 nm
+    # a fraction (QE x T), T peaking at 0.504 near 790 nm
     assert 0.0 < resp.response.values.min()
-    assert resp.response.values.max() == pytest.approx(0.15 * 0.504)
+    assert resp.response.values.max() == pytest.approx(QE * 0.504)
     # band edges = the table's support
     assert resp.band == (400.0, 1100.0)
 
@@ -116,9 +121,9 @@ def test_amie_band_integrals_with_astm_g173_at_1au():
     e_el = e * epj
     assert bi.irradiance == pytest.approx(np.trapezoid(e, grid), rel=QUADRATURE_RTOL)
     assert bi.electron_irradiance == pytest.approx(np.trapezoid(e_el, grid), rel=QUADRATURE_RTOL)
-    # values (computed here): 907.3 W m^-2 in 400-1100 nm, 0.15 x 1.113e21 e- s^-1 m^-2
+    # values (computed here): 907.3 W m^-2 in 400-1100 nm, QE x 1.113e21 e- s^-1 m^-2
     assert bi.irradiance == pytest.approx(907.29, rel=1e-4)
-    assert bi.electron_irradiance == pytest.approx(0.15 * 1.1133e21, rel=1e-4)
+    assert bi.electron_irradiance == pytest.approx(QE * 1.1133e21, rel=1e-4)
     # bounds: min(S) and max(S) times the photon irradiance in the band
     photons = np.trapezoid(e * grid * 1e-9 / (PLANCK_H * SPEED_OF_LIGHT), grid)
     assert s.min() * photons < bi.electron_irradiance < s.max() * photons

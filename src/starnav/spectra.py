@@ -176,11 +176,26 @@ SENSOR_PRESETS = {"aa-str": (AA_STR_BAND_EDGES_NM, AA_STR_QE, AA_STR_TRANSMISSIO
 #: mille), package-relative table and the scale of its ``NONE`` column (per mille -> fraction).
 AMIE_RESPONSE_TABLE = "amie/calib/amie_spectral_response_none.csv"
 AMIE_RESPONSE_SCALE = 1e-3
-#: AMIE detector quantum efficiency, flat: the AMIE user manual's "efficiency > 15 % at
-#: 640 nm", as the ABRAM AMIE validation applies it (``andrepiz/abram``
+#: AMIE quantum efficiency before the stellar calibration: the AMIE user manual's "efficiency
+#: > 15 % at 640 nm", as the ABRAM AMIE validation applies it (``andrepiz/abram``
 #: test/validation/amie/validation_amie.yml: QE 0.15 in every band times the measured curve as
-#: transmittance). Without it the simulated AMIE frames are 4-6x brighter than the real ones.
-AMIE_QUANTUM_EFFICIENCY = 0.15
+#: transmittance). Kept for reference: starnav uses the QE measured on Vega (0.212, see
+#: :func:`amie_quantum_efficiency`), which the manual's lower bound brackets.
+AMIE_QUANTUM_EFFICIENCY_MANUAL = 0.15
+
+
+@lru_cache(maxsize=1)
+def amie_quantum_efficiency() -> float:
+    """The AMIE's flat quantum efficiency [e-/photon], measured on Vega (frame 040326, 200 ms)
+    against its CALSPEC spectrum through the measured NONE curve: the packaged
+    ``amie/vega_calibration.json`` written by ``tools/calibrate_amie_vega.py``
+    (:mod:`starnav.reference.amie.vega`)."""
+    import json
+
+    from starnav.data import packaged_path
+
+    return float(json.loads(packaged_path("amie/vega_calibration.json").read_text())
+                 ["quantum_efficiency"])
 
 
 @lru_cache(maxsize=1)
@@ -189,16 +204,16 @@ def amie_none_response() -> Spectrum:
 
     ``T`` is the measured curve (39 samples, piecewise linear, zero outside its support), read
     lazily from the packaged table :data:`AMIE_RESPONSE_TABLE`: column ``Lambda`` [nm], column
-    ``NONE`` [per mille]; ``QE`` is :data:`AMIE_QUANTUM_EFFICIENCY` (0.15, flat). Source:
-    ``andrepiz/abram`` test/validation/amie (``get_amie_spectral_response.m`` scales the column
-    by 1e-3 and uses it as the transmittance, with QE 0.15 from the AMIE user manual); the
+    ``NONE`` [per mille] (source: ``andrepiz/abram`` test/validation/amie,
+    ``get_amie_spectral_response.m`` scales the column by 1e-3 and uses it as the
+    transmittance); ``QE`` is flat, :func:`amie_quantum_efficiency` (measured on Vega); the
     instrument kernel ``SMART1_AMIE_V01.TI`` quotes the band as centre 800 nm, width 700 nm.
     """
     from starnav.data import packaged_path
 
     path = packaged_path(AMIE_RESPONSE_TABLE)
     table = np.loadtxt(path, delimiter=",", comments="#", skiprows=2, ndmin=2)
-    return Spectrum(table[:, 0], table[:, 1] * AMIE_RESPONSE_SCALE * AMIE_QUANTUM_EFFICIENCY,
+    return Spectrum(table[:, 0], table[:, 1] * AMIE_RESPONSE_SCALE * amie_quantum_efficiency(),
                     "e-/photon")
 
 

@@ -36,14 +36,38 @@ def test_rendered_limb_matches_the_real_limb_within_1_px_rms(results, name):
     assert r.attitude_correction_deg < 0.1
 
 
-def test_navigation_range_from_the_real_limb(results):
-    """Range from the real limb against the label's (issue 12 asks 1 %, goal 0.3 %). Measured
-    at 105 deg, r ~ 98 px: -1.23 %, while the same chain on the simulated frame gives
-    +0.14 %: the real limb is read 1.2-1.8 % too large on every frame (the real optics' halo;
-    docs/real-images.md). This pins the current state: 1 % is not met."""
+def test_real_limb_is_larger_than_the_nominal_camera_predicts_not_the_chain(results):
+    """With the instrument kernel's focal length (154.7 mm) the chain's range from the real
+    limb is 1.2 % short at 105 deg, r ~ 98 px (measured -1.23 %), while on the simulated frame
+    it is right (+0.14 %). A measure that involves no navigation chain, the circle through the
+    half-maximum edges, shows the same on the real image (+1.45 %) and not on the simulated
+    one (+0.04 %): the real image's scale differs from the nominal camera's."""
     r = results["040819_00208"]
-    assert abs(r.nav_range_error_pct) < 1.5, r
+    assert -1.6 < r.nav_range_error_pct < -0.9, r
     assert abs(r.nav_range_error_sim_pct) < 0.5, r
+    assert 1.009 < r.edge_radius_ratio_real < 1.02, r
+    assert abs(r.edge_radius_ratio_sim - 1.0) < 0.005, r
+
+
+def test_navigation_range_within_1_percent_with_the_focal_length_of_other_epochs():
+    """Issue 12: range from the real limb within 1 % of the label's (goal 0.3 %). The chain
+    runs on all five real Moon frames (no rendering); each frame is scored with a focal length
+    calibrated on the *other* days only (leave-one-epoch-out: the 041111 pair is one epoch).
+    Measured: +0.06, +0.18, -0.51, +0.25, +0.28 %; the factor 1.013-1.015 on every split (one
+    focal length serves all epochs, ~156.8 mm)."""
+    from starnav.reference.amie.frame import AMIE_FRAMES
+    from starnav.reference.amie.validate import focal_scale_cross_validation, real_limb_fix
+
+    fixes = [real_limb_fix(packaged_frame(n)) for n in AMIE_FRAMES if "040326" not in str(n)]
+    assert len(fixes) == 5
+    # nominal focal length: every frame short by 1.1-1.8 %
+    assert all(-1.9 < f.range_error_pct < -1.0 for f in fixes), [f.range_error_pct for f in fixes]
+    cv = focal_scale_cross_validation(fixes)
+    errors = [cv[f.name]["error_pct"] for f in fixes]
+    assert all(abs(e) < 1.0 for e in errors), errors
+    assert sum(abs(e) < 0.3 for e in errors) >= 4, errors
+    scales = [cv[f.name]["scale"] for f in fixes]
+    assert max(scales) - min(scales) < 0.005, scales
 
 
 def test_the_phase_law_of_the_calibrated_moon_holds_on_real_frames(results):
@@ -56,13 +80,12 @@ def test_the_phase_law_of_the_calibrated_moon_holds_on_real_frames(results):
     assert a.pixel_correlation > 0.95 and b.pixel_correlation > 0.95
 
 
-def test_absolute_signal_is_the_known_amie_efficiency_gap(results):
-    """Documented limitation, pinned: with the AMIE user manual's QE of 0.15 ('> 15 % at 640
-    nm', as ABRAM uses it) the simulation collects 0.66 of the real signal on every frame;
-    the manual gives a lower bound only. A change of this ratio is a change of the radiometry
-    and must be looked at (docs/real-images.md)."""
+def test_absolute_signal_within_10_percent_with_the_qe_measured_on_vega(results):
+    """Issue 12: disc-integrated signal simulated / real within 10 % (goal 5 %), with the
+    calibrated Moon and the AMIE's QE measured on Vega (frame 040326, not a Moon frame; no
+    per-frame tuning). Measured at 16 spp: 0.944 (7.5 deg) and 0.918 (105 deg)."""
     for r in results.values():
-        assert 0.6 < r.signal_ratio < 0.72, r
+        assert abs(r.signal_ratio - 1.0) < 0.10, r
 
 
 def test_cli_writes_report_json_and_figure(tmp_path):

@@ -37,7 +37,9 @@ def amie(
         return
     for r in summary["frames"]:
         console.print(f"{r.name}: signal sim/real {r.signal_ratio:.3f}, limb rms "
-                      f"{r.limb_diff_rms_px:.2f} px, range error {r.nav_range_error_pct:+.3f} %",
+                      f"{r.limb_diff_rms_px:.2f} px, range error {r.nav_range_error_pct:+.2f} % "
+                      f"(focal length from the other epochs: "
+                      f"{r.nav_range_error_flight_cal_pct:+.2f} %)",
                       soft_wrap=True)
     console.print(f"report: {summary['report']}", soft_wrap=True)
 

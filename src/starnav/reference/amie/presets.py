@@ -6,16 +6,18 @@ quantity                    value                            source / trust
 focal length, f-number      154.7 mm, f/10                   instrument kernel SMART1_AMIE_V01.TI
 pixels                      14 um, NONE quadrant 512 x 512   instrument kernel; data README
 spectral response           measured NONE-filter curve       calib/amie_spectral_response_none.csv
-                            (transmission) x QE 0.15         (AMIE user manual via the ABRAM AMIE
-                                                             validation; spectra.AMIE_...)
+                            (transmission) x QE 0.212        (ABRAM AMIE validation); QE measured
+                                                             on Vega, frame 040326 (vega.py; the
+                                                             user manual says only "> 15 %")
 gain                        280 e-/DN                        every frame's label
 ADC                         10 bit (DN = stored >> 6)        label SCALING_FACTOR 0.015625
 bias, flat                  master frames of the NONE quad.  calib/ (applied to the *real* frames;
                                                              the simulation is made bias-free and
                                                              flat, and compared after calibration)
-optics PSF                  diffraction-limited Gaussian,    f/10 at the band's 800 nm centre:
-                            sigma = 0.42 lambda N / pitch    sigma = 0.24 px (assumption: the
-                                                             optics' real PSF is not published)
+optics PSF                  Gaussian core, sigma 0.51 px     measured on Vega, frame 040326
+                                                             (vega.py; diffraction alone gives
+                                                             0.24 px; the frames are wavelet-
+                                                             compressed at 1 bit/px, included)
 full well                   300 000 e- (the 10-bit ADC       AMIE user manual via ABRAM; the ADC
                             clips first, at 286 440 e-)      sets saturation; no blooming modelled
 read noise                  154 e- (0.55 DN)                 the calibrated dark sky's rms,
@@ -30,8 +32,17 @@ from __future__ import annotations
 
 from typing import Any
 
-#: Diffraction-limited Gaussian sigma [px]: 0.42 lambda N / pitch at 800 nm, f/10, 14 um.
-AMIE_PSF_SIGMA_PX = 0.42 * 800e-9 * 10.0 / 14e-6
+#: Diffraction-limited Gaussian sigma [px]: 0.42 lambda N / pitch at 800 nm, f/10, 14 um (the
+#: floor; the measured core is about twice as wide).
+AMIE_PSF_SIGMA_DIFFRACTION_PX = 0.42 * 800e-9 * 10.0 / 14e-6
+
+
+def amie_psf_sigma_px() -> float:
+    """The PSF core's Gaussian sigma [px], measured on Vega (``amie/vega_calibration.json``,
+    :mod:`starnav.reference.amie.vega`)."""
+    from starnav.reference.amie.vega import load_calibration
+
+    return float(load_calibration()["psf_sigma_px"])
 #: Gain [e-/DN] (label).
 AMIE_GAIN_E_PER_DN = 280.0
 #: Read noise [e-]: the calibrated dark sky's rms (0.51-0.62 DN) x the gain.
@@ -42,14 +53,14 @@ AMIE_BITS = 10
 
 def amie_detector(exposure_s: float) -> dict[str, Any]:
     """The ``detector`` section of an AMIE scenario (see the module table)."""
+    sigma = amie_psf_sigma_px()
     return {
         "exposure_time_s": float(exposure_s),
         "optics": {
             "radiometry": {"relative_illumination": False},
             "aberration": {"enabled": True, "defocus_radius_px": 0.0,
-                           "defocus_radius_edge_px": 0.0, "sigma_px": AMIE_PSF_SIGMA_PX,
-                           "sigma_radial_edge_px": AMIE_PSF_SIGMA_PX,
-                           "sigma_tangential_edge_px": AMIE_PSF_SIGMA_PX},
+                           "defocus_radius_edge_px": 0.0, "sigma_px": sigma,
+                           "sigma_radial_edge_px": sigma, "sigma_tangential_edge_px": sigma},
             "distortion": {"enabled": False},
             "stray_light": {"enabled": False},
             "ghosts": {"enabled": False},
