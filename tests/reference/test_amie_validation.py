@@ -114,3 +114,26 @@ def test_cli_refuses_a_truncated_frame_before_any_work(tmp_path):
     msg = " ".join(res.output.split())
     assert "AMI_truncated.IMG" in msg
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_all_five_moon_frames_against_the_criteria(tmp_path):
+    """The whole validation at 16 spp (~30 s): every frame's limb within 1 px rms, the range
+    within 1 % with the focal length of the other epochs, the four REGULAR frames' signal
+    within 10 %, and the one outside (040504, a CALIBRATION-sequence frame) explained in the
+    report."""
+    from starnav.reference.amie.validate import run_amie_validation
+
+    out = run_amie_validation(None, tmp_path / "amie")
+    frames = out["frames"]
+    assert len(frames) == 5
+    for r in frames:
+        assert r.limb_diff_rms_px < 1.0, r
+        assert abs(r.nav_range_error_flight_cal_pct) < 1.0, r
+        if r.observation_type == "REGULAR":
+            assert abs(r.signal_ratio - 1.0) < 0.10, r
+    odd = [r for r in frames if r.observation_type != "REGULAR"]
+    assert [r.name for r in odd] == ["AMI_EE3_040504_00013_00020"]
+    report = (tmp_path / "amie" / "report.md").read_text()
+    assert "CALIBRATION sequence" in report and "2.0" in report
+    assert abs(out["linearity"]["relative_error"]) < 0.02
