@@ -148,7 +148,7 @@ EXPOSURE_STUDY: dict[str, Any] = {
     "navigation": {
         "refine": {"enabled": False},
         "ransac": {"model": "circle", "threshold_px": 2.0},
-        "fix": {"attitude_sigma_arcsec": 5.0},
+        "fix": {"attitude_sigma_arcsec": None},
         "filter": {"bias_model": "range-scale+additive", "range_scale_sigma": 0.02,
                    "bias_sigma_km": 50.0,
                    "bias_tau_days": 2.0, "initial_position_sigma_km": 100.0,
@@ -194,7 +194,7 @@ DEMO: dict[str, Any] = {
     "pointing": {"moon_offset": "random", "moon_offset_max_px": 300.0},
     "render": {"spp": 8, "aovs": False},
     "detector": {"exposure_time_s": 1.5e-5},
-    "navigation": {"fix": {"attitude_sigma_arcsec": 5.0},
+    "navigation": {"fix": {"attitude_sigma_arcsec": None},
                    "filter": {"bias_model": "none"}},
 }
 

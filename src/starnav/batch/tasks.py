@@ -237,7 +237,7 @@ def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, wind
 
     sc = _scenario(config)
     cam = build_camera(sc.camera)
-    chain = sc.navigation.chain_options(sc.moon.radius_km * 1e3)
+    chain = sc.navigation.chain_options(sc.moon.radius_km * 1e3, scenario=sc)
     chain = dataclasses.replace(chain, use_windows=chain.use_windows and windows != "none")
     le = rendered.electron_radiance(albedo_factor)
     g = rendered.geometry

@@ -231,7 +231,8 @@ def plan_windows_from_segments(segments: Any, geom: FrameGeometry, camera: Camer
     from starnav.navigation.pipeline import process_frame
     from starnav.navigation.refine import plan_windows
 
-    chain = scenario.navigation.chain_options(scenario.moon.radius_km * 1e3)
+    chain = scenario.navigation.chain_options(scenario.moon.radius_km * 1e3,
+                                              scenario=scenario)
     chain = dataclasses.replace(chain, use_windows=False)
     R_meas = (geom.R_cam_to_inertial_measured if geom.R_cam_to_inertial_measured is not None
               else geom.R_cam_to_inertial)

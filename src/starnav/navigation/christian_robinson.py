@@ -85,21 +85,25 @@ class ChristianRobinsonOptions:
         Semi-axes of the body along its body-fixed axes [m]; default the Moon sphere.
     min_points : int
         Minimum number of limb points.
-    attitude_sigma_rad : float
-        Attitude knowledge 1-sigma per axis [rad], added to the inertial covariance.
+    attitude_sigma_rad : float or (3,) tuple
+        Attitude knowledge 1-sigma [rad]: one value for every axis, or one per camera axis
+        ``(x, y, z)`` (z the boresight: roll), added to the inertial covariance.
     """
 
     radii_m: tuple[float, float, float] = (MOON_RADIUS, MOON_RADIUS, MOON_RADIUS)
     min_points: int = 3
-    attitude_sigma_rad: float = 0.0
+    attitude_sigma_rad: float | tuple[float, float, float] = 0.0
+    radius_sigma_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         if len(self.radii_m) != 3 or not all(math.isfinite(r) and r > 0 for r in self.radii_m):
             raise ConfigError("fix.radii_m", self.radii_m, "three finite semi-axes > 0 m")
         if self.min_points < 3:
             raise ConfigError("fix.min_points", self.min_points, "an integer >= 3")
-        if not (self.attitude_sigma_rad >= 0 and math.isfinite(self.attitude_sigma_rad)):
-            raise ConfigError("fix.attitude_sigma_rad", self.attitude_sigma_rad, ">= 0 rad")
+        a = np.atleast_1d(np.asarray(self.attitude_sigma_rad, float))
+        if a.size not in (1, 3) or not (np.all(a >= 0) and np.all(np.isfinite(a))):
+            raise ConfigError("fix.attitude_sigma_rad", self.attitude_sigma_rad,
+                              "one value or three (camera x, y, z) >= 0 rad")
 
 
 def _skew(v: FloatArray) -> FloatArray:
@@ -160,21 +164,33 @@ class LimbFix:
         return -np.asarray(R_cam_to_inertial, float) @ self.centre_camera
 
     def covariance_inertial(self, R_cam_to_inertial: ArrayLike,
-                            attitude_sigma_rad: float = 0.0) -> FloatArray:
+                            attitude_sigma_rad: float | ArrayLike = 0.0,
+                            radius_sigma_fraction: float = 0.0) -> FloatArray:
         """Covariance of :meth:`position_inertial` [m^2], attitude knowledge error included.
 
         Parameters
         ----------
         R_cam_to_inertial : (3, 3) array
             Attitude used for the fix.
-        attitude_sigma_rad : float
-            1-sigma attitude knowledge error per axis [rad] (small-angle, isotropic).
+        attitude_sigma_rad : float or (3,) array
+            1-sigma attitude knowledge error [rad] (small-angle): isotropic, or per camera axis
+            ``(x, y, z)``. An error rotation ``dtheta`` (camera axes) moves the camera-frame
+            centre ``c`` by ``-dtheta x c``, so ``P += R [c x] diag(sigma^2) [c x]^T R^T``.
+        radius_sigma_fraction : float
+            1-sigma relative error of the body's apparent limb radius shared by every point
+            (terrain, :mod:`starnav.dem.limb`): the fix scales with the radius, so
+            ``P += f^2 R c c^T R^T``.
         """
         R = np.asarray(R_cam_to_inertial, float)
         P = R @ self.covariance_camera @ R.T
-        if attitude_sigma_rad > 0:
-            X = _skew(self.position_inertial(R))
-            P = P + attitude_sigma_rad**2 * (X @ X.T)
+        sig = np.atleast_1d(np.asarray(attitude_sigma_rad, float))
+        if np.any(sig > 0):
+            X = _skew(np.asarray(self.centre_camera, float))
+            S = np.diag(np.broadcast_to(sig, (3,)) ** 2)
+            P = P + R @ X @ S @ X.T @ R.T
+        if radius_sigma_fraction > 0:
+            c = R @ np.asarray(self.centre_camera, float)
+            P = P + radius_sigma_fraction**2 * np.outer(c, c)
         return 0.5 * (P + P.T)
 
 

@@ -268,7 +268,8 @@ def process_frame(
         return _fail(frame, "fix-failed", str(err), tm, limb=limb, inliers=inl,
                      refined=refined)
     pos = fix.position_inertial(R_ci)
-    cov = fix.covariance_inertial(R_ci, opt.fix.attitude_sigma_rad)
+    cov = fix.covariance_inertial(R_ci, opt.fix.attitude_sigma_rad,
+                                  opt.fix.radius_sigma_fraction)
     tm["fix"] = time.perf_counter() - t
     return FrameMeasurement(int(frame.index), float(frame.epoch_tdb), "ok", "", limb, inl,
                             refined, fix, pos, cov, tm)

@@ -76,6 +76,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from starnav.dem.limb import LimbTopography
 from starnav.detector.products import MAX_WINDOWS, Window
 from starnav.errors import ConfigError, UnknownNameError
 from starnav.navigation.limb import LimbNotFoundError, LimbPoints
@@ -99,6 +100,48 @@ class WindowRequest:
 
 
 @dataclass(frozen=True)
+class PixelNoise:
+    """Per-pixel noise of a window's DN values, from the detector settings (module step 4).
+
+    ``var(I) = [read^2 + g s + (prnu g s)^2] / g^2 + 1/12`` [DN^2] for a pixel of ``I`` DN,
+    ``s = max(I - offset, 0)`` DN above the offset and ``g`` the gain [e-/DN]: read noise, shot
+    noise of the collected charge, photo-response non-uniformity (a fixed pattern, random from
+    pixel to pixel as the limb moves over the detector) and quantisation.
+    """
+
+    gain_e_per_dn: float
+    read_noise_e: float = 0.0
+    prnu_fraction: float = 0.0
+    offset_dn: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name, v, ok in (("gain_e_per_dn", self.gain_e_per_dn, self.gain_e_per_dn > 0),
+                            ("read_noise_e", self.read_noise_e, self.read_noise_e >= 0),
+                            ("prnu_fraction", self.prnu_fraction, 0 <= self.prnu_fraction < 1),
+                            ("offset_dn", self.offset_dn, math.isfinite(self.offset_dn))):
+            if not (ok and math.isfinite(v)):
+                raise ConfigError(f"refine.noise.{name}", v, "a finite value in range")
+
+    def variance_dn2(self, dn: ArrayLike) -> FloatArray:
+        """Variance [DN^2] of pixels whose expected value is ``dn`` [DN]."""
+        g = self.gain_e_per_dn
+        e = np.maximum(np.asarray(dn, float) - self.offset_dn, 0.0) * g
+        return (self.read_noise_e**2 + e + (self.prnu_fraction * e) ** 2) / g**2 + 1.0 / 12.0
+
+    @classmethod
+    def from_detector(cls, detector: object) -> PixelNoise:
+        """From a :class:`~starnav.detector.schema.DetectorConfig` (PRNU and read noise count
+        only where enabled)."""
+        d = detector
+        prnu = d.charge.prnu  # type: ignore[attr-defined]
+        rn = d.signal.read_noise  # type: ignore[attr-defined]
+        return cls(gain_e_per_dn=float(d.gain_e_per_dn),  # type: ignore[attr-defined]
+                   read_noise_e=float(rn.sigma_e) if getattr(rn, "enabled", True) else 0.0,
+                   prnu_fraction=float(prnu.sigma_fraction) if prnu.enabled else 0.0,
+                   offset_dn=float(d.adc.offset_dn))  # type: ignore[attr-defined]
+
+
+@dataclass(frozen=True)
 class RefineOptions:
     """Knobs of :func:`plan_windows` and :func:`refine_limb` (module table)."""
 
@@ -111,6 +154,9 @@ class RefineOptions:
     max_iterations: int = 30
     min_sigma_px: float = 0.02
     min_contrast_dn: float = 10.0
+    noise: PixelNoise | None = None
+    model_error_px: float = 0.0
+    limb_topography: LimbTopography | None = None
 
     def __post_init__(self) -> None:
         if not 1 <= self.n_windows <= MAX_WINDOWS:
@@ -124,6 +170,8 @@ class RefineOptions:
             raise ConfigError("refine.psf_sigma_px", self.psf_sigma_px, "None or >= 0 px")
         if not self.sigma0_px > 0:
             raise ConfigError("refine.sigma0_px", self.sigma0_px, "> 0 px")
+        if not (self.model_error_px >= 0 and math.isfinite(self.model_error_px)):
+            raise ConfigError("refine.model_error_px", self.model_error_px, ">= 0 px")
 
 
 # ------------------------------------------------------------------------ F_nu functions
@@ -325,12 +373,14 @@ def fit_edge_window(
     sigma = (opt.sigma0_px if fit_sigma
              else math.sqrt(opt.psf_sigma_px**2 + PIXEL_BOX_VARIANCE))
 
+    sw = np.ones_like(y)   # sqrt of the weights: 1 until the noise model is applied
+
     def evaluate(delta: float, tau: float, sigma: float):
         # variable projection: the linear amplitudes are solved for at every point
         d = rho - (radius_px + delta + tau * t_arc)
         Bm, dBd, dBs = _bases(d, t_arc, sigma, nus, fit_sigma)
-        a, *_ = np.linalg.lstsq(Bm, y, rcond=None)
-        r = y - Bm @ a
+        a, *_ = np.linalg.lstsq(Bm * sw[:, None], y * sw, rcond=None)
+        r = (y - Bm @ a) * sw
         return a, r, float(r @ r), Bm, dBd, dBs
 
     def jacobian(a, Bm, dBd, dBs):
@@ -339,9 +389,36 @@ def fit_edge_window(
         cols = [-dI_dd, -dI_dd * t_arc]
         if fit_sigma:
             cols.append(dBs @ a)
-        return np.column_stack(cols + [Bm])
+        return np.column_stack(cols + [Bm]) * sw[:, None]
 
     delta, tau = 0.0, 0.0
+    state = _lm(evaluate, jacobian, delta, tau, sigma, fit_sigma, opt)
+    if opt.noise is not None:
+        # weighted pass: weights from the noise model at the unweighted fit's prediction
+        delta, tau, sigma = state[0], state[1], state[2]
+        lin0, Bm0 = state[3], state[5]
+        sw = 1.0 / np.sqrt(opt.noise.variance_dn2(Bm0 @ lin0))
+        state = _lm(evaluate, jacobian, delta, tau, sigma, fit_sigma, opt)
+    delta, tau, sigma, lin, r, Bm, dBd, dBs, cost, it, converged = state
+    J = jacobian(lin, Bm, dBd, dBs)
+    dof = max(y.size - J.shape[1], 1)
+    s2 = cost / dof
+    # known noise: the covariance is (J^T W J)^-1, inflated by the reduced chi-square where the
+    # model fits worse than the noise (a-posteriori factor >= 1); unknown noise: s^2 (J^T J)^-1
+    factor = max(s2, 1.0) if opt.noise is not None else s2
+    try:
+        cov = factor * np.linalg.inv(J.T @ J)
+        sd = float(math.sqrt(max(cov[0, 0], 0.0)))
+    except np.linalg.LinAlgError:
+        sd = math.inf
+    return EdgeFit(delta=float(delta), tau=float(tau), sigma=float(sigma),
+                   amplitudes=np.asarray(lin[1:], float), background=float(lin[0]),
+                   sigma_delta=sd, rms=math.sqrt(s2), iterations=it, converged=converged)
+
+
+def _lm(evaluate, jacobian, delta: float, tau: float, sigma: float, fit_sigma: bool,
+        opt: RefineOptions):
+    """Levenberg-Marquardt on ``(delta, tau[, sigma])`` with the amplitudes projected out."""
     lam = 1e-3
     lin, r, cost, Bm, dBd, dBs = evaluate(delta, tau, sigma)
     converged = False
@@ -380,17 +457,7 @@ def fit_edge_window(
             break
         if converged:
             break
-    J = jacobian(lin, Bm, dBd, dBs)
-    dof = max(y.size - J.shape[1], 1)
-    s2 = cost / dof
-    try:
-        cov = s2 * np.linalg.inv(J.T @ J)
-        sd = float(math.sqrt(max(cov[0, 0], 0.0)))
-    except np.linalg.LinAlgError:
-        sd = math.inf
-    return EdgeFit(delta=float(delta), tau=float(tau), sigma=float(sigma),
-                   amplitudes=np.asarray(lin[1:], float), background=float(lin[0]),
-                   sigma_delta=sd, rms=math.sqrt(s2), iterations=it, converged=converged)
+    return delta, tau, sigma, lin, r, Bm, dBd, dBs, cost, it, converged
 
 
 def refine_limb(
@@ -428,6 +495,11 @@ def refine_limb(
     R = float(radius_px)
     pts, sig = [], []
     half = opt.size_px / 2.0 + 1.0
+    # model error of a point: the terrain's limb-height spread averaged over the window's arc,
+    # at this disc size, and a floor
+    frac = (opt.limb_topography.sigma_fraction_over(opt.size_px / max(R, 1.0))
+            if opt.limb_topography is not None else 0.0)
+    model_px = math.hypot(opt.model_error_px, frac * R)
     for w in windows:
         v, u = np.mgrid[w.row0:w.row0 + w.height, w.col0:w.col0 + w.width].astype(float)
         dn = w.dn.astype(float).ravel()
@@ -453,7 +525,7 @@ def refine_limb(
                       w.row0, w.col0, fit.delta, fit.amplitudes[0], fit.converged)
             continue
         pts.append(c + (R + fit.delta) * np.array([math.cos(phi_w), math.sin(phi_w)]))
-        sig.append(max(fit.sigma_delta, opt.min_sigma_px))
+        sig.append(max(math.hypot(fit.sigma_delta, model_px), opt.min_sigma_px))
     if len(pts) < 3:
         raise LimbNotFoundError(f"subpixel refinement: {len(pts)} of {len(windows)} windows "
                                 "hold a valid limb edge (need >= 3)", "no-edge")

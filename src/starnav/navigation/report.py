@@ -243,7 +243,9 @@ def navigate_dataset(
         raise ConfigError("dynamics", type(dyn).__name__, "an object with moon_state(t)")
     rng = np.random.default_rng(seed)
     P0 = cfg.initial_covariance()
-    run = navigate(dataset, dynamics=dyn, moon=dyn, P0=P0, chain=cfg.chain_options(),
+    scenario = dataset.scenario() if callable(getattr(dataset, "scenario", None)) else None
+    run = navigate(dataset, dynamics=dyn, moon=dyn, P0=P0,
+                   chain=cfg.chain_options(scenario=scenario),
                    ekf=cfg.ekf_options(), rng=rng, measure_memory=measure_memory)
     mc: list[FilterResult] = []
     if n_runs > 1 and run.truth is not None:

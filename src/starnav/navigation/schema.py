@@ -18,7 +18,7 @@ Example (YAML)::
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -61,6 +61,12 @@ class RefineConfig(StrictModel):
         None, description="Gaussian PSF sigma [px]; null: fitted per window")
     saturation_dn: PositiveFloat = Field(4095.0, description="pixels at or above are ignored [DN]")
     min_sigma_px: PositiveFloat = Field(0.02, description="floor of a refined point's sigma [px]")
+    noise_model: bool = Field(
+        True, description="weight each window fit with the scenario detector's per-pixel noise "
+        "(read, shot, PRNU, quantisation) and take its covariance from it")
+    terrain_model_error: bool = Field(
+        True, description="add the DEM's limb-height spread (starnav.dem.limb) to each refined "
+        "point's sigma when the Moon has terrain")
     outlier_px: PositiveFloat = Field(0.5, description="refined points farther from the first "
                                                        "fix are dropped [px]")
 
@@ -80,8 +86,12 @@ class FixConfig(StrictModel):
 
     moon_radii_km: tuple[PositiveFloat, PositiveFloat, PositiveFloat] | None = Field(
         None, description="Moon semi-axes (a, b, c) [km]; null: the sphere of the moon section")
-    attitude_sigma_arcsec: NonNegativeFloat = Field(
-        0.0, description="attitude knowledge 1-sigma per axis [arcsec]")
+    attitude_sigma_arcsec: (NonNegativeFloat
+                            | tuple[NonNegativeFloat, NonNegativeFloat, NonNegativeFloat]
+                            | None) = Field(
+        None, description="attitude knowledge 1-sigma [arcsec]: one value, or (x, y, z) about "
+        "the camera axes (z = roll); null: the scenario's pointing knowledge (cross, cross, "
+        "roll), 0 without a scenario")
 
 
 class FilterConfig(StrictModel):
@@ -113,22 +123,44 @@ class NavigationConfig(StrictModel):
         1, description="Monte Carlo runs of the filter over initial errors")
 
     # ---------------------------------------------------------------- conversions
-    def chain_options(self, moon_radius_m: float | None = None) -> ChainOptions:
+    def chain_options(self, moon_radius_m: float | None = None, *,
+                      scenario: Any | None = None) -> ChainOptions:
         """The SI :class:`~starnav.navigation.pipeline.ChainOptions` of this section.
 
         ``moon_radius_m`` is the sphere used when ``fix.moon_radii_km`` is null (default the
-        LOLA reference radius).
+        LOLA reference radius). ``scenario`` (a :class:`starnav.config.Scenario`, e.g. the one a
+        dataset records) supplies what the frames were made with: the detector's per-pixel
+        noise (``refine.noise_model``), the terrain's limb-height spread
+        (``refine.terrain_model_error``, DEM Moons only) and the pointing knowledge error
+        (``fix.attitude_sigma_arcsec: null``).
         """
         from starnav.constants import MOON_RADIUS
         from starnav.navigation.christian_robinson import ChristianRobinsonOptions
         from starnav.navigation.limb import LimbScanOptions
         from starnav.navigation.pipeline import ChainOptions
         from starnav.navigation.ransac import RansacOptions
-        from starnav.navigation.refine import RefineOptions
+        from starnav.navigation.refine import PixelNoise, RefineOptions
 
         L, Rf, Rs, F = self.limb, self.refine, self.ransac, self.fix
         r = MOON_RADIUS if moon_radius_m is None else float(moon_radius_m)
         radii = (r, r, r) if F.moon_radii_km is None else tuple(x * 1e3 for x in F.moon_radii_km)
+        noise, terrain = None, None
+        att: float | tuple[float, float, float] = 0.0
+        if F.attitude_sigma_arcsec is not None:
+            a = F.attitude_sigma_arcsec
+            att = (a * ARCSEC if isinstance(a, float | int)
+                   else tuple(float(x) * ARCSEC for x in a))  # type: ignore[assignment]
+        if scenario is not None:
+            if Rf.noise_model:
+                noise = PixelNoise.from_detector(scenario.detector)
+            if Rf.terrain_model_error and scenario.moon.shape == "dem":
+                from starnav.dem.limb import limb_topography_for
+
+                terrain = limb_topography_for(scenario.moon.dem)
+            if F.attitude_sigma_arcsec is None:
+                pc = scenario.pointing
+                att = (pc.knowledge_cross_arcsec * ARCSEC, pc.knowledge_cross_arcsec * ARCSEC,
+                       pc.knowledge_roll_arcsec * ARCSEC)
         return ChainOptions(
             limb=LimbScanOptions(max_points=L.max_points, min_level=L.min_level,
                                  min_run_length_px=L.min_run_length_px,
@@ -140,9 +172,12 @@ class NavigationConfig(StrictModel):
                                  min_inlier_fraction=Rs.min_inlier_fraction),
             refine=RefineOptions(n_windows=Rf.n_windows, size_px=Rf.window_size_px,
                                  edge_model=Rf.edge_model, psf_sigma_px=Rf.psf_sigma_px,
-                                 saturation_dn=Rf.saturation_dn, min_sigma_px=Rf.min_sigma_px),
-            fix=ChristianRobinsonOptions(radii_m=radii,  # type: ignore[arg-type]
-                                         attitude_sigma_rad=F.attitude_sigma_arcsec * ARCSEC),
+                                 saturation_dn=Rf.saturation_dn, min_sigma_px=Rf.min_sigma_px,
+                                 noise=noise, limb_topography=terrain),
+            fix=ChristianRobinsonOptions(
+                radii_m=radii,  # type: ignore[arg-type]
+                attitude_sigma_rad=att,
+                radius_sigma_fraction=terrain.common_fraction if terrain is not None else 0.0),
             use_windows=Rf.enabled,
             refine_outlier_px=Rf.outlier_px,
         )
