@@ -186,6 +186,24 @@ def exposure_study_header() -> str:
         "# The report compares the results with the paper (REFERENCE.md section 5).\n")
 
 
+def tuned_filter(exposure_s: float) -> dict[str, Any]:
+    """The EKF bias states tuned for ``exposure_s`` on calibration arcs
+    (``starnav/data/navigation/bias_tuning.json``, written by ``tools/tune_bias_states.py``;
+    never on the demo's own arc): the ``navigation.filter`` keys, or ``bias_model: none`` for
+    an exposure that was not tuned."""
+    import json
+    import math
+
+    from starnav.data import packaged_path
+
+    doc = json.loads(packaged_path("navigation/bias_tuning.json").read_text())
+    for key, v in doc["exposures"].items():
+        if math.isclose(float(key), exposure_s, rel_tol=1e-6):
+            return {k: v[k] for k in ("bias_model", "range_scale_sigma", "bias_sigma_km",
+                                      "bias_tau_days")}
+    return {"bias_model": "none"}
+
+
 #: The demo's scenario (``make demo``): see :mod:`starnav.batch.mainjob`.
 DEMO: dict[str, Any] = {
     "camera": {"preset": "aa-str"},
@@ -194,8 +212,8 @@ DEMO: dict[str, Any] = {
     "pointing": {"moon_offset": "random", "moon_offset_max_px": 300.0},
     "render": {"spp": 8, "aovs": False},
     "detector": {"exposure_time_s": 1.5e-5},
-    "navigation": {"fix": {"attitude_sigma_arcsec": None},
-                   "filter": {"bias_model": "none"}},
+    # the filter's bias states: tuned on other arcs (tuned_filter, in demo_scenario)
+    "navigation": {"fix": {"attitude_sigma_arcsec": None}},
 }
 
 #: Exposures of the demo dataset [s]: the paper's well-exposed case and its 7.7 ms case.
@@ -204,18 +222,20 @@ DEMO_EXPOSURES_S: tuple[float, ...] = (1.5e-5, 7.7e-3)
 #: saturated 7.7 ms frames are read out at half scale (the stray-light halo and the ghost exceed
 #: the default 200 DN threshold there) and the EKF estimates Gauss-Markov biases for a range
 #: scale (saturation pushes the limb outwards) and a 3-axis shift (unevenly along the arc, which
-#: moves the fitted centre); the well-exposed frames need neither.
+#: moves the fitted centre). Both exposures take the bias states tuned for them on calibration
+#: arcs (:func:`tuned_filter`; on the real Moon even the well-exposed fixes carry a slowly
+#: varying lit-terrain bias, docs/navigation.md).
 DEMO_EXPOSURE_OVERRIDES: tuple[tuple[float, tuple[str, ...]], ...] = (
     (7.7e-3, ("detector.readout.segments.thresholds_dn=[2048]",
-              "navigation.filter.bias_model=range-scale+additive",
-              "navigation.filter.range_scale_sigma=0.05",
-              "navigation.filter.bias_sigma_km=50",
-              "navigation.filter.bias_tau_days=2")),)
+              *(f"navigation.filter.{k}={v}" for k, v in tuned_filter(7.7e-3).items()))),)
 
 
 def demo_scenario() -> dict[str, Any]:
-    """The complete scenario of the demo (:func:`starnav.batch.main_job`)."""
-    return _resolved(DEMO)
+    """The complete scenario of the demo (:func:`starnav.batch.main_job`): :data:`DEMO` with
+    the filter's bias states tuned for 0.015 ms (:func:`tuned_filter`)."""
+    d = dict(DEMO)
+    d["navigation"] = {**DEMO["navigation"], "filter": tuned_filter(1.5e-5)}
+    return _resolved(d)
 
 
 # ============================================================================ registry

@@ -128,6 +128,48 @@ def paper_comparison(summary: Sequence[dict[str, Any]]) -> list[str]:
     return out
 
 
+def consistency_section(rows: Sequence[dict[str, Any]], summary: Sequence[dict[str, Any]],
+                        runs: int, probability: float = 0.99) -> list[str]:
+    """Markdown lines: per point, the filter's NEES averaged over the Monte Carlo runs (each run
+    its own detector noise, attitude knowledge error and initial error) against the two-sided
+    ``probability`` chi-square band of a ``runs``-run mean of a 6-state NEES, the verdict, and
+    the shortest exposure at which the filter stops being consistent."""
+    import numpy as np
+    from scipy.stats import chi2
+
+    if runs < 2:
+        return ["## Consistency", "",
+                "One run per point: no consistency verdict (give `--runs` >= 2).", ""]
+    lo, hi = chi2.ppf([(1 - probability) / 2, (1 + probability) / 2], 6 * runs) / runs
+    L = ["## Consistency (are the 3-sigma bounds true?)", "",
+         f"Mean NEES (6 states) over the {runs} runs, against the two-sided "
+         f"{100 * probability:.0f} % band of a {runs}-run mean, {lo:.2f}-{hi:.2f} "
+         "(consistent: inside; above: the filter is overconfident).", "",
+         "| point | scenario | exposure [ms] | mean NEES | verdict |", "|---|---|---|---|---|"]
+    bad = []
+    for s in summary:
+        v = np.array([r["nees_mean"] for r in rows if r["point"] == s["point"]
+                      and r.get("nees_mean") is not None], float)
+        v = v[np.isfinite(v)]
+        if v.size == 0:
+            L.append(f"| {s['point']} | {s['label']} | "
+                     f"{_g(s['exposure_time_s'], '.4g', 1e3)} | - | no filter |")
+            continue
+        m = float(v.mean())
+        verdict = "consistent" if lo <= m <= hi else ("overconfident" if m > hi
+                                                      else "pessimistic")
+        if verdict != "consistent":
+            bad.append((float(s["exposure_time_s"]), verdict))
+        L.append(f"| {s['point']} | {s['label']} | {_g(s['exposure_time_s'], '.4g', 1e3)} | "
+                 f"{m:.2f} | {verdict} |")
+    if bad:
+        L += ["", "**Not consistent at " + ", ".join(
+            f"{t * 1e3:.4g} ms ({v})" for t, v in sorted(bad)) + "**."]
+    else:
+        L += ["", "**The filter is consistent at every point.**"]
+    return L + [""]
+
+
 def write_report(path: str | os.PathLike[str], *, base: Scenario, axes: Sequence[GridAxis],
                  points: Sequence[GridPoint], rows: Sequence[dict[str, Any]], runs: int,
                  n_frames: dict[str, int], groups: dict[str, list[GridPoint]], runner: str,
@@ -165,6 +207,7 @@ def write_report(path: str | os.PathLike[str], *, base: Scenario, axes: Sequence
             f"{'ok' if s['readout_feasible'] else 'infeasible (fictitious)'} |")
     L += ["", "Every run's row is in `results.parquet` / `results.csv` (columns and units: "
           "docs/sweep.md and `sweep.json`).", ""]
+    L += consistency_section(rows, summary, runs)
     L += paper_comparison(summary)
     if figures:
         L += ["## Figures", ""]

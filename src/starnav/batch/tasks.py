@@ -243,10 +243,20 @@ def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, wind
     g = rendered.geometry
     R_meas = g.R_cam_to_inertial_measured if g.R_cam_to_inertial_measured is not None \
         else g.R_cam_to_inertial
+    from starnav.constants import ARCSEC
+    from starnav.scenes.pointing import knowledge_for_run
+
+    pc = sc.pointing
+    k_sigma = np.array([pc.knowledge_cross_arcsec, pc.knowledge_cross_arcsec,
+                        pc.knowledge_roll_arcsec]) * ARCSEC
     out = []
     for r in range(int(runs)):
         acq = acquire(le, g, cam, sc, run=r, windows=windows)
-        frame = Frame(index=g.index, epoch_tdb=g.epoch_tdb, R_cam_to_inertial_measured=R_meas,
+        # every run after the first samples the attitude knowledge error afresh, as it
+        # samples the detector noise (run 0 keeps the frame's own draw)
+        R_r = R_meas if r == 0 else knowledge_for_run(g.R_cam_to_inertial, k_sigma, sc.seed,
+                                                       g.index, r)
+        frame = Frame(index=g.index, epoch_tdb=g.epoch_tdb, R_cam_to_inertial_measured=R_r,
                       sun_direction_inertial=g.sun_position, segments=acq.segments,
                       windows=acq.windows, truth=g, R_moon_to_inertial=g.R_moon_to_inertial)
         m = process_frame(frame, cam, options=chain,

@@ -62,6 +62,7 @@ LIMB_CHECK_POINTS = 256
 #: Spawn-key stream identifiers of the scene's random effects (stable across versions).
 STREAM_POINTING = 0
 STREAM_KNOWLEDGE = 1
+STREAM_KNOWLEDGE_RUN = 2
 
 
 def frame_generators(seed: int, index: int) -> tuple[np.random.Generator, np.random.Generator]:
@@ -75,6 +76,19 @@ def frame_generators(seed: int, index: int) -> tuple[np.random.Generator, np.ran
         raise ConfigError("seed/index", (seed, index), "non-negative integers")
     return (generator(seed, STAGE_POINTING, int(index), STREAM_POINTING),
             generator(seed, STAGE_POINTING, int(index), STREAM_KNOWLEDGE))
+
+
+def knowledge_for_run(R_true: FloatArray, sigma_rad: FloatArray, seed: int, index: int,
+                      run: int) -> FloatArray:
+    """The measured attitude of frame ``index`` in Monte Carlo run ``run`` >= 1: the true
+    attitude with a fresh knowledge error ``e ~ N(0, diag(sigma^2))`` (camera axes), from its
+    own stream ``(STAGE_POINTING, index, STREAM_KNOWLEDGE_RUN, run)``; run 0 keeps the frame's
+    own draw. Monte Carlo runs thus sample the attitude error as they sample detector noise."""
+    if run < 1:
+        raise ConfigError("run", run, "a Monte Carlo run >= 1 (run 0 is the frame's own draw)")
+    rng = generator(seed, STAGE_POINTING, int(index), STREAM_KNOWLEDGE_RUN, int(run))
+    err = rng.standard_normal(3) * np.asarray(sigma_rad, float)
+    return np.asarray(R_true, float) @ rotation_from_vector(err)
 
 
 @dataclass(frozen=True)
