@@ -17,6 +17,7 @@ STAGE_DETECTOR_FIXED = 3
 STAGE_DETECTOR_TEMPORAL = 4
 STAGE_NAVIGATION = 5
 STAGE_HIL = 6
+STAGE_TERRAIN = 7
 
 
 def seed_sequence(seed: int, *keys: int) -> np.random.SeedSequence:

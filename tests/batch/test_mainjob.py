@@ -16,7 +16,7 @@ def test_main_job_makes_dataset_navigation_and_report(tmp_path):
 
     calls: list[tuple[int, int]] = []
     s = main_job(small_scenario(frames=4), tmp_path / "demo",
-                 progress=lambda d, n: calls.append((d, n)))
+                 progress=lambda d, n: calls.append((d, n)), runs=2)
     report = tmp_path / "demo" / "report.md"
     assert s["report"] == str(report) and report.is_file()
     text = report.read_text()
@@ -26,14 +26,20 @@ def test_main_job_makes_dataset_navigation_and_report(tmp_path):
         for f in ("metrics.json", "estimates.csv", "limb_error_pdf.png", "position_error.png"):
             assert (tmp_path / "demo" / "navigation" / e / f).is_file()
     assert verify(tmp_path / "demo" / "dataset") == []
-    assert s["frames"] == 4 and calls[-1] == (7, 7) and calls[0][0] == 0
+    assert s["frames"] == 4 and calls[-1] == (9, 9) and calls[0][0] == 0
+    # the consistency over Monte Carlo runs, next to the accuracy
+    assert "Can the 3-sigma bounds be trusted? (2 Monte Carlo runs)" in text
+    assert "over 2 runs: mean NEES" in text
+    for e in ("exposure_0.015ms", "exposure_7.7ms"):
+        assert (tmp_path / "demo" / "navigation" / e / "montecarlo" / "metrics.json").is_file()
+    assert s["0.015 ms: filter (2 runs)"] in ("consistent", "overconfident", "pessimistic")
     # one figure: the middle frame (index 2) rendered, next to its DN frames at both exposures
     _assert_report_shows_radiance_next_to_dn(tmp_path / "demo", text, index=2)
     assert math.isfinite(s["0.015 ms: limb bias [px]"])
     # the saturated limb lies farther out than the well-exposed one
     assert s["7.7 ms: limb bias [px]"] > s["0.015 ms: limb bias [px]"] + 0.5
     # a second run resumes the finished dataset instead of remaking it
-    s2 = main_job(small_scenario(frames=4), tmp_path / "demo")
+    s2 = main_job(small_scenario(frames=4), tmp_path / "demo", runs=0)
     assert s2["frames"] == 4 and s2["0.015 ms: limb bias [px]"] == s["0.015 ms: limb bias [px]"]
 
 

@@ -141,3 +141,32 @@ def test_grids_are_read_only_and_have_content_ids():
         g.heights[0, 0] = 1.0
     assert g.uid == _ramp_grid().uid
     assert g.uid != DemGrid(g.heights + 1.0).uid
+
+
+def test_a_turned_world_is_the_same_world_at_other_longitudes():
+    """``rotated_east(a)``: the value that was at longitude ``lon`` is at ``lon + a``, exactly,
+    for any angle (the grid's edges move, its cells do not), its mip levels too; a grid that
+    does not cover all longitudes cannot turn. ``moon.dem.longitude_offset_deg`` turns the
+    terrain and its albedo map together."""
+    from starnav.dem.load import load_albedo, load_dem
+
+    rng = np.random.default_rng(3)
+    g = DemGrid(rng.normal(0, 1000, (90, 180)).astype(np.float32))
+    a = math.radians(37.3)
+    t = g.rotated_east(a)
+    lat = rng.uniform(-1.5, 1.5, 500)
+    lon = rng.uniform(-math.pi, math.pi, 500)
+    assert np.allclose(t.sample(lat, lon + a), g.sample(lat, lon), atol=1e-3)
+    assert np.allclose(t.level(2).sample(lat, lon + a), g.level(2).sample(lat, lon), atol=1e-3)
+    assert t.uid != g.uid and g.rotated_east(0.0) is g
+    part = DemGrid(np.zeros((10, 10), np.float32), extent=(0.0, 0.5, -0.5, 0.5))
+    with pytest.raises(ConfigError, match="longitude_offset"):
+        part.rotated_east(0.1)
+    cfg = {"source": "lola", "albedo": {"source": "lroc"}}
+    d0, d1 = load_dem(cfg), load_dem({**cfg, "longitude_offset_deg": 90.0})
+    a0, a1 = load_albedo(cfg), load_albedo({**cfg, "longitude_offset_deg": 90.0})
+    lon = rng.uniform(-math.pi, math.pi, 200)
+    assert np.allclose(d1.sample(lat[:200], lon + math.pi / 2), d0.sample(lat[:200], lon),
+                       atol=1e-2)
+    assert np.allclose(a1.sample(lat[:200], lon + math.pi / 2), a0.sample(lat[:200], lon),
+                       atol=1e-6)

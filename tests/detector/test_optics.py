@@ -207,3 +207,66 @@ def test_distortion_flux_error_is_second_order_for_a_realistic_lens():
     blob = np.exp(-0.5 * ((u - 230) ** 2 + (v - 40) ** 2) / 1.5**2).astype(np.float32)
     out = distort(blob, cam)
     assert out.sum(dtype=np.float64) == pytest.approx(blob.sum(dtype=np.float64), rel=1e-4)
+
+
+# ----------------------------------------------------------------------------- line spread
+@pytest.mark.parametrize("angle_deg", [0.0, 30.0, 57.0])
+def test_line_spread_function_moments_are_the_closed_form(angle_deg):
+    """The detector's blur seen across a direction: unit area, zero mean, and the variance of
+    a sum of independent blurs: disc R^2/4, Gaussian sigma_r^2 cos^2 a + sigma_t^2 sin^2 a,
+    each pixel aperture (|n_u|^2 + |n_v|^2)/12 = 1/12, inter-pixel capacitance
+    2 nearest + 4 diagonal (its neighbours at distance n.d)."""
+    from starnav.detector.optics import line_spread_function
+
+    cam = small_camera(256)
+    cfg = AberrationPsfConfig(grid_nodes=(1, 1), defocus_radius_px=1.2, sigma_px=0.6)
+    a = math.radians(angle_deg)
+    n = np.array([math.cos(a), math.sin(a)])
+    x = np.arange(-2000, 2001) * 0.005
+    near, diag = 0.005, 0.0005
+    lsf = line_spread_function(cam, cfg, cam.cx, cam.cy, n, x, pixel_boxes=2,
+                               ipc=(near, diag))
+    h = x[1] - x[0]
+    assert float(lsf.sum() * h) == pytest.approx(1.0, abs=1e-9)
+    assert float((x * lsf).sum() * h) == pytest.approx(0.0, abs=1e-9)
+    var = float((x * x * lsf).sum() * h)
+    want = 1.2**2 / 4 + 0.6**2 + 2 / 12 + 2 * near + 4 * diag
+    assert var == pytest.approx(want, rel=2e-3)
+
+
+def test_line_spread_function_is_what_the_detector_does_to_an_edge():
+    """A straight edge (a half-plane of radiance, pixel-averaged as the renderer gives it,
+    tilted 20 deg off the columns at a subpixel offset) through the detector's own
+    field-varying PSF convolution (:func:`apply_psf_grid`, 5 x 5 nodes, off axis): its
+    profile across the edge is the blurred step ``int_{s>d} lsf`` of
+    :func:`line_spread_function` at that place within 0.7 % of the step (measured 0.54 %:
+    the discrete convolution of pixel averages with pixel-integrated kernels is a Riemann sum
+    of the continuous blur). With one pixel aperture instead of two the model is off by 1.8 %
+    (negative control: the chain blurs by an aperture more than the optics alone)."""
+    from starnav.detector.optics import line_spread_function
+
+    cam = small_camera(256)
+    cfg = AberrationPsfConfig()
+    a = math.radians(20.0)
+    n = np.array([math.cos(a), math.sin(a)])
+    p0 = np.array([180.3, 70.6])                    # a point of the edge, off axis
+    v, u = np.mgrid[0:256, 0:256].astype(float)
+    d = (u - p0[0]) * n[0] + (v - p0[1]) * n[1]
+    img = (d < 0).astype(float)                     # lit where d < 0 (inside)
+    near = np.abs(d) < 1.0                          # pixels the edge crosses: averaged
+    ss = 64
+    off = (np.arange(ss) + 0.5) / ss - 0.5
+    du, dv = (a.ravel() for a in np.meshgrid(off, off))
+    dd = d[near][:, None] + du[None, :] * n[0] + dv[None, :] * n[1]
+    img[near] = (dd < 0).mean(axis=1)
+    img = img.astype(np.float32) * 1000.0
+    out, _ = apply_psf_grid(img, psf_grid(cam, cfg))
+    x = np.arange(-1500, 1501) * 0.01
+    sel = (np.abs(u - p0[0]) < 12) & (np.abs(v - p0[1]) < 12)
+    worst = {}
+    for boxes in (1, 2):
+        lsf = line_spread_function(cam, cfg, p0[0], p0[1], n, x, pixel_boxes=boxes)
+        b0 = (np.cumsum(lsf[::-1])[::-1] - 0.5 * lsf) * 0.01   # mass beyond each abscissa
+        worst[boxes] = float(np.max(np.abs(out[sel] - 1000.0 * np.interp(d[sel], x, b0))))
+    assert worst[2] < 7.0, worst
+    assert worst[1] > 15.0, worst

@@ -150,59 +150,70 @@ def test_radius_error_moves_the_fix_along_the_line_of_sight():
 
 
 # ----------------------------------------------------------------------------- rendered frames
+#: The test arcs, never used by the calibration (tools/calibrate_refine_model_error.py: other
+#: epochs and seeds): the demo's halo arc (phase 0, 2027-03-01, seed 20250101) and two more,
+#: each 10 frames 1.5 days apart, so that the frames show many stretches of limb (the terrain
+#: error of a frame depends on the stretch in view: frame by frame it scatters by a factor 2)
+#: at Sun phases from 20 to 120 deg.
+TEST_ARCS = ([], ["trajectory.halo_phase_deg=180", "trajectory.epoch=2027-06-15T00:00:00 TDB",
+                  "seed=777"],
+             ["trajectory.halo_phase_deg=90", "trajectory.epoch=2027-07-20T00:00:00 TDB",
+              "seed=778"])
+ARC = ["trajectory.duration_days=13.5", "trajectory.cadence_s=129600", "render.spp=8"]
+WELL_EXPOSED = (1.5e-5, ("detector.readout.segments.thresholds_dn=[200]",))
+SATURATED = (1.8e-4, ("detector.readout.segments.thresholds_dn=[2048]",))
+
+
 @pytest.fixture(scope="module")
-def rendered_arc(tmp_path_factory):
-    """12 rendered, exposed frames of the demo scenario (real Moon, AA-STR, 0.015 ms, 8 spp,
-    one per hour), navigated with the chain the dataset's scenario implies (~40 s)."""
+def limb_records():
+    """The test arcs rendered once (real Moon, AA-STR, 8 spp, 30 frames), exposed at 0.015 ms
+    and at 0.18 ms, every frame through the chain the scenario implies (~60 s)."""
+    from starnav.batch.consistency import limb_point_records
     from starnav.batch.presets import demo_scenario
-    from starnav.config import scenario_from_dict
-    from starnav.dataset import DatasetOptions, generate
-    from starnav.dataset import open as open_dataset
-    from starnav.navigation.dynamics import PointMassDynamics
-    from starnav.navigation.pipeline import navigate
+    from starnav.config import scenario_from_dict, scenario_to_dict
 
-    out = tmp_path_factory.mktemp("arc12")
-    sc = scenario_from_dict(demo_scenario(), ["trajectory.duration_days=0.5",
-                                              "trajectory.cadence_s=3600", "render.spp=8"])
-    generate(sc, out / "d", options=DatasetOptions(exposures_s=(1.5e-5,)))
-    ds = open_dataset(out / "d")
-    scen = ds.scenario()
-    cfg = scen.navigation
-    dyn = PointMassDynamics(step_s=cfg.filter.rk4_step_s)
-    run = navigate(ds, dynamics=dyn, moon=dyn, P0=cfg.initial_covariance(),
-                   chain=cfg.chain_options(scenario=scen), ekf=cfg.ekf_options(),
-                   rng=np.random.default_rng(1))
-    return ds, dyn, run
+    recs = [limb_point_records(scenario_to_dict(scenario_from_dict(demo_scenario(),
+                                                                   arc + ARC)),
+                               1, (WELL_EXPOSED, SATURATED)) for arc in TEST_ARCS]
+    out = {}
+    for t in (WELL_EXPOSED[0], SATURATED[0]):
+        pts = [r[t]["points"] for r in recs]
+        out[t] = {"points": {k: np.concatenate([p[k] for p in pts]) for k in pts[0]},
+                  "fix_nees": np.concatenate([r[t]["fix_nees"] for r in recs])}
+    return out
 
 
-def test_refined_points_error_over_sigma_is_one_on_rendered_frames(rendered_arc):
+@pytest.mark.parametrize("exposure", [WELL_EXPOSED[0], SATURATED[0]], ids=["0.015ms", "0.18ms"])
+def test_refined_points_error_over_sigma_is_one_on_rendered_frames(limb_records, exposure):
     """Issue 13: rms(error / sigma) of the refined limb points within 1 +- 0.1 on rendered,
-    exposed frames at 0.015 ms (~200 points: a consistent sigma gives rms 1 +- 0.05 at 1
-    sigma). Measured 1.05 (it was 1.63 with the pooled-residual sigma)."""
-    _, _, run = rendered_arc
-    z = []
-    for m, err in zip(run.measurements, run.limb_errors, strict=True):
-        if m.refined is not None and err.size == m.refined.sigma_px.size:
-            z.append(err / m.refined.sigma_px)
-    z = np.concatenate(z)
-    assert z.size >= 150
-    assert abs(float(np.sqrt(np.mean(z**2))) - 1.0) < 0.1
+    exposed frames at 0.015 ms and at 0.18 ms (saturated inside the limb), sigma being a
+    point's whole 1-sigma (its own and the part its frame shares). ~380 points (frames past
+    the 145 deg crescent limit give none); the model errors were calibrated on other arcs.
+    Before the detector-PSF edge model the 0.18 ms windows were biased by -1.9 +- 2.9 px (a
+    fitted Gaussian cannot place a clipped edge)."""
+    from starnav.batch.consistency import refinement_consistency
+
+    tab = limb_records[exposure]["points"]
+    res = refinement_consistency(tab)
+    assert res["points"] >= 350, res
+    assert abs(res["all"]["rms_z"] - 1.0) < 0.1, res
+    if exposure == SATURATED[0]:
+        assert res["saturated"]["points"] >= 200, res
+        assert abs(res["saturated"]["bias_px"]) < 0.1, res     # the edge, not the clipping
+    # subpixel, as the paper's algorithm 1 promises: well below the pixel-level 0.4 px
+    assert res["all"]["std_px"] < 0.2, res
 
 
-def test_fix_covariance_is_consistent_on_rendered_frames(rendered_arc):
-    """The fixes' own NEES (3 dof) against the truth, averaged over the frames, inside the
-    two-sided 99 % chi-square band of that mean (a consistent R fails with probability 1 %).
-    Measured 3.4 (it was 5.6 with the pooled sigma and an isotropic 5 arcsec attitude)."""
+@pytest.mark.parametrize("exposure", [WELL_EXPOSED[0], SATURATED[0]], ids=["0.015ms", "0.18ms"])
+def test_fix_covariance_is_consistent_on_rendered_frames(limb_records, exposure):
+    """The fixes' own NEES (3 dof) against the true Moon-relative position, averaged over the
+    frames, inside the two-sided 99 % chi-square band of that mean (a consistent covariance
+    fails with probability 1 %)."""
     from scipy.stats import chi2
 
-    ds, dyn, run = rendered_arc
-    nees = []
-    for m, x, f in zip(run.measurements, run.truth, ds, strict=True):
-        if m.usable and m.position is not None:
-            d = m.position - (x[:3] - dyn.moon_state(f.epoch_tdb)[:3])
-            nees.append(float(d @ np.linalg.solve(m.covariance, d)))
-    n = len(nees)
-    assert n >= 10
+    nees = limb_records[exposure]["fix_nees"]
+    n = nees.size
+    assert n >= 24
     lo, hi = chi2.ppf([0.005, 0.995], 3 * n) / n
     assert lo < np.mean(nees) < hi, (np.mean(nees), lo, hi)
 
@@ -258,15 +269,31 @@ def test_monte_carlo_runs_redraw_the_attitude_knowledge_error():
         knowledge_for_run(R0, sig, 7, 3, 0)
 
 
-def _consistency(overrides: list[str], runs: int = 20):
-    from starnav.batch.consistency import filter_consistency, noise_monte_carlo
+#: The demo's arc, short: 4 frames two hours apart (Sun phase ~82 deg), never used to tune
+#: the bias states (tools/tune_bias_states.py: other epochs, halo phases and seeds).
+SHORT_ARC = ["trajectory.duration_days=0.25", "trajectory.cadence_s=7200", "render.spp=8"]
+RUNS = 20
+
+
+@pytest.fixture(scope="module")
+def demo_arc():
+    """The short demo arc, rendered once per Monte Carlo run, each run on its own terrain
+    (the DEM and its albedo turned about the pole, the geometry unchanged: 80 renders,
+    ~60 s); its resolved scenario."""
+    from starnav.batch.consistency import terrain_renders
     from starnav.batch.presets import demo_scenario
     from starnav.config import scenario_from_dict, scenario_to_dict
 
-    sc = scenario_from_dict(demo_scenario(), ["trajectory.duration_days=0.3",
-                                              "trajectory.cadence_s=3600",
-                                              "render.spp=4", *overrides])
-    return filter_consistency(noise_monte_carlo(scenario_to_dict(sc), runs=runs))
+    cfg = scenario_to_dict(scenario_from_dict(demo_scenario(), SHORT_ARC))
+    return cfg, terrain_renders(cfg, RUNS)
+
+
+def _consistency(cfg, per_run, overrides: list[str]):
+    from starnav.batch.consistency import filter_consistency, noise_monte_carlo
+    from starnav.config import scenario_from_dict, scenario_to_dict
+
+    c = scenario_to_dict(scenario_from_dict(cfg, overrides))
+    return filter_consistency(noise_monte_carlo(c, RUNS, per_run=per_run))
 
 
 def test_filter_is_consistent_on_a_smooth_moon_over_noise_runs():
@@ -274,21 +301,44 @@ def test_filter_is_consistent_on_a_smooth_moon_over_noise_runs():
     20 Monte Carlo runs over detector noise, attitude knowledge error and initial error, each
     through the whole chain and the filter (no bias states): the run-averaged NEES lies in the
     two-sided 99 % chi-square band of a 20-run mean (a consistent filter fails with probability
-    ~1 %; the steps of a run are correlated, so the test is looser than its nominal rate).
-    Measured on 13 frames: 7.55 in 4.19-8.18."""
-    res = _consistency(["moon.shape=sphere", "navigation.filter.bias_model=none"])
+    ~1 %; the steps of a run are correlated, so the test is looser than its nominal rate)."""
+    from starnav.batch.consistency import filter_consistency, noise_monte_carlo
+    from starnav.batch.presets import demo_scenario
+    from starnav.config import scenario_from_dict, scenario_to_dict
+
+    cfg = scenario_to_dict(scenario_from_dict(demo_scenario(), [
+        "trajectory.duration_days=0.3", "trajectory.cadence_s=3600", "render.spp=8",
+        "moon.shape=sphere", "navigation.filter.bias_model=none"]))
+    res = filter_consistency(noise_monte_carlo(cfg, RUNS))
     assert res["consistent"], (res["nees_mean"], res["band"])
 
 
-def test_filter_with_tuned_bias_states_is_consistent_on_the_real_moon():
-    """Issue 13 (CI): the same on the real Moon (LOLA + LROC, the demo arc), with the bias
-    states tuned on *other* arcs (tools/tune_bias_states.py -> the demo preset). Without them
-    the filter is overconfident (measured 15.5 on 13 frames): the lit-terrain bias is not
-    white."""
-    res = _consistency([])
+def test_filter_with_tuned_bias_states_is_consistent_on_the_real_moon(demo_arc):
+    """Issue 13 (CI): the real Moon (LOLA + LROC, the demo arc, 0.015 ms), 20 runs over the
+    terrain in view, detector noise, attitude knowledge and initial error, the bias states
+    tuned on *other* arcs (tools/tune_bias_states.py -> the demo preset): NEES and NIS inside
+    their two-sided 99 % bands; the paper's HIL accuracy (final position error < 0.5 % of
+    range, seed paper, HIL 0.015 ms); the 3-sigma bounds hold the errors at their rate
+    (99.73 % for a consistent filter; >= 97 % asked of 480 time-correlated samples)."""
+    res = _consistency(*demo_arc, [])
     assert res["consistent"], (res["nees_mean"], res["band"])
-    # and the paper's HIL accuracy: final position error < 0.5 % of the range
-    assert res["final_position_error_pct_range_median"] < 0.5
+    assert res["nis_band"][0] <= res["nis_mean"] <= res["nis_band"][1], res["nis_mean"]
+    assert res["final_position_error_pct_range"]["median"] < 0.5
+    assert res["final_position_error_pct_range"]["p90"] < 0.5
+    assert res["within_3sigma"]["all"] >= 0.97, res["within_3sigma"]
+
+
+def test_filter_with_tuned_bias_states_is_consistent_at_7_7_ms(demo_arc):
+    """Issue 13 (CI): the paper's saturated 7.7 ms case on the same rendered frames (the demo's
+    2048 DN segment threshold and its bias states, tuned on other arcs): consistent over 20
+    runs, and the paper's HIL result for it, final errors < 1 % (seed paper, 7.7 ms)."""
+    from starnav.batch.presets import DEMO_EXPOSURE_OVERRIDES
+
+    over = dict(DEMO_EXPOSURE_OVERRIDES)[7.7e-3]
+    res = _consistency(*demo_arc, ["detector.exposure_time_s=0.0077", *over])
+    assert res["consistent"], (res["nees_mean"], res["band"])
+    assert res["final_position_error_pct_range"]["p90"] < 1.0
+    assert res["within_3sigma"]["all"] >= 0.97, res["within_3sigma"]
 
 
 def test_sweep_report_states_consistency_per_point():
@@ -311,3 +361,62 @@ def test_sweep_report_states_consistency_per_point():
     assert "| 2 | p2 | 0.18 | 1.15 | pessimistic |" in text
     assert "Not consistent at 0.18 ms (pessimistic), 7.7 ms (overconfident)" in text
     assert "no consistency verdict" in "\n".join(consistency_section(rows, summ, 1))
+
+
+
+def test_model_error_calibration_recovers_known_terms():
+    """The method of moments of tools/calibrate_refine_model_error.py on synthetic records
+    drawn with known terms: edge model error per phase bin, saturated extra, terrain scale and
+    the fix-level covariance come back within their sampling error (thousands of points,
+    500 fixes: ~5 % on the standard deviations)."""
+    from starnav.batch.consistency import calibrate_model_error
+
+    class Topo:                     # the DEM's limb-height spread as fractions of the radius
+        common_fraction = 6e-4
+
+        @staticmethod
+        def sigma_fraction_over(arc):
+            return 9e-4
+
+    rng = np.random.default_rng(5)
+    se_true, ss_true, k_true = (0.03, 0.08, 0.10), (0.05, 0.09, 0.15), 1.3
+    C_true = np.array([[4e-6, -3e-6, 0.0], [-3e-6, 6e-6, 0.0], [0.0, 0.0, 1e-6]])
+
+    def table(n_frames, terrain, saturated):
+        cols = {k: [] for k in ("error", "fit_sigma", "saturated", "radius", "phase",
+                                "sun_angle", "frame", "run")}
+        for f in range(n_frames):
+            ph = rng.uniform(0.2, 2.4)
+            b = int(np.searchsorted([0, math.radians(90), math.radians(120)], ph, "right")) - 1
+            R = rng.uniform(50, 110)
+            phi = rng.uniform(-1.4, 1.4, 16)
+            fit = rng.uniform(0.005, 0.02, 16)
+            own = fit**2 + se_true[b] ** 2 + (ss_true[b] ** 2 if saturated else 0.0)
+            if terrain:
+                own = own + (k_true * 9e-4 * R) ** 2
+            e = rng.standard_normal(16) * np.sqrt(own)
+            if terrain:
+                a, bb, c = np.linalg.cholesky(C_true * R**2) @ rng.standard_normal(3)
+                e = e + a + bb * np.cos(phi) + c * np.sin(phi)
+            for k, v in (("error", e), ("fit_sigma", fit), ("saturated", np.full(16, saturated)),
+                         ("radius", np.full(16, R)), ("phase", np.full(16, ph)),
+                         ("sun_angle", phi), ("frame", np.full(16, f)), ("run", np.zeros(16))):
+                cols[k].append(v)
+        return {k: np.concatenate(v) for k, v in cols.items()}
+
+    smooth = {k: np.concatenate([a, b]) for (k, a), b in zip(
+        table(300, False, False).items(), table(300, False, True).values(), strict=True)}
+    smooth["frame"] = np.arange(smooth["frame"].size) // 16
+    terrain = table(400, True, False)
+    W = [np.diag(rng.uniform(0.5, 2.0, 3)) * 1e-6 for _ in range(500)]
+    fixes = {"error": np.array([np.linalg.cholesky(C_true + w) @ rng.standard_normal(3)
+                                for w in W]),
+             "white": np.array(W), "noise": np.array(W), "radius": np.full(500, 70.0),
+             "saturated": np.zeros(500, bool), "frame": np.arange(500), "run": np.zeros(500)}
+    res = calibrate_model_error(smooth, terrain, fixes, Topo(), 11)
+    assert np.allclose(res["edge_model_error_px"], se_true, rtol=0.1)
+    assert np.allclose(res["saturated_model_error_px"], ss_true, rtol=0.15)
+    assert res["terrain_scale"] == pytest.approx(k_true, rel=0.1)
+    C = np.array(res["fix_covariance"])
+    assert np.allclose(np.sqrt(np.diag(C)), np.sqrt(np.diag(C_true)), rtol=0.1)
+    assert C[0, 1] / math.sqrt(C[0, 0] * C[1, 1]) == pytest.approx(-0.61, abs=0.1)

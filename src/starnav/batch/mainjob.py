@@ -15,7 +15,10 @@ Technique
 2. **Navigation** (:func:`starnav.navigation.report.navigate_dataset`) on each exposure, read
    back with :func:`starnav.dataset.open`: limb from the segments, RANSAC, subpixel refinement in
    the windows, Christian-Robinson fix, EKF; estimates, metrics and the paper's figures per
-   exposure.
+   exposure. Then the consistency of the filter (:func:`starnav.batch.montecarlo.
+   navigate_runs`): :data:`DEMO_RUNS` Monte Carlo runs per exposure, each frame's radiance
+   re-exposed with its own noise, a fresh attitude knowledge error and initial error: are
+   the 3-sigma bounds true?
 3. **Report** ``report.md``: set-up, per-exposure results, the comparison with the paper and
    links to the figures, among them one frame (the middle one of the arc) as rendered (band
    radiance, :mod:`starnav.preview` stretch) next to the detector's DN frames of the same epoch
@@ -57,6 +60,9 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+#: Monte Carlo runs of the consistency check, per exposure.
+DEMO_RUNS = 8
+
 #: The report's radiance-next-to-DN figure, relative to the output directory.
 FRAME_FIGURE = "figures/frame_radiance_dn.png"
 
@@ -92,7 +98,8 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
              progress: Callable[[int, int], None] | None = None, *,
              exposures_s: Sequence[float] = DEMO_EXPOSURES_S,
              exposure_overrides: Sequence[tuple[float, Sequence[str]]] = DEMO_EXPOSURE_OVERRIDES,
-             workers: int = 0, overrides: Sequence[str] = ()) -> dict[str, Any]:
+             workers: int = 0, overrides: Sequence[str] = (),
+             runs: int = DEMO_RUNS) -> dict[str, Any]:
     """Make the demo dataset, navigate it at each exposure, write the report (module steps).
 
     Parameters
@@ -114,6 +121,8 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
         its image processing to each scenario).
     workers : int
         0: this process; N: a local Dask cluster for the dataset.
+    runs : int
+        Monte Carlo runs of the consistency check per exposure (0 or 1: none).
 
     Returns
     -------
@@ -137,7 +146,8 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
                           "along an arc)")
     out = Path(out_dir)
     n = len(Scene(sc))
-    total = n + len(exposures_s) + 1
+    mc_steps = len(exposures_s) if runs >= 2 else 0
+    total = n + len(exposures_s) + mc_steps + 1
     report_progress = (lambda d: progress(d, total)) if progress else None
     opts = DatasetOptions(exposures_s=tuple(exposures_s), exposure_overrides=tuple(
         (float(t), tuple(o)) for t, o in exposure_overrides)).resolved(sc)
@@ -152,11 +162,23 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
                                       seed=sc.seed, measure_memory=False, plots=True)
         if progress:
             progress(n + j + 1, total)
+    consistency: dict[float, dict[str, Any]] = {}
+    if runs >= 2:
+        from starnav.batch.montecarlo import navigate_runs, write
+
+        for j, t in enumerate(ds_summary.exposures_s):
+            data = open_dataset(out / "dataset", exposure=t)
+            with _quiet("starnav.navigation.ekf"):
+                mc = navigate_runs(data, int(runs), scenario=data.scenario())
+            write(out / "navigation" / exposure_dirname(t) / "montecarlo", mc)
+            consistency[t] = mc["metrics"]
+            if progress:
+                progress(n + len(exposures_s) + j + 1, total)
     nav_s = time.perf_counter() - t_nav
     write_resolved(sc, out)
     frame_fig = _frame_figure(out, sc, opts, ds_summary.exposures_s)
     report = _write_report(out, sc, ds_summary, nav, nav_s, time.perf_counter() - t0, opts,
-                           frame_fig)
+                           frame_fig, consistency)
     if progress:
         progress(total, total)
     summary: dict[str, Any] = {
@@ -174,6 +196,9 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
                                                                 math.nan) / 1e3
         summary[f"{key}: final position error [% range]"] = 100.0 * fin.get(
             "position_error_fraction_of_range", math.nan)
+        if t in consistency:
+            summary[f"{key}: filter ({runs} runs)"] = consistency[t]["verdict"]
+            summary[f"{key}: mean NEES ({runs} runs)"] = consistency[t]["nees_mean"]
     return summary
 
 
@@ -206,7 +231,8 @@ def _frame_figure(out: Path, sc: Scenario, opts: Any, exposures_s: Sequence[floa
 
 def _write_report(out: Path, sc: Scenario, ds: Any, nav: dict[float, dict[str, Any]],
                   nav_s: float, elapsed: float, opts: Any,
-                  frame_fig: tuple[str, str] | None = None) -> Path:
+                  frame_fig: tuple[str, str] | None = None,
+                  consistency: dict[float, dict[str, Any]] | None = None) -> Path:
     from starnav.batch.report import describe_scenario
     from starnav.dataset.format import exposure_dirname
 
@@ -239,6 +265,17 @@ def _write_report(out: Path, sc: Scenario, ds: Any, nav: dict[float, dict[str, A
                  f"({_g(fin.get('position_error_fraction_of_range'), '.3g', 100)}) | "
                  f"{_g(fin.get('velocity_error_norm_m_s'), '.3g')} | {_g(s3n, '.3g', 1e-3)} | "
                  f"{_g(s['timing_ms']['chain_cpu_median'], '.3g')} |")
+    if consistency:
+        from starnav.batch.montecarlo import verdict_line
+
+        runs = next(iter(consistency.values()))["runs"]
+        L += ["", f"## Can the 3-sigma bounds be trusted? ({runs} Monte Carlo runs)", "",
+              "Each run re-exposes every frame's rendered radiance with its own detector noise, "
+              "draws a fresh attitude knowledge error and initial error, and runs the whole "
+              "chain and the filter (`starnav navigate DATASET --runs N`; "
+              "`navigation/exposure_*/montecarlo/`).", ""]
+        for t, m in consistency.items():
+            L.append(f"- **{t * 1e3:g} ms**: " + verdict_line(m))
     L += ["", "## Against the paper (REFERENCE.md section 5)", ""]
     for t, s in nav.items():
         c = paper_case(t)
@@ -268,6 +305,8 @@ def _write_report(out: Path, sc: Scenario, ds: Any, nav: dict[float, dict[str, A
               f"![limb-point error]({d}/limb_error_pdf.png)", "",
               f"![position error]({d}/position_error.png)", "",
               f"![velocity error]({d}/velocity_error.png)", ""]
+        if consistency and t in consistency:
+            L += [f"![NEES and NIS over the runs]({d}/montecarlo/consistency.png)", ""]
     L += ["Per-frame estimates: `navigation/exposure_*/estimates.csv`; metrics: "
           "`metrics.json`; the dataset's format: docs/dataset.md.", ""]
     p = out / "report.md"

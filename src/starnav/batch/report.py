@@ -144,7 +144,10 @@ def consistency_section(rows: Sequence[dict[str, Any]], summary: Sequence[dict[s
     L = ["## Consistency (are the 3-sigma bounds true?)", "",
          f"Mean NEES (6 states) over the {runs} runs, against the two-sided "
          f"{100 * probability:.0f} % band of a {runs}-run mean, {lo:.2f}-{hi:.2f} "
-         "(consistent: inside; above: the filter is overconfident).", "",
+         "(consistent: inside; above: the filter is overconfident). The runs sample detector "
+         "noise, attitude knowledge error and initial error; the terrain in view along the "
+         "arc is the same in every run, so the verdict is conditional on it "
+         "(docs/navigation.md, \"Consistency needs the terrain sampled\").", "",
          "| point | scenario | exposure [ms] | mean NEES | verdict |", "|---|---|---|---|---|"]
     bad = []
     for s in summary:

@@ -122,6 +122,12 @@ class FrameResult:
         Camera to Moon-centre distance [m].
     timings_s : dict
         Stage wall times for this frame [s].
+    points : LimbPointRecord or None
+        The used limb points' uncertainties (for consistency studies).
+    common_jacobian, white_covariance : (3, 3) arrays or None
+        The fix's sensitivity to the errors its points share [m per unit of disc radius] and
+        its covariance from the pixels' noise and the attitude alone [m^2] (the
+        ``limb-common`` bias model).
     """
 
     index: int
@@ -139,6 +145,90 @@ class FrameResult:
     truth_emb: FloatArray | None
     range_m: float
     timings_s: dict[str, float] = field(default_factory=dict)
+    points: LimbPointRecord | None = None
+    common_jacobian: FloatArray | None = None
+    white_covariance: FloatArray | None = None
+
+
+@dataclass(frozen=True)
+class LimbPointRecord:
+    """The uncertainties of one frame's used limb points, in the order of
+    :attr:`FrameResult.limb_errors_px` [px].
+
+    Attributes
+    ----------
+    refined : bool
+        Subpixel points from windows (else pixel-level points from segments).
+    radius_px : float
+        Apparent radius of the coarse limb circle [px].
+    sigma_px : (N,) float32
+        Each point's 1-sigma as the fix uses it.
+    fit_sigma_px : (N,) float32
+        Its part from the pixels' noise (refined points; else ``sigma_px``).
+    saturated : (N,) bool
+        The point's window held saturated pixels.
+    common_var_px2 : (N,) float32
+        Variance [px^2] each point shares with the rest of its frame, along its normal
+        (``x^T C x``, ``x = (1, cos phi, sin phi)``, ``C`` the refinement's common covariance).
+    phase_rad : float
+        True phase angle of the frame [rad].
+    sun_angle_rad : (N,) float32
+        Angle ``phi`` of each point's limb normal from the Sun's direction in the image [rad].
+    mode_error : (3,) array or None
+        The fix's error against the truth in the three shared modes (along the normals,
+        towards the Sun, across it), ``G^-1 (r - r_true)`` [units of the disc radius].
+    mode_noise : (3, 3) array or None
+        Its covariance from the points' own errors and the attitude, ``G^-1 P_own G^-T``.
+    mode_white : (3, 3) array or None
+        Its covariance from the pixels' noise and the attitude alone.
+    """
+
+    refined: bool
+    radius_px: float
+    sigma_px: NDArray[np.float32]
+    fit_sigma_px: NDArray[np.float32]
+    saturated: NDArray[np.bool_]
+    common_var_px2: NDArray[np.float32]
+    phase_rad: float = math.nan
+    sun_angle_rad: NDArray[np.float32] | None = None
+    mode_error: FloatArray | None = None
+    mode_noise: FloatArray | None = None
+    mode_white: FloatArray | None = None
+
+    @classmethod
+    def of(cls, m: Any, phase_rad: float = math.nan,
+           truth_position: Any = None) -> LimbPointRecord | None:
+        """From a :class:`~starnav.navigation.pipeline.FrameMeasurement` (None without
+        points) and the true Moon-relative position [m, J2000]."""
+        lp = m.refined if m.refined is not None else m.limb
+        if lp is None or m.points_used.size == 0:
+            return None
+        if m.refined is None:
+            sig = lp.sigma_px[m.inliers] if m.inliers is not None else lp.sigma_px
+            return cls(False, float(lp.radius_px), sig.astype(np.float32),
+                       sig.astype(np.float32), np.zeros(sig.size, bool),
+                       np.zeros(sig.size, np.float32), float(phase_rad))
+        fit = lp.fit_sigma_px if lp.fit_sigma_px is not None else lp.sigma_px
+        sat = lp.saturated if lp.saturated is not None else np.zeros(len(lp), bool)
+        rel = lp.uv - np.asarray(lp.centre_px, float)
+        ang = np.angle(np.exp(1j * (np.arctan2(rel[:, 1], rel[:, 0]) - math.atan2(
+            float(lp.sun_dir_image[1]), float(lp.sun_dir_image[0])))))
+        C = (np.zeros((3, 3)) if lp.common_covariance_px2 is None
+             else np.asarray(lp.common_covariance_px2, float))
+        x = np.column_stack([np.ones(ang.size), np.cos(ang), np.sin(ang)])
+        cvar = np.einsum("ij,jk,ik->i", x, C, x)
+        me = mn = mw = None
+        if (truth_position is not None and m.common_jacobian is not None
+                and m.position is not None):
+            Gi = np.linalg.inv(m.common_jacobian)
+            me = Gi @ (np.asarray(m.position) - np.asarray(truth_position, float))
+            mn = Gi @ m.noise_covariance @ Gi.T
+            if m.white_covariance is not None:
+                mw = Gi @ m.white_covariance @ Gi.T
+        return cls(True, float(lp.radius_px), lp.sigma_px.astype(np.float32),
+                   np.asarray(fit, np.float32), np.asarray(sat, bool),
+                   cvar.astype(np.float32), float(phase_rad), ang.astype(np.float32), me, mn,
+                   mw)
 
 
 @dataclass(frozen=True)
@@ -157,6 +247,9 @@ class PointResult:
         3-sigma bounds [m, m/s] per run.
     limb_errors_px : (N,) float32
         Limb errors of every run, pooled.
+    nees, nis : (R, K) arrays or None
+        NEES of the 6 position-velocity states and NIS of each fix (NaN without one), per
+        run and step.
     """
 
     point: int
@@ -165,6 +258,8 @@ class PointResult:
     errors: FloatArray | None
     sigma3: FloatArray | None
     limb_errors_px: NDArray[np.float32]
+    nees: FloatArray | None = None
+    nis: FloatArray | None = None
 
 
 # ============================================================================ caches
@@ -214,7 +309,7 @@ def render_task(config: dict[str, Any], index: int) -> RenderedFrame:
 
 
 def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, windows: str,
-                albedo_factor: float) -> list[FrameResult]:
+                albedo_factor: float, first_run: int = 0) -> list[FrameResult]:
     """Every run of one point on one rendered frame (worker side; module docstring).
 
     Parameters
@@ -228,6 +323,9 @@ def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, wind
         Windows acquisition (:mod:`starnav.dataset.acquire`).
     albedo_factor : float
         Radiance multiplier of this point (downstream ``moon.albedo_scale``).
+    first_run : int
+        Number of the first run (runs ``first_run .. first_run + runs - 1``: a run's streams
+        depend on its number only).
     """
     from starnav.config import build_camera
     from starnav.dataset.acquire import acquire
@@ -250,7 +348,7 @@ def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, wind
     k_sigma = np.array([pc.knowledge_cross_arcsec, pc.knowledge_cross_arcsec,
                         pc.knowledge_roll_arcsec]) * ARCSEC
     out = []
-    for r in range(int(runs)):
+    for r in range(int(first_run), int(first_run) + int(runs)):
         acq = acquire(le, g, cam, sc, run=r, windows=windows)
         # every run after the first samples the attitude knowledge error afresh, as it
         # samples the detector noise (run 0 keeps the frame's own draw)
@@ -277,7 +375,9 @@ def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, wind
             dn_max=int(e0.dn.max()) if e0.dn.size else 0, feasible=bool(feasible),
             plan_status=acq.plan_status, n_windows=len(acq.windows),
             truth_emb=None if g.camera_state_emb is None else np.asarray(g.camera_state_emb),
-            range_m=float(g.range), timings_s=tm))
+            range_m=float(g.range), timings_s=tm,
+            points=LimbPointRecord.of(m, float(g.phase_angle), g.camera_position),
+            common_jacobian=m.common_jacobian, white_covariance=m.white_covariance))
     return out
 
 
@@ -322,7 +422,7 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
     P0 = nav.initial_covariance()
     L0 = np.linalg.cholesky(P0)
     rows: list[dict[str, Any]] = []
-    errs_all, s3_all, limb_all = [], [], []
+    errs_all, s3_all, limb_all, nees_all, nis_all = [], [], [], [], []
     for r in range(int(runs)):
         fr_r = [fr[r] for fr in frames]
         limb = np.concatenate([f.limb_errors_px for f in fr_r]) if fr_r else np.empty(0)
@@ -347,7 +447,8 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
         ekf_times: list[float] = []
         if has_truth and dyn is not None and truth is not None and K:
             meas = [FrameMeasurement(f.index, f.epoch_tdb, f.status, position=f.position,
-                                     covariance=f.covariance) for f in fr_r]
+                                     covariance=f.covariance, common_jacobian=f.common_jacobian,
+                                     white_covariance=f.white_covariance) for f in fr_r]
             z = generator(sc.seed, STAGE_NAVIGATION, r).standard_normal(6)
             x0 = truth[0] + L0 @ z
             with quiet_logger("starnav.navigation.ekf"):
@@ -357,6 +458,8 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
             s3 = res.sigma3()
             errs_all.append(e)
             s3_all.append(s3)
+            nees_all.append(res.nees(truth))
+            nis_all.append(res.nis)
             ekf_times = [float(t) for t in res.timings_s]
             ep, ev = np.linalg.norm(e[:, :3], axis=1), np.linalg.norm(e[:, 3:], axis=1)
             speed = float(np.linalg.norm(truth[-1, 3:]))
@@ -383,4 +486,6 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
         point=int(point), rows=rows, epochs=epochs,
         errors=np.array(errs_all) if errs_all else None,
         sigma3=np.array(s3_all) if s3_all else None,
-        limb_errors_px=np.concatenate(limb_all) if limb_all else np.empty(0, np.float32))
+        limb_errors_px=np.concatenate(limb_all) if limb_all else np.empty(0, np.float32),
+        nees=np.array(nees_all) if nees_all else None,
+        nis=np.array(nis_all) if nis_all else None)

@@ -1,10 +1,16 @@
 """``starnav navigate DATASET --out DIR [--runs N]``: the navigation chain over a dataset.
 
-Thin: parses, opens the dataset with :func:`starnav.dataset.open` (issue 8), takes the
-``navigation`` section of the dataset's resolved scenario (or of ``--config``), applies
-``--set`` overrides, calls
-:func:`starnav.navigation.report.navigate_dataset` and prints the headline numbers. Outputs:
-``estimates.csv``, ``metrics.json``, the PNG figures and ``navigation_config.json``.
+Thin: parses, opens the dataset with :func:`starnav.dataset.open`, takes the dataset's
+resolved scenario at the selected exposure (or ``--config``), applies ``--set`` overrides and
+calls the library:
+
+* one run: :func:`starnav.navigation.report.navigate_dataset` on the dataset's own
+  acquisitions (``estimates.csv``, ``metrics.json``, the PNG figures,
+  ``navigation_config.json``);
+* ``--runs N`` (N >= 2): :func:`starnav.batch.montecarlo.navigate_runs`, a Monte Carlo over
+  detector noise (each frame's radiance re-exposed), attitude knowledge error and initial
+  error, with the consistency verdict (``report.md``, ``metrics.json``, ``runs.csv``,
+  ``consistency.png``, error figures).
 """
 
 from __future__ import annotations
@@ -37,31 +43,43 @@ def register(app: typer.Typer) -> None:
         dataset: Annotated[Path, typer.Argument(help="dataset directory (starnav dataset)")],
         out: Annotated[Path, typer.Option("--out", help="output directory")],
         runs: Annotated[int | None, typer.Option(
-            "--runs", min=1, help="Monte Carlo runs over initial errors (default: config)")] = None,
+            "--runs", min=1, help="Monte Carlo runs over detector noise, attitude knowledge "
+            "and initial errors, with the consistency verdict (default: 1)")] = None,
         config: Annotated[Path | None, typer.Option(
             "--config", help="scenario YAML (navigation section)")] = None,
         set_: Annotated[list[str] | None, typer.Option(
             "--set", help="override, e.g. navigation.ransac.model=christian-robinson")] = None,
         exposure_ms: Annotated[float | None, typer.Option(
             "--exposure-ms", help="which exposure of the dataset (default: its first)")] = None,
-        seed: Annotated[int, typer.Option("--seed", help="seed of initial errors, RANSAC")] = 0,
+        seed: Annotated[int | None, typer.Option(
+            "--seed", help="seed of the runs (default: the scenario's)")] = None,
         no_plots: Annotated[bool, typer.Option("--no-plots", help="skip the PNG figures")] = False,
     ) -> None:
         """Run limb -> RANSAC -> Christian-Robinson -> EKF over DATASET; write CSV, JSON, PNG."""
-        from starnav.config import load_scenario, scenario_from_dict
+        from starnav.config import load_scenario
         from starnav.errors import StarnavError
         from starnav.navigation.report import navigate_dataset
 
         try:
             ds = _open_dataset(dataset, None if exposure_ms is None else exposure_ms * 1e-3)
-            overrides = tuple(set_ or ())
-            if config is None and isinstance(getattr(ds, "config", None), dict):
-                # the dataset's own resolved scenario, with the command-line overrides
-                scenario = scenario_from_dict(ds.config, overrides)
+            overrides = tuple(set_ or ()) + ((f"seed={seed}",) if seed is not None else ())
+            if config is None and callable(getattr(ds, "scenario", None)):
+                # the dataset's own resolved scenario at this exposure, with the overrides
+                scenario = ds.scenario(overrides)
             else:
                 scenario = load_scenario(config, overrides)
-            summary = navigate_dataset(ds, out, config=scenario.navigation, runs=runs,
-                                       seed=seed, plots=not no_plots)
+            n_runs = scenario.navigation.runs if runs is None else runs
+            if n_runs >= 2:
+                from starnav.batch.montecarlo import navigate_runs, verdict_line, write
+
+                nav = navigate_runs(ds, n_runs, scenario=scenario)
+                write(out, nav, plots=not no_plots)
+                typer.echo(verdict_line(nav["metrics"]).replace("**", ""))
+                typer.echo(f"outputs in {out}")
+                return
+            summary = navigate_dataset(ds, out, config=scenario.navigation, runs=1,
+                                       seed=int(scenario.seed), plots=not no_plots,
+                                       scenario=scenario)
         except StarnavError as err:
             typer.echo(f"error: {err}", err=True)
             raise typer.Exit(code=2) from None

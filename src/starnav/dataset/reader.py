@@ -26,7 +26,7 @@ import functools
 import logging
 import math
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -190,11 +190,24 @@ class Dataset:
         """The resolved scenario the dataset was made with (plain dict)."""
         return self.manifest["config"]
 
-    def scenario(self) -> Any:
-        """The resolved scenario, validated (:class:`~starnav.config.Scenario`)."""
+    @property
+    def exposure_overrides(self) -> tuple[str, ...]:
+        """The ``detector.*`` / ``navigation.*`` overrides the selected exposure was made
+        with (e.g. the saturated exposures' segment threshold), as ``KEY=VALUE``."""
+        for e in self.manifest["exposures"]:
+            if abs(float(e["exposure_s"]) - self.exposure_s) <= 1e-9 * self.exposure_s:
+                return tuple(str(x) for x in e.get("overrides", ()))
+        return ()
+
+    def scenario(self, overrides: Sequence[str] = ()) -> Any:
+        """The resolved scenario of the selected exposure, validated
+        (:class:`~starnav.config.Scenario`): the dataset's, with the exposure's time and its
+        :attr:`exposure_overrides`, then ``overrides``."""
         from starnav.config import scenario_from_dict
 
-        return scenario_from_dict(self.config)
+        return scenario_from_dict(self.config, [
+            f"detector.exposure_time_s={self.exposure_s!r}", *self.exposure_overrides,
+            *overrides])
 
     def select(self, exposure: float | int) -> Dataset:
         """The same dataset at another exposure (time in s, or its position in the list)."""

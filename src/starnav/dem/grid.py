@@ -356,9 +356,24 @@ class EquirectangularGrid:
         return out.astype(np.float32, copy=False)
 
     # ------------------------------------------------------------------ pyramid
-    def _derived(self, values: NDArray[np.float32], source: str) -> EquirectangularGrid:
-        """A grid of the same type and extent with other values (subclasses add their fields)."""
-        return type(self)(values, extent=self.extent, source=source)
+    def _derived(self, values: NDArray[np.float32], source: str,
+                 extent: tuple[float, float, float, float] | None = None) -> EquirectangularGrid:
+        """A grid of the same type and extent (or ``extent``) with other values (subclasses
+        add their fields)."""
+        return type(self)(values, extent=self.extent if extent is None else extent,
+                          source=source)
+
+    def rotated_east(self, angle: float) -> EquirectangularGrid:
+        """The same world turned eastwards about the pole by ``angle`` [rad]: the value that
+        was at longitude ``lon`` is at ``lon + angle`` (exact: the grid's edges move, its
+        cells do not). Only a grid that covers all longitudes can turn."""
+        if angle == 0.0:
+            return self
+        if not self.is_global_lon:
+            raise ConfigError(f"{self.field}.longitude_offset", f"{math.degrees(angle):.6g} deg",
+                              "0 for a grid that does not cover all longitudes")
+        return self._derived(self.values, f"{self.source}@east{math.degrees(angle):+.6g}deg",
+                             (self.west + angle, self.east + angle, self.south, self.north))
 
     def level(self, k: int) -> EquirectangularGrid:
         """The grid area-averaged ``2**k`` times coarser (same extent); 0 is the grid itself.
@@ -451,9 +466,10 @@ class DemGrid(EquirectangularGrid):
     def _identity_extra(self) -> Any:
         return (self.reference_radius,)
 
-    def _derived(self, values: NDArray[np.float32], source: str) -> DemGrid:
-        return DemGrid(values, extent=self.extent, reference_radius=self.reference_radius,
-                       source=source)
+    def _derived(self, values: NDArray[np.float32], source: str,
+                 extent: tuple[float, float, float, float] | None = None) -> DemGrid:
+        return DemGrid(values, extent=self.extent if extent is None else extent,
+                       reference_radius=self.reference_radius, source=source)
 
     @property
     def heights(self) -> NDArray[np.float32]:
@@ -529,8 +545,10 @@ class AlbedoGrid(EquirectangularGrid):
     def _identity_extra(self) -> Any:
         return (self.quantity,)
 
-    def _derived(self, values: NDArray[np.float32], source: str) -> AlbedoGrid:
-        return AlbedoGrid(values, extent=self.extent, quantity=self.quantity, source=source)
+    def _derived(self, values: NDArray[np.float32], source: str,
+                 extent: tuple[float, float, float, float] | None = None) -> AlbedoGrid:
+        return AlbedoGrid(values, extent=self.extent if extent is None else extent,
+                          quantity=self.quantity, source=source)
 
     @property
     def fill_value(self) -> float:

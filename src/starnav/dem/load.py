@@ -11,6 +11,7 @@ once.
 from __future__ import annotations
 
 import logging
+import math
 from collections import OrderedDict
 from pathlib import Path
 from typing import Any
@@ -104,6 +105,9 @@ def load_dem(cfg: DemConfig | dict[str, Any] | None = None) -> DemGrid:
         Heights [m] above the reference sphere.
     """
     cfg = as_dem_config(cfg)
+    if cfg.longitude_offset_deg:
+        base = load_dem(cfg.model_copy(update={"longitude_offset_deg": 0.0}))
+        return base.rotated_east(math.radians(cfg.longitude_offset_deg))  # type: ignore[return-value]
     if cfg.source == "procedural":
         from starnav.dem.procedural import procedural_moon
 
@@ -145,6 +149,11 @@ def load_albedo(cfg: DemConfig | AlbedoConfig | dict[str, Any] | None) -> Albedo
         acfg = dem_cfg.albedo
     if acfg is None:
         return None
+    if dem_cfg.longitude_offset_deg:
+        # the albedo turns with the terrain it belongs to
+        base = load_albedo(dem_cfg.model_copy(update={"longitude_offset_deg": 0.0}))
+        return None if base is None else base.rotated_east(  # type: ignore[return-value]
+            math.radians(dem_cfg.longitude_offset_deg))
     if acfg.source == "procedural":
         from starnav.dem.procedural import procedural_moon
 

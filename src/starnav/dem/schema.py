@@ -292,6 +292,10 @@ class DemConfig(StrictModel):
     reference_radius_km: PositiveFloat = Field(
         1737.4, description="reference sphere [km] (a PDS label's A_AXIS_RADIUS wins)"
     )
+    longitude_offset_deg: float = Field(
+        0.0, allow_inf_nan=False, description="turn the terrain and its albedo map eastwards "
+        "about the pole by this angle [deg]: another stretch of real terrain under the same "
+        "geometry (the terrain realisations of a Monte Carlo); 0 is the Moon as it is")
     extent_deg: tuple[float, float, float, float] = Field(
         (-180.0, 180.0, -90.0, 90.0),
         description="(west, east, south, north) edges for files without georeferencing [deg]",

@@ -203,31 +203,148 @@ def _grow(p0: float, p1: float, rho: float) -> float:
     return p0 + (p1 - p0) * rho * rho
 
 
-@lru_cache(maxsize=16)
-def psf_grid(camera: Camera, cfg: AberrationPsfConfig) -> PsfGrid:
-    """The PSF grid of ``camera`` described by ``cfg`` (cached per camera and config)."""
+def _node_parameters(camera: Camera, cfg: AberrationPsfConfig
+                     ) -> tuple[tuple[float, ...], tuple[float, ...],
+                                list[list[tuple[float, float, float, float]]]]:
+    """Node columns, rows and, per node, ``(defocus radius, sigma radial, sigma tangential,
+    radial angle)`` [px, px, px, rad] of the field law ``p0 + (p1 - p0) rho^2``."""
     nu, nv = cfg.grid_nodes
     w, h = camera.width, camera.height
     cx, cy = float(camera.cx), float(camera.cy)
-    u_nodes = tuple(np.linspace(0.0, w - 1.0, nu)) if nu > 1 else (cx,)
-    v_nodes = tuple(np.linspace(0.0, h - 1.0, nv)) if nv > 1 else (cy,)
+    u_nodes = tuple(float(x) for x in np.linspace(0.0, w - 1.0, nu)) if nu > 1 else (cx,)
+    v_nodes = tuple(float(x) for x in np.linspace(0.0, h - 1.0, nv)) if nv > 1 else (cy,)
     r_corner = max(math.hypot(u - cx, v - cy) for u in (-0.5, w - 0.5) for v in (-0.5, h - 0.5))
-    rows_k, rows_key = [], []
+    rows = []
     for v in v_nodes:
-        ks, keys = [], []
+        row = []
         for u in u_nodes:
             rho = min(math.hypot(u - cx, v - cy) / r_corner, 1.0)
             ang = math.atan2(v - cy, u - cx) if rho > 0 else 0.0
-            par = (round(_grow(cfg.defocus_radius_px, cfg.defocus_radius_edge_px, rho), 6),
-                   round(_grow(cfg.sigma_px, cfg.sigma_radial_edge_px, rho), 6),
-                   round(_grow(cfg.sigma_px, cfg.sigma_tangential_edge_px, rho), 6),
-                   round(ang, 6), cfg.oversample)
+            row.append((round(_grow(cfg.defocus_radius_px, cfg.defocus_radius_edge_px, rho), 6),
+                        round(_grow(cfg.sigma_px, cfg.sigma_radial_edge_px, rho), 6),
+                        round(_grow(cfg.sigma_px, cfg.sigma_tangential_edge_px, rho), 6),
+                        round(ang, 6)))
+        rows.append(row)
+    return u_nodes, v_nodes, rows
+
+
+@lru_cache(maxsize=16)
+def psf_grid(camera: Camera, cfg: AberrationPsfConfig) -> PsfGrid:
+    """The PSF grid of ``camera`` described by ``cfg`` (cached per camera and config)."""
+    u_nodes, v_nodes, params = _node_parameters(camera, cfg)
+    rows_k, rows_key = [], []
+    for prow in params:
+        ks, keys = [], []
+        for p in prow:
+            par = (*p, cfg.oversample)
             ks.append(aberration_kernel(*par))
             keys.append(("aberration",) + par)
         rows_k.append(tuple(ks))
         rows_key.append(tuple(keys))
-    return PsfGrid(tuple(float(x) for x in u_nodes), tuple(float(x) for x in v_nodes),
-                   tuple(rows_k), tuple(rows_key))
+    return PsfGrid(u_nodes, v_nodes, tuple(rows_k), tuple(rows_key))
+
+
+def _semicircle(x: NDArray[np.float64], radius: float, step: float) -> NDArray[np.float64]:
+    """Projection of a uniform disc of ``radius`` on a line, ``2 sqrt(R^2 - x^2) / (pi R^2)``,
+    averaged over samples of width ``step`` (exact: the primitive of the density)."""
+    if radius < 0.5 * step:
+        out = np.zeros_like(x)
+        out[np.argmin(np.abs(x))] = 1.0 / step
+        return out
+
+    def prim(t: NDArray[np.float64]) -> NDArray[np.float64]:
+        t = np.clip(t / radius, -1.0, 1.0)
+        return (t * np.sqrt(1.0 - t * t) + np.arcsin(t)) / math.pi
+
+    return (prim(x + 0.5 * step) - prim(x - 0.5 * step)) / step
+
+
+def _box_convolve(f: NDArray[np.float64], width: float, step: float) -> NDArray[np.float64]:
+    """``f`` convolved with a unit-area box of ``width`` (linear interpolation of the running
+    integral, so any width, not only whole samples)."""
+    if width < 1e-6:
+        return f
+    x = np.arange(f.size) * step
+    F = np.concatenate([[0.0], np.cumsum(f) * step])          # integral up to sample edges
+    xe = (np.arange(f.size + 1) - 0.5) * step
+    hi = np.interp(x + 0.5 * width, xe, F)
+    lo = np.interp(x - 0.5 * width, xe, F)
+    return (hi - lo) / width
+
+
+def line_spread_function(camera: Camera, cfg: AberrationPsfConfig, u: float, v: float,
+                         normal: NDArray[np.float64], x: NDArray[np.float64], *,
+                         pixel_boxes: int = 2, ipc: tuple[float, float] = (0.0, 0.0)
+                         ) -> NDArray[np.float64]:
+    """The detector's linear blur at pixel ``(u, v)`` projected on the direction ``normal``:
+    the line spread function [1/px] that an edge across ``normal`` is blurred by.
+
+    It is what :func:`apply_psf_grid` and the charge chain do to an image, seen along one
+    direction: the tent blend of the four nearest node PSFs of :func:`psf_grid` at ``(u, v)``
+    (each a defocus disc, whose projection is the semicircle law
+    ``2 sqrt(R^2 - x^2) / (pi R^2)``, convolved with the elliptical Gaussian, whose projection
+    is a Gaussian of variance ``sigma_r^2 cos^2 a + sigma_t^2 sin^2 a``, ``a`` the angle between
+    ``normal`` and the field's radial direction); ``pixel_boxes`` pixel apertures (each projects
+    on ``normal = (n_u, n_v)`` as boxes of widths ``|n_u|`` and ``|n_v|``): 2 by default, the
+    renderer's pixel filter and the pixel integration of the PSF kernels (a discrete
+    convolution of pixel-averaged radiance with a pixel-integrated PSF blurs by one pixel
+    aperture more than the optics alone, variance 1/12 px^2); and the inter-pixel capacitance
+    ``ipc = (nearest, diagonal)`` as shifted copies.
+
+    Parameters
+    ----------
+    camera : Camera
+    cfg : AberrationPsfConfig
+    u, v : float
+        Pixel position [px].
+    normal : (2,) array
+        Direction across the edge (normalised here).
+    x : (N,) array
+        Uniformly spaced abscissae [px], symmetric about 0.
+
+    Returns
+    -------
+    (N,) array
+        The line spread function at ``x`` [1/px], unit area.
+    """
+    x = np.asarray(x, float)
+    step = float(x[1] - x[0])
+    n = np.asarray(normal, float)
+    n = n / np.linalg.norm(n)
+    out = np.zeros_like(x)
+    if cfg.enabled:
+        u_nodes, v_nodes, params = _node_parameters(camera, cfg)
+        uu, vv = np.array([float(u)]), np.array([float(v)])
+        for j in range(len(v_nodes)):
+            wv = float(_tent(vv, v_nodes, j)[0])
+            if wv <= 0:
+                continue
+            for i in range(len(u_nodes)):
+                wu = float(_tent(uu, u_nodes, i)[0])
+                if wu <= 0:
+                    continue
+                R, sr, st, ang = params[j][i]
+                c = n[0] * math.cos(ang) + n[1] * math.sin(ang)
+                sn = math.sqrt(sr * sr * c * c + st * st * (1.0 - c * c))
+                k = _semicircle(x, R, step)
+                if sn > 0.25 * step:
+                    g = np.exp(-0.5 * (x / sn) ** 2)
+                    k = np.convolve(k, g / g.sum(), mode="same")
+                out += wu * wv * k
+    else:
+        out[np.argmin(np.abs(x))] = 1.0 / step
+    for _ in range(int(pixel_boxes)):
+        for w in (abs(n[0]), abs(n[1])):
+            out = _box_convolve(out, w, step)
+    near, diag = ipc
+    if near > 0 or diag > 0:
+        shifted = np.zeros_like(out)
+        for sgn in (-1.0, 1.0):
+            for d, wgt in ((n[0], near), (n[1], near), (n[0] + n[1], diag),
+                           (n[0] - n[1], diag)):
+                shifted += wgt * np.interp(x - sgn * d, x, out, left=0.0, right=0.0)
+        out = (1.0 - 4.0 * near - 4.0 * diag) * out + shifted
+    return out / (out.sum() * step)
 
 
 def _tent(coord: NDArray[np.float64], nodes: tuple[float, ...], k: int) -> NDArray[np.float64]:

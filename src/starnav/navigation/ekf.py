@@ -17,7 +17,15 @@ Technique
      Saturation moves the lit limb outwards (a range scale) *and* unevenly along the arc
      (more where the limb is brightest), which shifts the fitted centre sideways: on the
      saturated 7.7 ms demo arc the filter is consistent only with both (mean NEES 3.3 with
-     ``range_scale_sigma`` 0.05 and ``bias_sigma_km`` 50, against 309 with the scale alone).
+     ``range_scale_sigma`` 0.05 and ``bias_sigma_km`` 50, against 309 with the scale alone);
+   * ``limb-common``: ``beta`` (3) [-], the errors all refined limb points of a frame share
+     (the disc's apparent radius, a shift of the limb towards the Sun in the image and one
+     across it, in units of the disc radius; :class:`~starnav.navigation.refine.
+     ModelErrorCalibration`), with their calibrated covariance ``C`` as the steady state:
+     the fix reads ``r - r_M + G beta`` with ``G`` the fix's own sensitivity to them
+     (supplied with each fix), and its covariance ``R`` is then the fix's without that part.
+     The terrain of the limb in view changes slowly, so these errors are correlated from
+     frame to frame; only their correlation time is a free knob.
 
 2. **Prediction.** The 6-state and its STM ``Phi`` come from the dynamics
    (:class:`~starnav.navigation.dynamics.Dynamics`: RK4 with the variational equations of the
@@ -46,6 +54,7 @@ option                          default  effect
                                          ``range-scale+additive``
 ``bias_sigma_m``                0        steady-state 1-sigma of each additive bias [m]
 ``range_scale_sigma``           0        steady-state 1-sigma of the range-scale bias [-]
+``common_covariance``           None     steady-state covariance of ``limb-common`` [-]
 ``bias_tau_s``                  86400    correlation time of the biases [s]
 ``accel_psd_m2_s3``             0        white acceleration noise density [m^2/s^3]
 ``gate_probability``            0.9999   chi-square gate on the NIS; None disables the gate
@@ -84,7 +93,7 @@ log = logging.getLogger(__name__)
 
 #: Number of bias states of each bias model.
 BIAS_MODELS: dict[str, int] = {"none": 0, "additive": 3, "range-scale": 1,
-                               "range-scale+additive": 4}
+                               "range-scale+additive": 4, "limb-common": 3}
 
 
 @dataclass(frozen=True)
@@ -98,10 +107,19 @@ class EkfOptions:
     accel_psd_m2_s3: float = 0.0
     gate_probability: float | None = 0.9999
     max_consecutive_rejections: int = 5
+    common_covariance: tuple[tuple[float, float, float], ...] | None = None
 
     def __post_init__(self) -> None:
         if self.bias_model not in BIAS_MODELS:
             raise UnknownNameError("bias model", self.bias_model, list(BIAS_MODELS))
+        if self.bias_model == "limb-common":
+            C = np.asarray(self.common_covariance if self.common_covariance is not None
+                           else np.zeros((3, 3)), float)
+            if C.shape != (3, 3) or not np.all(np.isfinite(C)) or np.any(np.diag(C) <= 0) \
+                    or np.min(np.linalg.eigvalsh(0.5 * (C + C.T))) < -1e-12 * np.max(C):
+                raise ConfigError("filter.common_covariance", self.common_covariance,
+                                  "a positive semi-definite 3 x 3 covariance with a positive "
+                                  "diagonal for bias_model='limb-common'")
         for name in ("bias_sigma_m", "range_scale_sigma", "accel_psd_m2_s3"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
@@ -132,7 +150,17 @@ class EkfOptions:
             "additive": np.full(3, self.bias_sigma_m),
             "range-scale": np.array([self.range_scale_sigma]),
             "range-scale+additive": np.array([self.range_scale_sigma] + [self.bias_sigma_m] * 3),
+            "limb-common": np.sqrt(np.diag(np.asarray(self.common_covariance, float)))
+            if self.common_covariance is not None else np.zeros(3),
         }[self.bias_model]
+
+    @property
+    def bias_covariance(self) -> FloatArray:
+        """Steady-state covariance of the bias states."""
+        if self.bias_model == "limb-common":
+            return np.asarray(self.common_covariance, float)
+        sb = self.bias_sigmas
+        return np.diag(sb * sb)
 
 
 def gauss_markov_discrete(dt: float, sigma: float, tau: float) -> tuple[float, float]:
@@ -153,8 +181,8 @@ def white_acceleration_q(dt: float, psd: float) -> FloatArray:
     return psd * np.block([[dt**3 / 3.0 * I3, dt**2 / 2.0 * I3], [dt**2 / 2.0 * I3, dt * I3]])
 
 
-def measurement_model(x: ArrayLike, moon_position: ArrayLike,
-                      bias_model: str) -> tuple[FloatArray, FloatArray]:
+def measurement_model(x: ArrayLike, moon_position: ArrayLike, bias_model: str,
+                      common_jacobian: ArrayLike | None = None) -> tuple[FloatArray, FloatArray]:
     """Predicted fix ``h(x)`` [m] and its Jacobian ``H = dh/dx`` (3 x n) (module step 3).
 
     Parameters
@@ -164,7 +192,10 @@ def measurement_model(x: ArrayLike, moon_position: ArrayLike,
     moon_position : (3,) array
         Moon relative to the EMB [m].
     bias_model : str
-        ``none``, ``additive`` or ``range-scale``.
+        One of :data:`BIAS_MODELS`.
+    common_jacobian : (3, 3) array, optional
+        ``G`` of the ``limb-common`` model [m per unit of disc radius]; None: the fix carries
+        no shared limb error (its bias states are not seen).
     """
     x = np.asarray(x, float)
     m = x[:3] - np.asarray(moon_position, float)
@@ -188,6 +219,13 @@ def measurement_model(x: ArrayLike, moon_position: ArrayLike,
         H[:, 6] = m
         H[:, 7:10] = np.eye(3)
         return (1.0 + k) * m + x[7:10], H
+    if bias_model == "limb-common":
+        H[:, :3] = np.eye(3)
+        if common_jacobian is None:
+            return m, H
+        G = np.asarray(common_jacobian, float)
+        H[:, 6:9] = G
+        return m + G @ x[6:9], H
     raise UnknownNameError("bias model", bias_model, list(BIAS_MODELS))
 
 
@@ -268,7 +306,7 @@ class NavigationEkf:
                     "range-scale") else "bias_sigma_m"
                 raise ConfigError(f"filter.{name}", float(np.min(sb)),
                                   f"a bias 1-sigma > 0 for bias_model={opt.bias_model!r}")
-            self.P[6:, 6:] = np.diag(sb * sb)
+            self.P[6:, 6:] = opt.bias_covariance
         self.rejections_in_a_row = 0
         self._gate = math.inf
         if opt.gate_probability is not None:
@@ -296,23 +334,25 @@ class NavigationEkf:
         if opt.accel_psd_m2_s3 > 0:
             Q[:6, :6] = white_acceleration_q(dt, opt.accel_psd_m2_s3)
         if nb:
-            sb = opt.bias_sigmas
-            phi_b, _ = gauss_markov_discrete(dt, 1.0, opt.bias_tau_s)
+            # every bias a first-order Gauss-Markov process of the same time constant:
+            # Q = (1 - phi^2) times the steady-state covariance (exact)
+            phi_b, q1 = gauss_markov_discrete(dt, 1.0, opt.bias_tau_s)
             F[6:, 6:] = phi_b * np.eye(nb)
-            Q[6:, 6:] = np.diag([gauss_markov_discrete(dt, float(v), opt.bias_tau_s)[1]
-                                 for v in sb])
+            Q[6:, 6:] = q1 * opt.bias_covariance
             self.x[6:] *= phi_b
         self.x[:6] = x6
         P = F @ self.P @ F.T + Q
         self.P = 0.5 * (P + P.T)
         self.t = t
 
-    def predicted_measurement(self) -> tuple[FloatArray, FloatArray]:
+    def predicted_measurement(self, common_jacobian: ArrayLike | None = None
+                              ) -> tuple[FloatArray, FloatArray]:
         """``h(x)`` [m] and ``H`` at the current epoch."""
         moon = self.moon.moon_state(self.t)
-        return measurement_model(self.x, moon[:3], self.options.bias_model)
+        return measurement_model(self.x, moon[:3], self.options.bias_model, common_jacobian)
 
-    def update(self, z: ArrayLike, R: ArrayLike) -> UpdateInfo:
+    def update(self, z: ArrayLike, R: ArrayLike,
+               common_jacobian: ArrayLike | None = None) -> UpdateInfo:
         """Process a fix at the current epoch (module steps 3-5).
 
         Parameters
@@ -320,11 +360,13 @@ class NavigationEkf:
         z : (3,) array
             Camera position relative to the Moon centre, inertial [m].
         R : (3, 3) array
-            Its covariance [m^2].
+            Its covariance [m^2] (with ``limb-common``: without the shared limb errors).
+        common_jacobian : (3, 3) array, optional
+            ``G`` of the ``limb-common`` model [m per unit of disc radius].
         """
         z = np.asarray(z, float)
         R = np.asarray(R, float)
-        h, H = self.predicted_measurement()
+        h, H = self.predicted_measurement(common_jacobian)
         nu = z - h
         S = H @ self.P @ H.T + R
         S = 0.5 * (S + S.T)

@@ -68,6 +68,7 @@ I. Kasa, "A circle fitting procedure and its error analysis", IEEE Trans. Instru
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -110,8 +111,12 @@ class LimbScanOptions:
     point_sigma_px: float = 0.5
     point_offset_px: float = 0.0
     min_points: int = 3
+    max_phase_rad: float = math.radians(145.0)
 
     def __post_init__(self) -> None:
+        if not 0.0 < self.max_phase_rad <= math.pi:
+            raise ConfigError("limb.max_phase_deg", math.degrees(self.max_phase_rad),
+                              "a phase angle in (0, 180] deg")
         if self.max_points < 3:
             raise ConfigError("limb.max_points", self.max_points, "an integer >= 3")
         if self.min_points < 3:
@@ -148,6 +153,18 @@ class LimbPoints:
         Number of candidates before the sector, lit-side and cap filters.
     source : str
         ``"segments"`` (pixel accuracy) or ``"windows"`` (subpixel refinement).
+    common_covariance_px2 : (3, 3) array or None
+        Covariance [px^2] of the errors every point of the frame shares: along each limb
+        normal (the disc's apparent radius), and a shift of all points towards the Sun's
+        direction in the image and across it; the fix carries them, ``sigma_px`` does not.
+    fix_covariance_px2 : (3, 3) array or None
+        Covariance [px^2] of the frame's slowly varying limb error in the same three modes:
+        everything but the pixels' noise (the fix's covariance and the ``limb-common`` filter
+        states carry it).
+    fit_sigma_px : (n,) array or None
+        The part of ``sigma_px`` that comes from the pixels' noise alone [px] (refinement).
+    saturated : (n,) bool array or None
+        The point's window held saturated pixels (refinement).
     """
 
     uv: FloatArray
@@ -157,9 +174,20 @@ class LimbPoints:
     sun_dir_image: FloatArray
     n_candidates: int
     source: str = "segments"
+    common_covariance_px2: FloatArray | None = None
+    fix_covariance_px2: FloatArray | None = None
+    fit_sigma_px: FloatArray | None = None
+    saturated: NDArray[np.bool_] | None = None
 
     def __len__(self) -> int:
         return int(self.uv.shape[0])
+
+    def subset(self, keep: NDArray[np.bool_]) -> LimbPoints:
+        """The points where ``keep`` is true (everything else unchanged)."""
+        return dataclasses.replace(
+            self, uv=self.uv[keep], sigma_px=self.sigma_px[keep],
+            fit_sigma_px=None if self.fit_sigma_px is None else self.fit_sigma_px[keep],
+            saturated=None if self.saturated is None else self.saturated[keep])
 
 
 # ------------------------------------------------------------------------ geometry helpers
@@ -214,6 +242,17 @@ def sun_direction_in_image(camera: Camera, R_cam_to_inertial: ArrayLike,
         raise LimbNotFoundError("the Sun is along the line of sight to the Moon (phase 0 or "
                                 "180 deg): the lit side of the limb is undefined", "sun-on-axis")
     return d / nd
+
+
+def phase_angle_from_image(camera: Camera, R_cam_to_inertial: ArrayLike,
+                           sun_direction_inertial: ArrayLike, moon_px: ArrayLike) -> float:
+    """The Sun-Moon-camera (phase) angle [rad] from where the Moon is in the image, the
+    measured attitude and the Sun's direction (from the Moon, inertial; any length)."""
+    R = np.asarray(R_cam_to_inertial, float)
+    s_cam = R.T @ np.asarray(sun_direction_inertial, float)
+    x = camera.unproject(np.asarray(moon_px, float))
+    c = -float(s_cam @ x) / float(np.linalg.norm(s_cam) * np.linalg.norm(x))
+    return math.acos(max(-1.0, min(1.0, c)))
 
 
 def fit_circle_kasa(uv: ArrayLike) -> tuple[FloatArray, float]:

@@ -16,8 +16,8 @@ Technique
       (:mod:`~starnav.navigation.christian_robinson`).
 
    A frame without a usable limb returns a measurement with ``status`` (``no-segments``,
-   ``no-moon``, ``degenerate-arc``, ``sun-on-axis``, ``ransac-failed``, ``fix-failed``) and a
-   message instead of raising, so a sequence goes on.
+   ``no-moon``, ``thin-crescent``, ``degenerate-arc``, ``sun-on-axis``, ``ransac-failed``,
+   ``fix-failed``) and a message instead of raising, so a sequence goes on.
 2. :func:`run_filter` - the EKF (:mod:`~starnav.navigation.ekf`) over a sequence of
    measurements: every frame is a prediction, every usable fix an update.
 3. :func:`navigate` - both over a dataset, timing each stage (wall clock) and, on request, the
@@ -68,6 +68,7 @@ from starnav.navigation.limb import (
     LimbScanOptions,
     fit_circle_kasa,
     limb_points_from_segments,
+    phase_angle_from_image,
     segments_centroid,
     sun_direction_in_image,
 )
@@ -131,7 +132,19 @@ class FrameMeasurement:
     position : (3,) array or None
         Camera position relative to the Moon centre, J2000 [m].
     covariance : (3, 3) array or None
-        Its covariance [m^2] (point noise and attitude knowledge).
+        Its covariance [m^2] (point noise, attitude knowledge, and the errors all points
+        share).
+    common_jacobian : (3, 3) array or None
+        Sensitivity of ``position`` to the three errors refined points share (along the limb
+        normals, a shift towards the Sun in the image, one across it), per unit of the disc's
+        apparent radius [m, J2000] (the ``limb-common`` bias model's ``G``).
+    noise_covariance : (3, 3) array or None
+        The fix's covariance from its points' own errors and the attitude (without what they
+        share) [m^2].
+    white_covariance : (3, 3) array or None
+        From the pixels' noise and the attitude alone: what changes from frame to frame
+        (the ``limb-common`` filter's measurement noise) [m^2]; ``covariance`` is this plus
+        ``G C G^T``, ``C`` the calibrated slowly varying part.
     timings_s : dict
         Wall time of each stage [s].
     """
@@ -147,6 +160,9 @@ class FrameMeasurement:
     position: FloatArray | None = None
     covariance: FloatArray | None = None
     timings_s: dict[str, float] = field(default_factory=dict)
+    common_jacobian: FloatArray | None = None
+    noise_covariance: FloatArray | None = None
+    white_covariance: FloatArray | None = None
 
     @property
     def usable(self) -> bool:
@@ -216,6 +232,13 @@ def process_frame(
                                     "in the frame, or an exposure too short for the threshold)",
                                     "no-moon")
         sdir = sun_direction_in_image(camera, R_ci, frame.sun_direction_inertial, centre0)
+        phase0 = phase_angle_from_image(camera, R_ci, frame.sun_direction_inertial, centre0)
+        if phase0 > opt.limb.max_phase_rad:
+            raise LimbNotFoundError(
+                f"phase angle {math.degrees(phase0):.0f} deg > limb.max_phase_deg "
+                f"{math.degrees(opt.limb.max_phase_rad):.0f} deg: a crescent this thin shows "
+                "too short a lit limb for a trustworthy fix (its errors are beyond the "
+                "calibrated model)", "thin-crescent")
         limb = limb_points_from_segments(seg, sdir, options=opt.limb)
     except LimbNotFoundError as err:
         tm["limb"] = time.perf_counter() - t
@@ -240,8 +263,9 @@ def process_frame(
         else:
             centre, radius = fit_circle_kasa(limb.uv[inl])
         try:
+            phase = phase_angle_from_image(camera, R_ci, frame.sun_direction_inertial, centre)
             refined = refine_limb(frame.windows, centre, radius, sun_dir_image=sdir,
-                                  options=opt.refine)
+                                  options=opt.refine, camera=camera, phase_rad=phase)
         except LimbNotFoundError as err:
             log.info("frame %s: subpixel refinement failed (%s); pixel-level points used",
                      frame.index, err)
@@ -255,9 +279,7 @@ def process_frame(
             bad = np.abs(fix.residual_px) > opt.refine_outlier_px
             if np.any(bad) and (~bad).sum() >= 3:
                 keep = ~bad
-                refined = LimbPoints(refined.uv[keep], refined.sigma_px[keep],
-                                     refined.centre_px, refined.radius_px,
-                                     refined.sun_dir_image, refined.n_candidates, "windows")
+                refined = refined.subset(keep)
                 fix = christian_robinson(refined.uv, camera, sigma_px=refined.sigma_px,
                                          R_body_to_cam=R_body_to_cam, options=opt.fix)
         else:
@@ -268,11 +290,50 @@ def process_frame(
         return _fail(frame, "fix-failed", str(err), tm, limb=limb, inliers=inl,
                      refined=refined)
     pos = fix.position_inertial(R_ci)
-    cov = fix.covariance_inertial(R_ci, opt.fix.attitude_sigma_rad,
-                                  opt.fix.radius_sigma_fraction)
+    # the errors the points share (the terrain's half-circle mean, the lit limb's pull towards
+    # the Sun): the refinement's own estimate for this frame, else the configured radius error
+    G = noise = white = None
+    if refined is not None and refined.common_covariance_px2 is not None:
+        noise = fix.covariance_inertial(R_ci, opt.fix.attitude_sigma_rad)
+        Gpx = _common_jacobian(fix, refined, camera, R_ci, R_body_to_cam, opt.fix)
+        G = Gpx * float(refined.radius_px)
+        if refined.fix_covariance_px2 is not None and refined.fit_sigma_px is not None:
+            # the pixels' noise and the attitude, and the calibrated slowly varying rest
+            white = christian_robinson(refined.uv, camera, sigma_px=refined.fit_sigma_px,
+                                       R_body_to_cam=R_body_to_cam, options=opt.fix
+                                       ).covariance_inertial(R_ci, opt.fix.attitude_sigma_rad)
+            cov = white + Gpx @ np.asarray(refined.fix_covariance_px2, float) @ Gpx.T
+        else:
+            cov = noise + Gpx @ np.asarray(refined.common_covariance_px2, float) @ Gpx.T
+    else:
+        cov = fix.covariance_inertial(R_ci, opt.fix.attitude_sigma_rad,
+                                      opt.fix.radius_sigma_fraction)
     tm["fix"] = time.perf_counter() - t
     return FrameMeasurement(int(frame.index), float(frame.epoch_tdb), "ok", "", limb, inl,
-                            refined, fix, pos, cov, tm)
+                            refined, fix, pos, cov, tm, G, noise, white)
+
+
+def _common_jacobian(fix: LimbFix, refined: LimbPoints, camera: Camera, R_ci: FloatArray,
+                     R_body_to_cam: FloatArray | None,
+                     options: ChristianRobinsonOptions) -> FloatArray:
+    """The fix's sensitivity ``G`` [m/px, J2000] to the errors all refined points share
+    (:attr:`LimbPoints.common_covariance_px2`: along the limb normals, a shift towards the
+    Sun's direction in the image, one across it), by re-solving with every point moved by
+    1 px of each (exact for the fix; linear at these sizes): the fix's covariance gains
+    ``G C G^T``. On a half-lit limb the fix is most sensitive to them: an error that grows
+    towards the cusps is a smaller disc *and* a centre pulled towards the Sun."""
+    d = np.asarray(refined.sun_dir_image, float)
+    nd = float(np.linalg.norm(d))
+    d = d / nd if nd > 0 else np.array([1.0, 0.0])
+    rel = refined.uv - np.asarray(refined.centre_px, float)
+    normals = rel / np.linalg.norm(rel, axis=1, keepdims=True)
+    G = np.empty((3, 3))
+    for j, move in enumerate((normals, np.broadcast_to(d, rel.shape),
+                              np.broadcast_to(np.array([-d[1], d[0]]), rel.shape))):
+        moved = christian_robinson(refined.uv + move, camera, R_body_to_cam=R_body_to_cam,
+                                   options=options, with_covariance=False)
+        G[:, j] = -R_ci @ (moved.centre_camera - fix.centre_camera)
+    return G
 
 
 # ----------------------------------------------------------------------------- filter
@@ -378,7 +439,12 @@ def _filter_step(ekf: NavigationEkf, m: FrameMeasurement, k: int, has: NDArray,
     ekf.predict(m.epoch_tdb)
     if m.usable and m.position is not None and m.covariance is not None:
         has[k] = True
-        info = ekf.update(m.position, m.covariance)
+        if (ekf.options.bias_model == "limb-common" and m.common_jacobian is not None
+                and m.white_covariance is not None):
+            # the slowly varying limb errors are states: the fix's pixel noise and attitude
+            info = ekf.update(m.position, m.white_covariance, m.common_jacobian)
+        else:
+            info = ekf.update(m.position, m.covariance)
         acc[k] = info.accepted
         nis[k] = info.nis
 

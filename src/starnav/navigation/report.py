@@ -194,6 +194,7 @@ def navigate_dataset(
     dynamics: Any | None = None,
     measure_memory: bool = True,
     plots: bool = True,
+    scenario: Any | None = None,
 ) -> dict[str, Any]:
     """Navigate over a dataset and write every output (the library side of ``starnav navigate``).
 
@@ -216,6 +217,9 @@ def navigate_dataset(
         Trace the peak memory per frame.
     plots : bool
         Write the PNG figures.
+    scenario : Scenario, optional
+        What the frames were made with (the chain's noise, terrain and attitude models);
+        default ``dataset.scenario()`` when the dataset has one.
 
     Returns
     -------
@@ -243,7 +247,8 @@ def navigate_dataset(
         raise ConfigError("dynamics", type(dyn).__name__, "an object with moon_state(t)")
     rng = np.random.default_rng(seed)
     P0 = cfg.initial_covariance()
-    scenario = dataset.scenario() if callable(getattr(dataset, "scenario", None)) else None
+    if scenario is None and callable(getattr(dataset, "scenario", None)):
+        scenario = dataset.scenario()
     run = navigate(dataset, dynamics=dyn, moon=dyn, P0=P0,
                    chain=cfg.chain_options(scenario=scenario),
                    ekf=cfg.ekf_options(), rng=rng, measure_memory=measure_memory)

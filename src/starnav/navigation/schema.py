@@ -48,6 +48,9 @@ class LimbConfig(StrictModel):
     point_sigma_px: PositiveFloat = Field(0.5, description="1-sigma of a pixel-level point [px]")
     point_offset_px: float = Field(0.0, allow_inf_nan=False,
                                    description="inward shift of every point [px]")
+    max_phase_deg: Annotated[float, Field(gt=0, le=180)] = Field(
+        145.0, description="no fix past this Sun phase angle [deg]: a thinner crescent's lit "
+        "limb is too short for a trustworthy fix (the model errors are calibrated to ~145)")
 
 
 class RefineConfig(StrictModel):
@@ -56,7 +59,11 @@ class RefineConfig(StrictModel):
     enabled: bool = Field(True, description="refine with the frame's windows when present")
     n_windows: Annotated[int, Field(ge=1, le=16)] = Field(16, description="windows planned")
     window_size_px: Annotated[int, Field(ge=5)] = Field(11, description="window side [px]")
-    edge_model: Literal["blurred-limb", "blurred-step"] = "blurred-limb"
+    edge_model: Literal["auto", "detector-psf", "blurred-limb", "blurred-step"] = Field(
+        "auto", description="edge model of the window fit: detector-psf (the dataset "
+        "detector's own blur: defocus disc * Gaussian, pixel apertures, IPC; needs the "
+        "scenario), blurred-limb / blurred-step (Gaussian of fitted width); auto: detector-psf "
+        "when the scenario is known and its aberration PSF is on, else blurred-limb")
     psf_sigma_px: NonNegativeFloat | None = Field(
         None, description="Gaussian PSF sigma [px]; null: fitted per window")
     saturation_dn: PositiveFloat = Field(4095.0, description="pixels at or above are ignored [DN]")
@@ -69,6 +76,20 @@ class RefineConfig(StrictModel):
         "point's sigma when the Moon has terrain")
     outlier_px: PositiveFloat = Field(0.5, description="refined points farther from the first "
                                                        "fix are dropped [px]")
+    model_error_px: NonNegativeFloat | None = Field(
+        None, description="the edge model's own error [px], added to every refined point's "
+        "sigma; null: the packaged calibration with the detector-psf model "
+        "(starnav/data/navigation/refine_model_error.json), 0 otherwise")
+    saturated_model_error_px: NonNegativeFloat | None = Field(
+        None, description="extra model error of a window whose inside is saturated [px] "
+        "(detector-psf model); null: the packaged calibration")
+    terrain_error_scale: NonNegativeFloat | None = Field(
+        None, description="factor on the DEM's limb-height spread (terrain_model_error): what "
+        "the lit limb shows beyond the silhouette; null: the packaged calibration with the "
+        "detector-psf model, 1 otherwise")
+    max_overexposure: Annotated[float, Field(gt=1, allow_inf_nan=False)] = Field(
+        20.0, description="saturated windows whose fitted step exceeds this many times the "
+        "headroom to saturation are dropped (blooming, not the optics, shapes that edge)")
 
 
 class RansacConfig(StrictModel):
@@ -97,7 +118,11 @@ class FixConfig(StrictModel):
 class FilterConfig(StrictModel):
     """EKF (starnav.navigation.ekf)."""
 
-    bias_model: Literal["none", "additive", "range-scale", "range-scale+additive"] = "none"
+    bias_model: Literal["none", "additive", "range-scale", "range-scale+additive",
+                        "limb-common"] = Field(
+        "none", description="Gauss-Markov bias states: additive (3-axis shift), range-scale, "
+        "both, or limb-common (the errors all refined limb points of a frame share, with "
+        "their calibrated covariance; only bias_tau_days is used)")
     bias_sigma_km: NonNegativeFloat = Field(0.0, description="additive bias 1-sigma [km]")
     range_scale_sigma: NonNegativeFloat = Field(0.0, description="range-scale bias 1-sigma [-]")
     bias_tau_days: PositiveFloat = Field(1.0, description="bias correlation time [days]")
@@ -120,7 +145,9 @@ class NavigationConfig(StrictModel):
     fix: FixConfig = Field(default_factory=FixConfig)
     filter: FilterConfig = Field(default_factory=FilterConfig)
     runs: Annotated[int, Field(ge=1)] = Field(
-        1, description="Monte Carlo runs of the filter over initial errors")
+        1, description="Monte Carlo runs of `starnav navigate` (>= 2: each over its own "
+        "detector noise, attitude knowledge error and initial error, with the consistency "
+        "verdict)")
 
     # ---------------------------------------------------------------- conversions
     def chain_options(self, moon_radius_m: float | None = None, *,
@@ -139,12 +166,18 @@ class NavigationConfig(StrictModel):
         from starnav.navigation.limb import LimbScanOptions
         from starnav.navigation.pipeline import ChainOptions
         from starnav.navigation.ransac import RansacOptions
-        from starnav.navigation.refine import PixelNoise, RefineOptions
+        from starnav.navigation.refine import (
+            EdgeSpread,
+            PixelNoise,
+            RefineOptions,
+            packaged_model_error,
+        )
 
         L, Rf, Rs, F = self.limb, self.refine, self.ransac, self.fix
         r = MOON_RADIUS if moon_radius_m is None else float(moon_radius_m)
         radii = (r, r, r) if F.moon_radii_km is None else tuple(x * 1e3 for x in F.moon_radii_km)
-        noise, terrain = None, None
+        noise, terrain, spread = None, None, None
+        edge_model = "blurred-limb" if Rf.edge_model == "auto" else Rf.edge_model
         att: float | tuple[float, float, float] = 0.0
         if F.attitude_sigma_arcsec is not None:
             a = F.attitude_sigma_arcsec
@@ -153,6 +186,10 @@ class NavigationConfig(StrictModel):
         if scenario is not None:
             if Rf.noise_model:
                 noise = PixelNoise.from_detector(scenario.detector)
+            if (Rf.edge_model in ("auto", "detector-psf")
+                    and scenario.detector.optics.aberration.enabled):
+                spread = EdgeSpread.from_detector(scenario.detector)
+                edge_model = "detector-psf"
             if Rf.terrain_model_error and scenario.moon.shape == "dem":
                 from starnav.dem.limb import limb_topography_for
 
@@ -161,23 +198,37 @@ class NavigationConfig(StrictModel):
                 pc = scenario.pointing
                 att = (pc.knowledge_cross_arcsec * ARCSEC, pc.knowledge_cross_arcsec * ARCSEC,
                        pc.knowledge_roll_arcsec * ARCSEC)
+        table = packaged_model_error() if edge_model == "detector-psf" else None
+        # the fix's radius error when no refined points carry their own (pixel-level points)
+        if terrain is None:
+            radius_fraction = 0.0
+        elif Rf.terrain_error_scale is None and table is not None:
+            radius_fraction = math.sqrt(table.common_covariance[0][0])
+        else:
+            k = 1.0 if Rf.terrain_error_scale is None else Rf.terrain_error_scale
+            radius_fraction = k * terrain.common_fraction
         return ChainOptions(
             limb=LimbScanOptions(max_points=L.max_points, min_level=L.min_level,
                                  min_run_length_px=L.min_run_length_px,
                                  min_sun_cos=L.min_sun_cos, drop_border_px=L.drop_border_px,
                                  point_sigma_px=L.point_sigma_px,
-                                 point_offset_px=L.point_offset_px),
+                                 point_offset_px=L.point_offset_px,
+                                 max_phase_rad=math.radians(L.max_phase_deg)),
             ransac=RansacOptions(model=Rs.model, threshold_px=Rs.threshold_px,
                                  max_iterations=Rs.max_iterations, confidence=Rs.confidence,
                                  min_inlier_fraction=Rs.min_inlier_fraction),
             refine=RefineOptions(n_windows=Rf.n_windows, size_px=Rf.window_size_px,
-                                 edge_model=Rf.edge_model, psf_sigma_px=Rf.psf_sigma_px,
+                                 edge_model=edge_model, psf_sigma_px=Rf.psf_sigma_px,
                                  saturation_dn=Rf.saturation_dn, min_sigma_px=Rf.min_sigma_px,
-                                 noise=noise, limb_topography=terrain),
+                                 noise=noise, limb_topography=terrain, spread=spread,
+                                 model_error_px=Rf.model_error_px,
+                                 saturated_model_error_px=Rf.saturated_model_error_px,
+                                 terrain_scale=Rf.terrain_error_scale,
+                                 model_error_table=table, max_overexposure=Rf.max_overexposure),
             fix=ChristianRobinsonOptions(
                 radii_m=radii,  # type: ignore[arg-type]
                 attitude_sigma_rad=att,
-                radius_sigma_fraction=terrain.common_fraction if terrain is not None else 0.0),
+                radius_sigma_fraction=radius_fraction),
             use_windows=Rf.enabled,
             refine_outlier_px=Rf.outlier_px,
         )
@@ -187,7 +238,13 @@ class NavigationConfig(StrictModel):
         from starnav.navigation.ekf import EkfOptions
 
         f = self.filter
+        common = None
+        if f.bias_model == "limb-common":
+            from starnav.navigation.refine import packaged_model_error
+
+            common = packaged_model_error().common_covariance
         return EkfOptions(bias_model=f.bias_model, bias_sigma_m=f.bias_sigma_km * 1e3,
+                          common_covariance=common,
                           range_scale_sigma=f.range_scale_sigma,
                           bias_tau_s=f.bias_tau_days * DAY_S,
                           accel_psd_m2_s3=f.accel_psd_m2_s3,

@@ -1,0 +1,168 @@
+#!/usr/bin/env python
+"""Calibrate the model-error terms of the subpixel limb refinement on *calibration arcs*,
+never on the arcs that score it; writes ``src/starnav/data/navigation/refine_model_error.json``
+(read by ``NavigationConfig.chain_options`` with the ``detector-psf`` edge model).
+
+Why: the refinement's per-point sigma from the pixels' noise alone is ~0.015 px at 0.015 ms,
+while the points scatter by ~0.1 px on the real Moon: the edge model does not follow a real
+limb profile exactly, a saturated window's edge is also shaped by blooming and inter-pixel
+capacitance, and the lit limb departs from the sphere by the terrain (the DEM's silhouette,
+``starnav.dem.limb``) and by the shadows near the terminator, which the silhouette model does
+not see; part of it is shared by the whole frame (the disc looks smaller, its centre pulled
+towards the Sun). The terms and how each is measured:
+``starnav.batch.consistency.calibrate_model_error`` and
+``starnav.navigation.refine.ModelErrorCalibration``.
+
+Procedure: the demo scenario (AA-STR, real Moon, 8 spp) on five arcs of 14 frames one day
+apart (halo phase 60, 240, 120, 300 and 30 deg, epochs 2027-03-06, 03-26, 04-16, 05-06 and
+05-26, seeds 4242-4246: Sun phase from crescent to gibbous, a different limb in every frame);
+each arc rendered as the real Moon and as a smooth sphere; exposed at 0.015 ms (segments at
+200 DN) and, the smooth arcs, at 0.18 ms (segments at 2048 DN, the exposure study's
+threshold); two noise runs each. Two passes: the first, with no model error, gives the
+per-point terms (edge model error and saturated extra per bin of phase, terrain scale); the
+second re-exposes the same renders with them (the real Moon also at 0.18 ms) and gives,
+from the fixes, the covariance of the errors the frame shares and that of everything slowly
+varying (all but the pixels' noise and the attitude).
+The tests score the result on three other arcs (tests/navigation/test_consistency.py: the
+demo arc, halo phase 0, 2027-03-01, seed 20250101, and two more).
+
+Usage::
+
+    .venv/bin/python tools/calibrate_refine_model_error.py            # calibrate, write
+    .venv/bin/python tools/calibrate_refine_model_error.py --dry-run  # print only
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+from pathlib import Path
+
+import numpy as np
+
+OUT = Path(__file__).resolve().parents[1] / "src/starnav/data/navigation/refine_model_error.json"
+ARCS = (["trajectory.halo_phase_deg=60", "trajectory.epoch=2027-03-06T00:00:00 TDB",
+         "seed=4242"],
+        ["trajectory.halo_phase_deg=240", "trajectory.epoch=2027-03-26T00:00:00 TDB",
+         "seed=4243"],
+        ["trajectory.halo_phase_deg=120", "trajectory.epoch=2027-04-16T00:00:00 TDB",
+         "seed=4244"],
+        ["trajectory.halo_phase_deg=300", "trajectory.epoch=2027-05-06T00:00:00 TDB",
+         "seed=4245"],
+        ["trajectory.halo_phase_deg=30", "trajectory.epoch=2027-05-26T00:00:00 TDB",
+         "seed=4246"])
+COMMON = ["trajectory.duration_days=13.2", "trajectory.cadence_s=86400", "render.spp=8"]
+WELL_EXPOSED = (1.5e-5, ("detector.readout.segments.thresholds_dn=[200]",))
+SATURATED = (1.8e-4, ("detector.readout.segments.thresholds_dn=[2048]",))
+RUNS = 2
+#: No model error at all: the first pass.
+UNCALIBRATED = {"phase_edges_deg": [0.0, 180.0], "edge_model_error_px": [0.0],
+                "saturated_model_error_px": [0.0], "terrain_scale": 1.0,
+                "common_covariance": [[0.0] * 3] * 3}
+
+
+def _merge(tables: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """One table of several arcs' (frame numbers made distinct: arc i adds 1000 i)."""
+    out = {k: np.concatenate([t[k] for t in tables]) for k in tables[0]}
+    out["frame"] = np.concatenate([t["frame"] + 1000 * i for i, t in enumerate(tables)])
+    return out
+
+
+def _use(doc: dict, path: Path) -> None:
+    """Make ``doc`` the packaged calibration the chain reads from now on."""
+    from starnav.atomic import atomic_write_text
+    from starnav.navigation.refine import packaged_model_error
+
+    atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
+    packaged_model_error.cache_clear()
+
+
+def main() -> None:
+    from starnav.batch.consistency import (
+        calibrate_model_error,
+        limb_point_records,
+        modelled_sigma,
+        render_arc,
+        total_sigma,
+    )
+    from starnav.batch.presets import demo_scenario
+    from starnav.config import scenario_from_dict, scenario_to_dict
+    from starnav.dem.limb import limb_topography_for
+    from starnav.navigation.refine import ModelErrorCalibration
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--dry-run", action="store_true", help="print, restore the packaged file")
+    args = ap.parse_args()
+    before = OUT.read_text() if OUT.exists() else None
+    base = demo_scenario()
+    sc = scenario_from_dict(base)
+    topo = limb_topography_for(sc.moon.dem)
+    win = sc.navigation.refine.window_size_px
+    configs = {(i, shape): scenario_to_dict(scenario_from_dict(
+        base, [*arc, *COMMON, f"moon.shape={shape}"]))
+        for i, arc in enumerate(ARCS) for shape in ("sphere", "dem")}
+    renders = {k: render_arc(c) for k, c in configs.items()}
+    print("rendered", sum(len(r) for r in renders.values()), "frames", flush=True)
+    try:
+        # pass 1: the points' own errors
+        _use(UNCALIBRATED, OUT)
+        smooth, smooth_sat, terrain = [], [], []
+        for (i, shape), cfg in configs.items():
+            cases = (WELL_EXPOSED, SATURATED) if shape == "sphere" else (WELL_EXPOSED,)
+            rec = limb_point_records(cfg, RUNS, cases, renders[(i, shape)])
+            if shape == "sphere":
+                smooth.append(rec[WELL_EXPOSED[0]]["points"])
+                smooth_sat.append(rec[SATURATED[0]]["points"])
+            else:
+                terrain.append(rec[WELL_EXPOSED[0]]["points"])
+        first = calibrate_model_error(_merge(smooth + smooth_sat), _merge(terrain), None, topo,
+                                      win)
+        print("pass 1:", {k: first[k] for k in ("edge_model_error_px",
+                                                "saturated_model_error_px", "terrain_scale")},
+              flush=True)
+        # pass 2: the shared errors, from the fixes made with the points' whole own errors
+        _use({k: first[k] for k in UNCALIBRATED}, OUT)
+        fixes, terrain2, smooth_fixes = [], [], []
+        for (i, shape), cfg in configs.items():
+            if shape == "dem":
+                rec = limb_point_records(cfg, RUNS, (WELL_EXPOSED, SATURATED),
+                                         renders[(i, shape)])
+                fixes += [rec[WELL_EXPOSED[0]]["fixes"], rec[SATURATED[0]]["fixes"]]
+                terrain2.append(rec[WELL_EXPOSED[0]]["points"])
+            else:
+                rec = limb_point_records(cfg, RUNS, (WELL_EXPOSED,), renders[(i, shape)])
+                smooth_fixes.append(rec[WELL_EXPOSED[0]]["fixes"])
+        res = calibrate_model_error(_merge(smooth + smooth_sat), _merge(terrain),
+                                    _merge(fixes), topo, win,
+                                    smooth_fixes=_merge(smooth_fixes))
+    finally:
+        if before is not None:
+            OUT.write_text(before)
+    cal = ModelErrorCalibration.from_dict(res)
+    doc = {**res, "calibration_arcs": [a + COMMON for a in ARCS], "runs": RUNS,
+           "exposures_s": [WELL_EXPOSED[0], SATURATED[0]],
+           "method": "starnav.batch.consistency.calibrate_model_error (method of moments)",
+           "written": _dt.date.today().isoformat(),
+           "tool": "tools/calibrate_refine_model_error.py"}
+    doc["in_sample_rms_z"] = {}
+    for name, tabs, tp in (("smooth 0.015 ms", smooth, None), ("smooth 0.18 ms", smooth_sat, None),
+                           ("real Moon 0.015 ms", terrain, topo)):
+        zs = []
+        for t in tabs:
+            z = t["error"] / modelled_sigma(t, cal, tp, win)
+            zs.append(float(np.sqrt(np.mean(z * z))))
+        doc["in_sample_rms_z"][name] = zs
+        print(name, "rms(e / sigma) per arc:", ", ".join(f"{z:.3f}" for z in zs), flush=True)
+    # the second pass's own record, with the pass-1 terms but no shared part yet: for the record
+    doc["in_sample_rms_z"]["real Moon 0.015 ms, pass 2, own sigma only"] = [
+        float(np.sqrt(np.mean((t["error"] / total_sigma(t)) ** 2))) for t in terrain2]
+    print(json.dumps({k: doc[k] for k in ("edge_model_error_px", "saturated_model_error_px",
+                                          "terrain_scale", "moments")}, indent=1))
+    if not args.dry_run:
+        _use(doc, OUT)
+        print("wrote", OUT)
+
+
+if __name__ == "__main__":
+    main()
