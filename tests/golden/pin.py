@@ -1,0 +1,188 @@
+"""Golden outputs of the public commands, pinned before the redesign (issue 14).
+
+``outputs(workdir)`` runs, through the command line a user types, a small static render, a
+2-frame dataset at 0.015 and 7.7 ms, navigation on it and a 1-point sweep, and returns what they
+wrote as plain data (arrays and JSON-like values), with what depends on the clock, the machine
+or the software version removed. ``tools/pin_golden.py`` stores it in ``tests/golden/reference``;
+``tests/test_golden.py`` compares a fresh run with it:
+
+* integer images (DN) and every count and status: exactly;
+* float images (radiance, AOVs): relative 1e-6 of the image's largest value;
+* every other number: relative 1e-9 (absolute 1e-12).
+
+A moved line of code must not change what a user gets; a difference is either a bug or is named
+in the issue's closing note and the reference re-pinned with ``tools/pin_golden.py``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SCENARIO = """\
+camera: {width: 128, height: 128, focal_length_mm: 12.5}
+render: {spp: 4}
+trajectory: {frames: 2, cadence_s: 1800.0, duration_days: 1.0}
+pointing: {moon_offset_max_px: 20.0}
+"""
+STATIC = """\
+camera: {width: 96, height: 96, focal_length_mm: 12.5}
+render: {spp: 4}
+geometry: {range_km: 60000.0, phase_angle_deg: 40.0}
+"""
+#: Keys whose values depend on the clock, the machine or the software version.
+VOLATILE = ("timing_ms", "memory_kb", "software", "versions", "created", "wall_s", "elapsed",
+            "sha256", "bytes", "hostname", "python", "starnav_version", "mitsuba_version")
+#: CSV columns that are timings.
+VOLATILE_COLUMNS = ("t_limb_ms", "t_ransac_ms", "t_refine_ms", "t_fix_ms", "t_ekf_ms", "cpu_ms")
+
+
+def _starnav(*args: str, cwd: Path) -> None:
+    exe = str(Path(sys.executable).with_name("starnav"))
+    env = {**os.environ, "COLUMNS": "200"}
+    env.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19.1")
+    r = subprocess.run([exe, *args], cwd=cwd, env=env, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"starnav {' '.join(args)} failed:\n{r.stdout}\n{r.stderr}")
+
+
+def scrub(value: Any) -> Any:
+    """``value`` without the volatile keys (recursively)."""
+    if isinstance(value, dict):
+        return {k: scrub(v) for k, v in value.items()
+                if not any(s in k.lower() for s in VOLATILE)}
+    if isinstance(value, list):
+        return [scrub(v) for v in value]
+    return value
+
+
+def _read_csv(path: Path, drop: tuple[str, ...] = VOLATILE_COLUMNS) -> list[dict[str, Any]]:
+    def num(s: str) -> Any:
+        try:
+            return float(s)
+        except ValueError:
+            return s
+
+    with open(path, newline="") as fh:
+        return [{k: num(v) for k, v in row.items()
+                 if k not in drop and not any(s in k.lower() for s in VOLATILE)}
+                for row in csv.DictReader(fh)]
+
+
+def _exr(path: Path) -> dict[str, np.ndarray]:
+    from starnav.radiance import read_exr
+
+    img = read_exr(path)
+    out = {"L": np.asarray(img.L), "Le": np.asarray(img.Le), "mask": np.asarray(img.mask)}
+    for k, v in (img.aovs or {}).items():
+        out[f"aov_{k}"] = np.asarray(v)
+    return out
+
+
+def _png(path: Path) -> np.ndarray:
+    from starnav.detector.io import read_dn_png
+
+    return np.asarray(read_dn_png(path))
+
+
+def outputs(workdir: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Run the commands in ``workdir``; returns (arrays, JSON-like values)."""
+    workdir = Path(workdir)
+    (workdir / "sc.yaml").write_text(SCENARIO)
+    (workdir / "static.yaml").write_text(STATIC)
+    arrays: dict[str, np.ndarray] = {}
+    values: dict[str, Any] = {}
+
+    _starnav("render", "static.yaml", "--out", "render", cwd=workdir)
+    from starnav.radiance import read_exr
+
+    for p in sorted((workdir / "render").glob("*.exr")):
+        for k, v in _exr(p).items():
+            arrays[f"render/{p.stem}/{k}"] = v
+        values[f"render/{p.stem}/meta"] = scrub(json.loads(json.dumps(read_exr(p).meta,
+                                                                     default=str)))
+
+    _starnav("dataset", "sc.yaml", "--out", "ds", "--exposures", "1.5e-5,7.7e-3",
+             "--exposure-set", "7.7e-3:detector.readout.segments.thresholds_dn=[2048]",
+             cwd=workdir)
+    ds = workdir / "ds"
+    values["dataset/manifest_frames"] = scrub(json.loads((ds / "manifest.json").read_text())
+                                              ["frames"])
+    for f in sorted((ds / "frames").iterdir()):
+        values[f"dataset/{f.name}/truth"] = scrub(json.loads((f / "truth.json").read_text()))
+        for k, v in _exr(f / "radiance.exr").items():
+            arrays[f"dataset/{f.name}/radiance/{k}"] = v
+        for e in sorted(p for p in f.iterdir() if p.is_dir()):
+            arrays[f"dataset/{f.name}/{e.name}/dn"] = _png(e / "dn.png")
+            for j in ("readout", "segments", "windows"):
+                values[f"dataset/{f.name}/{e.name}/{j}"] = scrub(
+                    json.loads((e / f"{j}.json").read_text()))
+
+    for ms in ("0.015", "7.7"):
+        out = f"nav_{ms}"
+        _starnav("navigate", "ds", "--out", out, "--exposure-ms", ms, "--no-plots", cwd=workdir)
+        values[f"navigate/{ms}/metrics"] = scrub(
+            json.loads((workdir / out / "metrics.json").read_text()))
+        values[f"navigate/{ms}/estimates"] = _read_csv(workdir / out / "estimates.csv")
+
+    _starnav("sweep", "sc.yaml", "--grid", "detector.exposure_time_s=1.5e-5", "--runs", "2",
+             "--workers", "0", "--out", "sweep", "--no-figures", cwd=workdir)
+    from starnav.batch.table import TIMING_COLUMNS
+
+    values["sweep/results"] = _read_csv(workdir / "sweep" / "results.csv",
+                                        drop=tuple(TIMING_COLUMNS) + VOLATILE_COLUMNS)
+    return arrays, values
+
+
+def compare(a: Any, b: Any, path: str = "") -> list[str]:
+    """Differences between a fresh value ``a`` and the reference ``b`` (tolerances above)."""
+    if isinstance(b, dict):
+        if not isinstance(a, dict) or set(a) != set(b):
+            ka = set(a) if isinstance(a, dict) else set()
+            return [f"{path}: keys differ: only new {sorted(ka - set(b))}, "
+                    f"only reference {sorted(set(b) - ka)}"]
+        return [d for k in b for d in compare(a[k], b[k], f"{path}.{k}")]
+    if isinstance(b, list):
+        if not isinstance(a, list) or len(a) != len(b):
+            return [f"{path}: length {len(a) if isinstance(a, list) else a!r} != {len(b)}"]
+        return [d for i, (x, y) in enumerate(zip(a, b, strict=True))
+                for d in compare(x, y, f"{path}[{i}]")]
+    if isinstance(b, bool) or b is None or isinstance(b, str):
+        return [] if a == b else [f"{path}: {a!r} != {b!r}"]
+    if isinstance(b, int) and isinstance(a, int):
+        return [] if a == b else [f"{path}: {a} != {b}"]
+    if isinstance(b, int | float) and isinstance(a, int | float):
+        if np.isnan(b) and np.isnan(a):
+            return []
+        ok = abs(a - b) <= 1e-12 + 1e-9 * abs(b)
+        return [] if ok else [f"{path}: {a!r} != {b!r}"]
+    return [] if a == b else [f"{path}: {a!r} != {b!r}"]
+
+
+def compare_arrays(new: dict[str, np.ndarray], ref: dict[str, np.ndarray]) -> list[str]:
+    """Differences between fresh and reference arrays (tolerances above)."""
+    if set(new) != set(ref):
+        return [f"arrays differ: only new {sorted(set(new) - set(ref))}, "
+                f"only reference {sorted(set(ref) - set(new))}"]
+    out = []
+    for k in sorted(ref):
+        a, b = np.asarray(new[k]), np.asarray(ref[k])
+        if a.shape != b.shape:
+            out.append(f"{k}: shape {a.shape} != {b.shape}")
+        elif np.issubdtype(b.dtype, np.floating):
+            scale = float(np.nanmax(np.abs(b))) if b.size else 0.0
+            bad = ~(np.abs(a - b) <= 1e-6 * scale) & ~(np.isnan(a) & np.isnan(b))
+            if bad.any():
+                out.append(f"{k}: {int(bad.sum())} pixels differ by more than 1e-6 of max "
+                           f"(largest {float(np.nanmax(np.abs(a - b))):.3g}, max {scale:.3g})")
+        elif not np.array_equal(a, b):
+            out.append(f"{k}: {int((a != b).sum())} pixels differ "
+                       f"(largest {int(np.max(np.abs(a.astype(np.int64) - b)))})")
+    return out
