@@ -21,9 +21,9 @@ import time
 from starnav.camera import Camera
 from starnav.config import scenario_from_dict
 from starnav.geometry import static_geometry
-from starnav.renderer.pipeline import renderer_from_scenario
 from starnav.renderer.render import MoonModel, MoonRenderer, RenderSettings
 from starnav.renderer.scene import icosphere_mesh
+from starnav.simulate import renderer_from_scenario
 from starnav.spectra import sensor_response, solar_spectrum
 
 

@@ -18,8 +18,8 @@ import numpy as np
 from starnav.config import scenario_from_dict
 from starnav.scenes.dynamics import PointMassModel, propagate
 from starnav.scenes.ephemeris import Ephemeris, parse_epoch
-from starnav.scenes.frames import Scene
 from starnav.scenes.trajectory import ephemeris_halo_arc
+from starnav.simulate import scene_from_scenario
 
 
 def timed(fn, repeat: int = 20) -> float:
@@ -54,7 +54,7 @@ def main() -> None:
     step = timed(lambda: propagate(model, tt, x0, tt + 300.0, with_stm=True), 50)
     print(f"one 300 s RK4 step with STM         {step * 1e3:8.3f} ms")
 
-    scene = Scene(scenario_from_dict({"trajectory": {"frames": 50}}), eph, trajectory=arc)
+    scene = scene_from_scenario(scenario_from_dict({"trajectory": {"frames": 50}}), eph, arc=arc)
     k = iter(range(10_000))
     per_frame = timed(lambda: scene.geometry(next(k) % len(scene)), 50)
     print(f"FrameGeometry with random pointing  {per_frame * 1e3:8.3f} ms")

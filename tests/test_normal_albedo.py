@@ -90,7 +90,7 @@ def test_a_map_whose_quantity_does_not_fit_the_model_is_an_error():
 
 
 def test_hapke_map_above_the_reachable_albedo_is_refused_before_rendering(tmp_path):
-    from starnav.renderer.pipeline import moon_model_from_scenario
+    from starnav.simulate import moon_model_from_scenario
 
     path = tmp_path / "a.npy"
     np.save(path, np.full((8, 16), 0.9))

@@ -108,7 +108,7 @@ def terrain_factor(geoms: list[tuple[float, float]], k: float, q: float,
                    params: dict[str, float], disc: DiscModel) -> np.ndarray:
     """Rendered real Moon (LDEM_4 mesh, grey) / smooth-sphere quadrature, per geometry."""
     from starnav.config import build_camera, scenario_from_dict
-    from starnav.renderer.pipeline import frame_geometries, renderer_from_scenario
+    from starnav.simulate import frame_geometries, renderer_from_scenario
 
     out = []
     renderer = None

@@ -34,12 +34,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from pydantic import Field
 
+from starnav.config_base import StrictModel
 from starnav.errors import ConfigError, GeometryError, UnknownNameError
+from starnav.fields import PositiveFloat
 
 FloatArray = NDArray[np.float64]
 
@@ -373,3 +376,41 @@ CAMERA_PRESETS: dict[str, Camera] = {
         name="amie",
     ),
 }
+
+
+# --------------------------------------------------------------------------- schema
+class CameraConfig(StrictModel):
+    """Camera optics and detector geometry. ``None`` keeps the preset's value."""
+
+    preset: str = Field("aa-str", description="named camera (starnav.camera.CAMERA_PRESETS)")
+    focal_length_mm: PositiveFloat | None = Field(None, description="effective focal length [mm]")
+    pixel_pitch_um: PositiveFloat | None = Field(None, description="pixel pitch [um]")
+    width: Annotated[int, Field(ge=1)] | None = Field(None, description="detector columns [px]")
+    height: Annotated[int, Field(ge=1)] | None = Field(None, description="detector rows [px]")
+    f_number: PositiveFloat | None = Field(None, description="f-number N = f / D [-]")
+    principal_point_px: tuple[float, float] | None = Field(
+        None, description="principal point (u, v) [px]; default the detector centre"
+    )
+    distortion: tuple[float, float, float, float, float] = Field(
+        (0.0, 0.0, 0.0, 0.0, 0.0), description="Brown-Conrady (k1, k2, k3, p1, p2) [-]"
+    )
+
+
+def camera_from_config(cfg: CameraConfig) -> Camera:
+    """The :class:`~starnav.camera.Camera` described by ``cfg`` (SI inside)."""
+    over: dict[str, Any] = {}
+    if cfg.focal_length_mm is not None:
+        over["focal_length"] = cfg.focal_length_mm * 1e-3
+    if cfg.pixel_pitch_um is not None:
+        over["pitch_x"] = over["pitch_y"] = cfg.pixel_pitch_um * 1e-6
+    if cfg.width is not None:
+        over["width"] = cfg.width
+    if cfg.height is not None:
+        over["height"] = cfg.height
+    if cfg.f_number is not None:
+        over["f_number"] = cfg.f_number
+    if cfg.principal_point_px is not None:
+        over["cx"], over["cy"] = cfg.principal_point_px
+    k1, k2, k3, p1, p2 = cfg.distortion
+    over.update(k1=k1, k2=k2, k3=k3, p1=p1, p2=p2)
+    return Camera.preset(cfg.preset, **over)

@@ -19,13 +19,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Annotated
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import Field
 
 from starnav.camera import Camera
+from starnav.config_base import StrictModel
 from starnav.constants import AU, MOON_RADIUS
 from starnav.errors import GeometryError
+from starnav.fields import PositiveFloat
 
 FloatArray = NDArray[np.float64]
 
@@ -107,6 +111,13 @@ class FrameGeometry:
     def range(self) -> float:
         """Camera to Moon-centre distance [m]."""
         return float(np.linalg.norm(self.camera_position))
+
+    @property
+    def R_cam_to_inertial_known(self) -> FloatArray:
+        """The attitude the spacecraft believes: the measured one when the frame carries a
+        knowledge error, else the true one."""
+        R = self.R_cam_to_inertial_measured
+        return self.R_cam_to_inertial if R is None else R
 
     @property
     def sun_distance(self) -> float:
@@ -248,8 +259,29 @@ def static_geometry(
     return geom
 
 
-def static_geometry_from_config(camera: Camera, cfg, moon_radius: float) -> FrameGeometry:
-    """:func:`static_geometry` from a :class:`~starnav.config.StaticGeometryConfig`."""
+class StaticGeometryConfig(StrictModel):
+    """One frame without a trajectory: observer range, phase angle and the Moon's place."""
+
+    range_km: PositiveFloat = Field(60_000.0, description="camera to Moon-centre distance [km]")
+    phase_angle_deg: Annotated[float, Field(ge=0, le=180)] = Field(
+        30.0, description="Sun-Moon-observer angle [deg]"
+    )
+    sun_azimuth_deg: float = Field(
+        0.0, description="direction of the subsolar point seen from the sub-observer point, "
+        "measured from selenographic east towards north [deg]"
+    )
+    moon_offset_px: tuple[float, float] = Field(
+        (0.0, 0.0), description="Moon centre offset from the principal point (du, dv) [px]"
+    )
+    roll_deg: float = Field(0.0, description="rotation of the camera about the Moon line [deg]")
+    sub_observer_lat_deg: Annotated[float, Field(ge=-90, le=90)] = 0.0
+    sub_observer_lon_deg: float = 0.0
+    sun_distance_au: PositiveFloat = Field(1.0, description="Sun-Moon distance [AU]")
+
+
+def static_geometry_from_config(camera: Camera, cfg: StaticGeometryConfig,
+                                moon_radius: float) -> FrameGeometry:
+    """:func:`static_geometry` from a :class:`StaticGeometryConfig`."""
     d = math.radians
     return static_geometry(
         camera,

@@ -157,13 +157,13 @@ def render_scene(scenario: Scenario, out: str | os.PathLike[str], *, frusta: int
     ConfigError
         Bad arguments.
     """
-    from starnav.scenes import Scene
+    from starnav.simulate import scene_from_scenario
 
     if frusta < 1:
         raise ConfigError("frusta", frusta, "an integer >= 1")
     if not 0 < frustum_fraction <= 1:
         raise ConfigError("frustum_fraction", frustum_fraction, "a fraction in (0, 1]")
-    scene = Scene(scenario)
+    scene = scene_from_scenario(scenario)
     if probe:
         check_offscreen()
     import pyvista as pv

@@ -32,12 +32,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import Field
 
+from starnav.config_base import StrictModel
 from starnav.constants import AU, PLANCK_H, SPEED_OF_LIGHT, SUN_RADIUS, SUN_TEFF, TSI_IAU2015
 from starnav.errors import ConfigError, UnknownNameError
+from starnav.fields import PositiveFloat
 
 FloatArray = NDArray[np.float64]
 
@@ -313,12 +317,39 @@ def sensor_response(
     raise UnknownNameError("sensor response kind", kind, ["bands", "samples"])
 
 
-def sensor_response_from_config(cfg) -> SensorResponse:
+# --------------------------------------------------------------------------- schema
+class SunConfig(StrictModel):
+    """Solar spectrum. ``spectrum``: ``astm-g173`` (ASTM E-490/G-173 extraterrestrial, from
+    colour-science) or ``blackbody`` (``temperature_k``, scaled to ``tsi_w_m2``)."""
+
+    spectrum: Literal["astm-g173", "blackbody"] = "astm-g173"
+    tsi_w_m2: PositiveFloat | None = Field(
+        None, description="rescale the spectrum to this total irradiance at 1 AU [W/m^2]"
+    )
+    temperature_k: PositiveFloat = Field(5772.0, description="black-body temperature [K]")
+
+
+class SensorResponseConfig(StrictModel):
+    """Spectral response QE(lambda) x T(lambda). Default: the AA-STR table (REFERENCE.md s1).
+
+    Either ``preset`` or a table: ``wavelengths_nm`` band *edges* (n + 1 values) with ``qe``
+    and ``transmission`` per band (n values, piecewise constant), or ``wavelengths_nm`` samples
+    (n values) with ``qe``/``transmission`` per sample (piecewise linear, ``kind: samples``).
+    """
+
+    preset: str | None = "aa-str"
+    kind: Literal["bands", "samples"] = "bands"
+    wavelengths_nm: tuple[float, ...] | None = None
+    qe: tuple[float, ...] | None = None
+    transmission: tuple[float, ...] | None = None
+
+
+def sensor_response_from_config(cfg: SensorResponseConfig) -> SensorResponse:
     """:func:`sensor_response` from a :class:`~starnav.config.SensorResponseConfig`."""
     return sensor_response(cfg.preset, cfg.wavelengths_nm, cfg.qe, cfg.transmission, cfg.kind)
 
 
-def solar_spectrum_from_config(cfg, distance: float = AU) -> Spectrum:
+def solar_spectrum_from_config(cfg: SunConfig, distance: float = AU) -> Spectrum:
     """:func:`solar_spectrum` from a :class:`~starnav.config.SunConfig`."""
     return solar_spectrum(cfg.spectrum, distance=distance, tsi=cfg.tsi_w_m2,
                           temperature=cfg.temperature_k)

@@ -13,11 +13,11 @@ import pytest
 
 from starnav.camera import Camera
 from starnav.config import scenario_from_dict
-from starnav.dataset.acquire import acquire, acquisition_seed
 from starnav.errors import UnknownNameError
 from starnav.geometry import static_geometry
 from starnav.navigation.metrics import limb_point_errors
 from starnav.navigation.synthetic import draw_moon
+from starnav.simulate.acquire import acquire, acquisition_seed
 
 #: Full well [e-] of the default detector.
 FULL_WELL = 1.0e5

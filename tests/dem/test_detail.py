@@ -30,11 +30,12 @@ from starnav.dem.detail import (
 )
 from starnav.dem.grid import DemGrid
 from starnav.dem.load import as_dem_config
-from starnav.dem.mesh import frame_mesh, pixel_angle, view_mesh
+from starnav.dem.mesh import pixel_angle, view_mesh
 from starnav.dem.procedural import value_noise_3d
 from starnav.dem.schema import DetailConfig
 from starnav.errors import ConfigError
 from starnav.geometry import static_geometry
+from starnav.simulate import frame_mesh
 
 R_MOON = 1_737_400.0
 #: Hurst exponent of the synthetic DEM (well below the 0.9 default, so that the detail is a

@@ -22,11 +22,12 @@ from _dem_geometry_tools import (
 from starnav.camera import Camera
 from starnav.config import scenario_from_dict
 from starnav.dem.grid import DemGrid, body_to_selenographic
-from starnav.dem.mesh import MeshCache, MeshOptions, frame_mesh, pixel_angle, view_mesh
+from starnav.dem.mesh import MeshCache, MeshOptions, pixel_angle, view_mesh
 from starnav.dem.procedural import procedural_moon
 from starnav.dem.schema import ProceduralDemConfig
 from starnav.errors import GeometryError
 from starnav.geometry import static_geometry
+from starnav.simulate import frame_mesh
 
 #: Issue 3: a zero-height DEM must give the sphere's limb within 0.1 px.
 LIMB_TOL_PX = 0.1

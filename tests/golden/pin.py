@@ -12,6 +12,13 @@ or the software version removed. ``tools/pin_golden.py`` stores it in ``tests/go
 
 A moved line of code must not change what a user gets; a difference is either a bug or is named
 in the issue's closing note and the reference re-pinned with ``tools/pin_golden.py``.
+
+Re-pinned (each time the only difference, explained):
+
+* 2026-11-24, ``starnav.simulate``: ``starnav render`` of a static scenario now writes the
+  measured attitude (``R_cam_to_inertial_measured``, with the pointing knowledge error) in
+  its geometry metadata, as ``starnav dataset`` always did: both come from the same
+  :class:`starnav.simulate.Simulator`. Every image and every other value is unchanged.
 """
 
 from __future__ import annotations

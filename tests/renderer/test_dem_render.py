@@ -48,7 +48,7 @@ def test_scenario_with_procedural_dem_renders_terrain():
                                          "albedo": {"source": "procedural"}}},
         "render": {"spp": 4},
     })
-    from starnav.renderer.pipeline import render_scenario
+    from starnav.simulate import render_scenario
 
     img = next(render_scenario(sc))
     assert img.meta["moon"]["shape"] == "mesh" and img.meta["moon"]["triangles"] > 1000

@@ -20,7 +20,7 @@ from starnav.config import build_camera, scenario_from_dict
 from starnav.dem.grid import selenographic_to_body
 from starnav.dem.load import load_albedo
 from starnav.reference import rolo_irradiance_for_frame
-from starnav.renderer.pipeline import frame_geometries, renderer_from_scenario
+from starnav.simulate import frame_geometries, renderer_from_scenario
 
 from .conftest import exact_solid_angles
 

@@ -159,7 +159,7 @@ def _never_render(*args, **kwargs):
 
 def test_missing_albedo_map_is_reported_before_rendering(tmp_path, monkeypatch):
     from starnav.renderer import render as render_mod
-    from starnav.renderer.pipeline import renderer_from_scenario
+    from starnav.simulate import renderer_from_scenario
 
     monkeypatch.setattr(render_mod.MoonRenderer, "render", _never_render)
     sc = scenario_from_dict({"moon": {"albedo": {"path": str(tmp_path / "missing.png")}}})
@@ -169,7 +169,7 @@ def test_missing_albedo_map_is_reported_before_rendering(tmp_path, monkeypatch):
 
 def test_observer_inside_the_moon_is_reported_before_rendering(monkeypatch):
     from starnav.renderer import render as render_mod
-    from starnav.renderer.pipeline import frame_geometries
+    from starnav.simulate import frame_geometries
 
     monkeypatch.setattr(render_mod.MoonRenderer, "render", _never_render)
     sc = scenario_from_dict({"geometry": {"range_km": 1000.0}})

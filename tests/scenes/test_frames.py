@@ -14,17 +14,18 @@ from starnav.constants import AU, MOON_RADIUS
 from starnav.errors import ConfigError
 from starnav.geometry import static_geometry_from_config
 from starnav.scenes.ephemeris import parse_epoch
-from starnav.scenes.frames import Scene, frame_geometries, frame_states
 from starnav.scenes.oem import write_oem
+from starnav.simulate import frame_geometries, frame_states, scene_from_scenario
 
 from .conftest import ARC_EPOCH, KM
+
+SCENE_SC = {"trajectory": {"frames": 6, "cadence_s": 600.0, "frame_offset_s": 300.0},
+            "seed": 11}
 
 
 @pytest.fixture(scope="module")
 def scene(arc):
-    sc = scenario_from_dict({"trajectory": {"frames": 6, "cadence_s": 600.0,
-                                            "frame_offset_s": 300.0}, "seed": 11})
-    return Scene(sc, trajectory=arc)
+    return scene_from_scenario(scenario_from_dict(SCENE_SC), arc=arc)
 
 
 def test_frame_epochs_and_truth(scene, arc, eph):
@@ -50,7 +51,7 @@ def test_frame_epochs_and_truth(scene, arc, eph):
 
 def test_frames_do_not_depend_on_order(scene, arc):
     g4 = scene.geometry(4)
-    other = Scene(scene.scenario, trajectory=arc)
+    other = scene_from_scenario(scenario_from_dict(SCENE_SC), arc=arc)
     h4 = other.geometry(4)  # built first in this scene
     assert np.array_equal(g4.R_cam_to_inertial, h4.R_cam_to_inertial)
     assert np.array_equal(g4.R_cam_to_inertial_measured, h4.R_cam_to_inertial_measured)
@@ -85,7 +86,7 @@ def test_scenario_functions(arc, monkeypatch):
 
 def test_static_scenario_gives_one_frame():
     sc = scenario_from_dict({"geometry": {"range_km": 50_000.0, "phase_angle_deg": 45.0}})
-    scene = Scene(sc)
+    scene = scene_from_scenario(sc)
     assert len(scene) == 1
     g = scene.geometry(0)
     ref = static_geometry_from_config(scene.camera, sc.geometry, scene.moon_radius)
@@ -101,7 +102,7 @@ def test_oem_source(arc, tmp_path, scene):
     sc = scenario_from_dict({"trajectory": {"source": "oem", "oem_path": str(path),
                                             "frames": 6, "cadence_s": 600.0,
                                             "frame_offset_s": 300.0}, "seed": 11})
-    other = Scene(sc)
+    other = scene_from_scenario(sc)
     assert np.allclose(other.epochs, scene.epochs, atol=1e-6)
     assert np.abs(other.states_emb[:, :3] - scene.states_emb[:, :3]).max() < 1e-2  # printed mm
     g, h = other.geometry(2), scene.geometry(2)
@@ -148,7 +149,7 @@ def test_fixed_pointing_in_a_scene(arc):
     sc = scenario_from_dict({"trajectory": {"frames": 2},
                              "pointing": {"moon_offset": "fixed", "moon_offset_px": [40, -30],
                                           "roll": "fixed", "roll_deg": 0.0}})
-    scene = Scene(sc, trajectory=arc)
+    scene = scene_from_scenario(sc, arc=arc)
     g = scene.geometry(1)
     uv = g.moon_centre_pixel(scene.camera)
     assert np.abs(uv - [scene.camera.cx + 40, scene.camera.cy - 30]).max() < 1e-6

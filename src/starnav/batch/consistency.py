@@ -443,9 +443,10 @@ def modelled_sigma(table: dict[str, np.ndarray], calibration: Any, topography: A
 def render_arc(config: dict[str, Any]) -> list[RenderedFrame]:
     """Every frame of the resolved scenario dict ``config``, rendered (in this process)."""
     from starnav.config import scenario_from_dict
-    from starnav.scenes.frames import Scene
+    from starnav.simulate import scene_from_scenario
 
-    return [render_task(config, i) for i in range(len(Scene(scenario_from_dict(config))))]
+    n = len(scene_from_scenario(scenario_from_dict(config)))
+    return [render_task(config, i) for i in range(n)]
 
 
 def limb_point_records(config: dict[str, Any], runs: int = 1,

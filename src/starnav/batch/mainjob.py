@@ -136,7 +136,7 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
     from starnav.dataset import open as open_dataset
     from starnav.dataset.format import exposure_dirname
     from starnav.navigation.report import navigate_dataset
-    from starnav.scenes import Scene
+    from starnav.simulate import scene_from_scenario
 
     t0 = time.perf_counter()
     sc = scenario if scenario is not None else scenario_from_dict(demo_scenario(),
@@ -145,7 +145,7 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
         raise ConfigError("trajectory", None, "a trajectory section (the main job navigates "
                           "along an arc)")
     out = Path(out_dir)
-    n = len(Scene(sc))
+    n = len(scene_from_scenario(sc))
     mc_steps = len(exposures_s) if runs >= 2 else 0
     total = n + len(exposures_s) + mc_steps + 1
     report_progress = (lambda d: progress(d, total)) if progress else None

@@ -58,9 +58,9 @@ from starnav.atomic import atomic_write_text
 from starnav.batch.grid import GridAxis, GridPoint, expand, parse_grid, render_config, render_groups
 from starnav.batch.tasks import PointResult, expose_task, filter_task, render_task
 from starnav.dataset import format as F
-from starnav.dataset.acquire import check_windows_mode
 from starnav.dataset.runner import TaskRunner
 from starnav.errors import ConfigError, DataFileError
+from starnav.simulate.acquire import check_windows_mode
 
 if TYPE_CHECKING:
     from starnav.config import Scenario
@@ -130,9 +130,9 @@ def check_sweep_output(out: Path, overwrite: bool = False) -> None:
 
 
 def _frames_of(sc: Scenario) -> int:
-    from starnav.scenes import Scene
+    from starnav.simulate import scene_from_scenario
 
-    n = len(Scene(sc))
+    n = len(scene_from_scenario(sc))
     if n < 1:
         raise ConfigError("trajectory", None, "at least one frame")
     return n

@@ -25,7 +25,7 @@ worker that runs it):
 stream                             seed
 =================================  =============================================================
 render                             ``seed_u32(seed, STAGE_RENDER, frame)`` (as datasets)
-acquisitions of run r              :func:`starnav.dataset.acquire.acquisition_seed` (run 0 =
+acquisitions of run r              :func:`starnav.simulate.acquire.acquisition_seed` (run 0 =
                                    the dataset's streams)
 RANSAC of frame k in run r         ``generator(seed, STAGE_NAVIGATION, r, k)``
 filter initial error of run r      ``generator(seed, STAGE_NAVIGATION, r)``: x0 = truth + L z,
@@ -288,7 +288,7 @@ def render_task(config: dict[str, Any], index: int) -> RenderedFrame:
     """Render frame ``index`` of the render configuration ``config`` (worker side).
 
     The renderer and the scene are built once per worker process and configuration
-    (:class:`starnav.dataset.writer.FrameMaker`).
+    (:class:`starnav.simulate.Simulator`, cached with the dataset's frame maker).
     """
     from starnav.dataset.writer import frame_maker
 
@@ -320,43 +320,27 @@ def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, wind
     runs : int
         Monte Carlo runs.
     windows : {"second", "same", "none"}
-        Windows acquisition (:mod:`starnav.dataset.acquire`).
+        Windows acquisition (:mod:`starnav.simulate.acquire`).
     albedo_factor : float
         Radiance multiplier of this point (downstream ``moon.albedo_scale``).
     first_run : int
         Number of the first run (runs ``first_run .. first_run + runs - 1``: a run's streams
         depend on its number only).
     """
-    from starnav.config import build_camera
-    from starnav.dataset.acquire import acquire
-    from starnav.navigation.frames import Frame
+    from starnav.dataset.writer import frame_maker
     from starnav.navigation.metrics import limb_point_errors
     from starnav.navigation.pipeline import process_frame
 
     sc = _scenario(config)
-    cam = build_camera(sc.camera)
+    sim = frame_maker(config).simulator
+    cam = sim.camera
     chain = sc.navigation.chain_options(sc.moon.radius_km * 1e3, scenario=sc)
     chain = dataclasses.replace(chain, use_windows=chain.use_windows and windows != "none")
     le = rendered.electron_radiance(albedo_factor)
     g = rendered.geometry
-    R_meas = g.R_cam_to_inertial_measured if g.R_cam_to_inertial_measured is not None \
-        else g.R_cam_to_inertial
-    from starnav.constants import ARCSEC
-    from starnav.scenes.pointing import knowledge_for_run
-
-    pc = sc.pointing
-    k_sigma = np.array([pc.knowledge_cross_arcsec, pc.knowledge_cross_arcsec,
-                        pc.knowledge_roll_arcsec]) * ARCSEC
     out = []
     for r in range(int(first_run), int(first_run) + int(runs)):
-        acq = acquire(le, g, cam, sc, run=r, windows=windows)
-        # every run after the first samples the attitude knowledge error afresh, as it
-        # samples the detector noise (run 0 keeps the frame's own draw)
-        R_r = R_meas if r == 0 else knowledge_for_run(g.R_cam_to_inertial, k_sigma, sc.seed,
-                                                       g.index, r)
-        frame = Frame(index=g.index, epoch_tdb=g.epoch_tdb, R_cam_to_inertial_measured=R_r,
-                      sun_direction_inertial=g.sun_position, segments=acq.segments,
-                      windows=acq.windows, truth=g, R_moon_to_inertial=g.R_moon_to_inertial)
+        acq, frame = sim.observe(le, g, run=r, windows=windows)
         m = process_frame(frame, cam, options=chain,
                           rng=generator(sc.seed, STAGE_NAVIGATION, r, g.index))
         pts = m.points_used

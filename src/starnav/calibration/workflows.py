@@ -66,7 +66,7 @@ class HilReport:
 def render_reference(cfg: BenchConfig, albedo_scale: float = 1.0) -> RadianceImage:
     """The first frame of the bench's scenario, rendered with ``moon.albedo_scale`` multiplied
     by ``albedo_scale`` (renders are linear in albedo)."""
-    from starnav.renderer.pipeline import frame_geometries, renderer_from_scenario
+    from starnav.simulate import frame_geometries, renderer_from_scenario
 
     sc = cfg.scenario
     if albedo_scale != 1.0:

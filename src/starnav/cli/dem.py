@@ -74,8 +74,9 @@ def mesh(
 ) -> None:
     """Write the view-adapted mesh a frame of SCENARIO would use (Moon body-fixed, metres)."""
     from starnav.config import load_scenario, write_resolved
-    from starnav.dem.mesh import frame_mesh, save_mesh
+    from starnav.dem.mesh import save_mesh
     from starnav.errors import StarnavError
+    from starnav.simulate import frame_mesh
 
     try:
         sc = load_scenario(scenario, overrides or [])

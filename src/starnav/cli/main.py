@@ -141,7 +141,7 @@ def render(
 ) -> None:
     """Render the scenario's frames to OpenEXR (channels L, Le and the AOVs)."""
     from starnav.config import write_resolved
-    from starnav.renderer.pipeline import frame_geometries, render_to_directory
+    from starnav.simulate import frame_geometries, render_to_directory
 
     sc = _load(scenario, set_)
     try:

@@ -13,9 +13,10 @@ Technique
    frame list; ``scenario.resolved.yaml`` next to it.
 3. **One frame = one task** (:func:`make_frame`): render (seed
    ``seed_u32(seed, STAGE_RENDER, index)``), then for each exposure the emulated acquisitions
-   of :mod:`starnav.dataset.acquire`; every file goes into a temporary directory
-   ``frames/.tmp-NNNNNN-*`` which is renamed to ``frames/NNNNNN`` only when whole. A directory
-   rename is atomic: a frame is on disk whole or not at all.
+   of :mod:`starnav.simulate.acquire` (both made by :class:`starnav.simulate.Simulator`);
+   every file goes into a temporary directory ``frames/.tmp-NNNNNN-*`` which is renamed to
+   ``frames/NNNNNN`` only when whole. A directory rename is atomic: a frame is on disk whole
+   or not at all.
 4. **Manifest last.** As frames land, the manifest is rewritten atomically (at most every
    ``manifest_interval_s``, and at the end) with the finished frames sorted by index, each with
    its files' sizes and SHA-256; the last write sets ``"complete": true``.
@@ -56,14 +57,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from starnav.dataset import format as F
-from starnav.dataset.acquire import (
-    acquire,
-    check_windows_mode,
-    readout_feasibility,
-    sensor_seed_of,
-)
 from starnav.dataset.runner import InProcessRunner, TaskRunner
 from starnav.errors import ConfigError, DataFileError, StarnavError
+from starnav.simulate import Simulator, check_windows_mode, readout_feasibility
+from starnav.simulate.acquire import sensor_seed_of
 
 if TYPE_CHECKING:
     from starnav.config import Scenario
@@ -92,7 +89,7 @@ class DatasetOptions:
         Exposure times [s], each in its own ``exposure_<ms>ms`` directory; default the
         scenario's ``detector.exposure_time_s``.
     windows : {"second", "same", "none"}
-        How the windows are read (:mod:`starnav.dataset.acquire`, step 3).
+        How the windows are read (:mod:`starnav.simulate.acquire`, step 3).
     radiance : bool
         Store ``radiance.exr`` (the renderer's output, with AOVs if ``render.aovs``).
     limb_points : int
@@ -250,7 +247,7 @@ def dataset_head(scenario: Scenario, options: DatasetOptions, n_frames: int) -> 
         "seeds": {"seed": sc.seed, "sensor_seed": sensor_seed_of(sc),
                   "render": "seed_u32(seed, STAGE_RENDER=1, frame)",
                   "pointing": "starnav.scenes.pointing.frame_generators(seed, frame)",
-                  "acquisitions": "starnav.dataset.acquire.acquisition_seed(seed, run=0, a)"},
+                  "acquisitions": "starnav.simulate.acquire.acquisition_seed(seed, run=0, a)"},
         "exposures": exposures,
         "frames_expected": int(n_frames),
         "layout": {"frames": f"{F.FRAMES_DIR}/NNNNNN", "truth": F.TRUTH,
@@ -276,38 +273,23 @@ def manifest(head: dict[str, Any], entries: dict[int, dict[str, Any]],
 
 # ============================================================================ frames
 class FrameMaker:
-    """Makes the frames of one scenario (renderer and scene built once per process)."""
+    """Writes the frames of one scenario; the frames themselves come from a
+    :class:`~starnav.simulate.Simulator` (camera, scene and renderer built once per process)."""
 
     def __init__(self, scenario: Scenario, options: DatasetOptions) -> None:
-        from starnav.config import build_camera
-        from starnav.scenes import Scene
-
         self.scenario = scenario
         self.options = options.resolved(scenario)
-        self.camera = build_camera(scenario.camera)
-        self.scene = Scene(scenario)
-        self._renderer: Any = None
+        self.simulator = Simulator(scenario)
+        self.camera = self.simulator.camera
         self._per_exposure = {t: self.options.scenario_for(scenario, t)
                               for t in self.options.exposures_s or ()}
 
     def __len__(self) -> int:
-        return len(self.scene)
-
-    @property
-    def renderer(self) -> Any:
-        if self._renderer is None:
-            from starnav.renderer.pipeline import renderer_from_scenario
-
-            self._renderer = renderer_from_scenario(self.scenario)
-        return self._renderer
+        return len(self.simulator)
 
     def render(self, index: int) -> tuple[Any, Any]:
         """Geometry and RadianceImage of frame ``index``."""
-        from starnav.seeding import STAGE_RENDER, seed_u32
-
-        geom = self.scene.geometry(index)
-        img = self.renderer.render(geom, seed=seed_u32(self.scenario.seed, STAGE_RENDER, index))
-        return geom, img
+        return self.simulator.render(index)
 
     def write_frame(self, index: int, root: Path) -> dict[str, Any]:
         """Make frame ``index`` and move it into ``root/frames`` whole (module step 3).
@@ -336,8 +318,9 @@ class FrameMaker:
             for t in self.options.exposures_s or ():
                 d = tmp / F.exposure_dirname(t)
                 d.mkdir()
-                acq = acquire(img, geom, self.camera, self._per_exposure[t], exposure_s=t,
-                              run=0, windows=self.options.windows)
+                acq = self.simulator.acquire(img, geom, exposure_s=t, run=0,
+                                             windows=self.options.windows,
+                                             scenario=self._per_exposure[t])
                 write_dn_png(F.uint16_image(acq.segments_exposure.dn), d / F.DN)
                 seg = acq.segments
                 if seg is not None:
@@ -572,13 +555,13 @@ def generate(scenario: Scenario, out: str | os.PathLike[str], *,
         Bad options, an unwritable or foreign directory, a resume with another scenario.
     """
     from starnav.config import write_resolved
-    from starnav.scenes import Scene
+    from starnav.simulate import scene_from_scenario
 
     t_start = time.perf_counter()
     opts = (options or DatasetOptions()).resolved(scenario)
     out = Path(out)
     check_output_dir(out)
-    n = len(Scene(scenario))
+    n = len(scene_from_scenario(scenario))
     if n == 0:
         raise ConfigError("trajectory", None, "at least one frame")
     head = dataset_head(scenario, opts, n)

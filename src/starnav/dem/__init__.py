@@ -14,7 +14,8 @@ Public API (imported lazily; this module imports nothing heavy)::
 * :mod:`starnav.dem.grid` - ``DemGrid``, ``AlbedoGrid``, selenographic <-> body-fixed.
 * :mod:`starnav.dem.readers` - LOLA PDS3, GeoTIFF, SVS Moon kit, ``.npy``; albedo decodings.
 * :mod:`starnav.dem.procedural` - the procedural Moon (craters, roughness, maria).
-* :mod:`starnav.dem.mesh` - ``view_mesh``, ``frame_mesh``, the mesh cache.
+* :mod:`starnav.dem.mesh` - ``view_mesh``, the mesh cache (a scenario's mesh:
+  ``starnav.simulate.frame_mesh``).
 """
 
 from __future__ import annotations
@@ -36,7 +37,6 @@ _LAZY = {
     "DemFileError": "starnav.dem.readers",
     "procedural_moon": "starnav.dem.procedural",
     "view_mesh": "starnav.dem.mesh",
-    "frame_mesh": "starnav.dem.mesh",
     "save_mesh": "starnav.dem.mesh",
     "MeshOptions": "starnav.dem.mesh",
     "MeshCache": "starnav.dem.mesh",

@@ -648,35 +648,6 @@ def _build(dem: DemGrid, albedo: AlbedoGrid | None, view: _View, opts: MeshOptio
     return mesh
 
 
-def frame_mesh(scenario: Any, dem: DemGrid | None = None, albedo: AlbedoGrid | None = None,
-               cache: MeshCache | None = MESH_CACHE) -> trimesh.Trimesh:
-    """The mesh a frame of ``scenario`` would use (static ``geometry`` section).
-
-    Loads the DEM and albedo of ``scenario.moon.dem`` unless given, builds the camera and the
-    frame geometry (:func:`starnav.geometry.static_geometry_from_config`), and calls
-    :func:`view_mesh` with the camera position and attitude in the Moon body-fixed frame and
-    the sub-posting detail of ``moon.dem.detail``.
-    """
-    from starnav.config import build_camera
-    from starnav.dem.detail import sub_posting_detail
-    from starnav.dem.load import as_dem_config, load_albedo, load_dem
-    from starnav.geometry import static_geometry_from_config
-
-    cfg = as_dem_config(scenario.moon.dem)
-    camera = build_camera(scenario.camera)
-    geom = static_geometry_from_config(camera, scenario.geometry,
-                                       moon_radius=scenario.moon.radius_km * 1e3)
-    if dem is None:
-        dem = load_dem(cfg)
-    if albedo is None:
-        albedo = load_albedo(cfg)
-    Rb = geom.R_moon_to_inertial.T
-    return view_mesh(dem, camera, Rb @ geom.camera_position, albedo,
-                     camera_to_body=Rb @ geom.R_cam_to_inertial,
-                     options=MeshOptions.from_config(cfg.mesh), cache=cache,
-                     detail=sub_posting_detail(dem, cfg.detail))
-
-
 def save_mesh(mesh: trimesh.Trimesh, path: Any) -> Any:
     """Write a mesh (PLY with normals and the vertex attributes as float properties) through a
     temporary file and a rename. PLY stores float32 coordinates (~0.1 m at the lunar radius)."""
@@ -691,5 +662,5 @@ def save_mesh(mesh: trimesh.Trimesh, path: Any) -> Any:
     return p
 
 
-__all__ = ["MESH_CACHE", "MeshCache", "MeshOptions", "field_cone", "frame_mesh", "pixel_angle",
+__all__ = ["MESH_CACHE", "MeshCache", "MeshOptions", "field_cone", "pixel_angle",
            "save_mesh", "view_mesh"]

@@ -240,8 +240,7 @@ def synthetic_frame(
 
     dn = draw_moon(camera, geometry, rng=rng, **draw_kw)  # type: ignore[arg-type]
     seg = threshold_segments(dn, thresholds)
-    R_meas = (geometry.R_cam_to_inertial_measured if geometry.R_cam_to_inertial_measured
-              is not None else geometry.R_cam_to_inertial)
+    R_meas = geometry.R_cam_to_inertial_known
     wins: list = []
     if windows and len(seg):
         try:

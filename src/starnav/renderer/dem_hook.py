@@ -3,7 +3,7 @@ of a real or procedural DEM, rebuilt (or taken from the DEM cache) for each fram
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -11,28 +11,27 @@ from starnav.camera import Camera
 from starnav.dem.detail import sub_posting_detail
 from starnav.dem.load import as_dem_config, load_albedo, load_dem
 from starnav.dem.mesh import MeshOptions, view_mesh
+from starnav.dem.schema import DemConfig
 from starnav.geometry import FrameGeometry
 from starnav.photometry import albedo_parameter
 from starnav.renderer.render import MoonModel
 from starnav.renderer.scene import MoonMesh
 
-if TYPE_CHECKING:
-    from starnav.config import Scenario
 
-
-def dem_moon_model(sc: Scenario, common: dict[str, Any], mean_normal_albedo: float
-                   ) -> MoonModel:
-    """A mesh :class:`MoonModel` whose mesh comes from ``sc.moon.dem`` for each view.
+def dem_moon_model(dem_config: DemConfig | dict[str, Any], common: dict[str, Any],
+                   mean_normal_albedo: float) -> MoonModel:
+    """A mesh :class:`MoonModel` whose mesh comes from ``dem_config`` (``moon.dem``) for each
+    view.
 
     The DEM and its albedo grid are loaded here, so bad files are reported before any
     rendering. The grid's values become the model's albedo parameter per vertex: a relative map
     is first scaled to ``mean_normal_albedo`` (the scenario's ``moon.albedo``, else the
-    ROLO-calibrated one: :func:`starnav.renderer.pipeline.mean_normal_albedo`), a normal-albedo
+    ROLO-calibrated one: :func:`starnav.simulate.mean_normal_albedo`), a normal-albedo
     map is converted, a ``hapke_w`` map is used as it is
     (Hapke only). Without an albedo grid the constant ``common['albedo']`` applies.
     ``moon.albedo_scale`` multiplies the reflectance, whatever the source.
     """
-    cfg = as_dem_config(sc.moon.dem)
+    cfg = as_dem_config(dem_config)
     dem = load_dem(cfg)
     albedo_grid = load_albedo(cfg)
     options = MeshOptions.from_config(cfg.mesh)

@@ -38,7 +38,7 @@ knob                default effect
 Example
 -------
 >>> from starnav.config import Scenario
->>> from starnav.renderer import render_scenario
+>>> from starnav.simulate import render_scenario
 >>> img = render_scenario(Scenario())[0]          # doctest: +SKIP
 >>> img.L.max()                                    # W m^-2 sr^-1  # doctest: +SKIP
 """

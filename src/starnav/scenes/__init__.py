@@ -8,7 +8,7 @@ Public API (imports are lazy: importing :mod:`starnav.scenes` loads nothing heav
     Trajectory, ephemeris_halo_arc                  # starnav.scenes.trajectory
     read_oem, write_oem                             # starnav.scenes.oem (CCSDS OEM KVN)
     sample_pointing, moon_pointing                  # starnav.scenes.pointing
-    Scene, build_trajectory, frame_geometries, frame_states   # starnav.scenes.frames
+    Scene, build_trajectory, trajectory_summary      # starnav.scenes.frames
     plot_trajectory                                 # starnav.scenes.plot (PNG)
 """
 
@@ -26,8 +26,7 @@ _EXPORTS = {
     "read_oem": "oem", "write_oem": "oem", "OEMFormatError": "oem",
     "Pointing": "pointing", "sample_pointing": "pointing", "moon_pointing": "pointing",
     "frame_generators": "pointing",
-    "Scene": "frames", "build_trajectory": "frames", "frame_geometries": "frames",
-    "frame_states": "frames", "trajectory_summary": "frames",
+    "Scene": "frames", "build_trajectory": "frames", "trajectory_summary": "frames",
     "plot_trajectory": "plot",
 }
 

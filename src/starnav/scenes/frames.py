@@ -1,4 +1,4 @@
-"""Per-frame geometry and truth from a scenario: epochs, trajectory, ephemeris, pointing.
+"""Per-frame geometry and truth: epochs, trajectory, ephemeris, pointing.
 
 Technique
 ---------
@@ -21,8 +21,8 @@ by ~0.2 km relative to the camera, a hundredth of a pixel at 60 000 km.
 Example
 -------
 >>> from starnav.config import scenario_from_dict
->>> from starnav.scenes import Scene
->>> scene = Scene(scenario_from_dict({"trajectory": {"frames": 3}}))   # doctest: +SKIP
+>>> from starnav.simulate import scene_from_scenario
+>>> scene = scene_from_scenario(scenario_from_dict({"trajectory": {"frames": 3}}))  # doctest: +SKIP
 >>> [round(g.range / 1e3) for g in scene.geometries()]                # doctest: +SKIP
 """
 
@@ -36,18 +36,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from starnav.constants import ARCSEC, DAY
+from starnav.constants import ARCSEC, DAY, MOON_RADIUS
 from starnav.errors import ConfigError
-from starnav.geometry import FrameGeometry
+from starnav.geometry import FrameGeometry, StaticGeometryConfig, static_geometry_from_config
 from starnav.scenes.cr3bp import LU
 from starnav.scenes.dynamics import PointMassModel
 from starnav.scenes.ephemeris import Ephemeris, parse_epoch
 from starnav.scenes.pointing import frame_generators, pointing_from_config, rotation_from_vector
-from starnav.scenes.schema import DEFAULT_EPOCH, TrajectoryConfig
+from starnav.scenes.schema import DEFAULT_EPOCH, PointingConfig, TrajectoryConfig
 from starnav.scenes.trajectory import ShootingOptions, Trajectory, ephemeris_halo_arc
 
 if TYPE_CHECKING:
-    from starnav.config import Scenario
+    from starnav.camera import Camera
 
 FloatArray = NDArray[np.float64]
 
@@ -107,37 +107,54 @@ def build_trajectory(cfg: TrajectoryConfig, ephemeris: Ephemeris | None = None,
 
 
 class Scene:
-    """Frames of a scenario: epochs, spacecraft truth and :class:`FrameGeometry` per frame.
+    """Frames of a trajectory (or of one static geometry): epochs, spacecraft truth and
+    :class:`FrameGeometry` per frame.
+
+    Built from its parts (the scenario's sections are assembled by
+    :func:`starnav.simulate.scene_from_scenario`).
 
     Parameters
     ----------
-    scenario : Scenario
+    camera : Camera
+    pointing : PointingConfig
+        Pointing law and attitude-knowledge error.
+    trajectory : TrajectoryConfig, optional
+        The arc and the frame cadence; ``None`` (and no ``arc``) gives one frame of ``static``.
+    static : StaticGeometryConfig, optional
+        The one frame without a trajectory (default its defaults).
+    moon_radius : float
+        Reference radius of the Moon [m].
+    seed : int
+        Scenario seed (per-frame pointing streams, :func:`frame_generators`).
     ephemeris : Ephemeris, optional
         Default DE421.
-    trajectory : Trajectory, optional
-        Use this instead of building the scenario's (e.g. an arc already in memory).
+    arc : Trajectory, optional
+        Use this instead of building ``trajectory``'s (e.g. an arc already in memory).
     cache_dir : path, optional
         Forwarded to :func:`build_trajectory`.
     """
 
-    def __init__(self, scenario: Scenario, ephemeris: Ephemeris | None = None,
-                 trajectory: Trajectory | None = None,
+    def __init__(self, camera: Camera, pointing: PointingConfig, *,
+                 trajectory: TrajectoryConfig | None = None,
+                 static: StaticGeometryConfig | None = None,
+                 moon_radius: float = MOON_RADIUS, seed: int = 0,
+                 ephemeris: Ephemeris | None = None, arc: Trajectory | None = None,
                  cache_dir: str | Path | None = None) -> None:
-        from starnav.config import build_camera
-
-        self.scenario = scenario
-        self.camera = build_camera(scenario.camera)
-        self.moon_radius = scenario.moon.radius_km * 1e3
+        self.camera = camera
+        self.pointing = pointing
+        self.static_config = static if static is not None else StaticGeometryConfig()
+        self.moon_radius = float(moon_radius)
+        self.seed = int(seed)
         self.ephemeris = ephemeris or Ephemeris.default()
-        cfg = scenario.trajectory
-        self.static = cfg is None and trajectory is None
+        cfg = trajectory
+        self.static = cfg is None and arc is None
         if self.static:
             self.trajectory = None
             self.epochs = np.zeros(1)
             self._states = None
             return
         cfg = cfg or TrajectoryConfig()
-        self.trajectory = trajectory or build_trajectory(cfg, self.ephemeris, cache_dir)
+        self.trajectory = arc or build_trajectory(cfg, self.ephemeris, cache_dir)
         start = self.trajectory.t_start + cfg.frame_offset_s
         if start > self.trajectory.t_end:
             raise ConfigError("trajectory.frame_offset_s", cfg.frame_offset_s,
@@ -170,13 +187,10 @@ class Scene:
         if not (0 <= int(index) < n):
             raise ConfigError("frame index", index, f"0 <= index < {n}")
         i = int(index)
-        sc = self.scenario
-        pc = sc.pointing
+        pc = self.pointing
         if self.static:
-            from starnav.geometry import static_geometry_from_config
-
-            g = static_geometry_from_config(self.camera, sc.geometry, self.moon_radius)
-            _, krng = frame_generators(sc.seed, i)
+            g = static_geometry_from_config(self.camera, self.static_config, self.moon_radius)
+            _, krng = frame_generators(self.seed, i)
             sig = np.array([pc.knowledge_cross_arcsec, pc.knowledge_cross_arcsec,
                             pc.knowledge_roll_arcsec]) * ARCSEC
             err = krng.standard_normal(3) * sig
@@ -188,7 +202,7 @@ class Scene:
                 moon_radius=g.moon_radius, index=i)
         rel = self._states[i] - self._moon[i]
         sun = self._sun[i, :3] - self._moon[i, :3]
-        p = pointing_from_config(self.camera, rel[:3], pc, sc.seed, i,
+        p = pointing_from_config(self.camera, rel[:3], pc, self.seed, i,
                                  moon_radius=self.moon_radius, sun_position=sun)
         return FrameGeometry(
             camera_position=rel[:3], R_cam_to_inertial=p.R_true, sun_position=sun,
@@ -204,20 +218,6 @@ class Scene:
     def __iter__(self) -> Iterator[FrameGeometry]:
         for i in range(len(self)):
             yield self.geometry(i)
-
-
-def frame_geometries(scenario: Scenario, ephemeris: Ephemeris | None = None
-                     ) -> list[FrameGeometry]:
-    """One :class:`FrameGeometry` per frame of ``scenario`` (the renderer's geometry input)."""
-    return Scene(scenario, ephemeris).geometries()
-
-
-def frame_states(scenario: Scenario, ephemeris: Ephemeris | None = None
-                 ) -> tuple[FloatArray, FloatArray]:
-    """Frame epochs ``(n,)`` [TDB s past J2000] and spacecraft states ``(n, 6)`` EMB-centred
-    J2000 [m, m/s]: the navigation truth. Needs a ``trajectory`` section."""
-    scene = Scene(scenario, ephemeris)
-    return scene.epochs.copy(), scene.states_emb.copy()
 
 
 def trajectory_summary(traj: Trajectory, ephemeris: Ephemeris | None = None) -> dict[str, float]:

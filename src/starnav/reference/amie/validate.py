@@ -83,7 +83,7 @@ from starnav.reference.amie.geometry import (
 )
 from starnav.reference.amie.presets import AMIE_GAIN_E_PER_DN, amie_scenario
 from starnav.reference.rolo import rolo_geometry
-from starnav.renderer.pipeline import renderer_from_scenario
+from starnav.simulate import renderer_from_scenario
 from starnav.spectra import amie_quantum_efficiency
 
 log = logging.getLogger(__name__)

@@ -234,8 +234,7 @@ def plan_windows_from_segments(segments: Any, geom: FrameGeometry, camera: Camer
     chain = scenario.navigation.chain_options(scenario.moon.radius_km * 1e3,
                                               scenario=scenario)
     chain = dataclasses.replace(chain, use_windows=False)
-    R_meas = (geom.R_cam_to_inertial_measured if geom.R_cam_to_inertial_measured is not None
-              else geom.R_cam_to_inertial)
+    R_meas = geom.R_cam_to_inertial_known
     frame = Frame(index=int(geom.index), epoch_tdb=float(geom.epoch_tdb),
                   R_cam_to_inertial_measured=R_meas, sun_direction_inertial=geom.sun_position,
                   segments=segments, windows=(), truth=None)
