@@ -19,6 +19,16 @@ Re-pinned (each time the only difference, explained):
   measured attitude (``R_cam_to_inertial_measured``, with the pointing knowledge error) in
   its geometry metadata, as ``starnav dataset`` always did: both come from the same
   :class:`starnav.simulate.Simulator`. Every image and every other value is unchanged.
+* 2026-11-24, one navigation run: ``starnav navigate`` draws its initial state error and its
+  RANSAC streams from ``starnav.seeding`` with the scenario's seed (before: ``default_rng(0)``
+  split per frame), the streams of the sweep's run 0: the filter states and errors of
+  ``estimates.csv`` changed (the fixes, the sigmas and the sweep did not), and equal the
+  sweep's now (``tests/dataset/test_one_navigation_run.py``). ``metrics.json`` uses the
+  :class:`starnav.navigation.metrics.NavMetrics` names shared with the sweep table
+  (``final_position_error_m`` for ``final.position_error_norm_m``, ``nees_mean`` for
+  ``nees.mean``, ``final_position_error_pct_range`` [%] for
+  ``final.position_error_fraction_of_range``, now over the true final range instead of the
+  median fix range).
 """
 
 from __future__ import annotations

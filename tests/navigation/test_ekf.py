@@ -19,12 +19,8 @@ from starnav.navigation.ekf import (
     measurement_model,
     white_acceleration_q,
 )
-from starnav.navigation.metrics import chi2_band
-from starnav.navigation.pipeline import (
-    FrameMeasurement,
-    consistency_fraction,
-    run_filter,
-)
+from starnav.navigation.metrics import chi2_band, consistency_fraction
+from starnav.navigation.pipeline import FrameMeasurement, run_filter
 
 from ._helpers import MovingMoonTwoBody, circular_state, fix_covariance
 

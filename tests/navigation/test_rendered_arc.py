@@ -35,7 +35,7 @@ def test_well_exposed_arc_meets_the_papers_numbers(arc_14_days):
     m = _metrics(out, "exposure_0.015ms")
     assert s["frames"] >= 160
     assert abs(m["limb_error_px"]["bias"]) < 0.1
-    assert m["final"]["position_error_fraction_of_range"] < 0.005
+    assert m["final_position_error_pct_range"] < 0.5
     assert m["fixes"] >= 0.9 * m["frames"]
 
 
@@ -49,8 +49,8 @@ def test_saturated_arc_is_biased_but_the_filter_stays_consistent(arc_14_days):
     # averaged over the N steps (a consistent filter fails this with probability ~1 %)
     n = m["frames"]
     hi = chi2.ppf(0.995, 6 * n) / n
-    assert m["nees"]["mean"] < hi
-    assert m["final"]["position_error_fraction_of_range"] < 0.01
+    assert m["nees_mean"] < hi
+    assert m["final_position_error_pct_range"] < 1.0
 
 
 def test_unmodified_tracker_exposure_destroys_the_limb(tmp_path):

@@ -393,7 +393,8 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
     runs : int
     """
     from starnav.navigation.dynamics import PointMassDynamics
-    from starnav.navigation.pipeline import FrameMeasurement, run_filter
+    from starnav.navigation.metrics import NavMetrics
+    from starnav.navigation.pipeline import FrameMeasurement, initial_error_normal, run_filter
 
     sc = _scenario(config)
     nav = sc.navigation
@@ -433,33 +434,18 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
             meas = [FrameMeasurement(f.index, f.epoch_tdb, f.status, position=f.position,
                                      covariance=f.covariance, common_jacobian=f.common_jacobian,
                                      white_covariance=f.white_covariance) for f in fr_r]
-            z = generator(sc.seed, STAGE_NAVIGATION, r).standard_normal(6)
-            x0 = truth[0] + L0 @ z
+            x0 = truth[0] + L0 @ initial_error_normal(sc.seed, r)
             with quiet_logger("starnav.navigation.ekf"):
                 res = run_filter(meas, dynamics=dyn, moon=dyn, t0=float(epochs[0]), x0=x0,
                                  P0=P0, options=nav.ekf_options())
             e = res.errors(truth)
-            s3 = res.sigma3()
             errs_all.append(e)
-            s3_all.append(s3)
+            s3_all.append(res.sigma3())
             nees_all.append(res.nees(truth))
             nis_all.append(res.nis)
             ekf_times = [float(t) for t in res.timings_s]
-            ep, ev = np.linalg.norm(e[:, :3], axis=1), np.linalg.norm(e[:, 3:], axis=1)
-            speed = float(np.linalg.norm(truth[-1, 3:]))
-            nav_cols.update({
-                "accepted": int(res.accepted.sum()),
-                "final_position_error_m": float(ep[-1]),
-                "final_velocity_error_m_s": float(ev[-1]),
-                "final_position_error_pct_range": 100.0 * float(ep[-1]) / fr_r[-1].range_m,
-                "final_velocity_error_pct_speed": 100.0 * float(ev[-1]) / speed
-                if speed > 0 else math.nan,
-                "rms_position_error_m": float(np.sqrt(np.mean(ep**2))),
-                "rms_velocity_error_m_s": float(np.sqrt(np.mean(ev**2))),
-                "final_position_3sigma_m": float(np.linalg.norm(s3[-1, :3])),
-                "final_velocity_3sigma_m_s": float(np.linalg.norm(s3[-1, 3:])),
-                "nees_mean": float(np.mean(res.nees(truth))),
-            })
+            nm = NavMetrics.of(res, truth, fr_r[-1].range_m)
+            nav_cols.update({k: getattr(nm, k) for k in nav_cols})
         row.update(nav_cols)
         for stage in TIMED_STAGES:
             vals = ekf_times if stage == "ekf" else [f.timings_s.get(stage, math.nan)

@@ -83,13 +83,14 @@ def register(app: typer.Typer) -> None:
         except StarnavError as err:
             typer.echo(f"error: {err}", err=True)
             raise typer.Exit(code=2) from None
-        fin = summary.get("final", {})
         typer.echo(f"frames {summary['frames']}, fixes {summary['fixes']}, "
                    f"accepted {summary['accepted']}")
         le = summary["limb_error_px"]
         typer.echo(f"limb error: bias {le['bias']:.3f} px, std {le['std']:.3f} px")
-        if fin:
-            typer.echo(f"final position error {fin['position_error_norm_m'] / 1e3:.3f} km, "
-                       f"velocity error {fin['velocity_error_norm_m_s']:.4f} m/s")
+        if summary.get("final_position_error_m") is not None:
+            typer.echo(f"final position error {summary['final_position_error_m'] / 1e3:.3f} km "
+                       f"({summary['final_position_error_pct_range']:.3g} % of range), velocity "
+                       f"error {summary['final_velocity_error_m_s']:.4f} m/s; mean NEES "
+                       f"{summary['nees_mean']:.3g} (6 states)")
         typer.echo(f"chain CPU median {summary['timing_ms']['chain_cpu_median']:.2f} ms; "
                    f"outputs in {out}")

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -34,6 +35,22 @@ from starnav.geometry import FrameGeometry
 from starnav.navigation.christian_robinson import limb_conic_pixels, shape_transform
 
 FloatArray = NDArray[np.float64]
+
+class FilterResultLike(Protocol):
+    """What :class:`NavMetrics` reads of a filter run
+    (:class:`starnav.navigation.pipeline.FilterResult`)."""
+
+    epochs: FloatArray
+    has_fix: NDArray[np.bool_]
+    accepted: NDArray[np.bool_]
+    nis: FloatArray
+
+    def errors(self, truth: ArrayLike) -> FloatArray: ...
+
+    def sigma3(self) -> FloatArray: ...
+
+    def nees(self, truth: ArrayLike) -> FloatArray: ...
+
 
 #: Newton steps when projecting a point onto the true limb conic.
 CONIC_PROJECTION_STEPS = 8
@@ -132,3 +149,132 @@ def chi2_band(dof: int, runs: int = 1, probability: float = 0.95) -> tuple[float
     a = (1.0 - probability) / 2.0
     k = dof * runs
     return float(chi2.ppf(a, k) / runs), float(chi2.ppf(1.0 - a, k) / runs)
+
+
+def consistency_fraction(values: ArrayLike, dof: int, runs: int = 1,
+                         probability: float = 0.95) -> float:
+    """Fraction of finite ``values`` (NEES or NIS, averaged over ``runs``) inside their
+    two-sided chi-square ``probability`` band."""
+    lo, hi = chi2_band(dof, runs, probability)
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return math.nan
+    return float(np.mean((v >= lo) & (v <= hi)))
+
+
+def _vec(x: ArrayLike) -> tuple[float, ...]:
+    return tuple(float(v) for v in np.asarray(x, float))
+
+
+@dataclass(frozen=True)
+class NavMetrics:
+    """Accuracy and consistency of one filter run against truth: the one vocabulary of
+    ``metrics.json`` (``starnav navigate``), the sweep table (``starnav sweep``), the reports
+    and the CLI. Norms are of EMB-centred J2000 errors; vectors are per axis.
+
+    Attributes
+    ----------
+    frames, fixes, accepted : int
+        Frames, frames that gave a fix, fixes the filter's gate accepted.
+    final_position_error_m, final_velocity_error_m_s : float
+        Norm of (estimate - truth) at the last frame [m, m/s].
+    final_position_error_pct_range : float
+        Final position error over the camera-Moon distance at the last frame [%].
+    final_velocity_error_pct_speed : float
+        Final velocity error over the EMB-centred speed at the last frame [%].
+    rms_position_error_m, rms_velocity_error_m_s : float
+        RMS over frames of the error norms (initial transient included).
+    final_position_3sigma_m, final_velocity_3sigma_m_s : float
+        Norm of the per-axis 3-sigma bounds at the last frame.
+    nees_mean : float
+        Mean over frames of the 6-state NEES (consistent: ~6).
+    nees_fraction_in_95, nis_fraction_in_95 : float
+        Fraction of frames whose NEES (6 dof) / fixes whose NIS (3 dof) is inside the
+        single-sample 95 % chi-square band.
+    nis_mean : float
+        Mean NIS of the fixes (consistent: ~3).
+    final_position_error_xyz_m, final_velocity_error_xyz_m_s : tuple of 3 floats
+    final_position_3sigma_xyz_m, final_velocity_3sigma_xyz_m_s : tuple of 3 floats
+    fraction_within_3sigma : tuple of 6 floats
+        Per state (x, y, z, vx, vy, vz), fraction of frames with ``|e| <= 3 sigma``.
+    """
+
+    frames: int
+    fixes: int
+    accepted: int
+    final_position_error_m: float = math.nan
+    final_velocity_error_m_s: float = math.nan
+    final_position_error_pct_range: float = math.nan
+    final_velocity_error_pct_speed: float = math.nan
+    rms_position_error_m: float = math.nan
+    rms_velocity_error_m_s: float = math.nan
+    final_position_3sigma_m: float = math.nan
+    final_velocity_3sigma_m_s: float = math.nan
+    nees_mean: float = math.nan
+    nees_fraction_in_95: float = math.nan
+    nis_mean: float = math.nan
+    nis_fraction_in_95: float = math.nan
+    final_position_error_xyz_m: tuple[float, ...] = (math.nan,) * 3
+    final_velocity_error_xyz_m_s: tuple[float, ...] = (math.nan,) * 3
+    final_position_3sigma_xyz_m: tuple[float, ...] = (math.nan,) * 3
+    final_velocity_3sigma_xyz_m_s: tuple[float, ...] = (math.nan,) * 3
+    fraction_within_3sigma: tuple[float, ...] = (math.nan,) * 6
+
+    #: The scalar fields (the sweep table's columns).
+    SCALARS = ("fixes", "accepted", "final_position_error_m", "final_velocity_error_m_s",
+               "final_position_error_pct_range", "final_velocity_error_pct_speed",
+               "rms_position_error_m", "rms_velocity_error_m_s", "final_position_3sigma_m",
+               "final_velocity_3sigma_m_s", "nees_mean", "nees_fraction_in_95", "nis_mean",
+               "nis_fraction_in_95")
+
+    @classmethod
+    def of(cls, result: FilterResultLike, truth: ArrayLike | None = None,
+           final_range_m: float = math.nan) -> NavMetrics:
+        """Metrics of a filter run (``starnav.navigation.pipeline.FilterResult``) against the
+        EMB-centred truth ``(K, 6)`` at its epochs; ``final_range_m`` the camera-Moon distance
+        at the last frame [m]. Without truth only counts and NIS are filled."""
+        nis = np.asarray(result.nis, float)
+        nis = nis[np.isfinite(nis)]
+        base = dict(frames=int(len(result.epochs)), fixes=int(np.sum(result.has_fix)),
+                    accepted=int(np.sum(result.accepted)),
+                    nis_mean=float(nis.mean()) if nis.size else math.nan,
+                    nis_fraction_in_95=consistency_fraction(nis, 3))
+        if truth is None or base["frames"] == 0:
+            return cls(**base)
+        truth = np.asarray(truth, float)
+        e = result.errors(truth)
+        s3 = result.sigma3()
+        ne = np.asarray(result.nees(truth), float)
+        ep, ev = np.linalg.norm(e[:, :3], axis=1), np.linalg.norm(e[:, 3:], axis=1)
+        speed = float(np.linalg.norm(truth[-1, 3:]))
+        rng = float(final_range_m)
+        return cls(
+            **base,
+            final_position_error_m=float(ep[-1]), final_velocity_error_m_s=float(ev[-1]),
+            final_position_error_pct_range=100.0 * float(ep[-1]) / rng
+            if math.isfinite(rng) and rng > 0 else math.nan,
+            final_velocity_error_pct_speed=100.0 * float(ev[-1]) / speed
+            if speed > 0 else math.nan,
+            rms_position_error_m=float(np.sqrt(np.mean(ep**2))),
+            rms_velocity_error_m_s=float(np.sqrt(np.mean(ev**2))),
+            final_position_3sigma_m=float(np.linalg.norm(s3[-1, :3])),
+            final_velocity_3sigma_m_s=float(np.linalg.norm(s3[-1, 3:])),
+            nees_mean=float(np.mean(ne)), nees_fraction_in_95=consistency_fraction(ne, 6),
+            final_position_error_xyz_m=_vec(e[-1, :3]),
+            final_velocity_error_xyz_m_s=_vec(e[-1, 3:]),
+            final_position_3sigma_xyz_m=_vec(s3[-1, :3]),
+            final_velocity_3sigma_xyz_m_s=_vec(s3[-1, 3:]),
+            fraction_within_3sigma=_vec(np.mean(np.abs(e) <= s3, axis=0)))
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-safe dict (NaN -> None, tuples -> lists)."""
+        out: dict[str, object] = {}
+        for k, v in self.__dict__.items():
+            if isinstance(v, tuple):
+                out[k] = [None if not math.isfinite(x) else x for x in v]
+            elif isinstance(v, float):
+                out[k] = v if math.isfinite(v) else None
+            else:
+                out[k] = v
+        return out

@@ -72,9 +72,11 @@ from starnav.navigation.limb import (
     segments_centroid,
     sun_direction_in_image,
 )
-from starnav.navigation.metrics import chi2_band, limb_point_errors, nees
+from starnav.navigation.metrics import NavMetrics, limb_point_errors, nees
 from starnav.navigation.ransac import RansacError, RansacOptions, ransac_limb
 from starnav.navigation.refine import RefineOptions, refine_limb
+from starnav.navigation.refine import warm_up as refine_warm_up
+from starnav.seeding import STAGE_NAVIGATION, generator
 
 FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
@@ -416,37 +418,56 @@ def run_filter(
     -------
     FilterResult
     """
-    ekf = NavigationEkf(dynamics, moon, t0, x0, P0, options=options)
-    K = len(measurements)
-    n = ekf.n
-    ep = np.empty(K)
-    X = np.empty((K, n))
-    P = np.empty((K, n, n))
-    has = np.zeros(K, bool)
-    acc = np.zeros(K, bool)
-    nis = np.full(K, np.nan)
-    tms = np.empty(K)
+    rec = _FilterRecorder(NavigationEkf(dynamics, moon, t0, x0, P0, options=options),
+                          len(measurements))
     for k, m in enumerate(measurements):
+        rec.step(k, m)
+    return rec.result()
+
+
+class _FilterRecorder:
+    """The filter over a sequence of frames, recording the posterior after each: the one loop
+    behind :func:`run_filter` (measurements ready) and :func:`navigate` (measurements made
+    frame by frame, with timings)."""
+
+    def __init__(self, ekf: NavigationEkf, K: int) -> None:
+        self.ekf = ekf
+        n = ekf.n
+        self.epochs, self.X, self.P = np.empty(K), np.empty((K, n)), np.empty((K, n, n))
+        self.has, self.acc = np.zeros(K, bool), np.zeros(K, bool)
+        self.nis = np.full(K, np.nan)
+        self.times = np.empty(K)
+
+    def step(self, k: int, m: FrameMeasurement) -> float:
+        """Predict to frame ``k`` and update with its fix; returns the wall time [s]."""
         t = time.perf_counter()
-        _filter_step(ekf, m, k, has, acc, nis)
-        tms[k] = time.perf_counter() - t
-        ep[k], X[k], P[k] = ekf.t, ekf.x, ekf.P
-    return FilterResult(ep, X, P, has, acc, nis, ekf.options.bias_model, tms)
+        ekf = self.ekf
+        ekf.predict(m.epoch_tdb)
+        if m.usable and m.position is not None and m.covariance is not None:
+            self.has[k] = True
+            if (ekf.options.bias_model == "limb-common" and m.common_jacobian is not None
+                    and m.white_covariance is not None):
+                # the slowly varying limb errors are states: the fix's pixel noise and
+                # attitude alone are its measurement noise
+                info = ekf.update(m.position, m.white_covariance, m.common_jacobian)
+            else:
+                info = ekf.update(m.position, m.covariance)
+            self.acc[k] = info.accepted
+            self.nis[k] = info.nis
+        self.times[k] = dt = time.perf_counter() - t
+        self.epochs[k], self.X[k], self.P[k] = ekf.t, ekf.x, ekf.P
+        return dt
+
+    def result(self) -> FilterResult:
+        return FilterResult(self.epochs, self.X, self.P, self.has, self.acc, self.nis,
+                            self.ekf.options.bias_model, self.times)
 
 
-def _filter_step(ekf: NavigationEkf, m: FrameMeasurement, k: int, has: NDArray,
-                 acc: NDArray, nis: NDArray) -> None:
-    ekf.predict(m.epoch_tdb)
-    if m.usable and m.position is not None and m.covariance is not None:
-        has[k] = True
-        if (ekf.options.bias_model == "limb-common" and m.common_jacobian is not None
-                and m.white_covariance is not None):
-            # the slowly varying limb errors are states: the fix's pixel noise and attitude
-            info = ekf.update(m.position, m.white_covariance, m.common_jacobian)
-        else:
-            info = ekf.update(m.position, m.covariance)
-        acc[k] = info.accepted
-        nis[k] = info.nis
+def initial_error_normal(seed: int, run: int) -> FloatArray:
+    """Standard normal 6-vector of run ``run``'s initial state error (``x0 = truth + L z``,
+    ``L L^T = P0``): stream ``generator(seed, STAGE_NAVIGATION, run)``, the same for
+    :func:`navigate`, :func:`monte_carlo` and the sweeps."""
+    return generator(int(seed), STAGE_NAVIGATION, int(run)).standard_normal(6)
 
 
 def truth_states(frames: Iterable[NavFrame], moon: MoonEphemeris) -> FloatArray | None:
@@ -482,6 +503,8 @@ class NavigationRun:
     peak_memory_bytes : (K,) array or None
         Peak traced Python heap (numpy arrays included) of the chain per frame [bytes]
         (``measure_memory``; measured in a separate pass so the timings are untraced).
+    truth_range_m : (K,) array
+        True camera-Moon distance per frame [m] (NaN without truth).
     """
 
     measurements: list[FrameMeasurement]
@@ -491,6 +514,11 @@ class NavigationRun:
     stage_times_s: FloatArray
     cpu_times_s: FloatArray
     peak_memory_bytes: FloatArray | None
+    truth_range_m: FloatArray
+
+    def metrics(self) -> NavMetrics:
+        """Accuracy and consistency of the filter against the truth (:class:`NavMetrics`)."""
+        return NavMetrics.of(self.filter, self.truth, float(self.truth_range_m[-1]))
 
 
 def navigate(
@@ -504,7 +532,8 @@ def navigate(
     t0: float | None = None,
     chain: ChainOptions | None = None,
     ekf: EkfOptions | None = None,
-    rng: np.random.Generator | None = None,
+    seed: int = 0,
+    run: int = 0,
     measure_memory: bool = False,
 ) -> NavigationRun:
     """Process every frame and filter the fixes (module step 3).
@@ -521,12 +550,16 @@ def navigate(
         Initial covariance [m^2, m^2/s, m^2/s^2].
     x0 : (6,) array, optional
         Initial EMB-centred state at ``t0``; default: the truth of the first frame plus an
-        error drawn from ``P0`` with ``rng``.
+        error drawn from ``P0`` (stream ``generator(seed, STAGE_NAVIGATION, run)``).
     t0 : float, optional
         Epoch of ``x0``; default the first frame's epoch.
     chain, ekf : options
-    rng : numpy.random.Generator, optional
-        For the initial error and, split per frame, for RANSAC. Default ``default_rng(0)``.
+    seed, run : int
+        The scenario's seed and the Monte Carlo run: the initial error comes from
+        ``generator(seed, STAGE_NAVIGATION, run)`` and frame ``i``'s RANSAC from
+        ``generator(seed, STAGE_NAVIGATION, run, i)`` (:mod:`starnav.seeding`), the streams
+        of the sweep's run ``run``: a dataset navigated here and the same scenario's sweep
+        give the same estimates.
     measure_memory : bool
         Trace the peak Python heap of each frame's chain (slower).
 
@@ -540,7 +573,6 @@ def navigate(
     cam = camera if camera is not None else getattr(dataset, "camera", None)
     if cam is None:
         raise ConfigError("camera", None, "a Camera (the dataset does not carry one)")
-    rng = rng if rng is not None else np.random.default_rng(0)
     chain = chain or ChainOptions()
     truth = truth_states(frames, moon)
     P0 = np.asarray(P0, float)
@@ -548,57 +580,47 @@ def navigate(
     if x0 is None:
         if truth is None:
             raise ConfigError("x0", None, "an initial state (the frames carry no truth)")
-        x0 = truth[0] + np.linalg.cholesky(P0) @ rng.standard_normal(6)
-    frame_rngs = [np.random.default_rng(s) for s in
-                  np.random.SeedSequence(int(rng.integers(2**63))).spawn(len(frames))]
-    filt = NavigationEkf(dynamics, moon, t0, x0, P0, options=ekf)
+        x0 = truth[0] + np.linalg.cholesky(P0) @ initial_error_normal(seed, run)
+    frame_rngs = [generator(seed, STAGE_NAVIGATION, run, int(f.index)) for f in frames]
     K = len(frames)
-    n = filt.n
-    ep, X, P = np.empty(K), np.empty((K, n)), np.empty((K, n, n))
-    has, acc, nis = np.zeros(K, bool), np.zeros(K, bool), np.full(K, np.nan)
-    ftimes = np.empty(K)
+    rec = _FilterRecorder(NavigationEkf(dynamics, moon, t0, x0, P0, options=ekf), K)
     stage = np.full((K, len(STAGES)), np.nan)
     cpu = np.empty(K)
     peak = np.empty(K) if measure_memory else None
     meas: list[FrameMeasurement] = []
     errs: list[FloatArray] = []
     if measure_memory and chain.use_windows:
-        from starnav.navigation.refine import _half_tables
-
-        _half_tables()  # static table (96 kB), built once: not per-frame working memory
+        refine_warm_up()  # static tables, built once: not per-frame working memory
     for k, f in enumerate(frames):
         if measure_memory and peak is not None:
             # separate traced pass (tracing slows the chain): same frame, same RNG state, a
             # copy of the filter, so timings below stay untraced
-            fcopy = copy.deepcopy(filt)
+            shadow = _FilterRecorder(copy.deepcopy(rec.ekf), K)
             rcopy = copy.deepcopy(frame_rngs[k])
             tracemalloc.start()
             tracemalloc.reset_peak()
-            m_mem = process_frame(f, cam, options=chain, rng=rcopy)
-            _filter_step(fcopy, m_mem, k, has.copy(), acc.copy(), nis.copy())
+            shadow.step(k, process_frame(f, cam, options=chain, rng=rcopy))
             peak[k] = tracemalloc.get_traced_memory()[1]
             tracemalloc.stop()
-            del fcopy, m_mem
+            del shadow
         c0 = time.process_time()
         m = process_frame(f, cam, options=chain, rng=frame_rngs[k])
-        t = time.perf_counter()
-        _filter_step(filt, m, k, has, acc, nis)
-        ftimes[k] = time.perf_counter() - t
+        dt = rec.step(k, m)
         cpu[k] = time.process_time() - c0
-        ep[k], X[k], P[k] = filt.t, filt.x, filt.P
         for j, s in enumerate(STAGES[:-1]):
             if s in m.timings_s:
                 stage[k, j] = m.timings_s[s]
-        stage[k, -1] = ftimes[k]
+        stage[k, -1] = dt
         meas.append(m)
         if f.truth is not None and m.points_used.size:
             errs.append(limb_point_errors(m.points_used, cam, f.truth, chain.fix.radii_m))
         else:
             errs.append(np.empty(0))
-    res = FilterResult(ep, X, P, has, acc, nis, filt.options.bias_model, ftimes)
-    n_fix = int(has.sum())
-    log.info("navigate: %d frames, %d fixes, %d accepted", K, n_fix, int(acc.sum()))
-    return NavigationRun(meas, res, truth, errs, stage, cpu, peak)
+    res = rec.result()
+    log.info("navigate: %d frames, %d fixes, %d accepted", K, int(res.has_fix.sum()),
+             int(res.accepted.sum()))
+    ranges = np.array([f.truth.range if f.truth is not None else np.nan for f in frames])
+    return NavigationRun(meas, res, truth, errs, stage, cpu, peak, ranges)
 
 
 def monte_carlo(
@@ -609,10 +631,11 @@ def monte_carlo(
     moon: MoonEphemeris,
     P0: ArrayLike,
     runs: int,
-    rng: np.random.Generator,
+    seed: int = 0,
     options: EkfOptions | None = None,
 ) -> list[FilterResult]:
-    """The filter re-run ``runs`` times from ``x0 ~ N(truth[0], P0)`` (module step 4).
+    """The filter re-run ``runs`` times (runs 1..runs) from ``x0 ~ N(truth[0], P0)``, run
+    ``r``'s initial error from ``generator(seed, STAGE_NAVIGATION, r)`` (module step 4).
 
     Parameters
     ----------
@@ -630,20 +653,8 @@ def monte_carlo(
     L = np.linalg.cholesky(P0)
     t0 = float(measurements[0].epoch_tdb)
     out = []
-    for _ in range(runs):
-        x0 = truth[0] + L @ rng.standard_normal(6)
+    for r in range(1, runs + 1):
+        x0 = truth[0] + L @ initial_error_normal(seed, r)
         out.append(run_filter(measurements, dynamics=dynamics, moon=moon, t0=t0, x0=x0, P0=P0,
                               options=options))
     return out
-
-
-def consistency_fraction(values: ArrayLike, dof: int, runs: int = 1,
-                         probability: float = 0.95) -> float:
-    """Fraction of finite ``values`` (NEES or NIS, averaged over ``runs``) inside their
-    two-sided chi-square ``probability`` band."""
-    lo, hi = chi2_band(dof, runs, probability)
-    v = np.asarray(values, float)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return math.nan
-    return float(np.mean((v >= lo) & (v <= hi)))

@@ -264,6 +264,12 @@ class RefineOptions:
 
 
 # ------------------------------------------------------------------------ F_nu functions
+def warm_up() -> None:
+    """Build the refinement's static tables (edge profile integrals, ~96 kB) now, once per
+    process, so that per-frame memory and time measurements exclude them."""
+    _half_tables()
+
+
 @functools.lru_cache(maxsize=1)
 def _half_tables() -> tuple[FloatArray, FloatArray, FloatArray]:
     """Tables of ``F_1/2`` and ``F_-1/2`` on a grid of ``t`` (built once: 4001 points, 96 kB;

@@ -33,13 +33,8 @@ from typing import Any
 import numpy as np
 
 from starnav.atomic import atomic_write_text
-from starnav.navigation.metrics import ErrorSummary
-from starnav.navigation.pipeline import (
-    STAGES,
-    FilterResult,
-    NavigationRun,
-    consistency_fraction,
-)
+from starnav.navigation.metrics import ErrorSummary, consistency_fraction
+from starnav.navigation.pipeline import STAGES, FilterResult, NavigationRun
 
 #: The tracker's processing budgets (seed paper, PIL; DESIGN.md budgets).
 BUDGET_MS = 5.0
@@ -51,54 +46,28 @@ def _finite(x: float) -> float | None:
 
 
 def summarize(run: NavigationRun, mc: Sequence[FilterResult] = ()) -> dict[str, Any]:
-    """Plain-number summary of a run (module docstring)."""
+    """Plain-number summary of a run: :class:`~starnav.navigation.metrics.NavMetrics` (the
+    vocabulary shared with the sweep table) plus statuses, limb-point errors, the Monte Carlo
+    re-runs of the filter, timings and memory (module docstring)."""
     f = run.filter
-    meas = run.measurements
     statuses: dict[str, int] = {}
-    for m in meas:
+    for m in run.measurements:
         statuses[m.status] = statuses.get(m.status, 0) + 1
-    out: dict[str, Any] = {
-        "frames": len(meas),
-        "fixes": int(f.has_fix.sum()),
-        "accepted": int(f.accepted.sum()),
-        "status_counts": statuses,
-        "bias_model": f.bias_model,
-    }
+    out: dict[str, Any] = {**run.metrics().as_dict(), "status_counts": statuses,
+                           "bias_model": f.bias_model}
     le = np.concatenate(run.limb_errors) if run.limb_errors else np.empty(0)
     out["limb_error_px"] = ErrorSummary.of(le).as_dict()
-    nis = f.nis[np.isfinite(f.nis)]
-    out["nis"] = {"mean": _finite(nis.mean()) if nis.size else None,
-                  "fraction_in_95": _finite(consistency_fraction(nis, 3))}
-    if run.truth is not None:
-        e = f.errors(run.truth)
-        s3 = f.sigma3()
-        moon_rel = np.array([m.fix.range_m if m.fix is not None else np.nan for m in meas])
-        rng = float(np.nanmedian(moon_rel)) if np.any(np.isfinite(moon_rel)) else math.nan
-        ne = f.nees(run.truth)
-        out["final"] = {
-            "position_error_m": [float(x) for x in e[-1, :3]],
-            "velocity_error_m_s": [float(x) for x in e[-1, 3:]],
-            "position_error_norm_m": float(np.linalg.norm(e[-1, :3])),
-            "velocity_error_norm_m_s": float(np.linalg.norm(e[-1, 3:])),
-            "position_3sigma_m": [float(x) for x in s3[-1, :3]],
-            "velocity_3sigma_m_s": [float(x) for x in s3[-1, 3:]],
-            "position_error_fraction_of_range": _finite(np.linalg.norm(e[-1, :3]) / rng),
+    if run.truth is not None and mc:
+        # pooled: every step of every run against the single-sample band (the band of the
+        # run average is too narrow for time-correlated NEES; see docs/navigation.md)
+        nees_mc = np.array([r.nees(run.truth) for r in mc])
+        fin = np.array([np.linalg.norm(r.errors(run.truth)[-1, :3]) for r in mc])
+        out["monte_carlo"] = {
+            "runs": len(mc),
+            "nees_mean": float(np.mean(nees_mc)),
+            "nees_fraction_in_95": _finite(consistency_fraction(nees_mc.ravel(), 6)),
+            "final_position_error_rms_m": float(np.sqrt(np.mean(fin**2))),
         }
-        out["nees"] = {"mean": float(np.mean(ne)),
-                       "fraction_in_95": _finite(consistency_fraction(ne, 6))}
-        inside = np.mean(np.abs(e) <= s3, axis=0)
-        out["fraction_within_3sigma"] = [float(x) for x in inside]
-        if mc:
-            # pooled: every step of every run against the single-sample band (the band of the
-            # run average is too narrow for time-correlated NEES; see docs/navigation.md)
-            nees_mc = np.array([r.nees(run.truth) for r in mc])
-            fin = np.array([np.linalg.norm(r.errors(run.truth)[-1, :3]) for r in mc])
-            out["monte_carlo"] = {
-                "runs": len(mc),
-                "nees_mean": float(np.mean(nees_mc)),
-                "nees_fraction_in_95": _finite(consistency_fraction(nees_mc.ravel(), 6)),
-                "final_position_error_rms_m": float(np.sqrt(np.mean(fin**2))),
-            }
     st = run.stage_times_s * 1e3
     out["timing_ms"] = {
         "stage_median": {s: _finite(np.nanmedian(st[:, j])) if np.any(np.isfinite(st[:, j]))
@@ -190,7 +159,7 @@ def navigate_dataset(
     *,
     config: Any | None = None,
     runs: int | None = None,
-    seed: int = 0,
+    seed: int | None = None,
     dynamics: Any | None = None,
     measure_memory: bool = True,
     plots: bool = True,
@@ -209,8 +178,9 @@ def navigate_dataset(
         The ``navigation`` section; default its defaults.
     runs : int, optional
         Monte Carlo runs of the filter (overrides ``config.runs``); 1 = the nominal run only.
-    seed : int
-        Seed of the initial errors and of RANSAC.
+    seed : int, optional
+        Seed of the initial errors and of RANSAC (:func:`~starnav.navigation.pipeline.navigate`);
+        default the scenario's.
     dynamics : Dynamics and MoonEphemeris, optional
         Default :class:`~starnav.navigation.dynamics.PointMassDynamics` with the configured step.
     measure_memory : bool
@@ -245,17 +215,18 @@ def navigate_dataset(
         from starnav.errors import ConfigError
 
         raise ConfigError("dynamics", type(dyn).__name__, "an object with moon_state(t)")
-    rng = np.random.default_rng(seed)
     P0 = cfg.initial_covariance()
     if scenario is None and callable(getattr(dataset, "scenario", None)):
         scenario = dataset.scenario()
+    if seed is None:
+        seed = int(scenario.seed) if scenario is not None else 0
     run = navigate(dataset, dynamics=dyn, moon=dyn, P0=P0,
                    chain=cfg.chain_options(scenario=scenario),
-                   ekf=cfg.ekf_options(), rng=rng, measure_memory=measure_memory)
+                   ekf=cfg.ekf_options(), seed=seed, measure_memory=measure_memory)
     mc: list[FilterResult] = []
     if n_runs > 1 and run.truth is not None:
         mc = monte_carlo(run.measurements, run.truth, dynamics=dyn, moon=dyn, P0=P0,
-                         runs=n_runs, rng=rng, options=cfg.ekf_options())
+                         runs=n_runs, seed=seed, options=cfg.ekf_options())
     paths = write_outputs(run, out_dir, mc, plots=plots)
     out = Path(out_dir)
     atomic_write_text(out / "navigation_config.json",

@@ -1,0 +1,96 @@
+"""The target-body interface (:class:`TargetBody`) and the IAU rotation model.
+
+Orientation
+-----------
+A body's orientation is the rotation ``R`` with ``v_J2000 = R v_body``. For bodies given by the
+IAU/IAG convention (Archinal et al. 2018, Celest. Mech. Dyn. Astr. 130:22, section 2): the pole
+at right ascension ``alpha0`` and declination ``delta0`` and the prime meridian angle
+``W = W0 + W_dot d`` (``d`` days past J2000 TDB), the rotation J2000 -> body is
+
+    R_z(W) R_x(90 deg - delta0) R_z(90 deg + alpha0)
+
+(passive rotations), and ``R`` is its transpose (:func:`iau_orientation`).
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from starnav.constants import DAY
+
+FloatArray = NDArray[np.float64]
+
+
+def _rx(a: FloatArray) -> FloatArray:
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, s], -1),
+                     np.stack([z, -s, c], -1)], -2)
+
+
+def _rz(a: FloatArray) -> FloatArray:
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([c, s, z], -1), np.stack([-s, c, z], -1),
+                     np.stack([z, z, o], -1)], -2)
+
+
+def iau_orientation(epochs_tdb: ArrayLike, pole_ra: float, pole_dec: float, w0: float,
+                    w_dot: float) -> FloatArray:
+    """Body-fixed -> J2000 rotations ``(..., 3, 3)`` of the IAU model (module docstring).
+
+    Parameters
+    ----------
+    epochs_tdb : float or array
+        [TDB s past J2000].
+    pole_ra, pole_dec : float
+        Pole right ascension and declination [rad] (J2000).
+    w0 : float
+        Prime meridian angle at J2000 [rad].
+    w_dot : float
+        Rotation rate [rad/day] (negative for retrograde rotators).
+    """
+    t = np.asarray(epochs_tdb, float)
+    W = w0 + w_dot * (t / DAY)
+    A = np.full_like(t, math.pi / 2 + pole_ra)
+    B = np.full_like(t, math.pi / 2 - pole_dec)
+    j2000_to_body = _rz(W) @ _rx(B) @ _rz(A)
+    return np.swapaxes(j2000_to_body, -1, -2)
+
+
+class TargetBody(ABC):
+    """What starnav needs of the body a frame looks at (package docstring)."""
+
+    #: Short name, e.g. ``"moon"``.
+    name: str = "body"
+
+    @property
+    @abstractmethod
+    def radii_m(self) -> tuple[float, float, float]:
+        """Semi-axes of the reference ellipsoid along the body-fixed x, y, z axes [m]: the
+        shape the navigation fix assumes and the limb truth is measured against."""
+
+    @property
+    def reference_radius_m(self) -> float:
+        """Radius of the reference sphere used by the frame geometry: the largest semi-axis
+        (an observer closer than that is inside the body) [m]."""
+        return float(max(self.radii_m))
+
+    @abstractmethod
+    def orientation(self, epochs_tdb: ArrayLike, ephemeris: Any = None) -> FloatArray:
+        """Body-fixed -> J2000 rotations ``(n, 3, 3)`` at the epochs [TDB s]; ``ephemeris`` the
+        scene's :class:`~starnav.scenes.ephemeris.Ephemeris` where the body needs one."""
+
+    @abstractmethod
+    def render_model(self) -> Any:
+        """The renderer's :class:`~starnav.renderer.render.MoonModel` of this body (files read
+        here, so that a bad one is reported before any frame is rendered)."""
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-safe description (for manifests and reports)."""
+        return {"name": self.name, "radii_m": list(self.radii_m)}

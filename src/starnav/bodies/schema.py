@@ -1,0 +1,55 @@
+"""Schema of the ``target`` section: which body the frames look at.
+
+``target: null`` (the default) or ``{kind: moon}`` is the Moon of the ``moon`` section;
+``{kind: ellipsoid, ...}`` a triaxial body with an IAU rotation model (:class:`EllipsoidConfig`).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field
+
+from starnav.config_base import StrictModel
+from starnav.fields import PositiveFloat
+from starnav.renderer.schema import PhotometryConfig
+
+
+class EllipsoidConfig(StrictModel):
+    """A triaxial ellipsoid body spinning about its shortest axis (body-fixed z).
+
+    The defaults are Itokawa's best-fit ellipsoid (Fujiwara et al. 2006, Science 312, 1330:
+    535 x 294 x 209 m), its IAU pole and period (Archinal et al. 2018, table 5: alpha0 = 90.53,
+    delta0 = -66.30 deg, W = 0.0 + 712.143 deg/day, i.e. 12.132 h, retrograde) and an S-type
+    Hapke surface.
+    """
+
+    kind: Literal["ellipsoid"] = "ellipsoid"
+    name: str = Field("itokawa-ellipsoid", description="label in manifests and reports")
+    radii_km: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
+        (0.2675, 0.147, 0.1045), description="semi-axes along body x, y, z [km]")
+    pole_ra_deg: float = Field(90.53, description="pole right ascension, J2000 [deg]")
+    pole_dec_deg: Annotated[float, Field(ge=-90, le=90)] = Field(
+        -66.30, description="pole declination, J2000 [deg]")
+    prime_meridian_deg: float = Field(0.0, description="W0, prime meridian at J2000 [deg]")
+    rotation_deg_per_day: float = Field(
+        712.143, description="W_dot [deg/day] (IAU: W = W0 + W_dot d)")
+    photometry: PhotometryConfig = Field(
+        default_factory=lambda: PhotometryConfig(model="lommel_seeliger",
+                                                 spectral_shape="grey"),
+        description="photometric model (hapke, lommel_seeliger, lambert, lunar_lambert)")
+    albedo: Annotated[float, Field(gt=0, le=1)] = Field(
+        0.24, description="normal albedo at 550 nm [-] (a moderate S-type value, not a "
+        "measured Itokawa one)")
+    mesh_subdivisions: Annotated[int, Field(ge=0, le=8)] = Field(
+        6, description="icosphere subdivisions of the rendered mesh (6 -> 81 920 triangles)")
+
+
+class MoonTargetConfig(StrictModel):
+    """The Moon described by the scenario's ``moon`` section."""
+
+    kind: Literal["moon"] = "moon"
+
+
+#: The ``target`` section: one of the bodies above, told apart by ``kind``.
+TargetConfig = Annotated[MoonTargetConfig | EllipsoidConfig, Field(discriminator="kind")]
