@@ -28,6 +28,7 @@ import yaml
 from pydantic import Field, ValidationError
 
 from starnav.atomic import atomic_write_text
+from starnav.bodies.schema import TargetConfig
 from starnav.camera import CameraConfig, camera_from_config
 from starnav.config_base import StrictModel
 from starnav.detector.schema import DetectorConfig
@@ -66,6 +67,9 @@ class Scenario(StrictModel):
     trajectory: TrajectoryConfig | None = None
     pointing: PointingConfig = Field(default_factory=PointingConfig)
     render: RenderConfig = Field(default_factory=RenderConfig)
+    target: TargetConfig | None = Field(
+        None, description="the body the frames look at: null or {kind: moon} for the Moon of "
+        "the moon section, {kind: ellipsoid, ...} for a triaxial small body (starnav.bodies)")
     navigation: NavigationConfig = Field(default_factory=NavigationConfig)
     output: OutputConfig = Field(default_factory=OutputConfig)
     seed: Annotated[int, Field(ge=0)] = 20250101

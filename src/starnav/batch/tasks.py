@@ -330,11 +330,12 @@ def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, wind
     from starnav.dataset.writer import frame_maker
     from starnav.navigation.metrics import limb_point_errors
     from starnav.navigation.pipeline import process_frame
+    from starnav.simulate.build import chain_options
 
     sc = _scenario(config)
     sim = frame_maker(config).simulator
     cam = sim.camera
-    chain = sc.navigation.chain_options(sc.moon.radius_km * 1e3, scenario=sc)
+    chain = chain_options(sc)
     chain = dataclasses.replace(chain, use_windows=chain.use_windows and windows != "none")
     le = rendered.electron_radiance(albedo_factor)
     g = rendered.geometry

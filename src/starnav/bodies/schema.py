@@ -20,8 +20,9 @@ class EllipsoidConfig(StrictModel):
 
     The defaults are Itokawa's best-fit ellipsoid (Fujiwara et al. 2006, Science 312, 1330:
     535 x 294 x 209 m), its IAU pole and period (Archinal et al. 2018, table 5: alpha0 = 90.53,
-    delta0 = -66.30 deg, W = 0.0 + 712.143 deg/day, i.e. 12.132 h, retrograde) and an S-type
-    Hapke surface.
+    delta0 = -66.30 deg, W = 0.0 + 712.143 deg/day, i.e. 12.132 h, retrograde) and a
+    Lommel-Seeliger surface (the small-body photometry of the fly-by issue replaces it with
+    published S-type Hapke parameters).
     """
 
     kind: Literal["ellipsoid"] = "ellipsoid"
@@ -39,8 +40,8 @@ class EllipsoidConfig(StrictModel):
                                                  spectral_shape="grey"),
         description="photometric model (hapke, lommel_seeliger, lambert, lunar_lambert)")
     albedo: Annotated[float, Field(gt=0, le=1)] = Field(
-        0.24, description="normal albedo at 550 nm [-] (a moderate S-type value, not a "
-        "measured Itokawa one)")
+        0.12, description="normal albedo at 550 nm [-]; Lommel-Seeliger reaches at most "
+        "0.125 (w = 8 A_n <= 1): brighter S-types (~0.25) need Hapke with an opposition surge")
     mesh_subdivisions: Annotated[int, Field(ge=0, le=8)] = Field(
         6, description="icosphere subdivisions of the rendered mesh (6 -> 81 920 triangles)")
 

@@ -59,7 +59,12 @@ import numpy as np
 from starnav.dataset import format as F
 from starnav.dataset.runner import InProcessRunner, TaskRunner
 from starnav.errors import ConfigError, DataFileError, StarnavError
-from starnav.simulate import Simulator, check_windows_mode, readout_feasibility
+from starnav.simulate import (
+    Simulator,
+    body_from_scenario,
+    check_windows_mode,
+    readout_feasibility,
+)
 from starnav.simulate.acquire import sensor_seed_of
 
 if TYPE_CHECKING:
@@ -240,6 +245,7 @@ def dataset_head(scenario: Scenario, options: DatasetOptions, n_frames: int) -> 
         "config": scenario_to_dict(sc),
         "options": opts.to_dict(),
         "camera": camera_to_manifest(cam),
+        "target": body_from_scenario(sc).describe(),
         "sun": {"spectrum": sc.sun.spectrum,
                 "band_irradiance_1au_w_m2": band.irradiance,
                 "band_electron_irradiance_1au_e_s_m2": band.electron_irradiance,

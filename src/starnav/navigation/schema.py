@@ -151,7 +151,8 @@ class NavigationConfig(StrictModel):
 
     # ---------------------------------------------------------------- conversions
     def chain_options(self, moon_radius_m: float | None = None, *,
-                      scenario: Any | None = None) -> ChainOptions:
+                      scenario: Any | None = None,
+                      radii_m: tuple[float, float, float] | None = None) -> ChainOptions:
         """The SI :class:`~starnav.navigation.pipeline.ChainOptions` of this section.
 
         ``moon_radius_m`` is the sphere used when ``fix.moon_radii_km`` is null (default the
@@ -159,7 +160,9 @@ class NavigationConfig(StrictModel):
         dataset records) supplies what the frames were made with: the detector's per-pixel
         noise (``refine.noise_model``), the terrain's limb-height spread
         (``refine.terrain_model_error``, DEM Moons only) and the pointing knowledge error
-        (``fix.attitude_sigma_arcsec: null``).
+        (``fix.attitude_sigma_arcsec: null``). ``radii_m``: the target body's reference
+        ellipsoid (``starnav.simulate.chain_options`` passes it), used when
+        ``fix.moon_radii_km`` is null.
         """
         from starnav.constants import MOON_RADIUS
         from starnav.navigation.christian_robinson import ChristianRobinsonOptions
@@ -175,7 +178,12 @@ class NavigationConfig(StrictModel):
 
         L, Rf, Rs, F = self.limb, self.refine, self.ransac, self.fix
         r = MOON_RADIUS if moon_radius_m is None else float(moon_radius_m)
-        radii = (r, r, r) if F.moon_radii_km is None else tuple(x * 1e3 for x in F.moon_radii_km)
+        if F.moon_radii_km is not None:
+            radii = tuple(x * 1e3 for x in F.moon_radii_km)
+        elif radii_m is not None:
+            radii = tuple(float(x) for x in radii_m)
+        else:
+            radii = (r, r, r)
         noise, terrain, spread = None, None, None
         edge_model = "blurred-limb" if Rf.edge_model == "auto" else Rf.edge_model
         att: float | tuple[float, float, float] = 0.0
@@ -190,7 +198,8 @@ class NavigationConfig(StrictModel):
                     and scenario.detector.optics.aberration.enabled):
                 spread = EdgeSpread.from_detector(scenario.detector)
                 edge_model = "detector-psf"
-            if Rf.terrain_model_error and scenario.moon.shape == "dem":
+            on_moon = getattr(scenario, "target", None) is None or scenario.target.kind == "moon"
+            if Rf.terrain_model_error and on_moon and scenario.moon.shape == "dem":
                 from starnav.dem.limb import limb_topography_for
 
                 terrain = limb_topography_for(scenario.moon.dem)

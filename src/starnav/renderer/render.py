@@ -602,7 +602,9 @@ def _aov_channels(raw: NDArray[np.float64], geom: FrameGeometry,
     H, W = shape
     f32 = np.float32
     pos_all = raw[:, :, 0:3]
-    hit = np.einsum("ijk,ijk->ij", pos_all, pos_all) > (0.5 * geom.moon_radius / KM) ** 2
+    # a miss reports the origin; any surface point of a star-shaped body is far from it (a
+    # fraction of the reference radius would drop the ends of a triaxial body's short axis)
+    hit = np.einsum("ijk,ijk->ij", pos_all, pos_all) > (1e-3 * geom.moon_radius / KM) ** 2
     sel = raw[hit].astype(f32)  # (n, 6): float32 is ample for image channels and 2x faster
     pos_b = sel[:, 0:3] * f32(KM)
     R = geom.R_moon_to_inertial.astype(f32)

@@ -29,7 +29,7 @@ Example
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -132,6 +132,10 @@ class Scene:
         Use this instead of building ``trajectory``'s (e.g. an arc already in memory).
     cache_dir : path, optional
         Forwarded to :func:`build_trajectory`.
+    orientation : callable, optional
+        ``f(epochs) -> (n, 3, 3)`` body-fixed -> J2000 rotations of the target body
+        (:meth:`starnav.bodies.TargetBody.orientation`); default the Moon's DE421 librations
+        in ``trajectory.moon_frame`` axes.
     """
 
     def __init__(self, camera: Camera, pointing: PointingConfig, *,
@@ -139,7 +143,8 @@ class Scene:
                  static: StaticGeometryConfig | None = None,
                  moon_radius: float = MOON_RADIUS, seed: int = 0,
                  ephemeris: Ephemeris | None = None, arc: Trajectory | None = None,
-                 cache_dir: str | Path | None = None) -> None:
+                 cache_dir: str | Path | None = None,
+                 orientation: Callable[[FloatArray], FloatArray] | None = None) -> None:
         self.camera = camera
         self.pointing = pointing
         self.static_config = static if static is not None else StaticGeometryConfig()
@@ -163,7 +168,8 @@ class Scene:
         self._states = self.trajectory.sample(self.epochs)
         self._moon = self.ephemeris.state("moon", self.epochs, center="emb")
         self._sun = self.ephemeris.state("sun", self.epochs, center="emb")
-        self._R_moon = self.ephemeris.moon_orientation(self.epochs, frame=cfg.moon_frame)
+        self._R_moon = (orientation(self.epochs) if orientation is not None else
+                        self.ephemeris.moon_orientation(self.epochs, frame=cfg.moon_frame))
 
     def __len__(self) -> int:
         return int(self.epochs.size)

@@ -20,6 +20,8 @@ from starnav.simulate.acquire import (
     readout_feasibility,
 )
 from starnav.simulate.build import (
+    body_from_scenario,
+    chain_options,
     describe_frame,
     frame_geometries,
     frame_mesh,
@@ -32,7 +34,8 @@ from starnav.simulate.build import (
 from starnav.simulate.frames import Observation, Simulator, render_scenario, render_to_directory
 
 __all__ = ["WINDOWS_MODES", "Acquisition", "Observation", "Simulator", "acquire",
-           "acquisition_seed", "check_windows_mode", "describe_frame", "frame_geometries",
-           "frame_mesh", "frame_states", "mean_normal_albedo", "moon_model_from_scenario",
-           "readout_feasibility", "render_scenario", "render_to_directory",
-           "renderer_from_scenario", "scene_from_scenario"]
+           "acquisition_seed", "body_from_scenario", "chain_options", "check_windows_mode",
+           "describe_frame", "frame_geometries", "frame_mesh", "frame_states",
+           "mean_normal_albedo", "moon_model_from_scenario", "readout_feasibility",
+           "render_scenario", "render_to_directory", "renderer_from_scenario",
+           "scene_from_scenario"]

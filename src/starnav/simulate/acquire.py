@@ -64,6 +64,7 @@ import numpy as np
 
 from starnav.errors import ConfigError
 from starnav.seeding import STAGE_DETECTOR_TEMPORAL, STAGE_NAVIGATION, generator, seed_u32
+from starnav.simulate.build import chain_options
 
 if TYPE_CHECKING:
     from starnav.camera import Camera
@@ -231,8 +232,7 @@ def plan_windows_from_segments(segments: Any, geom: FrameGeometry, camera: Camer
     from starnav.navigation.pipeline import process_frame
     from starnav.navigation.refine import plan_windows
 
-    chain = scenario.navigation.chain_options(scenario.moon.radius_km * 1e3,
-                                              scenario=scenario)
+    chain = chain_options(scenario)
     chain = dataclasses.replace(chain, use_windows=False)
     R_meas = geom.R_cam_to_inertial_known
     frame = Frame(index=int(geom.index), epoch_tdb=float(geom.epoch_tdb),

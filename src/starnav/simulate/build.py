@@ -22,6 +22,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from starnav.bodies import Moon, TargetBody, TriaxialBody
+from starnav.bodies.moon import mean_normal_albedo as moon_mean_normal_albedo
 from starnav.camera import Camera, camera_from_config
 from starnav.config import Scenario
 from starnav.constants import AU
@@ -29,20 +31,16 @@ from starnav.dem.detail import sub_posting_detail
 from starnav.dem.grid import AlbedoGrid, DemGrid
 from starnav.dem.load import as_dem_config, load_albedo, load_dem
 from starnav.dem.mesh import MESH_CACHE, MeshCache, MeshOptions, view_mesh
+from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry, static_geometry_from_config
-from starnav.lunar_calibration import lunar_calibration
-from starnav.photometry import albedo_parameter
+from starnav.navigation.pipeline import ChainOptions
 from starnav.radiance import RadianceImage
-from starnav.renderer.dem_hook import dem_moon_model
 from starnav.renderer.render import (
-    AlbedoMap,
     MoonModel,
     MoonRenderer,
     RenderSettings,
-    load_albedo_map,
 )
-from starnav.renderer.scene import check_camera_for_render, icosphere_mesh
-from starnav.renderer.schema import AlbedoMapConfig
+from starnav.renderer.scene import check_camera_for_render
 from starnav.scenes.ephemeris import Ephemeris
 from starnav.scenes.frames import Scene
 from starnav.scenes.trajectory import Trajectory
@@ -51,40 +49,32 @@ from starnav.spectra import sensor_response_from_config, solar_spectrum_from_con
 log = logging.getLogger(__name__)
 
 
+def body_from_scenario(sc: Scenario) -> TargetBody:
+    """The target body of ``sc``: the Moon of its ``moon`` section (``target`` null or
+    ``kind: moon``; body-fixed axes ``trajectory.moon_frame``), or the ``target`` section's
+    small body (:mod:`starnav.bodies`)."""
+    t = sc.target
+    if t is None or t.kind == "moon":
+        frame = sc.trajectory.moon_frame if sc.trajectory is not None else "PA"
+        return Moon(sc.moon, frame=frame)
+    if sc.trajectory is not None:
+        raise ConfigError("target.kind", t.kind,
+                          "a static geometry section (trajectory: null): trajectories are "
+                          "Moon-centred until the fly-by trajectory exists")
+    return TriaxialBody(t)
+
+
 def moon_model_from_scenario(sc: Scenario) -> MoonModel:
-    """The :class:`MoonModel` of a scenario: the normal albedo (number or map) converted to the
-    photometric model's own parameter, the spectral shape and the parameter preset resolved.
-    Albedo maps and DEMs are read here, so a missing file is reported before any rendering."""
-    m = sc.moon
-    radius = m.radius_km * 1e3
-    model = m.photometry.model
-    params = m.photometry.resolved_params()
-    spectral = (lunar_calibration().spectral_shape()
-                if m.photometry.spectral_shape == "rolo" else None)
-    calibrated = model == "hapke" and m.photometry.preset == "rolo-calibrated"
-    albedo: float | AlbedoMap
-    if isinstance(m.albedo, AlbedoMapConfig):
-        amap = load_albedo_map(m.albedo.path, m.albedo.scale)
-        albedo = AlbedoMap(albedo_parameter(amap.values, m.albedo.quantity, model, params,
-                                            "moon.albedo.path").astype(np.float32), amap.source)
-    else:
-        albedo = float(albedo_parameter(mean_normal_albedo(sc), "normal_albedo", model, params,
-                                        "moon.albedo"))
-    common = dict(model=model, params=params, albedo=albedo, albedo_scale=m.albedo_scale,
-                  spectral_shape=spectral, calibrated=calibrated, radius=radius)
-    if m.shape == "sphere":
-        return MoonModel("sphere", **common)
-    if m.shape == "mesh":
-        return MoonModel("mesh", mesh=icosphere_mesh(radius, m.mesh_subdivisions), **common)
-    return dem_moon_model(m.dem, common, mean_normal_albedo(sc))
+    """The renderer's model of the scenario's target body (:meth:`TargetBody.render_model`):
+    the normal albedo converted to the photometric model's own parameter, maps and DEMs read
+    here, so that a missing file is reported before any rendering."""
+    return body_from_scenario(sc).render_model()
 
 
 def mean_normal_albedo(sc: Scenario) -> float:
-    """The scenario's (mean) normal albedo: ``moon.albedo`` when a number, else the
-    ROLO-calibrated mean normal albedo of the real Moon [-]."""
-    if isinstance(sc.moon.albedo, int | float):
-        return float(sc.moon.albedo)
-    return lunar_calibration().mean_normal_albedo
+    """The scenario's (mean) normal albedo of the Moon: ``moon.albedo`` when a number, else
+    the ROLO-calibrated mean normal albedo of the real Moon [-]."""
+    return moon_mean_normal_albedo(sc.moon)
 
 
 def renderer_from_scenario(sc: Scenario, camera: Camera | None = None) -> MoonRenderer:
@@ -94,7 +84,7 @@ def renderer_from_scenario(sc: Scenario, camera: Camera | None = None) -> MoonRe
     check_camera_for_render(camera)
     response = sensor_response_from_config(sc.sensor_response)
     sun = solar_spectrum_from_config(sc.sun, distance=AU)
-    moon = moon_model_from_scenario(sc)
+    moon = body_from_scenario(sc).render_model()
     r = sc.render
     settings = RenderSettings(spp=r.spp, crop=r.crop, crop_margin_px=r.crop_margin_px,
                               aovs=r.aovs, variants=tuple(r.variants), sampler=r.sampler,
@@ -108,9 +98,12 @@ def scene_from_scenario(sc: Scenario, ephemeris: Ephemeris | None = None, *,
     """The :class:`~starnav.scenes.frames.Scene` of ``sc``: its trajectory's frames, or the one
     frame of its static ``geometry`` section (with the attitude-knowledge error either way)."""
     camera = camera_from_config(sc.camera) if camera is None else camera
+    body = body_from_scenario(sc)
+    eph = ephemeris or Ephemeris.default()
     return Scene(camera, sc.pointing, trajectory=sc.trajectory, static=sc.geometry,
-                 moon_radius=sc.moon.radius_km * 1e3, seed=sc.seed, ephemeris=ephemeris,
-                 arc=arc, cache_dir=cache_dir)
+                 moon_radius=body.reference_radius_m, seed=sc.seed, ephemeris=eph,
+                 arc=arc, cache_dir=cache_dir,
+                 orientation=lambda t: body.orientation(t, eph))
 
 
 def frame_geometries(sc: Scenario, ephemeris: Ephemeris | None = None) -> list[FrameGeometry]:
@@ -154,3 +147,11 @@ def describe_frame(img: RadianceImage) -> dict:
         "moon_pixels": int(img.mask.sum()),
         "variant": img.meta["render"]["variant"],
     }
+
+
+def chain_options(sc: Scenario) -> ChainOptions:
+    """The navigation chain's SI options for ``sc``: its ``navigation`` section with the target
+    body's reference ellipsoid (unless ``navigation.fix.moon_radii_km`` sets one) and what the
+    frames were made with (noise, terrain, attitude knowledge)."""
+    body = body_from_scenario(sc)
+    return sc.navigation.chain_options(scenario=sc, radii_m=body.radii_m)
