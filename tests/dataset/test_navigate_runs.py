@@ -46,7 +46,7 @@ def test_cli_navigate_runs_writes_the_verdict_and_figures(small_dataset, tmp_pat
 
     out = tmp_path / "nav"
     r = CliRunner().invoke(app, ["navigate", str(small_dataset), "--out", str(out),
-                                 "--runs", "3", "--exposure-ms", "0.015"])
+                                 "--runs", "3", "--exposure", "15us"])
     assert r.exit_code == 0, r.output
     assert "over 3 runs: mean NEES" in r.output
     report = (out / "report.md").read_text()

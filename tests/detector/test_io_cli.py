@@ -60,4 +60,4 @@ def test_cli_expose_writes_the_library_result(tmp_path):
     bad = CliRunner().invoke(app, ["expose", str(exr), "--scenario", str(sc_file), "--out",
                                    str(out), "--exposure-s", "-1"])
     assert bad.exit_code == 2
-    assert "detector.exposure_time_s = -1" in " ".join(bad.output.split())
+    assert "--exposure = '-1': expected a time > 0" in " ".join(bad.output.split())

@@ -144,7 +144,7 @@ def outputs(workdir: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
 
     for ms in ("0.015", "7.7"):
         out = f"nav_{ms}"
-        _starnav("navigate", "ds", "--out", out, "--exposure-ms", ms, "--no-plots", cwd=workdir)
+        _starnav("navigate", "ds", "--out", out, "--exposure", f"{ms}ms", "--no-plots", cwd=workdir)
         values[f"navigate/{ms}/metrics"] = scrub(
             json.loads((workdir / out / "metrics.json").read_text()))
         values[f"navigate/{ms}/estimates"] = _read_csv(workdir / out / "estimates.csv")

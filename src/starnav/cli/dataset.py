@@ -11,36 +11,22 @@ from typing import Annotated
 
 import typer
 
-
-def parse_floats(text: str, name: str) -> tuple[float, ...]:
-    """``"1.5e-5,7.7e-3"`` -> ``(1.5e-05, 0.0077)``; a clear error otherwise."""
-    from starnav.errors import ConfigError
-
-    parts = [p.strip() for p in text.split(",") if p.strip()]
-    if not parts:
-        raise ConfigError(name, text, "a comma-separated list of numbers")
-    try:
-        return tuple(float(p) for p in parts)
-    except ValueError:
-        raise ConfigError(name, text, "a comma-separated list of numbers, e.g. "
-                          "1.5e-5,7.7e-3") from None
+from starnav.cli._units import parse_time, parse_times
 
 
 def parse_exposure_sets(items: list[str] | tuple[str, ...]
                         ) -> tuple[tuple[float, tuple[str, ...]], ...]:
-    """``["7.7e-3:a.b=1", "7.7e-3:c=2"]`` -> ``((0.0077, ("a.b=1", "c=2")),)``."""
+    """``["7.7ms:a.b=1", "7.7e-3:c=2"]`` -> ``((0.0077, ("a.b=1", "c=2")),)`` (times as
+    :func:`starnav.cli._units.parse_time` reads them)."""
     from starnav.errors import ConfigError
 
     by: dict[float, list[str]] = {}
     for it in items:
         t, sep, rest = it.partition(":")
-        try:
-            tv = float(t)
-        except ValueError:
-            tv = float("nan")
-        if not sep or "=" not in rest or not tv > 0:
-            raise ConfigError("--exposure-set", it, "EXPOSURE_S:KEY=VALUE, e.g. "
-                              "7.7e-3:detector.readout.segments.thresholds_dn=[2048]")
+        if not sep or "=" not in rest:
+            raise ConfigError("--exposure-set", it, "TIME:KEY=VALUE, e.g. "
+                              "7.7ms:detector.readout.segments.thresholds_dn=[2048]")
+        tv = parse_time(t, "--exposure-set")
         by.setdefault(tv, []).append(rest.strip())
     return tuple((t, tuple(v)) for t, v in by.items())
 
@@ -73,11 +59,11 @@ def register(app: typer.Typer) -> None:
         resume: Annotated[bool, typer.Option(
             "--resume", help="continue an interrupted dataset in OUT")] = False,
         exposures: Annotated[str | None, typer.Option(
-            "--exposures", help="exposure times [s], comma-separated (default: "
-            "detector.exposure_time_s)")] = None,
+            "--exposures", help="exposure times, comma-separated, in s or with a unit "
+            "(15us,7.7ms; default: detector.exposure_time_s)")] = None,
         exposure_set: Annotated[list[str] | None, typer.Option(
             "--exposure-set", help="override for one exposure, T:KEY=VALUE with a detector.* "
-            "or navigation.* key, e.g. 7.7e-3:detector.readout.segments.thresholds_dn=[2048]")
+            "or navigation.* key, e.g. 7.7ms:detector.readout.segments.thresholds_dn=[2048]")
         ] = None,
         windows: Annotated[str, typer.Option(
             "--windows", help="windows read from a 'second' acquisition (default), the "
@@ -108,7 +94,7 @@ def register(app: typer.Typer) -> None:
         state = {"n": 0, "done": 0}
         try:
             sc = load_scenario(scenario, tuple(set_ or ()))
-            exps = None if exposures is None else parse_floats(exposures, "--exposures")
+            exps = None if exposures is None else parse_times(exposures, "--exposures")
             opts = DatasetOptions(exposures_s=exps, windows=windows, radiance=not no_radiance,
                                   exposure_overrides=parse_exposure_sets(exposure_set or ()))
             bar = frames_progress()

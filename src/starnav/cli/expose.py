@@ -11,6 +11,8 @@ from typing import Annotated
 
 import typer
 
+from starnav.cli._units import parse_time
+
 
 def register(app: typer.Typer) -> None:
     """Add the ``expose`` command to ``app``."""
@@ -21,9 +23,10 @@ def register(app: typer.Typer) -> None:
         out: Annotated[Path, typer.Option("--out", help="output directory")],
         scenario: Annotated[Path | None, typer.Option(
             "--scenario", help="scenario YAML (camera, detector, seed); default built-ins")] = None,
-        exposure_s: Annotated[float | None, typer.Option(
-            "--exposure-s", "--exposure",
-            help="exposure time [s] (overrides detector.exposure_time_s)")] = None,
+        exposure: Annotated[str | None, typer.Option(
+            "--exposure", "--exposure-s",
+            help="exposure time, in s or with a unit (2e-3, 2ms; overrides "
+            "detector.exposure_time_s)")] = None,
         frame_index: Annotated[int, typer.Option(
             "--frame-index", help="frame number (selects the temporal noise)")] = 0,
         set_: Annotated[list[str] | None, typer.Option(
@@ -38,9 +41,10 @@ def register(app: typer.Typer) -> None:
         from starnav.radiance import read_exr
 
         overrides = list(set_ or [])
-        if exposure_s is not None:
-            overrides.append(f"detector.exposure_time_s={exposure_s!r}")
         try:
+            if exposure is not None:
+                t = parse_time(exposure, "--exposure")
+                overrides.append(f"detector.exposure_time_s={t!r}")
             sc = load_scenario(scenario, overrides)
             camera = build_camera(sc.camera)
             img = read_exr(radiance)

@@ -20,6 +20,8 @@ from typing import Annotated
 
 import typer
 
+from starnav.cli._units import parse_time
+
 
 def _open_dataset(path: Path, exposure_s: float | None = None):
     from starnav.errors import DataFileError
@@ -49,8 +51,9 @@ def register(app: typer.Typer) -> None:
             "--config", help="scenario YAML (navigation section)")] = None,
         set_: Annotated[list[str] | None, typer.Option(
             "--set", help="override, e.g. navigation.ransac.model=christian-robinson")] = None,
-        exposure_ms: Annotated[float | None, typer.Option(
-            "--exposure-ms", help="which exposure of the dataset (default: its first)")] = None,
+        exposure: Annotated[str | None, typer.Option(
+            "--exposure", help="which exposure of the dataset, in s or with a unit (15us, "
+            "7.7ms; default: its first)")] = None,
         seed: Annotated[int | None, typer.Option(
             "--seed", help="seed of the runs (default: the scenario's)")] = None,
         no_plots: Annotated[bool, typer.Option("--no-plots", help="skip the PNG figures")] = False,
@@ -61,7 +64,8 @@ def register(app: typer.Typer) -> None:
         from starnav.navigation.report import navigate_dataset
 
         try:
-            ds = _open_dataset(dataset, None if exposure_ms is None else exposure_ms * 1e-3)
+            ds = _open_dataset(dataset, None if exposure is None
+                               else parse_time(exposure, "--exposure"))
             overrides = tuple(set_ or ()) + ((f"seed={seed}",) if seed is not None else ())
             if config is None and callable(getattr(ds, "scenario", None)):
                 # the dataset's own resolved scenario at this exposure, with the overrides
