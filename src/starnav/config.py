@@ -19,7 +19,6 @@ Example
 
 from __future__ import annotations
 
-import copy
 import os
 from pathlib import Path
 from typing import Annotated, Any
@@ -30,7 +29,12 @@ from pydantic import Field, ValidationError
 from starnav.atomic import atomic_write_text
 from starnav.bodies.schema import TargetConfig
 from starnav.camera import CameraConfig, camera_from_config
-from starnav.config_base import StrictModel
+from starnav.config_base import (
+    StrictModel,
+    apply_overrides,
+    format_validation_error,
+    parse_override,
+)
 from starnav.detector.schema import DetectorConfig
 from starnav.errors import ConfigError, DataFileError
 from starnav.geometry import StaticGeometryConfig
@@ -76,40 +80,10 @@ class Scenario(StrictModel):
 
 
 # --------------------------------------------------------------------------- loading
-def _format_validation_error(err: ValidationError) -> ConfigError:
-    first = err.errors()[0]
-    field = ".".join(str(p) for p in first["loc"]) or "<root>"
-    value = first.get("input")
-    expected = first["msg"].removeprefix("Value error, ")
-    if len(err.errors()) > 1:
-        expected += f" (and {len(err.errors()) - 1} more problem(s))"
-    return ConfigError(field, value, expected)
-
-
-def _parse_override(item: str) -> tuple[list[str], Any]:
-    if "=" not in item:
-        raise ConfigError("--set", item, "KEY.PATH=VALUE")
-    key, raw = item.split("=", 1)
-    if not key.strip():
-        raise ConfigError("--set", item, "KEY.PATH=VALUE with a non-empty key")
-    value = yaml.safe_load(raw) if raw.strip() else None
-    return key.strip().split("."), value
-
-
-def apply_overrides(data: dict[str, Any], overrides: list[str] | tuple[str, ...]) -> dict[str, Any]:
-    """Return a copy of ``data`` with ``a.b.c=value`` overrides applied (value parsed as YAML)."""
-    out = copy.deepcopy(data)
-    for item in overrides:
-        path, value = _parse_override(item)
-        node = out
-        for part in path[:-1]:
-            nxt = node.get(part)
-            if not isinstance(nxt, dict):
-                nxt = {}
-                node[part] = nxt
-            node = nxt
-        node[path[-1]] = value
-    return out
+# The dotted ``--set`` overrides and the validation-error message are shared with the bench, DEM
+# and sweep schemas: one implementation in starnav.config_base, re-exported here.
+_format_validation_error = format_validation_error
+_parse_override = parse_override
 
 
 def scenario_from_dict(data: dict[str, Any],

@@ -1,4 +1,26 @@
-"""Field types shared by the configuration schemas."""
+"""Field types shared by the configuration schemas.
+
+Every schema module (scenario, detector, DEM, scenes, navigation, bench) constrains its numbers
+the same few ways, and a constraint written once cannot drift between modules: a
+``PositiveFloat`` of the detector and one of the trajectory reject the same values with the
+same message. Each type is a ``typing.Annotated`` float that pydantic validates; all of them
+reject NaN and infinities (``allow_inf_nan=False``), since no configured quantity is meant to
+be either (an optional value is written ``PositiveFloat | None``).
+
+=======================  ==============  ====================================================
+type                     accepts         used for
+=======================  ==============  ====================================================
+:data:`FiniteFloat`      any finite      temperatures in degC, signed angles, coefficients
+:data:`PositiveFloat`    ``> 0``         lengths, times, scales, sigmas that must not vanish
+:data:`NonNegativeFloat` ``>= 0``        margins, noise levels that may be switched off
+:data:`UnitInterval`     ``[0, 1]``      fractions that may be 0 or 1 (a fraction of the
+                                         light, of the pixels, of the surface)
+:data:`PositiveFraction` ``(0, 1]``      fractions that must not be 0 (a transmission, a
+                                         headroom: a zero would divide or empty a signal)
+=======================  ==============  ====================================================
+
+Units are in the field names (``_km``, ``_deg``, ``_s``), never in the types.
+"""
 
 from __future__ import annotations
 
@@ -8,3 +30,9 @@ from pydantic import Field
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+UnitInterval = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
+PositiveFraction = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]
+
+__all__ = ["FiniteFloat", "NonNegativeFloat", "PositiveFloat", "PositiveFraction",
+           "UnitInterval"]

@@ -74,8 +74,9 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from starnav.errors import ConfigError, UnknownNameError
+from starnav.errors import ConfigError
 from starnav.lunar_calibration import lunar_calibration
+from starnav.registry import Registry
 
 FloatArray = NDArray[np.float64]
 
@@ -90,18 +91,17 @@ HAPKE_LUNAR_DEFAULTS: dict[str, float] = {
     "theta_bar_deg": 23.66,
 }
 
-#: Names of the Hapke parameter sets (:func:`hapke_preset`).
-HAPKE_PRESETS = ("rolo-calibrated", "sato2014")
+#: The Hapke parameter sets by name (:func:`hapke_preset`), each a function giving a fresh dict.
+HAPKE_PRESETS: Registry[Callable[[], dict[str, float]]] = Registry("Hapke parameter preset", {
+    "rolo-calibrated": lambda: dict(lunar_calibration().hapke),
+    "sato2014": lambda: dict(HAPKE_LUNAR_DEFAULTS),
+})
 
 
 def hapke_preset(name: str) -> dict[str, float]:
     """Hapke parameters of a named set: ``sato2014`` (:data:`HAPKE_LUNAR_DEFAULTS`, as published)
     or ``rolo-calibrated`` (fitted to the ROLO lunar model, :mod:`starnav.lunar_calibration`)."""
-    if name == "sato2014":
-        return dict(HAPKE_LUNAR_DEFAULTS)
-    if name == "rolo-calibrated":
-        return dict(lunar_calibration().hapke)
-    raise UnknownNameError("Hapke parameter preset", name, list(HAPKE_PRESETS))
+    return HAPKE_PRESETS.get(name)()
 
 
 #: Lunar-Lambert L(g) polynomial coefficients, g in degrees (McEwen 1991; USGS ISIS).
@@ -406,21 +406,20 @@ def validity_warning(name: str, phase: float, calibrated: bool = False) -> str |
 ROLO_PHASE_RANGE = (math.radians(1.55), math.radians(97.0))
 
 
-#: Registry of photometric models by name.
-PHOTOMETRIC_MODELS: dict[str, PhotometricModel] = {
-    "lambert": PhotometricModel("lambert", lambert),
-    "lommel_seeliger": PhotometricModel("lommel_seeliger", lommel_seeliger),
-    "lunar_lambert": PhotometricModel("lunar_lambert", lunar_lambert),
-    "hapke": PhotometricModel("hapke", hapke, dict(HAPKE_LUNAR_DEFAULTS)),
-}
+#: Registry of photometric models by name (the renderer's Mitsuba plugins follow it:
+#: :data:`starnav.renderer.bsdfs.PLUGIN_NAMES`).
+PHOTOMETRIC_MODELS: Registry[PhotometricModel] = Registry("photometric model", {
+    m.name: m for m in (
+        PhotometricModel("lambert", lambert),
+        PhotometricModel("lommel_seeliger", lommel_seeliger),
+        PhotometricModel("lunar_lambert", lunar_lambert),
+        PhotometricModel("hapke", hapke, dict(HAPKE_LUNAR_DEFAULTS)),
+    )})
 
 
 def get_model(name: str) -> PhotometricModel:
     """The registered model ``name``; an unknown name lists the known ones."""
-    try:
-        return PHOTOMETRIC_MODELS[name]
-    except KeyError:
-        raise UnknownNameError("photometric model", name, list(PHOTOMETRIC_MODELS)) from None
+    return PHOTOMETRIC_MODELS.get(name)
 
 
 def reflectance(name: str, i: ArrayLike, e: ArrayLike, g: ArrayLike, albedo: ArrayLike,

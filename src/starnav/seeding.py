@@ -4,6 +4,14 @@
 ``SeedSequence(seed).spawn`` would give at those indices, so every stream depends only on the
 scenario seed and its keys, never on how many workers there are or in which order frames are
 made (DESIGN.md, "Randomness"). Stage keys are fixed integers, listed here once.
+
+The procedural Moon is the one world that is not drawn from the scenario seed: its terrain,
+albedo and sub-posting detail come from their own seeds (``moon.dem.procedural.seed``,
+``moon.dem.detail.seed``), so that one world can be flown through by many scenarios. Its
+streams are children of *that* seed under the world keys below (``WORLD_*``, which are not
+stages and may share numbers with them: the root seed differs), followed by the stream's own
+indices (a crater octave, a noise octave). They were fixed when the procedural Moon was first
+written; renumbering them would change every procedural world.
 """
 
 from __future__ import annotations
@@ -18,6 +26,12 @@ STAGE_DETECTOR_TEMPORAL = 4
 STAGE_NAVIGATION = 5
 STAGE_HIL = 6
 STAGE_TERRAIN = 7
+
+#: Stream keys under a procedural world's own seed (never renumber: worlds depend on them).
+WORLD_CRATERS = 1
+WORLD_BASINS = 2
+WORLD_FRACTAL = 3
+WORLD_DETAIL = 4
 
 
 def seed_sequence(seed: int, *keys: int) -> np.random.SeedSequence:
@@ -35,3 +49,8 @@ def generator(seed: int, *keys: int) -> np.random.Generator:
 def seed_u32(seed: int, *keys: int) -> int:
     """A 32-bit integer seed for the stream ``keys`` (e.g. Mitsuba's sampler seed)."""
     return int(seed_sequence(seed, *keys).generate_state(1, np.uint32)[0])
+
+
+def seed_u64(seed: int, *keys: int) -> int:
+    """A 64-bit integer seed for the stream ``keys`` (e.g. a hashed noise lattice)."""
+    return int(seed_sequence(seed, *keys).generate_state(1, np.uint64)[0])

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from starnav.constants import DAY
 from starnav.errors import ConfigError
 from starnav.scenes.dynamics import PointMassModel, propagate, propagate_many
-from starnav.scenes.ephemeris import DAY_S, parse_epoch
+from starnav.scenes.ephemeris import parse_epoch
 
 T0 = parse_epoch("2027-03-01T00:00:00 TDB")
 
@@ -63,7 +64,7 @@ def test_emb_acceleration_matches_the_ephemeris(model, eph):
     # The frame's acceleration derived in the module docstring must be the acceleration of the
     # DE421 EMB (second difference of its SSB position) up to the planets' pull, < 1e-6 m/s^2
     # (Jupiter at >= 4.2 AU: 3.2e-7; Venus at >= 0.26 AU: 2e-7 m/s^2).
-    for t in T0 + np.array([0.0, 91.3, 182.6, 273.9]) * DAY_S:
+    for t in T0 + np.array([0.0, 91.3, 182.6, 273.9]) * DAY:
         h = 600.0
         p = [eph.emb_ssb(t + k * h)[0] for k in (-1, 0, 1)]
         a_fd = (p[0] - 2 * p[1] + p[2]) / h**2
@@ -78,7 +79,7 @@ def test_indirect_term_forms_agree_to_the_tidal_bound(eph):
     exact = PointMassModel(eph)
     approx = PointMassModel(eph, emb_indirect="sun-at-emb")
     f = exact.moon_fraction
-    for t in T0 + np.linspace(0, 30, 7) * DAY_S:
+    for t in T0 + np.linspace(0, 30, 7) * DAY:
         b = exact.body_positions(t)
         d = np.linalg.norm(b[1] - b[0])
         rs = np.linalg.norm(b[2])
@@ -91,7 +92,7 @@ def test_indirect_term_forms_agree_to_the_tidal_bound(eph):
 
 def test_rk4_matches_dop853_over_five_days(model, eph):
     x0 = _states(eph, T0)[0]
-    t1 = T0 + 5 * DAY_S
+    t1 = T0 + 5 * DAY
     x1, _ = propagate(model, T0, x0, t1, step=300.0)
     sol = solve_ivp(model.derivative, (T0, t1), x0, method="DOP853", rtol=1e-13, atol=1e-7)
     # REFERENCE.md s4: RK4 at 300 s is mm-accurate over a period (here: 5 days, < 1 cm)
@@ -101,7 +102,7 @@ def test_rk4_matches_dop853_over_five_days(model, eph):
 
 def test_stm_matches_finite_differences(model, eph):
     x0 = _states(eph, T0)[0]
-    t1 = T0 + DAY_S
+    t1 = T0 + DAY
     x1, Phi = propagate(model, T0, x0, t1, with_stm=True)
     scale = np.array([1e3] * 3 + [1e-2] * 3)  # 1 km, 1 cm/s perturbations
     Pfd = np.empty((6, 6))
@@ -119,7 +120,7 @@ def test_stm_matches_finite_differences(model, eph):
 
 def test_stm_integrated_with_scipy(model, eph):
     x0 = _states(eph, T0)[1]
-    t1 = T0 + 2 * DAY_S
+    t1 = T0 + 2 * DAY
     _, Phi = propagate(model, T0, x0, t1, step=300.0, with_stm=True)
     y0 = np.concatenate([x0, np.eye(6).ravel()])
     sol = solve_ivp(model.derivative_with_stm, (T0, t1), y0, method="DOP853", rtol=1e-12,
@@ -130,8 +131,8 @@ def test_stm_integrated_with_scipy(model, eph):
 
 def test_backward_propagation_returns_to_start(model, eph):
     x0 = _states(eph, T0)[0]
-    x1, P1 = propagate(model, T0, x0, T0 + 3 * DAY_S, with_stm=True)
-    x2, P2 = propagate(model, T0 + 3 * DAY_S, x1, T0, with_stm=True)
+    x1, P1 = propagate(model, T0, x0, T0 + 3 * DAY, with_stm=True)
+    x2, P2 = propagate(model, T0 + 3 * DAY, x1, T0, with_stm=True)
     assert np.linalg.norm(x2[:3] - x0[:3]) < 1e-3
     assert np.allclose(P2 @ P1, np.eye(6), atol=1e-6)
 

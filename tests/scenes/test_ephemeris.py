@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
+from starnav.constants import DAY
 from starnav.errors import ConfigError
 from starnav.scenes.ephemeris import (
-    DAY_S,
     J2000_JD,
     EphemerisRangeError,
     format_epoch,
@@ -22,7 +22,7 @@ KM = 1e3
 def test_earth_moon_distance_across_three_centuries(eph):
     # Meeus (1998), Astronomical Algorithms, ch. 50: between 1500 and 2500 the Moon's perigee
     # never comes below 356 375 km and its apogee never exceeds 406 720 km.
-    t = np.arange(eph.t_min, eph.t_max, 0.25 * DAY_S)
+    t = np.arange(eph.t_min, eph.t_max, 0.25 * DAY)
     d = np.linalg.norm(eph.moon_geocentric(t)[0], axis=-1)
     assert d.min() > 356_000 * KM and d.max() < 407_000 * KM
     # ... and it does get close to both extremes (units and series are right)
@@ -33,7 +33,7 @@ def test_moon_mean_orbital_speed(eph):
     # NASA GSFC Moon fact sheet: mean orbital velocity 1.022 km/s (0.970-1.082 km/s for the
     # mean orbit; the Sun makes the eccentricity vary between ~0.026 and ~0.077, Meeus 1998
     # ch. 50, so the instantaneous speed spans a little more).
-    t = parse_epoch("2020-01-01T00:00:00 TDB") + np.arange(0, 10 * 365.25, 0.1) * DAY_S
+    t = parse_epoch("2020-01-01T00:00:00 TDB") + np.arange(0, 10 * 365.25, 0.1) * DAY
     v = np.linalg.norm(eph.moon_geocentric(t)[1], axis=-1)
     assert abs(v.mean() - 1022.0) < 5.0
     assert 950.0 < v.min() < 975.0 and 1075.0 < v.max() < 1110.0
@@ -41,7 +41,7 @@ def test_moon_mean_orbital_speed(eph):
 
 def test_velocity_is_derivative_of_position(eph):
     # near J2000, where a double resolves TDB seconds to 1e-9 s
-    t = np.linspace(0, 40 * DAY_S, 17)
+    t = np.linspace(0, 40 * DAY, 17)
     h = 10.0
     for f in (eph.moon_geocentric, eph.emb_ssb, eph.sun_ssb):
         p = f(t)[0]
@@ -58,13 +58,13 @@ def test_series_match_jplephem(eph):
 
     ref = LegacyEphemeris(de421)
     for jd in (2415100.25, 2451545.0, 2461000.3, 2524000.75):
-        t = (jd - J2000_JD) * DAY_S
+        t = (jd - J2000_JD) * DAY
         for name, fn in (("moon", eph.moon_geocentric), ("earthmoon", eph.emb_ssb),
                          ("sun", eph.sun_ssb)):
             p, v = ref.position_and_velocity(name, jd)
             ps, vs = fn(t)
             assert np.allclose(ps / KM, np.ravel(p), rtol=0, atol=1e-6)  # km
-            assert np.allclose(vs * DAY_S / KM, np.ravel(v), rtol=0, atol=1e-9)  # km/day
+            assert np.allclose(vs * DAY / KM, np.ravel(v), rtol=0, atol=1e-9)  # km/day
 
 
 def test_emb_split_follows_emrat(eph):
@@ -130,7 +130,7 @@ def _iau2009_moon(t: float) -> tuple[np.ndarray, np.ndarray]:
     """Moon pole and prime-meridian direction from the IAU WGCCRE 2009 model (Archinal et al.
     2011, Celest. Mech. Dyn. Astr. 109, 101-135, Table 2): it approximates the mean-Earth
     frame to ~150 m (~18")."""
-    d = t / DAY_S
+    d = t / DAY
     T = d / 36525.0
     E = {1: 125.045 - 0.0529921 * d, 2: 250.089 - 0.1059842 * d, 3: 260.008 + 13.0120009 * d,
          4: 176.625 + 13.3407154 * d, 5: 357.529 + 0.9856003 * d, 6: 311.589 + 26.4057084 * d,
@@ -189,4 +189,4 @@ def test_moon_angular_velocity_matches_orientation_rate(eph):
     w = eph.moon_angular_velocity(t)
     assert np.allclose(w, w_fd, rtol=0, atol=1e-12)
     # sidereal rotation period 27.32 d (synchronous with the orbit)
-    assert 2 * math.pi / np.linalg.norm(w) / DAY_S == pytest.approx(27.32, abs=0.5)
+    assert 2 * math.pi / np.linalg.norm(w) / DAY == pytest.approx(27.32, abs=0.5)

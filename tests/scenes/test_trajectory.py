@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from starnav.constants import DAY
 from starnav.errors import ConfigError
 from starnav.scenes import trajectory as trajmod
 from starnav.scenes.cr3bp import MU_EARTH_MOON, l2_halo
 from starnav.scenes.dynamics import propagate
-from starnav.scenes.ephemeris import DAY_S, EphemerisRangeError, parse_epoch
+from starnav.scenes.ephemeris import EphemerisRangeError, parse_epoch
 from starnav.scenes.trajectory import (
     ShootingOptions,
     Trajectory,
@@ -79,7 +80,7 @@ def test_hermite_sampling_between_nodes(arc, model):
 
 
 def test_rotating_frame_round_trip_and_moon(eph):
-    t = parse_epoch(ARC_EPOCH) + np.linspace(0, 20, 5) * DAY_S
+    t = parse_epoch(ARC_EPOCH) + np.linspace(0, 20, 5) * DAY
     halo = l2_halo()
     rho = halo.states(np.linspace(0, 2, 5))
     x = rotating_to_emb(eph, t, rho)
@@ -95,7 +96,7 @@ def test_rotating_frame_round_trip_and_moon(eph):
 
 def test_cache_round_trip(model, tmp_path, monkeypatch):
     t0 = parse_epoch("2027-01-10T00:00:00 TDB")
-    a = ephemeris_halo_arc(model, t0, 3 * DAY_S, cache_dir=tmp_path)
+    a = ephemeris_halo_arc(model, t0, 3 * DAY, cache_dir=tmp_path)
     files = list((tmp_path / "trajectories").glob("halo-*.npz"))
     assert len(files) == 1
 
@@ -103,11 +104,11 @@ def test_cache_round_trip(model, tmp_path, monkeypatch):
         raise AssertionError("the cached arc must be used")
 
     monkeypatch.setattr(trajmod, "multiple_shooting", boom)
-    b = ephemeris_halo_arc(model, t0, 3 * DAY_S, cache_dir=tmp_path)
+    b = ephemeris_halo_arc(model, t0, 3 * DAY, cache_dir=tmp_path)
     assert np.array_equal(a.times, b.times) and np.array_equal(a.states, b.states)
     assert b.meta["cache_key"] == a.meta["cache_key"]
     with pytest.raises(AssertionError, match="cached"):  # other inputs, other key
-        ephemeris_halo_arc(model, t0, 3 * DAY_S, phase=0.25, cache_dir=tmp_path)
+        ephemeris_halo_arc(model, t0, 3 * DAY, phase=0.25, cache_dir=tmp_path)
 
 
 def test_errors_come_before_work(model, monkeypatch):
@@ -116,12 +117,12 @@ def test_errors_come_before_work(model, monkeypatch):
 
     monkeypatch.setattr(trajmod, "multiple_shooting", boom)
     with pytest.raises(EphemerisRangeError, match="2250"):
-        ephemeris_halo_arc(model, parse_epoch("2250-01-01T00:00:00 TDB"), DAY_S,
+        ephemeris_halo_arc(model, parse_epoch("2250-01-01T00:00:00 TDB"), DAY,
                            cache_dir=False)
     with pytest.raises(ConfigError, match="duration"):
         ephemeris_halo_arc(model, parse_epoch(ARC_EPOCH), -1.0, cache_dir=False)
     with pytest.raises(ConfigError, match="phase"):
-        ephemeris_halo_arc(model, parse_epoch(ARC_EPOCH), DAY_S, phase=1.5, cache_dir=False)
+        ephemeris_halo_arc(model, parse_epoch(ARC_EPOCH), DAY, phase=1.5, cache_dir=False)
     with pytest.raises(ConfigError, match="segment"):
         ShootingOptions(segment=10.0, step=300.0)
 
@@ -136,7 +137,7 @@ def test_trajectory_validation():
 @pytest.mark.slow
 def test_long_arc_stays_in_band(model, eph):
     # 90 days (six revolutions) from another epoch and phase: still converged and in band
-    arc = ephemeris_halo_arc(model, parse_epoch("2030-05-01T00:00:00 UTC"), 90 * DAY_S,
+    arc = ephemeris_halo_arc(model, parse_epoch("2030-05-01T00:00:00 UTC"), 90 * DAY,
                              phase=0.25, cache_dir=False)
     r = arc.moon_range(eph)
     assert r.min() > 35_000 * KM and r.max() < 90_000 * KM

@@ -28,8 +28,6 @@ from numpy.typing import ArrayLike
 
 from starnav.atomic import atomic_path
 
-DAY_S = 86_400.0
-
 
 def _figure(nrows: int, ncols: int, size: tuple[float, float]):
     from matplotlib.backends.backend_agg import FigureCanvasAgg

@@ -44,6 +44,7 @@ from typing import TYPE_CHECKING, Any
 
 import yaml
 
+from starnav.config_base import apply_overrides, set_dotted
 from starnav.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -184,19 +185,6 @@ def parse_value(key: str, text: str) -> Any:
         raise ConfigError(f"--grid {key}", text, f"a number or a YAML value ({err})") from None
 
 
-def set_key(data: dict[str, Any], key: str, value: Any) -> None:
-    """Set the dotted ``key`` of a nested dict to ``value`` (creating sub-dicts)."""
-    node = data
-    parts = key.split(".")
-    for part in parts[:-1]:
-        nxt = node.get(part)
-        if not isinstance(nxt, dict):
-            nxt = {}
-            node[part] = nxt
-        node = nxt
-    node[parts[-1]] = copy.deepcopy(value)
-
-
 def parse_grid(items: Sequence[str | GridAxis]) -> list[GridAxis]:
     """Parse every ``--grid`` item; at least one axis, no key twice."""
     axes = [a if isinstance(a, GridAxis) else parse_axis(a) for a in items]
@@ -296,7 +284,7 @@ def expand(base: Scenario | dict[str, Any], axes: Sequence[GridAxis],
     ConfigError
         An unknown key (with suggestions) or a value the scenario rejects (named by key).
     """
-    from starnav.config import Scenario, apply_overrides, scenario_from_dict, scenario_to_dict
+    from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
 
     base_dict = scenario_to_dict(base) if isinstance(base, Scenario) else dict(base)
     base_dict = apply_overrides(base_dict, list(overrides))
@@ -311,7 +299,7 @@ def expand(base: Scenario | dict[str, Any], axes: Sequence[GridAxis],
             values.update(a.assignments(v))
         data = copy.deepcopy(base_dict)
         for k, v in values.items():
-            set_key(data, k, v)
+            set_dotted(data, k, copy.deepcopy(v))
         try:
             sc = scenario_from_dict(data)
         except ConfigError as err:

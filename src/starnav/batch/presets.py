@@ -31,7 +31,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from starnav.errors import UnknownNameError
+from starnav.registry import Registry
 
 #: The paper's four exposure times [s] (seed paper, "Validation of rendering pipeline").
 PAPER_EXPOSURES_S: tuple[float, ...] = (0.2, 7.7e-3, 1.8e-4, 1.5e-5)
@@ -250,16 +250,13 @@ class SweepPreset:
     runs: int
 
 
-PRESETS: dict[str, SweepPreset] = {
-    "exposure-study": SweepPreset(
+PRESETS: Registry[SweepPreset] = Registry("sweep preset", {p.name: p for p in (
+    SweepPreset(
         "exposure-study", "the paper's four exposures (200, 7.7, 0.18, 0.015 ms)",
         exposure_study_scenario, EXPOSURE_STUDY_GRID, 5),
-}
+)})
 
 
 def get_preset(name: str) -> SweepPreset:
     """The preset ``name``; an unknown name lists the known ones."""
-    try:
-        return PRESETS[name]
-    except KeyError:
-        raise UnknownNameError("sweep preset", name, list(PRESETS)) from None
+    return PRESETS.get(name)

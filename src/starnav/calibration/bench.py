@@ -67,7 +67,6 @@ from scipy import ndimage
 from scipy.interpolate import RectBivariateSpline
 
 from starnav.calibration.collimator import (
-    ARCSEC,
     SpotModel,
     StimulatorCondition,
     distort_tangent,
@@ -824,6 +823,6 @@ def angle_between(a: ArrayLike, b: ArrayLike) -> FloatArray:
     return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), (a * b).sum(-1))
 
 
-__all__ = ["ARCSEC", "Acquisition", "Bench", "BenchCheck", "BenchGeometry", "ChainDetector",
+__all__ = ["Acquisition", "Bench", "BenchCheck", "BenchGeometry", "ChainDetector",
            "DetectorFrame", "DetectorStage", "IdealDetector", "angle_between", "check_bench",
            "field_varying_blur", "splat"]

@@ -58,9 +58,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from starnav.calibration.schema import CollimatorConfig
+from starnav.constants import ARCSEC
 
 FloatArray = NDArray[np.float64]
-ARCSEC = math.pi / (180.0 * 3600.0)
 
 
 # --------------------------------------------------------------------------- eq. 2

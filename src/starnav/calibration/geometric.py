@@ -73,7 +73,6 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from starnav.calibration.bench import (
-    ARCSEC,
     Acquisition,
     Bench,
     BenchGeometry,
@@ -82,6 +81,7 @@ from starnav.calibration.bench import (
 )
 from starnav.calibration.screen import gaussian_dots
 from starnav.camera import Camera
+from starnav.constants import ARCSEC
 from starnav.errors import ConfigError, StarnavError
 
 log = logging.getLogger(__name__)

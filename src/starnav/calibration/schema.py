@@ -48,14 +48,10 @@ import numpy as np
 import yaml
 from pydantic import Field, ValidationError, field_validator, model_validator
 
-from starnav.config import Scenario, apply_overrides
-from starnav.config_base import StrictModel
+from starnav.config import Scenario
+from starnav.config_base import StrictModel, apply_overrides, format_validation_error
 from starnav.errors import ConfigError, DataFileError
-
-PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
-Fraction = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]
+from starnav.fields import FiniteFloat, NonNegativeFloat, PositiveFloat, PositiveFraction
 
 #: Luminous efficacy of radiation at 555 nm [lm/W] (CIE).
 KM_LM_PER_W = 683.0
@@ -203,7 +199,7 @@ class CollimatorConfig(StrictModel):
     """
 
     focal_length_mm: PositiveFloat = Field(180.0, description="f_coll [mm] (seed paper)")
-    transmission: Fraction = Field(
+    transmission: PositiveFraction = Field(
         0.96, description="transmission of the doublet [-] (representative, AR-coated)")
     nd_optical_density: NonNegativeFloat = Field(
         0.0, description="neutral-density filter in the beam, optical density [-] "
@@ -297,7 +293,7 @@ class GeometricCalibrationConfig(StrictModel):
         "[screen px]")
     holdout_fraction: Annotated[float, Field(ge=0, lt=0.9)] = Field(
         0.25, description="share of the dots kept out of the fit to measure its residual")
-    dot_peak_fraction: Fraction = Field(
+    dot_peak_fraction: PositiveFraction = Field(
         0.5, description="auto exposure: charge of the brightest dot pixel in a preview "
         "acquisition, as a fraction of the full well")
     exposure_ms: PositiveFloat | None = Field(None, description="dot exposure [ms]; null: auto")
@@ -315,7 +311,7 @@ class RadiometricConfig(StrictModel):
     quantization: Literal["dither", "nearest"] = Field(
         "dither", description="counts from radiance: nearest level, or random dithering between "
         "the two neighbouring levels (unbiased in radiance)")
-    headroom_fraction: Fraction = Field(
+    headroom_fraction: PositiveFraction = Field(
         0.9, description="the stimulus peak uses at most this fraction of the screen's "
         "maximum radiance")
     disc_margin_px: Annotated[int, Field(ge=0, le=64)] = Field(
@@ -375,20 +371,6 @@ class BenchConfig(StrictModel):
 
 
 # --------------------------------------------------------------------------- loading
-def _validation_error(err: ValidationError) -> ConfigError:
-    first = err.errors()[0]
-    field = ".".join(str(p) for p in first["loc"]) or "<root>"
-    value = first.get("input")
-    expected = first["msg"].removeprefix("Value error, ")
-    if first.get("type") == "missing":
-        value, expected = "<missing>", "a value (required key)"
-    elif isinstance(value, dict):
-        value = "{" + ", ".join(list(value)[:6]) + (", ..." if len(value) > 6 else "") + "}"
-    if len(err.errors()) > 1:
-        expected += f" (and {len(err.errors()) - 1} more problem(s))"
-    return ConfigError(field, value, expected)
-
-
 def bench_from_dict(data: dict[str, Any] | None, overrides: list[str] | tuple[str, ...] = (),
                     base_dir: str | os.PathLike[str] | None = None) -> BenchConfig:
     """Validate a bench mapping (plus ``a.b=value`` overrides).
@@ -419,7 +401,7 @@ def bench_from_dict(data: dict[str, Any] | None, overrides: list[str] | tuple[st
     try:
         return BenchConfig.model_validate(data)
     except ValidationError as err:
-        raise _validation_error(err) from None
+        raise format_validation_error(err) from None
 
 
 def load_bench(path: str | os.PathLike[str] | None,

@@ -12,21 +12,18 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from starnav.errors import UnknownNameError
+from starnav.registry import Registry
 from starnav.seeding import STAGE_HIL, generator
 
 if TYPE_CHECKING:  # pragma: no cover
     from starnav.calibration.schema import BenchConfig
 
 #: Purpose keys (never renumber: results depend on them).
-STREAMS = {"geometric": 1, "stimulus": 2, "radiometric": 3, "scaling": 4, "end_to_end": 5,
-           "placement": 6}
+STREAMS: Registry[int] = Registry("bench random stream", {
+    "geometric": 1, "stimulus": 2, "radiometric": 3, "scaling": 4, "end_to_end": 5,
+    "placement": 6})
 
 
 def bench_rng(cfg: BenchConfig, purpose: str) -> np.random.Generator:
     """The generator of ``purpose`` for a :class:`~starnav.calibration.schema.BenchConfig`."""
-    try:
-        key = STREAMS[purpose]
-    except KeyError:
-        raise UnknownNameError("bench random stream", purpose, list(STREAMS)) from None
-    return generator(int(cfg.seed), STAGE_HIL, key)
+    return generator(int(cfg.seed), STAGE_HIL, STREAMS.get(purpose))

@@ -10,8 +10,9 @@ from __future__ import annotations
 import json
 import logging
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 import yaml
@@ -22,6 +23,7 @@ from rich.table import Table
 from starnav import __version__
 from starnav.cli._output import console, fail
 from starnav.errors import StarnavError
+from starnav.registry import Registry
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="starnav: a star tracker as a navigation camera, from photons to "
@@ -82,7 +84,29 @@ def info() -> None:
     console.print(table)
 
 
-INIT_PRESETS = ("default", "exposure-study", "demo")
+def _default_preset() -> tuple[str, dict[str, Any]]:
+    from starnav.config import EXAMPLE_HEADER, Scenario, scenario_to_dict
+
+    return EXAMPLE_HEADER, scenario_to_dict(Scenario())
+
+
+def _exposure_study_preset() -> tuple[str, dict[str, Any]]:
+    from starnav.batch.presets import exposure_study_header, exposure_study_scenario
+
+    return exposure_study_header(), exposure_study_scenario()
+
+
+def _demo_preset() -> tuple[str, dict[str, Any]]:
+    from starnav.batch.presets import demo_scenario
+    from starnav.config import EXAMPLE_HEADER, scenario_from_dict, scenario_to_dict
+
+    header = EXAMPLE_HEADER + "# preset: the `make demo` scenario (a LUMIO arc)\n"
+    return header, scenario_to_dict(scenario_from_dict(demo_scenario()))
+
+
+#: Scenario presets of ``starnav init``: name -> () -> (commented header, scenario mapping).
+INIT_PRESETS: Registry[Callable[[], tuple[str, dict[str, Any]]]] = Registry("preset", {
+    "default": _default_preset, "exposure-study": _exposure_study_preset, "demo": _demo_preset})
 
 
 @app.command()
@@ -94,23 +118,14 @@ def init(
 ) -> None:
     """Write a commented example scenario (every key at its value for the preset)."""
     from starnav.atomic import atomic_write_text
-    from starnav.config import EXAMPLE_HEADER, Scenario, scenario_from_dict, scenario_to_dict
 
     if out.exists() and not force:
         _fail(StarnavError(f"{out} exists; use --force to overwrite"))
-    if preset == "default":
-        header, data = EXAMPLE_HEADER, scenario_to_dict(Scenario())
-    elif preset == "exposure-study":
-        from starnav.batch.presets import exposure_study_header, exposure_study_scenario
-
-        header, data = exposure_study_header(), exposure_study_scenario()
-    elif preset == "demo":
-        from starnav.batch.presets import demo_scenario
-
-        header = EXAMPLE_HEADER + "# preset: the `make demo` scenario (a LUMIO arc)\n"
-        data = scenario_to_dict(scenario_from_dict(demo_scenario()))
-    else:
-        _fail(StarnavError(f"unknown preset {preset!r}; known: {', '.join(INIT_PRESETS)}"))
+    try:
+        make = INIT_PRESETS.get(preset)
+    except StarnavError as err:  # UnknownNameError: lists the known presets
+        _fail(err)
+    header, data = make()
     atomic_write_text(out, header + yaml.safe_dump(data, sort_keys=False))
     console.print(f"wrote {out}")
 

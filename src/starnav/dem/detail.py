@@ -82,16 +82,17 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from starnav.cache import BoundedCache
 from starnav.dem.grid import HALF_PI, DemGrid, EquirectangularGrid
-from starnav.dem.procedural import _seed_sequence, gradient_noise_3d
+from starnav.dem.procedural import gradient_noise_3d
 from starnav.dem.schema import DetailConfig
+from starnav.seeding import WORLD_DETAIL, seed_u64
 
 logger = logging.getLogger(__name__)
 
@@ -302,7 +303,7 @@ class SubPostingDetail:
 
     def octave_seed(self, k: int) -> int:
         """Seed of octave ``k`` (its own ``SeedSequence`` stream)."""
-        return int(_seed_sequence(self.seed, 4, k).generate_state(1, np.uint64)[0])
+        return seed_u64(self.seed, WORLD_DETAIL, k)
 
     def weights(self, edge: FloatArray, n_octaves: int | None = None) -> FloatArray:
         """Octave weights ``(n, K)`` for vertex spacings ``edge`` [m]: 1 for ``lambda >= 2
@@ -372,8 +373,9 @@ def fit_beta(q: FloatArray, lags: FloatArray, hurst: float) -> float:
     return math.sqrt(max(b2, 0.0))
 
 
-_CACHE: OrderedDict[tuple[Any, ...], SubPostingDetail] = OrderedDict()
+#: Measured details kept in memory (per DEM and configuration).
 _CACHE_SIZE = 4
+_CACHE: BoundedCache[tuple[Any, ...], SubPostingDetail] = BoundedCache(_CACHE_SIZE)
 
 
 def sub_posting_detail(dem: DemGrid, cfg: DetailConfig | None = None
@@ -387,14 +389,7 @@ def sub_posting_detail(dem: DemGrid, cfg: DetailConfig | None = None
     if not cfg.enabled:
         return None
     key = ("detail", dem.uid, cfg.model_dump_json())
-    if key in _CACHE:
-        _CACHE.move_to_end(key)
-        return _CACHE[key]
-    d = _make(dem, cfg, key)
-    _CACHE[key] = d
-    while len(_CACHE) > _CACHE_SIZE:
-        _CACHE.popitem(last=False)
-    return d
+    return _CACHE.get_or_make(key, lambda: _make(dem, cfg, key))
 
 
 def _make(dem: DemGrid, cfg: DetailConfig, key: tuple[Any, ...]) -> SubPostingDetail:

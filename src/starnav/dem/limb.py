@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from starnav.cache import BoundedCache
 from starnav.constants import MOON_RADIUS
 from starnav.dem.grid import DemGrid, body_to_selenographic
 
@@ -141,7 +142,8 @@ def limb_topography(dem: DemGrid, n_views: int = 60, n_position_angles: int = 72
                           std_arc_local_m=tuple(arc_local), common_std_m=float(common.std()))
 
 
-_BY_CONFIG: dict[str, LimbTopography] = {}
+#: Statistics per DEM configuration (small records; a DEM is loaded to measure them).
+_BY_CONFIG: BoundedCache[str, LimbTopography] = BoundedCache(16)
 
 
 def limb_topography_for(dem_config: object) -> LimbTopography:
@@ -150,7 +152,4 @@ def limb_topography_for(dem_config: object) -> LimbTopography:
     from starnav.dem.load import as_dem_config, load_dem
 
     cfg = as_dem_config(dem_config)  # type: ignore[arg-type]
-    key = cfg.model_dump_json()
-    if key not in _BY_CONFIG:
-        _BY_CONFIG[key] = limb_topography(load_dem(cfg))
-    return _BY_CONFIG[key]
+    return _BY_CONFIG.get_or_make(cfg.model_dump_json(), lambda: limb_topography(load_dem(cfg)))

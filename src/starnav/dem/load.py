@@ -12,18 +12,21 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
+
+from starnav.cache import BoundedCache
+from starnav.config_base import format_validation_error
 from starnav.dem.grid import AlbedoGrid, DemGrid
 from starnav.dem.schema import AlbedoConfig, DemConfig
 
 logger = logging.getLogger(__name__)
 
-_CACHE: OrderedDict[tuple[Any, ...], DemGrid | AlbedoGrid] = OrderedDict()
 #: Grids kept in memory by :func:`load_dem` / :func:`load_albedo`.
 LOAD_CACHE_SIZE = 4
+_CACHE: BoundedCache[tuple[Any, ...], DemGrid | AlbedoGrid] = BoundedCache(LOAD_CACHE_SIZE)
 
 
 def _file_stamp(source: str) -> tuple[Any, ...]:
@@ -33,17 +36,6 @@ def _file_stamp(source: str) -> tuple[Any, ...]:
         return (str(p.resolve()), st.st_size, st.st_mtime_ns)
     except OSError:
         return (source,)
-
-
-def _cached(key: tuple[Any, ...], make: Any) -> Any:
-    if key in _CACHE:
-        _CACHE.move_to_end(key)
-        return _CACHE[key]
-    val = make()
-    _CACHE[key] = val
-    while len(_CACHE) > LOAD_CACHE_SIZE:
-        _CACHE.popitem(last=False)
-    return val
 
 
 #: Source names that stand for data shipped inside the package (``starnav.data``).
@@ -79,16 +71,10 @@ def as_dem_config(cfg: DemConfig | dict[str, Any] | None) -> DemConfig:
         return DemConfig()
     if isinstance(cfg, DemConfig):
         return cfg
-    from pydantic import ValidationError
-
-    from starnav.errors import ConfigError
-
     try:
         return DemConfig.model_validate(cfg)
     except ValidationError as err:
-        first = err.errors()[0]
-        field = "moon.dem." + ".".join(str(p) for p in first["loc"])
-        raise ConfigError(field, first.get("input"), first["msg"]) from None
+        raise format_validation_error(err, prefix="moon.dem") from None
 
 
 def load_dem(cfg: DemConfig | dict[str, Any] | None = None) -> DemGrid:
@@ -118,12 +104,12 @@ def load_dem(cfg: DemConfig | dict[str, Any] | None = None) -> DemGrid:
             g = procedural_moon(cfg.procedural, radius).dem
             return g.resampled(cfg.max_pixels_per_degree) if cfg.max_pixels_per_degree else g
 
-        return _cached(key, make)
+        return _CACHE.get_or_make(key, make)
     from starnav.dem.readers import read_dem
 
     path = packaged_source(cfg.source, "dem")
     key = ("dem", _file_stamp(path), cfg.model_dump_json(exclude={"albedo", "mesh"}))
-    return _cached(key, lambda: read_dem(path, cfg))
+    return _CACHE.get_or_make(key, lambda: read_dem(path, cfg))
 
 
 def load_albedo(cfg: DemConfig | AlbedoConfig | dict[str, Any] | None) -> AlbedoGrid | None:
@@ -175,9 +161,9 @@ def load_albedo(cfg: DemConfig | AlbedoConfig | dict[str, Any] | None) -> Albedo
                 g = g.resampled(acfg.max_pixels_per_degree)
             return g
 
-        return _cached(key, make)
+        return _CACHE.get_or_make(key, make)
     from starnav.dem.readers import read_albedo
 
     path = packaged_source(acfg.source, "albedo")
     key = ("albedo", _file_stamp(path), acfg.model_dump_json())
-    return _cached(key, lambda: read_albedo(path, acfg))
+    return _CACHE.get_or_make(key, lambda: read_albedo(path, acfg))

@@ -75,13 +75,13 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections import OrderedDict
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from starnav.cache import BoundedCache
 from starnav.camera import Camera
 from starnav.dem.grid import AlbedoGrid, DemGrid, EquirectangularGrid
 from starnav.errors import ConfigError, GeometryError
@@ -151,42 +151,13 @@ class MeshOptions:
         return cls(**cfg.model_dump())
 
 
-class MeshCache:
-    """A small LRU of meshes keyed by (DEM, albedo, level, cap, frustum)."""
-
-    def __init__(self, maxsize: int = 4) -> None:
-        self.maxsize = maxsize
-        self._d: OrderedDict[tuple[Any, ...], trimesh.Trimesh] = OrderedDict()
-        self.hits = 0
-        self.misses = 0
-
-    def get(self, key: tuple[Any, ...]) -> trimesh.Trimesh | None:
-        m = self._d.get(key)
-        if m is None:
-            self.misses += 1
-            return None
-        self.hits += 1
-        self._d.move_to_end(key)
-        return m
-
-    def put(self, key: tuple[Any, ...], mesh: trimesh.Trimesh) -> None:
-        if self.maxsize <= 0:
-            return
-        self._d[key] = mesh
-        self._d.move_to_end(key)
-        while len(self._d) > self.maxsize:
-            self._d.popitem(last=False)
-
-    def clear(self) -> None:
-        self._d.clear()
-        self.hits = self.misses = 0
-
-    def __len__(self) -> int:
-        return len(self._d)
+#: A small LRU of meshes keyed by (DEM, albedo, options, view, detail); ``maxsize <= 0`` keeps
+#: none, ``hits``/``misses`` count lookups (:class:`starnav.cache.BoundedCache`).
+MeshCache = BoundedCache
 
 
 #: The cache :func:`view_mesh` uses unless told otherwise.
-MESH_CACHE = MeshCache(4)
+MESH_CACHE: MeshCache[tuple[Any, ...], trimesh.Trimesh] = MeshCache(4)
 
 
 # ------------------------------------------------------------------------- geometry helpers

@@ -13,8 +13,8 @@ Technique
    equilibrium/highland slope (Melosh 1989, ch. 10; Neukum, Ivanov & Hartmann 2001 for the
    chronology that gives N1 = 0.03 km^-2 for ~3.9 Gyr highlands and 0.005 km^-2 for ~3.5 Gyr
    maria). Craters are drawn per diameter octave (0.5 km * 2^k), each octave from its own
-   ``SeedSequence`` stream, at uniform positions on the sphere, so a coarser grid just omits the
-   octaves below its smallest crater.
+   ``SeedSequence`` stream (:mod:`starnav.seeding`, under the world's seed), at uniform
+   positions on the sphere, so a coarser grid just omits the octaves below its smallest crater.
 2. **Morphology** (Pike 1977, "Size-dependence in the shape of fresh impact craters on the
    Moon", in *Impact and Explosion Cratering*, 489-509; Melosh 1989, *Impact Cratering*, ch. 8
    and 10): rim-crest-to-floor depth ``d = 0.196 D^1.010`` km for simple craters (used as
@@ -67,15 +67,16 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from starnav.cache import BoundedCache
 from starnav.constants import MOON_RADIUS
 from starnav.dem.grid import HALF_PI, AlbedoGrid, DemGrid
 from starnav.dem.schema import ProceduralDemConfig
+from starnav.seeding import WORLD_BASINS, WORLD_CRATERS, WORLD_FRACTAL, generator, seed_u64
 
 logger = logging.getLogger(__name__)
 
@@ -239,10 +240,6 @@ def power_law_slope_mle(d: FloatArray, d_lo: float, d_hi: float) -> float:
     return float(brentq(score, 1e-3, 20.0))
 
 
-def _seed_sequence(seed: int, *key: int) -> np.random.SeedSequence:
-    return np.random.SeedSequence(seed, spawn_key=tuple(key))
-
-
 def crater_catalogue(cfg: ProceduralDemConfig, d_min: float,
                      radius: float = MOON_RADIUS) -> CraterCatalogue:
     """Draw the crater population of the procedural Moon for diameters ``>= d_min`` [m].
@@ -266,7 +263,7 @@ def crater_catalogue(cfg: ProceduralDemConfig, d_min: float,
         k += 1
         if hi <= d_min:
             continue
-        rng = np.random.default_rng(_seed_sequence(cfg.seed, 1, k_id + 10_000))
+        rng = generator(cfg.seed, WORLD_CRATERS, k_id + 10_000)
         mean = n1 * area_km2 * ((lo / 1e3) ** -b - (hi / 1e3) ** -b)
         n = int(rng.poisson(mean))
         diam = sample_power_law(rng, n, lo, hi, b)
@@ -459,8 +456,7 @@ def fractal_field(shape: tuple[int, int], seed: int, key: int, wavelengths: Floa
             part = np.zeros(u.shape[:2])
             for k in ks:
                 lam = float(wavelengths[k])
-                s = int(_seed_sequence(seed, 3, key, round(math.log2(lam) * 64))
-                        .generate_state(1, np.uint64)[0])
+                s = seed_u64(seed, WORLD_FRACTAL, key, round(math.log2(lam) * 64))
                 part += (amplitudes[k] * norm) * value_noise_3d(u * (2.0 * radius / lam), s)
             acc[r0:r0 + block] += part.astype(np.float32)
     assert acc is not None
@@ -545,7 +541,7 @@ def mare_mask(shape: tuple[int, int], cfg: ProceduralDemConfig,
     # evaluate on a coarse grid (<= 0.5 deg) and resample: the mask is smooth
     c_lat = min(n_lat, 360)
     cs = (c_lat, 2 * c_lat)
-    rng = np.random.default_rng(_seed_sequence(cfg.seed, 2))
+    rng = generator(cfg.seed, WORLD_BASINS)
     n_basins = 28
     blat = np.radians(np.clip(rng.normal(8.0, 25.0, n_basins), -75.0, 75.0))
     blon = np.radians(rng.normal(0.0, 45.0, n_basins))
@@ -583,8 +579,9 @@ class ProceduralMoon:
     config: ProceduralDemConfig
 
 
-_CACHE: OrderedDict[tuple[str, float], ProceduralMoon] = OrderedDict()
+#: Procedural worlds kept in memory (each holds global grids of ``4 * 64800 * ppd^2`` bytes).
 _CACHE_SIZE = 2
+_CACHE: BoundedCache[tuple[str, float], ProceduralMoon] = BoundedCache(_CACHE_SIZE)
 
 
 def procedural_moon(cfg: ProceduralDemConfig | None = None,
@@ -606,14 +603,7 @@ def procedural_moon(cfg: ProceduralDemConfig | None = None,
     """
     cfg = cfg or ProceduralDemConfig()
     key = (cfg.model_dump_json(), float(radius))
-    if key in _CACHE:
-        _CACHE.move_to_end(key)
-        return _CACHE[key]
-    moon = _make_moon(cfg, radius)
-    _CACHE[key] = moon
-    while len(_CACHE) > _CACHE_SIZE:
-        _CACHE.popitem(last=False)
-    return moon
+    return _CACHE.get_or_make(key, lambda: _make_moon(cfg, radius))
 
 
 def _make_moon(cfg: ProceduralDemConfig, radius: float) -> ProceduralMoon:

@@ -58,7 +58,8 @@ from starnav.atomic import atomic_path
 from starnav.constants import MOON_RADIUS
 from starnav.dem.grid import AlbedoGrid, DemGrid, EquirectangularGrid, area_resample_blocks
 from starnav.dem.schema import AlbedoConfig, DemConfig
-from starnav.errors import ConfigError, DataFileError, UnknownNameError
+from starnav.errors import ConfigError, DataFileError
+from starnav.registry import Registry
 
 logger = logging.getLogger(__name__)
 
@@ -474,9 +475,7 @@ def read_dem(path: str | os.PathLike[str], cfg: DemConfig | None = None) -> DemG
     p = Path(path)
     cfg = cfg or DemConfig(source=str(p))
     fmt = cfg.format if cfg.format != "auto" else detect_format(p)
-    if fmt not in DEM_READERS:
-        raise UnknownNameError("DEM format", fmt, list(DEM_READERS))
-    grid = DEM_READERS[fmt](p, cfg)
+    grid = DEM_READERS.get(fmt)(p, cfg)
     logger.info("read %s (%s): %r, heights %.1f..%.1f m", p.name, fmt, grid,
                 *grid.height_range)
     return grid
@@ -562,12 +561,12 @@ def _npy_reader(p: Path, cfg: DemConfig) -> DemGrid:
 
 
 #: DEM readers by format name.
-DEM_READERS: dict[str, Callable[[Path, DemConfig], DemGrid]] = {
+DEM_READERS: Registry[Callable[[Path, DemConfig], DemGrid]] = Registry("DEM format", {
     "pds3": _pds3_reader,
     "geotiff": _geotiff_reader,
     "svs-geotiff": lambda p, cfg: _geotiff_reader(p, cfg, svs=True),
     "npy": _npy_reader,
-}
+})
 
 
 def detect_format(path: Path) -> str:
@@ -644,6 +643,47 @@ def read_albedo(path: str | os.PathLike[str], cfg: AlbedoConfig | None = None) -
     return g
 
 
+#: ``f(x, dtype, file_scale, file_offset, cfg, balance, path)``: albedo from raw values ``x``.
+AlbedoDecoder = Callable[[NDArray[np.float32], str, float, float, AlbedoConfig, float, Path],
+                         NDArray[np.float32]]
+
+#: Albedo decodings by name (``AlbedoConfig.decoding``; ``auto`` picks one by data type).
+ALBEDO_DECODERS: Registry[AlbedoDecoder] = Registry("albedo decoding")
+
+
+@ALBEDO_DECODERS.register("svs-8bit")
+def _decode_svs_8bit(x: NDArray[np.float32], dtype: str, file_scale: float, file_offset: float,
+                     cfg: AlbedoConfig, balance: float, p: Path) -> NDArray[np.float32]:
+    if np.dtype(dtype) != np.uint8:
+        raise DemFileError(f"{p.name}: data type", dtype, "8-bit values for svs-8bit")
+    lo, hi = cfg.domain
+    enc = (lo + (hi - lo) * (x / np.float32(255.0))) / np.float32(balance)
+    return np.power(enc, np.float32(cfg.gamma)).astype(np.float32)
+
+
+@ALBEDO_DECODERS.register("linear")
+def _decode_linear(x: NDArray[np.float32], dtype: str, file_scale: float, file_offset: float,
+                   cfg: AlbedoConfig, balance: float, p: Path) -> NDArray[np.float32]:
+    dt = np.dtype(dtype)
+    scale, offset = cfg.scale, cfg.offset
+    if scale is None:
+        if file_scale != 1.0 or file_offset != 0.0:
+            scale, offset = file_scale, (file_offset if offset is None else offset)
+        elif np.issubdtype(dt, np.unsignedinteger):
+            scale = 1.0 / float(np.iinfo(dt).max)
+        else:
+            raise DemFileError(f"{p.name}: albedo.scale", None,
+                               f"an explicit scale for {dtype} values")
+    return x * np.float32(scale) + np.float32(offset or 0.0)
+
+
+@ALBEDO_DECODERS.register("reflectance")
+def _decode_reflectance(x: NDArray[np.float32], dtype: str, file_scale: float,
+                        file_offset: float, cfg: AlbedoConfig, balance: float,
+                        p: Path) -> NDArray[np.float32]:
+    return x * np.float32(file_scale) + np.float32(file_offset)
+
+
 def _decode_albedo(raw: NDArray[Any], dtype: str, file_scale: float, file_offset: float,
                    cfg: AlbedoConfig, balance: float, p: Path) -> NDArray[np.float32]:
     dt = np.dtype(dtype)
@@ -651,27 +691,9 @@ def _decode_albedo(raw: NDArray[Any], dtype: str, file_scale: float, file_offset
     if dec == "auto":
         dec = ("svs-8bit" if dt == np.uint8 else
                "linear" if np.issubdtype(dt, np.integer) else "reflectance")
-    x = raw.astype(np.float32, copy=False)
-    if dec == "svs-8bit":
-        if dt != np.uint8:
-            raise DemFileError(f"{p.name}: data type", dtype, "8-bit values for svs-8bit")
-        lo, hi = cfg.domain
-        enc = (lo + (hi - lo) * (x / np.float32(255.0))) / np.float32(balance)
-        return np.power(enc, np.float32(cfg.gamma)).astype(np.float32)
-    if dec == "linear":
-        scale, offset = cfg.scale, cfg.offset
-        if scale is None:
-            if file_scale != 1.0 or file_offset != 0.0:
-                scale, offset = file_scale, (file_offset if offset is None else offset)
-            elif np.issubdtype(dt, np.unsignedinteger):
-                scale = 1.0 / float(np.iinfo(dt).max)
-            else:
-                raise DemFileError(f"{p.name}: albedo.scale", None,
-                                   f"an explicit scale for {dtype} values")
-        return x * np.float32(scale) + np.float32(offset or 0.0)
-    if dec == "reflectance":
-        return x * np.float32(file_scale) + np.float32(file_offset)
-    raise UnknownNameError("albedo decoding", dec, ["svs-8bit", "linear", "reflectance"])
+    decode = ALBEDO_DECODERS.get(dec)
+    return decode(raw.astype(np.float32, copy=False), dtype, file_scale, file_offset, cfg,
+                  balance, p)
 
 
 def encode_svs_8bit(r: NDArray[np.floating[Any]], gamma: float = 2.8,

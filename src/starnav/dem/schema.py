@@ -32,11 +32,8 @@ from typing import Annotated, Literal
 from pydantic import Field, field_validator, model_validator
 
 from starnav.config_base import StrictModel
+from starnav.fields import NonNegativeFloat, PositiveFloat, UnitInterval
 from starnav.lunar_calibration import lunar_calibration
-
-PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-Fraction = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
 
 #: Names accepted by ``DemConfig.format`` (``auto`` guesses from the file name and contents).
 DEM_FORMATS = ("auto", "pds3", "geotiff", "svs-geotiff", "npy")
@@ -98,7 +95,7 @@ class ProceduralDemConfig(StrictModel):
     roughness_max_wavelength_km: PositiveFloat = Field(
         150.0, description="longest roughness wavelength [km]"
     )
-    mare_fraction: Fraction = Field(
+    mare_fraction: UnitInterval = Field(
         0.16, description="fraction of the surface covered by maria [-] (Moon: ~16 %)"
     )
     mare_depth_m: NonNegativeFloat = Field(
@@ -106,7 +103,7 @@ class ProceduralDemConfig(StrictModel):
     )
     highland_albedo: NonNegativeFloat = Field(0.14, description="highland albedo [-]")
     mare_albedo: NonNegativeFloat = Field(0.07, description="mare albedo [-]")
-    albedo_noise: Fraction = Field(
+    albedo_noise: UnitInterval = Field(
         0.08, description="relative RMS of the albedo texture [-]"
     )
     fresh_ejecta_brightening: NonNegativeFloat = Field(

@@ -55,7 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from starnav.errors import UnknownNameError
+from starnav.registry import Registry
 
 logger = logging.getLogger(__name__)
 
@@ -89,15 +89,12 @@ class BloomResult:
 BloomFunction = Callable[[Float32Array, float, float, int], BloomResult]
 
 #: Blooming modes by name: ``f(charge, full_well, spill_fraction, max_margin) -> BloomResult``.
-BLOOMING_MODES: dict[str, BloomFunction] = {}
+BLOOMING_MODES: Registry[BloomFunction] = Registry("blooming mode")
 
 
 def register_blooming_mode(name: str) -> Callable[[BloomFunction], BloomFunction]:
     """Decorator registering a blooming mode under ``name``."""
-    def deco(fn: BloomFunction) -> BloomFunction:
-        BLOOMING_MODES[name] = fn
-        return fn
-    return deco
+    return BLOOMING_MODES.register(name)
 
 
 def bloom(charge: Float32Array, full_well: float, mode: str = "isotropic",
@@ -117,10 +114,7 @@ def bloom(charge: Float32Array, full_well: float, mode: str = "isotropic",
     max_margin : int
         Virtual pixels followed outside the array [px].
     """
-    try:
-        fn = BLOOMING_MODES[mode]
-    except KeyError:
-        raise UnknownNameError("blooming mode", mode, list(BLOOMING_MODES)) from None
+    fn = BLOOMING_MODES.get(mode)
     return fn(charge, float(full_well), float(spill_fraction), int(max_margin))
 
 

@@ -79,8 +79,9 @@ from starnav.detector import blooming, charge, crosstalk, optics, readout, smear
 from starnav.detector.products import Segments, Window
 from starnav.detector.schema import DetectorConfig, WindowSpec
 from starnav.detector.seeding import temporal_rng
-from starnav.errors import ConfigError, UnknownNameError
+from starnav.errors import ConfigError
 from starnav.radiance import RadianceImage
+from starnav.registry import Registry
 
 logger = logging.getLogger(__name__)
 
@@ -259,7 +260,7 @@ def _always(cfg: DetectorConfig, cam: Camera) -> bool:
 
 
 #: Every effect by name.
-EFFECTS: dict[str, Effect] = {e.name: e for e in (
+EFFECTS: Registry[Effect] = Registry("detector effect", {e.name: e for e in (
     Effect("photoelectrons", "photons", "t A Omega Le [cos^4]", _always, _photoelectrons),
     Effect("aberration_psf", "photons", "field-varying defocus + aberration PSF",
            lambda c, cam: c.optics.aberration.enabled, _aberration),
@@ -294,10 +295,10 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect("read_noise", "signal", "Gaussian read noise",
            lambda c, cam: c.signal.read_noise.enabled and c.signal.read_noise.sigma_e > 0,
            _read_noise),
-)}
+)})
 
 #: Fixed stage orders by name (module essay).
-CHAIN_ORDERS: dict[str, tuple[str, ...]] = {
+CHAIN_ORDERS: Registry[tuple[str, ...]] = Registry("detector chain order", {
     "physical": ("photoelectrons", "aberration_psf", "distortion", "rolling_shutter",
                  "stray_light", "ghosts", "transfer_smear", "prnu", "dark_current",
                  "shot_noise", "saturation", "ipc", "electrical_crosstalk", "nonlinearity",
@@ -305,23 +306,17 @@ CHAIN_ORDERS: dict[str, tuple[str, ...]] = {
     "paper": ("photoelectrons", "aberration_psf", "stray_light", "ghosts", "rolling_shutter",
               "transfer_smear", "saturation", "distortion", "prnu", "dark_current",
               "shot_noise", "ipc", "electrical_crosstalk", "nonlinearity", "read_noise"),
-}
+})
 
 
 def get_effect(name: str) -> Effect:
     """The effect registered as ``name``."""
-    try:
-        return EFFECTS[name]
-    except KeyError:
-        raise UnknownNameError("detector effect", name, list(EFFECTS)) from None
+    return EFFECTS.get(name)
 
 
 def chain_order(name: str) -> tuple[str, ...]:
     """The effect names of order ``name`` (``physical`` or ``paper``)."""
-    try:
-        return CHAIN_ORDERS[name]
-    except KeyError:
-        raise UnknownNameError("detector chain order", name, list(CHAIN_ORDERS)) from None
+    return CHAIN_ORDERS.get(name)
 
 
 # =========================================================================== result

@@ -10,11 +10,12 @@ spectra from the cache.
 from __future__ import annotations
 
 import logging
-from collections import OrderedDict
 from collections.abc import Hashable
 
 import numpy as np
 from numpy.typing import NDArray
+
+from starnav.cache import BoundedCache
 
 logger = logging.getLogger(__name__)
 
@@ -27,7 +28,8 @@ SPECTRUM_CACHE_SIZE = 256
 #: Worker threads handed to scipy.fft (the budget machine has 2 cores).
 FFT_WORKERS = 2
 
-_SPECTRA: OrderedDict[tuple[Hashable, tuple[int, int]], NDArray[np.complex64]] = OrderedDict()
+_SPECTRA: BoundedCache[tuple[Hashable, tuple[int, int]], NDArray[np.complex64]] = BoundedCache(
+    SPECTRUM_CACHE_SIZE)
 
 
 def fft_shape(n_rows: int, n_cols: int) -> tuple[int, int]:
@@ -45,18 +47,12 @@ def kernel_spectrum(kernel: Float32Array, shape: tuple[int, int],
     """``rfft2`` of ``kernel`` zero-padded to ``shape``, from the cache when ``key`` is given."""
     import scipy.fft as sfft
 
-    if key is not None:
-        ck = (key, shape)
-        hit = _SPECTRA.get(ck)
-        if hit is not None:
-            _SPECTRA.move_to_end(ck)
-            return hit
-    spec = sfft.rfft2(np.asarray(kernel, dtype=np.float32), s=shape, workers=FFT_WORKERS)
-    if key is not None:
-        _SPECTRA[ck] = spec
-        if len(_SPECTRA) > SPECTRUM_CACHE_SIZE:
-            _SPECTRA.popitem(last=False)
-    return spec
+    def make() -> NDArray[np.complex64]:
+        return sfft.rfft2(np.asarray(kernel, dtype=np.float32), s=shape, workers=FFT_WORKERS)
+
+    if key is None:
+        return make()
+    return _SPECTRA.get_or_make((key, shape), make)
 
 
 def clear_cache() -> None:

@@ -17,11 +17,8 @@ from pydantic import Field, field_validator, model_validator
 
 from starnav.config_base import StrictModel
 from starnav.detector.products import MAX_WINDOWS
-
-PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-Fraction = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+from starnav.errors import UnknownNameError
+from starnav.fields import FiniteFloat, NonNegativeFloat, PositiveFloat, UnitInterval
 
 #: ADC gain default: full well / (2^12 - 1) = 100 000 / 4095 [e-/DN] (REFERENCE.md s1).
 DEFAULT_FULL_WELL_E = 100_000.0
@@ -85,7 +82,7 @@ class StrayLightConfig(StrictModel):
     disc (the paper's "severe saturation")."""
 
     enabled: bool = True
-    total_integrated_scatter: Fraction = Field(
+    total_integrated_scatter: UnitInterval = Field(
         0.005, description="fraction of the light scattered into the halo [-] (assumption)")
     harvey_slope: FiniteFloat = Field(
         -2.0, description="log-log slope of the halo far from the core [-] (assumption)")
@@ -107,7 +104,7 @@ class GhostConfig(StrictModel):
     principal point; then blurred by a disc of ``defocus_radius_px``; it carries ``weight`` of
     the light (taken from the direct image)."""
 
-    weight: Fraction = Field(5e-4, description="fraction of the light in this ghost [-]")
+    weight: UnitInterval = Field(5e-4, description="fraction of the light in this ghost [-]")
     magnification: FiniteFloat = Field(
         -1.0, description="linear magnification about the principal point [-] (-1: inverted)")
     defocus_radius_px: NonNegativeFloat = Field(40.0, description="defocus disc radius [px]")
@@ -181,8 +178,8 @@ class PrnuConfig(StrictModel):
     """Photo-response non-uniformity: a frozen per-sensor gain map 1 + sigma N(0, 1)."""
 
     enabled: bool = True
-    sigma_fraction: Fraction = Field(0.02, description="PRNU rms [-] (ABRAM default 2 %, "
-                                     "REFERENCE.md s1, low trust)")
+    sigma_fraction: UnitInterval = Field(0.02, description="PRNU rms [-] (ABRAM default 2 %, "
+                                         "REFERENCE.md s1, low trust)")
 
 
 class DarkCurrentConfig(StrictModel):
@@ -193,7 +190,7 @@ class DarkCurrentConfig(StrictModel):
     rate_e_per_s: NonNegativeFloat = Field(
         590.0, description="mean dark current at the reference temperature [e-/s/px] "
         "(ABRAM default, REFERENCE.md s1, low trust)")
-    dsnu_fraction: Fraction = Field(
+    dsnu_fraction: UnitInterval = Field(
         0.013, description="dark-signal non-uniformity rms, relative to the mean [-] "
         "(ABRAM 1.3 %, REFERENCE.md s1)")
     temperature_c: FiniteFloat = Field(20.0, description="detector temperature [degC]")
@@ -202,7 +199,7 @@ class DarkCurrentConfig(StrictModel):
     doubling_temperature_k: PositiveFloat = Field(
         7.0, description="temperature rise that doubles the dark current [K] (assumption, "
         "typical silicon APS 6-8 K)")
-    hot_pixel_fraction: Fraction = Field(
+    hot_pixel_fraction: UnitInterval = Field(
         1e-4, description="fraction of hot pixels [-] (assumption: radiation-induced, ~100 px)")
     hot_pixel_factor: Annotated[float, Field(ge=1, allow_inf_nan=False)] = Field(
         100.0, description="hot-pixel dark current / mean dark current [-] (assumption)")
@@ -233,7 +230,7 @@ class BloomingConfig(StrictModel):
 
     enabled: bool = True
     mode: str = Field("isotropic", description="blooming mode name")
-    spill_fraction: Fraction = Field(
+    spill_fraction: UnitInterval = Field(
         5e-4, description="fraction of the excess charge that spills into neighbours [-] "
         "(assumption, tuned to the paper: a few-px halo at the 7.7 ms case and one far past "
         "the disc at 200 ms; REFERENCE.md s1 says do not assume a perfect anti-blooming)")
@@ -246,10 +243,10 @@ class BloomingConfig(StrictModel):
     def _known_mode(cls, v: str) -> str:
         from starnav.detector.blooming import BLOOMING_MODES
 
-        if v not in BLOOMING_MODES:
-            known = ", ".join(sorted(BLOOMING_MODES))
-            raise ValueError(f"unknown blooming mode {v!r}; known: {known}")
-        return v
+        try:
+            return BLOOMING_MODES.check(v)
+        except UnknownNameError as err:  # a KeyError: pydantic reports ValueErrors only
+            raise ValueError(str(err)) from None
 
 
 class SaturationConfig(StrictModel):
@@ -284,7 +281,7 @@ class ElectricalCrosstalkConfig(StrictModel):
     enabled: bool = True
     row_coefficient: FiniteFloat = Field(2e-5, description="row coupling per pixel [-]")
     column_coefficient: FiniteFloat = Field(0.0, description="column coupling per pixel [-]")
-    threshold_fraction: Fraction = Field(
+    threshold_fraction: UnitInterval = Field(
         0.9, description="pixels above this fraction of full well drive the crosstalk [-]")
 
 

@@ -26,17 +26,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from starnav.errors import ConfigError, UnknownNameError
+from starnav.errors import ConfigError
+from starnav.registry import Registry
 from starnav.seeding import STAGE_DETECTOR_FIXED, STAGE_DETECTOR_TEMPORAL, generator
 
 #: Stable stream number of every stochastic effect. Append only: never renumber.
-EFFECT_STREAMS: dict[str, int] = {
+EFFECT_STREAMS: Registry[int] = Registry("random stream", {
     "prnu": 1,
     "dark_current": 2,
     "hot_pixels": 3,
     "shot_noise": 10,
     "read_noise": 11,
-}
+})
 
 
 
@@ -44,13 +45,6 @@ def _check_seed(name: str, seed: int) -> int:
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ConfigError(name, seed, "a non-negative integer")
     return int(seed)
-
-
-def _stream(effect: str) -> int:
-    try:
-        return EFFECT_STREAMS[effect]
-    except KeyError:
-        raise UnknownNameError("random stream", effect, list(EFFECT_STREAMS)) from None
 
 
 def fixed_pattern_rng(sensor_seed: int, effect: str) -> np.random.Generator:
@@ -64,11 +58,11 @@ def fixed_pattern_rng(sensor_seed: int, effect: str) -> np.random.Generator:
         Name in :data:`EFFECT_STREAMS` (``prnu``, ``dark_current``, ``hot_pixels``).
     """
     seed = _check_seed("sensor_seed", sensor_seed)
-    return generator(seed, STAGE_DETECTOR_FIXED, _stream(effect))
+    return generator(seed, STAGE_DETECTOR_FIXED, EFFECT_STREAMS.get(effect))
 
 
 def temporal_rng(seed: int, frame_index: int, effect: str) -> np.random.Generator:
     """Generator of the temporal noise ``effect`` of frame ``frame_index`` of dataset ``seed``."""
     s = _check_seed("seed", seed)
     f = _check_seed("frame_index", frame_index)
-    return generator(s, STAGE_DETECTOR_TEMPORAL, f, _stream(effect))
+    return generator(s, STAGE_DETECTOR_TEMPORAL, f, EFFECT_STREAMS.get(effect))

@@ -85,15 +85,17 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from starnav.errors import ConfigError, UnknownNameError
+from starnav.constants import DAY
+from starnav.errors import ConfigError
 from starnav.navigation.dynamics import Dynamics, MoonEphemeris
+from starnav.registry import Registry
 
 FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
 
 #: Number of bias states of each bias model.
-BIAS_MODELS: dict[str, int] = {"none": 0, "additive": 3, "range-scale": 1,
-                               "range-scale+additive": 4, "limb-common": 3}
+BIAS_MODELS: Registry[int] = Registry("bias model", {
+    "none": 0, "additive": 3, "range-scale": 1, "range-scale+additive": 4, "limb-common": 3})
 
 
 @dataclass(frozen=True)
@@ -103,15 +105,14 @@ class EkfOptions:
     bias_model: str = "none"
     bias_sigma_m: float = 0.0
     range_scale_sigma: float = 0.0
-    bias_tau_s: float = 86_400.0
+    bias_tau_s: float = DAY
     accel_psd_m2_s3: float = 0.0
     gate_probability: float | None = 0.9999
     max_consecutive_rejections: int = 5
     common_covariance: tuple[tuple[float, float, float], ...] | None = None
 
     def __post_init__(self) -> None:
-        if self.bias_model not in BIAS_MODELS:
-            raise UnknownNameError("bias model", self.bias_model, list(BIAS_MODELS))
+        BIAS_MODELS.check(self.bias_model)
         if self.bias_model == "limb-common":
             C = np.asarray(self.common_covariance if self.common_covariance is not None
                            else np.zeros((3, 3)), float)
@@ -226,7 +227,8 @@ def measurement_model(x: ArrayLike, moon_position: ArrayLike, bias_model: str,
         G = np.asarray(common_jacobian, float)
         H[:, 6:9] = G
         return m + G @ x[6:9], H
-    raise UnknownNameError("bias model", bias_model, list(BIAS_MODELS))
+    BIAS_MODELS.check(bias_model)  # an unknown name: UnknownNameError listing the known ones
+    raise AssertionError(f"bias model {bias_model!r} has no measurement model")
 
 
 @dataclass(frozen=True)

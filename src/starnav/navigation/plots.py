@@ -27,12 +27,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from starnav.atomic import atomic_path
+from starnav.constants import DAY
 from starnav.navigation.metrics import ErrorSummary, chi2_band, error_pdf
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
-
-DAY_S = 86_400.0
 
 
 def _figure(nrows: int = 1, ncols: int = 1, size: tuple[float, float] = (7.0, 4.0)):
@@ -87,7 +86,7 @@ def plot_state_errors(epochs: ArrayLike, errors: ArrayLike, sigma3: ArrayLike,
     mc_errors : sequence of (K, 6) arrays
         Monte Carlo runs, drawn in grey.
     """
-    t = (np.asarray(epochs, float) - float(np.asarray(epochs)[0])) / DAY_S
+    t = (np.asarray(epochs, float) - float(np.asarray(epochs)[0])) / DAY
     sl, scale, unit = (slice(0, 3), 1e-3, "km") if kind == "position" else \
         (slice(3, 6), 1.0, "m/s")
     e = np.asarray(errors, float)[:, sl] * scale
@@ -113,7 +112,7 @@ def plot_state_errors(epochs: ArrayLike, errors: ArrayLike, sigma3: ArrayLike,
 def plot_consistency(epochs: ArrayLike, nees_values: ArrayLike, nis_values: ArrayLike,
                      path: str | os.PathLike[str], runs: int = 1) -> Path:
     """NEES (6 dof) and NIS (3 dof), averaged over ``runs``, with their 95 % bands."""
-    t = (np.asarray(epochs, float) - float(np.asarray(epochs)[0])) / DAY_S
+    t = (np.asarray(epochs, float) - float(np.asarray(epochs)[0])) / DAY
     fig, ax = _figure(2, 1, (7.0, 5.0))
     for a, v, dof, name in ((ax[0, 0], nees_values, 6, "NEES"), (ax[1, 0], nis_values, 3, "NIS")):
         v = np.asarray(v, float)

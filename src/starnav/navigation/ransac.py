@@ -66,7 +66,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from starnav.camera import Camera
-from starnav.errors import ConfigError, StarnavError, UnknownNameError
+from starnav.errors import ConfigError, StarnavError
 from starnav.navigation.christian_robinson import (
     ChristianRobinsonOptions,
     cone_residual_px,
@@ -74,6 +74,7 @@ from starnav.navigation.christian_robinson import (
     shape_transform,
 )
 from starnav.navigation.limb import fit_circle_kasa
+from starnav.registry import Registry
 
 FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
@@ -96,8 +97,7 @@ class RansacOptions:
     min_inlier_fraction: float = 0.3
 
     def __post_init__(self) -> None:
-        if self.model not in RANSAC_MODELS:
-            raise UnknownNameError("RANSAC model", self.model, list(RANSAC_MODELS))
+        RANSAC_MODELS.check(self.model)
         if not (self.threshold_px > 0 and math.isfinite(self.threshold_px)):
             raise ConfigError("ransac.threshold_px", self.threshold_px, "a finite value > 0 px")
         if self.max_iterations < 1 or self.batch < 1:
@@ -198,10 +198,10 @@ class _ChristianRobinsonModel:
 
 
 #: Registry of RANSAC models by name.
-RANSAC_MODELS: dict[str, Callable[..., object]] = {
+RANSAC_MODELS: Registry[Callable[..., object]] = Registry("RANSAC model", {
     "circle": _CircleModel,
     "christian-robinson": _ChristianRobinsonModel,
-}
+})
 
 
 def ransac_limb(

@@ -113,8 +113,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from starnav.dem.limb import LimbTopography
 from starnav.detector.products import MAX_WINDOWS, Window
-from starnav.errors import ConfigError, UnknownNameError
+from starnav.errors import ConfigError
 from starnav.navigation.limb import LimbNotFoundError, LimbPoints
+from starnav.registry import Registry
 
 FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
@@ -245,8 +246,7 @@ class RefineOptions:
             raise ConfigError("refine.n_windows", self.n_windows, f"1..{MAX_WINDOWS} windows")
         if self.size_px < 5:
             raise ConfigError("refine.size_px", self.size_px, "a window side >= 5 px")
-        if self.edge_model not in EDGE_MODELS:
-            raise UnknownNameError("edge model", self.edge_model, list(EDGE_MODELS))
+        EDGE_MODELS.check(self.edge_model)
         if self.psf_sigma_px is not None and not (self.psf_sigma_px >= 0
                                                   and math.isfinite(self.psf_sigma_px)):
             raise ConfigError("refine.psf_sigma_px", self.psf_sigma_px, "None or >= 0 px")
@@ -313,11 +313,11 @@ def f_nu(nu: float, t: FloatArray) -> FloatArray:
 #: Registry of edge models: name -> exponents ``nu`` of the inward-distance terms (Gaussian
 #: blur of fitted or given width); ``detector-psf`` blurs a step and a ramp (``nu`` 0 and 1) by
 #: the detector's own line spread function (:class:`EdgeSpread`).
-EDGE_MODELS: dict[str, tuple[float, ...]] = {
+EDGE_MODELS: Registry[tuple[float, ...]] = Registry("edge model", {
     "blurred-limb": (0.0, 1.0, 0.5),
     "blurred-step": (0.0, 1.0),
     "detector-psf": (0.0, 1.0),
-}
+})
 
 #: Sampling of the tabulated edge bases [px]: spacing and half-width.
 _EDGE_TABLE_STEP = 0.02

@@ -25,15 +25,13 @@ from numpy.typing import NDArray
 from pydantic import Field
 
 from starnav.config_base import StrictModel
+from starnav.constants import ARCSEC, DAY
+from starnav.fields import NonNegativeFloat, PositiveFloat
 
 if TYPE_CHECKING:
     from starnav.navigation.ekf import EkfOptions
     from starnav.navigation.pipeline import ChainOptions
 
-PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-ARCSEC = math.pi / (180.0 * 3600.0)
-DAY_S = 86_400.0
 
 
 class LimbConfig(StrictModel):
@@ -255,7 +253,7 @@ class NavigationConfig(StrictModel):
         return EkfOptions(bias_model=f.bias_model, bias_sigma_m=f.bias_sigma_km * 1e3,
                           common_covariance=common,
                           range_scale_sigma=f.range_scale_sigma,
-                          bias_tau_s=f.bias_tau_days * DAY_S,
+                          bias_tau_s=f.bias_tau_days * DAY,
                           accel_psd_m2_s3=f.accel_psd_m2_s3,
                           gate_probability=f.gate_probability,
                           max_consecutive_rejections=f.max_consecutive_rejections)

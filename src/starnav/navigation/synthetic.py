@@ -37,20 +37,31 @@ True
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from starnav.camera import Camera
 from starnav.detector.products import Segments
-from starnav.errors import UnknownNameError
 from starnav.geometry import FrameGeometry
+from starnav.registry import Registry
 
 FloatArray = NDArray[np.float64]
 
-#: Photometric laws known to :func:`draw_moon`.
-SHADING_LAWS = ("lambert", "lommel-seeliger")
+def _lambert(mu0: FloatArray, nrm: FloatArray, ray: FloatArray) -> FloatArray:
+    return np.maximum(mu0, 0.0)
+
+
+def _lommel_seeliger(mu0: FloatArray, nrm: FloatArray, ray: FloatArray) -> FloatArray:
+    mu = np.maximum(-(nrm * ray).sum(-1), 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(mu0 > 0, mu0 / (mu0 + mu), 0.0)
+
+
+#: Photometric laws known to :func:`draw_moon`: ``f(mu0, normal, ray)``, the relative radiance.
+SHADING_LAWS: Registry[Callable[[FloatArray, FloatArray, FloatArray], FloatArray]] = Registry(
+    "shading law", {"lambert": _lambert, "lommel-seeliger": _lommel_seeliger})
 
 
 def draw_moon(
@@ -92,8 +103,7 @@ def draw_moon(
     -------
     (height, width) uint16 array
     """
-    if shading not in SHADING_LAWS:
-        raise UnknownNameError("shading law", shading, SHADING_LAWS)
+    law = SHADING_LAWS.get(shading)
     from scipy.ndimage import gaussian_filter
 
     H, W = camera.height, camera.width
@@ -124,12 +134,7 @@ def draw_moon(
                 X = ray * t[..., None]
                 nrm = (X - c) / R
                 mu0 = nrm @ s
-                if shading == "lambert":
-                    val = np.maximum(mu0, 0.0)
-                else:
-                    mu = np.maximum(-(nrm * ray).sum(-1), 0.0)
-                    with np.errstate(invalid="ignore", divide="ignore"):
-                        val = np.where(mu0 > 0, mu0 / (mu0 + mu), 0.0)
+                val = law(mu0, nrm, ray)
                 acc += np.where(hit, val, 0.0)
         img[v0:v1 + 1, u0:u1 + 1] = acc / (S * S)
     if psf_sigma_px > 0:

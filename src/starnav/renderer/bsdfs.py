@@ -20,28 +20,27 @@ the ROLO-derived lunar reddening by default, see :mod:`starnav.lunar_calibration
 model, which is what the albedo-exposure scaling needs).
 
 Plugins are registered by name with :func:`register_plugins`, which must be called again after
-every variant switch (``backend.activate`` does it).
+every variant switch (``backend.activate`` does it). There is one plugin per model of
+:data:`starnav.photometry.PHOTOMETRIC_MODELS`, named ``starnav_<model>``.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import drjit as dr
 import mitsuba as mi
 
-from starnav.photometry import HAPKE_LUNAR_DEFAULTS, LUNAR_LAMBERT_COEFFS
+from starnav.photometry import HAPKE_LUNAR_DEFAULTS, LUNAR_LAMBERT_COEFFS, PHOTOMETRIC_MODELS
+from starnav.registry import Registry
 
 INV_PI = 1.0 / math.pi
 INV_FOUR_PI = 1.0 / (4.0 * math.pi)
 
-#: Mitsuba plugin name for each photometric model name.
-PLUGIN_NAMES = {
-    "lambert": "starnav_lambert",
-    "lommel_seeliger": "starnav_lommel_seeliger",
-    "lunar_lambert": "starnav_lunar_lambert",
-    "hapke": "starnav_hapke",
-}
+#: Mitsuba plugin name for each photometric model name (derived from the model registry).
+PLUGIN_NAMES: Registry[str] = Registry(PHOTOMETRIC_MODELS.kind, {
+    model: f"starnav_{model}" for model in PHOTOMETRIC_MODELS})
 
 
 def _define_classes() -> dict[str, type]:
@@ -230,18 +229,20 @@ def _define_classes() -> dict[str, type]:
     }
 
 
-_CLASSES_BY_VARIANT: dict[str, dict[str, type]] = {}
+@functools.cache
+def _classes_of_variant(variant: str) -> dict[str, type]:
+    """The plugin classes defined once per variant (``variant`` is the cache key)."""
+    return _define_classes()
 
 
 def plugin_classes() -> dict[str, type]:
     """The plugin classes of the active variant, keyed by photometric model name."""
-    variant = mi.variant()
-    if variant not in _CLASSES_BY_VARIANT:
-        _CLASSES_BY_VARIANT[variant] = _define_classes()
-    return _CLASSES_BY_VARIANT[variant]
+    return _classes_of_variant(mi.variant())
 
 
 def register_plugins() -> None:
-    """Register every photometric plugin with Mitsuba for the active variant."""
-    for model, cls in plugin_classes().items():
-        mi.register_bsdf(PLUGIN_NAMES[model], lambda props, cls=cls: cls(props))
+    """Register the plugin of every photometric model with Mitsuba for the active variant."""
+    classes = plugin_classes()
+    for model, plugin in PLUGIN_NAMES.items():
+        cls = classes[model]
+        mi.register_bsdf(plugin, lambda props, cls=cls: cls(props))

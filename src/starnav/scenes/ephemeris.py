@@ -59,6 +59,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from starnav.constants import ARCSEC, DAY
 from starnav.errors import ConfigError, DataFileError, StarnavError
 
 FloatArray = NDArray[np.float64]
@@ -67,10 +68,6 @@ log = logging.getLogger(__name__)
 
 #: Julian date of J2000 (2000-01-01T12:00:00 TDB).
 J2000_JD = 2451545.0
-#: Seconds per day.
-DAY_S = 86_400.0
-#: Arcseconds to radians.
-_ARCSEC = math.pi / (180.0 * 3600.0)
 
 #: DE421 PA -> ME rotation angles [arcsec] about z, y, x (Williams et al. 2008, JPL IOM
 #: 335-JW,DB,WF-20080314-001, as in NAIF's ``moon_080317.tf``).
@@ -109,7 +106,7 @@ def _r3(a: FloatArray) -> FloatArray:
 
 def pa_to_me_matrix() -> FloatArray:
     """Constant rotation taking DE421 PA components to ME components, ``v_ME = M v_PA``."""
-    az, ay, ax = (np.asarray(a * _ARCSEC) for a in PA_TO_ME_DE421_ARCSEC)
+    az, ay, ax = (np.asarray(a * ARCSEC) for a in PA_TO_ME_DE421_ARCSEC)
     # frame rotations -67.92" about z, then -78.56" about y, then -0.30" about x
     return _r1(-ax) @ _r2(-ay) @ _r3(-az)
 
@@ -160,7 +157,7 @@ def parse_epoch(text: str | float, field: str = "epoch") -> float:
     except ValueError as err:
         raise ConfigError(field, text, f"a valid calendar date ({err})") from None
     tdb = t.tdb
-    return float(((tdb.jd1 - J2000_JD) + tdb.jd2) * DAY_S)
+    return float(((tdb.jd1 - J2000_JD) + tdb.jd2) * DAY)
 
 
 def format_epoch(t: float, scale: Literal["TDB", "UTC", "TT"] = "TDB", precision: int = 6,
@@ -180,8 +177,8 @@ def format_epoch(t: float, scale: Literal["TDB", "UTC", "TT"] = "TDB", precision
     """
     from astropy.time import Time
 
-    day, frac = divmod(float(t), DAY_S)
-    tt = Time(J2000_JD + day, frac / DAY_S, format="jd", scale="tdb", precision=precision)
+    day, frac = divmod(float(t), DAY)
+    tt = Time(J2000_JD + day, frac / DAY, format="jd", scale="tdb", precision=precision)
     out = getattr(tt, scale.lower()).isot
     return f"{out} {scale}" if suffix else out
 
@@ -225,7 +222,7 @@ class Ephemeris:
         c = {k.decode("ascii") if isinstance(k, bytes) else str(k): float(v) for k, v in raw}
         self.constants: dict[str, float] = c
         self.au = c["AU"] * 1e3  # km -> m
-        gm_unit = self.au**3 / DAY_S**2  # AU^3/day^2 -> m^3/s^2
+        gm_unit = self.au**3 / DAY**2  # AU^3/day^2 -> m^3/s^2
         self.emrat = c["EMRAT"]
         self.gm_sun = c["GMS"] * gm_unit
         self.gm_emb = c["GMB"] * gm_unit
@@ -233,8 +230,8 @@ class Ephemeris:
         self.gm_moon = self.gm_emb / (1.0 + self.emrat)
         self._jd_alpha = c["jalpha"]
         self._jd_omega = c["jomega"]
-        self.t_min = (self._jd_alpha - J2000_JD) * DAY_S
-        self.t_max = (self._jd_omega - J2000_JD) * DAY_S
+        self.t_min = (self._jd_alpha - J2000_JD) * DAY
+        self.t_max = (self._jd_omega - J2000_JD) * DAY
         self._sets: dict[str, FloatArray] = {}
         self._pa_to_me = pa_to_me_matrix()
 
@@ -286,8 +283,8 @@ class Ephemeris:
         dps = (self._jd_omega - self._jd_alpha) / n_sets  # days per set
         # offset inside the set in seconds: set starts are whole seconds (exact floats), so
         # the subtraction keeps the full resolution of t
-        start0 = (self._jd_alpha - J2000_JD) * DAY_S
-        span = dps * DAY_S
+        start0 = (self._jd_alpha - J2000_JD) * DAY
+        span = dps * DAY
         tf = t.ravel()
         idx = np.clip(np.floor((tf - start0) / span).astype(np.int64), 0, n_sets - 1)
         x = 2.0 * (tf - (start0 + idx * span)) / span - 1.0
@@ -308,17 +305,17 @@ class Ephemeris:
     def moon_geocentric(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Moon relative to the Earth: position [m] and velocity [m/s], shape ``(..., 3)``."""
         p, v = self._chebyshev("moon", t)
-        return p * 1e3, v * (1e3 / DAY_S)
+        return p * 1e3, v * (1e3 / DAY)
 
     def emb_ssb(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Earth-Moon barycentre relative to the SSB: position [m], velocity [m/s]."""
         p, v = self._chebyshev("earthmoon", t)
-        return p * 1e3, v * (1e3 / DAY_S)
+        return p * 1e3, v * (1e3 / DAY)
 
     def sun_ssb(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Sun relative to the SSB: position [m], velocity [m/s]."""
         p, v = self._chebyshev("sun", t)
-        return p * 1e3, v * (1e3 / DAY_S)
+        return p * 1e3, v * (1e3 / DAY)
 
     def state(self, body: str, t: ArrayLike, center: str = "emb") -> FloatArray:
         """State of ``body`` relative to ``center`` along ICRF axes.
@@ -370,7 +367,7 @@ class Ephemeris:
     def librations(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """DE421 lunar libration Euler angles ``(phi, theta, psi)`` [rad] and rates [rad/s]."""
         a, da = self._chebyshev("librations", t)
-        return a, da / DAY_S
+        return a, da / DAY
 
     def moon_orientation(self, t: ArrayLike, frame: Literal["PA", "ME"] = "PA") -> FloatArray:
         """Rotation Moon body-fixed -> ICRF, ``v_icrf = R @ v_body``, shape ``(..., 3, 3)``.

@@ -33,8 +33,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from starnav.constants import DAY
 from starnav.errors import DataFileError, StarnavError
-from starnav.scenes.ephemeris import DAY_S, J2000_JD, Ephemeris
+from starnav.scenes.ephemeris import J2000_JD, Ephemeris
 from starnav.scenes.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
@@ -122,7 +123,7 @@ def _epochs_to_tdb(texts: list[str], system: str, where: list[str]) -> FloatArra
     frac = np.array([ps * 1e-12 for _, ps in parsed])
     t = Time(iso, format="isot", scale=system.lower())
     tdb = t.tdb
-    return ((tdb.jd1 - J2000_JD) + tdb.jd2) * DAY_S + frac
+    return ((tdb.jd1 - J2000_JD) + tdb.jd2) * DAY + frac
 
 
 # --------------------------------------------------------------------------- writing

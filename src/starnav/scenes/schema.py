@@ -15,9 +15,7 @@ from typing import Annotated, Literal
 from pydantic import Field, field_validator, model_validator
 
 from starnav.config_base import StrictModel
-
-PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+from starnav.fields import NonNegativeFloat, PositiveFloat
 
 #: Default first epoch of the arc.
 DEFAULT_EPOCH = "2027-03-01T00:00:00 TDB"

@@ -71,10 +71,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from starnav.atomic import atomic_write_bytes
+from starnav.constants import DAY
 from starnav.errors import ConfigError, DataFileError
 from starnav.scenes.cr3bp import LU, TU, ConvergenceError, HaloOrbit, l2_halo
 from starnav.scenes.dynamics import PointMassModel, rk4_grid
-from starnav.scenes.ephemeris import DAY_S, Ephemeris
+from starnav.scenes.ephemeris import Ephemeris
 
 FloatArray = NDArray[np.float64]
 
@@ -286,8 +287,8 @@ class ShootingOptions:
         Allowed distance to the Moon along the arc [m].
     """
 
-    segment: float = 0.5 * DAY_S
-    pad: float = 2.0 * DAY_S
+    segment: float = 0.5 * DAY
+    pad: float = 2.0 * DAY
     step: float = 300.0
     tol_position: float = 1e-3
     tol_velocity: float = 1e-9
@@ -527,7 +528,7 @@ def ephemeris_halo_arc(
 
     z0 = REFERENCE_HALO[1] if z0 is None else float(z0)
     if not (math.isfinite(duration) and duration > 0):
-        raise ConfigError("trajectory.duration_days", duration / DAY_S, "a duration > 0 days")
+        raise ConfigError("trajectory.duration_days", duration / DAY, "a duration > 0 days")
     if not (math.isfinite(phase) and 0.0 <= phase < 1.0):
         raise ConfigError("trajectory.halo_phase_deg", phase * 360.0, "0 <= phase < 360 deg")
     eph = model.ephemeris

@@ -172,6 +172,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.errors import ConfigError, DataFileError, UnknownNameError
+from starnav.registry import Registry
 
 __all__ = [
     "AMIE_FRAMES",
@@ -690,7 +691,7 @@ def silicon_thermal_factor(temperature_k: float) -> float:
 
 
 #: Temperature laws of the master bias: name -> factor(T [K]) applied to it [-].
-BIAS_LAWS: Mapping[str, Callable[[float], float]] = MappingProxyType({
+BIAS_LAWS: Registry[Callable[[float], float]] = Registry("bias law", {
     "none": _no_scaling,
     "silicon-thermal": silicon_thermal_factor,
 })
@@ -727,8 +728,7 @@ class AmieCalibrationOptions:
     min_flat: float = 0.5
 
     def __post_init__(self) -> None:
-        if self.bias_law not in BIAS_LAWS:
-            raise UnknownNameError("bias law", self.bias_law, list(BIAS_LAWS))
+        BIAS_LAWS.check(self.bias_law)
         for name in ("sky_nsigma", "hot_nsigma"):
             if not getattr(self, name) > 0:
                 raise ConfigError(name, getattr(self, name), "a number > 0 [sigma]")
