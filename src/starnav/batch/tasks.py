@@ -47,7 +47,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.batch.cluster import quiet_logger
+from starnav.cache import BoundedCache
 from starnav.seeding import STAGE_NAVIGATION, generator
+from starnav.simulate import simulator_for
 
 FloatArray = NDArray[np.float64]
 
@@ -263,7 +265,7 @@ class PointResult:
 
 
 # ============================================================================ caches
-_SCENARIOS: dict[str, Any] = {}
+_SCENARIOS: BoundedCache[str, Any] = BoundedCache(64)
 
 
 def _key(config: dict[str, Any]) -> str:
@@ -271,16 +273,9 @@ def _key(config: dict[str, Any]) -> str:
 
 
 def _scenario(config: dict[str, Any]) -> Any:
-    k = _key(config)
-    sc = _SCENARIOS.get(k)
-    if sc is None:
-        from starnav.config import scenario_from_dict
+    from starnav.config import scenario_from_dict
 
-        sc = scenario_from_dict(config)
-        if len(_SCENARIOS) > 64:
-            _SCENARIOS.clear()
-        _SCENARIOS[k] = sc
-    return sc
+    return _SCENARIOS.get_or_make(_key(config), lambda: scenario_from_dict(config))
 
 
 # ============================================================================ tasks
@@ -288,11 +283,9 @@ def render_task(config: dict[str, Any], index: int) -> RenderedFrame:
     """Render frame ``index`` of the render configuration ``config`` (worker side).
 
     The renderer and the scene are built once per worker process and configuration
-    (:class:`starnav.simulate.Simulator`, cached with the dataset's frame maker).
+    (:func:`starnav.simulate.simulator_for`).
     """
-    from starnav.dataset.writer import frame_maker
-
-    maker = frame_maker(config)
+    maker = simulator_for(config)
     t0 = time.perf_counter()
     geom, img = maker.render(int(index))
     dt = time.perf_counter() - t0
@@ -327,13 +320,12 @@ def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, wind
         Number of the first run (runs ``first_run .. first_run + runs - 1``: a run's streams
         depend on its number only).
     """
-    from starnav.dataset.writer import frame_maker
     from starnav.navigation.metrics import limb_point_errors
     from starnav.navigation.pipeline import process_frame
     from starnav.simulate.build import chain_options
 
     sc = _scenario(config)
-    sim = frame_maker(config).simulator
+    sim = simulator_for(config)
     cam = sim.camera
     chain = chain_options(sc)
     chain = dataclasses.replace(chain, use_windows=chain.use_windows and windows != "none")

@@ -56,6 +56,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from starnav.cache import BoundedCache
 from starnav.dataset import format as F
 from starnav.dataset.runner import InProcessRunner, TaskRunner
 from starnav.errors import ConfigError, DataFileError, StarnavError
@@ -380,8 +381,8 @@ def frame_entry(root: Path, index: int) -> dict[str, Any]:
 
 
 #: Frame makers of this process, by scenario and options (workers keep theirs).
-_MAKERS: dict[str, FrameMaker] = {}
-_MAKERS_MAX = 4
+#: Frame makers of this process by (scenario, options): a worker builds its renderer once.
+_MAKERS: BoundedCache[str, FrameMaker] = BoundedCache(4, policy="fifo")
 
 
 def frame_maker(config: dict[str, Any], options: dict[str, Any] | None = None) -> FrameMaker:
@@ -389,15 +390,10 @@ def frame_maker(config: dict[str, Any], options: dict[str, Any] | None = None) -
     worker builds its renderer and scene once per configuration)."""
     options = options if options is not None else DatasetOptions().to_dict()
     key = _canonical_key(config, options)
-    m = _MAKERS.get(key)
-    if m is None:
-        from starnav.config import scenario_from_dict
+    from starnav.config import scenario_from_dict
 
-        m = FrameMaker(scenario_from_dict(config), DatasetOptions.from_dict(options))
-        if len(_MAKERS) >= _MAKERS_MAX:
-            _MAKERS.pop(next(iter(_MAKERS)))
-        _MAKERS[key] = m
-    return m
+    return _MAKERS.get_or_make(key, lambda: FrameMaker(scenario_from_dict(config),
+                                                       DatasetOptions.from_dict(options)))
 
 
 def make_frame(config: dict[str, Any], options: dict[str, Any], root: str,

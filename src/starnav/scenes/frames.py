@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from starnav.cache import BoundedCache
 from starnav.constants import ARCSEC, DAY, MOON_RADIUS
 from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry, StaticGeometryConfig, static_geometry_from_config
@@ -53,8 +54,8 @@ FloatArray = NDArray[np.float64]
 
 log = logging.getLogger(__name__)
 
-_ARC_MEMO: dict[tuple, Trajectory] = {}
-_ARC_MEMO_MAX = 8
+#: Halo arcs built in this process (the shooting takes seconds), by every input.
+_ARC_MEMO: BoundedCache[tuple, Trajectory] = BoundedCache(8, policy="fifo")
 
 
 def build_trajectory(cfg: TrajectoryConfig, ephemeris: Ephemeris | None = None,
@@ -94,16 +95,10 @@ def build_trajectory(cfg: TrajectoryConfig, ephemeris: Ephemeris | None = None,
     options = ShootingOptions(segment=cfg.shooting_segment_s, step=cfg.step_s,
                               range_min=cfg.range_min_km * 1e3, range_max=cfg.range_max_km * 1e3)
     memo_key = (eph.directory, t0, cfg.duration_days, cfg.halo_z0_km, cfg.halo_phase_deg, options)
-    traj = _ARC_MEMO.get(memo_key)
-    if traj is None:
-        traj = ephemeris_halo_arc(model, t0, cfg.duration_days * DAY,
-                                  z0=cfg.halo_z0_km * 1e3 / LU, phase=cfg.halo_phase_deg / 360.0,
-                                  options=options,
-                                  cache_dir=cache_dir if cache_dir is not None else False)
-        if len(_ARC_MEMO) >= _ARC_MEMO_MAX:
-            _ARC_MEMO.pop(next(iter(_ARC_MEMO)))
-        _ARC_MEMO[memo_key] = traj
-    return traj
+    return _ARC_MEMO.get_or_make(memo_key, lambda: ephemeris_halo_arc(
+        model, t0, cfg.duration_days * DAY, z0=cfg.halo_z0_km * 1e3 / LU,
+        phase=cfg.halo_phase_deg / 360.0, options=options,
+        cache_dir=cache_dir if cache_dir is not None else False))
 
 
 class Scene:

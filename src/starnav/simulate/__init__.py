@@ -31,11 +31,17 @@ from starnav.simulate.build import (
     renderer_from_scenario,
     scene_from_scenario,
 )
-from starnav.simulate.frames import Observation, Simulator, render_scenario, render_to_directory
+from starnav.simulate.frames import (
+    Observation,
+    Simulator,
+    render_scenario,
+    render_to_directory,
+    simulator_for,
+)
 
 __all__ = ["WINDOWS_MODES", "Acquisition", "Observation", "Simulator", "acquire",
            "acquisition_seed", "body_from_scenario", "chain_options", "check_windows_mode",
            "describe_frame", "frame_geometries", "frame_mesh", "frame_states",
            "mean_normal_albedo", "moon_model_from_scenario", "readout_feasibility",
            "render_scenario", "render_to_directory", "renderer_from_scenario",
-           "scene_from_scenario"]
+           "scene_from_scenario", "simulator_for"]

@@ -22,6 +22,8 @@ same truth.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -29,8 +31,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from starnav.cache import BoundedCache
 from starnav.camera import Camera, camera_from_config
-from starnav.config import Scenario
+from starnav.config import Scenario, scenario_from_dict
 from starnav.constants import ARCSEC
 from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry
@@ -124,6 +127,17 @@ class Simulator:
                       sun_direction_inertial=geom.sun_position, segments=acq.segments,
                       windows=acq.windows, truth=geom, R_moon_to_inertial=geom.R_moon_to_inertial)
         return Observation(acq, frame)
+
+
+#: Simulators of this process by resolved scenario (a worker builds its renderer once).
+_SIMULATORS: BoundedCache[str, Simulator] = BoundedCache(4, policy="fifo")
+
+
+def simulator_for(config: dict[str, Any]) -> Simulator:
+    """The :class:`Simulator` of a resolved scenario dict (``scenario_to_dict``), cached per
+    process: workers receive plain dicts and build the camera, scene and renderer once."""
+    key = hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()
+    return _SIMULATORS.get_or_make(key, lambda: Simulator(scenario_from_dict(config)))
 
 
 def render_scenario(sc: Scenario, frames: list[FrameGeometry] | None = None
