@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import Annotated
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from pydantic import Field
 
 from starnav.camera import Camera
@@ -175,6 +175,34 @@ class FrameGeometry:
 
 
 # ---------------------------------------------------------------------------- rotations
+def frame_rotation_x(a: ArrayLike) -> FloatArray:
+    """Passive (frame) rotation about x by ``a`` [rad], stacked over ``a``'s shape
+    (``v' = R v`` gives ``v``'s components in the rotated frame)."""
+    a = np.asarray(a, float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, s], -1),
+                     np.stack([z, -s, c], -1)], -2)
+
+
+def frame_rotation_y(a: ArrayLike) -> FloatArray:
+    """Passive (frame) rotation about y by ``a`` [rad], stacked over ``a``'s shape."""
+    a = np.asarray(a, float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([c, z, -s], -1), np.stack([z, o, z], -1),
+                     np.stack([s, z, c], -1)], -2)
+
+
+def frame_rotation_z(a: ArrayLike) -> FloatArray:
+    """Passive (frame) rotation about z by ``a`` [rad], stacked over ``a``'s shape."""
+    a = np.asarray(a, float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([c, s, z], -1), np.stack([-s, c, z], -1),
+                     np.stack([z, z, o], -1)], -2)
+
+
 def look_rotation(los_camera: FloatArray, los_inertial: FloatArray, roll: float = 0.0,
                   down_hint: FloatArray | None = None) -> FloatArray:
     """Rotation camera -> inertial that maps the camera-frame line of sight ``los_camera`` onto

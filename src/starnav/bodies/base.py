@@ -22,22 +22,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from starnav.constants import DAY
+from starnav.geometry import frame_rotation_x, frame_rotation_z
 
 FloatArray = NDArray[np.float64]
-
-
-def _rx(a: FloatArray) -> FloatArray:
-    c, s = np.cos(a), np.sin(a)
-    o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, s], -1),
-                     np.stack([z, -s, c], -1)], -2)
-
-
-def _rz(a: FloatArray) -> FloatArray:
-    c, s = np.cos(a), np.sin(a)
-    o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([c, s, z], -1), np.stack([-s, c, z], -1),
-                     np.stack([z, z, o], -1)], -2)
 
 
 def iau_orientation(epochs_tdb: ArrayLike, pole_ra: float, pole_dec: float, w0: float,
@@ -59,7 +46,7 @@ def iau_orientation(epochs_tdb: ArrayLike, pole_ra: float, pole_dec: float, w0: 
     W = w0 + w_dot * (t / DAY)
     A = np.full_like(t, math.pi / 2 + pole_ra)
     B = np.full_like(t, math.pi / 2 - pole_dec)
-    j2000_to_body = _rz(W) @ _rx(B) @ _rz(A)
+    j2000_to_body = frame_rotation_z(W) @ frame_rotation_x(B) @ frame_rotation_z(A)
     return np.swapaxes(j2000_to_body, -1, -2)
 
 

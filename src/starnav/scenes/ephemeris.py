@@ -61,6 +61,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from starnav.constants import ARCSEC, DAY
 from starnav.errors import ConfigError, DataFileError, StarnavError
+from starnav.geometry import frame_rotation_x, frame_rotation_y, frame_rotation_z
 
 FloatArray = NDArray[np.float64]
 
@@ -82,26 +83,7 @@ class EphemerisRangeError(StarnavError, ValueError):
 
 
 # --------------------------------------------------------------------------- rotations
-def _r1(a: FloatArray) -> FloatArray:
-    c, s = np.cos(a), np.sin(a)
-    o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, s], -1),
-                     np.stack([z, -s, c], -1)], -2)
-
-
-def _r2(a: FloatArray) -> FloatArray:
-    c, s = np.cos(a), np.sin(a)
-    o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([c, z, -s], -1), np.stack([z, o, z], -1),
-                     np.stack([s, z, c], -1)], -2)
-
-
-def _r3(a: FloatArray) -> FloatArray:
-    """Passive (frame) rotation about z by ``a`` [rad], stacked over ``a``'s shape."""
-    c, s = np.cos(a), np.sin(a)
-    o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([c, s, z], -1), np.stack([-s, c, z], -1),
-                     np.stack([z, z, o], -1)], -2)
+_r1, _r2, _r3 = frame_rotation_x, frame_rotation_y, frame_rotation_z
 
 
 def pa_to_me_matrix() -> FloatArray:
