@@ -107,9 +107,15 @@ def read_exr(path: str | os.PathLike[str]) -> RadianceImage:
     p = Path(path)
     if not p.is_file():
         raise DataFileError(f"radiance image {str(p)!r} does not exist")
-    with OpenEXR.File(str(p), separate_channels=True) as f:
-        chans = {k: np.asarray(v.pixels, dtype=np.float32) for k, v in f.channels().items()}
-        raw = f.header().get(META_ATTRIBUTE, "{}")
+    try:
+        with OpenEXR.File(str(p), separate_channels=True) as f:
+            chans = {k: np.asarray(v.pixels, dtype=np.float32) for k, v in f.channels().items()}
+            raw = f.header().get(META_ATTRIBUTE, "{}")
+    except (RuntimeError, ValueError, OSError) as err:
+        # OpenEXR reports an empty, truncated or foreign file as a RuntimeError
+        raise DataFileError(f"radiance image {str(p)!r} is not a readable OpenEXR file "
+                            f"({p.stat().st_size} bytes: {err}); expected an EXR with channels "
+                            "L and Le (starnav render)") from None
     for name in RADIANCE_CHANNELS:
         if name not in chans:
             raise DataFileError(f"{str(p)!r} has no channel {name!r}; channels: {sorted(chans)}")

@@ -25,6 +25,7 @@ import contextlib
 import logging
 import os
 import re
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
@@ -35,6 +36,8 @@ log = logging.getLogger(__name__)
 
 #: How long to wait for a scheduler to answer [s].
 CONNECT_TIMEOUT_S = 5.0
+#: Extra time the handshake may take after the connection [s].
+HANDSHAKE_GRACE_S = 2.0
 _ADDRESS_RE = re.compile(r"^(tcp|tls|ws|wss|inproc)://[^\s/:]+(:\d{1,5})?$")
 
 
@@ -83,16 +86,43 @@ def check_address(address: str) -> str:
 
 
 def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Any:
-    """A ``distributed.Client`` on ``address``, or :class:`ClusterError` within ``timeout_s``."""
+    """A ``distributed.Client`` on ``address``, or :class:`ClusterError` within
+    ``timeout_s + HANDSHAKE_GRACE_S``.
+
+    ``distributed``'s own timeout covers the TCP connection, not the handshake: a service that
+    accepts the connection and then waits (an HTTP server) would hold the client forever, and
+    one that answers with other bytes makes it read a frame length of exabytes. The attempt
+    therefore runs in a daemon thread with a hard deadline, and both cases are reported as
+    "not a Dask scheduler".
+    """
     from distributed import Client
 
     a = check_address(address)
-    try:
-        return Client(a, timeout=f"{timeout_s}s", set_as_default=False)
-    except (OSError, TimeoutError) as err:
+    outcome: dict[str, Any] = {}
+
+    def attempt() -> None:
+        try:
+            outcome["client"] = Client(a, timeout=f"{timeout_s}s", set_as_default=False)
+        except BaseException as err:  # noqa: BLE001 - reported below, whatever it is
+            outcome["error"] = err
+
+    thread = threading.Thread(target=attempt, name="starnav-connect", daemon=True)
+    thread.start()
+    thread.join(timeout_s + HANDSHAKE_GRACE_S)
+    not_dask = (f"{a} accepts connections but does not answer as a Dask scheduler; is it "
+                "another service? Start one with `dask scheduler` or use --workers N for a "
+                "local cluster")
+    if thread.is_alive():
+        raise ClusterError(f"{not_dask} (no handshake within "
+                           f"{timeout_s + HANDSHAKE_GRACE_S:g} s)")
+    err = outcome.get("error")
+    if isinstance(err, OSError | TimeoutError):
         raise ClusterError(f"the Dask scheduler at {a} does not answer (waited {timeout_s:g} s:"
                            f" {type(err).__name__}); start it with `dask scheduler` or use "
                            "--workers N for a local cluster") from None
+    if err is not None:
+        raise ClusterError(f"{not_dask} ({type(err).__name__})") from None
+    return outcome["client"]
 
 
 def default_workers() -> int:
@@ -109,12 +139,16 @@ def open_runner(workers: int | None = None, scheduler: str | None = None, *,
     ----------
     workers : int, optional
         0: this process; N >= 1: a local cluster of N processes; default the CPU count.
-        Ignored with ``scheduler``.
+        An error with ``scheduler`` (whose own workers run the tasks).
     scheduler : str, optional
         Address of an existing scheduler.
     connect_timeout_s : float
         How long to wait for ``scheduler`` [s].
     """
+    if scheduler and workers:
+        raise ConfigError("--workers", workers, "no --workers with --scheduler (the "
+                          "scheduler's own workers run the tasks; start them with `dask worker "
+                          f"{scheduler}`)")
     if scheduler:
         client = connect(scheduler, connect_timeout_s)
         try:

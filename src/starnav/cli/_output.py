@@ -24,3 +24,18 @@ def fail(err: Exception | str) -> None:
     """Print the error and exit with status 2 (bad input)."""
     print_error(err)
     raise typer.Exit(code=2)
+
+
+def os_error_message(err: OSError) -> str:
+    """One line for a failed read or write: the path, what the system said, and the hint."""
+    import errno as _errno
+
+    name = _errno.errorcode.get(err.errno or 0, "")
+    path = err.filename if err.filename is not None else "<path>"
+    extra = f" -> {err.filename2}" if getattr(err, "filename2", None) else ""
+    hint = {"ENOSPC": "free some space and resume", "EACCES": "choose a writable place",
+            "EPERM": "choose a writable place", "EROFS": "choose a writable place",
+            "ENOTDIR": "a path component is a file, not a directory",
+            "EISDIR": "expected a file, found a directory",
+            "ENOENT": "check the path"}.get(name, "check the path and its permissions")
+    return f"{path}{extra}: {err.strerror or err} ({name or 'OSError'}); {hint}"

@@ -21,7 +21,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from rich.table import Table
 
 from starnav import __version__
-from starnav.cli._output import console, fail
+from starnav.cli._output import console, fail, os_error_message
 from starnav.errors import StarnavError
 from starnav.registry import Registry
 
@@ -132,17 +132,30 @@ def init(
 
 @app.command()
 def validate(scenario: ScenarioArg = None, set_: SetOpt = None) -> None:
-    """Validate a scenario and print it fully resolved."""
-    from starnav.config import build_camera, scenario_to_dict
+    """Validate a scenario as far as rendering it would (camera, spectra, target body and its
+    files, every frame's geometry, navigation options) and print it fully resolved, with the
+    derived quantities."""
+    from starnav.config import scenario_to_dict
+    from starnav.simulate.check import check_scenario
 
     sc = _load(scenario, set_)
     try:
-        cam = build_camera(sc.camera)
+        derived = check_scenario(sc)
     except StarnavError as err:
         _fail(err)
     console.print(yaml.safe_dump(scenario_to_dict(sc), sort_keys=False))
-    console.print("[green]valid[/]  camera: " + json.dumps(
-        {k: round(v, 6) if isinstance(v, float) else v for k, v in cam.describe().items()}))
+    console.print("[green]valid[/]  derived: " + json.dumps(_significant(derived)))
+
+
+def _significant(value: Any, digits: int = 6) -> Any:
+    """``value`` with floats to ``digits`` significant digits (never rounded away to 0)."""
+    if isinstance(value, float):
+        return float(f"{value:.{digits}g}")
+    if isinstance(value, dict):
+        return {k: _significant(v, digits) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_significant(v, digits) for v in value]
+    return value
 
 
 @app.command()
@@ -208,6 +221,36 @@ def _register_parts() -> None:
 
 
 _register_parts()
+
+
+def _guarded(callback: Callable[..., Any]) -> Callable[..., Any]:
+    """``callback`` with the CLI's error contract: a :class:`StarnavError` or a failed read or
+    write (``OSError``: unwritable or full output, a path through a file) is one ``error:`` line
+    and exit status 2, never a traceback."""
+    import functools
+
+    @functools.wraps(callback)
+    def run(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return callback(*args, **kwargs)
+        except StarnavError as err:
+            fail(err)
+        except OSError as err:
+            fail(os_error_message(err))
+
+    return run
+
+
+def _guard_all(t: typer.Typer) -> None:
+    for cmd in t.registered_commands:
+        if cmd.callback is not None:
+            cmd.callback = _guarded(cmd.callback)
+    for group in t.registered_groups:
+        if group.typer_instance is not None:
+            _guard_all(group.typer_instance)
+
+
+_guard_all(app)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -37,6 +37,24 @@ def _open_dataset(path: Path, exposure_s: float | None = None):
     return open_dataset(path, exposure_s)
 
 
+#: What ``navigate --set`` may change: the frames are already made.
+NAVIGATE_KEYS = ("navigation.", "seed")
+
+
+def check_navigate_overrides(items: list[str] | tuple[str, ...]) -> None:
+    """``navigate`` re-runs the navigation on frames already rendered and exposed: an override
+    of anything else (``moon.albedo``, ``detector.*``) would be silently ignored, so it is an
+    error naming the key."""
+    from starnav.errors import ConfigError
+
+    for item in items:
+        key = item.split("=", 1)[0].strip()
+        if not (key == "seed" or key.startswith("navigation.")):
+            raise ConfigError("--set", item, "a navigation.* or seed override: navigate re-runs "
+                              "the navigation on the dataset's frames, which are already made "
+                              f"(make a new dataset to change {key.split('.')[0]}.*)")
+
+
 def register(app: typer.Typer) -> None:
     """Add the ``navigate`` command to ``app``."""
 
@@ -64,6 +82,7 @@ def register(app: typer.Typer) -> None:
         from starnav.navigation.report import navigate_dataset
 
         try:
+            check_navigate_overrides(set_ or ())
             ds = _open_dataset(dataset, None if exposure is None
                                else parse_time(exposure, "--exposure"))
             overrides = tuple(set_ or ()) + ((f"seed={seed}",) if seed is not None else ())
