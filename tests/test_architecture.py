@@ -7,6 +7,7 @@ a function, ``TYPE_CHECKING`` blocks included (a type-only import still points t
 from __future__ import annotations
 
 import ast
+import re
 from collections import defaultdict
 from pathlib import Path
 
@@ -128,3 +129,86 @@ def test_the_graph_is_read():
     assert "camera" in g.descendants("simulate")
     bad = Graph(g.edges | {("camera", "cli")}, set(g.nodes))
     assert any({"camera", "cli"} <= set(c) for c in bad.cycles())
+
+
+# ------------------------------------------------------------------ function-level imports
+#: Why a function may import a starnav module instead of the module's head (the only reasons):
+#: an import cycle at load, Mitsuba/Dr.Jit (starnav.renderer only), or a heavy optional library.
+LAZY_REASON = re.compile(r"#\s*lazy:\s*(cycle with (starnav(?:\.\w+)+)|mitsuba|drjit"
+                         r"|[\w./]+ \(heavy\))")
+
+
+def _is_starnav(node: ast.Import | ast.ImportFrom) -> bool:
+    if isinstance(node, ast.ImportFrom):
+        return node.level > 0 or (node.module or "").split(".")[0] == "starnav"
+    return any(a.name.split(".")[0] == "starnav" for a in node.names)
+
+
+def function_imports(source: str) -> list[tuple[int, str, re.Match[str] | None]]:
+    """``(line, source line, reason)`` of every import of a starnav module (absolute or
+    relative) written inside a function; ``reason`` matches :data:`LAZY_REASON` on one of the
+    statement's lines, or is None."""
+    lines = source.splitlines()
+    out = []
+
+    def visit(node: ast.AST, in_function: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            if (in_function and isinstance(child, ast.Import | ast.ImportFrom)
+                    and _is_starnav(child)):
+                stmt = lines[child.lineno - 1:child.end_lineno]
+                reason = next((m for m in map(LAZY_REASON.search, stmt) if m), None)
+                out.append((child.lineno, lines[child.lineno - 1].strip(), reason))
+            visit(child, in_function or isinstance(
+                child, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda))
+
+    visit(ast.parse(source), False)
+    return out
+
+
+def test_function_level_imports_are_explained():
+    """A module's starnav dependencies are at its top; an import inside a function says why
+    (``# lazy: cycle with starnav.x``, ``# lazy: mitsuba``, ``# lazy: matplotlib (heavy)``).
+    The command line (starnav.cli) imports inside its commands to keep ``--help`` fast."""
+    found, bad = [], []
+    for f in sorted(SRC.rglob("*.py")):
+        rel = f.relative_to(SRC)
+        if rel.parts[0] == "cli":
+            continue
+        for line, text, reason in function_imports(f.read_text()):
+            found.append((rel, line))
+            if reason is None:
+                bad.append(f"{rel}:{line}: {text}")
+            elif reason.group(2) and not _module_file(reason.group(2)):
+                bad.append(f"{rel}:{line}: {text} (no module {reason.group(2)})")
+    assert not bad, (f"{len(found)} function-level imports of starnav modules outside "
+                     f"starnav.cli, {len(bad)} without a '# lazy: <reason>' comment (a cycle "
+                     "with starnav.x, mitsuba, drjit or '<library> (heavy)'); move them to the "
+                     "module's top or say why:\n" + "\n".join(bad))
+
+
+def _module_file(module: str) -> bool:
+    path = SRC.parent.joinpath(*module.split("."))
+    return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
+
+
+def test_function_imports_are_read():
+    """The check above sees an unexplained import, nested or relative, and accepts the
+    reasons."""
+    src = ("import starnav.camera\n"
+           "def f():\n"
+           "    from starnav.config import Scenario\n"
+           "    import numpy\n"
+           "    if True:\n"
+           "        from . import geometry\n"
+           "    from starnav.dem.load import (  # lazy: cycle with starnav.dem.load\n"
+           "        load_dem,\n"
+           "    )\n"
+           "    import starnav.renderer.bsdfs  # lazy: mitsuba\n"
+           "    from starnav.batch import figures  # lazy: matplotlib (heavy)\n"
+           "    from starnav.x import y  # lazy: because\n"
+           "class A:\n"
+           "    def g(self):\n"
+           "        return lambda: __import__('starnav')\n")
+    got = {line: r is not None for line, _, r in function_imports(src)}
+    assert got == {3: False, 6: False, 7: True, 10: True, 11: True, 12: False}
+    assert _module_file("starnav.dem.load") and not _module_file("starnav.dem.nowhere")

@@ -42,16 +42,14 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from starnav.atomic import atomic_path
 from starnav.errors import ConfigError
-
-if TYPE_CHECKING:
-    from starnav.radiance import RadianceImage
+from starnav.radiance import RadianceImage, read_exr
 
 log = logging.getLogger(__name__)
 
@@ -348,7 +346,5 @@ def write_previews(exr_paths: Sequence[str | os.PathLike[str]], *,
     percentile : float
         Percentile of the lit pixels shown as white [%].
     """
-    from starnav.radiance import read_exr
-
     return [write_radiance_preview(read_exr(p), Path(p).with_suffix(".png"),
                                    percentile=percentile) for p in exr_paths]

@@ -34,6 +34,8 @@ import numpy as np
 
 from starnav.atomic import atomic_path
 from starnav.errors import ConfigError, StarnavError
+from starnav.renderer.scene import icosphere_mesh
+from starnav.simulate import scene_from_scenario
 
 if TYPE_CHECKING:
     from starnav.config import Scenario
@@ -85,8 +87,6 @@ def check_offscreen(timeout_s: float = PROBE_TIMEOUT_S) -> None:
 def _moon_mesh(sc: Scenario, pv: Any) -> Any:
     R = sc.moon.radius_km
     if sc.moon.shape == "mesh":
-        from starnav.renderer.scene import icosphere_mesh
-
         m = icosphere_mesh(R * 1e3, min(sc.moon.mesh_subdivisions, 6))
         faces = np.hstack([np.full((m.faces.shape[0], 1), 3), m.faces]).ravel()
         return pv.PolyData(m.vertices / 1e3, faces)
@@ -157,8 +157,6 @@ def render_scene(scenario: Scenario, out: str | os.PathLike[str], *, frusta: int
     ConfigError
         Bad arguments.
     """
-    from starnav.simulate import scene_from_scenario
-
     if frusta < 1:
         raise ConfigError("frusta", frusta, "an integer >= 1")
     if not 0 < frustum_fraction <= 1:

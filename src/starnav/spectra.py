@@ -29,6 +29,7 @@ Example
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 from functools import lru_cache
@@ -40,6 +41,7 @@ from pydantic import Field
 
 from starnav.config_base import StrictModel
 from starnav.constants import AU, PLANCK_H, SPEED_OF_LIGHT, SUN_RADIUS, SUN_TEFF, TSI_IAU2015
+from starnav.data import packaged_path
 from starnav.errors import ConfigError, UnknownNameError
 from starnav.fields import PositiveFloat
 
@@ -194,10 +196,6 @@ def amie_quantum_efficiency() -> float:
     against its CALSPEC spectrum through the measured NONE curve: the packaged
     ``amie/vega_calibration.json`` written by ``tools/calibrate_amie_vega.py``
     (:mod:`starnav.reference.amie.vega`)."""
-    import json
-
-    from starnav.data import packaged_path
-
     return float(json.loads(packaged_path("amie/vega_calibration.json").read_text())
                  ["quantum_efficiency"])
 
@@ -213,8 +211,6 @@ def amie_none_response() -> Spectrum:
     transmittance); ``QE`` is flat, :func:`amie_quantum_efficiency` (measured on Vega); the
     instrument kernel ``SMART1_AMIE_V01.TI`` quotes the band as centre 800 nm, width 700 nm.
     """
-    from starnav.data import packaged_path
-
     path = packaged_path(AMIE_RESPONSE_TABLE)
     table = np.loadtxt(path, delimiter=",", comments="#", skiprows=2, ndmin=2)
     return Spectrum(table[:, 0], table[:, 1] * AMIE_RESPONSE_SCALE * amie_quantum_efficiency(),

@@ -39,6 +39,10 @@ from starnav.batch.tasks import (
     filter_task,
     render_task,
 )
+from starnav.config import scenario_from_dict, scenario_to_dict
+from starnav.errors import ConfigError
+from starnav.seeding import STAGE_TERRAIN, generator
+from starnav.simulate import scene_from_scenario
 
 
 @dataclass
@@ -55,8 +59,6 @@ def terrain_offsets_deg(seed: int, runs: int) -> list[float]:
     """The terrain realisation of each run: run 0 the Moon as it is, run ``r`` the terrain
     turned by a uniform random angle about the pole (``moon.dem.longitude_offset_deg``, from
     the stream ``(STAGE_TERRAIN, r)`` of ``seed``) [deg]."""
-    from starnav.seeding import STAGE_TERRAIN, generator
-
     return [0.0] + [float(generator(int(seed), STAGE_TERRAIN, r).uniform(0.0, 360.0))
                     for r in range(1, int(runs))]
 
@@ -65,9 +67,6 @@ def terrain_renders(config: dict[str, Any], runs: int,
                     rendered: list[RenderedFrame] | None = None) -> list[list[RenderedFrame]]:
     """The arc rendered once per run, each run on its own terrain (:func:`terrain_offsets_deg`;
     run 0, the Moon as it is, may be given as ``rendered``)."""
-    from starnav.config import scenario_from_dict, scenario_to_dict
-    from starnav.errors import ConfigError
-
     sc = scenario_from_dict(config)
     if sc.moon.shape != "dem":
         raise ConfigError("moon.shape", sc.moon.shape, "'dem' for terrain realisations")
@@ -92,8 +91,6 @@ def noise_monte_carlo(config: dict[str, Any], runs: int,
     in every run of an arc (a fixed, unknown bias of that arc: one draw, whatever the number
     of runs). ``rendered`` then holds run 0's frames (the Moon as it is); ``per_run``, from
     :func:`terrain_renders`, reuses the terrains' renders (e.g. for another exposure)."""
-    from starnav.errors import ConfigError
-
     if int(runs) < 2:
         raise ConfigError("runs", runs, "an integer >= 2 (a consistency test needs runs)")
     if per_run is not None:
@@ -442,9 +439,6 @@ def modelled_sigma(table: dict[str, np.ndarray], calibration: Any, topography: A
 
 def render_arc(config: dict[str, Any]) -> list[RenderedFrame]:
     """Every frame of the resolved scenario dict ``config``, rendered (in this process)."""
-    from starnav.config import scenario_from_dict
-    from starnav.simulate import scene_from_scenario
-
     n = len(scene_from_scenario(scenario_from_dict(config)))
     return [render_task(config, i) for i in range(n)]
 
@@ -458,8 +452,6 @@ def limb_point_records(config: dict[str, Any], runs: int = 1,
     alone), expose and process it ``runs`` times. Per exposure: ``points``
     (:func:`limb_point_table`), ``fixes`` (:func:`fix_mode_table`) and ``fix_nees``, the NEES
     (3 dof) of every fix against the true Moon-relative position."""
-    from starnav.config import scenario_from_dict, scenario_to_dict
-
     sc = scenario_from_dict(config)
     rendered = render_arc(config) if rendered is None else rendered
     cases = exposures or ((float(sc.detector.exposure_time_s), ()),)

@@ -40,15 +40,15 @@ import itertools
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import yaml
 
+from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
 from starnav.config_base import apply_overrides, set_dotted
+from starnav.dem.schema import DemConfig
 from starnav.errors import ConfigError
-
-if TYPE_CHECKING:
-    from starnav.config import Scenario
+from starnav.scenes.schema import TrajectoryConfig
 
 #: Scenario sections that change the rendered radiance (module step 3).
 UPSTREAM_SECTIONS: tuple[str, ...] = ("camera", "sensor_response", "moon", "sun", "geometry",
@@ -213,13 +213,8 @@ def _flatten(d: Any, prefix: str, out: set[str]) -> None:
 
 def known_keys() -> set[str]:
     """Every dotted key of a scenario (optional sections filled with their defaults)."""
-    from starnav.config import Scenario, scenario_to_dict
-    from starnav.scenes.schema import TrajectoryConfig
-
     keys: set[str] = set()
     _flatten(scenario_to_dict(Scenario(trajectory=TrajectoryConfig())), "", keys)
-    from starnav.dem.schema import DemConfig
-
     _flatten({"moon": {"dem": DemConfig().model_dump(mode="json")}}, "", keys)
     return keys
 
@@ -246,8 +241,6 @@ def render_config(scenario: Scenario) -> tuple[dict[str, Any], float]:
     ``moon.albedo_scale`` at 1: it is a radiance factor for every model) and the defaults of the
     downstream ones, so that every point of a render group gives the same dict.
     """
-    from starnav.config import Scenario, scenario_to_dict
-
     d = scenario_to_dict(scenario)
     blank = scenario_to_dict(Scenario())
     up = {k: d[k] for k in UPSTREAM_SECTIONS}
@@ -284,8 +277,6 @@ def expand(base: Scenario | dict[str, Any], axes: Sequence[GridAxis],
     ConfigError
         An unknown key (with suggestions) or a value the scenario rejects (named by key).
     """
-    from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
-
     base_dict = scenario_to_dict(base) if isinstance(base, Scenario) else dict(base)
     base_dict = apply_overrides(base_dict, list(overrides))
     known = known_keys()

@@ -43,20 +43,28 @@ import shutil
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from starnav.atomic import atomic_write_text
+from starnav.batch.cluster import open_runner
 from starnav.batch.cluster import quiet_logger as _quiet
+from starnav.batch.montecarlo import navigate_runs, verdict_line, write
 from starnav.batch.presets import (
     DEMO_EXPOSURE_OVERRIDES,
     DEMO_EXPOSURES_S,
     demo_scenario,
     paper_case,
 )
-from starnav.errors import ConfigError
-
-if TYPE_CHECKING:
-    from starnav.config import Scenario
+from starnav.batch.report import describe_scenario
+from starnav.config import Scenario, scenario_from_dict, write_resolved
+from starnav.dataset import DatasetOptions, generate
+from starnav.dataset import format as F
+from starnav.dataset import open as open_dataset
+from starnav.dataset.format import exposure_dirname
+from starnav.errors import ConfigError, DataFileError
+from starnav.navigation.report import navigate_dataset
+from starnav.preview import frame_caption, plot_radiance_and_dn
+from starnav.simulate import scene_from_scenario
 
 log = logging.getLogger(__name__)
 
@@ -82,10 +90,6 @@ def _num(x: Any) -> float:
 
 def _dataset(sc: Scenario, out: Path, opts: Any, workers: int,
              progress: Callable[[int], None] | None) -> Any:
-    from starnav.batch.cluster import open_runner
-    from starnav.dataset import format as F
-    from starnav.dataset import generate
-
     with open_runner(workers) as runner:
         try:
             return generate(sc, out, options=opts, resume=True, runner=runner,
@@ -136,13 +140,6 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
         ``dataset_frames_per_s``, ``elapsed_s``, and per exposure the limb bias [px], the
         final position error [km] and its fraction of the range [%].
     """
-    from starnav.config import scenario_from_dict, write_resolved
-    from starnav.dataset import DatasetOptions
-    from starnav.dataset import open as open_dataset
-    from starnav.dataset.format import exposure_dirname
-    from starnav.navigation.report import navigate_dataset
-    from starnav.simulate import scene_from_scenario
-
     t0 = time.perf_counter()
     sc = scenario if scenario is not None else scenario_from_dict(demo_scenario(),
                                                                   list(overrides))
@@ -169,8 +166,6 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
             progress(n + j + 1, total)
     consistency: dict[float, dict[str, Any]] = {}
     if runs >= 2:
-        from starnav.batch.montecarlo import navigate_runs, write
-
         for j, t in enumerate(ds_summary.exposures_s):
             data = open_dataset(out / "dataset", exposure=t)
             with _quiet("starnav.navigation.ekf"):
@@ -210,10 +205,6 @@ def _frame_figure(out: Path, sc: Scenario, opts: Any, exposures_s: Sequence[floa
     """Draw the middle frame's rendered radiance next to its DN frames, one per exposure
     (:func:`starnav.preview.plot_radiance_and_dn`); returns the PNG's path relative to ``out``
     and its caption, or None if the dataset holds no frame or no radiance."""
-    from starnav.dataset import open as open_dataset
-    from starnav.errors import DataFileError
-    from starnav.preview import frame_caption, plot_radiance_and_dn
-
     data = open_dataset(out / "dataset", exposure=exposures_s[0])
     if len(data) == 0:
         return None
@@ -236,9 +227,6 @@ def _write_report(out: Path, sc: Scenario, ds: Any, nav: dict[float, dict[str, A
                   nav_s: float, elapsed: float, opts: Any,
                   frame_fig: tuple[str, str] | None = None,
                   consistency: dict[float, dict[str, Any]] | None = None) -> Path:
-    from starnav.batch.report import describe_scenario
-    from starnav.dataset.format import exposure_dirname
-
     L = ["# starnav main job: can the AA-STR star tracker navigate at the Moon?", "",
          "A LUMIO-like arc rendered in physical units, exposed and read out like the AA-STR "
          "(segments, then windows along the limb), navigated with the limb-based chain "
@@ -267,8 +255,6 @@ def _write_report(out: Path, sc: Scenario, ds: Any, nav: dict[float, dict[str, A
                  f"{_g(s.get('final_position_3sigma_m'), '.3g', 1e-3)} | "
                  f"{_g(s['timing_ms']['chain_cpu_median'], '.3g')} |")
     if consistency:
-        from starnav.batch.montecarlo import verdict_line
-
         runs = next(iter(consistency.values()))["runs"]
         L += ["", f"## Can the 3-sigma bounds be trusted? ({runs} Monte Carlo runs)", "",
               "Each run re-exposes every frame's rendered radiance with its own detector noise, "

@@ -41,8 +41,11 @@ import numpy as np
 
 from starnav.atomic import atomic_write_text
 from starnav.batch.consistency import consistency_metrics
+from starnav.batch.table import to_csv
 from starnav.batch.tasks import RenderedFrame, expose_task, filter_task
+from starnav.config import scenario_to_dict
 from starnav.errors import ConfigError, DataFileError
+from starnav.navigation import plots as P
 
 
 def rendered_from_dataset(dataset: Any) -> list[RenderedFrame]:
@@ -85,8 +88,6 @@ def navigate_runs(dataset: Any, runs: int, *, scenario: Any | None = None,
         error and timing), ``result`` (the :class:`~starnav.batch.tasks.PointResult`),
         ``epochs``.
     """
-    from starnav.config import scenario_to_dict
-
     if not (isinstance(runs, int) and runs >= 2):
         raise ConfigError("runs", runs, "an integer >= 2 (one run says nothing about "
                           "consistency)")
@@ -125,9 +126,6 @@ def verdict_line(m: dict[str, Any]) -> str:
 def write(out_dir: str | os.PathLike[str], nav: dict[str, Any], *,
           plots: bool = True) -> dict[str, Path]:
     """Write the outputs of :func:`navigate_runs` into ``out_dir`` (module table)."""
-    from starnav.batch.table import to_csv
-    from starnav.navigation import plots as P
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     m, res = nav["metrics"], nav["result"]

@@ -26,11 +26,14 @@ Example
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from starnav.config import scenario_from_dict, scenario_to_dict
+from starnav.data import packaged_path
 from starnav.registry import Registry
 
 #: The paper's four exposure times [s] (seed paper, "Validation of rendering pipeline").
@@ -132,8 +135,6 @@ def paper_case(exposure_s: float, rel_tol: float = 0.01) -> PaperCase | None:
 
 # ============================================================================ scenarios
 def _resolved(partial: dict[str, Any]) -> dict[str, Any]:
-    from starnav.config import scenario_from_dict, scenario_to_dict
-
     return scenario_to_dict(scenario_from_dict(partial))
 
 
@@ -191,11 +192,6 @@ def tuned_filter(exposure_s: float) -> dict[str, Any]:
     (``starnav/data/navigation/bias_tuning.json``, written by ``tools/tune_bias_states.py``;
     never on the demo's own arc): the ``navigation.filter`` keys, or ``bias_model: none`` for
     an exposure that was not tuned."""
-    import json
-    import math
-
-    from starnav.data import packaged_path
-
     doc = json.loads(packaged_path("navigation/bias_tuning.json").read_text())
     for key, v in doc["exposures"].items():
         if math.isclose(float(key), exposure_s, rel_tol=1e-6):

@@ -14,13 +14,15 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from starnav.atomic import atomic_write_text
 from starnav.batch.presets import PAPER_MIL_SATURATED, paper_case
 from starnav.batch.tasks import TIMED_STAGES
+from starnav.config import Scenario, build_camera
 
 if TYPE_CHECKING:
     from starnav.batch.grid import GridAxis, GridPoint
-    from starnav.config import Scenario
 
 
 def _g(x: Any, fmt: str = ".3g", scale: float = 1.0) -> str:
@@ -52,8 +54,6 @@ def describe_moon(sc: Scenario) -> str:
 
 def describe_scenario(sc: Scenario) -> list[str]:
     """Bullet lines describing a scenario's set-up."""
-    from starnav.config import build_camera
-
     cam = build_camera(sc.camera)
     m = sc.moon
     lines = [f"- camera: {sc.camera.preset}, {cam.width} x {cam.height} px, f = "
@@ -134,7 +134,6 @@ def consistency_section(rows: Sequence[dict[str, Any]], summary: Sequence[dict[s
     its own detector noise, attitude knowledge error and initial error) against the two-sided
     ``probability`` chi-square band of a ``runs``-run mean of a 6-state NEES, the verdict, and
     the shortest exposure at which the filter stops being consistent."""
-    import numpy as np
     from scipy.stats import chi2
 
     if runs < 2:
@@ -179,7 +178,7 @@ def write_report(path: str | os.PathLike[str], *, base: Scenario, axes: Sequence
                  elapsed: float, counts: dict[str, int], figures: dict[str, str],
                  title: str | None = None) -> Path:
     """Write ``report.md`` (module docstring)."""
-    from starnav.batch.sweep import summarize_points
+    from starnav.batch.sweep import summarize_points  # lazy: cycle with starnav.batch.sweep
 
     summary = summarize_points(rows)
     L: list[str] = [f"# {title or 'starnav sweep'}", ""]

@@ -49,21 +49,26 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import yaml
 
+from starnav import __version__
 from starnav.atomic import atomic_write_text
+from starnav.batch import figures as FIG
+from starnav.batch.cluster import open_runner
 from starnav.batch.grid import GridAxis, GridPoint, expand, parse_grid, render_config, render_groups
+from starnav.batch.report import write_report
+from starnav.batch.table import COLUMNS, column_names, write_table
 from starnav.batch.tasks import PointResult, expose_task, filter_task, render_task
+from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
 from starnav.dataset import format as F
 from starnav.dataset.runner import TaskRunner
+from starnav.dataset.writer import check_output_dir
 from starnav.errors import ConfigError, DataFileError
+from starnav.simulate import scene_from_scenario
 from starnav.simulate.acquire import check_windows_mode
-
-if TYPE_CHECKING:
-    from starnav.config import Scenario
 
 log = logging.getLogger(__name__)
 
@@ -110,8 +115,6 @@ class SweepResult:
 # ============================================================================ checks
 def check_sweep_output(out: Path, overwrite: bool = False) -> None:
     """Raise a clear error unless ``out`` can receive a sweep (nothing is created)."""
-    from starnav.dataset.writer import check_output_dir
-
     check_output_dir(out)
     if out.exists():
         if not out.is_dir():
@@ -130,8 +133,6 @@ def check_sweep_output(out: Path, overwrite: bool = False) -> None:
 
 
 def _frames_of(sc: Scenario) -> int:
-    from starnav.simulate import scene_from_scenario
-
     n = len(scene_from_scenario(sc))
     if n < 1:
         raise ConfigError("trajectory", None, "at least one frame")
@@ -221,9 +222,6 @@ def run_sweep(
         Bad grid or values, unwritable or occupied output, unreachable scheduler: raised
         before any work, with nothing written.
     """
-    from starnav.batch.cluster import open_runner
-    from starnav.config import Scenario, scenario_from_dict
-
     t_start = time.perf_counter()
     base = scenario if isinstance(scenario, Scenario) else scenario_from_dict(dict(scenario))
     axes = parse_grid(grid)
@@ -266,8 +264,6 @@ def _execute(rn: TaskRunner, points: Sequence[GridPoint], groups: dict[str, list
              n_frames: dict[str, int], runs: int, windows: str | None,
              progress: Progress | None) -> tuple[dict[int, PointResult], dict[str, int]]:
     """Submit the task graph (module step 2) and collect the filter results."""
-    from starnav.config import scenario_to_dict
-
     tok = _token(points, runs)
     handles: list[Any] = []
     filters: dict[Any, int] = {}
@@ -309,8 +305,6 @@ def _execute(rn: TaskRunner, points: Sequence[GridPoint], groups: dict[str, list
 
 def _rows(points: Sequence[GridPoint], axes: Sequence[GridAxis],
           results: dict[int, PointResult]) -> tuple[list[dict[str, Any]], list[str]]:
-    from starnav.batch.table import column_names
-
     keys = [k for a in axes for k in a.keys]
     rows = []
     for p in points:
@@ -333,12 +327,6 @@ def _write_outputs(tmp: Path, out: Path, base: Scenario, axes: Sequence[GridAxis
                    elapsed: float, counts: dict[str, int], figures: bool,
                    title: str | None) -> dict[str, str]:
     """Write every output into ``tmp`` (renamed to ``out`` by the caller); relative paths."""
-    from starnav import __version__
-    from starnav.batch import figures as FIG
-    from starnav.batch.report import write_report
-    from starnav.batch.table import COLUMNS, write_table
-    from starnav.config import scenario_to_dict
-
     paths: dict[str, str] = {}
     tp = write_table(rows, columns, tmp)
     paths.update({k: v.name for k, v in tp.items()})

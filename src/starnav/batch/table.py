@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import os
 from collections.abc import Sequence
@@ -102,8 +103,6 @@ def _fmt(v: Any) -> str:
     if isinstance(v, float):
         return "nan" if math.isnan(v) else repr(v)
     if isinstance(v, list | tuple | dict):
-        import json
-
         return json.dumps(v, sort_keys=True)
     return str(v)
 

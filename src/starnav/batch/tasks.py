@@ -48,8 +48,18 @@ from numpy.typing import NDArray
 
 from starnav.batch.cluster import quiet_logger
 from starnav.cache import BoundedCache
+from starnav.config import scenario_from_dict
+from starnav.navigation.dynamics import PointMassDynamics
+from starnav.navigation.metrics import NavMetrics, limb_point_errors
+from starnav.navigation.pipeline import (
+    FrameMeasurement,
+    initial_error_normal,
+    process_frame,
+    run_filter,
+)
 from starnav.seeding import STAGE_NAVIGATION, generator
 from starnav.simulate import simulator_for
+from starnav.simulate.build import chain_options
 
 FloatArray = NDArray[np.float64]
 
@@ -273,8 +283,6 @@ def _key(config: dict[str, Any]) -> str:
 
 
 def _scenario(config: dict[str, Any]) -> Any:
-    from starnav.config import scenario_from_dict
-
     return _SCENARIOS.get_or_make(_key(config), lambda: scenario_from_dict(config))
 
 
@@ -320,10 +328,6 @@ def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, wind
         Number of the first run (runs ``first_run .. first_run + runs - 1``: a run's streams
         depend on its number only).
     """
-    from starnav.navigation.metrics import limb_point_errors
-    from starnav.navigation.pipeline import process_frame
-    from starnav.simulate.build import chain_options
-
     sc = _scenario(config)
     sim = simulator_for(config)
     cam = sim.camera
@@ -385,10 +389,6 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
     frames : list (frames) of list (runs) of FrameResult
     runs : int
     """
-    from starnav.navigation.dynamics import PointMassDynamics
-    from starnav.navigation.metrics import NavMetrics
-    from starnav.navigation.pipeline import FrameMeasurement, initial_error_normal, run_filter
-
     sc = _scenario(config)
     nav = sc.navigation
     frames = sorted(frames, key=lambda fr: fr[0].index)

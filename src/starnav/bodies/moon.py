@@ -22,6 +22,7 @@ from starnav.renderer.dem_hook import dem_moon_model
 from starnav.renderer.render import AlbedoMap, MoonModel, load_albedo_map
 from starnav.renderer.scene import icosphere_mesh
 from starnav.renderer.schema import AlbedoMapConfig, MoonConfig
+from starnav.scenes.ephemeris import Ephemeris
 
 
 def mean_normal_albedo(moon: MoonConfig) -> float:
@@ -57,8 +58,6 @@ class Moon(TargetBody):
 
     def orientation(self, epochs_tdb: ArrayLike, ephemeris: Any = None) -> FloatArray:
         if ephemeris is None:
-            from starnav.scenes.ephemeris import Ephemeris
-
             ephemeris = Ephemeris.default()
         return np.asarray(ephemeris.moon_orientation(epochs_tdb, frame=self.frame))
 

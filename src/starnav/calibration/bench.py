@@ -59,7 +59,7 @@ import logging
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -76,11 +76,10 @@ from starnav.calibration.collimator import (
 from starnav.calibration.schema import BenchConfig
 from starnav.calibration.screen import ScreenRadiometry
 from starnav.camera import Camera
+from starnav.config import build_camera
+from starnav.detector import DetectorConfig, expose
 from starnav.errors import ConfigError
-
-if TYPE_CHECKING:  # pragma: no cover
-    from starnav.detector import DetectorConfig
-    from starnav.spectra import SensorResponse
+from starnav.spectra import SensorResponse, sensor_response_from_config
 
 log = logging.getLogger(__name__)
 
@@ -410,8 +409,6 @@ class ChainDetector:
 
     def __init__(self, camera: Camera, config: DetectorConfig | None = None, seed: int = 0,
                  readout_policy: str | None = "ignore") -> None:
-        from starnav.detector import DetectorConfig
-
         cfg = config if config is not None else DetectorConfig()
         if readout_policy is not None and cfg.readout.timing.policy != readout_policy:
             d = cfg.model_dump()
@@ -426,8 +423,6 @@ class ChainDetector:
         self.max_dn = float(2**cfg.adc.bits - 1)
 
     def expose(self, le: FloatArray, exposure_time: float, frame_index: int) -> DetectorFrame:
-        from starnav.detector import expose
-
         ex = expose(np.asarray(le, np.float32), self.camera, self.config, seed=self.seed,
                     frame_index=int(frame_index), exposure_time=float(exposure_time))
         return DetectorFrame(ex.dn.astype(float), ex.electrons.astype(float), ex)
@@ -496,9 +491,6 @@ class Bench:
 
     def __init__(self, config: BenchConfig, camera: Camera | None = None,
                  response: SensorResponse | None = None) -> None:
-        from starnav.config import build_camera
-        from starnav.spectra import sensor_response_from_config
-
         self.config = config
         self.camera = camera if camera is not None else build_camera(config.scenario.camera)
         self.response = (response if response is not None

@@ -79,7 +79,9 @@ from starnav.calibration.bench import (
     DetectorStage,
     angle_between,
 )
+from starnav.calibration.collimator import vignetting
 from starnav.calibration.screen import gaussian_dots
+from starnav.calibration.streams import bench_rng
 from starnav.camera import Camera
 from starnav.constants import ARCSEC
 from starnav.errors import ConfigError, StarnavError
@@ -478,8 +480,6 @@ def prewarp(le_camera: ArrayLike, mapping: ScreenMapping, bench: Bench,
     vals = ndimage.map_coordinates(le, [v.ravel(), u.ravel()], order=1, mode="constant",
                                    cval=0.0).reshape(u.shape)
     if bench.config.collimator.clear_aperture_mm is not None:
-        from starnav.calibration.collimator import vignetting
-
         vig = vignetting(bench.config.collimator, cam.pupil_diameter,
                          np.hypot(tt[..., 0], tt[..., 1]))
         vals = np.where(vig > 1e-3, vals / np.maximum(vig, 1e-3), 0.0)
@@ -501,8 +501,6 @@ def stimulus_counts(le_camera: ArrayLike, mapping: ScreenMapping, bench: Bench,
     target = prewarp(le_camera, mapping, bench, scale)
     m = method or bench.config.radiometric.quantization
     if m == "dither" and rng is None:
-        from starnav.calibration.streams import bench_rng
-
         rng = bench_rng(bench.config, "stimulus")
     return bench.radiometry.counts_for(target, m, rng)
 
@@ -678,8 +676,6 @@ def calibrate_geometry(bench: Bench, detector: DetectorStage | None = None,
     CalibrationError
         Too few dots matched for the polynomial order.
     """
-    from starnav.calibration.streams import bench_rng
-
     cfg = bench.config.geometric
     det = detector if detector is not None else bench.chain_detector()
     rng = rng if rng is not None else bench_rng(bench.config, "geometric")

@@ -68,6 +68,7 @@ from starnav.calibration.geometric import (
     stimulus_counts,
 )
 from starnav.calibration.screen import ScreenRadiometry
+from starnav.calibration.streams import bench_rng
 from starnav.camera import Camera
 from starnav.errors import ConfigError
 from starnav.radiance import RadianceImage
@@ -340,8 +341,6 @@ def compare_stimulus(bench: Bench, le: ArrayLike | RadianceImage, render_exposur
     ConfigError
         Empty image, non-positive exposure, or a stimulus brighter than the screen.
     """
-    from starnav.calibration.streams import bench_rng
-
     det = detector if detector is not None else bench.chain_detector()
     img = np.asarray(le.Le if isinstance(le, RadianceImage) else le, float)
     if not np.any(img > 0):

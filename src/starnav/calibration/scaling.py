@@ -69,6 +69,8 @@ from starnav.calibration.bench import Bench, DetectorStage
 from starnav.calibration.geometric import ScreenMapping, stimulus_counts
 from starnav.calibration.radiometric import StimulusComparison, compare_stimulus
 from starnav.calibration.screen import ScreenRadiometry
+from starnav.calibration.streams import bench_rng
+from starnav.detector import min_exposure
 from starnav.errors import ConfigError
 from starnav.radiance import RadianceImage
 
@@ -194,8 +196,6 @@ def bench_min_exposure(bench: Bench, readout: str | None = None,
     """Shortest bench exposure [s] the star tracker's readout allows (paper eq. 1, via
     :func:`starnav.detector.min_exposure`): ``full_frame`` (>= 200 ms) or ``windows`` of
     ``window_pixels`` pixels (default: the whole detector)."""
-    from starnav.detector import min_exposure
-
     mode = readout or bench.config.scaling.readout
     timing = bench.config.scenario.detector.readout.timing
     cam = bench.camera
@@ -302,8 +302,6 @@ def albedo_exposure_experiment(bench: Bench, le: ArrayLike | RadianceImage,
     """
     from scipy import ndimage
 
-    from starnav.calibration.streams import bench_rng
-
     sc = bench.config.scaling
     det = detector if detector is not None else bench.chain_detector()
     rng = rng if rng is not None else bench_rng(bench.config, "scaling")
@@ -377,8 +375,6 @@ def end_to_end(bench: Bench, le: ArrayLike | RadianceImage, mapping: ScreenMappi
         [s]; defaults ``scaling.render_exposure_ms`` and the plan's exposure (``scaling``
         section: fixed, or the shortest the readout allows).
     """
-    from starnav.calibration.streams import bench_rng
-
     sc = bench.config.scaling
     img = np.asarray(le.Le if isinstance(le, RadianceImage) else le, float)
     t_r = render_exposure_s if render_exposure_s is not None else sc.render_exposure_ms * 1e-3

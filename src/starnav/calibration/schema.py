@@ -48,7 +48,7 @@ import numpy as np
 import yaml
 from pydantic import Field, ValidationError, field_validator, model_validator
 
-from starnav.config import Scenario
+from starnav.config import Scenario, load_scenario
 from starnav.config_base import StrictModel, apply_overrides, format_validation_error
 from starnav.errors import ConfigError, DataFileError
 from starnav.fields import FiniteFloat, NonNegativeFloat, PositiveFloat, PositiveFraction
@@ -384,8 +384,6 @@ def bench_from_dict(data: dict[str, Any] | None, overrides: list[str] | tuple[st
     DataFileError
         The referenced scenario file does not exist.
     """
-    from starnav.config import load_scenario
-
     if data is None:
         data = {}
     if not isinstance(data, dict):

@@ -16,6 +16,7 @@ False
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 from collections.abc import Callable
@@ -26,6 +27,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from starnav.atomic import atomic_path
+from starnav.calibration import plots
 from starnav.calibration.bench import Bench, check_bench
 from starnav.calibration.collimator import implied_fov_deg
 from starnav.calibration.geometric import (
@@ -34,9 +37,17 @@ from starnav.calibration.geometric import (
     ScreenMapping,
     calibrate_geometry,
 )
+from starnav.calibration.radiometric import compare_stimulus, count_flux_mapping, moon_flux
+from starnav.calibration.scaling import (
+    albedo_exposure_experiment,
+    bench_min_exposure,
+    end_to_end,
+    plan_scaling,
+)
 from starnav.calibration.schema import BenchConfig, bench_to_dict
 from starnav.errors import ConfigError, DataFileError
-from starnav.radiance import RadianceImage
+from starnav.radiance import RadianceImage, read_exr
+from starnav.simulate import frame_geometries, renderer_from_scenario
 
 log = logging.getLogger(__name__)
 
@@ -66,8 +77,6 @@ class HilReport:
 def render_reference(cfg: BenchConfig, albedo_scale: float = 1.0) -> RadianceImage:
     """The first frame of the bench's scenario, rendered with ``moon.albedo_scale`` multiplied
     by ``albedo_scale`` (renders are linear in albedo)."""
-    from starnav.simulate import frame_geometries, renderer_from_scenario
-
     sc = cfg.scenario
     if albedo_scale != 1.0:
         sc = sc.model_copy(update={"moon": sc.moon.model_copy(
@@ -81,8 +90,6 @@ def render_reference(cfg: BenchConfig, albedo_scale: float = 1.0) -> RadianceIma
 # =========================================================================== check
 def run_check(cfg: BenchConfig) -> HilReport:
     """Optical-stimulator condition (eq. 2, stated and derived FoV) and detector coverage."""
-    from starnav.calibration import plots
-
     bench = Bench(cfg)
     chk = check_bench(bench)
     cam = bench.camera
@@ -111,9 +118,6 @@ def run_geometric(cfg: BenchConfig, *, moon: bool = True,
     image : RadianceImage, optional
         The Moon frame to use instead of rendering the scenario's first frame.
     """
-    from starnav.calibration import plots
-    from starnav.calibration.radiometric import compare_stimulus
-
     bench = Bench(cfg)
     res = calibrate_geometry(bench)
     summary: dict[str, Any] = {"geometric": res.summary()}
@@ -136,8 +140,6 @@ def run_geometric(cfg: BenchConfig, *, moon: bool = True,
 
 def load_calibration(path: str | Path, bench: Bench) -> GeometricCalibration:
     """Read a ``geometric_calibration.json`` written by ``hil geometric``."""
-    import json
-
     p = Path(path)
     if not p.is_file():
         raise DataFileError(f"geometric calibration {str(p)!r} does not exist")
@@ -174,15 +176,6 @@ def run_radiometric(cfg: BenchConfig,
     image, image_scaled : RadianceImage, optional
         The rendered frame at the true albedo and at albedo / k (default: rendered here).
     """
-    from starnav.calibration import plots
-    from starnav.calibration.radiometric import compare_stimulus, count_flux_mapping, moon_flux
-    from starnav.calibration.scaling import (
-        albedo_exposure_experiment,
-        bench_min_exposure,
-        end_to_end,
-        plan_scaling,
-    )
-
     bench = Bench(cfg)
     rad = bench.radiometry
     mapping = _calibration(bench, calibration)
@@ -227,8 +220,6 @@ def run_radiometric(cfg: BenchConfig,
 
 
 def _json(d: dict[str, Any]) -> str:
-    import json
-
     return json.dumps(d, indent=1)
 
 
@@ -242,8 +233,6 @@ def png_frame_sink(out: str | Path, screen_bit_depth: int) -> FrameSink:
     in-orbit exposure (``predicted/NAME_dn.png``, ``orbit/NAME_dn.png``, 16-bit DN), each
     atomically."""
     import imageio.v3 as iio
-
-    from starnav.atomic import atomic_path
 
     out = Path(out)
     dtype = np.uint8 if screen_bit_depth <= 8 else np.uint16
@@ -290,11 +279,6 @@ def run_stimulate(cfg: BenchConfig, dataset: str | Path, sink: FrameSink,
     ConfigError
         A frame whose size differs from the bench camera's.
     """
-    from starnav.calibration import plots
-    from starnav.calibration.radiometric import compare_stimulus
-    from starnav.calibration.scaling import bench_min_exposure, plan_scaling
-    from starnav.radiance import read_exr
-
     d = Path(dataset)
     files = sorted(d.glob("*.exr")) if d.is_dir() else []
     if not files:

@@ -47,7 +47,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.atomic import atomic_write_text
+from starnav.camera import Camera
+from starnav.detector.products import Segments, Window
 from starnav.errors import ConfigError, DataFileError
+from starnav.geometry import geometry_from_dict, geometry_to_dict, quat_xyzw_from_matrix
+from starnav.scenes.ephemeris import format_epoch
 
 #: Name and version of the format (bump the version on any incompatible change).
 SCHEMA = "starnav-dataset"
@@ -193,8 +197,6 @@ def segments_to_dict(seg: Any) -> dict[str, Any]:
 
 def segments_from_dict(d: Mapping[str, Any]) -> Any:
     """Inverse of :func:`segments_to_dict`."""
-    from starnav.detector.products import Segments
-
     length = np.asarray(d["length"], np.int32)
     offset = np.zeros(length.size, np.int64)
     if length.size:
@@ -222,8 +224,6 @@ def windows_to_dict(windows: Sequence[Any], acquisition: int | None) -> dict[str
 
 def windows_from_dict(d: Mapping[str, Any]) -> tuple[Any, ...]:
     """Inverse of :func:`windows_to_dict`."""
-    from starnav.detector.products import Window
-
     out = []
     for w in d["windows"]:
         dn = np.asarray(w["dn"], np.uint16).reshape(int(w["height"]), int(w["width"]))
@@ -245,9 +245,6 @@ def truth_to_dict(geom: Any, camera: Any, limb_points: int = 360) -> dict[str, A
     limb_points : int
         Number of points sampled on the true limb (equal steps in the tangency circle).
     """
-    from starnav.geometry import geometry_to_dict, quat_xyzw_from_matrix
-    from starnav.scenes.ephemeris import format_epoch
-
     g = geom
     centre_cam = g.moon_centre_camera()
     static = g.camera_state_emb is None
@@ -297,8 +294,6 @@ def truth_to_dict(geom: Any, camera: Any, limb_points: int = 360) -> dict[str, A
 
 def geometry_of_truth(d: Mapping[str, Any]) -> Any:
     """The :class:`~starnav.geometry.FrameGeometry` stored in a ``truth.json``."""
-    from starnav.geometry import geometry_from_dict
-
     return geometry_from_dict(dict(d["geometry"]))
 
 
@@ -317,8 +312,6 @@ def camera_to_dict(camera: Any) -> dict[str, Any]:
 
 def camera_from_dict(d: Mapping[str, Any]) -> Any:
     """Inverse of :func:`camera_to_dict`."""
-    from starnav.camera import Camera
-
     k1, k2, k3, p1, p2 = (float(x) for x in d["distortion_k1_k2_k3_p1_p2"])
     return Camera(width=int(d["width_px"]), height=int(d["height_px"]),
                   focal_length=float(d["focal_length_m"]), pitch_x=float(d["pitch_x_m"]),

@@ -33,8 +33,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from starnav.config import scenario_from_dict
 from starnav.dataset import format as F
+from starnav.detector.io import read_dn_png
 from starnav.errors import ConfigError, DataFileError
+from starnav.radiance import read_exr
 
 log = logging.getLogger(__name__)
 
@@ -118,14 +121,10 @@ class DatasetFrame:
     # ------------------------------------------------------------------ images
     def dn(self) -> NDArray[np.uint16]:
         """Full DN frame of acquisition 0 [DN] (16-bit PNG)."""
-        from starnav.detector.io import read_dn_png
-
         return read_dn_png(self.exposure_dir / F.DN)
 
     def radiance(self) -> Any:
         """:class:`~starnav.radiance.RadianceImage` (``radiance.exr``)."""
-        from starnav.radiance import read_exr
-
         p = self.directory / F.RADIANCE
         if not p.is_file():
             raise DataFileError(f"{str(p)!r} does not exist (dataset made without radiance)")
@@ -203,8 +202,6 @@ class Dataset:
         """The resolved scenario of the selected exposure, validated
         (:class:`~starnav.config.Scenario`): the dataset's, with the exposure's time and its
         :attr:`exposure_overrides`, then ``overrides``."""
-        from starnav.config import scenario_from_dict
-
         return scenario_from_dict(self.config, [
             f"detector.exposure_time_s={self.exposure_s!r}", *self.exposure_overrides,
             *overrides])

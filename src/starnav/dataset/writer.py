@@ -52,24 +52,38 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
+from starnav import __version__
 from starnav.cache import BoundedCache
+from starnav.config import (
+    Scenario,
+    build_camera,
+    scenario_from_dict,
+    scenario_to_dict,
+    write_resolved,
+)
 from starnav.dataset import format as F
 from starnav.dataset.runner import InProcessRunner, TaskRunner
+from starnav.detector.io import write_dn_png
 from starnav.errors import ConfigError, DataFileError, StarnavError
+from starnav.radiance import write_exr
+from starnav.renderer import backend
 from starnav.simulate import (
     Simulator,
     body_from_scenario,
     check_windows_mode,
     readout_feasibility,
+    scene_from_scenario,
 )
 from starnav.simulate.acquire import sensor_seed_of
-
-if TYPE_CHECKING:
-    from starnav.config import Scenario
+from starnav.spectra import (
+    band_integrals,
+    sensor_response_from_config,
+    solar_spectrum_from_config,
+)
 
 log = logging.getLogger(__name__)
 
@@ -150,7 +164,6 @@ class DatasetOptions:
         items = self.overrides_for(exposure_s)
         if not items:
             return scenario
-        from starnav.config import scenario_from_dict, scenario_to_dict
 
         try:
             return scenario_from_dict(scenario_to_dict(scenario), list(items))
@@ -215,17 +228,6 @@ def _canonical_key(*parts: Any) -> str:
 
 def dataset_head(scenario: Scenario, options: DatasetOptions, n_frames: int) -> dict[str, Any]:
     """The frame-independent part of the manifest (module step 2); deterministic."""
-    import numpy
-
-    from starnav import __version__
-    from starnav.config import build_camera, scenario_to_dict
-    from starnav.renderer import backend
-    from starnav.spectra import (
-        band_integrals,
-        sensor_response_from_config,
-        solar_spectrum_from_config,
-    )
-
     sc = scenario
     opts = options.resolved(sc)
     info = backend.activate(tuple(sc.render.variants))
@@ -242,7 +244,7 @@ def dataset_head(scenario: Scenario, options: DatasetOptions, n_frames: int) -> 
         "schema_version": F.SCHEMA_VERSION,
         "software": {"starnav": __version__, "mitsuba": info.mitsuba_version,
                      "drjit": info.drjit_version, "variant": info.variant,
-                     "numpy": numpy.__version__},
+                     "numpy": np.__version__},
         "config": scenario_to_dict(sc),
         "options": opts.to_dict(),
         "camera": camera_to_manifest(cam),
@@ -306,9 +308,6 @@ class FrameMaker:
         dict
             The frame's manifest entry.
         """
-        from starnav.detector.io import write_dn_png
-        from starnav.radiance import write_exr
-
         frames = root / F.FRAMES_DIR
         frames.mkdir(parents=True, exist_ok=True)
         final = frames / F.frame_dirname(index)
@@ -390,7 +389,6 @@ def frame_maker(config: dict[str, Any], options: dict[str, Any] | None = None) -
     worker builds its renderer and scene once per configuration)."""
     options = options if options is not None else DatasetOptions().to_dict()
     key = _canonical_key(config, options)
-    from starnav.config import scenario_from_dict
 
     return _MAKERS.get_or_make(key, lambda: FrameMaker(scenario_from_dict(config),
                                                        DatasetOptions.from_dict(options)))
@@ -556,9 +554,6 @@ def generate(scenario: Scenario, out: str | os.PathLike[str], *,
     ConfigError, DataFileError, DatasetLockedError
         Bad options, an unwritable or foreign directory, a resume with another scenario.
     """
-    from starnav.config import write_resolved
-    from starnav.simulate import scene_from_scenario
-
     t_start = time.perf_counter()
     opts = (options or DatasetOptions()).resolved(scenario)
     out = Path(out)

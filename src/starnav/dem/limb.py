@@ -40,6 +40,7 @@ import numpy as np
 from starnav.cache import BoundedCache
 from starnav.constants import MOON_RADIUS
 from starnav.dem.grid import DemGrid, body_to_selenographic
+from starnav.dem.load import as_dem_config, load_dem
 
 #: Arc widths [rad of position angle] at which the averaged limb-height spread is tabulated.
 ARC_WIDTHS_RAD = tuple(math.radians(d) for d in (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0,
@@ -149,7 +150,5 @@ _BY_CONFIG: BoundedCache[str, LimbTopography] = BoundedCache(16)
 def limb_topography_for(dem_config: object) -> LimbTopography:
     """:func:`limb_topography` of the DEM a scenario's ``moon.dem`` section loads (cached per
     configuration; the packaged LOLA LDEM_4 by default)."""
-    from starnav.dem.load import as_dem_config, load_dem
-
     cfg = as_dem_config(dem_config)  # type: ignore[arg-type]
     return _BY_CONFIG.get_or_make(cfg.model_dump_json(), lambda: limb_topography(load_dem(cfg)))

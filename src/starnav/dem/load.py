@@ -19,7 +19,11 @@ from pydantic import ValidationError
 
 from starnav.cache import BoundedCache
 from starnav.config_base import format_validation_error
+from starnav.data import packaged_path
+from starnav.dem import procedural
 from starnav.dem.grid import AlbedoGrid, DemGrid
+from starnav.dem.procedural import procedural_moon
+from starnav.dem.readers import read_albedo, read_dem
 from starnav.dem.schema import AlbedoConfig, DemConfig
 
 logger = logging.getLogger(__name__)
@@ -51,15 +55,12 @@ def packaged_source(source: str, kind: str) -> str:
     rel = PACKAGED_SOURCES[kind].get(source)
     if rel is None:
         return source
-    from starnav.data import packaged_path
 
     return str(packaged_path(rel))
 
 
 def clear_cache() -> None:
     """Forget the grids loaded so far (and the procedural worlds)."""
-    from starnav.dem import procedural
-
     _CACHE.clear()
     procedural._CACHE.clear()
 
@@ -95,8 +96,6 @@ def load_dem(cfg: DemConfig | dict[str, Any] | None = None) -> DemGrid:
         base = load_dem(cfg.model_copy(update={"longitude_offset_deg": 0.0}))
         return base.rotated_east(math.radians(cfg.longitude_offset_deg))  # type: ignore[return-value]
     if cfg.source == "procedural":
-        from starnav.dem.procedural import procedural_moon
-
         radius = cfg.reference_radius_km * 1e3
         key = ("proc", cfg.procedural.model_dump_json(), radius, cfg.max_pixels_per_degree)
 
@@ -105,7 +104,6 @@ def load_dem(cfg: DemConfig | dict[str, Any] | None = None) -> DemGrid:
             return g.resampled(cfg.max_pixels_per_degree) if cfg.max_pixels_per_degree else g
 
         return _CACHE.get_or_make(key, make)
-    from starnav.dem.readers import read_dem
 
     path = packaged_source(cfg.source, "dem")
     key = ("dem", _file_stamp(path), cfg.model_dump_json(exclude={"albedo", "mesh"}))
@@ -141,8 +139,6 @@ def load_albedo(cfg: DemConfig | AlbedoConfig | dict[str, Any] | None) -> Albedo
         return None if base is None else base.rotated_east(  # type: ignore[return-value]
             math.radians(dem_cfg.longitude_offset_deg))
     if acfg.source == "procedural":
-        from starnav.dem.procedural import procedural_moon
-
         radius = dem_cfg.reference_radius_km * 1e3
         key = ("proc-albedo", dem_cfg.procedural.model_dump_json(), radius,
                acfg.model_dump_json())
@@ -162,7 +158,6 @@ def load_albedo(cfg: DemConfig | AlbedoConfig | dict[str, Any] | None) -> Albedo
             return g
 
         return _CACHE.get_or_make(key, make)
-    from starnav.dem.readers import read_albedo
 
     path = packaged_source(acfg.source, "albedo")
     key = ("albedo", _file_stamp(path), acfg.model_dump_json())

@@ -76,11 +76,13 @@ import logging
 import math
 import time
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from starnav.atomic import atomic_path
 from starnav.cache import BoundedCache
 from starnav.camera import Camera
 from starnav.dem.grid import AlbedoGrid, DemGrid, EquirectangularGrid
@@ -622,10 +624,6 @@ def _build(dem: DemGrid, albedo: AlbedoGrid | None, view: _View, opts: MeshOptio
 def save_mesh(mesh: trimesh.Trimesh, path: Any) -> Any:
     """Write a mesh (PLY with normals and the vertex attributes as float properties) through a
     temporary file and a rename. PLY stores float32 coordinates (~0.1 m at the lunar radius)."""
-    from pathlib import Path
-
-    from starnav.atomic import atomic_path
-
     p = Path(path)
     suffix = p.suffix.lstrip(".") or "ply"
     with atomic_path(p, suffix=f".{suffix}") as tmp:

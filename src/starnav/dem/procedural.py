@@ -67,6 +67,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -607,8 +608,6 @@ def procedural_moon(cfg: ProceduralDemConfig | None = None,
 
 
 def _make_moon(cfg: ProceduralDemConfig, radius: float) -> ProceduralMoon:
-    import time
-
     t0 = time.perf_counter()
     n_lat = max(4, round(180.0 * cfg.pixels_per_degree))
     shape = (n_lat, 2 * n_lat)

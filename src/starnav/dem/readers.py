@@ -756,7 +756,7 @@ class DemInfo:
 def dem_info(grid: DemGrid | DemConfig | str | os.PathLike[str]) -> DemInfo:
     """Size, resolution, extent and height statistics of a grid, a DEM config or a file."""
     if not isinstance(grid, DemGrid):
-        from starnav.dem.load import load_dem
+        from starnav.dem.load import load_dem  # lazy: cycle with starnav.dem.load
 
         cfg = grid if isinstance(grid, DemConfig) else DemConfig(source=str(grid))
         grid = load_dem(cfg)

@@ -16,6 +16,7 @@ from typing import Annotated, Literal
 from pydantic import Field, field_validator, model_validator
 
 from starnav.config_base import StrictModel
+from starnav.detector.blooming import BLOOMING_MODES
 from starnav.detector.products import MAX_WINDOWS
 from starnav.errors import UnknownNameError
 from starnav.fields import FiniteFloat, NonNegativeFloat, PositiveFloat, UnitInterval
@@ -241,8 +242,6 @@ class BloomingConfig(StrictModel):
     @field_validator("mode")
     @classmethod
     def _known_mode(cls, v: str) -> str:
-        from starnav.detector.blooming import BLOOMING_MODES
-
         try:
             return BLOOMING_MODES.check(v)
         except UnknownNameError as err:  # a KeyError: pydantic reports ValueErrors only

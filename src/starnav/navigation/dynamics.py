@@ -26,6 +26,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from starnav.scenes.dynamics import PointMassModel, propagate
+
 FloatArray = NDArray[np.float64]
 
 
@@ -59,14 +61,10 @@ class PointMassDynamics:
     """
 
     def __init__(self, model: Any | None = None, step_s: float = 300.0) -> None:
-        from starnav.scenes.dynamics import PointMassModel
-
         self.model = model if model is not None else PointMassModel()
         self.step_s = float(step_s)
 
     def propagate(self, t0: float, x0: ArrayLike, t1: float) -> tuple[FloatArray, FloatArray]:
-        from starnav.scenes.dynamics import propagate
-
         x1, Phi = propagate(self.model, float(t0), np.asarray(x0, float), float(t1),
                             step=self.step_s, with_stm=True)
         assert Phi is not None

@@ -103,6 +103,7 @@ doi:10.2514/1.A33692. Parabolic cylinder integral: Abramowitz & Stegun 19.5.3 / 
 from __future__ import annotations
 
 import functools
+import json
 import logging
 import math
 from collections.abc import Sequence
@@ -111,7 +112,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from starnav.data import packaged_path
 from starnav.dem.limb import LimbTopography
+from starnav.detector.optics import line_spread_function
 from starnav.detector.products import MAX_WINDOWS, Window
 from starnav.errors import ConfigError
 from starnav.navigation.limb import LimbNotFoundError, LimbPoints
@@ -476,10 +479,6 @@ class ModelErrorCalibration:
 def packaged_model_error() -> ModelErrorCalibration:
     """The packaged calibration (:data:`MODEL_ERROR_FILE`, written by
     ``tools/calibrate_refine_model_error.py`` on arcs that never score it)."""
-    import json
-
-    from starnav.data import packaged_path
-
     return ModelErrorCalibration.from_dict(json.loads(packaged_path(MODEL_ERROR_FILE)
                                                       .read_text()))
 
@@ -487,8 +486,6 @@ def packaged_model_error() -> ModelErrorCalibration:
 @functools.lru_cache(maxsize=4096)
 def _edge_tables(spread: EdgeSpread, camera: object, u: float, v: float,
                  angle_deg: int) -> EdgeTables:
-    from starnav.detector.optics import line_spread_function
-
     h = _EDGE_TABLE_STEP
     k = int(round(_EDGE_TABLE_HALF / h))
     x = np.arange(-k, k + 1) * h

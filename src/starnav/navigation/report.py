@@ -33,8 +33,13 @@ from typing import Any
 import numpy as np
 
 from starnav.atomic import atomic_write_text
+from starnav.errors import ConfigError
+from starnav.navigation import plots as P
+from starnav.navigation.dynamics import MoonEphemeris, PointMassDynamics
+from starnav.navigation.frames import NavDataset
 from starnav.navigation.metrics import ErrorSummary, consistency_fraction
-from starnav.navigation.pipeline import STAGES, FilterResult, NavigationRun
+from starnav.navigation.pipeline import STAGES, FilterResult, NavigationRun, monte_carlo, navigate
+from starnav.navigation.schema import NavigationConfig
 
 #: The tracker's processing budgets (seed paper, PIL; DESIGN.md budgets).
 BUDGET_MS = 5.0
@@ -116,8 +121,6 @@ def estimates_csv(run: NavigationRun) -> str:
 def write_outputs(run: NavigationRun, out_dir: str | os.PathLike[str],
                   mc: Sequence[FilterResult] = (), plots: bool = True) -> dict[str, Path]:
     """Write the files of the module table into ``out_dir``; returns their paths by name."""
-    from starnav.navigation import plots as P
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths: dict[str, Path] = {}
@@ -196,14 +199,8 @@ def navigate_dataset(
     dict
         The :func:`summarize` metrics, plus ``"paths"``.
     """
-    from starnav.navigation.dynamics import MoonEphemeris, PointMassDynamics
-    from starnav.navigation.frames import NavDataset
-    from starnav.navigation.pipeline import monte_carlo, navigate
-    from starnav.navigation.schema import NavigationConfig
-
     if not isinstance(dataset, NavDataset):
         missing = [a for a in ("camera", "__len__", "__iter__") if not hasattr(dataset, a)]
-        from starnav.errors import ConfigError
 
         raise ConfigError("dataset", type(dataset).__name__,
                           "a NavDataset (camera, len(), iteration over NavFrame); missing "
@@ -212,8 +209,6 @@ def navigate_dataset(
     n_runs = cfg.runs if runs is None else int(runs)
     dyn = dynamics if dynamics is not None else PointMassDynamics(step_s=cfg.filter.rk4_step_s)
     if not isinstance(dyn, MoonEphemeris):
-        from starnav.errors import ConfigError
-
         raise ConfigError("dynamics", type(dyn).__name__, "an object with moon_state(t)")
     P0 = cfg.initial_covariance()
     if scenario is None and callable(getattr(dataset, "scenario", None)):

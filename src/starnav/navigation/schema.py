@@ -18,20 +18,27 @@ Example (YAML)::
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
 from starnav.config_base import StrictModel
-from starnav.constants import ARCSEC, DAY
+from starnav.constants import ARCSEC, DAY, MOON_RADIUS
+from starnav.dem.limb import limb_topography_for
 from starnav.fields import NonNegativeFloat, PositiveFloat
-
-if TYPE_CHECKING:
-    from starnav.navigation.ekf import EkfOptions
-    from starnav.navigation.pipeline import ChainOptions
-
+from starnav.navigation.christian_robinson import ChristianRobinsonOptions
+from starnav.navigation.ekf import EkfOptions
+from starnav.navigation.limb import LimbScanOptions
+from starnav.navigation.pipeline import ChainOptions
+from starnav.navigation.ransac import RansacOptions
+from starnav.navigation.refine import (
+    EdgeSpread,
+    PixelNoise,
+    RefineOptions,
+    packaged_model_error,
+)
 
 
 class LimbConfig(StrictModel):
@@ -162,18 +169,6 @@ class NavigationConfig(StrictModel):
         ellipsoid (``starnav.simulate.chain_options`` passes it), used when
         ``fix.moon_radii_km`` is null.
         """
-        from starnav.constants import MOON_RADIUS
-        from starnav.navigation.christian_robinson import ChristianRobinsonOptions
-        from starnav.navigation.limb import LimbScanOptions
-        from starnav.navigation.pipeline import ChainOptions
-        from starnav.navigation.ransac import RansacOptions
-        from starnav.navigation.refine import (
-            EdgeSpread,
-            PixelNoise,
-            RefineOptions,
-            packaged_model_error,
-        )
-
         L, Rf, Rs, F = self.limb, self.refine, self.ransac, self.fix
         r = MOON_RADIUS if moon_radius_m is None else float(moon_radius_m)
         if F.moon_radii_km is not None:
@@ -198,8 +193,6 @@ class NavigationConfig(StrictModel):
                 edge_model = "detector-psf"
             on_moon = getattr(scenario, "target", None) is None or scenario.target.kind == "moon"
             if Rf.terrain_model_error and on_moon and scenario.moon.shape == "dem":
-                from starnav.dem.limb import limb_topography_for
-
                 terrain = limb_topography_for(scenario.moon.dem)
             if F.attitude_sigma_arcsec is None:
                 pc = scenario.pointing
@@ -242,13 +235,9 @@ class NavigationConfig(StrictModel):
 
     def ekf_options(self) -> EkfOptions:
         """The SI :class:`~starnav.navigation.ekf.EkfOptions` of this section."""
-        from starnav.navigation.ekf import EkfOptions
-
         f = self.filter
         common = None
         if f.bias_model == "limb-common":
-            from starnav.navigation.refine import packaged_model_error
-
             common = packaged_model_error().common_covariance
         return EkfOptions(bias_model=f.bias_model, bias_sigma_m=f.bias_sigma_km * 1e3,
                           common_covariance=common,

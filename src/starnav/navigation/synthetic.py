@@ -43,8 +43,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.camera import Camera
+from starnav.constants import MOON_RADIUS
 from starnav.detector.products import Segments
-from starnav.geometry import FrameGeometry
+from starnav.geometry import FrameGeometry, look_rotation
+from starnav.navigation.frames import Frame
+from starnav.navigation.limb import (
+    LimbNotFoundError,
+    limb_points_from_segments,
+    segments_centroid,
+    sun_direction_in_image,
+)
+from starnav.navigation.refine import RefineOptions, cut_windows, plan_windows
 from starnav.registry import Registry
 
 FloatArray = NDArray[np.float64]
@@ -198,9 +207,6 @@ def pointing_geometry(
     """
     from scipy.spatial.transform import Rotation
 
-    from starnav.constants import MOON_RADIUS
-    from starnav.geometry import look_rotation
-
     p = np.asarray(camera_position, float)
     los_cam = camera.unproject(np.array([camera.cx + moon_offset_px[0],
                                          camera.cy + moon_offset_px[1]]), undistort=False)
@@ -234,15 +240,6 @@ def synthetic_frame(
     attitude's Sun direction) and cut from the same image. Keyword arguments go to
     :func:`draw_moon`.
     """
-    from starnav.navigation.frames import Frame
-    from starnav.navigation.limb import (
-        LimbNotFoundError,
-        limb_points_from_segments,
-        segments_centroid,
-        sun_direction_in_image,
-    )
-    from starnav.navigation.refine import RefineOptions, cut_windows, plan_windows
-
     dn = draw_moon(camera, geometry, rng=rng, **draw_kw)  # type: ignore[arg-type]
     seg = threshold_segments(dn, thresholds)
     R_meas = geometry.R_cam_to_inertial_known

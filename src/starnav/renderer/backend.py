@@ -179,7 +179,7 @@ def activate(preference: tuple[str, ...] | list[str] = DEFAULT_VARIANTS) -> Back
         break
     if not info.variant:
         raise BackendError(f"no usable Mitsuba variant among {list(preference)}: {info.reasons}")
-    from starnav.renderer.bsdfs import register_plugins
+    from starnav.renderer.bsdfs import register_plugins  # lazy: mitsuba (bsdfs imports it)
 
     register_plugins()
     log.info("Mitsuba variant %s (LLVM: %s)", info.variant, info.llvm_path or "not used")

@@ -61,6 +61,7 @@ from starnav.errors import ConfigError, DataFileError
 from starnav.geometry import FrameGeometry, geometry_to_dict
 from starnav.photometry import get_model, validity_warning
 from starnav.radiance import RadianceImage
+from starnav.renderer import backend
 from starnav.renderer.scene import (
     FAR_CLIP_KM,
     KM,
@@ -313,8 +314,6 @@ class MoonRenderer:
 
     # .................................................................. backend / scene
     def _activate(self):
-        from starnav.renderer import backend
-
         return backend.activate(self.settings.variants)
 
     def _albedo_texture(self, mesh: MoonMesh | None) -> dict:
@@ -369,7 +368,7 @@ class MoonRenderer:
     def _build_scene(self, mesh: MoonMesh | None):
         import mitsuba as mi
 
-        from starnav.renderer.bsdfs import PLUGIN_NAMES
+        from starnav.renderer.bsdfs import PLUGIN_NAMES  # lazy: mitsuba (bsdfs imports it)
 
         cam = self.camera
         bsdf = {"type": PLUGIN_NAMES[self.moon.model], "albedo": self._albedo_texture(mesh),

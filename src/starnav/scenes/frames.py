@@ -43,6 +43,7 @@ from starnav.geometry import FrameGeometry, StaticGeometryConfig, static_geometr
 from starnav.scenes.cr3bp import LU
 from starnav.scenes.dynamics import PointMassModel
 from starnav.scenes.ephemeris import Ephemeris, parse_epoch
+from starnav.scenes.oem import read_oem
 from starnav.scenes.pointing import frame_generators, pointing_from_config, rotation_from_vector
 from starnav.scenes.schema import DEFAULT_EPOCH, PointingConfig, TrajectoryConfig
 from starnav.scenes.trajectory import ShootingOptions, Trajectory, ephemeris_halo_arc
@@ -77,8 +78,6 @@ def build_trajectory(cfg: TrajectoryConfig, ephemeris: Ephemeris | None = None,
     """
     eph = ephemeris or Ephemeris.default()
     if cfg.source == "oem":
-        from starnav.scenes.oem import read_oem
-
         traj = read_oem(cfg.oem_path, ephemeris=eph)  # type: ignore[arg-type]
         t0 = traj.t_start if cfg.epoch is None else parse_epoch(cfg.epoch, "trajectory.epoch")
         t1 = min(traj.t_end, t0 + cfg.duration_days * DAY)

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from starnav.atomic import atomic_write_bytes
 from starnav.constants import DAY
 from starnav.errors import DataFileError, StarnavError
 from starnav.scenes.ephemeris import J2000_JD, Ephemeris
@@ -183,8 +184,6 @@ def format_oem(traj: Trajectory, center: str = "EARTH-MOON BARYCENTER",
 
 def write_oem(path: str | os.PathLike[str], traj: Trajectory, **kwargs: object) -> Path:
     """Write :func:`format_oem` text to ``path`` (temporary file + rename). Returns the path."""
-    from starnav.atomic import atomic_write_bytes
-
     text = format_oem(traj, **kwargs)  # type: ignore[arg-type]
     return atomic_write_bytes(path, text.encode("ascii", errors="replace"))
 

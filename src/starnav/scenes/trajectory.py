@@ -73,7 +73,7 @@ from numpy.typing import ArrayLike, NDArray
 from starnav.atomic import atomic_write_bytes
 from starnav.constants import DAY
 from starnav.errors import ConfigError, DataFileError
-from starnav.scenes.cr3bp import LU, TU, ConvergenceError, HaloOrbit, l2_halo
+from starnav.scenes.cr3bp import LU, REFERENCE_HALO, TU, ConvergenceError, HaloOrbit, l2_halo
 from starnav.scenes.dynamics import PointMassModel, rk4_grid
 from starnav.scenes.ephemeris import Ephemeris
 
@@ -524,8 +524,6 @@ def ephemeris_halo_arc(
     ConvergenceError
         Shooting failure, or an arc leaving the Moon-range band.
     """
-    from starnav.scenes.cr3bp import REFERENCE_HALO
-
     z0 = REFERENCE_HALO[1] if z0 is None else float(z0)
     if not (math.isfinite(duration) and duration > 0):
         raise ConfigError("trajectory.duration_days", duration / DAY, "a duration > 0 days")

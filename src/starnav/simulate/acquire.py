@@ -62,14 +62,19 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from starnav.errors import ConfigError
+from starnav.config import Scenario, build_camera
+from starnav.detector import DetectorConfig, Exposure, Window, expose
+from starnav.detector.readout import read_windows, readout_timing
+from starnav.detector.schema import WindowSpec
+from starnav.errors import ConfigError, UnknownNameError
+from starnav.navigation.frames import Frame
+from starnav.navigation.pipeline import process_frame
+from starnav.navigation.refine import plan_windows
 from starnav.seeding import STAGE_DETECTOR_TEMPORAL, STAGE_NAVIGATION, generator, seed_u32
 from starnav.simulate.build import chain_options
 
 if TYPE_CHECKING:
     from starnav.camera import Camera
-    from starnav.config import Scenario
-    from starnav.detector import DetectorConfig, Exposure, Window
     from starnav.geometry import FrameGeometry
     from starnav.radiance import RadianceImage
 
@@ -88,8 +93,6 @@ PLAN_STREAM = 1
 def check_windows_mode(mode: str) -> WindowsMode:
     """Validate a windows mode name."""
     if mode not in WINDOWS_MODES:
-        from starnav.errors import UnknownNameError
-
         raise UnknownNameError("windows mode", mode, list(WINDOWS_MODES))
     return mode  # type: ignore[return-value]
 
@@ -127,10 +130,6 @@ def readout_feasibility(scenario: Scenario, exposure_s: float) -> list[dict[str,
     the segments readout scans the whole array; the windows readout reads
     ``n_windows x window_size_px^2`` pixels.
     """
-    from starnav.config import build_camera
-    from starnav.detector.readout import readout_timing
-    from starnav.detector.schema import WindowSpec
-
     cam = build_camera(scenario.camera)
     shape = (cam.height, cam.width)
     timing = scenario.detector.readout.timing
@@ -228,10 +227,6 @@ def plan_windows_from_segments(segments: Any, geom: FrameGeometry, camera: Camer
     status, message, windows
         ``("ok", "", [(row0, col0, height, width), ...])`` or the chain's failure status.
     """
-    from starnav.navigation.frames import Frame
-    from starnav.navigation.pipeline import process_frame
-    from starnav.navigation.refine import plan_windows
-
     chain = chain_options(scenario)
     chain = dataclasses.replace(chain, use_windows=False)
     R_meas = geom.R_cam_to_inertial_known
@@ -278,9 +273,6 @@ def acquire(radiance: RadianceImage | Any, geom: FrameGeometry, camera: Camera,
     -------
     Acquisition
     """
-    from starnav.detector import expose
-    from starnav.detector.readout import read_windows
-
     mode = check_windows_mode(windows)
     t_exp = float(scenario.detector.exposure_time_s if exposure_s is None else exposure_s)
     seed = int(scenario.seed)

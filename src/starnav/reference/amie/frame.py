@@ -171,6 +171,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from starnav.data import packaged_path
 from starnav.errors import ConfigError, DataFileError, UnknownNameError
 from starnav.registry import Registry
 
@@ -791,8 +792,6 @@ class AmieCalibrated:
 
 
 def _load_calibration(name: str) -> FloatArray:
-    from starnav.data import packaged_path
-
     a = np.load(packaged_path(name)).astype(float)
     if a.shape != FRAME_SHAPE or not np.all(np.isfinite(a)):
         raise DataFileError(f"calibration file starnav/data/{name}: shape {a.shape} or "
@@ -977,8 +976,6 @@ def packaged_frame(name_or_id: str) -> Path:
     DataFileError
         The file is missing from the installation.
     """
-    from starnav.data import packaged_path
-
     key = str(name_or_id).strip().upper()
     for name in AMIE_FRAMES:
         stem = name[:-len(".IMG")]

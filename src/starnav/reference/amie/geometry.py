@@ -82,7 +82,7 @@ import datetime as _dt
 import logging
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -91,9 +91,7 @@ from starnav.camera import Camera
 from starnav.constants import MOON_RADIUS
 from starnav.errors import ConfigError, GeometryError
 from starnav.geometry import FrameGeometry
-
-if TYPE_CHECKING:
-    from starnav.scenes.ephemeris import Ephemeris
+from starnav.scenes.ephemeris import Ephemeris, parse_epoch
 
 log = logging.getLogger(__name__)
 
@@ -129,8 +127,6 @@ def amie_epoch_tdb(start_time_utc: str | _dt.datetime) -> float:
     float
         Epoch [TDB s past J2000 = 2000-01-01T12:00:00 TDB].
     """
-    from starnav.scenes.ephemeris import parse_epoch
-
     if isinstance(start_time_utc, _dt.datetime):
         t = start_time_utc
         if t.tzinfo is not None:
@@ -420,8 +416,6 @@ def frame_geometry(
         Camera at ``-sc_to_moon`` and the Sun (DE421, geometric) relative to the Moon centre,
         J2000/ICRF axes [m]; ``R_moon_to_inertial`` from the DE421 librations.
     """
-    from starnav.scenes.ephemeris import Ephemeris
-
     eph = ephemeris or Ephemeris.default()
     t = float(epoch_tdb)
     if not math.isfinite(t):

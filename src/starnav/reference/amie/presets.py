@@ -32,6 +32,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from starnav.reference.amie.vega import load_calibration
+
 #: Diffraction-limited Gaussian sigma [px]: 0.42 lambda N / pitch at 800 nm, f/10, 14 um (the
 #: floor; the measured core is about twice as wide).
 AMIE_PSF_SIGMA_DIFFRACTION_PX = 0.42 * 800e-9 * 10.0 / 14e-6
@@ -40,8 +42,6 @@ AMIE_PSF_SIGMA_DIFFRACTION_PX = 0.42 * 800e-9 * 10.0 / 14e-6
 def amie_psf_sigma_px() -> float:
     """The PSF core's Gaussian sigma [px], measured on Vega (``amie/vega_calibration.json``,
     :mod:`starnav.reference.amie.vega`)."""
-    from starnav.reference.amie.vega import load_calibration
-
     return float(load_calibration()["psf_sigma_px"])
 #: Gain [e-/DN] (label).
 AMIE_GAIN_E_PER_DN = 280.0

@@ -41,7 +41,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize, special
 
+from starnav.camera import Camera
+from starnav.data import packaged_path
 from starnav.errors import StarnavError
+from starnav.reference.amie.frame import calibrate, packaged_frame, read_amie
+from starnav.spectra import AMIE_RESPONSE_SCALE, AMIE_RESPONSE_TABLE
 
 FloatArray = NDArray[np.float64]
 
@@ -167,11 +171,6 @@ def stellar_calibration(path: str | Path | None = None, *, aperture_px: float = 
                         ) -> StellarCalibration:
     """Measure the AMIE's flat quantum efficiency and PSF core on a Vega frame (module
     steps 1-4); ``path`` defaults to the packaged :data:`VEGA_FRAME`."""
-    from starnav.camera import Camera
-    from starnav.data import packaged_path
-    from starnav.reference.amie.frame import calibrate, packaged_frame, read_amie
-    from starnav.spectra import AMIE_RESPONSE_SCALE, AMIE_RESPONSE_TABLE
-
     p = Path(path) if path is not None else packaged_frame(VEGA_FRAME)
     frame = read_amie(p)
     cal = calibrate(frame)
@@ -212,6 +211,4 @@ def write_calibration(cal: StellarCalibration, path: str | Path) -> Path:
 
 def load_calibration() -> dict[str, Any]:
     """The packaged stellar calibration (:data:`VEGA_CALIBRATION_FILE`) as a dict."""
-    from starnav.data import packaged_path
-
     return json.loads(packaged_path(VEGA_CALIBRATION_FILE).read_text())
