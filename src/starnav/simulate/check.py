@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from starnav.camera import camera_from_config
 from starnav.config import Scenario
 from starnav.constants import AU
 from starnav.renderer.scene import check_camera_for_render
@@ -25,8 +26,6 @@ from starnav.spectra import band_integrals, sensor_response_from_config, solar_s
 def check_scenario(sc: Scenario) -> dict[str, Any]:
     """Everything ``render`` would check before its first frame (module docstring); returns the
     derived quantities (SI, names carry the units)."""
-    from starnav.camera import camera_from_config
-
     camera = camera_from_config(sc.camera)
     check_camera_for_render(camera)
     response = sensor_response_from_config(sc.sensor_response)
