@@ -36,7 +36,7 @@ def test_a_service_that_is_not_dask_fails_fast_and_clearly(kind):
     address = _serve(server)
     t0 = time.monotonic()
     try:
-        with pytest.raises(ClusterError, match="not answer as a Dask scheduler"):
+        with pytest.raises(ClusterError, match="does not answer as a Dask scheduler"):
             connect(address)
     finally:
         server.shutdown()

@@ -44,7 +44,7 @@ def test_acquisition_seeds():
 
 def test_windows_are_planned_on_the_lit_limb_and_read_in_a_second_acquisition(frame):
     sc, cam, g, le = frame
-    a = acquire(le, g, cam, sc, exposure_s=1.5e-5, windows="second")
+    a = acquire(le, g, cam, sc, exposure_time=1.5e-5, windows="second")
     assert a.plan_status == "ok"
     assert 8 <= len(a.windows) <= 16
     assert a.windows_exposure is not None and a.windows_exposure.seed != a.segments_exposure.seed
@@ -57,7 +57,7 @@ def test_windows_are_planned_on_the_lit_limb_and_read_in_a_second_acquisition(fr
     for w in a.windows:
         assert w.dn.max() > 1000 and w.dn.min() < 300
     # same place, independent temporal noise: the DN differ, but by noise only
-    same = acquire(le, g, cam, sc, exposure_s=1.5e-5, windows="same")
+    same = acquire(le, g, cam, sc, exposure_time=1.5e-5, windows="same")
     assert [(w.row0, w.col0) for w in same.windows] == [(w.row0, w.col0) for w in a.windows]
     diff = np.concatenate([(x.dn.astype(float) - y.dn.astype(float)).ravel()
                            for x, y in zip(a.windows, same.windows, strict=True)])
@@ -69,7 +69,7 @@ def test_windows_are_planned_on_the_lit_limb_and_read_in_a_second_acquisition(fr
 
 def test_none_mode_and_unknown_mode(frame):
     sc, cam, g, le = frame
-    a = acquire(le, g, cam, sc, exposure_s=1.5e-5, windows="none")
+    a = acquire(le, g, cam, sc, exposure_time=1.5e-5, windows="none")
     assert a.windows == () and a.windows_exposure is None and a.plan_status == "skipped"
     with pytest.raises(UnknownNameError, match="second"):
         acquire(le, g, cam, sc, windows="both")
@@ -77,9 +77,9 @@ def test_none_mode_and_unknown_mode(frame):
 
 def test_acquisitions_are_reproducible_and_runs_differ(frame):
     sc, cam, g, le = frame
-    a = acquire(le, g, cam, sc, exposure_s=1.5e-5, run=1)
-    b = acquire(le, g, cam, sc, exposure_s=1.5e-5, run=1)
-    c = acquire(le, g, cam, sc, exposure_s=1.5e-5, run=2)
+    a = acquire(le, g, cam, sc, exposure_time=1.5e-5, run=1)
+    b = acquire(le, g, cam, sc, exposure_time=1.5e-5, run=1)
+    c = acquire(le, g, cam, sc, exposure_time=1.5e-5, run=2)
     assert np.array_equal(a.segments_exposure.dn, b.segments_exposure.dn)
     assert a.summary() == b.summary()
     assert not np.array_equal(a.segments_exposure.dn, c.segments_exposure.dn)
@@ -87,6 +87,6 @@ def test_acquisitions_are_reproducible_and_runs_differ(frame):
 
 def test_no_moon_gives_no_windows_and_says_why(frame):
     sc, cam, g, le = frame
-    a = acquire(np.zeros_like(le), g, cam, sc, exposure_s=1.5e-5)
+    a = acquire(np.zeros_like(le), g, cam, sc, exposure_time=1.5e-5)
     assert a.windows == () and a.plan_status in ("no-moon", "no-segments")
     assert a.summary()["window_plan"]["message"]

@@ -55,7 +55,7 @@ def test_reader_implements_the_navigation_protocols(small_dataset):
 
     data = ds.open(small_dataset)
     assert isinstance(data, NavDataset) and len(data) == 4
-    assert data.exposure_s == 1.5e-5 and data.exposures_s == (1.5e-5, 7.7e-3)
+    assert data.exposure_time == 1.5e-5 and data.exposure_times == (1.5e-5, 7.7e-3)
     frames = list(data)
     assert all(isinstance(f, NavFrame) for f in frames)
     assert np.all(np.diff([f.epoch_tdb for f in frames]) == 1800.0)

@@ -90,4 +90,4 @@ def test_runs_need_the_radiance(tmp_path):
         navigate_runs(ds, 2)
     with pytest.raises(ConfigError, match="runs"):
         navigate_runs(ds, 1)
-    assert np.isfinite(ds.exposure_s)
+    assert np.isfinite(ds.exposure_time)

@@ -21,6 +21,7 @@ Example
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
 import os
@@ -85,44 +86,62 @@ def check_address(address: str) -> str:
     return a
 
 
-def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Any:
-    """A ``distributed.Client`` on ``address``, or :class:`ClusterError` within
-    ``timeout_s + HANDSHAKE_GRACE_S``.
+def _probe(address: str, timeout_s: float) -> BaseException | None:
+    """Connect and shake hands with ``address`` on a private event loop in a daemon thread;
+    the error, or None when a Dask scheduler answered (module docstring of :func:`connect`)."""
+    from distributed.comm import connect as comm_connect  # lazy: distributed (heavy)
 
-    ``distributed``'s own timeout covers the TCP connection, not the handshake: a service that
-    accepts the connection and then waits (an HTTP server) would hold the client forever, and
-    one that answers with other bytes makes it read a frame length of exabytes. The attempt
-    therefore runs in a daemon thread with a hard deadline, and both cases are reported as
-    "not a Dask scheduler".
-    """
-    from distributed import Client
+    async def attempt() -> None:
+        comm = await asyncio.wait_for(comm_connect(address, timeout=timeout_s),
+                                      timeout_s + HANDSHAKE_GRACE_S)
+        await comm.close()
 
-    a = check_address(address)
-    outcome: dict[str, Any] = {}
+    outcome: dict[str, BaseException] = {}
 
-    def attempt() -> None:
+    def run() -> None:
         try:
-            outcome["client"] = Client(a, timeout=f"{timeout_s}s", set_as_default=False)
-        except BaseException as err:  # noqa: BLE001 - reported below, whatever it is
+            asyncio.run(attempt())
+        except BaseException as err:  # noqa: BLE001 - reported by the caller, whatever it is
             outcome["error"] = err
 
-    thread = threading.Thread(target=attempt, name="starnav-connect", daemon=True)
+    thread = threading.Thread(target=run, name="starnav-probe", daemon=True)
     thread.start()
-    thread.join(timeout_s + HANDSHAKE_GRACE_S)
-    not_dask = (f"{a} accepts connections but does not answer as a Dask scheduler; is it "
-                "another service? Start one with `dask scheduler` or use --workers N for a "
-                "local cluster")
+    thread.join(timeout_s + 2.0 * HANDSHAKE_GRACE_S)
     if thread.is_alive():
-        raise ClusterError(f"{not_dask} (no handshake within "
-                           f"{timeout_s + HANDSHAKE_GRACE_S:g} s)")
-    err = outcome.get("error")
-    if isinstance(err, OSError | TimeoutError):
+        return TimeoutError("no handshake")
+    return outcome.get("error")
+
+
+def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Any:
+    """A ``distributed.Client`` on ``address``, or :class:`ClusterError` within about
+    ``timeout_s + 2 HANDSHAKE_GRACE_S``.
+
+    ``distributed.Client``'s own timeout covers the TCP connection, not the handshake: a
+    service that accepts the connection and then waits (an HTTP server) holds the client
+    forever, and one that answers with other bytes makes it read a frame length of exabytes.
+    The address is therefore first probed with Dask's own comm connect and handshake on a
+    private event loop, under a hard deadline (:func:`_probe`), so that a failed attempt
+    leaves nothing behind in this process's shared Dask event loop; only a scheduler that
+    answered gets a ``Client``.
+    """
+    from distributed import Client  # lazy: distributed (heavy)
+
+    a = check_address(address)
+    err = _probe(a, timeout_s)
+    if isinstance(err, ConnectionRefusedError) or (
+            isinstance(err, OSError) and "refused" in str(err).lower()):
         raise ClusterError(f"the Dask scheduler at {a} does not answer (waited {timeout_s:g} s:"
                            f" {type(err).__name__}); start it with `dask scheduler` or use "
                            "--workers N for a local cluster") from None
     if err is not None:
-        raise ClusterError(f"{not_dask} ({type(err).__name__})") from None
-    return outcome["client"]
+        raise ClusterError(f"{a} does not answer as a Dask scheduler ({type(err).__name__}); "
+                           "is it another service? Start one with `dask scheduler` or use "
+                           "--workers N for a local cluster") from None
+    try:
+        return Client(a, timeout=f"{timeout_s}s", set_as_default=False)
+    except (OSError, TimeoutError) as err2:
+        raise ClusterError(f"the Dask scheduler at {a} does not answer (waited {timeout_s:g} s:"
+                           f" {type(err2).__name__})") from None
 
 
 def default_workers() -> int:

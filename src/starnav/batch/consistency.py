@@ -448,7 +448,7 @@ def limb_point_records(config: dict[str, Any], runs: int = 1,
                        rendered: list[RenderedFrame] | None = None
                        ) -> dict[float, dict[str, Any]]:
     """Render every frame of the resolved scenario dict ``config`` once (or take
-    ``rendered``) and, for each ``(exposure_s, overrides)`` (default: the scenario's exposure
+    ``rendered``) and, for each ``(exposure_time, overrides)`` (default: the scenario's exposure
     alone), expose and process it ``runs`` times. Per exposure: ``points``
     (:func:`limb_point_table`), ``fixes`` (:func:`fix_mode_table`) and ``fix_nees``, the NEES
     (3 dof) of every fix against the true Moon-relative position."""

@@ -124,7 +124,7 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
         navigated, then the report.
     exposures_s : sequence of float
         Exposure times [s]; default the paper's 0.015 ms and 7.7 ms.
-    exposure_overrides : sequence of (exposure_s, overrides)
+    exposure_overrides : sequence of (exposure_time, overrides)
         ``detector.*`` / ``navigation.*`` overrides per exposure; default: the 7.7 ms frames
         are read out with a 2048 DN segment threshold (saturation-robust, as the paper tuned
         its image processing to each scenario).

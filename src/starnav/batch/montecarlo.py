@@ -93,7 +93,7 @@ def navigate_runs(dataset: Any, runs: int, *, scenario: Any | None = None,
                           "consistency)")
     sc = scenario if scenario is not None else dataset.scenario()
     cfg = scenario_to_dict(sc)
-    cfg["detector"]["exposure_time_s"] = float(dataset.exposure_s)
+    cfg["detector"]["exposure_time_s"] = float(dataset.exposure_time)
     windows = str(dataset.manifest.get("options", {}).get("windows", "second"))
     t0 = time.perf_counter()
     rendered = rendered_from_dataset(dataset)
@@ -103,7 +103,7 @@ def navigate_runs(dataset: Any, runs: int, *, scenario: Any | None = None,
     le = res.limb_errors_px.astype(float)
     m["limb_error_px"] = {"bias": float(le.mean()) if le.size else None,
                           "std": float(le.std()) if le.size else None, "points": int(le.size)}
-    m["exposure_s"] = float(dataset.exposure_s)
+    m["exposure_s"] = float(dataset.exposure_time)
     m["frames"] = len(rendered)
     m["wall_time_s"] = time.perf_counter() - t0
     return {"metrics": m, "result": res, "epochs": res.epochs}

@@ -46,7 +46,7 @@ class PaperCase:
 
     Attributes
     ----------
-    exposure_s : float
+    exposure_time : float
     name : str
     paper_limb : str
         What the paper reports for the limb-point error.
@@ -60,7 +60,7 @@ class PaperCase:
         The criteria in words (printed in the report).
     """
 
-    exposure_s: float
+    exposure_time: float
     name: str
     paper_limb: str
     paper_navigation: str
@@ -125,10 +125,10 @@ PAPER_MIL_SATURATED = ("MIL, saturated synthetic images: ~10 px limb bias; navig
                        "< 2000 km and < 50 m/s (~5 %)")
 
 
-def paper_case(exposure_s: float, rel_tol: float = 0.01) -> PaperCase | None:
-    """The paper case of ``exposure_s`` [s] (within ``rel_tol``), or None."""
+def paper_case(exposure_time: float, rel_tol: float = 0.01) -> PaperCase | None:
+    """The paper case of ``exposure_time`` [s] (within ``rel_tol``), or None."""
     for c in PAPER_CASES:
-        if math.isclose(c.exposure_s, exposure_s, rel_tol=rel_tol):
+        if math.isclose(c.exposure_time, exposure_time, rel_tol=rel_tol):
             return c
     return None
 
@@ -187,14 +187,14 @@ def exposure_study_header() -> str:
         "# The report compares the results with the paper (REFERENCE.md section 5).\n")
 
 
-def tuned_filter(exposure_s: float) -> dict[str, Any]:
-    """The EKF bias states tuned for ``exposure_s`` on calibration arcs
+def tuned_filter(exposure_time: float) -> dict[str, Any]:
+    """The EKF bias states tuned for ``exposure_time`` on calibration arcs
     (``starnav/data/navigation/bias_tuning.json``, written by ``tools/tune_bias_states.py``;
     never on the demo's own arc): the ``navigation.filter`` keys, or ``bias_model: none`` for
     an exposure that was not tuned."""
     doc = json.loads(packaged_path("navigation/bias_tuning.json").read_text())
     for key, v in doc["exposures"].items():
-        if math.isclose(float(key), exposure_s, rel_tol=1e-6):
+        if math.isclose(float(key), exposure_time, rel_tol=1e-6):
             return {k: v[k] for k in ("bias_model", "range_scale_sigma", "bias_sigma_km",
                                       "bias_tau_days")}
     return {"bias_model": "none"}

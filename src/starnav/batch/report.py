@@ -94,7 +94,7 @@ def paper_comparison(summary: Sequence[dict[str, Any]]) -> list[str]:
         if c is None:
             continue
         b, sd = float(s.get("limb_bias_px", math.nan)), float(s.get("limb_std_px", math.nan))
-        limb_ok = c.limb_ok(b, sd) if math.isfinite(b) else c.exposure_s >= 0.2
+        limb_ok = c.limb_ok(b, sd) if math.isfinite(b) else c.exposure_time >= 0.2
         nav_ok = c.navigation_ok(s)
         meas_limb = f"bias {_g(b, '+.2f')} px, std {_g(sd, '.2f')} px"
         meas_nav = (f"{_g(s.get('fixes'), '.0f')}/{_g(s.get('frames'), '.0f')} fixes; final "

@@ -23,7 +23,7 @@ import typer
 from starnav.cli._units import parse_time
 
 
-def _open_dataset(path: Path, exposure_s: float | None = None):
+def _open_dataset(path: Path, exposure_time: float | None = None):
     from starnav.errors import DataFileError
 
     if not path.exists():
@@ -34,7 +34,7 @@ def _open_dataset(path: Path, exposure_s: float | None = None):
         raise DataFileError(
             "starnav.dataset.open() is not available in this version; the navigation chain "
             "needs a reader returning a NavDataset (see starnav.navigation.frames)") from None
-    return open_dataset(path, exposure_s)
+    return open_dataset(path, exposure_time)
 
 
 #: What ``navigate --set`` may change: the frames are already made.

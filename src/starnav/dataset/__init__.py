@@ -6,7 +6,7 @@ Public API (imports are lazy: importing :mod:`starnav.dataset` loads nothing hea
     verify(path) -> list of problems              # re-hash every file against the manifest
     generate(scenario, out, options=..., resume=..., runner=..., progress=...)
     DatasetOptions, DatasetSummary, Dataset, DatasetFrame
-    acquire(radiance, geom, camera, scenario, exposure_s=..., run=..., windows=...)
+    acquire(radiance, geom, camera, scenario, exposure_time=..., run=..., windows=...)
     Acquisition, acquisition_seed                 # the emulated tracker acquisitions
     TaskRunner, InProcessRunner                   # how frames are made (Dask: starnav.batch)
 

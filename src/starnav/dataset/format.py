@@ -86,12 +86,12 @@ def is_frame_dirname(name: str) -> bool:
     return bool(_FRAME_RE.match(name))
 
 
-def exposure_dirname(exposure_s: float) -> str:
+def exposure_dirname(exposure_time: float) -> str:
     """Directory of one exposure time, in milliseconds with 6 significant digits:
     ``1.5e-5`` s -> ``exposure_0.015ms``, ``0.2`` s -> ``exposure_200ms``."""
-    if not (math.isfinite(exposure_s) and exposure_s > 0):
-        raise ConfigError("exposure", exposure_s, "a finite exposure time > 0 s")
-    return f"exposure_{exposure_s * 1e3:.6g}ms"
+    if not (math.isfinite(exposure_time) and exposure_time > 0):
+        raise ConfigError("exposure", exposure_time, "a finite exposure time > 0 s")
+    return f"exposure_{exposure_time * 1e3:.6g}ms"
 
 
 def check_exposures(exposures_s: Sequence[float]) -> tuple[float, ...]:

@@ -14,7 +14,7 @@ Example
 -------
 >>> import starnav.dataset as ds
 >>> data = ds.open("out/ds", exposure=7.7e-3)                    # doctest: +SKIP
->>> len(data), data.exposures_s                                  # doctest: +SKIP
+>>> len(data), data.exposure_times                                 # doctest: +SKIP
 >>> f = data[0]; f.segments, f.windows, f.truth.range            # doctest: +SKIP
 >>> from starnav.navigation.report import navigate_dataset
 >>> navigate_dataset(data, "out/nav")                            # doctest: +SKIP
@@ -153,26 +153,26 @@ class Dataset:
     path : Path
     manifest : dict
     camera : Camera
-    exposure_s : float
+    exposure_time : float
         The selected exposure time [s].
-    exposures_s : tuple of float
+    exposure_times : tuple of float
         Every exposure time the dataset holds [s].
     complete : bool
     """
 
-    def __init__(self, path: Path, manifest: dict[str, Any], exposure_s: float) -> None:
+    def __init__(self, path: Path, manifest: dict[str, Any], exposure_time: float) -> None:
         self.path = path
         self.manifest = manifest
         self.camera = F.camera_from_dict(manifest["camera"])
-        self.exposures_s = tuple(float(e["exposure_s"]) for e in manifest["exposures"])
-        self.exposure_s = float(exposure_s)
-        self.exposure_dirname = F.exposure_dirname(self.exposure_s)
+        self.exposure_times = tuple(float(e["exposure_s"]) for e in manifest["exposures"])
+        self.exposure_time = float(exposure_time)
+        self.exposure_dirname = F.exposure_dirname(self.exposure_time)
         self.complete = bool(manifest.get("complete"))
         self._entries = list(manifest["frames"])
 
     def __repr__(self) -> str:
         return (f"Dataset({str(self.path)!r}, frames={len(self)}, "
-                f"exposure={self.exposure_s * 1e3:.6g} ms, complete={self.complete})")
+                f"exposure={self.exposure_time * 1e3:.6g} ms, complete={self.complete})")
 
     def __len__(self) -> int:
         return len(self._entries)
@@ -194,7 +194,7 @@ class Dataset:
         """The ``detector.*`` / ``navigation.*`` overrides the selected exposure was made
         with (e.g. the saturated exposures' segment threshold), as ``KEY=VALUE``."""
         for e in self.manifest["exposures"]:
-            if abs(float(e["exposure_s"]) - self.exposure_s) <= 1e-9 * self.exposure_s:
+            if abs(float(e["exposure_s"]) - self.exposure_time) <= 1e-9 * self.exposure_time:
                 return tuple(str(x) for x in e.get("overrides", ()))
         return ()
 
@@ -203,27 +203,29 @@ class Dataset:
         (:class:`~starnav.config.Scenario`): the dataset's, with the exposure's time and its
         :attr:`exposure_overrides`, then ``overrides``."""
         return scenario_from_dict(self.config, [
-            f"detector.exposure_time_s={self.exposure_s!r}", *self.exposure_overrides,
+            f"detector.exposure_time_s={self.exposure_time!r}", *self.exposure_overrides,
             *overrides])
 
-    def select(self, exposure: float | int) -> Dataset:
-        """The same dataset at another exposure (time in s, or its position in the list)."""
-        return Dataset(self.path, self.manifest, _pick_exposure(self.manifest, exposure))
+    def select(self, exposure_time: float) -> Dataset:
+        """The same dataset at another exposure time [s] (one of :attr:`exposure_times`)."""
+        return Dataset(self.path, self.manifest, _pick_exposure(self.manifest, exposure_time))
+
 
     def epochs(self) -> FloatArray:
         """Frame epochs [TDB s past J2000]."""
         return np.array([float(e["epoch_tdb_s"]) for e in self._entries])
 
 
-def _pick_exposure(manifest: dict[str, Any], exposure: float | int | None) -> float:
+def _pick_exposure(manifest: dict[str, Any], exposure: float | None) -> float:
+    """The manifest's exposure time equal to ``exposure`` [s] (seconds only: an index would be
+    ambiguous with a time), default the first."""
     exps = [float(e["exposure_s"]) for e in manifest["exposures"]]
     if not exps:
         raise DataFileError("the manifest lists no exposure")
     if exposure is None:
         return exps[0]
-    if isinstance(exposure, int) and not isinstance(exposure, bool) and exposure < len(exps) \
-            and exposure not in exps:
-        return exps[exposure]
+    if isinstance(exposure, bool) or not isinstance(exposure, int | float):
+        raise ConfigError("exposure", exposure, "an exposure time in seconds")
     v = float(exposure)
     for t in exps:
         if math.isclose(t, v, rel_tol=1e-9):
@@ -247,7 +249,7 @@ def read_manifest(path: str | os.PathLike[str]) -> dict[str, Any]:
     return man
 
 
-def open(path: str | os.PathLike[str], exposure: float | int | None = None, *,  # noqa: A001
+def open(path: str | os.PathLike[str], exposure: float | None = None, *,  # noqa: A001
          allow_incomplete: bool = False) -> Dataset:
     """Open the dataset at ``path``.
 
@@ -255,8 +257,8 @@ def open(path: str | os.PathLike[str], exposure: float | int | None = None, *,  
     ----------
     path : path
         Dataset directory.
-    exposure : float or int, optional
-        Exposure time [s] (or its position in the manifest's list); default the first.
+    exposure : float, optional
+        Exposure time [s] (one of the dataset's); default the first.
     allow_incomplete : bool
         Open a dataset whose generation has not finished (only its finished frames).
 

@@ -114,7 +114,7 @@ class DatasetOptions:
         Store ``radiance.exr`` (the renderer's output, with AOVs if ``render.aovs``).
     limb_points : int
         Points of the true limb stored in ``truth.json``.
-    exposure_overrides : tuple of (exposure_s, tuple of str)
+    exposure_overrides : tuple of (exposure_time, tuple of str)
         ``--set``-style overrides of ``detector.*`` / ``navigation.*`` keys for one exposure
         (e.g. a higher segment threshold for a saturated exposure, as the paper tuned its image
         processing to each scenario).
@@ -152,23 +152,23 @@ class DatasetOptions:
             out.scenario_for(scenario, t)  # validates the overrides
         return out
 
-    def overrides_for(self, exposure_s: float) -> tuple[str, ...]:
+    def overrides_for(self, exposure_time: float) -> tuple[str, ...]:
         """The overrides of one exposure (empty if none)."""
         for t, items in self.exposure_overrides:
-            if abs(t - exposure_s) <= 1e-9 * abs(t):
+            if abs(t - exposure_time) <= 1e-9 * abs(t):
                 return items
         return ()
 
-    def scenario_for(self, scenario: Scenario, exposure_s: float) -> Scenario:
-        """``scenario`` with the overrides of ``exposure_s`` applied."""
-        items = self.overrides_for(exposure_s)
+    def scenario_for(self, scenario: Scenario, exposure_time: float) -> Scenario:
+        """``scenario`` with the overrides of ``exposure_time`` applied."""
+        items = self.overrides_for(exposure_time)
         if not items:
             return scenario
 
         try:
             return scenario_from_dict(scenario_to_dict(scenario), list(items))
         except ConfigError as err:
-            raise ConfigError(f"exposure_overrides[{exposure_s!r}]: {err.field}", err.value,
+            raise ConfigError(f"exposure_overrides[{exposure_time!r}]: {err.field}", err.value,
                               err.expected) from None
 
     def to_dict(self) -> dict[str, Any]:
@@ -324,7 +324,7 @@ class FrameMaker:
             for t in self.options.exposures_s or ():
                 d = tmp / F.exposure_dirname(t)
                 d.mkdir()
-                acq = self.simulator.acquire(img, geom, exposure_s=t, run=0,
+                acq = self.simulator.acquire(img, geom, exposure_time=t, run=0,
                                              windows=self.options.windows,
                                              scenario=self._per_exposure[t])
                 write_dn_png(F.uint16_image(acq.segments_exposure.dn), d / F.DN)

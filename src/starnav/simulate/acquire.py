@@ -48,7 +48,7 @@ multi-exposure dataset identical to a dataset made with that exposure alone.
 
 Example
 -------
->>> acq = acquire(radiance, geom, camera, scenario, exposure_s=1.5e-5)      # doctest: +SKIP
+>>> acq = acquire(radiance, geom, camera, scenario, exposure_time=1.5e-5)      # doctest: +SKIP
 >>> acq.segments, acq.windows, acq.plan_status                            # doctest: +SKIP
 """
 
@@ -123,8 +123,8 @@ def quiet_timing(cfg: DetectorConfig) -> DetectorConfig:
     return cfg.model_copy(update={"readout": readout})
 
 
-def readout_feasibility(scenario: Scenario, exposure_s: float) -> list[dict[str, Any]]:
-    """Readout-law check of the two acquisitions at ``exposure_s`` [s] (seed paper eq. 1).
+def readout_feasibility(scenario: Scenario, exposure_time: float) -> list[dict[str, Any]]:
+    """Readout-law check of the two acquisitions at ``exposure_time`` [s] (seed paper eq. 1).
 
     Returns one dict per readout (``mode``, ``n_pixels``, ``min_exposure_s``, ``feasible``):
     the segments readout scans the whole array; the windows readout reads
@@ -136,8 +136,8 @@ def readout_feasibility(scenario: Scenario, exposure_s: float) -> list[dict[str,
     r = scenario.navigation.refine
     s = min(r.window_size_px, cam.height, cam.width)
     wins = [WindowSpec(row0=0, col0=0, height=s, width=s)] * r.n_windows
-    return [readout_timing("segments", shape, exposure_s, timing).to_dict(),
-            readout_timing("windows", shape, exposure_s, timing, wins).to_dict()]
+    return [readout_timing("segments", shape, exposure_time, timing).to_dict(),
+            readout_timing("windows", shape, exposure_time, timing, wins).to_dict()]
 
 
 @dataclass(frozen=True)
@@ -146,7 +146,7 @@ class Acquisition:
 
     Attributes
     ----------
-    exposure_s : float
+    exposure_time : float
         Exposure time [s].
     run : int
         Monte Carlo run (0 for datasets).
@@ -168,7 +168,7 @@ class Acquisition:
         Wall time of ``detector`` (both acquisitions) and ``plan`` [s].
     """
 
-    exposure_s: float
+    exposure_time: float
     run: int
     segments_exposure: Exposure
     windows: tuple[Window, ...]
@@ -198,7 +198,7 @@ class Acquisition:
         return {
             "format": "starnav-readout",
             "version": 1,
-            "exposure_s": self.exposure_s,
+            "exposure_s": self.exposure_time,
             "run": self.run,
             "windows_mode": self.windows_mode,
             "windows_acquisition": (1 if self.windows_exposure is not None
@@ -246,7 +246,7 @@ def plan_windows_from_segments(segments: Any, geom: FrameGeometry, camera: Camer
 
 
 def acquire(radiance: RadianceImage | Any, geom: FrameGeometry, camera: Camera,
-            scenario: Scenario, *, exposure_s: float | None = None, run: int = 0,
+            scenario: Scenario, *, exposure_time: float | None = None, run: int = 0,
             windows: str = "second") -> Acquisition:
     """Emulate the segments acquisition, the window plan and the windows acquisition of one
     frame (module steps 1-3).
@@ -262,7 +262,7 @@ def acquire(radiance: RadianceImage | Any, geom: FrameGeometry, camera: Camera,
     camera : Camera
     scenario : Scenario
         ``seed``, ``detector`` and ``navigation`` (limb scan, RANSAC, window plan) are used.
-    exposure_s : float, optional
+    exposure_time : float, optional
         Exposure time [s]; default ``detector.exposure_time_s``.
     run : int
         Monte Carlo run (0: the dataset's streams).
@@ -274,7 +274,7 @@ def acquire(radiance: RadianceImage | Any, geom: FrameGeometry, camera: Camera,
     Acquisition
     """
     mode = check_windows_mode(windows)
-    t_exp = float(scenario.detector.exposure_time_s if exposure_s is None else exposure_s)
+    t_exp = float(scenario.detector.exposure_time_s if exposure_time is None else exposure_time)
     seed = int(scenario.seed)
     index = int(geom.index)
     cfg = quiet_timing(scenario.detector).model_copy(
@@ -312,7 +312,7 @@ def acquire(radiance: RadianceImage | Any, geom: FrameGeometry, camera: Camera,
                 wins = e1.windows
     if status != "ok":
         log.debug("frame %d, %.4g ms: no windows (%s: %s)", index, t_exp * 1e3, status, message)
-    return Acquisition(exposure_s=t_exp, run=int(run), segments_exposure=e0, windows=wins,
+    return Acquisition(exposure_time=t_exp, run=int(run), segments_exposure=e0, windows=wins,
                        windows_exposure=e1, windows_mode=mode, plan_status=status,
                        plan_message=message, planned=tuple(tuple(p) for p in planned),
                        timings_s={"detector": t_det, "plan": t_plan})

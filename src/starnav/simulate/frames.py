@@ -104,19 +104,19 @@ class Simulator:
         return geom, img
 
     def acquire(self, radiance: RadianceImage | Any, geom: FrameGeometry, *,
-                exposure_s: float | None = None, run: int = 0, windows: str = "second",
+                exposure_time: float | None = None, run: int = 0, windows: str = "second",
                 scenario: Scenario | None = None) -> Acquisition:
         """Step 3: the acquisitions of run ``run`` (:func:`starnav.simulate.acquire.acquire`);
         ``scenario`` a variant of this one (e.g. one exposure's overrides), default itself."""
         return acquire(radiance, geom, self.camera, scenario or self.scenario,
-                       exposure_s=exposure_s, run=run, windows=windows)
+                       exposure_time=exposure_time, run=run, windows=windows)
 
     def observe(self, radiance: RadianceImage | Any, geom: FrameGeometry, *, run: int = 0,
-                windows: str = "second", exposure_s: float | None = None,
+                windows: str = "second", exposure_time: float | None = None,
                 scenario: Scenario | None = None) -> Observation:
         """Steps 3-4: the acquisitions of run ``run`` and the chain's input frame."""
         sc = scenario or self.scenario
-        acq = self.acquire(radiance, geom, exposure_s=exposure_s, run=run, windows=windows,
+        acq = self.acquire(radiance, geom, exposure_time=exposure_time, run=run, windows=windows,
                            scenario=sc)
         # every run after the first samples the attitude knowledge error afresh, as it samples
         # the detector noise (run 0 keeps the frame's own draw)
