@@ -22,6 +22,12 @@ def test_bad_times_name_the_flag_and_the_value(text):
     assert repr(text) in str(e.value) or text in str(e.value)
 
 
+def test_a_time_with_a_unit_is_the_same_float_as_the_plain_literal():
+    assert parse_time("15us", "--exposure") == 1.5e-5
+    assert parse_time("7.7ms", "--exposure") == 7.7e-3
+    assert parse_time("0.015ms", "--exposure") == 1.5e-5
+
+
 def test_lists():
     assert parse_times("15us, 7.7ms", "--exposures") == pytest.approx((1.5e-5, 7.7e-3))
     with pytest.raises(ConfigError, match="--exposures"):

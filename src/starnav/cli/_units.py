@@ -10,11 +10,14 @@ from __future__ import annotations
 
 import math
 import re
+from decimal import Decimal, InvalidOperation
 
 from starnav.errors import ConfigError
 
-#: Accepted units and their factor to seconds.
-TIME_UNITS = {"": 1.0, "s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6, "ns": 1e-9}
+#: Accepted units and their factor to seconds (decimal: ``15us`` is exactly the float
+#: ``1.5e-5``, so the same exposure written either way names the same dataset).
+TIME_UNITS = {"": "1", "s": "1", "ms": "1e-3", "us": "1e-6", "µs": "1e-6", "μs": "1e-6",
+              "ns": "1e-9"}
 _TIME = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([a-zµμ]*)\s*$")
 
 
@@ -26,7 +29,10 @@ def parse_time(text: str, flag: str) -> float:
     if m is None or unit not in TIME_UNITS:
         raise ConfigError(flag, text, "a time in seconds or with a unit (s, ms, us, ns), e.g. "
                           "1.5e-5 or 15us or 7.7ms")
-    value = float(m.group(1)) * TIME_UNITS[unit]
+    try:
+        value = float(Decimal(m.group(1)) * Decimal(TIME_UNITS[unit]))
+    except InvalidOperation:
+        value = math.nan
     if not (math.isfinite(value) and value > 0):
         raise ConfigError(flag, text, "a time > 0")
     return value
