@@ -24,14 +24,14 @@ import time
 import numpy as np
 from scipy.stats import chi2
 
+from starnav.batch.consistency import SATURATED, WELL_EXPOSED
+
 TEST_ARCS = ([], ["trajectory.halo_phase_deg=180", "trajectory.epoch=2027-06-15T00:00:00 TDB",
                   "seed=777"],
              ["trajectory.halo_phase_deg=90", "trajectory.epoch=2027-07-20T00:00:00 TDB",
               "seed=778"])
 ARC = ["trajectory.duration_days=13.5", "trajectory.cadence_s=129600", "render.spp=8"]
 SHORT_ARC = ["trajectory.duration_days=0.25", "trajectory.cadence_s=7200", "render.spp=8"]
-WELL_EXPOSED = (1.5e-5, ("detector.readout.segments.thresholds_dn=[200]",))
-SATURATED = (1.8e-4, ("detector.readout.segments.thresholds_dn=[2048]",))
 RUNS = 20
 
 

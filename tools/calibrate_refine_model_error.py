@@ -41,6 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
+from starnav.batch.consistency import SATURATED, WELL_EXPOSED
+
 OUT = Path(__file__).resolve().parents[1] / "src/starnav/data/navigation/refine_model_error.json"
 ARCS = (["trajectory.halo_phase_deg=60", "trajectory.epoch=2027-03-06T00:00:00 TDB",
          "seed=4242"],
@@ -53,8 +55,6 @@ ARCS = (["trajectory.halo_phase_deg=60", "trajectory.epoch=2027-03-06T00:00:00 T
         ["trajectory.halo_phase_deg=30", "trajectory.epoch=2027-05-26T00:00:00 TDB",
          "seed=4246"])
 COMMON = ["trajectory.duration_days=13.2", "trajectory.cadence_s=86400", "render.spp=8"]
-WELL_EXPOSED = (1.5e-5, ("detector.readout.segments.thresholds_dn=[200]",))
-SATURATED = (1.8e-4, ("detector.readout.segments.thresholds_dn=[2048]",))
 RUNS = 2
 #: No model error at all: the first pass.
 UNCALIBRATED = {"phase_edges_deg": [0.0, 180.0], "edge_model_error_px": [0.0],

@@ -57,6 +57,6 @@ def test_workers_and_scheduler_are_exclusive():
     from starnav.batch.cluster import open_runner
     from starnav.errors import ConfigError
 
+    runner = open_runner(2, "tcp://127.0.0.1:1")
     with pytest.raises(ConfigError, match="no --workers with --scheduler"):
-        with open_runner(2, "tcp://127.0.0.1:1"):
-            pass
+        runner.__enter__()  # refused before any connection is tried

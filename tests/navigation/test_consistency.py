@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from starnav.batch.consistency import SATURATED, WELL_EXPOSED
 from starnav.constants import MOON_RADIUS
 from starnav.dem.grid import DemGrid
 from starnav.dem.limb import limb_heights, limb_topography
@@ -160,8 +161,6 @@ TEST_ARCS = ([], ["trajectory.halo_phase_deg=180", "trajectory.epoch=2027-06-15T
              ["trajectory.halo_phase_deg=90", "trajectory.epoch=2027-07-20T00:00:00 TDB",
               "seed=778"])
 ARC = ["trajectory.duration_days=13.5", "trajectory.cadence_s=129600", "render.spp=8"]
-WELL_EXPOSED = (1.5e-5, ("detector.readout.segments.thresholds_dn=[200]",))
-SATURATED = (1.8e-4, ("detector.readout.segments.thresholds_dn=[2048]",))
 
 
 @pytest.fixture(scope="module")

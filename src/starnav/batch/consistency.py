@@ -112,6 +112,13 @@ def noise_monte_carlo(config: dict[str, Any], runs: int,
 #: Expected fraction of a Gaussian error inside its 3-sigma bound.
 THREE_SIGMA_FRACTION = 0.9973
 
+#: The two exposures the refinement's model error is calibrated and checked at, with the
+#: segment threshold each is read with: well exposed (the paper's 0.015 ms) and saturated
+#: near the limb (0.18 ms, before the blooming regime). Shared by
+#: tools/calibrate_refine_model_error.py, benchmarks/consistency.py and the CI tests.
+WELL_EXPOSED = (1.5e-5, ("detector.readout.segments.thresholds_dn=[200]",))
+SATURATED = (1.8e-4, ("detector.readout.segments.thresholds_dn=[2048]",))
+
 
 def consistency_metrics(res: PointResult, probability: float = 0.99) -> dict[str, Any]:
     """Whether a filter's covariance is true, over ``R`` Monte Carlo runs (``res`` from
