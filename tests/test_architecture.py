@@ -212,3 +212,62 @@ def test_function_imports_are_read():
     got = {line: r is not None for line, _, r in function_imports(src)}
     assert got == {3: False, 6: False, 7: True, 10: True, 11: True, 12: False}
     assert _module_file("starnav.dem.load") and not _module_file("starnav.dem.nowhere")
+
+
+# --------------------------------------------------------------------------- SI at the edge
+#: Where a scenario key may still be read in its own unit (``range_km``, ``row_time_us``):
+#: the builders of a subsystem's SI objects, and text that quotes the user's values back.
+#: Everywhere else reads ``section.to_si()`` (or the object built from it). A single line may
+#: opt out with a ``# unit:`` comment saying why.
+UNIT_READERS = {
+    "dem/": "the DEM loaders build DemGrid/AlbedoGrid (SI) from moon.dem",
+    "calibration/": "Bench.from_config builds the bench (SI); its report quotes lab units",
+    "reference/": "AMIE label units, converted where the label is read",
+    "batch/report.py": "the sweep report quotes the scenario's values in its units",
+    "show.py": "the 3-D view is drawn in km",
+    "scenes/schema.py": "validators compare two keys of the same unit",
+}
+
+
+def _unit_keys() -> set[str]:
+    """Every scenario key whose unit is not SI (the SI view converts it)."""
+    import typing
+
+    from pydantic import BaseModel
+
+    from starnav.config import Scenario
+    from starnav.config_base import si_name
+
+    keys: set[str] = set()
+
+    def walk(model: type[BaseModel]) -> None:
+        for k, f in model.model_fields.items():
+            _, conv = si_name(k)
+            if conv is not None and conv != (1.0, 0.0):
+                keys.add(k)
+            for a in (f.annotation, *typing.get_args(f.annotation)):
+                for b in (a, *typing.get_args(a)):
+                    if isinstance(b, type) and issubclass(b, BaseModel):
+                        walk(b)
+
+    walk(Scenario)
+    return keys
+
+
+def test_scenario_units_are_converted_in_one_place():
+    keys = _unit_keys()
+    assert {"row_time_us", "a_ms", "range_km", "phase_angle_deg", "temperature_c",
+            "knowledge_roll_arcsec"} <= keys
+    bad = []
+    for f in sorted(SRC.rglob("*.py")):
+        rel = f.relative_to(SRC).as_posix()
+        if rel.startswith("cli/") or any(rel.startswith(p) for p in UNIT_READERS):
+            continue
+        text = f.read_text()
+        lines = text.splitlines()
+        for node in ast.walk(ast.parse(text)):
+            if (isinstance(node, ast.Attribute) and node.attr in keys
+                    and isinstance(node.ctx, ast.Load)
+                    and "# unit:" not in lines[node.lineno - 1]):
+                bad.append(f"{rel}:{node.lineno}: .{node.attr}")
+    assert not bad, "read the SI view (to_si()) instead:\n" + "\n".join(bad)

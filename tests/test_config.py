@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import yaml
 
@@ -126,3 +128,46 @@ def test_a_partial_dem_section_keeps_the_real_moon_defaults(dem, source, albedo)
     if dem == {"mesh": {"edge_px": 2.0}}:
         sc = scenario_from_dict({}, ["moon.dem.mesh.edge_px=2"])
         assert (sc.moon.dem.source, sc.moon.dem.albedo.source) == ("lola", "lroc")
+
+
+# --------------------------------------------------------------------------- SI view
+def test_si_suffix_factors_agree_with_astropy():
+    import astropy.units as u
+
+    from starnav.config_base import SI_SUFFIXES
+
+    units = {"_km_s": (u.km / u.s, u.m / u.s), "_deg_s": (u.deg / u.s, u.rad / u.s),
+             "_m_s": (u.m / u.s, u.m / u.s), "_m2_s3": (u.m**2 / u.s**3, u.m**2 / u.s**3),
+             "_w_m2": (u.W / u.m**2, u.W / u.m**2), "_km": (u.km, u.m), "_mm": (u.mm, u.m),
+             "_um": (u.um, u.m), "_m": (u.m, u.m), "_au": (u.au, u.m), "_deg": (u.deg, u.rad),
+             "_arcsec": (u.arcsec, u.rad), "_days": (u.day, u.s), "_s": (u.s, u.s),
+             "_ms": (u.ms, u.s), "_us": (u.us, u.s), "_k": (u.K, u.K)}
+    for suffix, conv in SI_SUFFIXES.items():
+        if conv is None:
+            continue
+        if suffix == "_c":
+            assert (20.0 * u.deg_C).to(u.K, equivalencies=u.temperature()).value \
+                == pytest.approx(20.0 * conv[0] + conv[1], rel=1e-15)
+            continue
+        src, dst = units[suffix]
+        assert conv == (pytest.approx(src.to(dst), rel=1e-15), 0.0), suffix
+
+
+def test_the_si_view_drops_suffixes_and_converts():
+    from starnav.config_base import SIView
+
+    sc = Scenario.model_validate({"detector": {"smear": {"rolling_shutter": {"row_time_us": 174}},
+                                               "charge": {"dark_current": {"temperature_c": -10}}},
+                                  "pointing": {"roll": "fixed", "roll_deg": 90}})
+    si = sc.to_si()
+    assert isinstance(si.detector, SIView)
+    assert si.detector.smear.rolling_shutter.row_time == pytest.approx(1.74e-4, rel=1e-15)
+    assert si.detector.charge.dark_current.temperature == pytest.approx(263.15, rel=1e-15)
+    assert si.detector.readout.timing.a == pytest.approx(8e-3)        # a_ms default 8
+    assert si.detector.charge.dark_current.rate_e_per_s == 590.0     # counting unit kept
+    assert si.pointing.roll == "fixed" and si.pointing.roll_angle == pytest.approx(math.pi / 2)
+    assert si.detector.exposure_time == sc.detector.exposure_time_s  # SI already: renamed only
+    with pytest.raises(AttributeError, match="row_time"):
+        si.detector.smear.rolling_shutter.row_time_us  # noqa: B018
+    with pytest.raises(AttributeError, match="read-only"):
+        si.detector.exposure_time = 1.0

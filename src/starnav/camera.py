@@ -399,10 +399,11 @@ class CameraConfig(StrictModel):
 def camera_from_config(cfg: CameraConfig) -> Camera:
     """The :class:`~starnav.camera.Camera` described by ``cfg`` (SI inside)."""
     over: dict[str, Any] = {}
-    if cfg.focal_length_mm is not None:
-        over["focal_length"] = cfg.focal_length_mm * 1e-3
-    if cfg.pixel_pitch_um is not None:
-        over["pitch_x"] = over["pitch_y"] = cfg.pixel_pitch_um * 1e-6
+    si = cfg.to_si()
+    if si.focal_length is not None:
+        over["focal_length"] = si.focal_length
+    if si.pixel_pitch is not None:
+        over["pitch_x"] = over["pitch_y"] = si.pixel_pitch
     if cfg.width is not None:
         over["width"] = cfg.width
     if cfg.height is not None:

@@ -310,17 +310,17 @@ class StaticGeometryConfig(StrictModel):
 def static_geometry_from_config(camera: Camera, cfg: StaticGeometryConfig,
                                 moon_radius: float) -> FrameGeometry:
     """:func:`static_geometry` from a :class:`StaticGeometryConfig`."""
-    d = math.radians
+    si = cfg.to_si()
     return static_geometry(
         camera,
-        range_m=cfg.range_km * 1e3,
-        phase_angle=d(cfg.phase_angle_deg),
-        moon_offset_px=tuple(cfg.moon_offset_px),
-        roll=d(cfg.roll_deg),
-        sun_azimuth=d(cfg.sun_azimuth_deg),
-        sub_observer_lat=d(cfg.sub_observer_lat_deg),
-        sub_observer_lon=d(cfg.sub_observer_lon_deg),
-        sun_distance=cfg.sun_distance_au * AU,
+        range_m=si.range,
+        phase_angle=si.phase_angle,
+        moon_offset_px=tuple(si.moon_offset_px),
+        roll=si.roll,
+        sun_azimuth=si.sun_azimuth,
+        sub_observer_lat=si.sub_observer_lat,
+        sub_observer_lon=si.sub_observer_lon,
+        sun_distance=si.sun_distance,
         moon_radius=moon_radius,
     )
 

@@ -53,7 +53,7 @@ class Moon(TargetBody):
 
     @property
     def radii_m(self) -> tuple[float, float, float]:
-        r = self.config.radius_km * 1e3
+        r = self.config.to_si().radius
         return (r, r, r)
 
     def orientation(self, epochs_tdb: ArrayLike, ephemeris: Any = None) -> FloatArray:
@@ -63,7 +63,7 @@ class Moon(TargetBody):
 
     def render_model(self) -> MoonModel:
         m = self.config
-        radius = m.radius_km * 1e3
+        radius = self.radii_m[0]
         model = m.photometry.model
         params = m.photometry.resolved_params()
         spectral = (lunar_calibration().spectral_shape()

@@ -75,6 +75,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.camera import Camera
+from starnav.config_base import SIView
 from starnav.detector import blooming, charge, crosstalk, optics, readout, smear
 from starnav.detector.products import Segments, Window
 from starnav.detector.schema import DetectorConfig, WindowSpec
@@ -99,6 +100,8 @@ class ChainContext:
     ----------
     camera : Camera
     config : DetectorConfig
+    si : SIView
+        ``config`` in SI, built once per frame.
     exposure_time : float
         Integration time [s].
     seed : int
@@ -119,6 +122,12 @@ class ChainContext:
     sensor_seed: int
     frame_index: int
     ledger: dict[str, float] = field(default_factory=dict)
+    #: ``config`` in SI (:meth:`~starnav.config_base.StrictModel.to_si`): what adapters read
+    #: for any quantity with a unit other than px, e- or DN.
+    si: SIView = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.si = self.config.to_si()
 
     def temporal(self, effect: str) -> np.random.Generator:
         """Temporal generator of ``effect`` for this frame."""
@@ -171,16 +180,16 @@ def _distortion(img: Float32Array, ctx: ChainContext) -> Float32Array:
 
 
 def _row_time(ctx: ChainContext) -> float:
-    rs = ctx.config.smear.rolling_shutter
-    if rs.row_time_us is not None:
-        return rs.row_time_us * 1e-6
-    t = ctx.config.readout.timing
-    return t.b_ms * 1e-3 * ctx.camera.width / t.n_pix_unit
+    rs = ctx.si.smear.rolling_shutter
+    if rs.row_time is not None:
+        return rs.row_time
+    t = ctx.si.readout.timing
+    return t.b * ctx.camera.width / t.n_pix_unit
 
 
 def _rolling_shutter(img: Float32Array, ctx: ChainContext) -> Float32Array:
-    rate = tuple(math.radians(w) for w in ctx.config.smear.rolling_shutter.angular_rate_deg_s)
-    vel = smear.image_velocity(rate, ctx.camera.fx, ctx.camera.fy)  # type: ignore[arg-type]
+    vel = smear.image_velocity(ctx.si.smear.rolling_shutter.angular_rate, ctx.camera.fx,
+                               ctx.camera.fy)
     out = smear.rolling_shutter(img, vel, ctx.exposure_time, _row_time(ctx))
     _book_loss(ctx, img, out)
     return out
@@ -201,8 +210,7 @@ def _ghosts(img: Float32Array, ctx: ChainContext) -> Float32Array:
 
 
 def _transfer_smear(img: Float32Array, ctx: ChainContext) -> Float32Array:
-    return smear.transfer_smear(img, ctx.exposure_time,
-                                ctx.config.smear.transfer.row_transfer_time_us * 1e-6)
+    return smear.transfer_smear(img, ctx.exposure_time, ctx.si.smear.transfer.row_transfer_time)
 
 
 def _prnu(img: Float32Array, ctx: ChainContext) -> Float32Array:
@@ -214,8 +222,9 @@ def _dark(img: Float32Array, ctx: ChainContext) -> Float32Array:
     d = ctx.config.charge.dark_current
     pattern = charge.dark_pattern(ctx.sensor_seed, img.shape, d.dsnu_fraction,
                                   d.hot_pixel_fraction, d.hot_pixel_factor)
-    rate = charge.dark_rate_at(d.rate_e_per_s, d.temperature_c, d.reference_temperature_c,
-                               d.doubling_temperature_k)
+    t = ctx.si.charge.dark_current
+    rate = charge.dark_rate_at(d.rate_e_per_s, t.temperature, t.reference_temperature,
+                               t.doubling_temperature)
     return charge.add_dark_current(img, pattern, rate, ctx.exposure_time)
 
 
@@ -268,7 +277,7 @@ EFFECTS: Registry[Effect] = Registry("detector effect", {e.name: e for e in (
            lambda c, cam: c.optics.distortion.enabled and cam.has_distortion, _distortion),
     Effect("rolling_shutter", "photons", "motion blur and rolling-shutter skew",
            lambda c, cam: c.smear.rolling_shutter.enabled
-           and any(w != 0 for w in c.smear.rolling_shutter.angular_rate_deg_s),
+           and any(w != 0 for w in c.smear.rolling_shutter.to_si().angular_rate),
            _rolling_shutter),
     Effect("stray_light", "photons", "Harvey halo with a set TIS",
            lambda c, cam: c.optics.stray_light.enabled

@@ -51,10 +51,11 @@ def prnu_map(sensor_seed: int, shape: tuple[int, int], sigma: float) -> Float32A
     return g
 
 
-def dark_rate_at(rate_ref: float, temperature_c: float, reference_c: float,
-                 doubling_k: float) -> float:
-    """Mean dark current at ``temperature_c``: ``rate_ref 2^((T - T_ref) / T_2)`` [e-/s]."""
-    return float(rate_ref) * 2.0 ** ((temperature_c - reference_c) / doubling_k)
+def dark_rate_at(rate_ref: float, temperature: float, reference: float,
+                 doubling: float) -> float:
+    """Mean dark current at ``temperature``: ``rate_ref 2^((T - T_ref) / T_2)`` [e-/s]
+    (temperatures and the doubling step in K; only differences enter)."""
+    return float(rate_ref) * 2.0 ** ((temperature - reference) / doubling)
 
 
 @lru_cache(maxsize=8)

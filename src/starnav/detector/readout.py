@@ -246,10 +246,9 @@ class ReadoutTiming:
 
 def min_exposure(n_pixels: int, timing: ReadoutTimingConfig, full_frame: bool = False) -> float:
     """Shortest exposure [s] for a readout of ``n_pixels`` (seed paper eq. 1, step 6)."""
-    t_ms = timing.a_ms + timing.b_ms * n_pixels / timing.n_pix_unit
-    if full_frame:
-        t_ms = max(t_ms, timing.full_frame_min_ms)
-    return t_ms * 1e-3
+    si = timing.to_si()
+    t = si.a + si.b * n_pixels / si.n_pix_unit
+    return max(t, si.full_frame_min) if full_frame else t
 
 
 def readout_timing(mode: str, shape: tuple[int, int], exposure: float,

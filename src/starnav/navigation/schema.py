@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from pydantic import Field
 
 from starnav.config_base import StrictModel
-from starnav.constants import ARCSEC, DAY, MOON_RADIUS
+from starnav.constants import MOON_RADIUS
 from starnav.dem.limb import limb_topography_for
 from starnav.fields import NonNegativeFloat, PositiveFloat
 from starnav.navigation.christian_robinson import ChristianRobinsonOptions
@@ -170,9 +170,10 @@ class NavigationConfig(StrictModel):
         ``fix.moon_radii_km`` is null.
         """
         L, Rf, Rs, F = self.limb, self.refine, self.ransac, self.fix
+        Fsi = F.to_si()
         r = MOON_RADIUS if moon_radius_m is None else float(moon_radius_m)
-        if F.moon_radii_km is not None:
-            radii = tuple(x * 1e3 for x in F.moon_radii_km)
+        if Fsi.moon_radii is not None:
+            radii = tuple(Fsi.moon_radii)
         elif radii_m is not None:
             radii = tuple(float(x) for x in radii_m)
         else:
@@ -180,10 +181,9 @@ class NavigationConfig(StrictModel):
         noise, terrain, spread = None, None, None
         edge_model = "blurred-limb" if Rf.edge_model == "auto" else Rf.edge_model
         att: float | tuple[float, float, float] = 0.0
-        if F.attitude_sigma_arcsec is not None:
-            a = F.attitude_sigma_arcsec
-            att = (a * ARCSEC if isinstance(a, float | int)
-                   else tuple(float(x) * ARCSEC for x in a))  # type: ignore[assignment]
+        if Fsi.attitude_sigma is not None:
+            a = Fsi.attitude_sigma
+            att = a if isinstance(a, float) else tuple(a)
         if scenario is not None:
             if Rf.noise_model:
                 noise = PixelNoise.from_detector(scenario.detector)
@@ -194,10 +194,8 @@ class NavigationConfig(StrictModel):
             on_moon = getattr(scenario, "target", None) is None or scenario.target.kind == "moon"
             if Rf.terrain_model_error and on_moon and scenario.moon.shape == "dem":
                 terrain = limb_topography_for(scenario.moon.dem)
-            if F.attitude_sigma_arcsec is None:
-                pc = scenario.pointing
-                att = (pc.knowledge_cross_arcsec * ARCSEC, pc.knowledge_cross_arcsec * ARCSEC,
-                       pc.knowledge_roll_arcsec * ARCSEC)
+            if Fsi.attitude_sigma is None:
+                att = scenario.pointing.knowledge_sigma
         table = packaged_model_error() if edge_model == "detector-psf" else None
         # the fix's radius error when no refined points carry their own (pixel-level points)
         if terrain is None:
@@ -213,7 +211,7 @@ class NavigationConfig(StrictModel):
                                  min_sun_cos=L.min_sun_cos, drop_border_px=L.drop_border_px,
                                  point_sigma_px=L.point_sigma_px,
                                  point_offset_px=L.point_offset_px,
-                                 max_phase_rad=math.radians(L.max_phase_deg)),
+                                 max_phase_rad=L.to_si().max_phase),
             ransac=RansacOptions(model=Rs.model, threshold_px=Rs.threshold_px,
                                  max_iterations=Rs.max_iterations, confidence=Rs.confidence,
                                  min_inlier_fraction=Rs.min_inlier_fraction),
@@ -236,19 +234,20 @@ class NavigationConfig(StrictModel):
     def ekf_options(self) -> EkfOptions:
         """The SI :class:`~starnav.navigation.ekf.EkfOptions` of this section."""
         f = self.filter
+        fsi = f.to_si()
         common = None
         if f.bias_model == "limb-common":
             common = packaged_model_error().common_covariance
-        return EkfOptions(bias_model=f.bias_model, bias_sigma_m=f.bias_sigma_km * 1e3,
+        return EkfOptions(bias_model=f.bias_model, bias_sigma_m=fsi.bias_sigma,
                           common_covariance=common,
                           range_scale_sigma=f.range_scale_sigma,
-                          bias_tau_s=f.bias_tau_days * DAY,
+                          bias_tau_s=fsi.bias_tau,
                           accel_psd_m2_s3=f.accel_psd_m2_s3,
                           gate_probability=f.gate_probability,
                           max_consecutive_rejections=f.max_consecutive_rejections)
 
     def initial_covariance(self) -> NDArray[np.float64]:
         """Diagonal initial covariance (6 x 6) [m^2, m^2/s^2] from the filter's sigmas."""
-        sp = self.filter.initial_position_sigma_km * 1e3
-        sv = self.filter.initial_velocity_sigma_m_s
+        si = self.filter.to_si()
+        sp, sv = si.initial_position_sigma, si.initial_velocity_sigma
         return np.diag([sp * sp] * 3 + [sv * sv] * 3)

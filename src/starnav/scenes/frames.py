@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.cache import BoundedCache
-from starnav.constants import ARCSEC, DAY, MOON_RADIUS
+from starnav.constants import DAY, MOON_RADIUS
 from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry, StaticGeometryConfig, static_geometry_from_config
 from starnav.scenes.cr3bp import LU
@@ -80,7 +80,7 @@ def build_trajectory(cfg: TrajectoryConfig, ephemeris: Ephemeris | None = None,
     if cfg.source == "oem":
         traj = read_oem(cfg.oem_path, ephemeris=eph)  # type: ignore[arg-type]
         t0 = traj.t_start if cfg.epoch is None else parse_epoch(cfg.epoch, "trajectory.epoch")
-        t1 = min(traj.t_end, t0 + cfg.duration_days * DAY)
+        t1 = min(traj.t_end, t0 + cfg.to_si().duration)
         if not (traj.t_start - 1e-6 <= t0 < traj.t_end):
             raise ConfigError("trajectory.epoch", cfg.epoch,
                               f"an epoch inside the OEM span ({traj.t_start:.3f}.."
@@ -91,12 +91,13 @@ def build_trajectory(cfg: TrajectoryConfig, ephemeris: Ephemeris | None = None,
 
     t0 = parse_epoch(cfg.epoch or DEFAULT_EPOCH, "trajectory.epoch")
     model = PointMassModel(eph)
-    options = ShootingOptions(segment=cfg.shooting_segment_s, step=cfg.step_s,
-                              range_min=cfg.range_min_km * 1e3, range_max=cfg.range_max_km * 1e3)
-    memo_key = (eph.directory, t0, cfg.duration_days, cfg.halo_z0_km, cfg.halo_phase_deg, options)
+    si = cfg.to_si()
+    options = ShootingOptions(segment=si.shooting_segment, step=si.step,
+                              range_min=si.range_min, range_max=si.range_max)
+    memo_key = (eph.directory, t0, si.duration, si.halo_z0, si.halo_phase, options)
     return _ARC_MEMO.get_or_make(memo_key, lambda: ephemeris_halo_arc(
-        model, t0, cfg.duration_days * DAY, z0=cfg.halo_z0_km * 1e3 / LU,
-        phase=cfg.halo_phase_deg / 360.0, options=options,
+        model, t0, si.duration, z0=si.halo_z0 / LU,
+        phase=cfg.halo_phase_deg / 360.0, options=options,  # unit: turns, exact
         cache_dir=cache_dir if cache_dir is not None else False))
 
 
@@ -191,9 +192,7 @@ class Scene:
         if self.static:
             g = static_geometry_from_config(self.camera, self.static_config, self.moon_radius)
             _, krng = frame_generators(self.seed, i)
-            sig = np.array([pc.knowledge_cross_arcsec, pc.knowledge_cross_arcsec,
-                            pc.knowledge_roll_arcsec]) * ARCSEC
-            err = krng.standard_normal(3) * sig
+            err = krng.standard_normal(3) * np.array(pc.knowledge_sigma)
             return FrameGeometry(
                 camera_position=g.camera_position, R_cam_to_inertial=g.R_cam_to_inertial,
                 sun_position=g.sun_position, R_moon_to_inertial=g.R_moon_to_inertial,

@@ -45,7 +45,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from starnav.camera import Camera
-from starnav.constants import ARCSEC, MOON_RADIUS
+from starnav.constants import MOON_RADIUS
 from starnav.errors import ConfigError, GeometryError
 from starnav.geometry import FrameGeometry, look_rotation
 from starnav.seeding import STAGE_POINTING, generator
@@ -283,7 +283,5 @@ def pointing_from_config(camera: Camera, camera_position: ArrayLike, cfg, seed: 
         camera, camera_position, rng, krng,
         moon_offset=cfg.moon_offset, moon_offset_px=tuple(cfg.moon_offset_px),
         max_offset=cfg.moon_offset_max_px, margin=cfg.edge_margin_px, roll=cfg.roll,
-        roll_angle=math.radians(cfg.roll_deg),
-        knowledge_sigma=(cfg.knowledge_cross_arcsec * ARCSEC, cfg.knowledge_cross_arcsec * ARCSEC,
-                         cfg.knowledge_roll_arcsec * ARCSEC),
+        roll_angle=cfg.to_si().roll_angle, knowledge_sigma=cfg.knowledge_sigma,
         moon_radius=moon_radius, sun_position=sun_position)

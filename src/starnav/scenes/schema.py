@@ -10,7 +10,7 @@ from __future__ import annotations
 import datetime as _dt
 import re
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field, field_validator, model_validator
 
@@ -109,6 +109,8 @@ class PointingConfig(StrictModel):
     camera axis; the true attitude is never perturbed.
     """
 
+    si_names: ClassVar[dict[str, str]] = {"roll_deg": "roll_angle"}
+
     moon_offset: Literal["random", "fixed"] = Field(
         "random", description="Moon-centre placement in the image (the paper varied it randomly)")
     moon_offset_px: tuple[float, float] = Field(
@@ -127,3 +129,9 @@ class PointingConfig(StrictModel):
     knowledge_roll_arcsec: NonNegativeFloat = Field(
         40.0, description="1-sigma attitude knowledge error about the boresight [arcsec] "
         "(assumed; star-tracker roll is several times worse than cross-boresight)")
+
+    @property
+    def knowledge_sigma(self) -> tuple[float, float, float]:
+        """1-sigma attitude-knowledge error about the camera x, y, z (boresight) axes [rad]."""
+        si = self.to_si()
+        return (si.knowledge_cross, si.knowledge_cross, si.knowledge_roll)

@@ -126,7 +126,7 @@ def frame_mesh(sc: Scenario, dem: DemGrid | None = None, albedo: AlbedoGrid | No
     ``dem``/``albedo``: grids already loaded (default: read ``moon.dem``'s)."""
     cfg = as_dem_config(sc.moon.dem)
     camera = camera_from_config(sc.camera)
-    geom = static_geometry_from_config(camera, sc.geometry, moon_radius=sc.moon.radius_km * 1e3)
+    geom = static_geometry_from_config(camera, sc.geometry, moon_radius=Moon(sc.moon).radii_m[0])
     dem = load_dem(cfg) if dem is None else dem
     albedo = load_albedo(cfg) if albedo is None else albedo
     Rb = geom.R_moon_to_inertial.T

@@ -34,7 +34,6 @@ import numpy as np
 from starnav.cache import BoundedCache
 from starnav.camera import Camera, camera_from_config
 from starnav.config import Scenario, scenario_from_dict
-from starnav.constants import ARCSEC
 from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry
 from starnav.navigation.frames import Frame
@@ -79,9 +78,7 @@ class Simulator:
         self.camera = camera_from_config(scenario.camera) if camera is None else camera
         self.scene: Scene = scene_from_scenario(scenario, camera=self.camera)
         self._renderer: MoonRenderer | None = None
-        pc = scenario.pointing
-        self.knowledge_sigma = np.array([pc.knowledge_cross_arcsec, pc.knowledge_cross_arcsec,
-                                         pc.knowledge_roll_arcsec]) * ARCSEC
+        self.knowledge_sigma = np.array(scenario.pointing.knowledge_sigma)
 
     def __len__(self) -> int:
         return len(self.scene)
