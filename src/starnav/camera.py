@@ -382,12 +382,18 @@ CAMERA_PRESETS: dict[str, Camera] = {
 class CameraConfig(StrictModel):
     """Camera optics and detector geometry. ``None`` keeps the preset's value."""
 
-    preset: str = Field("aa-str", description="named camera (starnav.camera.CAMERA_PRESETS)")
-    focal_length_mm: PositiveFloat | None = Field(None, description="effective focal length [mm]")
-    pixel_pitch_um: PositiveFloat | None = Field(None, description="pixel pitch [um]")
-    width: Annotated[int, Field(ge=1)] | None = Field(None, description="detector columns [px]")
-    height: Annotated[int, Field(ge=1)] | None = Field(None, description="detector rows [px]")
-    f_number: PositiveFloat | None = Field(None, description="f-number N = f / D [-]")
+    preset: str = Field("aa-str", description="named camera whose values the keys below "
+                        f"override: {', '.join(CAMERA_PRESETS)}")
+    focal_length_mm: PositiveFloat | None = Field(
+        None, description="effective focal length [mm]; null: the preset's")
+    pixel_pitch_um: PositiveFloat | None = Field(
+        None, description="pixel pitch [um]; null: the preset's")
+    width: Annotated[int, Field(ge=1)] | None = Field(
+        None, description="detector columns [px]; null: the preset's")
+    height: Annotated[int, Field(ge=1)] | None = Field(
+        None, description="detector rows [px]; null: the preset's")
+    f_number: PositiveFloat | None = Field(
+        None, description="f-number N = f / D [-]; null: the preset's")
     principal_point_px: tuple[float, float] | None = Field(
         None, description="principal point (u, v) [px]; default the detector centre"
     )

@@ -53,7 +53,9 @@ build_camera = camera_from_config
 
 
 class OutputConfig(StrictModel):
-    directory: Path = Path("out")
+    directory: Path = Field(
+        Path("out"), description="default output directory; not read by the commands yet, which "
+        "take --out")
 
 
 
@@ -62,21 +64,41 @@ class Scenario(StrictModel):
     """A complete scenario. ``geometry`` (static, one frame) is used when ``trajectory`` is
     ``None``; otherwise frames come from the trajectory."""
 
-    camera: CameraConfig = Field(default_factory=CameraConfig)
-    sensor_response: SensorResponseConfig = Field(default_factory=SensorResponseConfig)
-    detector: DetectorConfig = Field(default_factory=DetectorConfig)
-    moon: MoonConfig = Field(default_factory=MoonConfig)
-    sun: SunConfig = Field(default_factory=SunConfig)
-    geometry: StaticGeometryConfig = Field(default_factory=StaticGeometryConfig)
-    trajectory: TrajectoryConfig | None = None
-    pointing: PointingConfig = Field(default_factory=PointingConfig)
-    render: RenderConfig = Field(default_factory=RenderConfig)
+    camera: CameraConfig = Field(
+        default_factory=CameraConfig, description="camera optics and detector geometry (pinhole + "
+        "distortion)")
+    sensor_response: SensorResponseConfig = Field(
+        default_factory=SensorResponseConfig, description="spectral response of the sensor: QE x "
+        "optics transmission")
+    detector: DetectorConfig = Field(
+        default_factory=DetectorConfig, description="the detector chain from photons to DN and "
+        "its readout modes")
+    moon: MoonConfig = Field(
+        default_factory=MoonConfig, description="the Moon: shape, photometry, albedo, terrain")
+    sun: SunConfig = Field(
+        default_factory=SunConfig, description="the solar spectrum")
+    geometry: StaticGeometryConfig = Field(
+        default_factory=StaticGeometryConfig, description="the one static frame, used when "
+        "trajectory is null")
+    trajectory: TrajectoryConfig | None = Field(
+        None, description="the observer's arc and the frame epochs along it; null: the one static "
+        "frame of the geometry section")
+    pointing: PointingConfig = Field(
+        default_factory=PointingConfig, description="the camera's Moon-pointing attitude and its "
+        "on-board knowledge error")
+    render: RenderConfig = Field(
+        default_factory=RenderConfig, description="Mitsuba rendering settings")
     target: TargetConfig | None = Field(
         None, description="the body the frames look at: null or {kind: moon} for the Moon of "
         "the moon section, {kind: ellipsoid, ...} for a triaxial small body (starnav.bodies)")
-    navigation: NavigationConfig = Field(default_factory=NavigationConfig)
-    output: OutputConfig = Field(default_factory=OutputConfig)
-    seed: Annotated[int, Field(ge=0)] = 20250101
+    navigation: NavigationConfig = Field(
+        default_factory=NavigationConfig, description="the navigation chain: limb points, "
+        "refinement, RANSAC, fix, filter")
+    output: OutputConfig = Field(
+        default_factory=OutputConfig, description="output settings")
+    seed: Annotated[int, Field(ge=0)] = Field(
+        20250101, description="master seed of every random stream (noise, pointing, knowledge "
+        "errors; starnav.seeding)")
 
 
 # --------------------------------------------------------------------------- loading

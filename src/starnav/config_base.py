@@ -23,16 +23,25 @@ cycle. It holds the three things they would otherwise each write again:
    (``row_time_us=174`` -> ``row_time=1.74e-4``; the suffix table is :data:`SI_SUFFIXES`).
    Keys in counting units (``_px``, ``_e``, ``_dn``, ``_fraction``) and wavelengths in nm (the
    spectral convention of :mod:`starnav.spectra` and Mitsuba) keep their names and values.
+5. :func:`commented_yaml`, which writes a validated mapping as YAML with the schema's own
+   description of every key above it (plus the allowed choices or range read from the field's
+   type), so a file like the one of ``starnav init`` documents itself and cannot drift from
+   the schema: a field's ``Field(description=...)`` is its only documentation.
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Iterable, MutableMapping, Sequence
-from typing import Any, ClassVar
+import textwrap
+import types
+import typing
+from collections.abc import Iterable, Mapping, MutableMapping, Sequence
+from typing import Any, ClassVar, Literal
 
+import annotated_types
 import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic.fields import FieldInfo
 
 from starnav.constants import AU, DAY, DEG
 from starnav.errors import ConfigError
@@ -214,5 +223,162 @@ def format_validation_error(err: ValidationError, prefix: str = "") -> ConfigErr
     return ConfigError(field, value, expected)
 
 
-__all__ = ["StrictModel", "apply_overrides", "format_validation_error", "parse_override",
-           "set_dotted"]
+# --------------------------------------------------------------------------- commented YAML
+#: Line width of :func:`commented_yaml`'s comments [characters].
+COMMENT_WIDTH = 99
+
+
+def field_models(annotation: Any) -> list[type[BaseModel]]:
+    """The pydantic models a field's type can hold, in order (``A | B | None`` -> ``[A, B]``;
+    ``tuple[A, ...]`` -> ``[A]``); ``[]`` for a plain value."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return [annotation]
+    out: list[type[BaseModel]] = []
+    for arg in typing.get_args(annotation):
+        out += [m for m in field_models(arg) if m not in out]
+    return out
+
+
+def _choices(annotation: Any) -> list[Any]:
+    """Values of the ``Literal`` types of a field's type (``None`` included when allowed)."""
+    if typing.get_origin(annotation) is Literal:
+        return list(typing.get_args(annotation))
+    if annotation is type(None):
+        return [None]
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        parts = [_choices(a) for a in typing.get_args(annotation)]
+        if all(parts):  # every alternative is a literal or None
+            return [c for p in parts for c in p]
+    if typing.get_origin(annotation) is typing.Annotated:
+        return _choices(typing.get_args(annotation)[0])
+    return []
+
+
+def _bounds(annotation: Any, metadata: Sequence[Any]) -> str:
+    """The numeric range of a scalar field (``"> 0"``, ``"[0, 1]"``), from its constraints
+    (``Gt``, ``Ge``, ``Lt``, ``Le``) on the field or on its ``Annotated`` type; ``""`` for
+    none. Constraints on the items of a tuple are not reported."""
+    found = list(metadata)
+    stack = [annotation]
+    while stack:
+        a = stack.pop()
+        origin = typing.get_origin(a)
+        if origin is typing.Annotated:  # Field(gt=0) inside a union is a FieldInfo
+            for m in a.__metadata__:
+                found += m.metadata if isinstance(m, FieldInfo) else [m]
+            stack.append(typing.get_args(a)[0])
+        elif origin in (typing.Union, types.UnionType):
+            stack += list(typing.get_args(a))
+    lo = hi = None
+    for m in found:
+        if isinstance(m, annotated_types.Gt):
+            lo = ("(", m.gt)
+        elif isinstance(m, annotated_types.Ge):
+            lo = ("[", m.ge)
+        elif isinstance(m, annotated_types.Lt):
+            hi = (")", m.lt)
+        elif isinstance(m, annotated_types.Le):
+            hi = ("]", m.le)
+    if lo and hi:
+        return f"range {lo[0]}{lo[1]:g}, {hi[1]:g}{hi[0]}"
+    if lo:
+        return f"{'>' if lo[0] == '(' else '>='} {lo[1]:g}"
+    if hi:
+        return f"{'<' if hi[0] == ')' else '<='} {hi[1]:g}"
+    return ""
+
+
+def field_comment(field: FieldInfo) -> str:
+    """A field's comment: its description, then what it accepts (``one of: a, b`` from a
+    ``Literal``, the numeric range from its constraints, ``or null`` when optional)."""
+    text = (field.description or "").strip()
+    extra = []
+    choices = _choices(field.annotation)
+    if choices:
+        extra.append("one of: " + ", ".join("null" if c is None else str(c) for c in choices))
+    else:
+        bounds = _bounds(field.annotation, field.metadata)
+        if bounds:
+            extra.append(bounds)
+    return "; ".join(t for t in (text, *extra) if t)
+
+
+def _scalar(value: Any) -> str:
+    """One value in YAML flow style on one line (``1.0e-05``, ``[1, 2]``, ``null``)."""
+    text = yaml.safe_dump(value, default_flow_style=True, width=float("inf"), sort_keys=False)
+    return text.removesuffix("\n").removesuffix("\n...").strip()
+
+
+def _pick_model(models: Sequence[type[BaseModel]], data: Mapping[str, Any]
+                ) -> type[BaseModel] | None:
+    """The model of a union that describes ``data``: all its keys are fields and its
+    single-valued literal fields (a ``kind`` discriminator) match."""
+    for m in models:
+        if not set(data) <= set(m.model_fields):
+            continue
+        tags = {k: _choices(f.annotation) for k, f in m.model_fields.items()}
+        if all(len(tags[k]) != 1 or data[k] == tags[k][0] for k in data if k in tags):
+            return m
+    return None
+
+
+def _comment_lines(text: str, indent: str, commented: bool) -> list[str]:
+    pre = "# " if commented else ""
+    width = max(COMMENT_WIDTH - len(indent) - len(pre) - 2, 40)
+    wrapped = textwrap.wrap(text, width, break_on_hyphens=False, break_long_words=False)
+    return [f"{pre}{indent}# {line}" for line in wrapped]
+
+
+def _emit(model: type[BaseModel] | None, data: Mapping[str, Any], indent: str,
+          lines: list[str], *, item: bool = False, commented: bool = False) -> None:
+    """Append the lines of mapping ``data`` (fields of ``model``) at ``indent``; ``item``: the
+    mapping is an item of a list (its first key follows ``- ``)."""
+    pre = "# " if commented else ""
+    for n, (key, value) in enumerate(data.items()):
+        field = None if model is None else model.model_fields.get(key)
+        lead = indent + ("- " if item and n == 0 else ("  " if item else ""))
+        pad = indent + ("  " if item else "")
+        if not indent and not commented and lines:
+            lines.append("")  # a blank line between the top-level sections
+        if field is not None:
+            lines += _comment_lines(field_comment(field), pad if n else indent, commented)
+        models = [] if field is None else field_models(field.annotation)
+        k = _scalar(key)
+        if isinstance(value, Mapping) and value and models:
+            lines.append(f"{pre}{lead}{k}:")
+            _emit(_pick_model(models, value), value, pad + "  ", lines, commented=commented)
+        elif (isinstance(value, list | tuple) and value and models
+              and all(isinstance(v, Mapping) for v in value)):
+            lines.append(f"{pre}{lead}{k}:")
+            for v in value:
+                _emit(_pick_model(models, v), v, pad + "  ", lines, item=True,
+                      commented=commented)
+        else:
+            lines.append(f"{pre}{lead}{k}: {_scalar(value)}")
+            if value is None and not commented:
+                for m in models:  # an unused optional section: its defaults, commented out
+                    try:
+                        example = m().model_dump(mode="json")
+                    except ValidationError:
+                        continue  # no defaults to show (a required key)
+                    if all(len(_choices(f.annotation)) == 1 for f in m.model_fields.values()):
+                        continue  # a bare tag ({kind: moon}): the comment says it all
+                    lines.append(f"{pad}# {k}:  (example: {m.__name__} at its defaults)")
+                    _emit(m, example, pad + "  ", lines, commented=True)
+
+
+def commented_yaml(model: type[BaseModel], data: Mapping[str, Any]) -> str:
+    """``data`` (a mapping that ``model`` validates, e.g. ``model_dump(mode="json")``) as
+    block YAML with each key's comment (:func:`field_comment`) on the lines above it.
+
+    Values are written in flow style on one line (lists, free mappings), sections and lists
+    of sections as blocks; an optional section that is ``null`` is followed by a commented-out
+    copy of its defaults, to show its keys. ``yaml.safe_load`` of the result equals ``data``.
+    """
+    lines: list[str] = []
+    _emit(model, data, "", lines)
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["COMMENT_WIDTH", "StrictModel", "apply_overrides", "commented_yaml", "field_comment",
+           "field_models", "format_validation_error", "parse_override", "set_dotted"]

@@ -302,8 +302,10 @@ class StaticGeometryConfig(StrictModel):
         (0.0, 0.0), description="Moon centre offset from the principal point (du, dv) [px]"
     )
     roll_deg: float = Field(0.0, description="rotation of the camera about the Moon line [deg]")
-    sub_observer_lat_deg: Annotated[float, Field(ge=-90, le=90)] = 0.0
-    sub_observer_lon_deg: float = 0.0
+    sub_observer_lat_deg: Annotated[float, Field(ge=-90, le=90)] = Field(
+        0.0, description="selenographic latitude of the point below the camera [deg]")
+    sub_observer_lon_deg: float = Field(
+        0.0, description="selenographic longitude of the point below the camera [deg]")
     sun_distance_au: PositiveFloat = Field(1.0, description="Sun-Moon distance [AU]")
 
 

@@ -318,7 +318,9 @@ class SunConfig(StrictModel):
     """Solar spectrum. ``spectrum``: ``astm-g173`` (ASTM E-490/G-173 extraterrestrial, from
     colour-science) or ``blackbody`` (``temperature_k``, scaled to ``tsi_w_m2``)."""
 
-    spectrum: Literal["astm-g173", "blackbody"] = "astm-g173"
+    spectrum: Literal["astm-g173", "blackbody"] = Field(
+        "astm-g173", description="solar spectrum: astm-g173 (ASTM E-490/G-173 extraterrestrial) "
+        "or blackbody (temperature_k, scaled to tsi_w_m2)")
     tsi_w_m2: PositiveFloat | None = Field(
         None, description="rescale the spectrum to this total irradiance at 1 AU [W/m^2]"
     )
@@ -333,11 +335,21 @@ class SensorResponseConfig(StrictModel):
     (n values) with ``qe``/``transmission`` per sample (piecewise linear, ``kind: samples``).
     """
 
-    preset: str | None = "aa-str"
-    kind: Literal["bands", "samples"] = "bands"
-    wavelengths_nm: tuple[float, ...] | None = None
-    qe: tuple[float, ...] | None = None
-    transmission: tuple[float, ...] | None = None
+    preset: str | None = Field(
+        "aa-str", description="named QE x transmission curve, one of: "
+        f"{', '.join([*SENSOR_PRESETS, *SAMPLED_SENSOR_PRESETS])} (aa-str: the AA-STR band "
+        "table; amie: the measured SMART-1 AMIE curve); null: the table below")
+    kind: Literal["bands", "samples"] = Field(
+        "bands", description="how the table is read: bands (wavelengths_nm are n + 1 band edges, "
+        "one value per band, piecewise constant) or samples (n wavelengths, one value each, "
+        "piecewise linear)")
+    wavelengths_nm: tuple[float, ...] | None = Field(
+        None, description="band edges or sample wavelengths of the table [nm]; null: the preset")
+    qe: tuple[float, ...] | None = Field(
+        None, description="quantum efficiency per band or sample [e-/photon], each in [0, 1]; "
+        "null: 1")
+    transmission: tuple[float, ...] | None = Field(
+        None, description="optics transmission per band or sample [-], each in [0, 1]; null: 1")
 
 
 def sensor_response_from_config(cfg: SensorResponseConfig) -> SensorResponse:

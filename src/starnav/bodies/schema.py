@@ -25,7 +25,8 @@ class EllipsoidConfig(StrictModel):
     published S-type Hapke parameters).
     """
 
-    kind: Literal["ellipsoid"] = "ellipsoid"
+    kind: Literal["ellipsoid"] = Field(
+        "ellipsoid", description="body type: a triaxial ellipsoid")
     name: str = Field("itokawa-ellipsoid", description="label in manifests and reports")
     radii_km: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
         (0.2675, 0.147, 0.1045), description="semi-axes along body x, y, z [km]")
@@ -49,7 +50,8 @@ class EllipsoidConfig(StrictModel):
 class MoonTargetConfig(StrictModel):
     """The Moon described by the scenario's ``moon`` section."""
 
-    kind: Literal["moon"] = "moon"
+    kind: Literal["moon"] = Field(
+        "moon", description="body type: the Moon of the moon section")
 
 
 #: The ``target`` section: one of the bodies above, told apart by ``kind``.

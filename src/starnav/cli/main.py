@@ -116,8 +116,11 @@ def init(
     = "default",
     force: Annotated[bool, typer.Option(help="overwrite an existing file")] = False,
 ) -> None:
-    """Write a commented example scenario (every key at its value for the preset)."""
+    """Write a commented example scenario (every key at its value for the preset, with its
+    description, unit and allowed values from the schema above it)."""
     from starnav.atomic import atomic_write_text
+    from starnav.config import Scenario
+    from starnav.config_base import commented_yaml
 
     if out.exists() and not force:
         _fail(StarnavError(f"{out} exists; use --force to overwrite"))
@@ -126,7 +129,7 @@ def init(
     except StarnavError as err:  # UnknownNameError: lists the known presets
         _fail(err)
     header, data = make()
-    atomic_write_text(out, header + yaml.safe_dump(data, sort_keys=False))
+    atomic_write_text(out, header + "\n" + commented_yaml(Scenario, data))
     console.print(f"wrote {out}")
 
 

@@ -139,8 +139,11 @@ class AlbedoConfig(StrictModel):
 
     source: str = Field("procedural", description="'procedural', 'lroc' (packaged LROC WAC "
                         "mosaic) or a map file path")
-    format: Literal["auto", "geotiff", "npy"] = "auto"
-    decoding: Literal["auto", "svs-8bit", "linear", "reflectance"] = "auto"
+    format: Literal["auto", "geotiff", "npy"] = Field(
+        "auto", description="file format of the map (auto: from the file name and contents)")
+    decoding: Literal["auto", "svs-8bit", "linear", "reflectance"] = Field(
+        "auto", description="how raw pixel values become reflectance: svs-8bit (NASA SVS Moon "
+        "kit), linear (DN x scale + offset), reflectance (float maps), auto (by data type)")
     quantity: Literal["normal_albedo", "hapke_w", "relative"] | None = Field(
         None, description="what the values are; default 'relative' for 'lroc', else "
         "'normal_albedo'")
@@ -277,7 +280,10 @@ class DemConfig(StrictModel):
 
     source: str = Field("procedural", description="'procedural', 'lola' (the packaged LOLA "
                         "LDEM_4, 4 px/deg) or a DEM file path")
-    format: Literal["auto", "pds3", "geotiff", "svs-geotiff", "npy"] = "auto"
+    format: Literal["auto", "pds3", "geotiff", "svs-geotiff", "npy"] = Field(
+        "auto", description="file format of the DEM: pds3 (LOLA LDEM label), geotiff, svs-geotiff "
+        "(NASA SVS Moon kit), npy (heights in m, north row first); auto: from the file name and "
+        "contents")
     units: Literal["auto", "m", "km"] = Field(
         "auto", description="unit of the decoded values (auto: from the file or format)"
     )
@@ -300,11 +306,14 @@ class DemConfig(StrictModel):
     max_pixels_per_degree: PositiveFloat | None = Field(
         None, description="decimate (area average) at load to at most this resolution [px/deg]"
     )
-    procedural: ProceduralDemConfig = Field(default_factory=ProceduralDemConfig)
+    procedural: ProceduralDemConfig = Field(
+        default_factory=ProceduralDemConfig, description="the procedural Moon's craters, maria "
+        "and roughness (source: procedural)")
     albedo: AlbedoConfig | None = Field(
         None, description="albedo map; None keeps moon.albedo (constant or its map)"
     )
-    mesh: MeshConfig = Field(default_factory=MeshConfig)
+    mesh: MeshConfig = Field(
+        default_factory=MeshConfig, description="how finely the terrain is meshed for each frame")
     detail: DetailConfig = Field(
         default_factory=DetailConfig,
         description="fractal relief below the DEM's posting for close views (starnav.dem.detail)"

@@ -45,7 +45,8 @@ class AberrationPsfConfig(StrictModel):
     field dependence of the HIL collimator spot (REFERENCE.md s5: 0.49 px RMS on axis to 2.13 px
     at 9.6 deg fits 0.49 + 0.0178 theta_deg^2)."""
 
-    enabled: bool = True
+    enabled: bool = Field(
+        True, description="apply the field-varying aberration and defocus PSF")
     defocus_radius_px: NonNegativeFloat = Field(
         1.0, description="geometric defocus blur-circle radius on axis [px] (assumption)")
     defocus_radius_edge_px: NonNegativeFloat = Field(
@@ -70,7 +71,9 @@ class DistortionConfig(StrictModel):
     the undistorted pinhole image onto the detector grid, multiplying by the pixel-area ratio.
     Skipped when the camera has no distortion coefficients."""
 
-    enabled: bool = True
+    enabled: bool = Field(
+        True, description="resample the image through the camera's Brown-Conrady distortion "
+        "(skipped when the camera has no coefficients)")
 
 
 class StrayLightConfig(StrictModel):
@@ -82,7 +85,8 @@ class StrayLightConfig(StrictModel):
     background by ~50 DN, at 200 ms the halo itself saturates hundreds of pixels around the
     disc (the paper's "severe saturation")."""
 
-    enabled: bool = True
+    enabled: bool = Field(
+        True, description="add the Harvey stray-light halo")
     total_integrated_scatter: UnitInterval = Field(
         0.005, description="fraction of the light scattered into the halo [-] (assumption)")
     harvey_slope: FiniteFloat = Field(
@@ -124,8 +128,11 @@ class GhostsConfig(StrictModel):
     """Ghost images. Assumption: one inverted, strongly defocused ghost of 5e-4 (typical of a
     double reflection between AR-coated lens surfaces); the AA-STR ghost budget is not public."""
 
-    enabled: bool = True
-    ghosts: tuple[GhostConfig, ...] = Field(default_factory=lambda: (GhostConfig(),))
+    enabled: bool = Field(
+        True, description="add the ghost images")
+    ghosts: tuple[GhostConfig, ...] = Field(
+        default_factory=lambda: (GhostConfig(),), description="the ghosts: each a scaled, "
+        "defocused, displaced copy of the image carrying a fraction of its light")
 
     @model_validator(mode="after")
     def _total_weight(self) -> GhostsConfig:
@@ -138,11 +145,21 @@ class GhostsConfig(StrictModel):
 class OpticsConfig(StrictModel):
     """Photon-collection stage."""
 
-    radiometry: RadiometryConfig = Field(default_factory=RadiometryConfig)
-    aberration: AberrationPsfConfig = Field(default_factory=AberrationPsfConfig)
-    distortion: DistortionConfig = Field(default_factory=DistortionConfig)
-    stray_light: StrayLightConfig = Field(default_factory=StrayLightConfig)
-    ghosts: GhostsConfig = Field(default_factory=GhostsConfig)
+    radiometry: RadiometryConfig = Field(
+        default_factory=RadiometryConfig, description="photo-electrons from radiance: pupil area, "
+        "pixel solid angle, vignetting")
+    aberration: AberrationPsfConfig = Field(
+        default_factory=AberrationPsfConfig, description="optical PSF: defocus disc and "
+        "field-varying Gaussian")
+    distortion: DistortionConfig = Field(
+        default_factory=DistortionConfig, description="lens distortion (the camera's "
+        "Brown-Conrady coefficients)")
+    stray_light: StrayLightConfig = Field(
+        default_factory=StrayLightConfig, description="in-field stray light: a Harvey halo around "
+        "bright sources")
+    ghosts: GhostsConfig = Field(
+        default_factory=GhostsConfig, description="ghost images from reflections between lens "
+        "surfaces")
 
 
 # --------------------------------------------------------------------------- smear
@@ -150,7 +167,8 @@ class RollingShutterConfig(StrictModel):
     """APS rolling shutter: row r integrates over [r t_row, r t_row + t_exp]; a spacecraft
     angular rate moves the image during it (motion blur) and between rows (skew)."""
 
-    enabled: bool = True
+    enabled: bool = Field(
+        True, description="integrate row by row (rolling shutter) with the spacecraft rate")
     angular_rate_deg_s: tuple[FiniteFloat, FiniteFloat] = Field(
         (0.0, 0.0), description="spacecraft rate about the camera x and y axes [deg/s] "
         "(rotation about the boresight is not modelled); 0 = inertial pointing")
@@ -163,22 +181,28 @@ class TransferSmearConfig(StrictModel):
     """CCD frame-transfer smear: each pixel also collects, for ``row_transfer_time_us`` per row,
     the light of every row of its column. Off by default: the HAS2 is an APS (no transfer)."""
 
-    enabled: bool = False
+    enabled: bool = Field(
+        False, description="add frame-transfer smear (off: the HAS2 is an APS, it has no "
+        "transfer)")
     row_transfer_time_us: PositiveFloat = Field(
         1.0, description="time a charge packet spends under each row during transfer [us] "
         "(assumption, typical frame-transfer CCD)")
 
 
 class SmearConfig(StrictModel):
-    rolling_shutter: RollingShutterConfig = Field(default_factory=RollingShutterConfig)
-    transfer: TransferSmearConfig = Field(default_factory=TransferSmearConfig)
+    rolling_shutter: RollingShutterConfig = Field(
+        default_factory=RollingShutterConfig, description="APS rolling shutter and motion blur "
+        "from the spacecraft rate")
+    transfer: TransferSmearConfig = Field(
+        default_factory=TransferSmearConfig, description="CCD frame-transfer smear")
 
 
 # --------------------------------------------------------------------------- charge
 class PrnuConfig(StrictModel):
     """Photo-response non-uniformity: a frozen per-sensor gain map 1 + sigma N(0, 1)."""
 
-    enabled: bool = True
+    enabled: bool = Field(
+        True, description="apply the photo-response non-uniformity gain map")
     sigma_fraction: UnitInterval = Field(0.02, description="PRNU rms [-] (ABRAM default 2 %, "
                                          "REFERENCE.md s1, low trust)")
 
@@ -187,7 +211,8 @@ class DarkCurrentConfig(StrictModel):
     """Dark current with DSNU, hot pixels and temperature scaling
     ``D(T) = D_ref 2^((T - T_ref) / T_doubling)``."""
 
-    enabled: bool = True
+    enabled: bool = Field(
+        True, description="add dark current (with DSNU and hot pixels)")
     rate_e_per_s: NonNegativeFloat = Field(
         590.0, description="mean dark current at the reference temperature [e-/s/px] "
         "(ABRAM default, REFERENCE.md s1, low trust)")
@@ -209,16 +234,22 @@ class DarkCurrentConfig(StrictModel):
 class ShotNoiseConfig(StrictModel):
     """Poisson shot noise on photo + dark charge."""
 
-    enabled: bool = True
+    enabled: bool = Field(
+        True, description="draw shot noise on photo and dark charge (off: mean charge, no noise)")
     gaussian_above_e: PositiveFloat | None = Field(
         1000.0, description="above this mean [e-] draw N(mu, mu) instead of Poisson(mu) "
         "(skewness 1/sqrt(mu) < 3 %); None: exact Poisson everywhere")
 
 
 class ChargeConfig(StrictModel):
-    prnu: PrnuConfig = Field(default_factory=PrnuConfig)
-    dark_current: DarkCurrentConfig = Field(default_factory=DarkCurrentConfig)
-    shot_noise: ShotNoiseConfig = Field(default_factory=ShotNoiseConfig)
+    prnu: PrnuConfig = Field(
+        default_factory=PrnuConfig, description="photo-response non-uniformity (a fixed gain map "
+        "of the sensor)")
+    dark_current: DarkCurrentConfig = Field(
+        default_factory=DarkCurrentConfig, description="dark current, its non-uniformity (DSNU) "
+        "and hot pixels")
+    shot_noise: ShotNoiseConfig = Field(
+        default_factory=ShotNoiseConfig, description="Poisson noise of the collected charge")
 
 
 # --------------------------------------------------------------------------- pixel
@@ -229,8 +260,13 @@ class BloomingConfig(StrictModel):
     the nearest non-full pixels in every direction). In the spilling modes a fraction
     ``1 - spill_fraction`` of the excess still goes to the reset/overflow drain."""
 
-    enabled: bool = True
-    mode: str = Field("isotropic", description="blooming mode name")
+    enabled: bool = Field(
+        True, description="spread the charge above full well (off: excess charge is removed, a "
+        "perfect anti-blooming drain)")
+    mode: str = Field(
+        "isotropic", description=f"where the excess charge goes, one of: "
+        f"{', '.join(BLOOMING_MODES)}; drain removes it all (anti-blooming), column bleeds it "
+        "up and down the column, isotropic spills it to the nearest non-full pixels")
     spill_fraction: UnitInterval = Field(
         5e-4, description="fraction of the excess charge that spills into neighbours [-] "
         "(assumption, tuned to the paper: a few-px halo at the 7.7 ms case and one far past "
@@ -251,17 +287,20 @@ class BloomingConfig(StrictModel):
 class SaturationConfig(StrictModel):
     """Full-well saturation (switch off only for linearity studies)."""
 
-    enabled: bool = True
+    enabled: bool = Field(
+        True, description="clip the charge at full well (off only for linearity studies)")
     full_well_e: PositiveFloat = Field(
         DEFAULT_FULL_WELL_E, description="full-well capacity [e-] (ABRAM AA-STR, REFERENCE.md s1)")
-    blooming: BloomingConfig = Field(default_factory=BloomingConfig)
+    blooming: BloomingConfig = Field(
+        default_factory=BloomingConfig, description="where the charge above full well goes")
 
 
 # --------------------------------------------------------------------------- signal
 class IpcConfig(StrictModel):
     """Inter-pixel capacitive coupling, 3 x 3 symmetric kernel, charge conserving."""
 
-    enabled: bool = True
+    enabled: bool = Field(
+        True, description="apply inter-pixel capacitive coupling")
     nearest_fraction: Annotated[float, Field(ge=0, le=0.2, allow_inf_nan=False)] = Field(
         0.005, description="coupling to each of the 4 nearest neighbours [-] (monolithic APS "
         "~0.5 %, REFERENCE.md s1)")
@@ -277,7 +316,9 @@ class ElectricalCrosstalkConfig(StrictModel):
     supply droop). Assumption: 2e-5 per row, i.e. a ~13 DN streak across a row crossing a
     saturated Moon of 160 px; columns 0."""
 
-    enabled: bool = True
+    enabled: bool = Field(
+        True, description="add the electrical crosstalk of very bright pixels along rows and "
+        "columns")
     row_coefficient: FiniteFloat = Field(2e-5, description="row coupling per pixel [-]")
     column_coefficient: FiniteFloat = Field(0.0, description="column coupling per pixel [-]")
     threshold_fraction: UnitInterval = Field(
@@ -288,23 +329,29 @@ class NonlinearityConfig(StrictModel):
     """Charge-to-voltage non-linearity ``S' = S / (1 + beta S / FWC)`` with beta set so the
     signal at full well is short by ``full_well_deficit_fraction``."""
 
-    enabled: bool = True
+    enabled: bool = Field(
+        True, description="apply the charge-to-voltage non-linearity")
     full_well_deficit_fraction: Annotated[float, Field(ge=0, lt=0.5, allow_inf_nan=False)] = \
         Field(0.01, description="relative signal deficit at full well [-] (assumption: 1 %)")
 
 
 class ReadNoiseConfig(StrictModel):
-    enabled: bool = True
+    enabled: bool = Field(
+        True, description="add Gaussian read noise")
     sigma_e: NonNegativeFloat = Field(100.0, description="read noise rms [e-] (ABRAM AA-STR, "
                                       "REFERENCE.md s1)")
 
 
 class SignalConfig(StrictModel):
-    ipc: IpcConfig = Field(default_factory=IpcConfig)
+    ipc: IpcConfig = Field(
+        default_factory=IpcConfig, description="inter-pixel capacitive coupling")
     electrical_crosstalk: ElectricalCrosstalkConfig = Field(
-        default_factory=ElectricalCrosstalkConfig)
-    nonlinearity: NonlinearityConfig = Field(default_factory=NonlinearityConfig)
-    read_noise: ReadNoiseConfig = Field(default_factory=ReadNoiseConfig)
+        default_factory=ElectricalCrosstalkConfig,
+        description="row and column crosstalk of very bright pixels")
+    nonlinearity: NonlinearityConfig = Field(
+        default_factory=NonlinearityConfig, description="charge-to-voltage non-linearity")
+    read_noise: ReadNoiseConfig = Field(
+        default_factory=ReadNoiseConfig, description="read-out noise")
 
 
 # --------------------------------------------------------------------------- image (ADC)
@@ -326,7 +373,7 @@ class SegmentsConfig(StrictModel):
     """Full-image compressed mode: per-row runs of pixels at or above the thresholds."""
 
     thresholds_dn: tuple[Annotated[int, Field(ge=0, le=65535)], ...] = Field(
-        (200,), description="increasing DN thresholds (assumption: offset + ~24 read-noise "
+        (200,), description="increasing thresholds [DN] (assumption: offset + ~24 read-noise "
         "sigma)")
     max_runs: Annotated[int, Field(ge=1)] = Field(
         4096, description="most runs one readout returns (assumption: AA-STR limit not public; "
@@ -347,10 +394,10 @@ class SegmentsConfig(StrictModel):
 class WindowSpec(StrictModel):
     """A window of the windows mode: top-left pixel and size [px]."""
 
-    row0: Annotated[int, Field(ge=0)]
-    col0: Annotated[int, Field(ge=0)]
-    height: Annotated[int, Field(ge=1)]
-    width: Annotated[int, Field(ge=1)]
+    row0: Annotated[int, Field(ge=0)] = Field(description="top row of the window [px]")
+    col0: Annotated[int, Field(ge=0)] = Field(description="left column of the window [px]")
+    height: Annotated[int, Field(ge=1)] = Field(description="rows of the window [px]")
+    width: Annotated[int, Field(ge=1)] = Field(description="columns of the window [px]")
 
 
 class ReadoutTimingConfig(StrictModel):
@@ -381,10 +428,14 @@ class ReadoutConfig(StrictModel):
     modes: tuple[Literal["segments", "windows", "full_frame"], ...] = Field(
         ("segments", "windows"), description="readouts requested from the sensor (windows "
         "only when windows are given); the DN frame is always kept for analysis")
-    segments: SegmentsConfig = Field(default_factory=SegmentsConfig)
+    segments: SegmentsConfig = Field(
+        default_factory=SegmentsConfig, description="full-image compressed mode: runs of pixels "
+        "above thresholds")
     windows: tuple[WindowSpec, ...] = Field(
         (), description=f"windows of the windows mode (at most {MAX_WINDOWS})")
-    timing: ReadoutTimingConfig = Field(default_factory=ReadoutTimingConfig)
+    timing: ReadoutTimingConfig = Field(
+        default_factory=ReadoutTimingConfig, description="readout time law and how a too-short "
+        "exposure is handled")
 
     @field_validator("windows")
     @classmethod
@@ -410,14 +461,28 @@ class DetectorConfig(StrictModel):
     sensor_seed: Annotated[int, Field(ge=0)] | None = Field(
         None, description="seed of the fixed-pattern maps (PRNU, DSNU, hot pixels) of one "
         "physical sensor; None: the dataset seed")
-    optics: OpticsConfig = Field(default_factory=OpticsConfig)
-    smear: SmearConfig = Field(default_factory=SmearConfig)
-    charge: ChargeConfig = Field(default_factory=ChargeConfig)
-    saturation: SaturationConfig = Field(default_factory=SaturationConfig)
-    signal: SignalConfig = Field(default_factory=SignalConfig)
-    adc: AdcConfig = Field(default_factory=AdcConfig)
-    readout: ReadoutConfig = Field(default_factory=ReadoutConfig)
-    debug: DebugConfig = Field(default_factory=DebugConfig)
+    optics: OpticsConfig = Field(
+        default_factory=OpticsConfig, description="photon collection: radiometry, PSF, "
+        "distortion, stray light, ghosts")
+    smear: SmearConfig = Field(
+        default_factory=SmearConfig, description="image motion during the exposure and the "
+        "readout")
+    charge: ChargeConfig = Field(
+        default_factory=ChargeConfig, description="charge generation: PRNU, dark current, shot "
+        "noise")
+    saturation: SaturationConfig = Field(
+        default_factory=SaturationConfig, description="full well and blooming")
+    signal: SignalConfig = Field(
+        default_factory=SignalConfig, description="charge to voltage: coupling, crosstalk, "
+        "non-linearity, read noise")
+    adc: AdcConfig = Field(
+        default_factory=AdcConfig, description="analogue-to-digital conversion: gain, offset, "
+        "bits")
+    readout: ReadoutConfig = Field(
+        default_factory=ReadoutConfig, description="what the sensor sends: segments, windows, "
+        "full frame, and their timing")
+    debug: DebugConfig = Field(
+        default_factory=DebugConfig, description="diagnostics")
 
     @property
     def gain_e_per_dn(self) -> float:

@@ -100,11 +100,18 @@ class RefineConfig(StrictModel):
 class RansacConfig(StrictModel):
     """Outlier rejection (starnav.navigation.ransac)."""
 
-    model: Literal["circle", "christian-robinson"] = "circle"
+    model: Literal["circle", "christian-robinson"] = Field(
+        "circle", description="model fitted to each sample: circle (3 points, fast) or "
+        "christian-robinson (the limb ellipse of the Moon seen from a position)")
     threshold_px: PositiveFloat = Field(2.0, description="inlier threshold [px]")
-    max_iterations: Annotated[int, Field(ge=1)] = 200
-    confidence: Annotated[float, Field(gt=0, lt=1)] = 0.999
-    min_inlier_fraction: Annotated[float, Field(gt=0, le=1)] = 0.3
+    max_iterations: Annotated[int, Field(ge=1)] = Field(
+        200, description="upper bound on the hypotheses drawn")
+    confidence: Annotated[float, Field(gt=0, lt=1)] = Field(
+        0.999, description="probability of drawing at least one all-inlier sample, sets the "
+        "number of hypotheses [-]")
+    min_inlier_fraction: Annotated[float, Field(gt=0, le=1)] = Field(
+        0.3, description="fewer inliers than this fraction of the points: no fix for the frame "
+        "[-]")
 
 
 class FixConfig(StrictModel):
@@ -135,7 +142,9 @@ class FilterConfig(StrictModel):
         0.0, description="white acceleration noise density [m^2/s^3]")
     gate_probability: Annotated[float, Field(gt=0, lt=1)] | None = Field(
         0.9999, description="chi-square gate on the NIS; null disables")
-    max_consecutive_rejections: Annotated[int, Field(ge=1)] = 5
+    max_consecutive_rejections: Annotated[int, Field(ge=1)] = Field(
+        5, description="after this many fixes in a row rejected by the gate, the next one is "
+        "accepted regardless (recovery from a diverged filter)")
     initial_position_sigma_km: PositiveFloat = Field(100.0, description="initial 1-sigma [km]")
     initial_velocity_sigma_m_s: PositiveFloat = Field(1.0, description="initial 1-sigma [m/s]")
     rk4_step_s: PositiveFloat = Field(300.0, description="RK4 step of the filter dynamics [s]")
@@ -144,11 +153,18 @@ class FilterConfig(StrictModel):
 class NavigationConfig(StrictModel):
     """Navigation chain settings (see :mod:`starnav.navigation`)."""
 
-    limb: LimbConfig = Field(default_factory=LimbConfig)
-    refine: RefineConfig = Field(default_factory=RefineConfig)
-    ransac: RansacConfig = Field(default_factory=RansacConfig)
-    fix: FixConfig = Field(default_factory=FixConfig)
-    filter: FilterConfig = Field(default_factory=FilterConfig)
+    limb: LimbConfig = Field(
+        default_factory=LimbConfig, description="pixel-level limb points from the segments "
+        "readout")
+    refine: RefineConfig = Field(
+        default_factory=RefineConfig, description="sub-pixel limb refinement in the windows "
+        "readout")
+    ransac: RansacConfig = Field(
+        default_factory=RansacConfig, description="outlier rejection among the limb points")
+    fix: FixConfig = Field(
+        default_factory=FixConfig, description="Christian-Robinson position fix from the limb")
+    filter: FilterConfig = Field(
+        default_factory=FilterConfig, description="extended Kalman filter over the fixes")
     runs: Annotated[int, Field(ge=1)] = Field(
         1, description="Monte Carlo runs of `starnav navigate` (>= 2: each over its own "
         "detector noise, attitude knowledge error and initial error, with the consistency "

@@ -17,7 +17,7 @@ from pydantic import Field, field_validator, model_validator
 from starnav.config_base import StrictModel
 from starnav.dem.schema import DemConfig
 from starnav.fields import NonNegativeFloat, PositiveFloat
-from starnav.photometry import get_model, hapke_preset
+from starnav.photometry import PHOTOMETRIC_MODELS, get_model, hapke_preset
 
 
 class PhotometryConfig(StrictModel):
@@ -32,10 +32,14 @@ class PhotometryConfig(StrictModel):
     (ROLO's A(lambda) relative to 550 nm), ``grey`` a flat one (the analytic test cases).
     """
 
-    model: str = "hapke"
+    model: str = Field(
+        "hapke", description=f"photometric model of the surface, one of: "
+        f"{', '.join(PHOTOMETRIC_MODELS)} (hapke: Hapke 2012; lunar_lambert: McEwen)")
     preset: Literal["rolo-calibrated", "sato2014"] = Field(
         "rolo-calibrated", description="Hapke parameter set (ignored by the other models)")
-    params: dict[str, float] = Field(default_factory=dict)
+    params: dict[str, float] = Field(
+        default_factory=dict, description="single parameter overrides of the model, name: value "
+        "(Hapke: b, c, bs0, hs, bc0, hc, theta_bar_deg); empty: the preset's")
     spectral_shape: Literal["rolo", "grey"] = Field(
         "rolo", description="reflectance colour: ROLO lunar reddening (1 at 550 nm) or flat")
 
@@ -58,7 +62,9 @@ class AlbedoMapConfig(StrictModel):
     left edge) and latitude (rows, +90 deg at the top), equirectangular. ``quantity``: the
     values are normal albedos (any model) or Hapke single-scattering albedos (Hapke only)."""
 
-    path: Path
+    path: Path = Field(
+        description="equirectangular single-channel albedo map file (longitude -180..180 deg from "
+        "the left edge, +90 deg latitude at the top)")
     scale: PositiveFloat = Field(1.0, description="multiplier applied to the decoded map [-]")
     quantity: Literal["normal_albedo", "hapke_w"] = Field(
         "normal_albedo", description="what the map's values are")
@@ -86,7 +92,9 @@ class MoonConfig(StrictModel):
     mesh_subdivisions: Annotated[int, Field(ge=0, le=9)] = Field(
         7, description="icosphere subdivisions for shape=mesh (7 -> 327 680 triangles)"
     )
-    photometry: PhotometryConfig = Field(default_factory=PhotometryConfig)
+    photometry: PhotometryConfig = Field(
+        default_factory=PhotometryConfig, description="photometric model of the surface and its "
+        "parameters")
     albedo: NonNegativeFloat | AlbedoMapConfig | None = Field(
         None, description="normal albedo at 550 nm [-]: a number, a map, or None for the "
         "ROLO-calibrated real Moon"
