@@ -14,8 +14,8 @@ Bodies: :class:`~starnav.bodies.moon.Moon` (sphere, icosphere or the real/proced
 librations), :class:`~starnav.bodies.ellipsoid.TriaxialBody` (a triaxial ellipsoid with an
 IAU rotation model: the simplest small body) and
 :class:`~starnav.bodies.small_body.ShapeModelBody` (a shape model: the packaged Itokawa radar
-and Eros plate models or a ``.tab``/``.obj`` file, :mod:`starnav.bodies.shape`). :func:`starnav.simulate.body_from_scenario` picks one from the scenario's
-``target`` section.
+and Eros plate models or a ``.tab``/``.obj`` file, :mod:`starnav.bodies.shape`).
+:func:`starnav.simulate.body_from_scenario` picks one from the scenario's ``target`` section.
 """
 
 from __future__ import annotations

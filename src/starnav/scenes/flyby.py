@@ -162,10 +162,10 @@ class Flyby:
         return self.epoch_ca + start + cadence * np.arange(n, dtype=float)
 
     def phase_angles(self, epochs_tdb: ArrayLike) -> FloatArray:
-        """Sun phase angle seen from the spacecraft at the body centre [rad]."""
+        """Phase angle at the body centre: between the directions to the Sun and to the
+        spacecraft [rad]."""
         r = self.states(epochs_tdb)[:, :3]
-        s = self.sun_position[None, :] - r
-        c = np.einsum("ij,ij->i", -r, s) / (np.linalg.norm(r, axis=1) * np.linalg.norm(s, axis=1))
+        c = (r @ self.sun_direction) / np.linalg.norm(r, axis=1)
         return np.arccos(np.clip(c, -1.0, 1.0))
 
 

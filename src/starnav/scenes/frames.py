@@ -191,7 +191,7 @@ class Scene:
         self.flyby = flyby_from_config(fc, t_ca, gm)
         self.epochs = self.flyby.frame_epochs(fc.start_s, fc.end_s, cfg.cadence_s, cfg.frames)
         rel = self.flyby.states(self.epochs)
-        if np.min(np.linalg.norm(rel[:, :3], axis=1)) <= self.moon_radius:
+        if self.flyby.closest_approach <= self.moon_radius:
             raise ConfigError("trajectory.flyby.closest_approach_km", fc.closest_approach_km,
                               f"a closest approach outside the body's bounding sphere "
                               f"({self.moon_radius / 1e3:.4g} km)")
