@@ -19,6 +19,7 @@ from starnav.scenes.ephemeris import parse_epoch
 from starnav.scenes.flyby import deflection_angle, flyby_from_config
 from starnav.scenes.schema import DEFAULT_EPOCH, FlybyConfig
 from starnav.simulate import Simulator, body_from_scenario, scene_from_scenario
+from starnav.simulate.check import check_scenario
 
 T_CA = 1000.0
 
@@ -131,6 +132,17 @@ def test_flyby_scene_truth_and_pointing():
     assert np.allclose([g0.R_moon_to_inertial, g1.R_moon_to_inertial], R_ref)
     with pytest.raises(ConfigError, match="EMB-centred"):
         _ = scene.states_emb
+
+
+def test_validate_reports_a_flyby_without_rendering():
+    """``starnav validate`` (check_scenario) builds the fly-by: 21 frames over +-600 s at
+    60 s, closest range the CA distance, farthest sqrt(20^2 + 3000^2) km."""
+    sc = scenario_from_dict({"target": {"kind": "shape_model"},
+                             "trajectory": {"source": "flyby", "cadence_s": 60},
+                             "pointing": {"moon_offset": "fixed"}})
+    r = check_scenario(sc)
+    assert r["frames"] == 21 and r["target"]["faces"] == 12192
+    assert r["range_km"] == pytest.approx([20.0, math.hypot(20.0, 3000.0)], rel=1e-12)
 
 
 def test_flyby_needs_a_small_body_and_a_clear_pass():

@@ -29,7 +29,9 @@ Technique
    phase angle at CA (body->Sun vs body->spacecraft) and ``b = sun_azimuth_deg`` its azimuth
    about ``x`` from the velocity. The spacecraft comes from ``-y``: the approach phase is
    ``acos(-sin(a) cos(b))``, so ``b = 180 deg`` (the default: Sun on the approach side) gives
-   ``90 deg - a`` on approach and ``90 deg + a`` on departure. The Sun is at
+   ``90 deg - a`` on approach and ``90 deg + a`` on departure; in the fly-by plane
+   (``b = 0, 180``) the path crosses zero phase at ``t = -d tan(a) / v`` for ``b = 180``
+   (an out-of-plane ``b`` avoids the opposition surge). The Sun is at
    ``sun_distance_au`` from the body (the renderer scales the irradiance by ``1/d^2``).
 4. **Epochs.** Frames every ``trajectory.cadence_s`` from ``CA + start_s`` to ``CA + end_s``
    (at most ``trajectory.frames``), CA at ``trajectory.epoch``.
