@@ -91,16 +91,36 @@ HAPKE_LUNAR_DEFAULTS: dict[str, float] = {
     "theta_bar_deg": 23.66,
 }
 
+#: Hapke parameters of an S-type asteroid: 433 Eros from NEAR NIS disc-resolved photometry at
+#: 946 nm (Clark, B. E. et al. 2002, Icarus 155, 189-204: single-term Henyey-Greenstein
+#: asymmetry g = -0.25, shadow-hiding B0 = 1.4, h = 0.022, mean slope 28 deg; their w = 0.33 is
+#: not used, the body's normal albedo sets w). The single backscattering lobe is the
+#: double-HG with b = |g|, c = 1; no coherent-backscatter term (B_C0 = 0). Kitazato et al.
+#: (2008, Icarus 194, 137) find Itokawa's roughness 26 +- 1 deg, "similar to Eros", and a
+#: weaker opposition surge: these are the S-type defaults of the small bodies, not an Itokawa
+#: fit. The values were taken from the literature as quoted, not re-read from the paper here.
+HAPKE_S_TYPE_CLARK2002: dict[str, float] = {
+    "b": 0.25,
+    "c": 1.0,
+    "bs0": 1.4,
+    "hs": 0.022,
+    "bc0": 0.0,
+    "hc": 1.0,
+    "theta_bar_deg": 28.0,
+}
+
 #: The Hapke parameter sets by name (:func:`hapke_preset`), each a function giving a fresh dict.
 HAPKE_PRESETS: Registry[Callable[[], dict[str, float]]] = Registry("Hapke parameter preset", {
     "rolo-calibrated": lambda: dict(lunar_calibration().hapke),
     "sato2014": lambda: dict(HAPKE_LUNAR_DEFAULTS),
+    "clark2002": lambda: dict(HAPKE_S_TYPE_CLARK2002),
 })
 
 
 def hapke_preset(name: str) -> dict[str, float]:
-    """Hapke parameters of a named set: ``sato2014`` (:data:`HAPKE_LUNAR_DEFAULTS`, as published)
-    or ``rolo-calibrated`` (fitted to the ROLO lunar model, :mod:`starnav.lunar_calibration`)."""
+    """Hapke parameters of a named set: ``sato2014`` (:data:`HAPKE_LUNAR_DEFAULTS`, as published),
+    ``rolo-calibrated`` (fitted to the ROLO lunar model, :mod:`starnav.lunar_calibration`) or
+    ``clark2002`` (S-type asteroid Eros, :data:`HAPKE_S_TYPE_CLARK2002`)."""
     return HAPKE_PRESETS.get(name)()
 
 

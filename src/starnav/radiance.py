@@ -12,6 +12,8 @@ channel    unit                    meaning
 ``lat lon`` rad                    selenographic latitude and longitude (body-fixed)
 ``incidence emission phase`` rad   photometric angles at the pixel-centre surface point
 ``mask``   -                       1 where the pixel-centre ray hits the Moon, else 0
+``x_body y_body z_body`` m         surface point in the body-fixed frame (shape-model
+                                   bodies only: ``MoonModel.body_fixed_aovs``)
 ========== ======================= =====================================================
 
 AOV channels hold the values at the pixel-centre ray (no averaging across the limb). Header
@@ -41,6 +43,8 @@ Float32Array = NDArray[np.float32]
 
 RADIANCE_CHANNELS = ("L", "Le")
 AOV_CHANNELS = ("range", "nx", "ny", "nz", "lat", "lon", "incidence", "emission", "phase", "mask")
+#: Extra AOV channels of shape-model bodies: the body-fixed surface point [m].
+BODY_FIXED_AOV_CHANNELS = ("x_body", "y_body", "z_body")
 #: Name of the header attribute holding the JSON metadata.
 META_ATTRIBUTE = "starnav"
 

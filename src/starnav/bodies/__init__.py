@@ -11,10 +11,11 @@ A :class:`~starnav.bodies.base.TargetBody` answers what the rest of starnav asks
   shape models, the surface points the renderer's AOVs report per pixel.
 
 Bodies: :class:`~starnav.bodies.moon.Moon` (sphere, icosphere or the real/procedural DEM, DE421
-librations) and :class:`~starnav.bodies.ellipsoid.TriaxialBody` (a triaxial ellipsoid with an
-IAU rotation model: the simplest small body, and the frame the small-body shape models of the
-fly-by fit into). :func:`starnav.simulate.body_from_scenario` picks one from the scenario's
-``target`` section.
+librations), :class:`~starnav.bodies.ellipsoid.TriaxialBody` (a triaxial ellipsoid with an
+IAU rotation model: the simplest small body) and
+:class:`~starnav.bodies.small_body.ShapeModelBody` (a shape model: the packaged Itokawa radar
+and Eros plate models or a ``.tab``/``.obj`` file, :mod:`starnav.bodies.shape`).
+:func:`starnav.simulate.body_from_scenario` picks one from the scenario's ``target`` section.
 """
 
 from __future__ import annotations
@@ -22,7 +23,11 @@ from __future__ import annotations
 from starnav.bodies.base import TargetBody, iau_orientation
 from starnav.bodies.ellipsoid import TriaxialBody, ellipsoid_mesh
 from starnav.bodies.moon import Moon, mean_normal_albedo
-from starnav.bodies.schema import EllipsoidConfig, TargetConfig
+from starnav.bodies.schema import EllipsoidConfig, ShapeModelConfig, TargetConfig
+from starnav.bodies.shape import ShapeModel, ShapeModelError, read_shape_model, shape_model_path
+from starnav.bodies.small_body import SMALL_BODY_FACTS, ShapeModelBody
 
-__all__ = ["EllipsoidConfig", "Moon", "TargetBody", "TargetConfig", "TriaxialBody",
-           "ellipsoid_mesh", "iau_orientation", "mean_normal_albedo"]
+__all__ = ["SMALL_BODY_FACTS", "EllipsoidConfig", "Moon", "ShapeModel", "ShapeModelBody",
+           "ShapeModelConfig", "ShapeModelError", "TargetBody", "TargetConfig", "TriaxialBody",
+           "ellipsoid_mesh", "iau_orientation", "mean_normal_albedo", "read_shape_model",
+           "shape_model_path"]

@@ -55,6 +55,9 @@ class TargetBody(ABC):
 
     #: Short name, e.g. ``"moon"``.
     name: str = "body"
+    #: Gravitational parameter [m^3 s^-2] where the body needs one (a hyperbolic fly-by);
+    #: 0 when unknown or unused.
+    gm: float = 0.0
 
     @property
     @abstractmethod

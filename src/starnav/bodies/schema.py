@@ -1,7 +1,9 @@
 """Schema of the ``target`` section: which body the frames look at.
 
 ``target: null`` (the default) or ``{kind: moon}`` is the Moon of the ``moon`` section;
-``{kind: ellipsoid, ...}`` a triaxial body with an IAU rotation model (:class:`EllipsoidConfig`).
+``{kind: ellipsoid, ...}`` a triaxial body with an IAU rotation model (:class:`EllipsoidConfig`);
+``{kind: shape_model, model: itokawa|eros|<path>, ...}`` a small body from its shape model
+(:class:`ShapeModelConfig`, :class:`starnav.bodies.small_body.ShapeModelBody`).
 """
 
 from __future__ import annotations
@@ -47,6 +49,43 @@ class EllipsoidConfig(StrictModel):
         6, description="icosphere subdivisions of the rendered mesh (6 -> 81 920 triangles)")
 
 
+class ShapeModelConfig(StrictModel):
+    """A small body from a shape model: a packaged one (``itokawa``, ``eros``) or a ``.tab`` /
+    ``.obj`` file (km, body-fixed axes, origin at the centre of mass).
+
+    Every ``None`` takes the packaged model's published value
+    (:data:`starnav.bodies.small_body.SMALL_BODY_FACTS`: IAU rotation model, GM, albedo); a
+    model read from a file has no published values, so its spin (the four IAU angles and
+    rates) must be given, and its GM defaults to 0 (straight-line fly-by).
+    """
+
+    kind: Literal["shape_model"] = Field(
+        "shape_model", description="a small body from its shape model (PDS .tab or OBJ), "
+        "rotating with its spin state")
+    model: str = Field("itokawa", description="packaged model name (itokawa, eros) or a path "
+                       "to a .tab (PDS vertex/facet) or .obj file in km")
+    name: str | None = Field(None, description="label in manifests; None: the model's name")
+    pole_ra_deg: float | None = Field(None, description="pole right ascension, J2000 [deg]")
+    pole_dec_deg: Annotated[float, Field(ge=-90, le=90)] | None = Field(
+        None, description="pole declination, J2000 [deg]")
+    prime_meridian_deg: float | None = Field(None, description="W0 at J2000 [deg]")
+    rotation_deg_per_day: float | None = Field(
+        None, description="W_dot [deg/day] (IAU: W = W0 + W_dot d)")
+    gm_m3_s2: Annotated[float, Field(ge=0)] | None = Field(
+        None, description="gravitational parameter [m^3/s^2] (the hyperbolic fly-by)")
+    radii_km: tuple[PositiveFloat, PositiveFloat, PositiveFloat] | None = Field(
+        None, description="reference ellipsoid semi-axes along body x, y, z [km]; None: the "
+        "ellipsoid with the mesh's moments of inertia (ShapeModel.equivalent_ellipsoid_radii)")
+    photometry: PhotometryConfig = Field(
+        default_factory=lambda: PhotometryConfig(model="hapke", preset="clark2002",
+                                                 spectral_shape="grey"),
+        description="photometric model: Hapke with the S-type (Eros, Clark et al. 2002) "
+        "parameters by default; lommel_seeliger, lambert also work")
+    albedo: Annotated[float, Field(gt=0, le=1)] | None = Field(
+        None, description="normal albedo at 550 nm [-]; None: the model's published "
+        "geometric albedo")
+
+
 class MoonTargetConfig(StrictModel):
     """The Moon described by the scenario's ``moon`` section."""
 
@@ -55,4 +94,5 @@ class MoonTargetConfig(StrictModel):
 
 
 #: The ``target`` section: one of the bodies above, told apart by ``kind``.
-TargetConfig = Annotated[MoonTargetConfig | EllipsoidConfig, Field(discriminator="kind")]
+TargetConfig = Annotated[MoonTargetConfig | EllipsoidConfig | ShapeModelConfig,
+                         Field(discriminator="kind")]

@@ -60,7 +60,7 @@ from starnav.constants import AU, MOON_RADIUS
 from starnav.errors import ConfigError, DataFileError
 from starnav.geometry import FrameGeometry, geometry_to_dict
 from starnav.photometry import get_model, validity_warning
-from starnav.radiance import RadianceImage
+from starnav.radiance import AOV_CHANNELS, BODY_FIXED_AOV_CHANNELS, RadianceImage
 from starnav.renderer import backend
 from starnav.renderer.scene import (
     FAR_CLIP_KM,
@@ -165,6 +165,10 @@ class MoonModel:
         ``f(camera, geometry) -> MoonMesh`` for view-adapted meshes (DEMs).
     max_height : float
         Highest terrain above ``radius`` [m] (bounds the crop window).
+    body_fixed_aovs : bool
+        Add the body-fixed surface point of each pixel-centre ray to the AOVs (channels
+        :data:`starnav.radiance.BODY_FIXED_AOV_CHANNELS`, metres): the per-pixel truth of
+        shape-model bodies (feature truth); off for the Moon (its files stay as pinned).
     """
 
     shape: str = "sphere"
@@ -178,6 +182,7 @@ class MoonModel:
     max_height: float = 0.0
     spectral_shape: Spectrum | None = None
     calibrated: bool = False
+    body_fixed_aovs: bool = False
 
     def __post_init__(self) -> None:
         if self.shape not in ("sphere", "mesh"):
@@ -537,12 +542,13 @@ class MoonRenderer:
                                            seed=0, spp=1), dtype=np.float64)
                 self.last_timing["aov_s"] = time.perf_counter() - t0
                 t0 = time.perf_counter()
-                aovs = _aov_channels(raw, geom, box, (H, W))
+                aovs = _aov_channels(raw, geom, box, (H, W),
+                                     body_fixed=self.moon.body_fixed_aovs)
                 self.last_timing["aov_numpy_s"] = time.perf_counter() - t0
         if self.settings.aovs and not aovs:
-            aovs = {k: np.zeros((H, W), np.float32) for k in
-                    ("range", "nx", "ny", "nz", "lat", "lon", "incidence", "emission", "phase",
-                     "mask")}
+            names = AOV_CHANNELS + (BODY_FIXED_AOV_CHANNELS if self.moon.body_fixed_aovs
+                                    else ())
+            aovs = {k: np.zeros((H, W), np.float32) for k in names}
         self.last_timing["total_s"] = time.perf_counter() - t_start
         band = band_integrals(self.sun_1au.scaled(sun_scale), self.response)
         meta = {
@@ -593,10 +599,11 @@ def _any_perpendicular(v: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def _aov_channels(raw: NDArray[np.float64], geom: FrameGeometry,
-                  box: tuple[int, int, int, int], shape: tuple[int, int]
-                  ) -> dict[str, NDArray[np.float32]]:
+                  box: tuple[int, int, int, int], shape: tuple[int, int],
+                  body_fixed: bool = False) -> dict[str, NDArray[np.float32]]:
     """Geometric channels from the AOV pass (positions/normals in body-fixed km); computed
-    only at the pixels whose centre ray hits the Moon, zero elsewhere."""
+    only at the pixels whose centre ray hits the Moon, zero elsewhere. ``body_fixed`` adds the
+    body-fixed surface point [m] (:data:`starnav.radiance.BODY_FIXED_AOV_CHANNELS`)."""
     u0, v0, bw, bh = box
     H, W = shape
     f32 = np.float32
@@ -629,6 +636,8 @@ def _aov_channels(raw: NDArray[np.float64], geom: FrameGeometry,
         "incidence": ang(n_i, s_hat), "emission": ang(n_i, v_hat), "phase": ang(s_hat, v_hat),
         "mask": np.ones(pos_b.shape[0], f32),
     }
+    if body_fixed:
+        values.update({"x_body": pos_b[:, 0], "y_body": pos_b[:, 1], "z_body": pos_b[:, 2]})
     # one (channels, H, W) block, filled through the crop's boolean mask (faster than
     # scattering each channel by index)
     block = np.zeros((len(values), H, W), np.float32)

@@ -30,12 +30,14 @@ class PhotometryConfig(StrictModel):
     ``params`` overrides single values (``b``, ``c``, ``bs0``, ``hs``, ``bc0``, ``hc``,
     ``theta_bar_deg``). ``spectral_shape``: ``rolo`` gives the reflectance the Moon's colour
     (ROLO's A(lambda) relative to 550 nm), ``grey`` a flat one (the analytic test cases).
+    ``clark2002`` is the S-type asteroid set of the small bodies
+    (:data:`starnav.photometry.HAPKE_S_TYPE_CLARK2002`).
     """
 
     model: str = Field(
         "hapke", description=f"photometric model of the surface, one of: "
         f"{', '.join(PHOTOMETRIC_MODELS)} (hapke: Hapke 2012; lunar_lambert: McEwen)")
-    preset: Literal["rolo-calibrated", "sato2014"] = Field(
+    preset: Literal["rolo-calibrated", "sato2014", "clark2002"] = Field(
         "rolo-calibrated", description="Hapke parameter set (ignored by the other models)")
     params: dict[str, float] = Field(
         default_factory=dict, description="single parameter overrides of the model, name: value "

@@ -11,7 +11,11 @@ Technique
 4. Attitude from :mod:`starnav.scenes.pointing` with the frame's own generators
    (``SeedSequence(seed, spawn_key=(index, stream))``): frame ``i`` is the same whatever the
    order or the subset of frames built, so workers can build any frame independently.
-5. Without a ``trajectory`` section the scenario's static ``geometry`` gives one frame
+5. A small-body fly-by (``trajectory.source: flyby``, :mod:`starnav.scenes.flyby`) has no
+   ephemeris: the spacecraft state relative to the body comes from the fly-by's closed form,
+   the Sun from its fixed direction, the body's orientation from ``orientation``; the frames'
+   truth is body-centred (:attr:`Scene.relative_states`) and there is no EMB state.
+6. Without a ``trajectory`` section the scenario's static ``geometry`` gives one frame
    (:func:`starnav.geometry.static_geometry_from_config`); its measured attitude still carries
    the configured knowledge error.
 
@@ -43,9 +47,10 @@ from starnav.geometry import FrameGeometry, StaticGeometryConfig, static_geometr
 from starnav.scenes.cr3bp import LU
 from starnav.scenes.dynamics import PointMassModel
 from starnav.scenes.ephemeris import Ephemeris, parse_epoch
+from starnav.scenes.flyby import Flyby, flyby_from_config
 from starnav.scenes.oem import read_oem
 from starnav.scenes.pointing import frame_generators, pointing_from_config, rotation_from_vector
-from starnav.scenes.schema import DEFAULT_EPOCH, PointingConfig, TrajectoryConfig
+from starnav.scenes.schema import DEFAULT_EPOCH, FlybyConfig, PointingConfig, TrajectoryConfig
 from starnav.scenes.trajectory import ShootingOptions, Trajectory, ephemeris_halo_arc
 
 if TYPE_CHECKING:
@@ -77,6 +82,9 @@ def build_trajectory(cfg: TrajectoryConfig, ephemeris: Ephemeris | None = None,
     ConfigError, EphemerisRangeError, OEMFormatError, ConvergenceError
     """
     eph = ephemeris or Ephemeris.default()
+    if cfg.source == "flyby":
+        raise ConfigError("trajectory.source", "flyby", "a halo or OEM arc here: a fly-by has "
+                          "no EMB-centred trajectory (starnav.scenes.flyby, Scene)")
     if cfg.source == "oem":
         traj = read_oem(cfg.oem_path, ephemeris=eph)  # type: ignore[arg-type]
         t0 = traj.t_start if cfg.epoch is None else parse_epoch(cfg.epoch, "trajectory.epoch")
@@ -131,6 +139,8 @@ class Scene:
         ``f(epochs) -> (n, 3, 3)`` body-fixed -> J2000 rotations of the target body
         (:meth:`starnav.bodies.TargetBody.orientation`); default the Moon's DE421 librations
         in ``trajectory.moon_frame`` axes.
+    gm : float
+        The target body's gravitational parameter [m^3 s^-2] (a hyperbolic fly-by).
     """
 
     def __init__(self, camera: Camera, pointing: PointingConfig, *,
@@ -139,7 +149,8 @@ class Scene:
                  moon_radius: float = MOON_RADIUS, seed: int = 0,
                  ephemeris: Ephemeris | None = None, arc: Trajectory | None = None,
                  cache_dir: str | Path | None = None,
-                 orientation: Callable[[FloatArray], FloatArray] | None = None) -> None:
+                 orientation: Callable[[FloatArray], FloatArray] | None = None,
+                 gm: float = 0.0) -> None:
         self.camera = camera
         self.pointing = pointing
         self.static_config = static if static is not None else StaticGeometryConfig()
@@ -148,12 +159,16 @@ class Scene:
         self.ephemeris = ephemeris or Ephemeris.default()
         cfg = trajectory
         self.static = cfg is None and arc is None
+        self.flyby: Flyby | None = None
         if self.static:
             self.trajectory = None
             self.epochs = np.zeros(1)
             self._states = None
             return
         cfg = cfg or TrajectoryConfig()
+        if cfg.source == "flyby" and arc is None:
+            self._init_flyby(cfg, orientation, gm)
+            return
         self.trajectory = arc or build_trajectory(cfg, self.ephemeris, cache_dir)
         start = self.trajectory.t_start + cfg.frame_offset_s
         if start > self.trajectory.t_end:
@@ -166,8 +181,41 @@ class Scene:
         self._R_moon = (orientation(self.epochs) if orientation is not None else
                         self.ephemeris.moon_orientation(self.epochs, frame=cfg.moon_frame))
 
+    def _init_flyby(self, cfg: TrajectoryConfig, orientation, gm: float) -> None:
+        """Epochs, relative states, Sun and body orientation of a fly-by (step 5)."""
+        if orientation is None:
+            raise ConfigError("trajectory.source", "flyby",
+                              "a small-body target (target.kind: shape_model or ellipsoid)")
+        fc = cfg.flyby or FlybyConfig()
+        t_ca = parse_epoch(cfg.epoch or DEFAULT_EPOCH, "trajectory.epoch")
+        self.trajectory = None
+        self.flyby = flyby_from_config(fc, t_ca, gm)
+        self.epochs = self.flyby.frame_epochs(fc.start_s, fc.end_s, cfg.cadence_s, cfg.frames)
+        rel = self.flyby.states(self.epochs)
+        if self.flyby.closest_approach <= self.moon_radius:
+            raise ConfigError("trajectory.flyby.closest_approach_km",
+                              fc.closest_approach_km,  # unit: the user's value, quoted
+                              f"a closest approach outside the body's bounding sphere "
+                              f"({self.moon_radius / 1e3:.4g} km)")
+        self._states = None
+        self._relative = rel
+        n = self.epochs.size
+        self._moon = np.zeros((n, 6))
+        self._sun = np.tile(np.concatenate([self.flyby.sun_position, np.zeros(3)]), (n, 1))
+        self._R_moon = np.asarray(orientation(self.epochs))
+
     def __len__(self) -> int:
         return int(self.epochs.size)
+
+    @property
+    def relative_states(self) -> FloatArray:
+        """Spacecraft states relative to the target body ``(n, 6)``, J2000 axes [m, m/s]:
+        the truth of a fly-by's navigation (for a trajectory: relative to the Moon)."""
+        if self.flyby is not None:
+            return self._relative
+        if self._states is None:
+            raise ConfigError("trajectory", None, "a trajectory section for relative states")
+        return self._states - self._moon
 
     @property
     def states_emb(self) -> FloatArray:
@@ -178,6 +226,9 @@ class Scene:
         ConfigError
             For a static scene (no trajectory).
         """
+        if self.flyby is not None:
+            raise ConfigError("trajectory.source", "flyby", "a halo or OEM trajectory for "
+                              "EMB-centred states (a fly-by has Scene.relative_states)")
         if self._states is None:
             raise ConfigError("trajectory", None, "a trajectory section for EMB-centred states")
         return self._states
@@ -199,7 +250,7 @@ class Scene:
                 epoch_tdb=g.epoch_tdb, camera_velocity=g.camera_velocity,
                 R_cam_to_inertial_measured=g.R_cam_to_inertial @ rotation_from_vector(err),
                 moon_radius=g.moon_radius, index=i)
-        rel = self._states[i] - self._moon[i]
+        rel = self.relative_states[i]
         sun = self._sun[i, :3] - self._moon[i, :3]
         p = pointing_from_config(self.camera, rel[:3], pc, self.seed, i,
                                  moon_radius=self.moon_radius, sun_position=sun)
@@ -207,7 +258,8 @@ class Scene:
             camera_position=rel[:3], R_cam_to_inertial=p.R_true, sun_position=sun,
             R_moon_to_inertial=self._R_moon[i], epoch_tdb=float(self.epochs[i]),
             camera_velocity=rel[3:], R_cam_to_inertial_measured=p.R_measured,
-            moon_radius=self.moon_radius, index=i, camera_state_emb=self._states[i])
+            moon_radius=self.moon_radius, index=i,
+            camera_state_emb=None if self._states is None else self._states[i])
 
     def geometries(self, indices: list[int] | range | None = None) -> list[FrameGeometry]:
         """Geometries of ``indices`` (default all frames)."""

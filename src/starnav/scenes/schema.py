@@ -28,16 +28,54 @@ _EPOCH_RE = re.compile(
 )
 
 
+class FlybyConfig(StrictModel):
+    """Fly-by of a small body (``trajectory.source: flyby``; :mod:`starnav.scenes.flyby`).
+
+    Closest approach (CA) is at ``trajectory.epoch``; frames every ``trajectory.cadence_s``
+    from ``start_s`` to ``end_s`` relative to CA (at most ``trajectory.frames``).
+    """
+
+    v_inf_km_s: PositiveFloat = Field(5.0, description="relative speed; the hyperbolic excess "
+                                      "speed for dynamics=hyperbolic [km/s]")
+    closest_approach_km: PositiveFloat = Field(20.0, description="CA distance from the body "
+                                               "centre [km]")
+    phase_at_ca_deg: Annotated[float, Field(ge=0, le=180)] = Field(
+        45.0, description="Sun phase angle at CA (body->Sun vs body->spacecraft) [deg]")
+    sun_azimuth_deg: float = Field(
+        180.0, description="azimuth of the Sun about the CA direction from the CA velocity "
+        "[deg]; 180: Sun on the approach side (approach phase 90 - phase_at_ca)")
+    velocity_ra_deg: float = Field(0.0, description="CA velocity direction, J2000 RA [deg]")
+    velocity_dec_deg: Annotated[float, Field(ge=-90, le=90)] = Field(
+        0.0, description="CA velocity direction, J2000 Dec [deg]")
+    ca_angle_deg: float = Field(0.0, description="CA direction about the velocity from the "
+                                "projected J2000 pole (B-plane angle) [deg]")
+    start_s: float = Field(-600.0, description="first frame relative to CA [s]")
+    end_s: float = Field(600.0, description="last frame relative to CA [s]")
+    sun_distance_au: PositiveFloat = Field(1.0, description="body-Sun distance [AU]")
+    dynamics: Literal["straight", "hyperbolic"] = Field(
+        "straight", description="straight line (gravity neglected: micro-radian deflection or "
+        "less for km-sized bodies) or the Kepler hyperbola of the body's GM")
+
+    @model_validator(mode="after")
+    def _span(self) -> FlybyConfig:
+        if self.end_s < self.start_s:
+            raise ValueError("end_s must not be before start_s")
+        return self
+
+
 class TrajectoryConfig(StrictModel):
     """Observer trajectory and the frame epochs along it.
 
     ``source: halo`` builds the LUMIO-like L2 quasi-halo in the ephemeris point-mass model
     (:func:`starnav.scenes.trajectory.ephemeris_halo_arc`); ``source: oem`` reads a CCSDS OEM
     file (``oem_path``). Frames are taken every ``cadence_s`` from ``epoch + frame_offset_s``
-    to the end of the arc (at most ``frames`` of them).
+    to the end of the arc (at most ``frames`` of them). ``source: flyby`` is a small-body
+    fly-by (``flyby`` section, :class:`FlybyConfig`; ``epoch`` is the closest approach, the
+    target a small body): the halo and OEM keys do not apply to it.
     """
 
-    source: Literal["halo", "oem"] = Field("halo", description="LUMIO-like halo or an OEM file")
+    source: Literal["halo", "oem", "flyby"] = Field(
+        "halo", description="LUMIO-like halo, an OEM file, or a small-body fly-by")
     epoch: str | None = Field(
         None, description=f"start of the arc, ISO with a time scale; None: {DEFAULT_EPOCH} "
         "for a halo, the first epoch of the file for an OEM")
@@ -60,6 +98,8 @@ class TrajectoryConfig(StrictModel):
     oem_path: Path | None = Field(None, description="CCSDS OEM file for source=oem")
     moon_frame: Literal["PA", "ME"] = Field(
         "PA", description="Moon body-fixed frame: DE421 principal axes or mean-Earth/polar")
+    flyby: FlybyConfig | None = Field(
+        None, description="the fly-by for source=flyby (None: its defaults)")
 
     @field_validator("epoch", mode="before")
     @classmethod
@@ -90,6 +130,8 @@ class TrajectoryConfig(StrictModel):
     def _consistent(self) -> TrajectoryConfig:
         if self.source == "oem" and self.oem_path is None:
             raise ValueError("trajectory.oem_path is required when source is 'oem'")
+        if self.flyby is not None and self.source != "flyby":
+            raise ValueError("trajectory.flyby is only read when source is 'flyby'")
         if self.range_min_km >= self.range_max_km:
             raise ValueError("range_min_km must be below range_max_km")
         if self.shooting_segment_s < self.step_s:

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from starnav.bodies import Moon, TargetBody, TriaxialBody
+from starnav.bodies import Moon, ShapeModelBody, TargetBody, TriaxialBody
 from starnav.bodies.moon import mean_normal_albedo as moon_mean_normal_albedo
 from starnav.camera import Camera, camera_from_config
 from starnav.config import Scenario
@@ -54,13 +54,19 @@ def body_from_scenario(sc: Scenario) -> TargetBody:
     ``kind: moon``; body-fixed axes ``trajectory.moon_frame``), or the ``target`` section's
     small body (:mod:`starnav.bodies`)."""
     t = sc.target
+    flyby = sc.trajectory is not None and sc.trajectory.source == "flyby"
     if t is None or t.kind == "moon":
+        if flyby:
+            raise ConfigError("trajectory.source", "flyby", "a small-body target "
+                              "(target.kind: shape_model or ellipsoid) for a fly-by")
         frame = sc.trajectory.moon_frame if sc.trajectory is not None else "PA"
         return Moon(sc.moon, frame=frame)
-    if sc.trajectory is not None:
+    if sc.trajectory is not None and not flyby:
         raise ConfigError("target.kind", t.kind,
-                          "a static geometry section (trajectory: null): trajectories are "
-                          "Moon-centred until the fly-by trajectory exists")
+                          "a static geometry section (trajectory: null) or a fly-by "
+                          "(trajectory.source: flyby): halo and OEM arcs are Moon-centred")
+    if t.kind == "shape_model":
+        return ShapeModelBody(t)
     return TriaxialBody(t)
 
 
@@ -103,7 +109,8 @@ def scene_from_scenario(sc: Scenario, ephemeris: Ephemeris | None = None, *,
     return Scene(camera, sc.pointing, trajectory=sc.trajectory, static=sc.geometry,
                  moon_radius=body.reference_radius_m, seed=sc.seed, ephemeris=eph,
                  arc=arc, cache_dir=cache_dir,
-                 orientation=lambda t: body.orientation(t, eph))
+                 orientation=lambda t: body.orientation(t, eph),
+                 gm=body.gm)
 
 
 def frame_geometries(sc: Scenario, ephemeris: Ephemeris | None = None) -> list[FrameGeometry]:
