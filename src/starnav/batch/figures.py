@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from starnav.atomic import atomic_path
+from starnav.timeaxis import elapsed_axis
 
 
 def _figure(nrows: int, ncols: int, size: tuple[float, float]):
@@ -83,11 +84,11 @@ def plot_error_vs_time(epochs: ArrayLike, errors: ArrayLike, sigma3: ArrayLike,
     Parameters
     ----------
     epochs : (K,) array
-        [TDB s]; plotted in hours from the first frame.
+        [TDB s]; plotted from the first frame (:func:`starnav.timeaxis.elapsed_axis`).
     errors, sigma3 : (R, K, 6) arrays
         Position [m] and velocity [m/s] errors and 3-sigma bounds.
     """
-    t = (np.asarray(epochs, float) - float(np.asarray(epochs)[0])) / 3600.0
+    t, t_label = elapsed_axis(epochs)
     E = np.asarray(errors, float)
     S = np.asarray(sigma3, float)
     fig, ax = _figure(3, 2, (10.0, 7.0))
@@ -106,7 +107,7 @@ def plot_error_vs_time(epochs: ArrayLike, errors: ArrayLike, sigma3: ArrayLike,
             lim = np.nanpercentile(tail, 99) * 1.4 if tail.size else math.nan
             if np.isfinite(lim) and lim > 0:
                 a.set_ylim(-lim, lim)
-        ax[2, col].set_xlabel("time [h]")
+        ax[2, col].set_xlabel(t_label)
     ax[0, 0].legend(fontsize=7, loc="upper right")
     fig.suptitle(f"Navigation error, J2000, EMB-centred: {title}")
     return _save(fig, path)

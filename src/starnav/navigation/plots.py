@@ -27,8 +27,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from starnav.atomic import atomic_path
-from starnav.constants import DAY
 from starnav.navigation.metrics import ErrorSummary, chi2_band, error_pdf
+from starnav.timeaxis import elapsed_axis
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -78,7 +78,8 @@ def plot_state_errors(epochs: ArrayLike, errors: ArrayLike, sigma3: ArrayLike,
     Parameters
     ----------
     epochs : (K,) array
-        [TDB s]; plotted in days from the first.
+        [TDB s]; plotted from the first, in hours below two days, else days
+        (:func:`starnav.timeaxis.elapsed_axis`).
     errors, sigma3 : (K, 6) arrays
         Position [m] and velocity [m/s] errors and bounds.
     kind : {"position", "velocity"}
@@ -86,7 +87,7 @@ def plot_state_errors(epochs: ArrayLike, errors: ArrayLike, sigma3: ArrayLike,
     mc_errors : sequence of (K, 6) arrays
         Monte Carlo runs, drawn in grey.
     """
-    t = (np.asarray(epochs, float) - float(np.asarray(epochs)[0])) / DAY
+    t, t_label = elapsed_axis(epochs)
     sl, scale, unit = (slice(0, 3), 1e-3, "km") if kind == "position" else \
         (slice(3, 6), 1.0, "m/s")
     e = np.asarray(errors, float)[:, sl] * scale
@@ -105,14 +106,14 @@ def plot_state_errors(epochs: ArrayLike, errors: ArrayLike, sigma3: ArrayLike,
             a.set_ylim(-lim, lim)
     ax[0, 0].legend(loc="upper right")
     ax[0, 0].set_title(f"{kind.capitalize()} error, J2000")
-    ax[2, 0].set_xlabel("time [days]")
+    ax[2, 0].set_xlabel(t_label)
     return _save(fig, path)
 
 
 def plot_consistency(epochs: ArrayLike, nees_values: ArrayLike, nis_values: ArrayLike,
                      path: str | os.PathLike[str], runs: int = 1) -> Path:
     """NEES (6 dof) and NIS (3 dof), averaged over ``runs``, with their 95 % bands."""
-    t = (np.asarray(epochs, float) - float(np.asarray(epochs)[0])) / DAY
+    t, t_label = elapsed_axis(epochs)
     fig, ax = _figure(2, 1, (7.0, 5.0))
     for a, v, dof, name in ((ax[0, 0], nees_values, 6, "NEES"), (ax[1, 0], nis_values, 3, "NIS")):
         v = np.asarray(v, float)
@@ -122,7 +123,7 @@ def plot_consistency(epochs: ArrayLike, nees_values: ArrayLike, nis_values: Arra
         a.axhline(hi, color="C3", ls="--")
         a.axhline(dof, color="C2", lw=0.8)
         a.set_ylabel(f"{name} (mean of {runs})")
-    ax[1, 0].set_xlabel("time [days]")
+    ax[1, 0].set_xlabel(t_label)
     ax[0, 0].set_title("Filter consistency (95 % chi-square bands)")
     return _save(fig, path)
 
