@@ -64,6 +64,6 @@ def register(app: typer.Typer) -> None:
             fail(err)
         console.print(
             f"{format_epoch(s['t_start'], precision=0)} .. {format_epoch(s['t_end'], precision=0)}"
-            f" ({format_duration(s['t_end'] - s['t_start'])}), Moon range {s['moon_range_min'] / 1e3:.0f}-"
-            f"{s['moon_range_max'] / 1e3:.0f} km")
+            f" ({format_duration(s['t_end'] - s['t_start'])}), Moon range "
+            f"{s['moon_range_min'] / 1e3:.0f}-{s['moon_range_max'] / 1e3:.0f} km")
         console.print(f"wrote {out} ({len(sampled)} states every {cadence:g} s) and {png}")
