@@ -49,6 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from starnav.atomic import atomic_path
 from starnav.errors import ConfigError
+from starnav.quicklook import to_uint8
 from starnav.radiance import RadianceImage, read_exr
 
 log = logging.getLogger(__name__)
@@ -136,11 +137,6 @@ def radiance_stretch(L: ArrayLike, percentile: float = STRETCH_PERCENTILE
     if not top > 0.0:
         top = float(lit.max())
     return to_uint8(srgb_encode(a / top)), top
-
-
-def to_uint8(v: ArrayLike) -> NDArray[np.uint8]:
-    """0..1 floats to 0..255 (rounded, clipped)."""
-    return np.round(np.clip(np.asarray(v, float), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
 def frame_caption(meta: Mapping[str, Any], index: int | None = None) -> str:
@@ -348,3 +344,4 @@ def write_previews(exr_paths: Sequence[str | os.PathLike[str]], *,
     """
     return [write_radiance_preview(read_exr(p), Path(p).with_suffix(".png"),
                                    percentile=percentile) for p in exr_paths]
+

@@ -29,6 +29,10 @@ Re-pinned (each time the only difference, explained):
   ``nees.mean``, ``final_position_error_pct_range`` [%] for
   ``final.position_error_fraction_of_range``, now over the true final range instead of the
   median fix range).
+* 2026-11-25, dataset format 2 (issue 15): every dataset frame also holds its 8-bit quick
+  looks, ``radiance_quicklook.png`` and ``exposure_*/dn_quicklook.png``, so each frame's
+  ``files`` list in the manifest has three more names. Every data file (``dn.png``,
+  ``radiance.exr``, the JSON) and every other value is unchanged.
 """
 
 from __future__ import annotations

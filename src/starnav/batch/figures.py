@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from starnav.atomic import atomic_path
+from starnav.timeaxis import elapsed_axis
 
 
 def _figure(nrows: int, ncols: int, size: tuple[float, float]):
@@ -45,12 +46,18 @@ def _save(fig: Any, path: str | os.PathLike[str]) -> Path:
     return p
 
 
-def plot_limb_error_pdfs(series: Sequence[tuple[str, ArrayLike]],
+def plot_limb_error_pdfs(series: Sequence[tuple[str, ArrayLike, float, float]],
                          path: str | os.PathLike[str]) -> Path:
-    """One histogram density per ``(label, errors_px)`` on common bins [px]."""
+    """One histogram density per ``(label, errors_px, bias_px, std_px)`` on common bins [px].
+
+    The curve is every limb point of every run pooled; the legend gives ``bias_px`` and
+    ``std_px`` as the report's table does (the median over runs of each run's bias and std),
+    and says so, so the figure and the table show the same numbers."""
     fig, ax = _figure(1, 1, (7.5, 4.2 + 0.18 * len(series)))
     a = ax[0, 0]
-    data = [(lab, np.asarray(e, float)[np.isfinite(np.asarray(e, float))]) for lab, e in series]
+    data = [(lab, np.asarray(e, float)[np.isfinite(np.asarray(e, float))]) for lab, e, *_ in
+            series]
+    stats = [(float(b), float(sd)) for _, _, b, sd in series]
     allv = np.concatenate([e for _, e in data if e.size]) if any(e.size for _, e in data) \
         else np.empty(0)
     if allv.size:
@@ -63,7 +70,8 @@ def plot_limb_error_pdfs(series: Sequence[tuple[str, ArrayLike]],
             d, edges = np.histogram(e, bins=nb, range=(lo - pad, hi + pad), density=True)
             c = 0.5 * (edges[1:] + edges[:-1])
             a.plot(c, d, drawstyle="steps-mid", color=f"C{k % 10}",
-                   label=f"{lab}: bias {e.mean():+.2f}, std {e.std():.2f} px")
+                   label=f"{lab}: bias {stats[k][0]:+.2f} px, std {stats[k][1]:.2f} px "
+                   "(median over runs)")
         a.axvline(0.0, color="k", lw=0.8)
         if np.max(np.abs(allv)) > 20.0:
             a.set_xscale("symlog", linthresh=2.0)
@@ -72,7 +80,8 @@ def plot_limb_error_pdfs(series: Sequence[tuple[str, ArrayLike]],
         a.text(0.5, 0.5, "no limb points", ha="center", transform=a.transAxes)
     a.set_xlabel("signed distance to the true limb [px] (> 0 outside)")
     a.set_ylabel("PDF [1/px]")
-    a.set_title("Limb-point error per scenario (all frames and runs)")
+    a.set_title("Limb-point error per scenario (curves: all frames and runs pooled; "
+                "legend: median over runs, as in the table)", fontsize=9)
     return _save(fig, path)
 
 
@@ -83,11 +92,11 @@ def plot_error_vs_time(epochs: ArrayLike, errors: ArrayLike, sigma3: ArrayLike,
     Parameters
     ----------
     epochs : (K,) array
-        [TDB s]; plotted in hours from the first frame.
+        [TDB s]; plotted from the first frame (:func:`starnav.timeaxis.elapsed_axis`).
     errors, sigma3 : (R, K, 6) arrays
         Position [m] and velocity [m/s] errors and 3-sigma bounds.
     """
-    t = (np.asarray(epochs, float) - float(np.asarray(epochs)[0])) / 3600.0
+    t, t_label = elapsed_axis(epochs)
     E = np.asarray(errors, float)
     S = np.asarray(sigma3, float)
     fig, ax = _figure(3, 2, (10.0, 7.0))
@@ -106,7 +115,7 @@ def plot_error_vs_time(epochs: ArrayLike, errors: ArrayLike, sigma3: ArrayLike,
             lim = np.nanpercentile(tail, 99) * 1.4 if tail.size else math.nan
             if np.isfinite(lim) and lim > 0:
                 a.set_ylim(-lim, lim)
-        ax[2, col].set_xlabel("time [h]")
+        ax[2, col].set_xlabel(t_label)
     ax[0, 0].legend(fontsize=7, loc="upper right")
     fig.suptitle(f"Navigation error, J2000, EMB-centred: {title}")
     return _save(fig, path)

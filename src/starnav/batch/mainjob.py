@@ -52,6 +52,7 @@ from starnav.batch.montecarlo import navigate_runs, verdict_line, write
 from starnav.batch.presets import (
     DEMO_EXPOSURE_OVERRIDES,
     DEMO_EXPOSURES_S,
+    PAPER_CITATION,
     demo_scenario,
     paper_case,
 )
@@ -263,7 +264,7 @@ def _write_report(out: Path, sc: Scenario, ds: Any, nav: dict[float, dict[str, A
               "`navigation/exposure_*/montecarlo/`).", ""]
         for t, m in consistency.items():
             L.append(f"- **{t * 1e3:g} ms**: " + verdict_line(m))
-    L += ["", "## Against the paper (REFERENCE.md section 5)", ""]
+    L += ["", "## Against the paper", "", f"Source: {PAPER_CITATION}.", ""]
     for t, s in nav.items():
         c = paper_case(t)
         if c is None:
@@ -287,8 +288,14 @@ def _write_report(out: Path, sc: Scenario, ds: Any, nav: dict[float, dict[str, A
               f"![rendered radiance and detector DN frames]({frame_fig[0]})", ""]
     for t in nav:
         d = f"navigation/{exposure_dirname(t)}"
-        L += [f"### {t * 1e3:g} ms", "",
-              f"![limb-point error]({d}/limb_error_pdf.png)", "",
+        over = sorted(k for k in nav[t].get("paths", {}) if k.startswith("overlay_"))
+        L += [f"### {t * 1e3:g} ms", ""]
+        if over:
+            L += ["Frames as the chain saw them (segments DN; windows, limb points with RANSAC "
+                  "inliers and outliers, the fix's limb and the true limb; "
+                  f"`{d}/report.md`):", ""]
+            L += [f"![{k.replace('_', ' ')}: limb overlay]({d}/{k}.png)" for k in over] + [""]
+        L += [f"![limb-point error]({d}/limb_error_pdf.png)", "",
               f"![position error]({d}/position_error.png)", "",
               f"![velocity error]({d}/velocity_error.png)", ""]
         if consistency and t in consistency:

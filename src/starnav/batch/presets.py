@@ -1,6 +1,6 @@
 """Ready-made studies: the paper's exposure study and the demo, plus the paper's numbers.
 
-:data:`PAPER_CASES` holds the results of the STAR Nav paper (REFERENCE.md section 5) for its
+:data:`PAPER_CASES` holds the results of the STAR Nav paper (:data:`PAPER_CITATION`) for its
 four exposure scenarios, and the criteria the sweep report uses to say whether a measured point
 agrees with them. :data:`PRESETS` are sweep presets by name (``starnav sweep --preset NAME``):
 a scenario (a complete, resolved scenario dict) and a grid.
@@ -35,6 +35,13 @@ from typing import Any
 from starnav.config import scenario_from_dict, scenario_to_dict
 from starnav.data import packaged_path
 from starnav.registry import Registry
+
+#: Where the paper's numbers come from: the paper itself and the page of this repository that
+#: tabulates them against the toolkit.
+PAPER_CITATION = ("Panicucci et al., \"What if star trackers were navigation cameras?\" (STAR "
+                  "Nav study), sections \"Validation of rendering pipeline and implications\" "
+                  "and the MIL/PIL/HIL results; tabulated in docs/sweep.md, \"The paper's "
+                  "exposure study\"")
 
 #: The paper's four exposure times [s] (seed paper, "Validation of rendering pipeline").
 PAPER_EXPOSURES_S: tuple[float, ...] = (0.2, 7.7e-3, 1.8e-4, 1.5e-5)
@@ -184,7 +191,8 @@ def exposure_study_header() -> str:
         "# or give it explicitly:\n"
         f"#   starnav sweep exposure-study.yaml --grid {EXPOSURE_STUDY_GRID[0]} --runs 5 "
         "--out DIR\n"
-        "# The report compares the results with the paper (REFERENCE.md section 5).\n")
+        "# The report compares the results with the paper (Panicucci et al., \"What if star "
+        "trackers were navigation cameras?\"; docs/sweep.md).\n")
 
 
 def tuned_filter(exposure_time: float) -> dict[str, Any]:

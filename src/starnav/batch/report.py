@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from starnav.atomic import atomic_write_text
-from starnav.batch.presets import PAPER_MIL_SATURATED, paper_case
+from starnav.batch.presets import PAPER_CITATION, PAPER_MIL_SATURATED, paper_case
 from starnav.batch.tasks import TIMED_STAGES
 from starnav.config import Scenario, build_camera
 
@@ -110,7 +110,7 @@ def paper_comparison(summary: Sequence[dict[str, Any]]) -> list[str]:
             criteria.append(f"{c.name}: {c.criteria}")
     if not rows:
         return []
-    out = ["## Comparison with the paper (REFERENCE.md section 5)", "",
+    out = ["## Comparison with the paper", "", f"Source: {PAPER_CITATION}.", "",
            "Medians over the Monte Carlo runs of each point. The paper's numbers come from its "
            "HIL bench (7.7 ms, 0.015 ms), from statements (200 ms, 0.18 ms), and are read from "
            "figures; \"agrees\" uses the criteria listed below.", "",

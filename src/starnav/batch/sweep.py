@@ -338,8 +338,11 @@ def _write_outputs(tmp: Path, out: Path, base: Scenario, axes: Sequence[GridAxis
     fig_paths: dict[str, str] = {}
     if figures:
         (tmp / "figures").mkdir(exist_ok=True)
-        FIG.plot_limb_error_pdfs([(p.label, results[p.index].limb_errors_px) for p in points],
-                                 tmp / "figures" / "limb_error_pdf.png")
+        med = {s["point"]: s for s in summarize_points(rows)}
+        FIG.plot_limb_error_pdfs([(p.label, results[p.index].limb_errors_px,
+                                   med.get(p.index, {}).get("limb_bias_px", math.nan),
+                                   med.get(p.index, {}).get("limb_std_px", math.nan))
+                                  for p in points], tmp / "figures" / "limb_error_pdf.png")
         fig_paths["limb_error_pdf"] = "figures/limb_error_pdf.png"
         FIG.plot_error_vs_exposure(rows, [k for a in axes if EXPOSURE_KEY not in a.keys
                                           for k in a.keys],

@@ -39,3 +39,57 @@ def os_error_message(err: OSError) -> str:
             "EISDIR": "expected a file, found a directory",
             "ENOENT": "check the path"}.get(name, "check the path and its permissions")
     return f"{path}{extra}: {err.strerror or err} ({name or 'OSError'}); {hint}"
+
+
+def print_table(title: str, headers: list[str] | None, rows: list[list[str]],
+                out: Console | None = None) -> None:
+    """Print a table whose cells are never cut.
+
+    On a terminal: a rich table whose columns fold long cells onto more lines (never an
+    ellipsis). In a pipe or a file (not a terminal, whatever ``COLUMNS`` says): plain text, one
+    line per row, columns padded to their widest cell, so the labels that tell rows apart are
+    whole and a script can read them.
+    """
+    from rich.table import Table
+
+    c = out or console
+    if c.is_terminal:
+        t = Table(title=title, show_header=headers is not None)
+        for h in headers or [""] * (len(rows[0]) if rows else 0):
+            t.add_column(escape(h), overflow="fold")
+        for r in rows:
+            t.add_row(*(escape(x) for x in r))
+        c.print(t)
+        return
+    cells = ([headers] if headers else []) + rows
+    widths = [max(len(r[j]) for r in cells) for j in range(len(cells[0]))] if cells else []
+    lines = [title]
+    for i, r in enumerate(cells):
+        lines.append("  ".join(x.ljust(w) for x, w in zip(r, widths, strict=True)).rstrip())
+        if headers and i == 0:
+            lines.append("  ".join("-" * w for w in widths))
+    typer.echo("\n".join(lines))
+
+
+def format_quantity(key: str, value: object) -> str:
+    """A summary value with the unit its key names in brackets and sensible digits:
+    ``("limb bias [px]", 0.875992)`` -> ``"+0.876 px"``, ``("... [%]", 0.0123)`` ->
+    ``"0.0123 %"``, ``("elapsed_s", 12.3456)`` -> ``"12.3 s"``; other values as they are."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return str(value)
+    import math
+    import re
+
+    if isinstance(value, float) and not math.isfinite(value):
+        return "-"
+    m = re.search(r"\[([^\]]+)\]\s*$", key)
+    unit = m.group(1) if m else ("s" if key.endswith("_s") else
+                                 ("frames/s" if key.endswith("_per_s") else ""))
+    if key.endswith("_per_s"):
+        unit = "frames/s"
+    if isinstance(value, int):
+        text = str(value)
+    else:
+        text = f"{value:+.3g}" if "bias" in key else f"{value:.3g}"
+    unit = unit.replace("% range", "% of range")
+    return f"{text} {unit}".strip()

@@ -16,7 +16,6 @@ from typing import Annotated, Any
 
 import typer
 import yaml
-from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -207,10 +206,9 @@ def demo(
                                progress=lambda d, n: bar.update(task, completed=d, total=n))
     except StarnavError as err:
         _fail(err)
-    table = Table(title="starnav demo", show_header=False)
-    for k, v in summary.items():  # keys carry units in brackets: escape them from rich markup
-        table.add_row(escape(k), escape(f"{v:.6g}" if isinstance(v, float) else str(v)))
-    console.print(table)
+    from starnav.cli._output import format_quantity, print_table
+
+    print_table("starnav demo", None, [[k, format_quantity(k, v)] for k, v in summary.items()])
     console.print(f"report: [bold]{summary['report']}[/]")
 
 

@@ -79,7 +79,7 @@ def register(app: typer.Typer) -> None:
         """Run limb -> RANSAC -> Christian-Robinson -> EKF over DATASET; write CSV, JSON, PNG."""
         from starnav.config import load_scenario
         from starnav.errors import StarnavError
-        from starnav.navigation.report import navigate_dataset
+        from starnav.navigation.report import budget_warning, navigate_dataset
 
         try:
             check_navigate_overrides(set_ or ())
@@ -115,5 +115,10 @@ def register(app: typer.Typer) -> None:
                        f"({summary['final_position_error_pct_range']:.3g} % of range), velocity "
                        f"error {summary['final_velocity_error_m_s']:.4f} m/s; mean NEES "
                        f"{summary['nees_mean']:.3g} (6 states)")
-        typer.echo(f"chain CPU median {summary['timing_ms']['chain_cpu_median']:.2f} ms; "
-                   f"outputs in {out}")
+        typer.echo(f"chain CPU median {summary['timing_ms']['chain_cpu_median']:.2f} ms "
+                   f"(budget {summary['timing_ms']['budget']:g} ms); outputs in {out}")
+        warning = budget_warning(summary)
+        if warning:
+            typer.echo(warning)
+        if "report" in summary.get("paths", {}):
+            typer.echo(f"report: {summary['paths']['report']}")

@@ -47,17 +47,14 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Run a what-if grid (product of --grid axes) x --runs Monte Carlo runs; write
         results.parquet/.csv, figures/ and report.md into OUT."""
-        from rich.console import Console
-        from rich.table import Table
-
         from starnav.batch import run_sweep
         from starnav.batch.presets import get_preset
         from starnav.batch.sweep import summarize_points
+        from starnav.cli._output import console, print_table
         from starnav.cli.dataset import frames_progress
         from starnav.config import load_scenario, scenario_from_dict
         from starnav.errors import StarnavError
 
-        console = Console()
         try:
             p = get_preset(preset) if preset else None
             if scenario is None and p is not None:
@@ -87,19 +84,20 @@ def register(app: typer.Typer) -> None:
         except StarnavError as err:
             typer.echo(f"error: {err}", err=True)
             raise typer.Exit(code=2) from None
-        table = Table(title=f"sweep: {len(res.points)} point(s) x "
-                      f"{len(res.rows) // max(len(res.points), 1)} run(s), {res.elapsed_s:.1f} s")
-        for h in ("point", "scenario", "sat px", "limb bias px", "limb std px",
-                  "final pos err km (%)", "final vel err m/s"):
-            table.add_column(h)
+        title = (f"sweep: {len(res.points)} point(s) x "
+                 f"{len(res.rows) // max(len(res.points), 1)} run(s), {res.elapsed_s:.1f} s; "
+                 "medians over runs")
+        heads = ["point", "scenario", "sat px", "limb bias [px]", "limb std [px]",
+                 "final pos err [km] (% range)", "final vel err [m/s]"]
+        rows = []
         for s in summarize_points(res.rows):
-            table.add_row(str(s["point"]), s["label"],
+            rows.append([str(s["point"]), s["label"],
                           f"{s.get('saturated_pixels_median', float('nan')):.0f}",
                           f"{s.get('limb_bias_px', float('nan')):+.2f}",
                           f"{s.get('limb_std_px', float('nan')):.2f}",
                           f"{s.get('final_position_error_m', float('nan')) / 1e3:.4g} "
                           f"({s.get('final_position_error_pct_range', float('nan')):.3g})",
-                          f"{s.get('final_velocity_error_m_s', float('nan')):.3g}")
-        console.print(table)
+                          f"{s.get('final_velocity_error_m_s', float('nan')):.3g}"])
+        print_table(title, heads, rows, console)
         console.print(f"runner: {res.runner}")
         console.print(f"report: [bold]{res.paths['report']}[/]; table: {res.paths['parquet']}")

@@ -39,6 +39,7 @@ def register(app: typer.Typer) -> None:
         from starnav.scenes.ephemeris import format_epoch
         from starnav.scenes.oem import write_oem
         from starnav.scenes.schema import TrajectoryConfig
+        from starnav.timeaxis import format_duration
 
         try:
             sc = load_scenario(scenario, set_ or [])
@@ -52,13 +53,17 @@ def register(app: typer.Typer) -> None:
             write_oem(out, sampled, comments=[f"starnav trajectory, source={cfg.source}",
                                               "states EMB-centred, ICRF axes, TDB"])
             png = plot if plot is not None else out.with_suffix(".png")
-            plot_trajectory(traj, png)
+            # the plot and the summary describe what the OEM holds: its first to its last
+            # epoch (the arc built may run past the last whole cadence step)
+            shown = (traj.clipped(sampled.t_start, sampled.t_end)
+                     if sampled.t_end > sampled.t_start else traj)
+            plot_trajectory(shown, png)
             write_resolved(sc, out.parent if str(out.parent) else Path("."))
-            s = trajectory_summary(traj)
+            s = trajectory_summary(shown)
         except StarnavError as err:
             fail(err)
         console.print(
             f"{format_epoch(s['t_start'], precision=0)} .. {format_epoch(s['t_end'], precision=0)}"
-            f" ({s['duration_days']:.2f} d), Moon range {s['moon_range_min'] / 1e3:.0f}-"
-            f"{s['moon_range_max'] / 1e3:.0f} km")
+            f" ({format_duration(s['t_end'] - s['t_start'])}), Moon range "
+            f"{s['moon_range_min'] / 1e3:.0f}-{s['moon_range_max'] / 1e3:.0f} km")
         console.print(f"wrote {out} ({len(sampled)} states every {cadence:g} s) and {png}")

@@ -11,8 +11,12 @@ A dataset is a directory that any OpenEXR, PNG and JSON tool can read (docs/data
         000000/                        one directory per frame, renamed into place when whole
           truth.json                   epoch, states, attitudes, Sun, Moon centre pixel, limb
           radiance.exr                 RadianceImage: L, Le and the AOVs (starnav.radiance)
+          radiance_quicklook.png       8-bit quick look of radiance.exr (picture, not data)
           exposure_0.015ms/            one directory per exposure time
-            dn.png                     16-bit DN frame of the segments acquisition
+            dn.png                     16-bit DN frame of the segments acquisition (data:
+                                       raw DN 0..2^bits-1, looks black in a viewer)
+            dn_quicklook.png           8-bit quick look of dn.png: asinh-stretched, annotated
+                                       (starnav.quicklook; the picture to look at)
             segments.json              full-image-compressed readout (runs)
             windows.json               windows readout (up to 16 windows of DN)
             readout.json               acquisitions, seeds, charge ledger, timing law, plan
@@ -55,7 +59,7 @@ from starnav.scenes.ephemeris import format_epoch
 
 #: Name and version of the format (bump the version on any incompatible change).
 SCHEMA = "starnav-dataset"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 MANIFEST = "manifest.json"
 RESOLVED = "scenario.resolved.yaml"
@@ -63,6 +67,9 @@ FRAMES_DIR = "frames"
 TRUTH = "truth.json"
 RADIANCE = "radiance.exr"
 DN = "dn.png"
+#: 8-bit quick looks (pictures for a person; the data are ``dn.png`` and ``radiance.exr``).
+DN_QUICKLOOK = "dn_quicklook.png"
+RADIANCE_QUICKLOOK = "radiance_quicklook.png"
 SEGMENTS = "segments.json"
 WINDOWS = "windows.json"
 READOUT = "readout.json"

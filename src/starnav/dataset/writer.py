@@ -69,6 +69,7 @@ from starnav.dataset import format as F
 from starnav.dataset.runner import InProcessRunner, TaskRunner
 from starnav.detector.io import write_dn_png
 from starnav.errors import ConfigError, DataFileError, StarnavError
+from starnav.quicklook import write_dn_quicklook, write_radiance_quicklook
 from starnav.radiance import write_exr
 from starnav.renderer import backend
 from starnav.simulate import (
@@ -261,7 +262,8 @@ def dataset_head(scenario: Scenario, options: DatasetOptions, n_frames: int) -> 
         "frames_expected": int(n_frames),
         "layout": {"frames": f"{F.FRAMES_DIR}/NNNNNN", "truth": F.TRUTH,
                    "radiance": F.RADIANCE if opts.radiance else None,
-                   "per_exposure": [F.DN, F.SEGMENTS, F.WINDOWS, F.READOUT]},
+                   "radiance_quicklook": F.RADIANCE_QUICKLOOK if opts.radiance else None,
+                   "per_exposure": [F.DN, F.DN_QUICKLOOK, F.SEGMENTS, F.WINDOWS, F.READOUT]},
     }
 
 
@@ -321,6 +323,7 @@ class FrameMaker:
                                                         self.options.limb_points))
             if self.options.radiance:
                 write_exr(img, tmp / F.RADIANCE)
+                write_radiance_quicklook(img, tmp / F.RADIANCE_QUICKLOOK, index=index)
             for t in self.options.exposures_s or ():
                 d = tmp / F.exposure_dirname(t)
                 d.mkdir()
@@ -328,6 +331,9 @@ class FrameMaker:
                                              windows=self.options.windows,
                                              scenario=self._per_exposure[t])
                 write_dn_png(F.uint16_image(acq.segments_exposure.dn), d / F.DN)
+                write_dn_quicklook(acq.segments_exposure.dn, d / F.DN_QUICKLOOK, index=index,
+                                   exposure_time=t, range_m=geom.range,
+                                   phase_angle_rad=geom.phase_angle)
                 seg = acq.segments
                 if seg is not None:
                     F.write_json(d / F.SEGMENTS, F.segments_to_dict(seg), compact=True)

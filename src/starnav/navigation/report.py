@@ -14,6 +14,9 @@ file                   content
 ``velocity_error.png``  figure 9b/23b/26b
 ``consistency.png``    NEES and NIS
 ``resources.png``      figure 10/24/27 (CPU time, peak memory)
+``overlay_NNNNNN.png``  the first, middle and last frame with a limb: segments DN, windows,
+                       limb points (RANSAC inliers and outliers), fitted and true limb
+``report.md``          the run in words and numbers, linking every figure
 =====================  ========================================================================
 
 Every file is written to a temporary name and renamed (nothing half-written).
@@ -33,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from starnav.atomic import atomic_write_text
+from starnav.constants import MOON_RADIUS
 from starnav.errors import ConfigError
 from starnav.navigation import plots as P
 from starnav.navigation.dynamics import MoonEphemeris, PointMassDynamics
@@ -118,9 +122,23 @@ def estimates_csv(run: NavigationRun) -> str:
     return buf.getvalue()
 
 
+def overlay_frames(run: NavigationRun, count: int = 3) -> list[int]:
+    """Indices (positions in ``run.measurements``) of the frames shown as overlays: the first,
+    the middle and the last of those with limb points (fewer when fewer have them)."""
+    have = [k for k, m in enumerate(run.measurements) if m.limb is not None and len(m.limb.uv)]
+    if not have:
+        return []
+    pick = [have[0], have[len(have) // 2], have[-1]][:count] if count >= 3 else have[:count]
+    return sorted(dict.fromkeys(pick))
+
+
 def write_outputs(run: NavigationRun, out_dir: str | os.PathLike[str],
-                  mc: Sequence[FilterResult] = (), plots: bool = True) -> dict[str, Path]:
-    """Write the files of the module table into ``out_dir``; returns their paths by name."""
+                  mc: Sequence[FilterResult] = (), plots: bool = True,
+                  frames: Sequence[Any] = (), camera: Any | None = None,
+                  radii_m: Sequence[float] | None = None) -> dict[str, Path]:
+    """Write the files of the module table into ``out_dir``; returns their paths by name.
+    ``frames`` (the run's :class:`~starnav.navigation.frames.NavFrame`, in order), ``camera``
+    and ``radii_m`` [m] are needed for the overlay figures (none without them)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths: dict[str, Path] = {}
@@ -153,7 +171,77 @@ def write_outputs(run: NavigationRun, out_dir: str | os.PathLike[str],
                                                   runs)
     paths["resources"] = P.plot_resources(run.cpu_times_s, run.peak_memory_bytes,
                                           out / "resources.png", BUDGET_MS, TRACKER_MEMORY_KB)
+    if frames and camera is not None:
+        r = tuple(radii_m) if radii_m is not None else (MOON_RADIUS,) * 3
+        for k in overlay_frames(run):
+            m = run.measurements[k]
+            paths[f"overlay_{m.index:06d}"] = P.plot_limb_overlay(
+                frames[k], m, camera, out / f"overlay_{m.index:06d}.png", radii_m=r)
     return paths
+
+
+def write_report(out_dir: str | os.PathLike[str], summary: dict[str, Any],
+                 paths: dict[str, Path]) -> Path:
+    """``report.md`` of a single navigation run: the numbers of :func:`summarize` with their
+    units, the budget check, and every figure linked (paths relative to ``out_dir``)."""
+    out = Path(out_dir)
+    le = summary["limb_error_px"]
+    tm = summary["timing_ms"]
+    L = ["# Navigation run", "",
+         f"- frames {summary['frames']}, fixes {summary['fixes']}, accepted by the filter "
+         f"{summary['accepted']}",
+         f"- limb points vs the true limb: bias {_f(le.get('bias'), '+.3f')} px, std "
+         f"{_f(le.get('std'), '.3f')} px ({le.get('count', '-')} points)"]
+    if summary.get("final_position_error_m") is not None:
+        L.append(f"- final position error {summary['final_position_error_m'] / 1e3:.3g} km "
+                 f"({summary['final_position_error_pct_range']:.3g} % of range), velocity "
+                 f"{summary['final_velocity_error_m_s']:.3g} m/s; mean NEES "
+                 f"{summary['nees_mean']:.3g} (6 states, 6 expected)")
+    L.append(f"- chain CPU time: median {tm['chain_cpu_median']:.3g} ms, 95th percentile "
+             f"{tm['chain_cpu_p95']:.3g} ms; budget {tm['budget']:g} ms")
+    if budget_warning(summary):
+        L.append(f"- **{budget_warning(summary)}**")
+    L += ["", "## Figures", ""]
+    over = sorted(k for k in paths if k.startswith("overlay_"))
+    if over:
+        L += ["### The frames as the chain saw them", "",
+              "Segments readout (DN, asinh stretch), windows (orange rectangles), pixel-level "
+              "limb points (green: RANSAC inliers, red crosses: outliers), refined points "
+              "(cyan), the limb of the fix (blue) and the true limb (magenta, dashed); axes in "
+              "pixels. The first, middle and last frame with a limb.", ""]
+        for k in over:
+            L += [f"![frame {int(k.split('_')[1])}: limb points, windows, fitted and true limb]"
+                  f"({paths[k].name})", ""]
+    for key, what in (("limb_error_pdf", "limb-point error PDF"),
+                      ("position_error", "position error and 3-sigma bounds"),
+                      ("velocity_error", "velocity error and 3-sigma bounds"),
+                      ("consistency", "NEES and NIS"),
+                      ("resources", "CPU time and peak memory per frame")):
+        if key in paths:
+            L += [f"![{what}]({paths[key].name})", ""]
+    L += ["Per-frame numbers: `estimates.csv`; every metric: `metrics.json`.", ""]
+    p = out / "report.md"
+    atomic_write_text(p, "\n".join(L))
+    return p
+
+
+def budget_warning(summary: dict[str, Any]) -> str | None:
+    """One line when the median chain CPU time exceeds the tracker's budget
+    (:data:`BUDGET_MS`), else None."""
+    tm = summary.get("timing_ms") or {}
+    med, budget = tm.get("chain_cpu_median"), tm.get("budget", BUDGET_MS)
+    if med is None or not med > budget:
+        return None
+    return (f"warning: the chain's median CPU time {med:.3g} ms exceeds the tracker's "
+            f"{budget:g} ms budget (this machine, Python; see resources.png)")
+
+
+def _f(x: Any, spec: str) -> str:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return "-"
+    return format(v, spec) if math.isfinite(v) else "-"
 
 
 def navigate_dataset(
@@ -222,11 +310,15 @@ def navigate_dataset(
     if n_runs > 1 and run.truth is not None:
         mc = monte_carlo(run.measurements, run.truth, dynamics=dyn, moon=dyn, P0=P0,
                          runs=n_runs, seed=seed, options=cfg.ekf_options())
-    paths = write_outputs(run, out_dir, mc, plots=plots)
+    chain = cfg.chain_options(scenario=scenario)
+    frames = list(dataset) if plots else []
+    paths = write_outputs(run, out_dir, mc, plots=plots, frames=frames,
+                          camera=dataset.camera, radii_m=chain.fix.radii_m)
     out = Path(out_dir)
     atomic_write_text(out / "navigation_config.json",
                        json.dumps(cfg.model_dump(mode="json"), indent=2) + "\n")
     paths["config"] = out / "navigation_config.json"
     summary = summarize(run, mc)
+    paths["report"] = write_report(out, summary, paths)
     summary["paths"] = {k: str(v) for k, v in paths.items()}
     return summary

@@ -20,6 +20,7 @@ from starnav.atomic import atomic_path
 from starnav.scenes.cr3bp import LU, MU_EARTH_MOON, l2_position
 from starnav.scenes.ephemeris import Ephemeris, format_epoch
 from starnav.scenes.trajectory import Trajectory, emb_to_rotating
+from starnav.timeaxis import format_duration, time_unit
 
 log = logging.getLogger(__name__)
 
@@ -60,20 +61,21 @@ def plot_trajectory(traj: Trajectory, path: str | os.PathLike[str],
     sm = sun[:, :3] - moon[:, :3]
     phase = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", sm, rel)
                                          / (np.linalg.norm(sm, axis=1) * rng), -1, 1)))
-    days = (t - t[0]) / 86400.0
+    sym, unit = time_unit(float(t[-1] - t[0]))
+    elapsed = (t - t[0]) / unit
     rot = emb_to_rotating(eph, t, x)[:, :3] * LU / 1e3
     rot[:, 0] -= (1.0 - MU_EARTH_MOON) * LU / 1e3
 
     fig = Figure(figsize=(12, 5.5), dpi=dpi)
     FigureCanvasAgg(fig)
     ax1 = fig.add_subplot(2, 2, 1)
-    ax1.plot(days, rng / 1e3, lw=1.2)
+    ax1.plot(elapsed, rng / 1e3, lw=1.2)
     ax1.set_ylabel("Moon range [km]")
     ax1.grid(alpha=0.3)
     ax2 = fig.add_subplot(2, 2, 3, sharex=ax1)
-    ax2.plot(days, phase, lw=1.2, color="tab:orange")
+    ax2.plot(elapsed, phase, lw=1.2, color="tab:orange")
     ax2.set_ylabel("phase angle [deg]")
-    ax2.set_xlabel(f"days since {format_epoch(t[0], precision=0)}")
+    ax2.set_xlabel(f"time since {format_epoch(t[0], precision=0)} [{sym}]")
     ax2.grid(alpha=0.3)
     ax3 = fig.add_subplot(1, 2, 2, projection="3d")
     ax3.plot(rot[:, 0], rot[:, 1], rot[:, 2], lw=1.0)
@@ -88,7 +90,7 @@ def plot_trajectory(traj: Trajectory, path: str | os.PathLike[str],
     ax3.set_box_aspect(tuple(np.maximum(np.ptp(span, axis=0), 1.0)))
     ax3.set_title("Earth-Moon rotating frame, Moon-centred", fontsize=9)
     ax3.legend(fontsize=8, loc="upper left")
-    fig.suptitle(title or f"{traj.object_name}: {traj.duration / 86400:.1f} d, "
+    fig.suptitle(title or f"{traj.object_name}: {format_duration(traj.duration)}, "
                  f"{rng.min() / 1e3:.0f}-{rng.max() / 1e3:.0f} km from the Moon")
     fig.tight_layout()
 

@@ -193,6 +193,16 @@ class Trajectory:
         ts = self.epochs_at_cadence(cadence)
         return Trajectory(ts, self.sample(ts), self.object_name, dict(self.meta))
 
+    def clipped(self, t0: float, t1: float) -> Trajectory:
+        """The same trajectory on ``[t0, t1]`` [TDB s]: its nodes inside, plus the two ends
+        sampled exactly (what an OEM resampled over that span covers, at full resolution)."""
+        if not (self.t_start - 1e-6 <= t0 < t1 <= self.t_end + 1e-6):
+            raise ConfigError("span", f"{t0!r}..{t1!r} s TDB",
+                              f"a span inside {self.t_start!r}..{self.t_end!r} s TDB")
+        inside = self.times[(self.times > t0) & (self.times < t1)]
+        ts = np.concatenate([[t0], inside, [t1]])
+        return Trajectory(ts, self.sample(ts), self.object_name, dict(self.meta))
+
     def moon_range(self, ephemeris: Ephemeris | None = None) -> FloatArray:
         """Distance to the Moon centre at the nodes [m]."""
         eph = ephemeris or Ephemeris.default()

@@ -37,6 +37,7 @@ from starnav.config import Scenario, scenario_from_dict
 from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry
 from starnav.navigation.frames import Frame
+from starnav.quicklook import write_radiance_quicklook
 from starnav.radiance import RadianceImage, write_exr
 from starnav.renderer.render import MoonRenderer
 from starnav.scenes.frames import Scene
@@ -148,9 +149,16 @@ def render_scenario(sc: Scenario, frames: list[FrameGeometry] | None = None
         yield renderer.render(g, seed=seed_u32(sc.seed, STAGE_RENDER, g.index))
 
 
+def quicklook_name(index: int) -> str:
+    """File name of frame ``index``'s quick look in a ``render`` directory."""
+    return f"frame_{index:06d}_quicklook.png"
+
+
 def render_to_directory(sc: Scenario, out: str | Path,
                         progress: Callable[[int, int], None] | None = None) -> list[Path]:
-    """Render the scenario's frames to ``out/frame_NNNNNN.exr`` (atomic writes)."""
+    """Render the scenario's frames to ``out/frame_NNNNNN.exr`` (the data) and, next to each,
+    its 8-bit quick look ``out/frame_NNNNNN_quicklook.png`` (the picture:
+    :func:`starnav.quicklook.write_radiance_quicklook`); atomic writes. Returns the EXR paths."""
     out = Path(out)
     sim = Simulator(sc)
     if len(sim) == 0:
@@ -160,6 +168,7 @@ def render_to_directory(sc: Scenario, out: str | Path,
     for k in range(len(sim)):
         geom, img = sim.render(k)
         paths.append(write_exr(img, out / f"frame_{geom.index:06d}.exr"))
+        write_radiance_quicklook(img, out / quicklook_name(geom.index), index=geom.index)
         if progress is not None:
             progress(k + 1, len(sim))
         log.info("frame %d: L max %.4g W m^-2 sr^-1", geom.index, float(img.L.max()))

@@ -1,0 +1,250 @@
+"""Quick looks: 8-bit PNGs of a frame, its own shape, stretched and annotated for a person.
+
+A dataset's ``dn.png`` holds 12-bit DN in a 16-bit PNG (data: any viewer shows it black) and
+``starnav render`` writes float EXR (data: no viewer shows its range). Next to each of them a
+quick look is written: the picture.
+
+Technique
+---------
+1. **Levels** (:func:`quicklook_levels`): black is the sky (the frame's median for DN: the
+   offset and the dark sky, which cover most of a Moon frame; 0 for radiance); white is the
+   99.5th percentile of the pixels more than 5 sky sigmas above black (a percentile over all
+   pixels would be the sky when the Moon covers under 0.5 % of the field).
+2. **Stretch** (:func:`asinh_stretch`): ``asinh(x / s) / asinh(1 / s)`` with ``x`` the value
+   between black and white and ``s = 0.05``: linear near the sky (the sky stays black, its
+   noise dark), logarithmic over the disc (terminator and bright or saturated limb both
+   visible). Lupton, Gunn & Szalay (1999, AJ 118, 1406).
+3. **Annotation** (:func:`write_quicklook`): PNG text chunks (``Title``, ``Description`` and
+   machine-readable ``starnav:black``, ``starnav:white``, ``starnav:unit``,
+   ``starnav:stretch``) and, burnt in, a caption band over the top rows (frame index, exposure
+   time in ms, range in km, phase in deg, the black..white range and the stretch) and a scale
+   bar over the bottom-left rows labelled with black and white. Single-channel 8-bit PNG the
+   frame's shape, deterministic bytes (Pillow, no time stamp), written atomically.
+
+========================  =====  ======================================================
+knob                      value  effect
+========================  =====  ======================================================
+``QUICKLOOK_SOFTENING``   0.05   lower: more of the faint terminator, flatter bright disc
+``..._WHITE_PERCENTILE``  99.5   lower: the bright limb clips to white over a wider band
+``QUICKLOOK_SKY_SIGMAS``  5      which pixels count as "above the sky" for the white level
+========================  =====  ======================================================
+
+Example
+-------
+>>> import numpy as np
+>>> from starnav.quicklook import write_quicklook
+>>> dn = np.full((64, 64), 20); dn[20:40, 20:40] = 3000
+>>> info = write_quicklook(dn, "dn_quicklook.png", "frame 0", unit="DN")   # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from PIL import Image, ImageDraw, ImageFont
+from PIL.PngImagePlugin import PngInfo
+
+from starnav.atomic import atomic_path
+from starnav.errors import ConfigError
+from starnav.radiance import RadianceImage
+
+
+def to_uint8(v: ArrayLike) -> NDArray[np.uint8]:
+    """0..1 floats to 0..255 (rounded, clipped)."""
+    return np.round(np.clip(np.asarray(v, float), 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+#: Softening of the quick-look asinh stretch, as a fraction of the white level [-]: values
+#: well below it are shown linearly, values above it logarithmically (see :func:`asinh_stretch`).
+QUICKLOOK_SOFTENING = 0.05
+#: Percentile of the pixels above the black level shown as white [%].
+QUICKLOOK_WHITE_PERCENTILE = 99.5
+#: A pixel is "above the sky" when it exceeds the black level by this many sky sigmas [-].
+QUICKLOOK_SKY_SIGMAS = 5.0
+#: PNG text-chunk keys of a quick look (read them with Pillow's ``Image.open(p).text``).
+QUICKLOOK_KEYS = ("Title", "Description", "starnav:stretch", "starnav:black", "starnav:white",
+                  "starnav:unit")
+#: Caption band drawn over the top-left of the frame and scale bar over the bottom-left [px].
+QUICKLOOK_CAPTION_PX = 12
+QUICKLOOK_BAR_PX = 6
+
+
+@dataclass(frozen=True)
+class QuickLookInfo:
+    """What :func:`write_quicklook` wrote.
+
+    Attributes
+    ----------
+    path : Path
+        The 8-bit greyscale PNG, the frame's shape.
+    black, white : float
+        Values shown as 0 and 255, in ``unit``.
+    unit : str
+        ``"DN"`` or ``"W m^-2 sr^-1"``.
+    caption : str
+        The annotation (also in the PNG's ``Description`` text chunk).
+    """
+
+    path: Path
+    black: float
+    white: float
+    unit: str
+    caption: str
+
+
+def asinh_stretch(values: ArrayLike, black: float, white: float,
+                  softening: float = QUICKLOOK_SOFTENING) -> NDArray[np.uint8]:
+    """8-bit asinh stretch: ``255 asinh(x / s) / asinh(1 / s)``, ``x = (v - black) / (white -
+    black)`` clipped to 0..1, ``s`` the softening.
+
+    Why asinh for a Moon or limb frame: the frame is mostly black sky with a small disc whose
+    lit side spans three decades (the bright limb, often saturated or bloomed, down to the
+    terminator and the faint halo of the PSF). A linear stretch shows only the limb; a log
+    stretch turns the sky noise grey. asinh is linear below ``s`` (the sky at ``black`` stays
+    black, its noise stays dark) and logarithmic above, so the terminator and the limb are
+    both visible and the saturated core is white without clipping a wide band
+    (Lupton, Gunn & Szalay 1999, AJ 118, 1406).
+
+    Parameters
+    ----------
+    values : array
+        Frame [DN or W m^-2 sr^-1].
+    black, white : float
+        Values shown as 0 and 255 (``white > black``).
+    softening : float
+        ``s`` in (0, 1].
+    """
+    if not white > black:
+        white = black + 1.0
+    x = np.clip((np.asarray(values, np.float64) - black) / (white - black), 0.0, 1.0)
+    return to_uint8(np.arcsinh(x / softening) / np.arcsinh(1.0 / softening))
+
+
+def quicklook_levels(values: ArrayLike, *, black: float | None = None
+                     ) -> tuple[float, float]:
+    """Black and white levels of a quick look.
+
+    ``black`` (default: the frame's median, i.e. the sky, which covers most of a Moon frame;
+    0 for radiance) is shown black; ``white`` is the 99.5th percentile of the pixels more than
+    5 sky sigmas (sigma from the median absolute deviation, at least 1 unit of the last digit
+    for DN) above ``black``. A percentile over *all* pixels would land on the sky when the
+    Moon covers under 0.5 % of the frame.
+    """
+    a = np.asarray(values, np.float64)
+    if a.size == 0 or not np.all(np.isfinite(a)):
+        raise ConfigError("quick look", "empty frame or NaN/inf pixels", "finite pixel values")
+    b = float(np.median(a)) if black is None else float(black)
+    mad = float(np.median(np.abs(a - b)))
+    sigma = 1.4826 * mad
+    above = a[a > b + max(QUICKLOOK_SKY_SIGMAS * sigma, 0.0)]
+    if above.size == 0:
+        return b, b + 1.0
+    w = float(np.percentile(above, QUICKLOOK_WHITE_PERCENTILE))
+    return b, (w if w > b else float(above.max()))
+
+
+def write_quicklook(values: ArrayLike, path: str | os.PathLike[str], caption: str, *,
+                    unit: str, black: float | None = None) -> QuickLookInfo:
+    """Write the 8-bit quick-look PNG of a frame, the frame's own shape.
+
+    Technique: :func:`quicklook_levels` picks black (the sky) and white (the bright part of the
+    disc); :func:`asinh_stretch` maps them to 0..255. The annotation is written twice: as PNG
+    text chunks (``Title``, ``Description`` = ``caption`` plus the stretch, and the
+    machine-readable ``starnav:*`` keys, :data:`QUICKLOOK_KEYS`) and burnt into the picture: a
+    caption band over the top-left rows (white text on black) and a scale bar over the
+    bottom-left rows (the stretch of black..white, labelled with the two values). Deterministic
+    bytes (no time stamp), written atomically.
+
+    Parameters
+    ----------
+    values : (H, W) array
+        The frame [``unit``].
+    path : path
+        PNG to write (parents created).
+    caption : str
+        What the frame is: index, exposure with its unit, range, phase.
+    unit : str
+        Unit of ``values`` (``"DN"``, ``"W m^-2 sr^-1"``).
+    black : float, optional
+        Black level (default: the frame's median; pass 0 for radiance).
+
+    Returns
+    -------
+    QuickLookInfo
+    """
+    a = np.asarray(values, np.float64)
+    if a.ndim != 2:
+        raise ConfigError("quick look", a.shape, "a 2-D frame")
+    lo, hi = quicklook_levels(a, black=black)
+    grey = asinh_stretch(a, lo, hi)
+    stretch = (f"asinh stretch (softening {QUICKLOOK_SOFTENING:g}): black = {lo:.4g} {unit}, "
+               f"white = {hi:.4g} {unit} ({QUICKLOOK_WHITE_PERCENTILE:g}th percentile of the "
+               f"pixels {QUICKLOOK_SKY_SIGMAS:g} sigma above black)")
+    img = Image.fromarray(grey, mode="L")
+    h, w = grey.shape
+    draw = ImageDraw.Draw(img)
+    font = ImageFont.load_default()
+    if h >= 4 * QUICKLOOK_CAPTION_PX and w >= 64:
+        text = f"{caption} | {lo:.4g}..{hi:.4g} {unit} asinh"
+        box = draw.textbbox((2, 1), text, font=font)
+        draw.rectangle((0, 0, min(box[2] + 2, w - 1), QUICKLOOK_CAPTION_PX - 1), fill=0)
+        draw.text((2, 1), text, fill=255, font=font)
+        bar_w = min(w // 3, 256)
+        y0 = h - QUICKLOOK_BAR_PX - QUICKLOOK_CAPTION_PX
+        draw.rectangle((0, y0, bar_w + 80, h - 1), fill=0)
+        ramp = asinh_stretch(np.linspace(lo, hi, bar_w), lo, hi)
+        img.paste(Image.fromarray(np.repeat(ramp[None, :], QUICKLOOK_BAR_PX, axis=0), "L"),
+                  (2, h - QUICKLOOK_BAR_PX - 1))
+        draw.text((2, y0 + 1), f"{lo:.4g}", fill=255, font=font)
+        draw.text((bar_w + 4, h - QUICKLOOK_BAR_PX - 4), f"{hi:.4g} {unit}", fill=255,
+                  font=font)
+    info = PngInfo()
+    info.add_text("Title", caption)
+    info.add_text("Description", f"{caption}; {stretch}")
+    info.add_text("starnav:stretch", f"asinh softening={QUICKLOOK_SOFTENING:g}")
+    info.add_text("starnav:black", repr(lo))
+    info.add_text("starnav:white", repr(hi))
+    info.add_text("starnav:unit", unit)
+    p = Path(path)
+    with atomic_path(p, suffix=".png") as tmp:
+        img.save(tmp, format="PNG", pnginfo=info)
+    return QuickLookInfo(p, lo, hi, unit, caption)
+
+
+def quicklook_caption(index: int | None, *, exposure_time: float | None = None,
+                      range_m: float | None = None, phase_angle_rad: float | None = None
+                      ) -> str:
+    """``frame 12 | exp 0.015 ms | range 72 345 km | phase 43.2 deg`` (``?`` where unknown;
+    the exposure is omitted for a rendered radiance frame)."""
+    parts = [f"frame {index}" if index is not None else "frame ?"]
+    if exposure_time is not None:
+        parts.append(f"exp {exposure_time * 1e3:.4g} ms")
+    parts.append(f"range {range_m / 1e3:,.0f} km".replace(",", " ") if range_m is not None
+                 else "range ? km")
+    parts.append(f"phase {math.degrees(phase_angle_rad):.1f} deg"
+                 if phase_angle_rad is not None else "phase ? deg")
+    return " | ".join(parts)
+
+
+def write_radiance_quicklook(img: RadianceImage, path: str | os.PathLike[str],
+                             index: int | None = None) -> QuickLookInfo:
+    """Quick look of a rendered frame (band radiance ``L``, black = 0)."""
+    g = img.meta.get("geometry", {}) if img.meta else {}
+    cap = quicklook_caption(g.get("index") if index is None else index,
+                            range_m=g.get("range_m"), phase_angle_rad=g.get("phase_angle_rad"))
+    return write_quicklook(img.L, path, cap + " | band radiance", unit="W m^-2 sr^-1",
+                           black=0.0)
+
+
+def write_dn_quicklook(dn: ArrayLike, path: str | os.PathLike[str], *, index: int,
+                       exposure_time: float, range_m: float | None = None,
+                       phase_angle_rad: float | None = None) -> QuickLookInfo:
+    """Quick look of a DN frame [DN] (black = the frame's median, the sky and the offset)."""
+    cap = quicklook_caption(index, exposure_time=exposure_time, range_m=range_m,
+                            phase_angle_rad=phase_angle_rad)
+    return write_quicklook(dn, path, cap + " | detector DN", unit="DN")
