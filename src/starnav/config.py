@@ -53,8 +53,12 @@ build_camera = camera_from_config
 
 
 class OutputConfig(StrictModel):
-    directory: Path = Path("out")
+    """Where commands write when no ``--out`` is given."""
 
+    directory: Path = Field(
+        Path("out"), description="default output directory (relative to the working "
+        "directory): `starnav render` writes into directory/render, `starnav dataset` into "
+        "directory/dataset, unless --out is given")
 
 
 
