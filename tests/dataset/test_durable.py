@@ -47,7 +47,8 @@ def test_verify_reports_an_incomplete_dataset_and_leftover_temporaries(small_dat
                         "`starnav dataset SCENARIO --out DIR --resume`"]
     (out / "frames" / ".tmp-000003-x1y2").mkdir()
     problems = verify(out)
-    assert len(problems) == 2 and "unfinished frame directory frames/.tmp-000003-x1y2" in problems[1]
+    assert len(problems) == 2
+    assert "unfinished frame directory frames/.tmp-000003-x1y2" in problems[1]
     assert ds.open(out, allow_incomplete=True).verify() == problems  # the same from a Dataset
 
 

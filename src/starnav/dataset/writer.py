@@ -63,6 +63,7 @@ from typing import Any
 import numpy as np
 
 from starnav import __version__
+from starnav.atomic import sync_directory
 from starnav.cache import BoundedCache
 from starnav.config import (
     Scenario,
@@ -71,7 +72,6 @@ from starnav.config import (
     scenario_to_dict,
     write_resolved,
 )
-from starnav.atomic import sync_directory
 from starnav.dataset import format as F
 from starnav.dataset.reader import verify_manifest
 from starnav.dataset.runner import InProcessRunner, TaskRunner
