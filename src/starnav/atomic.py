@@ -3,6 +3,15 @@
 A reader never sees a half-written file: either the old content or the new one. Every file
 starnav writes goes through :func:`atomic_path` (or the two helpers built on it).
 
+Durable on power loss: the temporary file's data is flushed to the disk (``fsync``) before the
+rename, and the directory holding the new name after it (POSIX makes neither implicit: without
+the first a crash can leave the new name on an empty file, without the second the old name).
+Every write does it, whatever it is: measured on this project's machine it costs 1.5-2 ms a
+small file and ~14 ms a 4 MB one, ~40 ms of a 1-4 s dataset frame (docs/performance.md): too
+little for a switch. A
+failed write that the system reports without a file name (``write``, ``fsync``: ENOSPC, EIO) is
+re-raised naming the file being written, so that the user learns where the disk filled up.
+
 Example
 -------
 >>> from starnav.atomic import atomic_path
@@ -26,11 +35,35 @@ def _default_mode() -> int:
     return 0o666 & ~umask
 
 
+def _sync_file(fd: int) -> None:
+    """Flush an open file's data and metadata to the disk (the lowest write step)."""
+    os.fsync(fd)
+
+
+def sync_file(path: str | os.PathLike[str]) -> None:
+    """``fsync`` the file at ``path``."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        _sync_file(fd)
+    finally:
+        os.close(fd)
+
+
+def sync_directory(path: str | os.PathLike[str]) -> None:
+    """``fsync`` the directory ``path``: its entries (a rename into it) reach the disk."""
+    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike[str], suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; rename it to ``path`` when the block exits
     normally, delete it otherwise. ``suffix`` (default: ``path``'s own) keeps writers that
-    choose their format from the extension happy. Parent directories are created."""
+    choose their format from the extension happy. Parent directories are created. The file is
+    fsynced before the rename and its directory after it (module docstring)."""
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=suffix if suffix is not None
@@ -40,10 +73,17 @@ def atomic_path(path: str | os.PathLike[str], suffix: str | None = None) -> Iter
     try:
         yield tmp_path
         os.chmod(tmp_path, _default_mode())  # mkstemp creates 0600
+        sync_file(tmp_path)
         os.replace(tmp_path, p)
+    except OSError as err:
+        tmp_path.unlink(missing_ok=True)
+        if err.filename is None:  # write(), fsync(): say which file could not be written
+            raise OSError(err.errno, err.strerror or str(err), str(p)) from err
+        raise
     except BaseException:
         tmp_path.unlink(missing_ok=True)
         raise
+    sync_directory(p.parent)
 
 
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:

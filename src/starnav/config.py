@@ -53,11 +53,12 @@ build_camera = camera_from_config
 
 
 class OutputConfig(StrictModel):
+    """Where commands write when no ``--out`` is given."""
+
     directory: Path = Field(
-        Path("out"), description="default output directory; not read by the commands yet, which "
-        "take --out")
-
-
+        Path("out"), description="default output directory (relative to the working "
+        "directory): `starnav render` writes into directory/render, `starnav dataset` into "
+        "directory/dataset, unless --out is given")
 
 
 class Scenario(StrictModel):

@@ -33,7 +33,9 @@ def os_error_message(err: OSError) -> str:
     name = _errno.errorcode.get(err.errno or 0, "")
     path = err.filename if err.filename is not None else "<path>"
     extra = f" -> {err.filename2}" if getattr(err, "filename2", None) else ""
-    hint = {"ENOSPC": "free some space and resume", "EACCES": "choose a writable place",
+    hint = {"ENOSPC": "the disk is full: free some space, then run again (a dataset: "
+            "with --resume, which keeps the frames already made)",
+            "EACCES": "choose a writable place",
             "EPERM": "choose a writable place", "EROFS": "choose a writable place",
             "ENOTDIR": "a path component is a file, not a directory",
             "EISDIR": "expected a file, found a directory",

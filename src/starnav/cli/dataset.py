@@ -1,7 +1,12 @@
-"""``starnav dataset SCENARIO --out DIR [--resume] [--exposures T1,T2]``: a navigation dataset.
+"""``starnav dataset SCENARIO --out DIR [--resume] [--exposures T1,T2]``: a navigation dataset;
+``starnav dataset verify DIR``: check one.
 
 Thin: parses, loads the scenario, calls :func:`starnav.dataset.generate` with a rich progress
-bar (frames done, rate, ETA) and prints a summary. The dataset format is in docs/dataset.md.
+bar (frames done, rate, ETA) and prints a summary; ``verify`` calls
+:func:`starnav.dataset.verify`. ``dataset`` is a group whose default command is ``make``:
+``starnav dataset SCENARIO ...`` is ``starnav dataset make SCENARIO ...``, so the one-command
+form the docs, the Makefile and scripts use keeps working. The dataset format is in
+docs/dataset.md.
 """
 
 from __future__ import annotations
@@ -10,6 +15,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from typer.core import TyperGroup
 
 from starnav.cli._units import parse_time, parse_times
 
@@ -47,15 +53,53 @@ def frames_progress():
                     TimeRemainingColumn())
 
 
-def register(app: typer.Typer) -> None:
-    """Add the ``dataset`` command to ``app``."""
+class DefaultMakeGroup(TyperGroup):
+    """A group whose arguments go to its ``make`` command unless they start with another of its
+    commands or ask for the group's help (``starnav dataset --help``)."""
 
-    @app.command("dataset")
+    default = "make"
+
+    def parse_args(self, ctx, args: list[str]) -> list[str]:  # type: ignore[no-untyped-def]
+        if not args or (args[0] not in self.commands and args[0] not in ctx.help_option_names):
+            args = [self.default, *args]
+        return super().parse_args(ctx, args)
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``dataset`` group (``make``, the default, and ``verify``) to ``app``."""
+    group = typer.Typer(cls=DefaultMakeGroup, no_args_is_help=False, help=(
+        "Navigation datasets: `starnav dataset [make] SCENARIO --out DIR` makes one (make is "
+        "the default command), `starnav dataset verify DIR` checks one."))
+    app.add_typer(group, name="dataset")
+
+    @group.command("verify")
+    def verify_cmd(
+        directory: Annotated[Path, typer.Argument(help="dataset directory")],
+    ) -> None:
+        """Check a dataset against its manifest: every expected frame present, every file's
+        size and SHA-256, no temporary left. Exit 0 with one line when it is complete and
+        intact, 2 with the list of problems otherwise."""
+        from starnav.cli._output import print_error
+        from starnav.dataset import read_manifest, verify
+
+        problems = verify(directory)
+        if problems:
+            print_error(f"dataset {str(directory)!r}: {len(problems)} problem(s)")
+            for p in problems:
+                typer.echo(f"  {p}", err=True)
+            raise typer.Exit(code=2)
+        man = read_manifest(directory)
+        n = len(man["frames"])
+        files = sum(len(e["files"]) for e in man["frames"])
+        typer.echo(f"{directory}: complete, {n} of {man['frames_expected']} frames, {files} "
+                   "files verified (size and SHA-256)")
+
+    @group.command("make")
     def dataset_cmd(
         scenario: Annotated[Path | None, typer.Argument(
             help="scenario YAML (default: built-in)")] = None,
-        out: Annotated[Path, typer.Option("--out", help="dataset directory")] = Path(
-            "out/dataset"),
+        out: Annotated[Path | None, typer.Option(
+            "--out", help="dataset directory (default: output.directory/dataset)")] = None,
         resume: Annotated[bool, typer.Option(
             "--resume", help="continue an interrupted dataset in OUT")] = False,
         exposures: Annotated[str | None, typer.Option(
@@ -94,6 +138,7 @@ def register(app: typer.Typer) -> None:
         state = {"n": 0, "done": 0}
         try:
             sc = load_scenario(scenario, tuple(set_ or ()))
+            out = out if out is not None else sc.output.directory / "dataset"
             exps = None if exposures is None else parse_times(exposures, "--exposures")
             opts = DatasetOptions(exposures_s=exps, windows=windows, radiance=not no_radiance,
                                   exposure_overrides=parse_exposure_sets(exposure_set or ()))

@@ -163,22 +163,29 @@ def _significant(value: Any, digits: int = 6) -> Any:
 @app.command()
 def render(
     scenario: ScenarioArg = None,
-    out: Annotated[Path, typer.Option("--out", help="output directory")] = Path("out/render"),
+    out: Annotated[Path | None, typer.Option(
+        "--out", help="output directory (default: output.directory/render)")] = None,
     set_: SetOpt = None,
     preview: Annotated[bool, typer.Option(
         "--preview", help="also write an 8-bit PNG per frame next to its EXR: L from 0 to the "
         "99.9th percentile of the lit pixels, labelled (starnav.preview)")] = False,
+    overwrite: Annotated[bool, typer.Option(
+        "--overwrite", help="replace an earlier render in OUT (its frame_* files and "
+        "scenario.resolved.yaml are removed first); without it such a directory is refused")
+    ] = False,
 ) -> None:
     """Render the scenario's frames to OpenEXR (channels L, Le and the AOVs)."""
     from starnav.config import write_resolved
     from starnav.simulate import frame_geometries, render_to_directory
 
     sc = _load(scenario, set_)
+    out = out if out is not None else sc.output.directory / "render"
     try:
         n = len(frame_geometries(sc))
         with progress_bar() as bar:
             task = bar.add_task("render", total=n)
-            paths = render_to_directory(sc, out, lambda k, t: bar.update(task, completed=k))
+            paths = render_to_directory(sc, out, lambda k, t: bar.update(task, completed=k),
+                                        overwrite=overwrite)
         if preview:
             from starnav.preview import write_previews
 

@@ -8,7 +8,9 @@ does not depend on the scenario schema) and one selected exposure; iterating it 
 ``truth`` and ``R_moon_to_inertial``; files are read on first access and cached. It also gives
 the DN image, the radiance image and the raw JSON documents.
 
-:func:`verify` re-hashes every file of every frame against the manifest.
+:func:`verify` re-hashes every file of every frame against the manifest, and says what is
+missing from an incomplete dataset and which temporaries an interrupted run left
+(``starnav dataset verify DIR``).
 
 Example
 -------
@@ -211,6 +213,10 @@ class Dataset:
         return Dataset(self.path, self.manifest, _pick_exposure(self.manifest, exposure_time))
 
 
+    def verify(self) -> list[str]:
+        """The problems of the dataset on disk (:func:`verify`; empty: complete and intact)."""
+        return verify(self.path)
+
     def epochs(self) -> FloatArray:
         """Frame epochs [TDB s past J2000]."""
         return np.array([float(e["epoch_tdb_s"]) for e in self._entries])
@@ -280,11 +286,44 @@ def open(path: str | os.PathLike[str], exposure: float | None = None, *,  # noqa
 
 
 def verify(path: str | os.PathLike[str]) -> list[str]:
-    """Check every file of every listed frame against the manifest (size and SHA-256), and
-    look for leftovers; returns a list of problems (empty: the dataset is intact)."""
+    """Check the dataset at ``path`` against its manifest (:func:`verify_manifest`); returns
+    a list of problems (empty: the dataset is complete and intact)."""
     root = Path(path)
-    man = read_manifest(root)
+    return verify_manifest(root, read_manifest(root))
+
+
+def _ranges(indices: Sequence[int]) -> str:
+    """``[1, 2, 3, 7]`` -> ``"1-3, 7"``."""
+    out: list[str] = []
+    for i in sorted(indices):
+        if out and out[-1][1] == i - 1:
+            out[-1] = (out[-1][0], i)
+        else:
+            out.append((i, i))  # type: ignore[arg-type]
+    return ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in out)  # type: ignore[misc]
+
+
+def verify_manifest(root: Path, man: dict[str, Any]) -> list[str]:
+    """Problems of the dataset at ``root`` against the manifest ``man`` (empty: intact).
+
+    Reported: frames the manifest expects but does not list (an incomplete dataset: which
+    ones, and how to finish it), listed frames whose directory or files are missing, differ
+    in size or SHA-256, or hold unlisted files; temporary files and frame directories left by
+    an interrupted write; frame directories a complete manifest does not list.
+    """
     problems: list[str] = []
+    expected = int(man.get("frames_expected") or 0)
+    indices = {int(e["index"]) for e in man["frames"]}
+    missing = [i for i in range(expected) if i not in indices]
+    if missing:
+        problems.append(
+            f"{'incomplete' if not man.get('complete') else 'manifest marked complete but'}: "
+            f"{len(indices)} of {expected} frames (missing: {_ranges(missing)}); finish it "
+            "with `starnav dataset SCENARIO --out DIR --resume`")
+    elif not man.get("complete"):
+        problems.append(f"incomplete: all {expected} frames listed but the manifest is not "
+                        "marked complete; finish it with `starnav dataset SCENARIO --out DIR "
+                        "--resume`")
     listed = set()
     for e in man["frames"]:
         d = root / e["directory"]
@@ -307,13 +346,10 @@ def verify(path: str | os.PathLike[str]) -> list[str]:
                             "clean up)")
     frames = root / F.FRAMES_DIR
     if frames.is_dir():
-        for p in frames.iterdir():
+        for p in sorted(frames.iterdir()):
             if p.name.startswith(F.TMP_PREFIX):
-                problems.append(f"unfinished frame directory {p.name} (resume to clean up)")
+                problems.append(f"unfinished frame directory {F.FRAMES_DIR}/{p.name} (resume "
+                                "to clean up)")
             elif F.is_frame_dirname(p.name) and p.name not in listed and man.get("complete"):
                 problems.append(f"frame directory {p.name} is not in the manifest")
-    if man.get("complete") and len(man["frames"]) != man.get("frames_expected"):
-        problems.append(f"complete manifest lists {len(man['frames'])} of "
-                        f"{man.get('frames_expected')} frames")
     return problems
-

@@ -19,7 +19,13 @@ Technique
    or not at all.
 4. **Manifest last.** As frames land, the manifest is rewritten atomically (at most every
    ``manifest_interval_s``, and at the end) with the finished frames sorted by index, each with
-   its files' sizes and SHA-256; the last write sets ``"complete": true``.
+   its files' sizes and SHA-256. When a frame lands, the temporary directories an earlier
+   attempt at it left (a Dask worker killed mid-frame: the scheduler re-ran the frame
+   elsewhere) are removed. The last write sets ``"complete": true`` only if the whole dataset
+   then verifies (:func:`starnav.dataset.reader.verify_manifest`: every frame, every file's
+   size and SHA-256, no temporary left); otherwise it stays ``false`` and the problems are
+   raised. Every file and every directory a rename lands in is fsynced
+   (:mod:`starnav.atomic`): a dataset survives a power loss as it survives ``kill -9``.
 5. **Resume.** ``resume=True`` checks that the manifest's head equals the new one (same
    scenario, options, software), deletes temporary directories left by a crash, keeps every
    finished frame (the manifest's entry, or one rebuilt from the files for a frame renamed
@@ -57,6 +63,7 @@ from typing import Any
 import numpy as np
 
 from starnav import __version__
+from starnav.atomic import sync_directory
 from starnav.cache import BoundedCache
 from starnav.config import (
     Scenario,
@@ -66,6 +73,7 @@ from starnav.config import (
     write_resolved,
 )
 from starnav.dataset import format as F
+from starnav.dataset.reader import verify_manifest
 from starnav.dataset.runner import InProcessRunner, TaskRunner
 from starnav.detector.io import write_dn_png
 from starnav.errors import ConfigError, DataFileError, StarnavError
@@ -343,7 +351,9 @@ class FrameMaker:
                 F.write_json(d / F.READOUT, {**acq.summary(),
                                              "overrides": list(self.options.overrides_for(t))})
             os.chmod(tmp, 0o777 & ~_umask())
+            sync_directory(tmp)  # its entries (the exposure directories) reach the disk
             os.rename(tmp, final)
+            sync_directory(frames)  # and so does the rename
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
@@ -505,6 +515,14 @@ def _clean_temporaries(out: Path) -> None:
             p.unlink(missing_ok=True)
 
 
+def _remove_temporaries(out: Path, index: int) -> None:
+    """Remove what earlier attempts at frame ``index`` left (``frames/.tmp-NNNNNN-*``: a worker
+    killed while writing it); called once the frame has landed."""
+    for p in (out / F.FRAMES_DIR).glob(f"{F.TMP_PREFIX}{F.frame_dirname(index)}-*"):
+        log.info("removing %s, left by an interrupted attempt at frame %d", p.name, index)
+        shutil.rmtree(p, ignore_errors=True)
+
+
 def _scan(out: Path, listed: dict[int, dict[str, Any]], n: int) -> dict[int, dict[str, Any]]:
     """Remove temporary frame directories; keep listed frames found on disk and rebuild the
     entries of finished frames the manifest does not list yet."""
@@ -564,9 +582,11 @@ def generate(scenario: Scenario, out: str | os.PathLike[str], *,
     opts = (options or DatasetOptions()).resolved(scenario)
     out = Path(out)
     check_output_dir(out)
-    n = len(scene_from_scenario(scenario))
+    scene = scene_from_scenario(scenario)
+    n = len(scene)
     if n == 0:
         raise ConfigError("trajectory", None, "at least one frame")
+    scene.geometries()  # every frame's geometry and pointing, before anything is written
     head = dataset_head(scenario, opts, n)
     listed = _prepare(out, head, resume)
     out.mkdir(parents=True, exist_ok=True)
@@ -587,22 +607,35 @@ def generate(scenario: Scenario, out: str | os.PathLike[str], *,
         t_frames = time.perf_counter()
         setup_s = t_frames - t_start
         last = time.monotonic()
-        ok = False
         try:
             handles = [runner.submit(make_frame, cfg, od, str(out.absolute()), i,
                                      key=f"frame-{i:06d}")
                        for i in todo]
             for _, entry in runner.as_completed(handles):
                 entries[int(entry["index"])] = entry
+                _remove_temporaries(out, int(entry["index"]))
                 if progress:
                     progress(len(entries), n)
                 if time.monotonic() - last >= manifest_interval_s:
                     F.write_json(out / F.MANIFEST, manifest(head, entries, False))
                     last = time.monotonic()
-            ok = True
-        finally:
-            F.write_json(out / F.MANIFEST, manifest(head, entries, ok and len(entries) == n))
+        except BaseException:
+            try:  # what has landed is kept for --resume
+                F.write_json(out / F.MANIFEST, manifest(head, entries, False))
+            except OSError as err:  # e.g. the disk that stopped the frames is full: keep that
+                log.warning("could not rewrite the manifest of %s (%s)", out, err)
+            raise
         made_s = time.perf_counter() - t_frames
+        final = manifest(head, entries, len(entries) == n)
+        problems = verify_manifest(out, final) if final["complete"] else []
+        final["complete"] = not problems and len(entries) == n
+        F.write_json(out / F.MANIFEST, final)
+        if problems:
+            raise DataFileError(
+                f"dataset {str(out)!r} does not verify after its frames were made, left "
+                f"incomplete: {'; '.join(problems[:3])}"
+                + (f" (and {len(problems) - 3} more)" if len(problems) > 3 else "")
+                + "; see `starnav dataset verify DIR`")
     per = _per_exposure(entries)
     made = len(entries) - done0
     return DatasetSummary(path=out, frames=len(entries), frames_made=made,

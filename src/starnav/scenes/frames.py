@@ -42,13 +42,13 @@ from numpy.typing import NDArray
 
 from starnav.cache import BoundedCache
 from starnav.constants import DAY, MOON_RADIUS
-from starnav.errors import ConfigError
+from starnav.errors import ConfigError, GeometryError
 from starnav.geometry import FrameGeometry, StaticGeometryConfig, static_geometry_from_config
 from starnav.scenes.cr3bp import LU
 from starnav.scenes.dynamics import PointMassModel
 from starnav.scenes.ephemeris import Ephemeris, parse_epoch
 from starnav.scenes.flyby import Flyby, flyby_from_config
-from starnav.scenes.oem import read_oem
+from starnav.scenes.oem import check_outside_moon, read_oem, tdb_to_iso
 from starnav.scenes.pointing import frame_generators, pointing_from_config, rotation_from_vector
 from starnav.scenes.schema import DEFAULT_EPOCH, FlybyConfig, PointingConfig, TrajectoryConfig
 from starnav.scenes.trajectory import ShootingOptions, Trajectory, ephemeris_halo_arc
@@ -95,7 +95,9 @@ def build_trajectory(cfg: TrajectoryConfig, ephemeris: Ephemeris | None = None,
                               f"{traj.t_end:.3f} s TDB)")
         inside = (traj.times > t0) & (traj.times < t1)
         ts = np.concatenate([[t0], traj.times[inside], [t1]])
-        return Trajectory(ts, traj.sample(ts), traj.object_name, dict(traj.meta))
+        used = Trajectory(ts, traj.sample(ts), traj.object_name, dict(traj.meta))
+        check_outside_moon(used, f"OEM file {str(cfg.oem_path)!r}", eph)
+        return used
 
     t0 = parse_epoch(cfg.epoch or DEFAULT_EPOCH, "trajectory.epoch")
     model = PointMassModel(eph)
@@ -180,6 +182,16 @@ class Scene:
         self._sun = self.ephemeris.state("sun", self.epochs, center="emb")
         self._R_moon = (orientation(self.epochs) if orientation is not None else
                         self.ephemeris.moon_orientation(self.epochs, frame=cfg.moon_frame))
+        # between the arc's nodes too: no frame is taken from inside the target
+        r = np.linalg.norm(self._states[:, :3] - self._moon[:, :3], axis=1)
+        bad = np.flatnonzero(r < self.moon_radius)
+        if bad.size:
+            k = int(bad[0])
+            raise GeometryError(
+                f"trajectory ({self.trajectory.meta.get('source', cfg.source)}): frame {k} at "
+                f"{tdb_to_iso(float(self.epochs[k]), 3)} TDB is {r[k] / 1e3:.0f} km from the "
+                f"target's centre, inside it: expected every frame at least its radius "
+                f"({self.moon_radius / 1e3:.1f} km) from its centre")
 
     def _init_flyby(self, cfg: TrajectoryConfig, orientation, gm: float) -> None:
         """Epochs, relative states, Sun and body orientation of a fly-by (step 5)."""

@@ -34,8 +34,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.atomic import atomic_write_bytes
-from starnav.constants import DAY
-from starnav.errors import DataFileError, StarnavError
+from starnav.constants import DAY, MOON_RADIUS
+from starnav.errors import DataFileError, GeometryError, StarnavError
 from starnav.scenes.ephemeris import J2000_JD, Ephemeris
 from starnav.scenes.trajectory import Trajectory
 
@@ -364,3 +364,25 @@ def read_oem(path: str | os.PathLike[str], ephemeris: Ephemeris | None = None) -
     except (OSError, UnicodeDecodeError) as err:
         raise OEMFormatError(f"{p}: not a readable ASCII OEM file ({err})") from None
     return parse_oem(text, source=str(p), ephemeris=ephemeris)
+
+
+def check_outside_moon(traj: Trajectory, source: str, ephemeris: Ephemeris | None = None,
+                       radius: float = MOON_RADIUS) -> None:
+    """Refuse a trajectory with a state inside the Moon (``|r - r_moon| < radius`` [m]).
+
+    Raises
+    ------
+    GeometryError
+        Naming ``source``, the first such state's epoch (TDB), its distance from the Moon's
+        centre and the radius it must stay outside.
+    """
+    eph = ephemeris or Ephemeris.default()
+    rng = traj.moon_range(eph)
+    bad = np.flatnonzero(rng < radius)
+    if bad.size:
+        k = int(bad[0])
+        raise GeometryError(
+            f"{source}: the state at {tdb_to_iso(float(traj.times[k]), 3)} TDB (state {k + 1} "
+            f"of {len(traj)} in the span used) is {rng[k] / 1e3:.0f} km from the Moon's centre, "
+            f"inside the Moon: expected every position at least the Moon's radius "
+            f"({radius / 1e3:.1f} km) from its centre")

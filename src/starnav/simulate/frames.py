@@ -45,6 +45,7 @@ from starnav.scenes.pointing import knowledge_for_run
 from starnav.seeding import STAGE_RENDER, seed_u32
 from starnav.simulate.acquire import Acquisition, acquire
 from starnav.simulate.build import renderer_from_scenario, scene_from_scenario
+from starnav.simulate.outdir import check_render_directory
 
 log = logging.getLogger(__name__)
 
@@ -155,15 +156,20 @@ def quicklook_name(index: int) -> str:
 
 
 def render_to_directory(sc: Scenario, out: str | Path,
-                        progress: Callable[[int, int], None] | None = None) -> list[Path]:
+                        progress: Callable[[int, int], None] | None = None,
+                        overwrite: bool = False) -> list[Path]:
     """Render the scenario's frames to ``out/frame_NNNNNN.exr`` (the data) and, next to each,
     its 8-bit quick look ``out/frame_NNNNNN_quicklook.png`` (the picture:
-    :func:`starnav.quicklook.write_radiance_quicklook`); atomic writes. Returns the EXR paths."""
+    :func:`starnav.quicklook.write_radiance_quicklook`); atomic writes. Returns the EXR paths.
+    An earlier render in ``out`` is refused, or removed first with ``overwrite``
+    (:func:`starnav.simulate.outdir.check_render_directory`)."""
     out = Path(out)
     sim = Simulator(sc)
     if len(sim) == 0:
         raise ConfigError("trajectory", None, "at least one frame")
+    sim.scene.geometries()  # every frame's pointing, before anything is written
     sim.renderer  # noqa: B018  (build and validate before the first frame)
+    check_render_directory(out, overwrite)
     paths = []
     for k in range(len(sim)):
         geom, img = sim.render(k)
