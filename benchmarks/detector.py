@@ -3,7 +3,7 @@
 Budget (DESIGN.md): <= 150 ms per frame on the 2-core reference machine. Scenes are analytic
 Lambert discs (no renderer): the Moon at 60 000 km (radius 81.5 px, the design case) exposed
 15 us (well exposed) and 7.7 ms (saturated: blooming active), and a Moon filling the field
-(worst case for the optics). Peak electron rate 3.07e9 e-/s per pixel (REFERENCE.md s2: rho =
+(worst case for the optics). Peak electron rate 3.07e9 e-/s per pixel (docs/facts.md s2: rho =
 0.12 Lambert lit head-on).
 
 Run: ``.venv/bin/python benchmarks/detector.py [--frames N]``. Prints the median (and min)

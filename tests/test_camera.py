@@ -1,4 +1,4 @@
-"""Camera model: derived optics (REFERENCE.md s1), projection round trips and Jacobians
+"""Camera model: derived optics (docs/facts.md s1), projection round trips and Jacobians
 against central finite differences."""
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ def distorted_camera() -> Camera:
 
 
 def test_aa_str_derived_optics(aa_str):
-    # REFERENCE.md s1: FoV 2 atan(9.216/50.7) = 20.60 deg, diagonal 28.83 deg,
+    # docs/facts.md s1: FoV 2 atan(9.216/50.7) = 20.60 deg, diagonal 28.83 deg,
     # IFOV 355 urad = 73.2 arcsec, pixel solid angle 1.2605e-7 sr, pupil 33.9 mm.
     assert aa_str.fov_x_deg == pytest.approx(20.60, abs=0.005)
     assert math.degrees(aa_str.fov_diagonal) == pytest.approx(28.83, abs=0.005)

@@ -38,7 +38,7 @@ def test_fitted_values_are_physical_and_inside_their_bounds():
     w_lo, w_hi = fit["hapke_w_range"]
     assert 0.0 < w_lo < w_hi < 1.0
     # the Moon's mean normal albedo at 550 nm is of the order of its geometric albedo 0.12
-    # (NASA fact sheet) and below the bright highlands' 0.25-0.30 (REFERENCE.md section 2)
+    # (NASA fact sheet) and below the bright highlands' 0.25-0.30 (docs/facts.md section 2)
     assert 0.10 < cal.mean_normal_albedo < 0.25
     assert fit["max_abs_dev"] < 0.02
     # roughness and coherent backscatter are Sato's, not fitted

@@ -21,7 +21,7 @@ from starnav.spectra import (
 
 
 def test_astm_g173_total():
-    # REFERENCE.md s2: the ASTM G-173 extraterrestrial spectrum integrates to 1347.9 W/m^2
+    # docs/facts.md s2: the ASTM G-173 extraterrestrial spectrum integrates to 1347.9 W/m^2
     # over 280-4000 nm.
     assert solar_spectrum().integral() == pytest.approx(1347.9, abs=0.1)
 
@@ -54,7 +54,7 @@ def test_planck_integrates_to_stefan_boltzmann():
 
 
 def test_aa_str_band_integrals_match_reference():
-    # REFERENCE.md s2: ASTM G-173 with the AA-STR QE x T gives 7.06e20 e- s^-1 m^-2 at 1 AU,
+    # docs/facts.md s2: ASTM G-173 with the AA-STR QE x T gives 7.06e20 e- s^-1 m^-2 at 1 AU,
     # 3.07e9 e-/s per pixel for a rho = 0.12 Lambert surface lit head-on, and the 100 ke-
     # well fills in ~33 us.
     bi = band_integrals(solar_spectrum(), sensor_response())

@@ -20,7 +20,7 @@ Units: metres for the focal length and pitch, pixels for ``u, v, fx, fy, cx, cy`
 angles, steradians for solid angles.
 
 The field of view is always *derived* from the focal length and the detector size (the AA-STR
-paper's "FoV 10 deg" is the half-angle or an error; REFERENCE.md section 1).
+paper's "FoV 10 deg" is the half-angle or an error; docs/facts.md section 1).
 
 Example
 -------
@@ -118,7 +118,7 @@ class Camera:
         """A named camera; ``overrides`` replace any field.
 
         Known presets: ``aa-str`` (Leonardo AA-STR MK II with the HAS2 detector:
-        f = 50.7 mm, 1024 x 1024 pixels of 18 um, N = 1.495575; REFERENCE.md section 1).
+        f = 50.7 mm, 1024 x 1024 pixels of 18 um, N = 1.495575; docs/facts.md section 1).
         """
         try:
             base = CAMERA_PRESETS[name]
@@ -345,7 +345,7 @@ class Camera:
         }
 
 
-#: Named cameras. ``aa-str``: REFERENCE.md section 1 (seed paper Table 1 and the ABRAM AA-STR
+#: Named cameras. ``aa-str``: docs/facts.md section 1 (seed paper Table 1 and the ABRAM AA-STR
 #: configuration for the f-number).
 CAMERA_PRESETS: dict[str, Camera] = {
     "aa-str": Camera(

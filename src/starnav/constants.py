@@ -18,7 +18,7 @@ SUN_RADIUS = 6.957e8
 SUN_TEFF = 5772.0
 #: Mean lunar radius used as the LOLA reference sphere [m] (LOLA PDS labels).
 MOON_RADIUS = 1_737_400.0
-#: Visual geometric albedo of the Moon (Lane & Irvine 1973; REFERENCE.md section 2).
+#: Visual geometric albedo of the Moon (Lane & Irvine 1973; docs/facts.md section 2).
 MOON_GEOMETRIC_ALBEDO = 0.12
 #: Seconds per Julian day.
 DAY = 86_400.0

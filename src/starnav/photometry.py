@@ -458,7 +458,7 @@ def lambert_sphere_phase_integral(phase: ArrayLike) -> FloatArray:
 
 def lambert_sphere_irradiance(sun_irradiance: float, albedo: float, radius: float,
                               distance: float, phase: ArrayLike) -> FloatArray:
-    """Irradiance at the observer from a Lambert sphere [W m^-2] (REFERENCE.md section 2)::
+    """Irradiance at the observer from a Lambert sphere [W m^-2] (docs/facts.md section 2)::
 
         E_cam = E_sun (2 rho / 3) [sin a + (pi - a) cos a] / pi (R / d)^2
     """

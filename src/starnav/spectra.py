@@ -16,14 +16,14 @@ Quantities and units
 Sources: ASTM G-173 extraterrestrial spectrum shipped by colour-science (280-4000 nm; it
 integrates to 1347.9 W/m^2); IAU 2015 nominal TSI 1361 W/m^2; Planck's law for the optional
 black body. The AA-STR QE and optics transmission are the ABRAM AA-STR configuration
-(REFERENCE.md section 1): 12 bands of 50 nm from 425 to 1025 nm, piecewise constant.
+(docs/facts.md section 1): 12 bands of 50 nm from 425 to 1025 nm, piecewise constant.
 
 Example
 -------
 >>> from starnav.spectra import solar_spectrum, sensor_response, band_integrals
 >>> sun, resp = solar_spectrum(), sensor_response()
 >>> bi = band_integrals(sun, resp)
->>> round(bi.electron_irradiance / 1e20, 2)   # e- s^-1 m^-2 at 1 AU (REFERENCE.md: 7.06e20)
+>>> round(bi.electron_irradiance / 1e20, 2)   # e- s^-1 m^-2 at 1 AU (docs/facts.md: 7.06e20)
 7.06
 """
 
@@ -169,7 +169,7 @@ def solar_spectrum(
 
 
 # --------------------------------------------------------------------------- the sensor
-#: AA-STR MK II spectral response (ABRAM AA-STR configuration; REFERENCE.md section 1):
+#: AA-STR MK II spectral response (ABRAM AA-STR configuration; docs/facts.md section 1):
 #: band edges [nm], quantum efficiency and optics transmission per 50 nm band.
 AA_STR_BAND_EDGES_NM = tuple(float(x) for x in range(425, 1026, 50))
 AA_STR_QE = (0.35, 0.43, 0.46, 0.45, 0.42, 0.37, 0.30, 0.23, 0.16, 0.09, 0.04, 0.02)
@@ -328,7 +328,7 @@ class SunConfig(StrictModel):
 
 
 class SensorResponseConfig(StrictModel):
-    """Spectral response QE(lambda) x T(lambda). Default: the AA-STR table (REFERENCE.md s1).
+    """Spectral response QE(lambda) x T(lambda). Default: the AA-STR table (docs/facts.md s1).
 
     Either ``preset`` or a table: ``wavelengths_nm`` band *edges* (n + 1 values) with ``qe``
     and ``transmission`` per band (n values, piecewise constant), or ``wavelengths_nm`` samples

@@ -18,7 +18,7 @@ from starnav.calibration.collimator import (
 from starnav.calibration.schema import CollimatorConfig, bench_from_dict
 from starnav.errors import ConfigError
 
-#: AA-STR derived full FoV: 2 atan(9.216 / 50.7) [deg] (REFERENCE.md s1).
+#: AA-STR derived full FoV: 2 atan(9.216 / 50.7) [deg] (docs/facts.md s1).
 AA_STR_FOV_DEG = 2 * math.degrees(math.atan(9.216 / 50.7))
 
 

@@ -34,7 +34,7 @@ def test_moon_flux_from_the_renderer_matches_the_lambert_sphere(small_render):
     q = sphere_irradiance_quadrature("lambert", band.irradiance, 0.12, MOON_RADIUS, geom.range,
                                      math.radians(30.0))
     assert mf.disc_irradiance == pytest.approx(q, rel=3e-3)
-    # REFERENCE.md s2 far-field closed form E_sun (2 rho / 3) [sin a + (pi - a) cos a] / pi
+    # docs/facts.md s2 far-field closed form E_sun (2 rho / 3) [sin a + (pi - a) cos a] / pi
     # (R / d)^2: 0.85 % lower at 130 000 km (the near side is closer than d)
     e = float(lambert_sphere_irradiance(band.irradiance, 0.12, MOON_RADIUS, geom.range,
                                         math.radians(30.0)))

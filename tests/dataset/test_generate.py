@@ -83,7 +83,7 @@ def test_navigation_runs_on_the_dataset(small_dataset, tmp_path):
     s = navigate_dataset(ds.open(small_dataset), tmp_path / "nav", plots=False,
                          measure_memory=False)
     assert s["frames"] == 4 and s["fixes"] >= 3
-    # 0.015 ms: pixel-accurate limb (REFERENCE.md s5), here with the windows' refinement
+    # 0.015 ms: pixel-accurate limb (docs/facts.md s5), here with the windows' refinement
     assert abs(s["limb_error_px"]["bias"]) < 0.5
 
 

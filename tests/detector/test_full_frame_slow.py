@@ -12,7 +12,7 @@ from .conftest import lambert_disc, quiet_config
 
 #: Electron rate of a rho = 0.12 Lambert surface lit head-on, per AA-STR pixel (REFERENCE s2).
 PEAK_RATE_E_S = 3.07e9
-#: Moon radius at 60 000 km: 163 px across (REFERENCE.md s3).
+#: Moon radius at 60 000 km: 163 px across (docs/facts.md s3).
 MOON_RADIUS_PX = 81.5
 
 pytestmark = pytest.mark.slow

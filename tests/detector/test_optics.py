@@ -30,7 +30,7 @@ CONSERVATION_RTOL = 1e-5
 
 
 def test_uniform_radiance_gives_t_A_omega_Le(cam64):
-    """N_e = t_exp * A_pupil * Omega_pix * Le (REFERENCE.md s2), through the whole chain."""
+    """N_e = t_exp * A_pupil * Omega_pix * Le (docs/facts.md s2), through the whole chain."""
     le = 3.7e15  # e- s^-1 m^-2 sr^-1
     t = 2.5e-4
     expected = t * cam64.pupil_area * cam64.pixel_solid_angle * le

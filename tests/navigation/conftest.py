@@ -11,7 +11,7 @@ from starnav.camera import Camera
 from starnav.geometry import static_geometry
 from starnav.navigation.synthetic import draw_moon, threshold_segments
 
-#: Gaussian PSF of the analytic frames [px] (about the AA-STR's defocus, REFERENCE.md s4).
+#: Gaussian PSF of the analytic frames [px] (about the AA-STR's defocus, docs/facts.md s4).
 PSF_SIGMA_PX = 0.8
 #: Peak DN and segment threshold of a well-exposed analytic frame (12-bit ADC).
 PEAK_DN = 3000.0

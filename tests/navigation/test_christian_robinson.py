@@ -2,7 +2,7 @@
 against Monte Carlo, its Jacobians against central finite differences, bad input.
 
 References: Christian & Robinson (2016) JGCD doi:10.2514/1.G000708; Christian (2021) IEEE Access
-doi:10.1109/ACCESS.2021.3051914; REFERENCE.md s4 (range error ~ limb bias / apparent radius).
+doi:10.1109/ACCESS.2021.3051914; docs/facts.md s4 (range error ~ limb bias / apparent radius).
 """
 
 from __future__ import annotations
@@ -143,7 +143,7 @@ def test_covariance_matches_monte_carlo(cam):
 
 
 def test_range_error_from_uniform_limb_bias(cam):
-    """REFERENCE.md s4: a uniform outward limb bias of b px gives d(rho)/rho = -b cos^2(theta) /
+    """docs/facts.md s4: a uniform outward limb bias of b px gives d(rho)/rho = -b cos^2(theta) /
     R_px (theta the apparent radius, R_px = f tan(theta) its image)."""
     from starnav.geometry import static_geometry
 

@@ -1,5 +1,5 @@
 """RANSAC outlier rejection: the paper's circle model and the conic-aware Christian-Robinson
-model (REFERENCE.md s4: a sphere's limb is an ellipse off-axis, up to ~1.7 px from a circle)."""
+model (docs/facts.md s4: a sphere's limb is an ellipse off-axis, up to ~1.7 px from a circle)."""
 
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 A 14-day LUMIO-like arc is rendered (8 spp), exposed at the paper's well-exposed 0.015 ms and
 its saturated 7.7 ms, read out as segments and 16 windows, and navigated. Expected (issue 6,
-REFERENCE.md section 5): at 0.015 ms a limb bias < 0.1 px after refinement and a final position
+docs/facts.md section 5): at 0.015 ms a limb bias < 0.1 px after refinement and a final position
 error < 0.5 % of the range; at 7.7 ms a bias of pixels, and the filter consistent when its
 Gauss-Markov biases are on; at the unmodified tracker's 200 ms a limb bias of many pixels.
 """

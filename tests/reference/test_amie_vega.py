@@ -26,7 +26,7 @@ def cal():
 
 
 def test_calspec_vega_matches_the_vega_zero_point():
-    """REFERENCE.md: a V = 0 star gives 3.61e-11 W m^-2 nm^-1 at 550 nm; Vega is V = 0.03
+    """docs/facts.md: a V = 0 star gives 3.61e-11 W m^-2 nm^-1 at 550 nm; Vega is V = 0.03
     (Johnson), so 3.51e-11. CALSPEC alpha_lyr_stis_011 agrees within 2 %."""
     wl, fl = vega_spectrum()
     f550 = float(np.interp(550.0, wl, fl))

@@ -3,7 +3,7 @@
 Sources of the numbers (next to each test):
 * data README = the project's reference-data README, section rolo/, copied into
   src/starnav/data/rolo/PROVENANCE.md ("Sanity values" and "Reference numbers");
-* REFERENCE.md section 6 (band irradiances over 425-1025 nm, the Moon's redness), copied into
+* docs/facts.md section 6 (band irradiances over 425-1025 nm, the Moon's redness), copied into
   the same file ("Reference numbers");
 * Kieffer & Stone 2005, AJ 129:2887, Table 4 (coefficients, Apollo factors), Eq. 8.
 """
@@ -84,7 +84,7 @@ def test_readme_sanity_values(wavelength, phase_deg, expected):
 
 
 def test_the_moon_is_red():
-    # REFERENCE.md s6: ROLO's A at 2 deg rises from 0.107 (405 nm) to 0.161 (745 nm).
+    # docs/facts.md s6: ROLO's A at 2 deg rises from 0.107 (405 nm) to 0.161 (745 nm).
     a405, a745 = rolo_reflectance(2.0 * DEG, 0.0, wavelength_nm=[405.0, 745.3])
     assert a405 == pytest.approx(0.107, abs=0.5e-3)
     assert a745 == pytest.approx(0.161, abs=0.5e-3)
@@ -138,7 +138,7 @@ def test_apollo_factor_applied():
 
 # --------------------------------------------------------------------------- irradiance
 @pytest.mark.parametrize(("phase_deg", "expected_w_m2"), [
-    # REFERENCE.md s6: ROLO band-integrated over 425-1025 nm, ASTM G-173 at 1 AU, 384 400 km,
+    # docs/facts.md s6: ROLO band-integrated over 425-1025 nm, ASTM G-173 at 1 AU, 384 400 km,
     # Sun selenographic longitude = phase, observer at 0/0. Quoted to 3 digits.
     (7.0, 1.90e-3),
     (30.0, 1.08e-3),
@@ -276,7 +276,7 @@ def test_geometry_round_trip_with_latitudes():
 def test_static_geometry_sun_east_is_the_waxing_moon(aa_str, box, sun, azimuth, sign):
     # static_geometry puts the subsolar point at `phase` from the sub-observer point (0, 0)
     # towards azimuth 0 = local east: Phi = +phase; azimuth 180 deg: west, Phi = -phase.
-    # At 30 deg, 1 AU, 384 400 km the waxing Moon gives REFERENCE.md's 1.08e-3 W m^-2.
+    # At 30 deg, 1 AU, 384 400 km the waxing Moon gives docs/facts.md's 1.08e-3 W m^-2.
     g = 30.0 * DEG
     geom = static_geometry(aa_str, D_REF, g, sun_azimuth=azimuth, sun_distance=AU)
     rg = rolo_geometry(geom)

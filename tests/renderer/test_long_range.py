@@ -2,7 +2,7 @@
 
 The reference is the disc-integrated irradiance of a Lambert sphere at the aperture, by
 quadrature over the sphere (:func:`starnav.photometry.sphere_irradiance_quadrature`, exact at
-finite range; REFERENCE.md section 2 gives its far-field limit). The rendered image gives it as
+finite range; docs/facts.md section 2 gives its far-field limit). The rendered image gives it as
 ``sum(L * Omega_pixel)``. The focal length is scaled with the range so that the disc always spans
 ~32 px of a 64 x 64 film.
 

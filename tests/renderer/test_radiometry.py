@@ -1,4 +1,4 @@
-"""Rendered radiance against closed forms (REFERENCE.md section 2).
+"""Rendered radiance against closed forms (docs/facts.md section 2).
 
 Statistical checks state their false-alarm rate. The per-pixel z-test uses K independent
 renders (different sampler seeds): for each pixel t = (mean - ref) / (s / sqrt(K)) follows
@@ -81,7 +81,7 @@ def test_disc_integrated_lambert_at_60000_km(aa_str, phase_deg):
 
 @pytest.mark.parametrize("phase_deg", [0, 30, 60, 90, 120])
 def test_disc_integrated_lambert_phase_law_far_field(phase_deg):
-    # REFERENCE.md s2 closed form E_sun (2 rho/3) [sin a + (pi - a) cos a]/pi (R/d)^2, for a
+    # docs/facts.md s2 closed form E_sun (2 rho/3) [sin a + (pi - a) cos a]/pi (R/d)^2, for a
     # distant observer: a 2 m focal length at 2e6 km (R/d = 9e-4) keeps the disc ~96 px wide.
     cam = Camera.preset("aa-str", focal_length=2.0, width=256, height=256)
     d = 2.0e9
@@ -108,7 +108,7 @@ def test_electron_radiance_consistent_with_band_radiance(geom60):
     # Both channels see the same samples, only their wavelength weights differ: the sums
     # agree to Monte Carlo noise over ~20 000 pixels x 16 spp.
     assert img.Le[lit].sum() / img.L[lit].sum() == pytest.approx(k, rel=2e-3)
-    # the reference number itself: REFERENCE.md s2, 7.06e20 e- s^-1 m^-2 and 816 W m^-2
+    # the reference number itself: docs/facts.md s2, 7.06e20 e- s^-1 m^-2 and 816 W m^-2
     assert sun["band_electron_irradiance_e_s_m2"] == pytest.approx(7.06e20, rel=2e-3)
 
 

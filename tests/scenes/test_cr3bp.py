@@ -1,4 +1,4 @@
-"""CR3BP: the REFERENCE.md L2 halo by differential correction, Jacobi constant, L2."""
+"""CR3BP: the docs/facts.md L2 halo by differential correction, Jacobi constant, L2."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def halo():
 
 
 def test_halo_matches_reference_orbit(halo):
-    # REFERENCE.md s4: x0 = 1.176195936921, vy0 = -0.176332597349, T = 3.3801837666 TU
+    # docs/facts.md s4: x0 = 1.176195936921, vy0 = -0.176332597349, T = 3.3801837666 TU
     x0, z0, vy0, T = REFERENCE_HALO
     assert halo.state0[0] == pytest.approx(x0, abs=1e-9)
     assert halo.state0[2] == z0
@@ -49,7 +49,7 @@ def test_jacobi_constant_is_conserved(halo):
 
 
 def test_halo_moon_range_band_and_south(halo):
-    # REFERENCE.md s4: 48 000-77 000 km from the Moon; southern: z < 0 at the x-z crossing
+    # docs/facts.md s4: 48 000-77 000 km from the Moon; southern: z < 0 at the x-z crossing
     X = halo.states(np.linspace(0.0, halo.period, 2001))
     r = np.linalg.norm(X[:, :3] - [1 - MU_EARTH_MOON, 0, 0], axis=1) * LU
     assert 47_500 * KM < r.min() < 49_000 * KM

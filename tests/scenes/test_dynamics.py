@@ -74,7 +74,7 @@ def test_emb_acceleration_matches_the_ephemeris(model, eph):
 
 
 def test_indirect_term_forms_agree_to_the_tidal_bound(eph):
-    # exact barycentric form vs REFERENCE.md s4 (GM_S r_S/|r_S|^3): they differ only at second
+    # exact barycentric form vs docs/facts.md s4 (GM_S r_S/|r_S|^3): they differ only at second
     # order in d_EM/|r_S|, bounded by 3 GM_S f (1 - f) d_EM^2 / |r_S|^4 (module docstring)
     exact = PointMassModel(eph)
     approx = PointMassModel(eph, emb_indirect="sun-at-emb")
@@ -95,7 +95,7 @@ def test_rk4_matches_dop853_over_five_days(model, eph):
     t1 = T0 + 5 * DAY
     x1, _ = propagate(model, T0, x0, t1, step=300.0)
     sol = solve_ivp(model.derivative, (T0, t1), x0, method="DOP853", rtol=1e-13, atol=1e-7)
-    # REFERENCE.md s4: RK4 at 300 s is mm-accurate over a period (here: 5 days, < 1 cm)
+    # docs/facts.md s4: RK4 at 300 s is mm-accurate over a period (here: 5 days, < 1 cm)
     assert np.linalg.norm(x1[:3] - sol.y[:3, -1]) < 1e-2
     assert np.linalg.norm(x1[3:] - sol.y[3:, -1]) < 1e-6
 

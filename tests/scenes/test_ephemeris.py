@@ -68,7 +68,7 @@ def test_series_match_jplephem(eph):
 
 
 def test_emb_split_follows_emrat(eph):
-    # REFERENCE.md s4 / DE421 constants: EMRAT = 81.3005690699153
+    # docs/facts.md s4 / DE421 constants: EMRAT = 81.3005690699153
     assert eph.emrat == pytest.approx(81.3005690699153, rel=1e-15)
     t = parse_epoch("2031-07-04T00:00:00 TDB")
     earth = eph.state("earth", t, center="emb")

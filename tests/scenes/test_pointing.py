@@ -85,7 +85,7 @@ def test_random_placement_covers_the_allowed_box(aa_str):
                                   sun_position=SUN).moon_pixel)
     px = np.array(px)
     r = disc_radius_px(aa_str, 6.0e7)
-    assert 2 * r == pytest.approx(163.0, abs=1.0)  # REFERENCE.md s3: 163 px across at 60 000 km
+    assert 2 * r == pytest.approx(163.0, abs=1.0)  # docs/facts.md s3: 163 px across at 60 000 km
     half = (aa_str.width - 2 * (r + 8)) / 2
     assert np.all(np.abs(px - [aa_str.cx, aa_str.cy]) <= half + 1e-9)
     assert np.abs(px.mean(0) - [aa_str.cx, aa_str.cy]).max() < 3 * half / math.sqrt(3 * 400)

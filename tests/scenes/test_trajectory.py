@@ -35,7 +35,7 @@ def test_arc_moon_range_in_band(arc, eph):
     # issue 4: 35 000-90 000 km from the Moon along the whole arc
     r = arc.moon_range(eph)
     assert r.min() > 35_000 * KM and r.max() < 90_000 * KM
-    # and it is the LUMIO-like orbit, not something else inside the band (REFERENCE.md s4:
+    # and it is the LUMIO-like orbit, not something else inside the band (docs/facts.md s4:
     # 48 000-77 000 km in the CR3BP; the Sun stretches it by a few thousand km)
     assert 42_000 * KM < r.min() < 50_000 * KM and 74_000 * KM < r.max() < 84_000 * KM
 

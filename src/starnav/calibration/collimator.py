@@ -10,7 +10,7 @@ Technique
    :func:`stimulator_condition` evaluates it for one FoV;
    :func:`~starnav.calibration.bench.check_bench` evaluates it for the FoV the paper *stated*
    (10 deg) and for the FoV *derived* from the camera (``2 atan(H p / 2 f)``, 20.60 deg for the
-   AA-STR, REFERENCE.md s1), along both screen axes.
+   AA-STR, docs/facts.md s1), along both screen axes.
    With the paper's numbers: 10 deg gives ``f_coll <= 371.5 mm`` (satisfied with a 2x margin,
    but the paper's own bound "f_coll <= 180.07 mm" corresponds to a 20.46 deg FoV); the derived
    20.60 deg gives ``f_coll <= 178.8 mm``: the 180 mm doublet misses by 0.7 %, i.e. the

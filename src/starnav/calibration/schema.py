@@ -6,7 +6,7 @@ names (``_mm``, ``_deg``, ``_px``, ``_ms``, ``_w_m2_sr_nm``); the library conver
 entry. Unknown keys are rejected and every model is frozen.
 
 Defaults are the paper's TinyV3RSE bench (seed paper, "Hardware-in-the-loop testing
-preparation"; REFERENCE.md section 5) where the paper gives a number:
+preparation"; docs/facts.md section 5) where the paper gives a number:
 
 ============================== ============================ =====================================
 quantity                       default                      source / trust
@@ -17,7 +17,7 @@ collimator spot RMS radius     0.49 / 0.72 / 1.49 / 2.13 px seed paper, Table 2 
                                at 0 / 3.67 / 7.32 / 9.61    table's "mm" column is in um
                                deg                          (8.88 um / 18 um = 0.49 px)
 camera FoV used in eq. 2       10 deg (stated)              seed paper; the derived AA-STR FoV is
-                                                            20.60 deg (REFERENCE.md s1): both
+                                                            20.60 deg (docs/facts.md s1): both
                                                             verdicts are reported
 screen pixels, bit depth       3840 x 2160, 8 bit           **representative** (4K panel of
                                                             65 mm height), not from the paper

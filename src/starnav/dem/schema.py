@@ -119,7 +119,7 @@ class AlbedoConfig(StrictModel):
     * ``svs-8bit``: the NASA SVS CGI Moon Kit colour map: ``t = DN / 255`` over the
       ``domain``, gamma ``gamma``: ``r = ((lo + (hi - lo) t) / balance) ** gamma`` (gamma and
       colour balance applied before the range mapping, in the order the kit's page states;
-      REFERENCE.md section 3). The result is not a calibrated albedo: use ``normalize_mean``.
+      docs/facts.md section 3). The result is not a calibrated albedo: use ``normalize_mean``.
     * ``linear``: ``r = DN * scale + offset``; ``scale``/``offset`` default to the file's own
       (GDAL band scale/offset) or ``1 / (2**bits - 1)`` for unsigned integers.
     * ``reflectance``: values already in reflectance (float maps).

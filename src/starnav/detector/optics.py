@@ -3,7 +3,7 @@
 Technique
 ---------
 1. **Radiometry.** The mean number of photo-electrons of a pixel is
-   ``N = t_exp * A_pupil * Omega_pix * Le`` (REFERENCE.md s2) with ``Le`` the electron radiance
+   ``N = t_exp * A_pupil * Omega_pix * Le`` (docs/facts.md s2) with ``Le`` the electron radiance
    [e- s^-1 m^-2 sr^-1] of the :class:`~starnav.radiance.RadianceImage` and
    ``A_pupil Omega_pix`` the on-axis etendue of :class:`~starnav.camera.Camera`. Off axis the
    pinhole collects ``cos^4(theta)`` less (pixel solid angle ``cos^3``, pupil foreshortening

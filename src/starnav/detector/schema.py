@@ -4,7 +4,7 @@ One nested, frozen model per stage of the chain (see :mod:`starnav.detector.chai
 Units are in the key names (``_s``, ``_ms``, ``_us``, ``_px``, ``_e``, ``_dn``, ``_deg_s``,
 ``_c``, ``_k``); the chain converts to SI on entry. Every effect has an ``enabled`` switch.
 
-Defaults are the Leonardo AA-STR MK II / HAS2 values of ``shared/REFERENCE.md`` section 1 where
+Defaults are the Leonardo AA-STR MK II / HAS2 values of ``docs/facts.md`` section 1 where
 that table has them; every other default is marked *assumption* in its description, with the
 reasoning, because the HAS2 datasheet and the AA-STR optical prescription are not public.
 """
@@ -21,7 +21,7 @@ from starnav.detector.products import MAX_WINDOWS
 from starnav.errors import UnknownNameError
 from starnav.fields import FiniteFloat, NonNegativeFloat, PositiveFloat, UnitInterval
 
-#: ADC gain default: full well / (2^12 - 1) = 100 000 / 4095 [e-/DN] (REFERENCE.md s1).
+#: ADC gain default: full well / (2^12 - 1) = 100 000 / 4095 [e-/DN] (docs/facts.md s1).
 DEFAULT_FULL_WELL_E = 100_000.0
 
 
@@ -42,7 +42,7 @@ class AberrationPsfConfig(StrictModel):
 
     Assumption (AA-STR prescription not public): the optics is "intentionally aberrated and
     defocused" (seed paper) so a star covers ~3x3 to 5x5 px; the quadratic growth matches the
-    field dependence of the HIL collimator spot (REFERENCE.md s5: 0.49 px RMS on axis to 2.13 px
+    field dependence of the HIL collimator spot (docs/facts.md s5: 0.49 px RMS on axis to 2.13 px
     at 9.6 deg fits 0.49 + 0.0178 theta_deg^2)."""
 
     enabled: bool = Field(
@@ -204,7 +204,7 @@ class PrnuConfig(StrictModel):
     enabled: bool = Field(
         True, description="apply the photo-response non-uniformity gain map")
     sigma_fraction: UnitInterval = Field(0.02, description="PRNU rms [-] (ABRAM default 2 %, "
-                                         "REFERENCE.md s1, low trust)")
+                                         "docs/facts.md s1, low trust)")
 
 
 class DarkCurrentConfig(StrictModel):
@@ -215,10 +215,10 @@ class DarkCurrentConfig(StrictModel):
         True, description="add dark current (with DSNU and hot pixels)")
     rate_e_per_s: NonNegativeFloat = Field(
         590.0, description="mean dark current at the reference temperature [e-/s/px] "
-        "(ABRAM default, REFERENCE.md s1, low trust)")
+        "(ABRAM default, docs/facts.md s1, low trust)")
     dsnu_fraction: UnitInterval = Field(
         0.013, description="dark-signal non-uniformity rms, relative to the mean [-] "
-        "(ABRAM 1.3 %, REFERENCE.md s1)")
+        "(ABRAM 1.3 %, docs/facts.md s1)")
     temperature_c: FiniteFloat = Field(20.0, description="detector temperature [degC]")
     reference_temperature_c: FiniteFloat = Field(
         20.0, description="temperature of rate_e_per_s [degC] (assumption: ABRAM gives none)")
@@ -270,7 +270,7 @@ class BloomingConfig(StrictModel):
     spill_fraction: UnitInterval = Field(
         5e-4, description="fraction of the excess charge that spills into neighbours [-] "
         "(assumption, tuned to the paper: a few-px halo at the 7.7 ms case and one far past "
-        "the disc at 200 ms; REFERENCE.md s1 says do not assume a perfect anti-blooming)")
+        "the disc at 200 ms; docs/facts.md s1 says do not assume a perfect anti-blooming)")
     max_margin_px: Annotated[int, Field(ge=0)] = Field(
         1024, description="how far outside the array spilled charge is followed before it is "
         "counted as lost [px]")
@@ -290,7 +290,7 @@ class SaturationConfig(StrictModel):
     enabled: bool = Field(
         True, description="clip the charge at full well (off only for linearity studies)")
     full_well_e: PositiveFloat = Field(
-        DEFAULT_FULL_WELL_E, description="full-well capacity [e-] (ABRAM AA-STR, REFERENCE.md s1)")
+        DEFAULT_FULL_WELL_E, description="full-well capacity [e-] (ABRAM AA-STR, docs/facts.md s1)")
     blooming: BloomingConfig = Field(
         default_factory=BloomingConfig, description="where the charge above full well goes")
 
@@ -303,10 +303,10 @@ class IpcConfig(StrictModel):
         True, description="apply inter-pixel capacitive coupling")
     nearest_fraction: Annotated[float, Field(ge=0, le=0.2, allow_inf_nan=False)] = Field(
         0.005, description="coupling to each of the 4 nearest neighbours [-] (monolithic APS "
-        "~0.5 %, REFERENCE.md s1)")
+        "~0.5 %, docs/facts.md s1)")
     diagonal_fraction: Annotated[float, Field(ge=0, le=0.05, allow_inf_nan=False)] = Field(
         0.0005, description="coupling to each of the 4 diagonal neighbours [-] (~0.05 %, "
-        "REFERENCE.md s1)")
+        "docs/facts.md s1)")
 
 
 class ElectricalCrosstalkConfig(StrictModel):
@@ -339,7 +339,7 @@ class ReadNoiseConfig(StrictModel):
     enabled: bool = Field(
         True, description="add Gaussian read noise")
     sigma_e: NonNegativeFloat = Field(100.0, description="read noise rms [e-] (ABRAM AA-STR, "
-                                      "REFERENCE.md s1)")
+                                      "docs/facts.md s1)")
 
 
 class SignalConfig(StrictModel):
@@ -359,10 +359,10 @@ class AdcConfig(StrictModel):
     """Gain, offset, quantisation (round to nearest) and clipping to [0, 2^bits - 1]."""
 
     bits: Annotated[int, Field(ge=1, le=16)] = Field(12, description="ADC resolution [bit] "
-                                                     "(assumption, REFERENCE.md s1)")
+                                                     "(assumption, docs/facts.md s1)")
     gain_e_per_dn: PositiveFloat | None = Field(
         None, description="conversion gain [e-/DN]; None: full well / (2^bits - 1) = 24.42 "
-        "(REFERENCE.md s1)")
+        "(docs/facts.md s1)")
     offset_dn: NonNegativeFloat = Field(
         100.0, description="electronic offset (pedestal) [DN] (assumption: keeps the read "
         "noise of dark pixels above 0 DN)")

@@ -12,7 +12,7 @@ Technique
    * ``none``: no bias state;
    * ``additive``: ``b`` (3) [m], the fix reads ``r - r_M + b``;
    * ``range-scale``: ``k`` (1) [-], the fix reads ``(1 + k)(r - r_M)`` (a limb bias of
-     ``beta`` px on a disc of ``R_px`` gives ``k ~ -beta / R_px``, REFERENCE.md section 4);
+     ``beta`` px on a disc of ``R_px`` gives ``k ~ -beta / R_px``, docs/facts.md section 4);
    * ``range-scale+additive``: ``k`` and ``b`` (4), the fix reads ``(1 + k)(r - r_M) + b``.
      Saturation moves the lit limb outwards (a range scale) *and* unevenly along the arc
      (more where the limb is brightest), which shifts the fitted centre sideways: on the

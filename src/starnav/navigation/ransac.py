@@ -12,7 +12,7 @@ Technique
 
    * ``"circle"`` (the STAR Nav model): the circle through the 3 points; a point's residual is
      ``| |p - c| - r |`` [px]. A sphere's limb is an ellipse off-axis, so the threshold must
-     allow the misfit (up to ~1.7 px near the AA-STR field edge; REFERENCE.md section 4).
+     allow the misfit (up to ~1.7 px near the AA-STR field edge; docs/facts.md section 4).
    * ``"christian-robinson"`` (conic-aware): the exact Christian-Robinson solve of the 3 rays
      (``s_i^T n = 1``); a point's residual is the angle between its ray and the predicted limb
      cone, in pixels (:func:`~starnav.navigation.christian_robinson.cone_residual_px`). The

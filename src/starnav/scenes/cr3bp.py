@@ -15,7 +15,7 @@ Technique (halo by single-shooting differential correction, Howell 1984)
    where ``ax, az`` are the accelerations at the crossing (the crossing time moves too).
 4. Repeat until ``|vx|, |vz|`` at the crossing are below ``tol``; the period is twice the
    crossing time. For an amplitude far from a known solution, step ``z`` towards the target from
-   the REFERENCE.md orbit (natural-parameter continuation).
+   the docs/facts.md orbit (natural-parameter continuation).
 
 Tuning knobs
 ------------
@@ -27,7 +27,7 @@ rtol/atol  1e-13      DOP853 tolerances of every integration here
 max_iter   30         Newton iterations before :class:`ConvergenceError`
 =========  =========  =====================================================================
 
-Default orbit (REFERENCE.md s4, LUMIO-like southern L2 halo): ``mu = 0.01215058560962404``,
+Default orbit (docs/facts.md s4, LUMIO-like southern L2 halo): ``mu = 0.01215058560962404``,
 ``x0 = 1.176195936921``, ``z0 = -0.065``, ``vy0 = -0.176332597349``, ``T = 3.3801837666 TU``
 (14.70 d with ``TU = 375 699.88 s``), 48 000-77 000 km from the Moon.
 
@@ -51,13 +51,13 @@ FloatArray = NDArray[np.float64]
 
 log = logging.getLogger(__name__)
 
-#: Earth-Moon mass parameter of the CR3BP (REFERENCE.md s4).
+#: Earth-Moon mass parameter of the CR3BP (docs/facts.md s4).
 MU_EARTH_MOON = 0.01215058560962404
-#: Length unit [m] (REFERENCE.md s4).
+#: Length unit [m] (docs/facts.md s4).
 LU = 384_400e3
-#: Time unit [s] (REFERENCE.md s4).
+#: Time unit [s] (docs/facts.md s4).
 TU = 375_699.88
-#: REFERENCE.md s4 southern L2 halo: x0 [LU], z0 [LU], vy0 [LU/TU], period [TU].
+#: docs/facts.md s4 southern L2 halo: x0 [LU], z0 [LU], vy0 [LU/TU], period [TU].
 REFERENCE_HALO = (1.176195936921, -0.065, -0.176332597349, 3.3801837666)
 
 #: DOP853 tolerances used for every CR3BP integration.
@@ -239,7 +239,7 @@ def l2_halo(z0: float = REFERENCE_HALO[1], mu: float = MU_EARTH_MOON,
             max_step: float = 0.005) -> HaloOrbit:
     """Southern/northern L2 halo with out-of-plane amplitude ``z0`` at the x-z crossing [LU].
 
-    Starts from the REFERENCE.md orbit and continues in ``z0`` by steps of at most
+    Starts from the docs/facts.md orbit and continues in ``z0`` by steps of at most
     ``max_step`` [LU] (natural-parameter continuation), correcting at each step.
 
     Raises

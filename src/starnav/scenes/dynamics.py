@@ -27,9 +27,9 @@ Relative to the EMB, ``r = R - R_B``::
 barycentre). Expanding ``a_B`` about the Sun's position, the first-order terms cancel because
 ``(1 - f) r_E + f r_M = 0`` (definition of the barycentre), leaving
 ``a_B = GM_S r_S / |r_S|^3 + O(3 GM_S f (1 - f) d_EM^2 / |r_S|^4)``: the Sun's indirect term of
-REFERENCE.md s4, ``-GM_S r_S/|r_S|^3``, plus a tidal correction below 1.5e-9 m/s^2 (a few km
+docs/facts.md s4, ``-GM_S r_S/|r_S|^3``, plus a tidal correction below 1.5e-9 m/s^2 (a few km
 over a month). ``emb_indirect="barycentric"`` (default) uses the exact mass-weighted form above;
-``"sun-at-emb"`` uses the REFERENCE.md approximation. Planets are left out: their tidal
+``"sun-at-emb"`` uses the docs/facts.md approximation. Planets are left out: their tidal
 acceleration across the Earth-Moon system is below 1e-12 m/s^2.
 
 Jacobian (for the STM)::
@@ -55,7 +55,7 @@ knob          default  effect
 ============  =======  ==================================================================
 step          300 s    RK4 step; error ~ step^4. 300 s keeps the position error over one
                        14.7 d halo period at the mm level; the truth arc uses 60 s.
-emb_indirect  exact    "barycentric" (exact) or "sun-at-emb" (REFERENCE.md s4 form)
+emb_indirect  exact    "barycentric" (exact) or "sun-at-emb" (docs/facts.md s4 form)
 gm_*          DE421    GM of Earth, Moon, Sun [m^3/s^2]; default from the ephemeris
 ============  =======  ==================================================================
 
@@ -85,7 +85,7 @@ FloatArray = NDArray[np.float64]
 
 log = logging.getLogger(__name__)
 
-#: Default RK4 step [s] (REFERENCE.md s4: mm-accurate over a halo period).
+#: Default RK4 step [s] (docs/facts.md s4: mm-accurate over a halo period).
 DEFAULT_STEP = 300.0
 
 _INDIRECT = ("barycentric", "sun-at-emb")
@@ -102,7 +102,7 @@ class PointMassModel:
         Gravitational parameters [m^3/s^2]; default the ephemeris values.
     emb_indirect : {"barycentric", "sun-at-emb"}
         Inertial acceleration of the EMB subtracted from every body's pull: exact mass-weighted
-        Sun pull on Earth and Moon, or the REFERENCE.md s4 approximation ``GM_S r_S/|r_S|^3``.
+        Sun pull on Earth and Moon, or the docs/facts.md s4 approximation ``GM_S r_S/|r_S|^3``.
 
     Notes
     -----

@@ -19,7 +19,7 @@ from starnav.fields import NonNegativeFloat, PositiveFloat
 
 #: Default first epoch of the arc.
 DEFAULT_EPOCH = "2027-03-01T00:00:00 TDB"
-#: CR3BP length unit [km] (REFERENCE.md s4), to express the halo amplitude in km.
+#: CR3BP length unit [km] (docs/facts.md s4), to express the halo amplitude in km.
 _LU_KM = 384_400.0
 
 _EPOCH_RE = re.compile(
@@ -87,7 +87,7 @@ class TrajectoryConfig(StrictModel):
         None, description="number of frames; None: every cadence step of the arc")
     halo_z0_km: float = Field(
         -0.065 * _LU_KM, description="out-of-plane amplitude of the CR3BP L2 halo at its x-z "
-        "plane crossing [km]; negative = southern family (REFERENCE.md s4: -0.065 LU)")
+        "plane crossing [km]; negative = southern family (docs/facts.md s4: -0.065 LU)")
     halo_phase_deg: Annotated[float, Field(ge=0, lt=360)] = Field(
         0.0, description="position on the halo at epoch, as a fraction of its period [deg]")
     step_s: PositiveFloat = Field(300.0, description="RK4 step of the ephemeris model [s]")

@@ -3,7 +3,7 @@ r"""The LUMIO-like truth trajectory: a CR3BP L2 halo carried into the ephemeris 
 Technique (multiple shooting, e.g. Howell & Pernicka 1988; Pavlak 2013)
 -----------------------------------------------------------------------
 1. **CR3BP halo** (:mod:`starnav.scenes.cr3bp`): southern L2 halo by differential correction,
-   REFERENCE.md s4 defaults (period 14.70 d, 48 000-77 000 km from the Moon).
+   docs/facts.md s4 defaults (period 14.70 d, 48 000-77 000 km from the Moon).
 2. **Patch points**: epochs ``t_k = t0 - pad + k dt`` spanning the requested arc plus ``pad`` on
    both sides; the halo state at ``tau_k = tau_0 + (t_k - t0) / TU`` (``tau_0`` = phase of the
    orbit at ``t0``) is mapped to EMB-centred J2000 with the *real* Earth-Moon geometry of DE421
@@ -37,7 +37,7 @@ knob                default   effect
 ==================  ========  ============================================================
 segment             0.5 d     patch spacing; shorter = more robust, larger system
 pad                 2 d       free margin before/after the arc (absorbs end effects)
-step                300 s     RK4 step of shooting and arc (REFERENCE.md s4: mm per period)
+step                300 s     RK4 step of shooting and arc (docs/facts.md s4: mm per period)
 tol_position        1e-3 m    defect tolerance on positions
 tol_velocity        1e-9 m/s  defect tolerance on velocities
 max_iter            40        Newton iterations
@@ -511,7 +511,7 @@ def ephemeris_halo_arc(
     duration : float
         Arc length [s] (> 0).
     z0 : float, optional
-        Out-of-plane amplitude of the CR3BP halo at its x-z crossing [LU]; default REFERENCE.md
+        Out-of-plane amplitude of the CR3BP halo at its x-z crossing [LU]; default docs/facts.md
         (-0.065 LU, southern).
     phase : float
         Position on the halo at ``t0`` [fraction of the period, 0 = x-z crossing at ``z0``].
