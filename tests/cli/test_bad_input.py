@@ -261,3 +261,53 @@ def test_a_full_disk_during_a_dataset_is_one_line_and_resume_is_byte_identical(
     a, b = tree_bytes(small_dataset), tree_bytes(out)
     assert sorted(a) == sorted(b)
     assert [k for k in a if a[k] != b[k]] == []  # every frame file and the manifest
+
+
+@pytest.mark.parametrize("command", ["render", "navigate", "expose"])
+def test_a_full_disk_is_one_line_and_leaves_no_partial_file(app, tmp_path, monkeypatch,
+                                                             command, small_dataset):  # noqa: F811
+    """The first file to land finds the disk full (as fsync reports it on a real disk)."""
+    import errno
+
+    import numpy as np
+
+    import starnav.atomic as atomic
+    from starnav.radiance import RadianceImage, write_exr
+
+    sc = small_yaml(tmp_path / "sc.yaml", trajectory={**SMALL["trajectory"], "frames": 1})
+    exr = write_exr(RadianceImage(L=np.ones((16, 16), np.float32),
+                                  Le=np.full((16, 16), 1e15, np.float32)), tmp_path / "in.exr")
+    out = tmp_path / "out"
+    args = {"render": ["render", sc, "--out", out],
+            "navigate": ["navigate", small_dataset, "--out", out],
+            "expose": ["expose", exr, "--out", out, "--set", "camera.width=16",
+                       "--set", "camera.height=16"]}[command]
+
+    def full(fd: int) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(atomic, "_sync_file", full)
+    line = assert_clean_error(run(app, args), str(out), "disk is full")
+    assert "\n" not in line
+    left = [p for p in out.rglob("*") if p.is_file()] if out.exists() else []
+    assert [p.name for p in left if p.name.startswith(".")] == []  # no temporary
+    assert left == []  # the first file failed: nothing landed
+
+
+def test_expose_into_an_unwritable_directory(app, tmp_path):
+    import numpy as np
+
+    from starnav.radiance import RadianceImage, write_exr
+
+    exr = write_exr(RadianceImage(L=np.ones((16, 16), np.float32),
+                                  Le=np.ones((16, 16), np.float32)), tmp_path / "in.exr")
+    assert_clean_error(run(app, ["expose", exr, "--out", f"{UNWRITABLE}/x", "--set",
+                                "camera.width=16", "--set", "camera.height=16"]), UNWRITABLE)
+
+
+def test_render_refuses_an_albedo_the_model_cannot_reach(app, tmp_path):
+    sc = small_yaml(tmp_path / "sc.yaml")
+    out = tmp_path / "r"
+    assert_clean_error(run(app, ["render", sc, "--out", out, "--set", "moon.albedo=5"]),
+                       "moon.albedo")
+    assert not out.exists()
