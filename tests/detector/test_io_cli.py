@@ -54,6 +54,14 @@ def test_cli_expose_writes_the_library_result(tmp_path):
     ref = expose(le, build_camera(sc.camera), sc.detector, seed=17, frame_index=3)
     assert np.array_equal(read_dn_png(out / "dn.png"), ref.dn)
     assert np.array_equal(read_windows(out / "windows.npz")[0].dn, ref.windows[0].dn)
+    from PIL import Image
+
+    with Image.open(out / "dn_quicklook.png") as im:  # the picture next to the data
+        ql = np.asarray(im)
+    assert ql.dtype == np.uint8 and ql.shape[:2] == (40, 48)
+    lit = ql[14:26, 16:36].astype(float).mean()  # inside the lit block, off the caption bands
+    dark = ql[14:26, 2:8].astype(float).mean()
+    assert lit > 150 and dark < 40, (lit, dark)
     resolved = yaml.safe_load((out / "scenario.resolved.yaml").read_text())
     assert resolved["detector"]["exposure_time_s"] == 2e-3
     assert load_scenario(out / "scenario.resolved.yaml") == sc     # the resolved file reloads

@@ -33,11 +33,13 @@ def register(app: typer.Typer) -> None:
             "--set", help="override a scenario key, e.g. detector.saturation.full_well_e=8e4")
         ] = None,
     ) -> None:
-        """Expose the AA-STR detector to RADIANCE and write dn.png, segments.npz, windows.npz,
-        readout.json and scenario.resolved.yaml into OUT."""
+        """Expose the AA-STR detector to RADIANCE and write dn.png (data: 12-bit DN in a 16-bit
+        PNG), dn_quicklook.png (the picture: 8-bit, stretched, annotated), segments.npz,
+        windows.npz, readout.json and scenario.resolved.yaml into OUT."""
         from starnav.config import build_camera, load_scenario, write_resolved
         from starnav.detector import expose, write_exposure
         from starnav.errors import StarnavError
+        from starnav.quicklook import write_dn_quicklook
         from starnav.radiance import read_exr
 
         overrides = list(set_ or [])
@@ -50,6 +52,9 @@ def register(app: typer.Typer) -> None:
             img = read_exr(radiance)
             frame = expose(img, camera, sc.detector, seed=sc.seed, frame_index=frame_index)
             paths = write_exposure(frame, out)
+            ql = Path(out) / "dn_quicklook.png"
+            write_dn_quicklook(frame.dn, ql, index=frame_index, exposure_time=frame.exposure_time)
+            paths["dn quick look"] = ql
             write_resolved(sc, out)
         except StarnavError as err:
             typer.echo(f"error: {err}", err=True)
