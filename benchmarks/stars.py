@@ -31,7 +31,7 @@ def main() -> None:
     from starnav.stars.catalogue import hipparcos
 
     t0 = time.perf_counter()
-    cat = hipparcos()
+    hipparcos()
     t_read = time.perf_counter() - t0
     cam = Camera.preset("aa-str")
     det = DetectorConfig()
