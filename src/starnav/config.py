@@ -47,6 +47,7 @@ from starnav.renderer.schema import (
 )
 from starnav.scenes.schema import PointingConfig, TrajectoryConfig
 from starnav.spectra import SensorResponseConfig, SunConfig
+from starnav.stars.schema import StarsConfig
 
 #: The camera of a ``camera`` section (:func:`starnav.camera.camera_from_config`).
 build_camera = camera_from_config
@@ -92,6 +93,9 @@ class Scenario(StrictModel):
     target: TargetConfig | None = Field(
         None, description="the body the frames look at: null or {kind: moon} for the Moon of "
         "the moon section, {kind: ellipsoid, ...} for a triaxial small body (starnav.bodies)")
+    stars: StarsConfig = Field(
+        default_factory=StarsConfig, description="stars in the frames (Hipparcos, physical "
+        "units, the detector's PSF; off by default: a black sky)")
     navigation: NavigationConfig = Field(
         default_factory=NavigationConfig, description="the navigation chain: limb points, "
         "refinement, RANSAC, fix, filter")

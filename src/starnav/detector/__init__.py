@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from starnav.detector.chain import CHAIN_ORDERS, EFFECTS, Exposure, expose, get_effect
 from starnav.detector.io import write_exposure
+from starnav.detector.optics import PointSources
 from starnav.detector.products import MAX_WINDOWS, Segments, Window
 from starnav.detector.readout import ReadoutTiming, extract_segments, min_exposure, read_windows
 from starnav.detector.schema import DetectorConfig, WindowSpec
@@ -24,6 +25,7 @@ __all__ = [
     "CHAIN_ORDERS",
     "EFFECTS",
     "MAX_WINDOWS",
+    "PointSources",
     "DetectorConfig",
     "Exposure",
     "ReadoutTiming",

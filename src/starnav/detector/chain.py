@@ -15,6 +15,11 @@ in a fixed order (Pyxel's stages photons -> charge -> pixel -> signal -> image):
 === ===================== ======== =========================================================
 1   photoelectrons        photons  ``N = t A Omega Le [cos^4]``: mean photo-electrons
 2   aberration_psf        photons  PSF varies with the *true* field angle: pinhole frame
+2b  point sources         photons  stars (``point_sources=``): the same field-varying PSF
+                                   integrated over the pixels at their sub-pixel positions,
+                                   added right after step 2 (with or without it), so that
+                                   distortion, smear, halo, ghosts, noise and blooming act on
+                                   them as on the rendered light
 3   distortion            photons  lens mapping onto the detector grid; before anything that
                                    belongs to the detector (PRNU, full well)
 4   rolling_shutter       photons  motion during integration acts on the focal-plane image
@@ -77,6 +82,7 @@ from numpy.typing import NDArray
 from starnav.camera import Camera
 from starnav.config_base import SIView
 from starnav.detector import blooming, charge, crosstalk, optics, readout, smear
+from starnav.detector.optics import PointSources
 from starnav.detector.products import Segments, Window
 from starnav.detector.schema import DetectorConfig, WindowSpec
 from starnav.detector.seeding import temporal_rng
@@ -166,6 +172,26 @@ def _aberration(img: Float32Array, ctx: ChainContext) -> Float32Array:
     out, lost = optics.apply_psf_grid(img, grid)
     ctx.book("optics_lost_e", lost)
     return out
+
+
+#: The effect after whose place in every chain order the point sources join the frame.
+POINT_SOURCES_AFTER = "aberration_psf"
+
+
+def add_point_sources(img: Float32Array, ctx: ChainContext, sources: PointSources
+                      ) -> Float32Array:
+    """Add ``sources`` (rate x exposure [x cos(theta)]) spread by the field-varying PSF at
+    their sub-pixel pinhole positions (:func:`~starnav.detector.optics.point_source_image`)."""
+    e = sources.rate * ctx.exposure_time
+    if ctx.config.optics.radiometry.relative_illumination:
+        x = (sources.u - ctx.camera.cx) / ctx.camera.fx
+        y = (sources.v - ctx.camera.cy) / ctx.camera.fy
+        e = e / np.sqrt(1.0 + x * x + y * y)  # the pupil seen at the field angle: cos(theta)
+    stars, lost = optics.point_source_image(img.shape, sources, e, ctx.camera,
+                                            ctx.config.optics.aberration)
+    ctx.book("photoelectrons_e", float(np.sum(e)))
+    ctx.book("optics_lost_e", lost)
+    return img + stars
 
 
 def _book_loss(ctx: ChainContext, before: Float32Array, after: Float32Array) -> None:
@@ -445,7 +471,8 @@ def expose(radiance: RadianceImage | NDArray[Any], camera: Camera,
            config: DetectorConfig | None = None, *, seed: int = 0, frame_index: int = 0,
            exposure_time: float | None = None,
            windows: Sequence[WindowSpec | Sequence[int] | dict] | None = None,
-           keep_stages: bool | None = None) -> Exposure:
+           keep_stages: bool | None = None,
+           point_sources: PointSources | None = None) -> Exposure:
     """Expose the detector to a radiance image and read it out like the AA-STR.
 
     Parameters
@@ -468,6 +495,9 @@ def expose(radiance: RadianceImage | NDArray[Any], camera: Camera,
         ``config.readout.windows``.
     keep_stages : bool, optional
         Keep a copy of the frame after every effect; default ``config.debug.keep_stages``.
+    point_sources : PointSources, optional
+        Stars (pinhole positions [px], rates [e-/s]), added after the aberration PSF's place
+        in the chain (step 2b of the module table); ``None``: the frame is exactly as without.
 
     Returns
     -------
@@ -509,13 +539,18 @@ def expose(radiance: RadianceImage | NDArray[Any], camera: Camera,
         eff = get_effect(name)
         if electrons is None and eff.stage in ("signal", "image"):
             electrons = img
-        if not eff.enabled(cfg, camera):
-            continue
-        t0 = time.perf_counter()
-        img = eff.apply(img, ctx)
-        times[name] = (time.perf_counter() - t0) * 1e3
-        if keep:
-            stages[name] = img.copy()
+        if eff.enabled(cfg, camera):
+            t0 = time.perf_counter()
+            img = eff.apply(img, ctx)
+            times[name] = (time.perf_counter() - t0) * 1e3
+            if keep:
+                stages[name] = img.copy()
+        if name == POINT_SOURCES_AFTER and point_sources is not None and len(point_sources):
+            t0 = time.perf_counter()
+            img = add_point_sources(img, ctx, point_sources)
+            times["point_sources"] = (time.perf_counter() - t0) * 1e3
+            if keep:
+                stages["point_sources"] = img.copy()
     if electrons is None:
         electrons = img
     t0 = time.perf_counter()

@@ -79,11 +79,12 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from starnav.camera import Camera
 from starnav.detector.fftconv import convolve_add, signal_bbox
 from starnav.detector.schema import AberrationPsfConfig, GhostConfig, StrayLightConfig
+from starnav.errors import ConfigError
 
 logger = logging.getLogger(__name__)
 
@@ -410,6 +411,131 @@ def apply_psf_grid(image: Float32Array, grid: PsfGrid) -> tuple[Float32Array, fl
             if not src.any():
                 continue
             lost += convolve_add(out, src, a0, b0, grid.kernels[j][i], grid.keys[j][i])
+    return out, lost
+
+
+# =========================================================================== point sources
+@dataclass(frozen=True)
+class PointSources:
+    """Unresolved sources (stars) for :func:`starnav.detector.expose`.
+
+    Attributes
+    ----------
+    u, v : (n,) arrays
+        Position in the *undistorted pinhole* image [px] (pixel centres at integers), where
+        the renderer would have drawn them; the chain's distortion moves them afterwards.
+    rate : (n,) array
+        Photo-electrons per second collected through the on-axis pupil [e-/s]
+        (irradiance x pupil area through the sensor response); off axis the chain multiplies by
+        the pupil's foreshortening ``cos(theta)`` when ``relative_illumination`` is on.
+    """
+
+    u: NDArray[np.float64]
+    v: NDArray[np.float64]
+    rate: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        arrs = [np.atleast_1d(np.asarray(getattr(self, k), float)) for k in ("u", "v", "rate")]
+        if len({a.shape for a in arrs}) != 1 or arrs[0].ndim != 1:
+            raise ConfigError("point_sources", [a.shape for a in arrs],
+                              "1-D u, v and rate arrays of equal length")
+        if not all(np.all(np.isfinite(a)) for a in arrs) or np.any(arrs[2] < 0):
+            raise ConfigError("point_sources", "non-finite position or negative rate",
+                              "finite positions [px] and rates >= 0 e-/s")
+        for k, a in zip(("u", "v", "rate"), arrs, strict=True):
+            object.__setattr__(self, k, a)
+
+    def __len__(self) -> int:
+        return int(self.u.size)
+
+
+def point_source_kernel(defocus_radius: float, sigma_radial: float, sigma_tangential: float,
+                        angle: float, oversample: int, du: float, dv: float) -> Float32Array:
+    """The PSF of :func:`aberration_kernel` for a point source at ``(du, dv)`` [px] from the
+    centre of the kernel's middle pixel (``|du|, |dv| <= 0.5``), integrated over each pixel
+    (``oversample`` samples per pixel and axis): odd square, unit sum.
+
+    A rendered (extended) image is already averaged over each pixel by the renderer; a point
+    source is not, so its pixel values are the PSF integrated over the pixels at its sub-pixel
+    position, not the pixel-integrated kernel convolved once more with a pixel."""
+    smax = max(sigma_radial, sigma_tangential)
+    half = int(math.ceil(defocus_radius + GAUSS_TRUNCATE_SIGMA * smax + 1.5))
+    s = int(oversample)
+    n = (2 * half + 1) * s
+    step = 1.0 / s
+    t = (np.arange(n) + 0.5) * step - (half + 0.5)
+    x, y = np.meshgrid(t - du, t - dv)
+    ca, sa = math.cos(angle), math.sin(angle)
+    sr = max(sigma_radial, 0.25 * step)
+    st = max(sigma_tangential, 0.25 * step)
+
+    def gauss(gx: NDArray[np.float64], gy: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.exp(-0.5 * (((ca * gx + sa * gy) / sr) ** 2 + ((-sa * gx + ca * gy) / st) ** 2))
+
+    disc = disc_coverage(defocus_radius, x, y, step) if defocus_radius > 0 else None
+    if disc is not None and disc.sum() == 0:
+        disc = None
+    if smax <= 0 and disc is None:  # no optics: the pixel that holds the point takes it all
+        k = np.zeros((2 * half + 1, 2 * half + 1))
+        k[half + int(round(dv)), half + int(round(du))] = 1.0
+        return k.astype(np.float32)
+    if disc is None:
+        fine = gauss(x, y)
+    elif smax <= 0:
+        fine = disc
+    else:
+        from scipy.signal import fftconvolve
+
+        m = int(math.ceil(GAUSS_TRUNCATE_SIGMA * smax / step))
+        g = np.arange(-m, m + 1) * step
+        gx, gy = np.meshgrid(g, g)
+        fine = fftconvolve(disc, gauss(gx, gy), mode="same")  # odd kernel: exactly centred
+    fine = np.clip(fine, 0.0, None)
+    k = fine.reshape(2 * half + 1, s, 2 * half + 1, s).sum(axis=(1, 3))
+    return (k / k.sum()).astype(np.float32)
+
+
+def point_source_image(shape: tuple[int, int], sources: PointSources, electrons: ArrayLike,
+                       camera: Camera, cfg: AberrationPsfConfig
+                       ) -> tuple[Float32Array, float]:
+    """Point sources of ``electrons`` [e-] each, spread by the field-varying PSF of ``cfg``
+    at their sub-pixel positions (the tent blend of the four nearest node PSFs of
+    :func:`psf_grid`, as :func:`apply_psf_grid` blends them for a source pixel there).
+
+    Returns the ``(H, W)`` image [e-] and the electrons that fell outside the array."""
+    H, W = shape
+    out = np.zeros((H, W), np.float32)
+    el = np.broadcast_to(np.asarray(electrons, float), sources.u.shape)
+    lost = 0.0
+    if cfg.enabled:
+        u_nodes, v_nodes, params = _node_parameters(camera, cfg)
+    else:
+        u_nodes, v_nodes, params = (0.0,), (0.0,), [[(0.0, 0.0, 0.0, 0.0)]]
+    for u, v, e in zip(sources.u, sources.v, el, strict=True):
+        if e <= 0:
+            continue
+        iu, iv = int(math.floor(u + 0.5)), int(math.floor(v + 0.5))
+        du, dv = u - iu, v - iv
+        uu, vv = np.array([u]), np.array([v])
+        wu = [float(_tent(uu, u_nodes, i)[0]) for i in range(len(u_nodes))]
+        wv = [float(_tent(vv, v_nodes, j)[0]) for j in range(len(v_nodes))]
+        for j, b in enumerate(wv):
+            for i, a in enumerate(wu):
+                if a * b <= 0:
+                    continue
+                R, sr, st, ang = params[j][i]
+                k = point_source_kernel(R, sr, st, ang, cfg.oversample, du, dv)
+                h = k.shape[0] // 2
+                r0, c0 = iv - h, iu - h
+                rr0, rr1 = max(r0, 0), min(r0 + k.shape[0], H)
+                cc0, cc1 = max(c0, 0), min(c0 + k.shape[1], W)
+                amount = e * a * b
+                if rr0 < rr1 and cc0 < cc1:
+                    part = k[rr0 - r0:rr1 - r0, cc0 - c0:cc1 - c0]
+                    out[rr0:rr1, cc0:cc1] += (amount * part).astype(np.float32)
+                    lost += amount * (1.0 - float(part.sum(dtype=np.float64)))
+                else:
+                    lost += amount
     return out, lost
 
 

@@ -70,13 +70,15 @@ from starnav.errors import ConfigError, UnknownNameError
 from starnav.navigation.frames import Frame
 from starnav.navigation.pipeline import process_frame
 from starnav.navigation.refine import plan_windows
+from starnav.radiance import RadianceImage
 from starnav.seeding import STAGE_DETECTOR_TEMPORAL, STAGE_NAVIGATION, generator, seed_u32
 from starnav.simulate.build import chain_options
+from starnav.spectra import sensor_response_from_config
+from starnav.stars import StarField, frame_stars
 
 if TYPE_CHECKING:
     from starnav.camera import Camera
     from starnav.geometry import FrameGeometry
-    from starnav.radiance import RadianceImage
 
 log = logging.getLogger(__name__)
 
@@ -165,7 +167,10 @@ class Acquisition:
     planned : tuple of (row0, col0, height, width)
         Window requests [px].
     timings_s : dict
-        Wall time of ``detector`` (both acquisitions) and ``plan`` [s].
+        Wall time of ``detector`` (both acquisitions), ``plan`` and ``stars`` [s].
+    stars : StarField or None
+        The frame's stars when the scenario's ``stars.enabled`` (the truth: positions,
+        electrons, occultation; :func:`starnav.stars.frame_stars`), else None.
     """
 
     exposure_time: float
@@ -178,6 +183,7 @@ class Acquisition:
     plan_message: str
     planned: tuple[tuple[int, int, int, int], ...]
     timings_s: dict[str, float]
+    stars: StarField | None = None
 
     @property
     def segments(self):
@@ -195,7 +201,7 @@ class Acquisition:
         acqs = [acq(self.segments_exposure, "segments", 0)]
         if self.windows_exposure is not None:
             acqs.append(acq(self.windows_exposure, "windows", 1))
-        return {
+        out = {
             "format": "starnav-readout",
             "version": 1,
             "exposure_s": self.exposure_time,
@@ -215,6 +221,12 @@ class Acquisition:
                             [self.segments_exposure]
                             + ([self.windows_exposure] if self.windows_exposure else [])),
         }
+        if self.stars is not None:  # absent when stars are off: the file stays as it was
+            vis = self.stars.visible()
+            out["stars"] = {"count_in_frame": len(vis),
+                            "magnitude_limit_brightest_v": (float(vis.v.min()) if len(vis)
+                                                            else None)}
+        return out
 
 
 def plan_windows_from_segments(segments: Any, geom: FrameGeometry, camera: Camera,
@@ -283,8 +295,12 @@ def acquire(radiance: RadianceImage | Any, geom: FrameGeometry, camera: Camera,
         update={"windows": (), "modes": tuple(m for m in cfg.readout.modes if m != "windows")
                 or ("segments",)})})
     t0 = time.perf_counter()
+    stars = star_field(radiance, geom, camera, scenario, t_exp)
+    t_stars = time.perf_counter() - t0
+    sources = stars.point_sources() if stars is not None else None
+    t0 = time.perf_counter()
     e0 = expose(radiance, camera, cfg0, seed=acquisition_seed(seed, run, 0), frame_index=index,
-                exposure_time=t_exp, windows=())
+                exposure_time=t_exp, windows=(), point_sources=sources)
     t_det = time.perf_counter() - t0
     status, message, planned = "skipped", "windows mode 'none'", []
     t_plan = 0.0
@@ -307,7 +323,8 @@ def acquire(radiance: RadianceImage | Any, geom: FrameGeometry, camera: Camera,
                     update={"modes": ("windows",), "windows": ()})})
                 t0 = time.perf_counter()
                 e1 = expose(radiance, camera, cfg1, seed=acquisition_seed(seed, run, 1),
-                            frame_index=index, exposure_time=t_exp, windows=planned)
+                            frame_index=index, exposure_time=t_exp, windows=planned,
+                            point_sources=sources)
                 t_det += time.perf_counter() - t0
                 wins = e1.windows
     if status != "ok":
@@ -315,4 +332,18 @@ def acquire(radiance: RadianceImage | Any, geom: FrameGeometry, camera: Camera,
     return Acquisition(exposure_time=t_exp, run=int(run), segments_exposure=e0, windows=wins,
                        windows_exposure=e1, windows_mode=mode, plan_status=status,
                        plan_message=message, planned=tuple(tuple(p) for p in planned),
-                       timings_s={"detector": t_det, "plan": t_plan})
+                       timings_s={"detector": t_det, "plan": t_plan, "stars": t_stars},
+                       stars=stars)
+
+
+def star_field(radiance: RadianceImage | Any, geom: FrameGeometry, camera: Camera,
+               scenario: Scenario, exposure_time: float) -> StarField | None:
+    """The frame's stars when ``scenario.stars.enabled`` (else None): the scenario's sensor
+    response and detector, the renderer's hit mask occulting them
+    (:func:`starnav.stars.frame_stars`)."""
+    if not scenario.stars.enabled:
+        return None
+    return frame_stars(geom, camera, scenario.stars,
+                       sensor_response_from_config(scenario.sensor_response),
+                       exposure_time=exposure_time, detector=scenario.detector,
+                       radiance=radiance if isinstance(radiance, RadianceImage) else None)

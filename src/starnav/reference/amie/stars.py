@@ -1,0 +1,116 @@
+"""Vega on the real AMIE frame 040326: the star field of :mod:`starnav.stars` against pixels.
+
+Technique
+---------
+1. **Real.** The 200 ms frame ``AMI_EE3_040326_00034_00200`` is calibrated like the Moon
+   frames and Vega measured by :func:`~starnav.reference.amie.vega.star_photometry`: the sum
+   within 10 px minus the mean of the 30-100 px annulus [DN], and the brightest pixel [DN].
+2. **Simulated.** HIP 91262 (Vega) from the Hipparcos catalogue at the frame's epoch, its
+   electrons from :mod:`starnav.stars.radiometry` (V from Hp and B - V, black body by colour,
+   the V = 0 zero point) through the AMIE camera, response and detector
+   (:mod:`~starnav.reference.amie.presets`), drawn by the detector chain at the real centroid
+   (the attitude is chosen so; position is not what is scored) on a black sky, then measured
+   by the same photometry.
+3. **Circularity.** The AMIE quantum efficiency (0.212) was *measured on this very frame*
+   (Vega's CALSPEC spectrum, :mod:`~starnav.reference.amie.vega`), and so was the PSF core.
+   So ``total sim / real`` with that QE is NOT an independent check of the camera: it tests
+   only the star radiometry (catalogue V, black body, zero point) against Vega's measured
+   spectrum through the same band. The independent numbers are returned too: the same ratio
+   with the AMIE user manual's efficiency bound (0.15, what ABRAM uses) and with the QE the
+   Moon frames imply (ROLO-calibrated Moon, never this frame: the Moon frames came out at
+   :data:`MOON_SIGNAL_RATIO` of the real signal with the Vega QE, docs/real-images.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from starnav.camera import Camera
+from starnav.detector import DetectorConfig, expose
+from starnav.geometry import FrameGeometry, look_rotation
+from starnav.reference.amie.frame import calibrate, packaged_frame, read_amie
+from starnav.reference.amie.presets import amie_detector
+from starnav.reference.amie.vega import VEGA_FRAME, load_calibration, star_photometry
+from starnav.spectra import (
+    AMIE_QUANTUM_EFFICIENCY_MANUAL,
+    amie_quantum_efficiency,
+    sensor_response,
+)
+from starnav.stars.catalogue import hipparcos
+from starnav.stars.field import frame_stars
+from starnav.stars.schema import StarsConfig
+
+#: Vega's Hipparcos number.
+VEGA_HIP = 91262
+#: Median simulated / real disc signal of the four REGULAR AMIE Moon frames with the Vega QE
+#: (0.918, 0.944, 0.976, 0.966: docs/real-images.md, ``starnav real amie``, 2026-11-24):
+#: the Moon (ROLO) says the QE is 0.212 / 0.955 = 0.222.
+MOON_SIGNAL_RATIO = 0.955
+
+
+@dataclass(frozen=True)
+class VegaCheck:
+    """Vega simulated against the real frame (units in the names)."""
+
+    real_total_dn: float
+    real_peak_dn: float
+    sim_total_dn: float
+    sim_peak_dn: float
+    sim_electrons_e: float
+    vega_v_mag: float
+    quantum_efficiency: float
+
+    @property
+    def total_ratio(self) -> float:
+        """Simulated / real total signal with the Vega-measured QE (circular for the QE)."""
+        return self.sim_total_dn / self.real_total_dn
+
+    @property
+    def peak_ratio(self) -> float:
+        return self.sim_peak_dn / self.real_peak_dn
+
+    @property
+    def total_ratio_manual_qe(self) -> float:
+        """The same with the AMIE manual's efficiency bound 0.15 (independent of this frame)."""
+        return self.total_ratio * AMIE_QUANTUM_EFFICIENCY_MANUAL / self.quantum_efficiency
+
+    @property
+    def total_ratio_moon_qe(self) -> float:
+        """The same with the QE the ROLO-calibrated Moon frames imply (independent of this
+        frame): ``QE_vega / MOON_SIGNAL_RATIO``."""
+        return self.total_ratio / MOON_SIGNAL_RATIO
+
+
+def vega_check(seed: int = 0) -> VegaCheck:
+    """Module steps 1-2 on the packaged frame."""
+    frame = read_amie(packaged_frame(VEGA_FRAME))
+    cal = calibrate(frame)
+    noise = float(cal.background_rms_dn)
+    real = star_photometry(np.asarray(cal.dn, float), np.asarray(cal.valid, bool), noise)
+    cam = Camera.preset("amie")
+    det = DetectorConfig.model_validate(amie_detector(frame.exposure_s))
+    stored = load_calibration()
+    cu, cv = stored["centroid_px"]
+    cat = hipparcos()
+    t = frame.start_time
+    epoch = t.year + (t.timetuple().tm_yday - 1 + t.hour / 24.0) / 365.25
+    d = cat.directions(epoch, [cat.index_of(VEGA_HIP)])[0]
+    R = look_rotation(cam.unproject(np.array([cu, cv])), d)
+    # a black sky: the Moon far behind the camera
+    geom = FrameGeometry(camera_position=1e9 * d, R_cam_to_inertial=R,
+                         sun_position=np.array([1.5e11, 0.0, 0.0]))
+    field = frame_stars(geom, cam, StarsConfig(enabled=True, magnitude_limit=4.0,
+                                               epoch_jyear=epoch),
+                        sensor_response("amie"), exposure_time=frame.exposure_s, detector=det)
+    vega = field.hip == VEGA_HIP
+    e = expose(np.zeros((cam.height, cam.width), np.float32), cam, det, seed=seed,
+               point_sources=field.point_sources())
+    dn = e.dn.astype(float) - det.adc.offset_dn
+    sim = star_photometry(dn, np.ones(dn.shape, bool), noise)
+    return VegaCheck(real_total_dn=real["total_dn"], real_peak_dn=real["peak_dn"],
+                     sim_total_dn=sim["total_dn"], sim_peak_dn=sim["peak_dn"],
+                     sim_electrons_e=float(field.electrons[vega][0]),
+                     vega_v_mag=float(field.v[vega][0]),
+                     quantum_efficiency=amie_quantum_efficiency())
