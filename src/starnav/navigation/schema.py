@@ -39,7 +39,7 @@ from starnav.navigation.refine import (
     RefineOptions,
     packaged_model_error,
 )
-from starnav.navigation.trn.frontend import FrontEndOptions
+from starnav.navigation.trn.options import FrontEndOptions
 
 
 class LimbConfig(StrictModel):

@@ -71,7 +71,7 @@ def flyby_exposures(sim: Simulator, img: RadianceImage, geom: FrameGeometry, fro
     index = int(geom.index)
     e0 = expose(img, sim.camera, cfg0, seed=acquisition_seed(sc.seed, run, 0),
                 frame_index=index, windows=())
-    reader = WindowReader(e0.segments)
+    reader = WindowReader.from_exposures(e0)
     plan = front_end.plan(reader, index=index, epoch_tdb=geom.epoch_tdb,
                           R_cam_to_inertial=geom.R_cam_to_inertial_known,
                           attitude_sigma=sc.pointing.knowledge_sigma)
