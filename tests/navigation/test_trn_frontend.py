@@ -76,8 +76,9 @@ def test_tracks_follow_the_true_projections_of_their_surface_points(rendered):
     """Measured on this scenario: 19 tracks, all 7 frames long; rms 0.26 px over the 6
     frames after detection (growing from ~0.1 px at one frame to ~0.3 px at six: the shading
     drifts on the surface as the view turns); the truth is exact at the detection (pixel
-    centres, to the float32 AOVs' 1e-4 px). Asserted: >= 10 tracks over all 7 frames, rms < 0.3 px, no error > 1 px, and
-    the stated 1-sigma covers it (< 5 % of the errors beyond 3 sigma)."""
+    centres, to the float32 AOVs' 1e-4 px). Asserted: >= 10 tracks over all 7 frames,
+    rms < 0.3 px, no error > 1 px, and the stated 1-sigma covers it (< 5 % of the errors
+    beyond 3 sigma)."""
     _, _, steps = rendered
     tracks = _errors(steps)
     full = [k for k, v in tracks.items() if len(v) == TRACK_FRAMES]
@@ -103,7 +104,7 @@ def test_windows_body_and_readout_law(rendered):
     threshold cuts the dimmest: radius within 3 %, centroid within 2 px)."""
     sim, renders, steps = rendered
     H, W = sim.camera.height, sim.camera.width
-    for s, (geom, img) in zip(steps, renders, strict=True):
+    for s, (_geom, img) in zip(steps, renders, strict=True):
         m = s.frame.measurement
         assert 1 <= len(m.windows) <= 16
         area = sum(h * w for _, _, h, w in m.windows)
