@@ -39,6 +39,7 @@ from starnav.navigation.refine import (
     RefineOptions,
     packaged_model_error,
 )
+from starnav.navigation.trn.options import FrontEndOptions
 
 
 class LimbConfig(StrictModel):
@@ -150,6 +151,48 @@ class FilterConfig(StrictModel):
     rk4_step_s: PositiveFloat = Field(300.0, description="RK4 step of the filter dynamics [s]")
 
 
+class TrnFrontEndConfig(StrictModel):
+    """Fly-by front end: windows and feature tracking (starnav.navigation.trn.frontend)."""
+
+    n_windows: Annotated[int, Field(ge=1, le=16)] = Field(
+        8, description="windows read per frame (AA-STR: at most 16)")
+    core_px: Annotated[int, Field(ge=1)] = Field(
+        16, description="side of the region a new window detects features in [px]")
+    template_half_px: Annotated[int, Field(ge=1)] = Field(
+        7, description="half side of the Lucas-Kanade template [px]")
+    search_margin_px: Annotated[int, Field(ge=0)] = Field(
+        5, description="room for the motion-prediction error around the template [px]")
+    max_window_px: Annotated[int, Field(ge=1)] = Field(64, description="largest window side [px]")
+    limb_margin_px: NonNegativeFloat = Field(
+        6.0, description="clearance of features from the lit mask's edge (limb, terminator) [px]")
+    min_tracks_per_window: Annotated[int, Field(ge=1)] = Field(
+        3, description="a window with fewer tracks detects new features")
+    max_tracks_per_window: Annotated[int, Field(ge=1)] = Field(
+        6, description="tracks per window at most")
+    quality: Annotated[float, Field(gt=0, lt=1)] = Field(
+        0.05, description="Shi-Tomasi quality level (fraction of the window's best corner) [-]")
+    min_distance_px: PositiveFloat = Field(5.0, description="distance between features [px]")
+    fb_max_px: PositiveFloat = Field(0.3, description="forward-backward tracking limit [px]")
+    epipolar_px: PositiveFloat = Field(
+        1.0, description="epipolar RANSAC threshold (known attitude) [px]")
+    sigma_detect_px: NonNegativeFloat = Field(
+        0.05, description="1-sigma of a feature at its first detection [px]")
+    drift_px_per_rad: NonNegativeFloat = Field(
+        25.0, description="growth of a feature's 1-sigma with the camera rotation summed "
+        "along its track [px/rad] (the shading moves on the surface as the view turns)")
+
+    def options(self) -> FrontEndOptions:
+        """The :class:`~starnav.navigation.trn.frontend.FrontEndOptions` of this section."""
+        return FrontEndOptions(**self.model_dump())
+
+
+class TrnConfig(StrictModel):
+    """Asteroid fly-by terrain-relative navigation (starnav.navigation.trn)."""
+
+    front_end: TrnFrontEndConfig = Field(
+        default_factory=TrnFrontEndConfig, description="windows and feature tracking")
+
+
 class NavigationConfig(StrictModel):
     """Navigation chain settings (see :mod:`starnav.navigation`)."""
 
@@ -165,6 +208,9 @@ class NavigationConfig(StrictModel):
         default_factory=FixConfig, description="Christian-Robinson position fix from the limb")
     filter: FilterConfig = Field(
         default_factory=FilterConfig, description="extended Kalman filter over the fixes")
+    trn: TrnConfig = Field(
+        default_factory=TrnConfig, description="asteroid fly-by terrain-relative navigation "
+        "from windows")
     runs: Annotated[int, Field(ge=1)] = Field(
         1, description="Monte Carlo runs of `starnav navigate` (>= 2: each over its own "
         "detector noise, attitude knowledge error and initial error, with the consistency "

@@ -1,0 +1,129 @@
+"""The fly-by front end on rendered frames: acquisitions in the tracker's order, then truth.
+
+For each frame of a fly-by scenario (:class:`~starnav.simulate.frames.Simulator`):
+
+1. render (geometry, radiance with the body-fixed AOVs);
+2. **acquisition 0, segments** (:func:`starnav.detector.expose`, segments only), handed to
+   :meth:`FlybyFrontEnd.plan <starnav.navigation.trn.frontend.FlybyFrontEnd.plan>` through a
+   :class:`~starnav.navigation.trn.windows.WindowReader` with the frame's *measured* attitude;
+3. **acquisition 1, windows**: a second exposure of the same radiance reads the planned
+   windows (its own temporal noise, as :mod:`starnav.simulate.acquire` does for the limb);
+   the readout law is checked on the window pixels;
+4. :meth:`~starnav.navigation.trn.frontend.FlybyFrontEnd.track` on a reader of the two
+   readout *products* (never the full DN frame);
+5. truth attached by :class:`~starnav.navigation.trn.truth.FeatureTruthBook` from the AOVs.
+
+Noise streams are those of :func:`starnav.simulate.acquire.acquisition_seed` (acquisitions 0
+and 1 of run ``run``); the RANSAC stream is ``generator(seed, STAGE_NAVIGATION, run, 0,
+TRN_STREAM)`` for the whole sequence (the front end is stateful).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from starnav.detector import Exposure, expose
+from starnav.detector.readout import ReadoutTiming
+from starnav.geometry import FrameGeometry
+from starnav.navigation.trn.frontend import FlybyFrontEnd, FrontEndFrame, FrontEndOptions
+from starnav.navigation.trn.truth import FeatureTruthBook
+from starnav.navigation.trn.windows import WindowReader
+from starnav.radiance import RadianceImage
+from starnav.seeding import STAGE_NAVIGATION, generator
+from starnav.simulate.acquire import acquisition_seed, quiet_timing, sensor_seed_of
+from starnav.simulate.frames import Simulator
+
+#: Last key of the fly-by front end's RANSAC stream (never change).
+TRN_STREAM = 16
+
+
+@dataclass(frozen=True)
+class FlybyStep:
+    """One frame of :func:`track_flyby`.
+
+    Attributes
+    ----------
+    frame : FrontEndFrame
+        The front end's output; ``frame.measurement.truth`` is filled.
+    readout : tuple of ReadoutTiming
+        Readout-law check of the segments and (when windows were read) windows acquisitions.
+    geometry : FrameGeometry
+        The frame's truth.
+    """
+
+    frame: FrontEndFrame
+    readout: tuple[ReadoutTiming, ...]
+    geometry: FrameGeometry
+
+
+def flyby_exposures(sim: Simulator, img: RadianceImage, geom: FrameGeometry, front_end:
+                    FlybyFrontEnd, *, run: int = 0
+                    ) -> tuple[Exposure, Exposure | None, Any, WindowReader]:
+    """Acquisitions 0 and 1 of one frame (module steps 2-3): ``(segments exposure, windows
+    exposure or None, plan, reader)``; the reader holds the segments and the windows read
+    (their readout products only) and records every pixel the front end took from it."""
+    sc = sim.scenario
+    cfg = quiet_timing(sc.detector).model_copy(update={"sensor_seed": sensor_seed_of(sc)})
+    cfg0 = cfg.model_copy(update={"readout": cfg.readout.model_copy(
+        update={"windows": (), "modes": ("segments",)})})
+    index = int(geom.index)
+    e0 = expose(img, sim.camera, cfg0, seed=acquisition_seed(sc.seed, run, 0),
+                frame_index=index, windows=())
+    reader = WindowReader.from_exposures(e0)
+    plan = front_end.plan(reader, index=index, epoch_tdb=geom.epoch_tdb,
+                          R_cam_to_inertial=geom.R_cam_to_inertial_known,
+                          attitude_sigma=sc.pointing.knowledge_sigma)
+    e1 = None
+    if plan.windows:
+        cfg1 = cfg.model_copy(update={"readout": cfg.readout.model_copy(
+            update={"modes": ("windows",), "windows": ()})})
+        e1 = expose(img, sim.camera, cfg1, seed=acquisition_seed(sc.seed, run, 1),
+                    frame_index=index, windows=plan.windows)
+        reader = reader.with_windows(e1.windows)
+    return e0, e1, plan, reader
+
+
+def track_flyby(sim: Simulator, frames: Iterable[int] | None = None, *,
+                options: FrontEndOptions | None = None, run: int = 0,
+                renders: Sequence[tuple[FrameGeometry, RadianceImage]] | None = None
+                ) -> list[FlybyStep]:
+    """Run the fly-by front end over frames of ``sim``'s scenario (module steps 1-5).
+
+    Parameters
+    ----------
+    sim : Simulator
+        A fly-by scenario (``target.kind: shape_model``, ``trajectory.source: flyby``).
+    frames : iterable of int, optional
+        Frame indices in time order; default every frame.
+    options : FrontEndOptions, optional
+        Default ``navigation.trn.front_end`` of the scenario.
+    run : int
+        Monte Carlo run (detector noise streams).
+    renders : sequence of (FrameGeometry, RadianceImage), optional
+        Frames already rendered (``frames`` is then ignored).
+
+    Returns
+    -------
+    list of FlybyStep
+    """
+    sc = sim.scenario
+    opts = options or sc.navigation.trn.front_end.options()
+    fe = FlybyFrontEnd(sim.camera, opts,
+                       rng=generator(sc.seed, STAGE_NAVIGATION, run, 0, TRN_STREAM))
+    book = FeatureTruthBook(sim.camera)
+    if renders is None:
+        idx = range(len(sim)) if frames is None else frames
+        source: Iterable[tuple[FrameGeometry, RadianceImage]] = (sim.render(i) for i in idx)
+    else:
+        source = renders
+    out = []
+    for geom, img in source:
+        e0, e1, plan, reader = flyby_exposures(sim, img, geom, fe, run=run)
+        res = fe.track(reader, plan)
+        meas = book.annotate(res.measurement, geom, img.aovs, img.mask)
+        res = FrontEndFrame(meas, res.status, res.counts, res.timings_s, res.window_pixels)
+        timing = tuple(e0.timing) + (tuple(e1.timing) if e1 is not None else ())
+        out.append(FlybyStep(res, timing, geom))
+    return out
