@@ -127,7 +127,6 @@ from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from starnav.camera import Camera
@@ -139,6 +138,8 @@ FloatArray = NDArray[np.float64]
 
 #: Longest prediction sub-step [s] (the gravity-gradient transition is first order in it).
 MAX_STEP = 10.0
+#: Position change [m] below which the iterated update stops.
+ITERATION_TOLERANCE = 1e-3
 #: Orthonormality tolerance of a measured attitude matrix [-].
 ROTATION_TOLERANCE = 1e-6
 
@@ -176,6 +177,8 @@ class TrnFilterOptions:
         Radius model error as a fraction of the radius [-].
     use_centroid, use_radius : bool
         Use the silhouette's centroid / apparent radius.
+    iterations : int
+        Most relinearisations of the iterated update (1: the plain EKF).
     """
 
     accel_psd: float = 1e-8
@@ -188,11 +191,13 @@ class TrnFilterOptions:
     radius_model_fraction: float = 0.01
     use_centroid: bool = True
     use_radius: bool = True
+    iterations: int = 4
 
     def __post_init__(self) -> None:
         checks = (("accel_psd", self.accel_psd >= 0, ">= 0"),
                   ("gate_probability", 0 < self.gate_probability < 1, "in (0, 1)"),
                   ("max_landmarks", self.max_landmarks >= 0, ">= 0"),
+                  ("iterations", self.iterations >= 1, ">= 1"),
                   ("max_incidence", 0 < self.max_incidence < math.pi / 2, "in (0, pi/2) rad"),
                   ("landmark_height_sigma", self.landmark_height_sigma >= 0, ">= 0"),
                   ("centroid_model_sigma_px", self.centroid_model_sigma_px >= 0, ">= 0"),
@@ -353,12 +358,40 @@ def feature_model(camera: Camera, r: FloatArray, landmark: FloatArray, R_m: Floa
     to ``r`` (2, 3), the landmark (2, 3) and the attitude error ``dtheta`` (2, 3)."""
     p_m = R_m.T @ (R_bi @ landmark - r)
     dth = np.zeros(3) if dtheta is None else np.asarray(dtheta, float)
-    p = Rotation.from_rotvec(-dth).as_matrix() @ p_m
+    p = rotation_vector_matrix(-dth) @ p_m
     if p[2] <= 0:
         raise GeometryError("landmark behind the camera")
     J = camera.project_jacobian(p)
-    E = Rotation.from_rotvec(-dth).as_matrix()
+    E = rotation_vector_matrix(-dth)
     return camera.project(p), -J @ E @ R_m.T, J @ E @ R_m.T @ R_bi, J @ skew(p)
+
+
+def rotation_vector_matrix(w: ArrayLike) -> FloatArray:
+    """Rotation matrix ``exp([w]x)`` of a rotation vector [rad] (Rodrigues)."""
+    w = np.asarray(w, float)
+    a = float(np.linalg.norm(w))
+    W = skew(w)
+    if a < 1e-12:
+        return np.eye(3) + W
+    return np.eye(3) + math.sin(a) / a * W + (1.0 - math.cos(a)) / a**2 * (W @ W)
+
+
+def features_model(camera: Camera, r: FloatArray, landmarks: FloatArray, R_m: FloatArray,
+                   R_bi: FloatArray, dtheta: FloatArray
+                   ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, NDArray[np.bool_]]:
+    """:func:`feature_model` for landmarks ``(N, 3)`` at once: pixels (N, 2), Jacobians
+    (N, 2, 3) with respect to ``r``, the landmark and ``dtheta``, and whether each landmark is
+    in front of the camera (a landmark behind gets a dummy prediction)."""
+    E = rotation_vector_matrix(-np.asarray(dtheta, float))
+    C = E @ R_m.T
+    p = (landmarks @ R_bi.T - r) @ C.T
+    front = p[:, 2] > 0
+    p = np.where(front[:, None], p, np.array([0.0, 0.0, 1.0]))
+    J = camera.project_jacobian(p)
+    sk = np.zeros((p.shape[0], 3, 3))
+    sk[:, 0, 1], sk[:, 0, 2], sk[:, 1, 2] = -p[:, 2], p[:, 1], -p[:, 0]
+    sk[:, 1, 0], sk[:, 2, 0], sk[:, 2, 1] = p[:, 2], -p[:, 1], p[:, 0]
+    return camera.project(p), -J @ C, J @ (C @ R_bi), J @ sk, front
 
 
 def centroid_model(camera: Camera, r: FloatArray, offset: FloatArray, R_m: FloatArray,
@@ -368,7 +401,7 @@ def centroid_model(camera: Camera, r: FloatArray, offset: FloatArray, R_m: Float
     Jacobians with respect to ``r`` and ``dtheta`` (module step 4; ``offset`` the frozen point
     D, J2000, body-centred [m])."""
     dth = np.zeros(3) if dtheta is None else np.asarray(dtheta, float)
-    E = Rotation.from_rotvec(-dth).as_matrix()
+    E = rotation_vector_matrix(-dth)
     p = E @ R_m.T @ (offset - r)
     J = camera.project_jacobian(p)
     return camera.project(p), -J @ E @ R_m.T, J @ skew(p)
@@ -512,22 +545,14 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
         R_m = np.asarray(m.R_cam_to_inertial, float)
         R_bi = np.asarray(body.orientation(m.epoch_tdb), float)
         r = x[:3]
-        # 4 measurements
-        rows: list[tuple[str, FloatArray, FloatArray, FloatArray, int]] = []  # kind, nu, H, R, id
+        # 4 measurements: (kind, z, R, track id, model parameter)
+        rows: list[tuple[str, FloatArray, FloatArray, int, Any]] = []
         slot = {tid: j for j, tid in enumerate(ids)}
         for f in m.features:
             j = slot.get(f.track_id)
-            if j is None:
-                continue
-            s0 = 6 + 3 * j
-            try:
-                uv, Hr, Hl, Ht = feature_model(camera, r, x[s0:s0 + 3], R_m, R_bi)
-            except GeometryError:
-                continue
-            H = np.zeros((2, n))
-            H[:, :3], H[:, s0:s0 + 3], H[:, th] = Hr, Hl, Ht
-            rows.append(("feature", np.asarray(f.uv, float) - uv, H,
-                         np.eye(2) * f.sigma_px**2, f.track_id))
+            if j is not None:
+                rows.append(("feature", np.asarray(f.uv, float), np.eye(2) * f.sigma_px**2,
+                             f.track_id, 6 + 3 * j))
         need_sil = ((opt.use_centroid and m.centroid_uv is not None)
                     or (opt.use_radius and m.apparent_radius_px is not None))
         if need_sil:
@@ -541,25 +566,61 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             if sil is not None and opt.use_centroid and m.centroid_uv is not None:
                 ray = camera.unproject(sil.centroid_uv)
                 D = R_m @ (ray * (centre_cam[2] / ray[2])) + r
-                uv, Hr, Ht = centroid_model(camera, r, D, R_m)
-                H = np.zeros((2, n))
-                H[:, :3], H[:, th] = Hr, Ht
                 var = m.centroid_sigma_px**2 + opt.centroid_model_sigma_px**2
-                rows.append(("centroid", np.asarray(m.centroid_uv, float) - uv, H,
-                             np.eye(2) * var, -1))
+                rows.append(("centroid", np.asarray(m.centroid_uv, float), np.eye(2) * var,
+                             -1, D))
             if sil is not None and opt.use_radius and m.apparent_radius_px is not None:
                 kk = sil.radius_px * float(np.linalg.norm(r))
-                rho, Hr = radius_model(r, kk)
-                H = np.zeros((1, n))
-                H[:, :3] = Hr
-                var = m.apparent_radius_sigma_px**2 + (opt.radius_model_fraction * rho) ** 2
-                rows.append(("radius", np.array([m.apparent_radius_px - rho]), H,
-                             np.array([[var]]), -1))
+                var = m.apparent_radius_sigma_px**2 + (opt.radius_model_fraction
+                                                       * sil.radius_px) ** 2
+                rows.append(("radius", np.array([m.apparent_radius_px]), np.array([[var]]),
+                             -1, kk))
+
+        def predict_all(rs: list[tuple[str, FloatArray, FloatArray, int, Any]],
+                        xi: FloatArray, n: int = n, th: slice = th, R_m: FloatArray = R_m,
+                        R_bi: FloatArray = R_bi) -> tuple[list[FloatArray], list[FloatArray],
+                                                          list[bool]]:
+            """Predicted measurement and Jacobian of every row at ``xi`` (features batched);
+            ``False`` where a landmark is behind the camera."""
+            hs: list[FloatArray] = []
+            Hs: list[FloatArray] = []
+            ok: list[bool] = []
+            feat = [i for i, rw in enumerate(rs) if rw[0] == "feature"]
+            if feat:
+                slots = np.array([rs[i][4] for i in feat])
+                Lm = xi[slots[:, None] + np.arange(3)]
+                hf, Hr, Hl, Ht, front = features_model(camera, xi[:3], Lm, R_m, R_bi, xi[th])
+            fi = 0
+            for rw in rs:
+                kind, par = rw[0], rw[4]
+                H = np.zeros((rw[1].size, n))
+                good = True
+                if kind == "feature":
+                    h = hf[fi]
+                    H[:, :3], H[:, par:par + 3], H[:, th] = Hr[fi], Hl[fi], Ht[fi]
+                    good = bool(front[fi])
+                    fi += 1
+                elif kind == "centroid":
+                    h, Hc, Htc = centroid_model(camera, xi[:3], par, R_m, xi[th])
+                    H[:, :3], H[:, th] = Hc, Htc
+                else:
+                    rho, Hrr = radius_model(xi[:3], par)
+                    h = np.array([rho])
+                    H[:, :3] = Hrr
+                hs.append(h)
+                Hs.append(H)
+                ok.append(good)
+            return hs, Hs, ok
+
         # 5 gate
         accepted = []
-        for row in rows:
-            kind, nu, H, Rn, tid = row
-            S = H @ P @ H.T + Rn
+        h_all, H_all, ok_all = predict_all(rows, x)
+        for row, h1, H1, ok1 in zip(rows, h_all, H_all, ok_all, strict=True):
+            kind, z, Rn, tid, _ = row
+            if not ok1:
+                continue
+            nu = z - h1
+            S = H1 @ P @ H1.T + Rn
             d2 = float(nu @ np.linalg.solve(S, nu))
             if d2 <= gate[nu.size]:
                 accepted.append(row)
@@ -569,20 +630,33 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             elif kind == "feature":
                 out.features_rejected[k] += 1
                 banned.add(tid)
-        # 6 update
+        # 6 update: iterated EKF (Gauss-Newton on the measurements; Bell & Cathey 1993)
         if accepted:
-            nu = np.concatenate([a[1] for a in accepted])
-            H = np.vstack([a[2] for a in accepted])
-            Rn = _block_diag([a[3] for a in accepted])
-            S = H @ P @ H.T + Rn
-            S = 0.5 * (S + S.T)
-            Kg = np.linalg.solve(S, H @ P).T
-            x = x + Kg @ nu
+            z = np.concatenate([a[1] for a in accepted])
+            Rn = _block_diag([a[2] for a in accepted])
+            xi = x.copy()
+            for it in range(opt.iterations):
+                hl, Hl_, okl = predict_all(accepted, xi)
+                if not all(okl):
+                    break
+                h = np.concatenate(hl)
+                H = np.vstack(Hl_)
+                S = H @ P @ H.T + Rn
+                S = 0.5 * (S + S.T)
+                if it == 0:
+                    nu0, S0 = z - h, S
+                Kg = np.linalg.solve(S, H @ P).T
+                step = x + Kg @ (z - h - H @ (x - xi))
+                done = np.max(np.abs(step[:3] - xi[:3])) < ITERATION_TOLERANCE
+                xi = step
+                if done:
+                    break
+            x = xi
             IKH = np.eye(n) - Kg @ H
             P = IKH @ P @ IKH.T + Kg @ Rn @ Kg.T
             P = 0.5 * (P + P.T)
-            out.nis[k] = float(nu @ np.linalg.solve(S, nu))
-            out.nis_dof[k] = nu.size
+            out.nis[k] = float(nu0 @ np.linalg.solve(S0, nu0))
+            out.nis_dof[k] = nu0.size
         # drop the landmarks of rejected tracks
         if banned & set(ids):
             keep = [j for j, tid in enumerate(ids) if tid not in banned]
@@ -597,7 +671,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
         new = [f for f in m.features if f.track_id not in ids and f.track_id not in banned]
         if room > 0 and new:
             r = x[:3]
-            R_true = R_m @ Rotation.from_rotvec(x[th]).as_matrix()
+            R_true = R_m @ rotation_vector_matrix(x[th])
             placed = BodyInCamera.place(shape.vertices, shape.faces, R_true.T @ R_bi,
                                         R_true.T @ (-r))
             Js, Gs, Ns, ls, born = [], [], [], [], []
