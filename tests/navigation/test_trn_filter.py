@@ -321,5 +321,5 @@ def test_config_is_read_in_si():
     o = c.trn.filter.options()
     assert o.max_incidence == pytest.approx(math.radians(60))
     assert c.trn.filter.initial_covariance()[0, 0] == pytest.approx(2000.0**2)
-    with pytest.raises(StarnavError, match="max_incidence_deg"):
+    with pytest.raises(ValueError, match="max_incidence_deg"):
         NavigationConfig.model_validate({"trn": {"filter": {"max_incidence_deg": 95}}})
