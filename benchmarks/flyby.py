@@ -1,10 +1,11 @@
-"""Fly-by front end: per-frame cost of each stage (issue 16, item 7).
+"""Fly-by: per-frame cost of each stage, front end and estimator (issue 16, item 7).
 
 Renders a short Itokawa fly-by (the scenario of tests/navigation/test_trn_frontend.py, at
 256 x 256 and at 512 x 512 px), runs the front end on its segments and windows, and prints
 one JSON document: machine, date, and per stage (segments analysis, window planning,
 detection, tracking, outlier rejection) the median and max per frame [ms], the windows and
-tracks per frame. Rendering and the detector are timed apart (not front-end stages). Usage::
+tracks per frame. Rendering and the detector are timed apart (not front-end stages). Then the
+estimator on synthetic measurements (:func:`bench_filter`). Usage::
 
     export DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM.so.19.1
     .venv/bin/python benchmarks/flyby.py
@@ -33,7 +34,7 @@ def scenario(width: int, focal_mm: float, frames: int) -> dict:
             "detector": {"exposure_time_s": 3e-5}}
 
 
-def main() -> None:
+def bench_front_end() -> None:
     from starnav.config import scenario_from_dict
     from starnav.navigation.trn.frontend import STAGES
     from starnav.navigation.trn.options import FrontEndOptions
@@ -67,6 +68,50 @@ def main() -> None:
             "tracks per frame": [len(st.frame.measurement.features) for st in steps],
         }
     print(json.dumps(out, indent=2))
+
+
+def bench_filter(runs: int = 3) -> None:
+    """The estimator on synthetic measurements of Itokawa at 10 km, 1 km/s, 61 frames."""
+    from starnav.bodies.small_body import ShapeModelBody
+    from starnav.camera import Camera
+    from starnav.navigation.schema import TrnFilterConfig
+    from starnav.navigation.trn.filter import run_filter
+    from starnav.navigation.trn.synthetic import (
+        SyntheticOptions,
+        flyby_truth,
+        initial_estimate,
+        run_measurements,
+    )
+    from starnav.scenes.flyby import flyby_from_config
+    from starnav.scenes.schema import FlybyConfig
+
+    body = ShapeModelBody()
+    cam = Camera.preset("aa-str")
+    fb = flyby_from_config(FlybyConfig(v_inf_km_s=1.0, closest_approach_km=10.0), 0.0, body.gm)
+    epochs = np.arange(-60.0, 60.01, 2.0)
+    syn = SyntheticOptions()
+    t0 = time.process_time()
+    truth = flyby_truth(fb, body, cam, epochs, syn)
+    t_truth = (time.process_time() - t0) / epochs.size
+    cfg = TrnFilterConfig()
+    P0 = cfg.initial_covariance()
+    per_frame = []
+    for r in range(runs):
+        meas = run_measurements(truth, 0, r, syn)
+        x0 = initial_estimate(truth, P0, 0, r)
+        t0 = time.process_time()
+        run = run_filter(meas, cam, body, x0, P0, cfg.options(),
+                         sun_direction=truth.sun_direction)
+        per_frame.append((time.process_time() - t0) / epochs.size)
+    print(f"synthetic truth geometry: {1e3 * t_truth:.1f} ms CPU per frame")
+    print(f"filter ({syn.max_features} tracks, <= {cfg.max_landmarks} landmarks, "
+          f"{int(run.landmarks.max())} reached): {1e3 * np.median(per_frame):.1f} ms CPU "
+          "per frame (median of runs)")
+
+
+def main() -> None:
+    bench_front_end()
+    bench_filter()
 
 
 if __name__ == "__main__":

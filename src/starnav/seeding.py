@@ -26,6 +26,7 @@ STAGE_DETECTOR_TEMPORAL = 4
 STAGE_NAVIGATION = 5
 STAGE_HIL = 6
 STAGE_TERRAIN = 7
+STAGE_FLYBY_SYNTHETIC = 8   # synthetic fly-by measurements and initial errors (trn.synthetic)
 
 #: Stream keys under a procedural world's own seed (never renumber: worlds depend on them).
 WORLD_CRATERS = 1

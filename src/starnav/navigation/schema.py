@@ -39,6 +39,7 @@ from starnav.navigation.refine import (
     RefineOptions,
     packaged_model_error,
 )
+from starnav.navigation.trn.filter import TrnFilterOptions
 from starnav.navigation.trn.options import FrontEndOptions
 
 
@@ -186,11 +187,57 @@ class TrnFrontEndConfig(StrictModel):
         return FrontEndOptions(**self.model_dump())
 
 
+class TrnFilterConfig(StrictModel):
+    """The fly-by estimator (starnav.navigation.trn.filter): an EKF with body-fixed landmark
+    states."""
+
+    accel_psd_m2_s3: NonNegativeFloat = Field(
+        1e-8, description="white-acceleration PSD of the relative motion [m^2/s^3]")
+    gravity: bool = Field(True, description="the body's point-mass gravity in the prediction")
+    gate_probability: Annotated[float, Field(gt=0, lt=1)] = Field(
+        0.9999, description="chi-square gate of each feature, centroid and radius [-]")
+    max_landmarks: Annotated[int, Field(ge=0)] = Field(
+        40, description="most landmark (feature) states at once")
+    max_incidence_deg: Annotated[float, Field(gt=0, lt=90)] = Field(
+        75.0, description="steepest angle between a new landmark's ray and the surface normal "
+        "[deg]")
+    landmark_height_sigma_m: NonNegativeFloat = Field(
+        1.0, description="shape-model height error at a new landmark, 1-sigma [m]")
+    centroid_model_sigma_px: NonNegativeFloat = Field(
+        0.3, description="lit-centroid model error added in quadrature [px]")
+    radius_model_fraction: NonNegativeFloat = Field(
+        0.01, description="apparent-radius model error as a fraction of the radius [-]")
+    use_centroid: bool = Field(True, description="use the lit silhouette's centroid")
+    use_radius: bool = Field(True, description="use the lit silhouette's apparent radius")
+    initial_position_sigma_km: PositiveFloat = Field(
+        1.0, description="initial 1-sigma of the relative position, per axis [km]")
+    initial_velocity_sigma_m_s: PositiveFloat = Field(
+        5.0, description="initial 1-sigma of the relative velocity, per axis [m/s]")
+
+    def options(self) -> TrnFilterOptions:
+        """The SI :class:`~starnav.navigation.trn.filter.TrnFilterOptions`."""
+        si = self.to_si()
+        return TrnFilterOptions(
+            accel_psd=si.accel_psd, gravity=si.gravity, gate_probability=si.gate_probability,
+            max_landmarks=si.max_landmarks, max_incidence=si.max_incidence,
+            landmark_height_sigma=si.landmark_height_sigma,
+            centroid_model_sigma_px=si.centroid_model_sigma_px,
+            radius_model_fraction=si.radius_model_fraction, use_centroid=si.use_centroid,
+            use_radius=si.use_radius)
+
+    def initial_covariance(self) -> NDArray[np.float64]:
+        """The diagonal initial covariance (6, 6) [m^2, m^2/s^2]."""
+        si = self.to_si()
+        return np.diag([si.initial_position_sigma**2] * 3 + [si.initial_velocity_sigma**2] * 3)
+
+
 class TrnConfig(StrictModel):
     """Asteroid fly-by terrain-relative navigation (starnav.navigation.trn)."""
 
     front_end: TrnFrontEndConfig = Field(
         default_factory=TrnFrontEndConfig, description="windows and feature tracking")
+    filter: TrnFilterConfig = Field(
+        default_factory=TrnFilterConfig, description="the estimator: EKF with landmark states")
 
 
 class NavigationConfig(StrictModel):
@@ -210,7 +257,7 @@ class NavigationConfig(StrictModel):
         default_factory=FilterConfig, description="extended Kalman filter over the fixes")
     trn: TrnConfig = Field(
         default_factory=TrnConfig, description="asteroid fly-by terrain-relative navigation "
-        "from windows")
+        "from windows (front end and estimator)")
     runs: Annotated[int, Field(ge=1)] = Field(
         1, description="Monte Carlo runs of `starnav navigate` (>= 2: each over its own "
         "detector noise, attitude knowledge error and initial error, with the consistency "

@@ -1,0 +1,723 @@
+"""Fly-by estimator: an EKF with body-fixed landmark states, fed by tracked features, the
+tracker's own attitude, and the lit silhouette's centroid and apparent size.
+
+What it estimates
+-----------------
+The spacecraft's position ``r`` and velocity ``v`` relative to the body's centre (the origin of
+its shape model), in J2000 axes [m, m/s], with their covariance, from a sequence of
+:class:`~starnav.navigation.trn.measurements.FlybyMeasurement` (one per frame).
+
+Why an EKF with landmark states (and not an MSCKF)
+--------------------------------------------------
+The body's shape and spin are known (the shape model, the IAU spin of
+:class:`~starnav.bodies.small_body.ShapeModelBody`), so a tracked surface feature is a point
+*fixed in the body frame* whose position is, at its first sighting, almost known: the ray of its
+pixel cast from the estimated position onto the shape model. A landmark state ``l`` (3 body-fixed
+coordinates) therefore starts with a covariance of a few metres to tens of metres, not the
+unbounded depth of a bearing-only SLAM landmark, and a track of a few frames already constrains
+the relative motion. An MSCKF would throw that prior away (it triangulates the feature from the
+window of poses and marginalises it) and needs long tracks and a clone of the pose per frame;
+with tracks of 5-30 frames (windows, a rotating body, a fast fly-by) and at most a few tens of
+features at once, the landmark EKF is smaller and simpler: 6 + 3 N states, N <= ``max_landmarks``
+(40: 126 states, a few milliseconds per frame; ``benchmarks/flyby.py``).
+
+Observability (what fixes the scale)
+------------------------------------
+* **Bearings only do not.** With constant-velocity relative motion, scaling ``(r, v)`` and the
+  landmarks by the same factor leaves every bearing unchanged; classic bearings-only target
+  motion analysis needs an observer manoeuvre (Nardone & Aidala 1981). A star tracker on a
+  ballistic fly-by makes none.
+* **The body's known size does.** The apparent radius ``rho`` of a body of known shape gives the
+  range, ``|r| ~ f R / rho`` (``f`` the focal length in pixels); the shape model also fixes the
+  landmarks' scale, since a landmark is put on the surface, and the spread of the features then
+  measures the range as the radius does, more precisely once many are tracked.
+* **The centroid fixes the direction** of the body in the camera frame, hence (with the
+  attitude) the inertial direction of ``r``; it is biased towards the Sun by the phase (only
+  the lit part is seen). That bias is *modelled*: the prediction is the centroid of the lit
+  facets of the shape model seen from the estimated position under the known Sun
+  (:func:`~starnav.navigation.trn.body_view.lit_silhouette`); what the facet model leaves out
+  (cast shadows, hidden facets counted, the segments threshold) is covered by
+  ``centroid_model_sigma_px`` and ``radius_model_fraction``, added in quadrature.
+* **Features fix the relative motion**: their image motion between frames is the parallax of
+  body-fixed points, i.e. ``v`` over range, and with the range known, ``v``.
+
+Technique (per frame)
+---------------------
+1. **Predict** ``(r, v)`` from the previous epoch: constant velocity plus, with ``gravity``, the
+   body's point-mass acceleration ``-GM r / |r|^3`` (the process model of both ``Flyby``
+   dynamics: ``straight`` has no gravity, ``hyperbolic`` the Kepler term; for Itokawa at 10 km
+   it is 2e-8 m/s^2 and either model fits), in steps of at most ``MAX_STEP`` seconds, with the
+   gravity-gradient state transition and white-acceleration process noise of PSD ``q``:
+   ``Q = q [[dt^3/3, dt^2/2], [dt^2/2, dt]] (x) I_3`` (Bar-Shalom et al. 2001, 6.2.2).
+   Landmarks are fixed in the body frame (no process noise); the body's rotation is applied in
+   the measurement, ``R_bi(t) l``.
+2. **Drop** the landmarks whose track is absent from this frame (the contract gives a
+   re-acquired feature a new id): their rows and columns are deleted (marginalised).
+3. **Attitude error as a frame state.** The measured attitude ``R_m`` (camera -> J2000) is
+   wrong by a small rotation ``dtheta`` about the camera axes, ``R_true = R_m exp([dtheta]x)``,
+   ``dtheta ~ N(0, diag(attitude_sigma^2))``, independent between frames. It is appended to
+   the state for the frame, so that its effect, common to every measurement of the frame, is
+   correlated exactly (not as an inflated diagonal noise), and the landmarks born in the frame
+   carry their share of it; it is marginalised at the end of the frame.
+4. **Measurements** (all distorted pixels, :class:`~starnav.camera.Camera`):
+
+   * feature of landmark ``l``: ``uv = project(exp(-[dtheta]x) R_m^T (R_bi l - r))``;
+   * centroid: ``uv_c = project(R_m^T (D - r))``, ``D`` the point along the ray of the
+     predicted lit centroid at the depth of the body's centre, frozen at the prediction (the
+     phase bias);
+   * apparent radius: ``rho = K / |r|``, ``K = rho_pred |r_pred|`` from the lit facets' area.
+
+   Jacobians are analytic (``tests/navigation/test_trn_filter.py`` checks them by central
+   differences).
+5. **Gate** each feature, the centroid and the radius on their own innovation,
+   ``nu^T S^-1 nu < chi2.ppf(gate_probability, dof)``; a rejected feature's landmark is
+   dropped and its track id ignored from then on (a tracker that jumped keeps the id).
+6. **Update** with every accepted measurement at once (Joseph form); the NIS of the stacked
+   innovation (its dof = the number of scalars) is recorded.
+7. **New landmarks**: each new track's pixel ray, cast from the updated ``r`` under the updated
+   attitude onto the shape model (:func:`~starnav.navigation.trn.body_view.raycast`), gives
+   ``l = R_bi^T (r + t d)``. Locally the surface is the facet's plane (normal ``n``), so
+   ``dl/dr = R_bi^T (I - d n^T / (n.d))`` (a position error along the ray moves nothing),
+   ``dl/dd = t`` times the same, and a height error ``h`` of the model moves ``l`` by
+   ``d / (n.d)`` per metre. The state is augmented with ``l`` and its covariance
+   ``J P J^T + G N G^T`` and cross-covariance ``J P`` (EKF-SLAM augmentation, Bar-Shalom et al.
+   2001; Davison et al. 2007); rays that miss or meet the surface beyond ``max_incidence``
+   are left for the next frame. The first sighting is spent on the initialisation.
+8. **Marginalise** ``dtheta``; record ``(r, v)``, its covariance, NIS and the counts.
+
+Tuning knobs (:class:`TrnFilterOptions`; scenario keys in
+:class:`~starnav.navigation.schema.TrnFilterConfig`)
+------------------------------------------------------
+======================== ============= =====================================================
+knob                     default       effect
+======================== ============= =====================================================
+accel_psd                1e-8 m^2/s^3  unmodelled acceleration (SRP ~1e-8 m/s^2, thrusters)
+gravity                  True          point-mass gravity of the body in the prediction
+gate_probability         0.9999        per-measurement chi-square gate (dof 2 or 1)
+max_landmarks            40            landmark states at once (cost ~ N^2 per frame)
+max_incidence            75 deg        steepest ray-to-normal angle of a landmark birth
+landmark_height_sigma    1 m           shape-model height error at a landmark birth
+centroid_model_sigma_px  0.3 px        added to the centroid's sigma (facet model error)
+radius_model_fraction    0.01          added to the radius's sigma, times the radius
+use_centroid, use_radius True          which silhouette measurements are used
+======================== ============= =====================================================
+
+Example
+-------
+>>> from starnav.navigation.trn.filter import TrnFilterOptions, run_filter
+>>> # run = run_filter(measurements, camera, body, x0, P0, TrnFilterOptions(),
+>>> #                  sun_direction=flyby.sun_direction)
+
+References
+----------
+Y. Bar-Shalom, X. R. Li and T. Kirubarajan, "Estimation with applications to tracking and
+navigation", Wiley (2001): 5.4 (NEES, NIS), 6.2.2 (white-noise acceleration model).
+S. C. Nardone and V. J. Aidala, "Observability criteria for bearings-only target motion
+analysis", IEEE Trans. AES 17 (1981) 162-166.
+A. J. Davison, I. D. Reid, N. D. Molton and O. Stasse, "MonoSLAM: real-time single camera
+SLAM", IEEE Trans. PAMI 29 (2007) 1052-1067.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.stats import chi2
+
+from starnav.camera import Camera
+from starnav.errors import ConfigError, GeometryError
+from starnav.navigation.trn.body_view import BodyInCamera, lit_silhouette, raycast
+from starnav.navigation.trn.measurements import FlybyMeasurement
+
+FloatArray = NDArray[np.float64]
+
+#: Longest prediction sub-step [s] (the gravity-gradient transition is first order in it).
+MAX_STEP = 10.0
+#: Position change [m] below which the iterated update stops.
+ITERATION_TOLERANCE = 1e-3
+#: Orthonormality tolerance of a measured attitude matrix [-].
+ROTATION_TOLERANCE = 1e-6
+
+
+class ShapeBodyLike(Protocol):
+    """What the filter reads of a body (:class:`~starnav.bodies.small_body.ShapeModelBody`)."""
+
+    shape: Any          # .vertices (V, 3) [m], .faces (F, 3)
+    gm: float
+
+    def orientation(self, epochs_tdb: ArrayLike, ephemeris: Any = None) -> FloatArray: ...
+
+
+@dataclass(frozen=True)
+class TrnFilterOptions:
+    """Knobs of the fly-by EKF, SI (module table).
+
+    Attributes
+    ----------
+    accel_psd : float
+        White-acceleration power spectral density [m^2 s^-3].
+    gravity : bool
+        Point-mass gravity of the body (``body.gm``) in the prediction.
+    gate_probability : float
+        Probability of the chi-square gate of each measurement [-].
+    max_landmarks : int
+        Most landmark states at once.
+    max_incidence : float
+        Largest angle between a birth ray and the facet normal [rad].
+    landmark_height_sigma : float
+        1-sigma of the shape model's height at a new landmark [m].
+    centroid_model_sigma_px : float
+        Centroid model error added in quadrature [px].
+    radius_model_fraction : float
+        Radius model error as a fraction of the radius [-].
+    use_centroid, use_radius : bool
+        Use the silhouette's centroid / apparent radius.
+    iterations : int
+        Most relinearisations of the iterated update (1: the plain EKF).
+    """
+
+    accel_psd: float = 1e-8
+    gravity: bool = True
+    gate_probability: float = 0.9999
+    max_landmarks: int = 40
+    max_incidence: float = math.radians(75.0)
+    landmark_height_sigma: float = 1.0
+    centroid_model_sigma_px: float = 0.3
+    radius_model_fraction: float = 0.01
+    use_centroid: bool = True
+    use_radius: bool = True
+    iterations: int = 4
+
+    def __post_init__(self) -> None:
+        checks = (("accel_psd", self.accel_psd >= 0, ">= 0"),
+                  ("gate_probability", 0 < self.gate_probability < 1, "in (0, 1)"),
+                  ("max_landmarks", self.max_landmarks >= 0, ">= 0"),
+                  ("iterations", self.iterations >= 1, ">= 1"),
+                  ("max_incidence", 0 < self.max_incidence < math.pi / 2, "in (0, pi/2) rad"),
+                  ("landmark_height_sigma", self.landmark_height_sigma >= 0, ">= 0"),
+                  ("centroid_model_sigma_px", self.centroid_model_sigma_px >= 0, ">= 0"),
+                  ("radius_model_fraction", self.radius_model_fraction >= 0, ">= 0"))
+        for name, ok, want in checks:
+            if not ok:
+                raise ConfigError(f"options.{name}", getattr(self, name), want)
+
+
+@dataclass
+class FlybyRun:
+    """One run of the fly-by filter, one entry per frame.
+
+    Attributes
+    ----------
+    epochs : (K,) array
+        [TDB s].
+    states : (K, 6) array
+        Estimated ``(r, v)`` relative to the body centre, J2000 [m, m/s], after the update.
+    covariances : (K, 6, 6) array
+    nis : (K,) array
+        NIS of the frame's stacked accepted innovation (NaN: nothing used).
+    nis_dof : (K,) int array
+        Its degrees of freedom.
+    features_used, features_rejected, landmarks, landmarks_born : (K,) int arrays
+        Feature updates accepted / rejected by the gate, landmark states after the frame,
+        landmarks initialised in the frame.
+    centroid_used, radius_used : (K,) bool arrays
+    """
+
+    epochs: FloatArray
+    states: FloatArray
+    covariances: FloatArray
+    nis: FloatArray
+    nis_dof: NDArray[np.int64]
+    features_used: NDArray[np.int64]
+    features_rejected: NDArray[np.int64]
+    landmarks: NDArray[np.int64]
+    landmarks_born: NDArray[np.int64]
+    centroid_used: NDArray[np.bool_]
+    radius_used: NDArray[np.bool_]
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def errors(self, truth: ArrayLike) -> FloatArray:
+        """Estimate minus truth ``(K, 6)`` [m, m/s] for the true states ``(K, 6)``."""
+        return self.states - _truth(truth, len(self.epochs))
+
+    def sigma3(self) -> FloatArray:
+        """3-sigma bounds per state ``(K, 6)``."""
+        return 3.0 * np.sqrt(np.einsum("kii->ki", self.covariances))
+
+    def nees(self, truth: ArrayLike) -> FloatArray:
+        """NEES of the 6 states per frame ``(K,)``."""
+        e = self.errors(truth)
+        return np.einsum("ki,ki->k", e, np.linalg.solve(self.covariances, e[..., None])[..., 0])
+
+
+def _truth(truth: ArrayLike, k: int) -> FloatArray:
+    t = np.asarray(truth, float)
+    if t.shape != (k, 6):
+        raise ConfigError("truth", t.shape, f"({k}, 6) true states [m, m/s]")
+    return t
+
+
+def skew(a: ArrayLike) -> FloatArray:
+    """Cross-product matrix ``[a]x`` (``[a]x b = a x b``)."""
+    x, y, z = np.asarray(a, float)
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+# ----------------------------------------------------------------------------- validation
+def validate_inputs(measurements: Sequence[FlybyMeasurement], initial_state: ArrayLike,
+                    initial_covariance: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Check everything :func:`run_filter` reads, before any work; return ``(x0, P0)``."""
+    if len(measurements) == 0:
+        raise ConfigError("measurements", [], "at least one FlybyMeasurement")
+    x0 = np.asarray(initial_state, float)
+    if x0.shape != (6,) or not np.all(np.isfinite(x0)):
+        raise ConfigError("initial_state", x0.shape if x0.shape != (6,) else x0.tolist(),
+                          "6 finite values (position [m], velocity [m/s]) relative to the body")
+    P0 = np.asarray(initial_covariance, float)
+    if P0.shape != (6, 6):
+        raise ConfigError("initial_covariance", P0.shape, "a (6, 6) covariance [m^2, m^2/s^2]")
+    if not np.allclose(P0, P0.T, rtol=1e-9, atol=0.0) or np.any(np.linalg.eigvalsh(
+            0.5 * (P0 + P0.T)) <= 0):
+        raise ConfigError("initial_covariance", "not symmetric positive definite",
+                          "a symmetric positive-definite (6, 6) covariance")
+    prev = -math.inf
+    for k, m in enumerate(measurements):
+        where = f"measurements[{k}]"
+        if not isinstance(m, FlybyMeasurement):
+            raise ConfigError(where, type(m).__name__, "a FlybyMeasurement")
+        if not math.isfinite(m.epoch_tdb) or m.epoch_tdb <= prev:
+            raise ConfigError(f"{where}.epoch_tdb", m.epoch_tdb,
+                              f"finite and later than the previous frame's ({prev})")
+        prev = m.epoch_tdb
+        R = np.asarray(m.R_cam_to_inertial, float)
+        if R.shape != (3, 3) or not np.allclose(R.T @ R, np.eye(3), atol=ROTATION_TOLERANCE):
+            raise ConfigError(f"{where}.R_cam_to_inertial", R.shape if R.shape != (3, 3)
+                              else "not orthonormal", "a (3, 3) rotation matrix")
+        s = np.asarray(m.attitude_sigma, float)
+        if s.shape != (3,) or np.any(~np.isfinite(s)) or np.any(s < 0):
+            raise ConfigError(f"{where}.attitude_sigma", s.tolist(),
+                              "3 non-negative values [rad] (camera x, y, z)")
+        for j, f in enumerate(m.features):
+            uv = np.asarray(f.uv, float)
+            if uv.shape != (2,) or not np.all(np.isfinite(uv)):
+                raise ConfigError(f"{where}.features[{j}].uv", uv.tolist(), "(u, v) [px]")
+            if not (f.sigma_px > 0 and math.isfinite(f.sigma_px)):
+                raise ConfigError(f"{where}.features[{j}].sigma_px", f.sigma_px, "> 0 [px]")
+        if m.centroid_uv is not None:
+            c = np.asarray(m.centroid_uv, float)
+            if c.shape != (2,) or not np.all(np.isfinite(c)):
+                raise ConfigError(f"{where}.centroid_uv", c.tolist(), "(u, v) [px] or None")
+            if not m.centroid_sigma_px > 0:
+                raise ConfigError(f"{where}.centroid_sigma_px", m.centroid_sigma_px, "> 0 [px]")
+        if m.apparent_radius_px is not None:
+            if not (math.isfinite(m.apparent_radius_px) and m.apparent_radius_px > 0):
+                raise ConfigError(f"{where}.apparent_radius_px", m.apparent_radius_px,
+                                  "> 0 [px] or None")
+            if not m.apparent_radius_sigma_px > 0:
+                raise ConfigError(f"{where}.apparent_radius_sigma_px",
+                                  m.apparent_radius_sigma_px, "> 0 [px]")
+    return x0, P0
+
+
+# ----------------------------------------------------------------------------- models
+def propagate(x: FloatArray, dt: float, gm: float, q: float) -> tuple[FloatArray, FloatArray,
+                                                                      FloatArray]:
+    """``(r, v)`` after ``dt`` [s] under constant velocity plus point-mass gravity ``gm``:
+    the new state, its transition matrix (6, 6) and process noise (6, 6) (module step 1)."""
+    n = max(1, int(math.ceil(abs(dt) / MAX_STEP)))
+    h = dt / n
+    Phi = np.eye(6)
+    Q = np.zeros((6, 6))
+    x = np.array(x[:6], float)
+    I3 = np.eye(3)
+    Qs = q * np.block([[h**3 / 3 * I3, h**2 / 2 * I3], [h**2 / 2 * I3, h * I3]])
+    for _ in range(n):
+        r, v = x[:3], x[3:]
+        rn = float(np.linalg.norm(r))
+        if gm > 0 and rn > 0:
+            a = -gm * r / rn**3
+            G = -gm / rn**3 * (I3 - 3.0 * np.outer(r, r) / rn**2)
+        else:
+            a, G = np.zeros(3), np.zeros((3, 3))
+        x = np.r_[r + v * h + 0.5 * a * h * h, v + a * h]
+        F = np.block([[I3 + 0.5 * G * h * h, h * I3], [G * h, I3]])
+        Phi = F @ Phi
+        Q = F @ Q @ F.T + Qs
+    return x, Phi, Q
+
+
+def feature_model(camera: Camera, r: FloatArray, landmark: FloatArray, R_m: FloatArray,
+                  R_bi: FloatArray, dtheta: FloatArray | None = None
+                  ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Predicted pixel of a body-fixed landmark (module step 4) and its Jacobians with respect
+    to ``r`` (2, 3), the landmark (2, 3) and the attitude error ``dtheta`` (2, 3)."""
+    p_m = R_m.T @ (R_bi @ landmark - r)
+    dth = np.zeros(3) if dtheta is None else np.asarray(dtheta, float)
+    p = rotation_vector_matrix(-dth) @ p_m
+    if p[2] <= 0:
+        raise GeometryError("landmark behind the camera")
+    J = camera.project_jacobian(p)
+    E = rotation_vector_matrix(-dth)
+    return camera.project(p), -J @ E @ R_m.T, J @ E @ R_m.T @ R_bi, J @ skew(p)
+
+
+def rotation_vector_matrix(w: ArrayLike) -> FloatArray:
+    """Rotation matrix ``exp([w]x)`` of a rotation vector [rad] (Rodrigues)."""
+    w = np.asarray(w, float)
+    a = float(np.linalg.norm(w))
+    W = skew(w)
+    if a < 1e-12:
+        return np.eye(3) + W
+    return np.eye(3) + math.sin(a) / a * W + (1.0 - math.cos(a)) / a**2 * (W @ W)
+
+
+def features_model(camera: Camera, r: FloatArray, landmarks: FloatArray, R_m: FloatArray,
+                   R_bi: FloatArray, dtheta: FloatArray
+                   ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, NDArray[np.bool_]]:
+    """:func:`feature_model` for landmarks ``(N, 3)`` at once: pixels (N, 2), Jacobians
+    (N, 2, 3) with respect to ``r``, the landmark and ``dtheta``, and whether each landmark is
+    in front of the camera (a landmark behind gets a dummy prediction)."""
+    E = rotation_vector_matrix(-np.asarray(dtheta, float))
+    C = E @ R_m.T
+    p = (landmarks @ R_bi.T - r) @ C.T
+    front = p[:, 2] > 0
+    p = np.where(front[:, None], p, np.array([0.0, 0.0, 1.0]))
+    J = camera.project_jacobian(p)
+    sk = np.zeros((p.shape[0], 3, 3))
+    sk[:, 0, 1], sk[:, 0, 2], sk[:, 1, 2] = -p[:, 2], p[:, 1], -p[:, 0]
+    sk[:, 1, 0], sk[:, 2, 0], sk[:, 2, 1] = p[:, 2], -p[:, 1], p[:, 0]
+    return camera.project(p), -J @ C, J @ (C @ R_bi), J @ sk, front
+
+
+def centroid_model(camera: Camera, r: FloatArray, offset: FloatArray, R_m: FloatArray,
+                   dtheta: FloatArray | None = None
+                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Predicted lit centroid ``project(exp(-[dtheta]x) R_m^T (offset - r))`` [px] and its
+    Jacobians with respect to ``r`` and ``dtheta`` (module step 4; ``offset`` the frozen point
+    D, J2000, body-centred [m])."""
+    dth = np.zeros(3) if dtheta is None else np.asarray(dtheta, float)
+    E = rotation_vector_matrix(-dth)
+    p = E @ R_m.T @ (offset - r)
+    J = camera.project_jacobian(p)
+    return camera.project(p), -J @ E @ R_m.T, J @ skew(p)
+
+
+def radius_model(r: FloatArray, k: float) -> tuple[float, FloatArray]:
+    """Apparent radius ``k / |r|`` [px] and its gradient with respect to ``r`` (1, 3)."""
+    rn = float(np.linalg.norm(r))
+    return k / rn, (-k * r / rn**3)[None, :]
+
+
+@dataclass(frozen=True)
+class LandmarkBirth:
+    """A new landmark from a pixel ray (module step 7).
+
+    Attributes
+    ----------
+    point_body : (3,) array
+        Body-fixed surface point [m].
+    J_r, J_theta : (3, 3) arrays
+        Its Jacobians with respect to ``r`` (J2000) and the attitude error (camera axes).
+    J_uv : (3, 2) array
+        With respect to the pixel.
+    J_h : (3,) array
+        Per metre of shape-model height error along the facet normal.
+    cos_incidence : float
+        Cosine of the angle between the ray and the facet normal.
+    """
+
+    point_body: FloatArray
+    J_r: FloatArray
+    J_theta: FloatArray
+    J_uv: FloatArray
+    J_h: FloatArray
+    cos_incidence: float
+
+
+def landmark_births(camera: Camera, r: FloatArray, R_true: FloatArray, R_bi: FloatArray,
+                    uv: ArrayLike, body: BodyInCamera | None = None, shape: Any = None
+                    ) -> list[LandmarkBirth | None]:
+    """Body-fixed points of pixel rays cast from ``r`` under the attitude ``R_true`` (camera
+    -> J2000) onto the shape (module step 7), ``None`` where a ray misses. ``body``: the shape
+    already placed in this camera frame (else ``shape``'s vertices and faces are placed)."""
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    if body is None:
+        body = BodyInCamera.place(shape.vertices, shape.faces, R_true.T @ R_bi,
+                                  R_true.T @ (-r))
+    d_c = camera.unproject(uv)
+    t, face = raycast(body, d_c)
+    Ju = camera.unproject_jacobian(uv)
+    out: list[LandmarkBirth | None] = []
+    for i in range(uv.shape[0]):
+        if face[i] < 0:
+            out.append(None)
+            continue
+        d_i = R_true @ d_c[i]
+        n_i = R_true @ body.normals[face[i]]
+        nd = float(n_i @ d_i)
+        A = np.eye(3) - np.outer(d_i, n_i) / nd
+        tA = R_bi.T @ (float(t[i]) * A)
+        out.append(LandmarkBirth(
+            point_body=R_bi.T @ (r + float(t[i]) * d_i), J_r=R_bi.T @ A,
+            J_theta=tA @ (-R_true @ skew(d_c[i])), J_uv=tA @ R_true @ Ju[i],
+            J_h=R_bi.T @ d_i / nd, cos_incidence=-nd))
+    return out
+
+
+# ----------------------------------------------------------------------------- the filter
+def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: ShapeBodyLike,
+               initial_state: ArrayLike, initial_covariance: ArrayLike,
+               options: TrnFilterOptions | None = None, *,
+               sun_direction: ArrayLike | None = None) -> FlybyRun:
+    """Estimate ``(r, v)`` relative to the body over a fly-by (module essay).
+
+    Parameters
+    ----------
+    measurements : sequence of FlybyMeasurement
+        One per frame, epochs strictly increasing.
+    camera : Camera
+    body : ShapeModelBody
+        Shape (body-fixed metres), spin (``orientation``: body -> J2000) and ``gm``.
+    initial_state : (6,) array
+        ``(r, v)`` at the first epoch, body-centred J2000 [m, m/s].
+    initial_covariance : (6, 6) array
+    options : TrnFilterOptions
+    sun_direction : (3,) array, optional
+        Body -> Sun unit vector (J2000) over the fly-by. Without it the centroid and radius
+        are predicted from the whole silhouette (phase 0), and the phase bias must be covered
+        by ``centroid_model_sigma_px`` / ``radius_model_fraction``.
+    """
+    opt = options if options is not None else TrnFilterOptions()
+    x0, P0 = validate_inputs(measurements, initial_state, initial_covariance)
+    sun = None
+    if sun_direction is not None:
+        sun = np.asarray(sun_direction, float)
+        if sun.shape != (3,) or not np.linalg.norm(sun) > 0:
+            raise ConfigError("sun_direction", sun.tolist(), "a (3,) non-zero vector (J2000)")
+        sun = sun / np.linalg.norm(sun)
+    shape = body.shape
+    gm = float(body.gm) if opt.gravity else 0.0
+    gate = {d: float(chi2.ppf(opt.gate_probability, d)) for d in (1, 2)}
+    cos_max = math.cos(opt.max_incidence)
+
+    K = len(measurements)
+    out = FlybyRun(
+        epochs=np.array([m.epoch_tdb for m in measurements]), states=np.zeros((K, 6)),
+        covariances=np.zeros((K, 6, 6)), nis=np.full(K, np.nan),
+        nis_dof=np.zeros(K, np.int64), features_used=np.zeros(K, np.int64),
+        features_rejected=np.zeros(K, np.int64), landmarks=np.zeros(K, np.int64),
+        landmarks_born=np.zeros(K, np.int64), centroid_used=np.zeros(K, bool),
+        radius_used=np.zeros(K, bool))
+    x, P = x0.copy(), P0.copy()
+    ids: list[int] = []                       # track id of each landmark, in state order
+    banned: set[int] = set()
+    t_prev = measurements[0].epoch_tdb
+
+    for k, m in enumerate(measurements):
+        # 1 predict
+        dt = m.epoch_tdb - t_prev
+        t_prev = m.epoch_tdb
+        if dt > 0:
+            xs, Phi, Q = propagate(x[:6], dt, gm, opt.accel_psd)
+            x[:6] = xs
+            P[:6, :] = Phi @ P[:6, :]
+            P[:, :6] = P[:, :6] @ Phi.T
+            P[:6, :6] += Q
+        # 2 drop the landmarks whose track ended
+        seen = {f.track_id for f in m.features}
+        keep = [j for j, tid in enumerate(ids) if tid in seen]
+        if len(keep) != len(ids):
+            idx = np.r_[np.arange(6), _slots(keep)]
+            x, P = x[idx], P[np.ix_(idx, idx)]
+            ids = [ids[j] for j in keep]
+        # 3 the frame's attitude error
+        n = x.size
+        th = slice(n, n + 3)
+        sig = np.asarray(m.attitude_sigma, float)
+        x = np.r_[x, np.zeros(3)]
+        P = np.block([[P, np.zeros((n, 3))], [np.zeros((3, n)), np.diag(sig**2)]])
+        n += 3
+        R_m = np.asarray(m.R_cam_to_inertial, float)
+        R_bi = np.asarray(body.orientation(m.epoch_tdb), float)
+        r = x[:3]
+        # 4 measurements: (kind, z, R, track id, model parameter)
+        rows: list[tuple[str, FloatArray, FloatArray, int, Any]] = []
+        slot = {tid: j for j, tid in enumerate(ids)}
+        for f in m.features:
+            j = slot.get(f.track_id)
+            if j is not None:
+                rows.append(("feature", np.asarray(f.uv, float), np.eye(2) * f.sigma_px**2,
+                             f.track_id, 6 + 3 * j))
+        need_sil = ((opt.use_centroid and m.centroid_uv is not None)
+                    or (opt.use_radius and m.apparent_radius_px is not None))
+        if need_sil:
+            centre_cam = R_m.T @ (-r)
+            placed = BodyInCamera.place(shape.vertices, shape.faces, R_m.T @ R_bi, centre_cam)
+            sun_cam = R_m.T @ sun if sun is not None else -centre_cam
+            try:
+                sil = lit_silhouette(placed, sun_cam, camera)
+            except GeometryError:
+                sil = None
+            if sil is not None and opt.use_centroid and m.centroid_uv is not None:
+                ray = camera.unproject(sil.centroid_uv)
+                D = R_m @ (ray * (centre_cam[2] / ray[2])) + r
+                var = m.centroid_sigma_px**2 + opt.centroid_model_sigma_px**2
+                rows.append(("centroid", np.asarray(m.centroid_uv, float), np.eye(2) * var,
+                             -1, D))
+            if sil is not None and opt.use_radius and m.apparent_radius_px is not None:
+                kk = sil.radius_px * float(np.linalg.norm(r))
+                var = m.apparent_radius_sigma_px**2 + (opt.radius_model_fraction
+                                                       * sil.radius_px) ** 2
+                rows.append(("radius", np.array([m.apparent_radius_px]), np.array([[var]]),
+                             -1, kk))
+
+        def predict_all(rs: list[tuple[str, FloatArray, FloatArray, int, Any]],
+                        xi: FloatArray, n: int = n, th: slice = th, R_m: FloatArray = R_m,
+                        R_bi: FloatArray = R_bi) -> tuple[list[FloatArray], list[FloatArray],
+                                                          list[bool]]:
+            """Predicted measurement and Jacobian of every row at ``xi`` (features batched);
+            ``False`` where a landmark is behind the camera."""
+            hs: list[FloatArray] = []
+            Hs: list[FloatArray] = []
+            ok: list[bool] = []
+            feat = [i for i, rw in enumerate(rs) if rw[0] == "feature"]
+            if feat:
+                slots = np.array([rs[i][4] for i in feat])
+                Lm = xi[slots[:, None] + np.arange(3)]
+                hf, Hr, Hl, Ht, front = features_model(camera, xi[:3], Lm, R_m, R_bi, xi[th])
+            fi = 0
+            for rw in rs:
+                kind, par = rw[0], rw[4]
+                H = np.zeros((rw[1].size, n))
+                good = True
+                if kind == "feature":
+                    h = hf[fi]
+                    H[:, :3], H[:, par:par + 3], H[:, th] = Hr[fi], Hl[fi], Ht[fi]
+                    good = bool(front[fi])
+                    fi += 1
+                elif kind == "centroid":
+                    h, Hc, Htc = centroid_model(camera, xi[:3], par, R_m, xi[th])
+                    H[:, :3], H[:, th] = Hc, Htc
+                else:
+                    rho, Hrr = radius_model(xi[:3], par)
+                    h = np.array([rho])
+                    H[:, :3] = Hrr
+                hs.append(h)
+                Hs.append(H)
+                ok.append(good)
+            return hs, Hs, ok
+
+        # 5 gate
+        accepted = []
+        h_all, H_all, ok_all = predict_all(rows, x)
+        for row, h1, H1, ok1 in zip(rows, h_all, H_all, ok_all, strict=True):
+            kind, z, Rn, tid, _ = row
+            if not ok1:
+                continue
+            nu = z - h1
+            S = H1 @ P @ H1.T + Rn
+            d2 = float(nu @ np.linalg.solve(S, nu))
+            if d2 <= gate[nu.size]:
+                accepted.append(row)
+                out.centroid_used[k] |= kind == "centroid"
+                out.radius_used[k] |= kind == "radius"
+                out.features_used[k] += kind == "feature"
+            elif kind == "feature":
+                out.features_rejected[k] += 1
+                banned.add(tid)
+        # 6 update: iterated EKF (Gauss-Newton on the measurements; Bell & Cathey 1993)
+        if accepted:
+            z = np.concatenate([a[1] for a in accepted])
+            Rn = _block_diag([a[2] for a in accepted])
+            xi = x.copy()
+            for it in range(opt.iterations):
+                hl, Hl_, okl = predict_all(accepted, xi)
+                if not all(okl):
+                    break
+                h = np.concatenate(hl)
+                H = np.vstack(Hl_)
+                S = H @ P @ H.T + Rn
+                S = 0.5 * (S + S.T)
+                if it == 0:
+                    nu0, S0 = z - h, S
+                Kg = np.linalg.solve(S, H @ P).T
+                step = x + Kg @ (z - h - H @ (x - xi))
+                done = np.max(np.abs(step[:3] - xi[:3])) < ITERATION_TOLERANCE
+                xi = step
+                if done:
+                    break
+            x = xi
+            IKH = np.eye(n) - Kg @ H
+            P = IKH @ P @ IKH.T + Kg @ Rn @ Kg.T
+            P = 0.5 * (P + P.T)
+            out.nis[k] = float(nu0 @ np.linalg.solve(S0, nu0))
+            out.nis_dof[k] = nu0.size
+        # drop the landmarks of rejected tracks
+        if banned & set(ids):
+            keep = [j for j, tid in enumerate(ids) if tid not in banned]
+            idx = np.r_[np.arange(6), _slots(keep),
+                        np.arange(n - 3, n)]
+            x, P = x[idx], P[np.ix_(idx, idx)]
+            ids = [ids[j] for j in keep]
+            n = x.size
+            th = slice(n - 3, n)
+        # 7 new landmarks
+        room = opt.max_landmarks - len(ids)
+        new = [f for f in m.features if f.track_id not in ids and f.track_id not in banned]
+        if room > 0 and new:
+            r = x[:3]
+            R_true = R_m @ rotation_vector_matrix(x[th])
+            placed = BodyInCamera.place(shape.vertices, shape.faces, R_true.T @ R_bi,
+                                        R_true.T @ (-r))
+            Js, Gs, Ns, ls, born = [], [], [], [], []
+            cands = new[:room]
+            births = landmark_births(camera, r, R_true, R_bi,
+                                     np.array([f.uv for f in cands]), body=placed)
+            for f, b in zip(cands, births, strict=True):
+                if b is None or b.cos_incidence < cos_max:
+                    continue
+                J = np.zeros((3, n))
+                J[:, :3], J[:, th] = b.J_r, b.J_theta
+                Js.append(J)
+                Gs.append(np.column_stack([b.J_uv, b.J_h]))
+                Ns.append(np.diag([f.sigma_px**2, f.sigma_px**2, opt.landmark_height_sigma**2]))
+                ls.append(b.point_body)
+                born.append(f.track_id)
+            if born:
+                J = np.vstack(Js)
+                GNG = _block_diag([G @ N @ G.T for G, N in zip(Gs, Ns, strict=True)])
+                PJ = P @ J.T
+                P = np.block([[P, PJ], [PJ.T, J @ PJ + GNG]])
+                x = np.r_[x, np.concatenate(ls)]
+                ids.extend(born)
+                out.landmarks_born[k] = len(born)
+        # 8 marginalise the attitude error
+        n = x.size
+        idx = np.r_[np.arange(th.start), np.arange(th.stop, n)]
+        x, P = x[idx], P[np.ix_(idx, idx)]
+        out.states[k] = x[:6]
+        out.covariances[k] = P[:6, :6]
+        out.landmarks[k] = len(ids)
+    return out
+
+
+def _slots(landmarks: list[int]) -> NDArray[np.int64]:
+    """State indices of the landmarks ``landmarks`` (their positions in the landmark list)."""
+    j = np.asarray(landmarks, np.int64)
+    return (6 + 3 * np.repeat(j, 3) + np.tile(np.arange(3), j.size)).astype(np.int64)
+
+
+def _block_diag(blocks: list[FloatArray]) -> FloatArray:
+    n = sum(b.shape[0] for b in blocks)
+    M = np.zeros((n, n))
+    i = 0
+    for b in blocks:
+        m = b.shape[0]
+        M[i:i + m, i:i + m] = b
+        i += m
+    return M

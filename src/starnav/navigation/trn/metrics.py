@@ -1,0 +1,272 @@
+"""Fly-by navigation against truth: errors with 3-sigma, NEES, tracks, figures, report.
+
+Technique
+---------
+1. **Estimation error** ``e = x_hat - x_true`` of the body-relative position and velocity
+   (J2000), its norm, and the 3-sigma bounds ``3 sqrt(diag P)``; at closest approach (CA: the
+   frame nearest the CA epoch) also over the true range, the accuracy the fly-by is judged by.
+2. **NEES** ``e^T P^-1 e`` of the 6 states (a consistent filter: chi2(6)); **NIS** of each
+   frame's stacked update over its own dof (:class:`~starnav.navigation.trn.filter.FlybyRun`).
+3. **Tracks**: length of every track id [frames], tracks per frame, and the front end's pixel
+   error against the truth it carries (:class:`~starnav.navigation.trn.measurements.
+   FeatureTruth`): ``|uv - uv_true|``.
+
+Figures (:func:`plot_flyby_errors`, :func:`plot_flyby_nees`, :func:`plot_tracks`) follow the
+limb case (:mod:`starnav.navigation.plots`) with the time axis from CA; :func:`write_report`
+writes the short markdown summary.
+
+Reference: Bar-Shalom, Li and Kirubarajan (2001), section 5.4 (NEES, NIS, chi-square bands).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from starnav.atomic import atomic_path, atomic_write_text
+from starnav.navigation.metrics import chi2_band, consistency_fraction
+from starnav.navigation.trn.filter import FlybyRun
+from starnav.navigation.trn.measurements import FlybyMeasurement
+
+FloatArray = NDArray[np.float64]
+
+
+def track_lengths(measurements: Sequence[FlybyMeasurement]) -> NDArray[np.int64]:
+    """Frames each track id was observed in, one entry per id (ascending id)."""
+    c = Counter(f.track_id for m in measurements for f in m.features)
+    return np.array([c[k] for k in sorted(c)], np.int64)
+
+
+def feature_pixel_errors(measurements: Sequence[FlybyMeasurement]) -> FloatArray:
+    """``|uv - uv_true|`` [px] of every observation that carries its truth."""
+    out = []
+    for m in measurements:
+        truth = {t.track_id: t for t in m.truth}
+        for f in m.features:
+            t = truth.get(f.track_id)
+            if t is not None:
+                out.append(float(np.linalg.norm(np.asarray(f.uv) - np.asarray(t.uv_true))))
+    return np.asarray(out, float)
+
+
+def closest_approach_index(epochs: ArrayLike, epoch_ca: float) -> int:
+    """Index of the frame nearest the CA epoch."""
+    return int(np.argmin(np.abs(np.asarray(epochs, float) - epoch_ca)))
+
+
+@dataclass(frozen=True)
+class FlybyMetrics:
+    """Accuracy, consistency and tracking of one fly-by run (flat keys, units in names).
+
+    Attributes
+    ----------
+    frames, tracks, feature_updates, features_rejected, landmarks_born : int
+    mean_tracks_per_frame : float
+    mean_track_length_frames, max_track_length_frames : float
+    feature_error_rms_px : float
+        RMS of the front end's pixel error against truth.
+    ca_range_m : float
+        True range at the CA frame.
+    ca_position_error_m, ca_velocity_error_m_s, ca_position_error_pct_range : float
+        Error norms at the CA frame and the position error over the range [%].
+    ca_position_3sigma_m, ca_velocity_3sigma_m_s : float
+        Norm of the per-axis 3-sigma bounds at CA.
+    final_position_error_m, final_velocity_error_m_s : float
+    rms_position_error_m, rms_velocity_error_m_s : float
+        Over all frames (initial transient included).
+    nees_mean, nees_ca : float
+        Mean NEES over frames, and at CA (consistent: ~6).
+    nees_fraction_in_95 : float
+        Frames whose NEES is inside the single-sample 95 % chi2(6) band.
+    nis_per_dof_mean : float
+        Mean over frames of NIS / dof (consistent: ~1).
+    fraction_within_3sigma : float
+        Fraction of (frame, state) errors inside their 3-sigma bound (Gaussian: 0.9973).
+    """
+
+    frames: int
+    tracks: int = 0
+    feature_updates: int = 0
+    features_rejected: int = 0
+    landmarks_born: int = 0
+    mean_tracks_per_frame: float = math.nan
+    mean_track_length_frames: float = math.nan
+    max_track_length_frames: float = math.nan
+    feature_error_rms_px: float = math.nan
+    ca_range_m: float = math.nan
+    ca_position_error_m: float = math.nan
+    ca_velocity_error_m_s: float = math.nan
+    ca_position_error_pct_range: float = math.nan
+    ca_position_3sigma_m: float = math.nan
+    ca_velocity_3sigma_m_s: float = math.nan
+    final_position_error_m: float = math.nan
+    final_velocity_error_m_s: float = math.nan
+    rms_position_error_m: float = math.nan
+    rms_velocity_error_m_s: float = math.nan
+    nees_mean: float = math.nan
+    nees_ca: float = math.nan
+    nees_fraction_in_95: float = math.nan
+    nis_per_dof_mean: float = math.nan
+    fraction_within_3sigma: float = math.nan
+
+    @classmethod
+    def of(cls, run: FlybyRun, measurements: Sequence[FlybyMeasurement],
+           truth: ArrayLike | None = None, epoch_ca: float | None = None) -> FlybyMetrics:
+        """Metrics of ``run`` over its ``measurements``; errors need the true states
+        ``(K, 6)`` and the CA epoch [TDB s] (default the frame of least true range)."""
+        L = track_lengths(measurements)
+        pe = feature_pixel_errors(measurements)
+        ratio = run.nis / np.where(run.nis_dof > 0, run.nis_dof, np.nan)
+        base: dict[str, Any] = dict(
+            frames=len(run.epochs), tracks=int(L.size),
+            feature_updates=int(run.features_used.sum()),
+            features_rejected=int(run.features_rejected.sum()),
+            landmarks_born=int(run.landmarks_born.sum()),
+            mean_tracks_per_frame=float(np.mean([len(m.features) for m in measurements])),
+            mean_track_length_frames=float(L.mean()) if L.size else math.nan,
+            max_track_length_frames=float(L.max()) if L.size else math.nan,
+            feature_error_rms_px=float(np.sqrt(np.mean(pe**2))) if pe.size else math.nan,
+            nis_per_dof_mean=float(np.nanmean(ratio)) if np.any(np.isfinite(ratio))
+            else math.nan)
+        if truth is None:
+            return cls(**base)
+        X = np.asarray(truth, float)
+        e = run.errors(X)
+        s3 = run.sigma3()
+        ne = run.nees(X)
+        rng = np.linalg.norm(X[:, :3], axis=1)
+        k = (closest_approach_index(run.epochs, epoch_ca) if epoch_ca is not None
+             else int(np.argmin(rng)))
+        ep, ev = np.linalg.norm(e[:, :3], axis=1), np.linalg.norm(e[:, 3:], axis=1)
+        return cls(
+            **base, ca_range_m=float(rng[k]), ca_position_error_m=float(ep[k]),
+            ca_velocity_error_m_s=float(ev[k]),
+            ca_position_error_pct_range=100.0 * float(ep[k] / rng[k]),
+            ca_position_3sigma_m=float(np.linalg.norm(s3[k, :3])),
+            ca_velocity_3sigma_m_s=float(np.linalg.norm(s3[k, 3:])),
+            final_position_error_m=float(ep[-1]), final_velocity_error_m_s=float(ev[-1]),
+            rms_position_error_m=float(np.sqrt(np.mean(ep**2))),
+            rms_velocity_error_m_s=float(np.sqrt(np.mean(ev**2))),
+            nees_mean=float(ne.mean()), nees_ca=float(ne[k]),
+            nees_fraction_in_95=consistency_fraction(ne, 6),
+            fraction_within_3sigma=float(np.mean(np.abs(e) <= s3)))
+
+    def as_dict(self) -> dict[str, float | int | None]:
+        """JSON-safe dict (NaN -> None)."""
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                for k, v in asdict(self).items()}
+
+
+# ----------------------------------------------------------------------------- figures
+def _figure(nrows: int, size: tuple[float, float]):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=size, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig, fig.subplots(nrows, 1, squeeze=False)[:, 0]
+
+
+def _save(fig: Any, path: str | os.PathLike[str]) -> Path:
+    path = Path(path)
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=120)
+    return path
+
+
+def plot_flyby_errors(time_from_ca_s: ArrayLike, errors: ArrayLike, sigma3: ArrayLike,
+                      path: str | os.PathLike[str], kind: str = "position",
+                      mc_errors: Sequence[ArrayLike] = ()) -> Path:
+    """Error per J2000 axis with the +-3-sigma bounds against time from CA [s]; position in
+    m, velocity in m/s; Monte Carlo runs in grey."""
+    t = np.asarray(time_from_ca_s, float)
+    sl, unit = (slice(0, 3), "m") if kind == "position" else (slice(3, 6), "m/s")
+    e = np.asarray(errors, float)[:, sl]
+    s = np.asarray(sigma3, float)[:, sl]
+    fig, ax = _figure(3, (7.0, 6.5))
+    for i, name in enumerate("xyz"):
+        a = ax[i]
+        for m in mc_errors:
+            a.plot(t, np.asarray(m, float)[:, sl][:, i], color="0.75", lw=0.6)
+        a.plot(t, e[:, i], color="k", lw=1.0, label="error")
+        a.plot(t, s[:, i], "--", color="C3", lw=1.0, label="3-sigma")
+        a.plot(t, -s[:, i], "--", color="C3", lw=1.0)
+        a.axvline(0.0, color="0.5", lw=0.6)
+        a.set_yscale("symlog", linthresh=max(float(np.nanmin(s[:, i])), 1e-6))
+        a.set_ylabel(f"{name} [{unit}]")
+    ax[0].legend(loc="upper right")
+    ax[0].set_title(f"{kind.capitalize()} error relative to the body, J2000")
+    ax[2].set_xlabel("time from closest approach [s]")
+    return _save(fig, path)
+
+
+def plot_flyby_nees(time_from_ca_s: ArrayLike, nees_values: ArrayLike,
+                    path: str | os.PathLike[str], runs: int = 1,
+                    probability: float = 0.99) -> Path:
+    """NEES (6 dof), averaged over ``runs``, with its two-sided chi-square band."""
+    t = np.asarray(time_from_ca_s, float)
+    fig, ax = _figure(1, (7.0, 3.5))
+    lo, hi = chi2_band(6, runs, probability)
+    ax[0].semilogy(t, np.asarray(nees_values, float), ".-", ms=3, lw=0.6, color="k")
+    ax[0].axhline(lo, color="C3", ls="--")
+    ax[0].axhline(hi, color="C3", ls="--", label=f"{100 * probability:g} % band")
+    ax[0].axhline(6.0, color="C2", lw=0.8)
+    ax[0].axvline(0.0, color="0.5", lw=0.6)
+    ax[0].set_ylabel(f"NEES (mean of {runs})")
+    ax[0].set_xlabel("time from closest approach [s]")
+    ax[0].legend(loc="upper right")
+    return _save(fig, path)
+
+
+def plot_tracks(time_from_ca_s: ArrayLike, measurements: Sequence[FlybyMeasurement],
+                run: FlybyRun, path: str | os.PathLike[str]) -> Path:
+    """Tracks per frame (observed, used, landmarks) and the histogram of track lengths."""
+    t = np.asarray(time_from_ca_s, float)
+    fig, ax = _figure(2, (7.0, 5.0))
+    ax[0].plot(t, [len(m.features) for m in measurements], label="tracked")
+    ax[0].plot(t, run.features_used, label="used (gated in)")
+    ax[0].plot(t, run.landmarks, label="landmark states")
+    ax[0].set_xlabel("time from closest approach [s]")
+    ax[0].set_ylabel("features")
+    ax[0].legend(loc="upper left")
+    L = track_lengths(measurements)
+    if L.size:
+        ax[1].hist(L, bins=np.arange(0.5, L.max() + 1.5), color="C0")
+    ax[1].set_xlabel("track length [frames]")
+    ax[1].set_ylabel("tracks")
+    return _save(fig, path)
+
+
+def write_report(path: str | os.PathLike[str], metrics: FlybyMetrics,
+                 monte_carlo: dict[str, Any] | None = None,
+                 figures: Sequence[str] = ()) -> Path:
+    """A short markdown report: the accuracy at CA first, then consistency and tracking."""
+    m = metrics
+    lines = ["# Asteroid fly-by navigation", "",
+             f"Position error at closest approach: **{m.ca_position_error_m:.1f} m** "
+             f"({m.ca_position_error_pct_range:.3f} % of the {m.ca_range_m / 1e3:.2f} km range; "
+             f"3-sigma {m.ca_position_3sigma_m:.1f} m); velocity error "
+             f"{m.ca_velocity_error_m_s:.3f} m/s.", "",
+             "| metric | value |", "|---|---|"]
+    for k, v in m.as_dict().items():
+        shown = "-" if v is None else (f"{v:.4g}" if isinstance(v, float) else str(v))
+        lines.append(f"| {k} | {shown} |")
+    if monte_carlo:
+        lines += ["", f"## Monte Carlo ({monte_carlo['runs']} runs)", "",
+                  f"Mean NEES {monte_carlo['nees_mean']:.2f}, two-sided "
+                  f"{100 * monte_carlo['probability']:g} % band "
+                  f"[{monte_carlo['nees_band'][0]:.2f}, {monte_carlo['nees_band'][1]:.2f}]: "
+                  f"**{monte_carlo['verdict']}**; NEES at CA {monte_carlo['nees_ca']:.2f}; "
+                  f"position error at CA: median {monte_carlo['ca_error_pct_range_median']:.3f} %"
+                  f", max {monte_carlo['ca_error_pct_range_max']:.3f} % of range."]
+    if figures:
+        lines += [""] + [f"![{Path(f).stem}]({Path(f).name})" for f in figures]
+    return atomic_write_text(path, "\n".join(lines) + "\n")
