@@ -23,6 +23,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from starnav.constants import DAY
 from starnav.geometry import frame_rotation_x, frame_rotation_z
+from starnav.photometry import albedo_parameter
+from starnav.renderer.render import MoonModel
+from starnav.renderer.scene import MoonMesh
 
 FloatArray = NDArray[np.float64]
 
@@ -84,3 +87,16 @@ class TargetBody(ABC):
     def describe(self) -> dict[str, Any]:
         """JSON-safe description (for manifests and reports)."""
         return {"name": self.name, "radii_m": list(self.radii_m)}
+
+
+def mesh_render_model(photometry: Any, normal_albedo: float, radius: float, mesh: MoonMesh,
+                      body_fixed_aovs: bool = False) -> MoonModel:
+    """The renderer's model of a body given as a mesh: its photometric model (a
+    ``PhotometryConfig``) with the model's albedo parameter reached from the body's normal
+    albedo (``target.albedo``), a bounding ``radius`` [m] and the facets."""
+    model = photometry.model
+    params = photometry.resolved_params()
+    albedo = float(albedo_parameter(normal_albedo, "normal_albedo", model, params,
+                                    "target.albedo"))
+    return MoonModel("mesh", radius=radius, model=model, params=params, albedo=albedo,
+                     mesh=mesh, body_fixed_aovs=body_fixed_aovs)

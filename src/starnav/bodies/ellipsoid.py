@@ -17,9 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from starnav.bodies.base import FloatArray, TargetBody, iau_orientation
+from starnav.bodies.base import FloatArray, TargetBody, iau_orientation, mesh_render_model
 from starnav.bodies.schema import EllipsoidConfig
-from starnav.photometry import albedo_parameter
 from starnav.renderer.render import MoonModel
 from starnav.renderer.scene import MoonMesh, icosphere_mesh
 
@@ -55,12 +54,8 @@ class TriaxialBody(TargetBody):
 
     def render_model(self) -> MoonModel:
         c = self.config
-        model = c.photometry.model
-        params = c.photometry.resolved_params()
-        albedo = float(albedo_parameter(c.albedo, "normal_albedo", model, params,
-                                        "target.albedo"))
-        return MoonModel("mesh", radius=self.reference_radius_m, model=model, params=params,
-                         albedo=albedo, mesh=ellipsoid_mesh(self.radii_m, c.mesh_subdivisions))
+        return mesh_render_model(c.photometry, c.albedo, self.reference_radius_m,
+                                 ellipsoid_mesh(self.radii_m, c.mesh_subdivisions))
 
     def describe(self) -> dict[str, Any]:
         c = self.config

@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from starnav.bodies.base import FloatArray, TargetBody, iau_orientation
+from starnav.bodies.base import FloatArray, TargetBody, iau_orientation, mesh_render_model
 from starnav.bodies.schema import ShapeModelConfig
 from starnav.bodies.shape import (
     PACKAGED_SHAPE_MODELS,
@@ -59,7 +59,6 @@ from starnav.bodies.shape import (
     shape_model_path,
 )
 from starnav.errors import ConfigError
-from starnav.photometry import albedo_parameter
 from starnav.registry import Registry
 from starnav.renderer.render import MoonModel
 from starnav.renderer.scene import MoonMesh
@@ -161,13 +160,8 @@ class ShapeModelBody(TargetBody):
         return MoonMesh(self.shape.vertices, self.shape.faces, self.shape.vertex_normals, None)
 
     def render_model(self) -> MoonModel:
-        c = self.config
-        model = c.photometry.model
-        params = c.photometry.resolved_params()
-        albedo = float(albedo_parameter(self.normal_albedo, "normal_albedo", model, params,
-                                        "target.albedo"))
-        return MoonModel("mesh", radius=self.bounding_radius_m, model=model, params=params,
-                         albedo=albedo, mesh=self.render_mesh(), body_fixed_aovs=True)
+        return mesh_render_model(self.config.photometry, self.normal_albedo,
+                                 self.bounding_radius_m, self.render_mesh(), body_fixed_aovs=True)
 
     def describe(self) -> dict[str, Any]:
         c = self.config
