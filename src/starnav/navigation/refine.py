@@ -49,6 +49,18 @@ Technique
    blur. Saturated pixels are left out. With the pixels' noise known (:class:`PixelNoise`:
    read, shot, PRNU, quantisation from the detector settings) the fit is repeated with weights
    ``1 / var(I)`` at the first fit's prediction.
+
+   **All windows at once.** The 16 fits are one batched fit (:class:`_BatchFit`): the
+   windows' pixels are ``(K, M)`` arrays, their bases ``(K, M, p)``, the amplitudes of every
+   window come from one batched normal-equation solve, the LM steps from one batched
+   ``(K, n, n)`` solve; each window keeps its own damping and convergence (a converged
+   window takes a zero step). The ``detector-psf`` tables of the 16 windows are laid end to
+   end on their common grid and read with one ``take`` per table instead of 16 ``np.interp``.
+   A window has converged when a step moves its edge by < 1e-4 px anywhere in it (a
+   rejected step that small too: rounding at the minimum). Against the per-window fit this
+   replaced (a Python loop, ``lstsq`` per evaluation, eight damped retries at every
+   minimum): the same points to 3e-5 px and sigmas to 5e-5 on the pinned frames
+   (``tests/navigation/test_refine_regression.py``), 4-5x faster (``docs/performance.md``).
 5. **Point and uncertainty.** Each window gives one refined limb point
    ``c + (R + delta) (cos phi_w, sin phi_w)``. Its sigma is the fit's ``sqrt((J^T W J)^-1)``
    (inflated by the reduced chi-square where above 1; ``s^2 (J^T J)^-1`` without a noise
