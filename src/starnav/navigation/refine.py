@@ -49,6 +49,18 @@ Technique
    blur. Saturated pixels are left out. With the pixels' noise known (:class:`PixelNoise`:
    read, shot, PRNU, quantisation from the detector settings) the fit is repeated with weights
    ``1 / var(I)`` at the first fit's prediction.
+
+   **All windows at once.** The 16 fits are one batched fit (:class:`_BatchFit`): the
+   windows' pixels are ``(K, M)`` arrays, their bases ``(K, M, p)``, the amplitudes of every
+   window come from one batched normal-equation solve, the LM steps from one batched
+   ``(K, n, n)`` solve; each window keeps its own damping and convergence (a converged
+   window takes a zero step). The ``detector-psf`` tables of the 16 windows are laid end to
+   end on their common grid and read with one ``take`` per table instead of 16 ``np.interp``.
+   A window has converged when a step moves its edge by < 1e-4 px anywhere in it (a
+   rejected step that small too: rounding at the minimum). Against the per-window fit this
+   replaced (a Python loop, ``lstsq`` per evaluation, eight damped retries at every
+   minimum): the same points to 3e-5 px and sigmas to 5e-5 on the pinned frames
+   (``tests/navigation/test_refine_regression.py``), 4-5x faster (``docs/performance.md``).
 5. **Point and uncertainty.** Each window gives one refined limb point
    ``c + (R + delta) (cos phi_w, sin phi_w)``. Its sigma is the fit's ``sqrt((J^T W J)^-1)``
    (inflated by the reduced chi-square where above 1; ``s^2 (J^T J)^-1`` without a noise
@@ -111,6 +123,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.special import gamma, ndtr, pbdv
 
 from starnav.data import packaged_path
 from starnav.dem.limb import LimbTopography
@@ -277,8 +290,6 @@ def warm_up() -> None:
 def _half_tables() -> tuple[FloatArray, FloatArray, FloatArray]:
     """Tables of ``F_1/2`` and ``F_-1/2`` on a grid of ``t`` (built once: 4001 points, 96 kB;
     linear interpolation error < 1e-5)."""
-    from scipy.special import gamma, pbdv
-
     t0, t1, h = _TABLE_T
     t = np.arange(t0, t1 + h / 2, h)
     e = np.exp(-t * t / 4.0) / math.sqrt(2.0 * math.pi)
@@ -294,8 +305,6 @@ def f_nu(nu: float, t: FloatArray) -> FloatArray:
     cylinder form ``Gamma(nu + 1) e^(-t^2/4) D_(-nu-1)(-t) / sqrt(2 pi)`` for +-1/2, with the
     asymptote ``t^nu (1 + nu (nu - 1) / (2 t^2))`` past the table.
     """
-    from scipy.special import ndtr
-
     t = np.asarray(t, float)
     if nu == 0:
         return ndtr(t)
@@ -582,52 +591,274 @@ class EdgeFit:
 
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+#: Levenberg damping: start, floor, growth on a rejected step, retries per iteration.
+_LM_LAMBDA0, _LM_LAMBDA_MIN, _LM_GROWTH, _LM_RETRIES = 1e-3, 1e-9, 10.0, 8
+#: A window has converged when a step moves its edge by less than this [px] (anywhere in the
+#: window: offset and tilt times 5 px).
+_CONVERGED_STEP = 1e-4
 
 
-def _bases(d: FloatArray, t_arc: FloatArray, sigma: float, nus: tuple[float, ...],
-           fit_sigma: bool) -> tuple[FloatArray, FloatArray, FloatArray | None]:
-    """Linear basis ``(M, p)`` of the window model and its derivatives with respect to the
-    signed distance ``d`` and to ``sigma``; columns: background, one per ``nu``, and the
-    tangential gradient ``t_arc F_0`` of the step amplitude."""
-    M = d.size
-    p = 2 + len(nus)
-    t = -d / sigma
-    Bm = np.empty((M, p))
-    dBt = np.empty((M, p))  # d basis / d t
-    Bm[:, 0] = 1.0
-    dBt[:, 0] = 0.0
+def _gauss_bases(d: FloatArray, t_arc: FloatArray, sigma: FloatArray, nus: tuple[float, ...],
+                 fit_sigma: bool) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """Linear basis ``(K, M, p)`` of the Gaussian window model of ``K`` windows of ``M``
+    pixels and its derivatives with respect to the signed distance ``d`` and to ``sigma``
+    (``(K,)``, one per window); columns: background, one per ``nu``, and the tangential
+    gradient ``t_arc F_0`` of the step amplitude."""
+    s = sigma[:, None]
+    t = -d / s
     phi = np.exp(-0.5 * t * t) * _INV_SQRT_2PI
-    scales = []
-    for j, nu in enumerate(nus, start=1):
-        scale = sigma**nu
-        scales.append(scale)
-        Bm[:, j] = scale * f_nu(nu, t)
-        dBt[:, j] = scale * (phi if nu == 0 else nu * f_nu(nu - 1, t))
-    Bm[:, -1] = t_arc * Bm[:, 1]  # nus[0] == 0: the step, scale 1
-    dBt[:, -1] = t_arc * phi
+    f0 = ndtr(t)
+    cols, dcols = [np.ones_like(d)], [np.zeros_like(d)]   # d basis / d t
+    for nu in nus:
+        scale = s**nu
+        if nu == 0:
+            f, df = f0, phi
+        elif nu == 1:
+            f, df = t * f0 + phi, f0
+        else:
+            f, df = f_nu(nu, t), nu * f_nu(nu - 1, t)
+        cols.append(scale * f)
+        dcols.append(scale * df)
+    cols.append(t_arc * cols[1])   # nus[0] == 0: the step, scale 1
+    dcols.append(t_arc * phi)
+    Bm, dBt = np.stack(cols, axis=-1), np.stack(dcols, axis=-1)
     dBs = None
     if fit_sigma:
         # B_nu = sigma^nu F_nu(-d / sigma): dB/dsigma = nu B / sigma - dB/dt * t / sigma
-        dBs = -dBt * (t / sigma)[:, None]
+        dBs = -dBt * (t / s)[..., None]
         for j, nu in enumerate(nus, start=1):
-            dBs[:, j] += nu * Bm[:, j] / sigma
+            dBs[..., j] += nu * Bm[..., j] / s
     # dt/dd = -1/sigma
-    return Bm, -dBt / sigma, dBs
+    return Bm, -dBt / s[..., None], dBs
 
 
-def _table_bases(d: FloatArray, t_arc: FloatArray, tables: EdgeTables, ramp: bool
-                 ) -> tuple[FloatArray, FloatArray, None]:
-    """Linear basis of the ``detector-psf`` model and its derivative with respect to ``d``:
-    columns background, step, [ramp,] and the tangential gradient of the step."""
-    b0, b1, lsf = tables.evaluate(d)
-    one, zero = np.ones_like(d), np.zeros_like(d)
-    if ramp:
-        Bm = np.column_stack([one, b0, b1, t_arc * b0])
-        dB = np.column_stack([zero, -lsf, -b0, -t_arc * lsf])
+class _StackedTables:
+    """The :class:`EdgeTables` of ``K`` windows on their common grid, laid end to end for one
+    gather per evaluation (``np.interp`` takes one table at a time): ``b0``, ``b1``, ``lsf``
+    of window ``k`` at ``x[i]`` are at ``k n + i``; ``shift[k]`` its curvature correction."""
+
+    def __init__(self, tables: Sequence[EdgeTables], radius_px: float) -> None:
+        x = tables[0].x
+        if any(t.x is not x and not np.array_equal(t.x, x) for t in tables[1:]):
+            raise ConfigError("edge tables", "grids", "one common sampling grid")
+        self.x0, self.x1, self.h, self.n = float(x[0]), float(x[-1]), float(x[1] - x[0]), x.size
+        self.b0 = np.concatenate([t.b0 for t in tables])
+        self.b1 = np.concatenate([t.b1 for t in tables])
+        self.lsf = np.concatenate([t.lsf for t in tables])
+        self.mean = np.array([t.mean for t in tables])[:, None]
+        # a curved edge blurred looks like a straight one moved inwards by the blur's
+        # variance along the edge over twice the radius of curvature (to first order)
+        shift = np.array([t.tangent_variance for t in tables]) / (2.0 * radius_px)
+        self.shift = shift[:, None]
+        self.base = (np.arange(len(tables)) * self.n)[:, None]
+
+    def bases(self, d: FloatArray, t_arc: FloatArray, ramp: bool
+              ) -> tuple[FloatArray, FloatArray, None]:
+        """Basis ``(K, M, p)`` at distances ``d`` and its derivative with respect to ``d``:
+        columns background, step, [ramp,] and the tangential gradient of the step
+        (``dB0/dd = -lsf``, ``dB1/dd = -b0``); linear interpolation, as ``np.interp``."""
+        dd = d + self.shift
+        u = (dd - self.x0) / self.h
+        j = np.clip(u, 0, self.n - 2).astype(np.intp)    # floor, u >= 0 once clipped
+        f = u - j
+        j += self.base
+
+        def lerp(tab: FloatArray) -> FloatArray:
+            lo = tab.take(j)
+            return lo + f * (tab.take(j + 1) - lo)
+
+        b0, b1, lsf = lerp(self.b0), lerp(self.b1), lerp(self.lsf)
+        inside, outside = dd < self.x0, dd > self.x1    # asymptotes past the table
+        if inside.any():
+            b0[inside] = 1.0
+            b1[inside] = np.broadcast_to(self.mean, dd.shape)[inside] - dd[inside]
+            lsf[inside] = 0.0
+        if outside.any():
+            b0[outside] = b1[outside] = lsf[outside] = 0.0
+        tb0 = t_arc * b0
+        if ramp:
+            Bm = np.stack([np.ones_like(d), b0, b1, tb0], axis=-1)
+            dB = np.stack([np.zeros_like(d), -lsf, -b0, -t_arc * lsf], axis=-1)
+        else:
+            Bm = np.stack([np.ones_like(d), b0, tb0], axis=-1)
+            dB = np.stack([np.zeros_like(d), -lsf, -t_arc * lsf], axis=-1)
+        return Bm, dB, None
+
+
+def _solve(A: FloatArray, b: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Batched ``A x = b`` (``(K, n, n)``, ``(K, n)``); rows whose matrix is singular get NaN
+    and ``False`` in the returned mask."""
+    try:
+        return np.linalg.solve(A, b[..., None])[..., 0], np.ones(len(A), bool)
+    except np.linalg.LinAlgError:
+        out, ok = np.full(b.shape, np.nan), np.ones(len(A), bool)
+        for i in range(len(A)):
+            try:
+                out[i] = np.linalg.solve(A[i], b[i])
+            except np.linalg.LinAlgError:
+                ok[i] = False
+        return out, ok
+
+
+class _BatchFit:
+    """Variable-projection Levenberg-Marquardt of ``K`` windows at once (module step 4).
+
+    Each window keeps its own parameters, damping and convergence, but all windows are
+    evaluated together on ``(K, M, p)`` arrays (a converged or waiting window takes a zero
+    step): an iteration costs a few dozen array operations whatever ``K``, instead of ``K``
+    small fits of as many operations each. ``mask`` marks the pixels that count (saturated
+    pixels and the padding of smaller windows have weight 0)."""
+
+    def __init__(self, y: FloatArray, mask: NDArray[np.bool_], rho: FloatArray,
+                 t_arc: FloatArray, radius_px: float, basis, sigma0: float,
+                 fit_sigma: bool, opt: RefineOptions) -> None:
+        self.y, self.mask, self.rho, self.t_arc = y, mask, rho, t_arc
+        self.R, self.basis, self.fit_sigma, self.opt = radius_px, basis, fit_sigma, opt
+        K = y.shape[0]
+        self.sw = mask.astype(float)   # sqrt of the weights: 1 until the noise model
+        self.delta, self.tau = np.zeros(K), np.zeros(K)
+        self.sigma = np.full(K, float(sigma0))
+
+    def evaluate(self, delta: FloatArray, tau: FloatArray, sigma: FloatArray) -> dict:
+        """Model of every window at ``(delta, tau, sigma)``: the amplitudes solved for
+        (weighted linear least squares), the weighted residuals and cost."""
+        # d = rho - (R + delta + tau t_arc): each pixel's signed distance outside the edge
+        d = self.rho - (self.R + delta[:, None] + tau[:, None] * self.t_arc)
+        Bm, dBd, dBs = self.basis(d, sigma)
+        sw = self.sw
+        Bw = Bm * sw[..., None]
+        yw = self.y * sw
+        BwT = Bw.transpose(0, 2, 1)
+        lin, ok = _solve(BwT @ Bw, (BwT @ yw[..., None])[..., 0])
+        for i in np.flatnonzero(~ok):   # rank-deficient: the minimum-norm solution
+            lin[i] = np.linalg.lstsq(Bw[i], yw[i], rcond=None)[0]
+        r = yw - (Bw @ lin[..., None])[..., 0]
+        return {"lin": lin, "r": r, "cost": np.einsum("km,km->k", r, r), "Bm": Bm,
+                "dBd": dBd, "dBs": dBs}
+
+    def jacobian(self, st: dict) -> FloatArray:
+        """Weighted Jacobian ``(K, M, n)`` with respect to ``(delta, tau[, sigma])`` and the
+        amplitudes (``dd/ddelta = -1``, ``dd/dtau = -t_arc``)."""
+        lin = st["lin"][..., None]
+        dI_dd = st["dBd"] @ lin
+        cols = [-dI_dd, -dI_dd * self.t_arc[..., None]]
+        if self.fit_sigma:
+            cols.append(st["dBs"] @ lin)
+        return np.concatenate(cols + [st["Bm"]], axis=-1) * self.sw[..., None]
+
+    def run(self) -> dict:
+        """One Levenberg-Marquardt pass from the current parameters; returns the state."""
+        K = self.y.shape[0]
+        st = self.evaluate(self.delta, self.tau, self.sigma)
+        lam = np.full(K, _LM_LAMBDA0)
+        it = np.zeros(K, int)
+        converged = np.zeros(K, bool)
+        active = np.full(K, self.opt.max_iterations > 0)
+        while active.any():
+            it[active] += 1
+            J = self.jacobian(st)
+            JT = J.transpose(0, 2, 1)
+            JTJ = JT @ J
+            g = (JT @ st["r"][..., None])[..., 0]
+            diag = np.diagonal(JTJ, axis1=1, axis2=2).copy()
+            diag[diag <= 0] = 1.0
+            damp = diag[:, :, None] * np.eye(diag.shape[1])
+            trying = active.copy()
+            for _ in range(_LM_RETRIES):
+                step, ok = _solve(JTJ + lam[:, None, None] * damp, g)
+                lam[trying & ~ok] *= _LM_GROWTH
+                go = trying & ok
+                step[~go] = 0.0
+                mx = np.maximum(np.abs(step[:, 0]), np.abs(step[:, 1]) * 5.0)
+                step /= np.maximum(mx, 1.0)[:, None]   # at most 1 px of edge motion
+                nd, nt = self.delta + step[:, 0], self.tau + step[:, 1]
+                ns = (np.clip(self.sigma + step[:, 2], 0.2, 10.0) if self.fit_sigma
+                      else self.sigma)
+                trial = self.evaluate(nd, nt, ns)
+                acc = go & (trial["cost"] <= st["cost"])
+                converged[acc] = mx[acc] < _CONVERGED_STEP
+                kept = go & ~acc
+                if kept.any():
+                    self.delta[acc], self.tau[acc], self.sigma[acc] = nd[acc], nt[acc], ns[acc]
+                    for key, v in trial.items():
+                        if v is not None:
+                            st[key][acc] = v[acc]
+                else:   # the windows that did not step were evaluated where they are
+                    self.delta, self.tau, self.sigma = nd, nt, ns
+                    st = trial
+                lam[acc] = np.maximum(lam[acc] / _LM_GROWTH, _LM_LAMBDA_MIN)
+                # a rejected step this small is rounding at the minimum: converged (damped
+                # retries would move the edge by less)
+                stall = go & ~acc & (mx < _CONVERGED_STEP)
+                converged |= stall
+                lam[go & ~acc & ~stall] *= _LM_GROWTH
+                trying &= ~(acc | stall)
+                if not trying.any():
+                    break
+            converged |= trying   # no descent direction left: at a minimum
+            active = ~converged & (it < self.opt.max_iterations)
+        st.update(it=it, converged=converged)
+        return st
+
+    def weight(self, noise: PixelNoise, st: dict) -> None:
+        """Weights ``1 / var(I)`` at the fit's prediction (the noise model)."""
+        pred = (st["Bm"] @ st["lin"][..., None])[..., 0]
+        self.sw = np.where(self.mask, 1.0 / np.sqrt(noise.variance_dn2(pred)), 0.0)
+
+    def results(self, st: dict) -> list[EdgeFit]:
+        """Per window: the fit and the 1-sigma of ``delta`` from ``(J^T W J)^-1`` (module
+        step 5)."""
+        J = self.jacobian(st)
+        dof = np.maximum(self.mask.sum(axis=1) - J.shape[2], 1)
+        s2 = st["cost"] / dof
+        # known noise: the covariance is (J^T W J)^-1, inflated by the reduced chi-square where
+        # the model fits worse than the noise (a-posteriori factor >= 1); unknown noise:
+        # s^2 (J^T J)^-1
+        factor = np.maximum(s2, 1.0) if self.opt.noise is not None else s2
+        JTJ = J.transpose(0, 2, 1) @ J
+        e0 = np.zeros(JTJ.shape[:2])
+        e0[:, 0] = 1.0
+        c00, ok = _solve(JTJ, e0)
+        sd = np.where(ok, np.sqrt(np.maximum(factor * c00[:, 0], 0.0)), math.inf)
+        return [EdgeFit(delta=float(self.delta[i]), tau=float(self.tau[i]),
+                        sigma=float(self.sigma[i]),
+                        amplitudes=np.asarray(st["lin"][i, 1:], float),
+                        background=float(st["lin"][i, 0]), sigma_delta=float(sd[i]),
+                        rms=math.sqrt(s2[i]), iterations=int(st["it"][i]),
+                        converged=bool(st["converged"][i])) for i in range(len(sd))]
+
+
+def _fit_windows(y: FloatArray, mask: NDArray[np.bool_], rho: FloatArray, t_arc: FloatArray,
+                 radius_px: float, opt: RefineOptions,
+                 tables: Sequence[EdgeTables] | None = None,
+                 saturated: bool = False) -> list[EdgeFit]:
+    """Fit the window model to ``K`` windows of ``M`` pixels at once (module steps 3-4):
+    ``y``, ``mask``, ``rho``, ``t_arc`` are ``(K, M)``; with ``tables`` (one per window) the
+    ``detector-psf`` model (a step only when ``saturated``), else the Gaussian one."""
+    if tables is not None:
+        stack = _StackedTables(tables, radius_px)
+
+        def basis(d, sigma):
+            return stack.bases(d, t_arc, ramp=not saturated)
+
+        fit = _BatchFit(y, mask, rho, t_arc, radius_px, basis, math.nan, False, opt)
     else:
-        Bm = np.column_stack([one, b0, t_arc * b0])
-        dB = np.column_stack([zero, -lsf, -t_arc * lsf])
-    return Bm, dB, None
+        nus = EDGE_MODELS["blurred-limb" if opt.edge_model == "detector-psf"
+                          else opt.edge_model]
+        fit_sigma = opt.psf_sigma_px is None
+        sigma = (opt.sigma0_px if fit_sigma
+                 else math.sqrt(opt.psf_sigma_px**2 + PIXEL_BOX_VARIANCE))
+
+        def basis(d, sigma):
+            return _gauss_bases(d, t_arc, sigma, nus, fit_sigma)
+
+        fit = _BatchFit(y, mask, rho, t_arc, radius_px, basis, sigma, fit_sigma, opt)
+    st = fit.run()
+    if opt.noise is not None:
+        # weighted pass: weights from the noise model at the unweighted fit's prediction
+        fit.weight(opt.noise, st)
+        st = fit.run()
+    return fit.results(st)
 
 
 def fit_edge_window(
@@ -665,114 +896,40 @@ def fit_edge_window(
     EdgeFit
         ``amplitudes[0]`` is the step ``A`` [DN]; with tables ``sigma`` is NaN (not fitted).
     """
-    opt = options or RefineOptions()
-    y = np.asarray(dn, float)
-    rho = np.asarray(rho, float)
-    t_arc = np.asarray(t_arc, float)
-    if tables is not None:
-        fit_sigma = False
-        sigma = math.nan
-        # a curved edge blurred looks like a straight one moved inwards by the blur's
-        # variance along the edge over twice the radius of curvature (to first order)
-        curvature = tables.tangent_variance / (2.0 * radius_px)
-
-        def basis(d: FloatArray, sigma: float):
-            return _table_bases(d + curvature, t_arc, tables, ramp=not saturated)
-    else:
-        nus = EDGE_MODELS["blurred-limb" if opt.edge_model == "detector-psf"
-                          else opt.edge_model]
-        fit_sigma = opt.psf_sigma_px is None
-        sigma = (opt.sigma0_px if fit_sigma
-                 else math.sqrt(opt.psf_sigma_px**2 + PIXEL_BOX_VARIANCE))
-
-        def basis(d: FloatArray, sigma: float):
-            return _bases(d, t_arc, sigma, nus, fit_sigma)
-
-    sw = np.ones_like(y)   # sqrt of the weights: 1 until the noise model is applied
-
-    def evaluate(delta: float, tau: float, sigma: float):
-        # variable projection: the linear amplitudes are solved for at every point
-        d = rho - (radius_px + delta + tau * t_arc)
-        Bm, dBd, dBs = basis(d, sigma)
-        a, *_ = np.linalg.lstsq(Bm * sw[:, None], y * sw, rcond=None)
-        r = (y - Bm @ a) * sw
-        return a, r, float(r @ r), Bm, dBd, dBs
-
-    def jacobian(a, Bm, dBd, dBs):
-        # d = rho - (R + delta + tau t_arc): dd/ddelta = -1, dd/dtau = -t_arc
-        dI_dd = dBd @ a
-        cols = [-dI_dd, -dI_dd * t_arc]
-        if fit_sigma:
-            cols.append(dBs @ a)
-        return np.column_stack(cols + [Bm]) * sw[:, None]
-
-    delta, tau = 0.0, 0.0
-    state = _lm(evaluate, jacobian, delta, tau, sigma, fit_sigma, opt)
-    if opt.noise is not None:
-        # weighted pass: weights from the noise model at the unweighted fit's prediction
-        delta, tau, sigma = state[0], state[1], state[2]
-        lin0, Bm0 = state[3], state[5]
-        sw = 1.0 / np.sqrt(opt.noise.variance_dn2(Bm0 @ lin0))
-        state = _lm(evaluate, jacobian, delta, tau, sigma, fit_sigma, opt)
-    delta, tau, sigma, lin, r, Bm, dBd, dBs, cost, it, converged = state
-    J = jacobian(lin, Bm, dBd, dBs)
-    dof = max(y.size - J.shape[1], 1)
-    s2 = cost / dof
-    # known noise: the covariance is (J^T W J)^-1, inflated by the reduced chi-square where the
-    # model fits worse than the noise (a-posteriori factor >= 1); unknown noise: s^2 (J^T J)^-1
-    factor = max(s2, 1.0) if opt.noise is not None else s2
-    try:
-        cov = factor * np.linalg.inv(J.T @ J)
-        sd = float(math.sqrt(max(cov[0, 0], 0.0)))
-    except np.linalg.LinAlgError:
-        sd = math.inf
-    return EdgeFit(delta=float(delta), tau=float(tau), sigma=float(sigma),
-                   amplitudes=np.asarray(lin[1:], float), background=float(lin[0]),
-                   sigma_delta=sd, rms=math.sqrt(s2), iterations=it, converged=converged)
+    y = np.asarray(dn, float)[None, :]
+    return _fit_windows(y, np.ones(y.shape, bool), np.asarray(rho, float)[None, :],
+                        np.asarray(t_arc, float)[None, :], float(radius_px),
+                        options or RefineOptions(),
+                        None if tables is None else [tables], saturated)[0]
 
 
-def _lm(evaluate, jacobian, delta: float, tau: float, sigma: float, fit_sigma: bool,
-        opt: RefineOptions):
-    """Levenberg-Marquardt on ``(delta, tau[, sigma])`` with the amplitudes projected out."""
-    lam = 1e-3
-    lin, r, cost, Bm, dBd, dBs = evaluate(delta, tau, sigma)
-    converged = False
-    it = 0
-    while it < opt.max_iterations:
-        it += 1
-        J = jacobian(lin, Bm, dBd, dBs)
-        JTJ = J.T @ J
-        g = J.T @ r
-        diag = np.diag(JTJ).copy()
-        diag[diag <= 0] = 1.0
-        improved = False
-        for _ in range(8):
-            try:
-                step = np.linalg.solve(JTJ + lam * np.diag(diag), g)
-            except np.linalg.LinAlgError:
-                lam *= 10.0
-                continue
-            mx = max(abs(step[0]), abs(step[1]) * 5.0)
-            if mx > 1.0:  # at most 1 px of edge motion per iteration
-                step = step / mx
-            nd, nt = delta + step[0], tau + step[1]
-            ns = min(max(sigma + step[2], 0.2), 10.0) if fit_sigma else sigma
-            trial = evaluate(nd, nt, ns)
-            if trial[2] <= cost:
-                small = abs(step[0]) < 1e-4 and (cost - trial[2]) <= 1e-9 * max(cost, 1e-30)
-                delta, tau, sigma = nd, nt, ns
-                lin, r, cost, Bm, dBd, dBs = trial
-                lam = max(lam / 10.0, 1e-9)
-                improved = True
-                converged = bool(small or abs(step[0]) < 1e-5)
-                break
-            lam *= 10.0
-        if not improved:
-            converged = True  # no descent direction left: at a minimum within tolerance
-            break
-        if converged:
-            break
-    return delta, tau, sigma, lin, r, Bm, dBd, dBs, cost, it, converged
+def _window_pixels(windows: Sequence[Window], c: FloatArray
+                   ) -> tuple[FloatArray, NDArray[np.bool_], FloatArray, FloatArray, FloatArray]:
+    """The windows' pixels as ``(K, M)`` arrays: DN, a mask of real pixels (windows smaller
+    than the largest are padded), and each pixel centre's offset ``(u, v)`` from ``c``
+    [px]; and the windows' centres ``(K, 2)`` [px]."""
+    K = len(windows)
+    hw = np.array([w.dn.shape for w in windows]).reshape(K, 2)
+    rc0 = np.array([(w.row0, w.col0) for w in windows], float).reshape(K, 2)
+    centres = rc0[:, ::-1] + (hw[:, ::-1] - 1) / 2.0
+    if (hw == hw[0]).all():
+        h, w = (int(x) for x in hw[0])
+        dn = np.stack([w_.dn for w_ in windows]).reshape(K, h * w).astype(float)
+        rows = np.repeat(np.arange(h, dtype=float), w)
+        cols = np.tile(np.arange(w, dtype=float), h)
+        rel_u = rc0[:, 1:2] + cols - c[0]
+        rel_v = rc0[:, 0:1] + rows - c[1]
+        return dn, np.ones(dn.shape, bool), rel_u, rel_v, centres
+    M = int((hw[:, 0] * hw[:, 1]).max())
+    dn, mask = np.zeros((K, M)), np.zeros((K, M), bool)
+    rel_u, rel_v = np.zeros((K, M)), np.zeros((K, M))
+    for i, win in enumerate(windows):
+        v, u = np.mgrid[win.row0:win.row0 + win.dn.shape[0],
+                        win.col0:win.col0 + win.dn.shape[1]].astype(float)
+        n = u.size
+        dn[i, :n], mask[i, :n] = win.dn.astype(float).ravel(), True
+        rel_u[i, :n], rel_v[i, :n] = u.ravel() - c[0], v.ravel() - c[1]
+    return dn, mask, rel_u, rel_v, centres
 
 
 def refine_limb(
@@ -814,11 +971,13 @@ def refine_limb(
     opt = options or RefineOptions()
     c = np.asarray(centre_px, float)
     R = float(radius_px)
-    pts, sig = [], []
     half = opt.size_px / 2.0 + 1.0
     tabulated = opt.edge_model == "detector-psf"
     if tabulated and camera is None:
         raise ConfigError("camera", None, "a Camera for the detector-psf edge model")
+    if len(windows) < 3:
+        raise LimbNotFoundError(f"subpixel refinement: {len(windows)} windows (need >= 3)",
+                                "no-edge")
     # model error of a point: the terrain's limb-height spread averaged over the window's arc,
     # at this disc size (its half-circle mean is shared by all points: ``common``), and the
     # edge model's own error
@@ -827,54 +986,65 @@ def refine_limb(
     frac = topo.sigma_fraction_over(opt.size_px / max(R, 1.0)) if topo is not None else 0.0
     model_px = math.hypot(edge_err, t_scale * frac * R)
     common = opt.common_covariance(R)
-    fit_sig: list[float] = []
-    sat_flags: list[bool] = []
-    overexposure: list[float] = []
-    for w in windows:
-        v, u = np.mgrid[w.row0:w.row0 + w.height, w.col0:w.col0 + w.width].astype(float)
-        dn = w.dn.astype(float).ravel()
-        rel_u, rel_v = u.ravel() - c[0], v.ravel() - c[1]
-        rho = np.hypot(rel_u, rel_v)
-        phi = np.arctan2(rel_v, rel_u)
-        # reference angle: where the window centre's ray crosses the coarse limb
-        uc, vc = w.col0 + (w.width - 1) / 2.0, w.row0 + (w.height - 1) / 2.0
-        phi_w = math.atan2(vc - c[1], uc - c[0])
-        normal = np.array([math.cos(phi_w), math.sin(phi_w)])
-        t_arc = R * np.angle(np.exp(1j * (phi - phi_w)))
-        ok = dn < opt.saturation_dn
-        saturated = not bool(ok.all())
-        if ok.sum() < 12 or (saturated and not tabulated):
-            # a Gaussian of fitted width cannot be told from the edge's position when the
-            # inside is clipped (measured: -1.9 +- 2.9 px at 0.18 ms): only the detector's own
-            # blur makes a saturated edge usable
-            log.debug("window at (%d, %d): %d unsaturated pixels%s, skipped", w.row0, w.col0,
-                      int(ok.sum()), " (saturated, no detector PSF)" if saturated else "")
+
+    # local geometry of every pixel of every window (module step 2), all windows at once
+    dn, real, rel_u, rel_v, centres = _window_pixels(windows, c)
+    rho = np.hypot(rel_u, rel_v)
+    phi = np.arctan2(rel_v, rel_u)
+    # reference angle: where the window centre's ray crosses the coarse limb
+    phi_w = np.arctan2(centres[:, 1] - c[1], centres[:, 0] - c[0])
+    normal = np.column_stack([np.cos(phi_w), np.sin(phi_w)])
+    t_arc = R * np.angle(np.exp(1j * (phi - phi_w[:, None])))
+    ok = real & (dn < opt.saturation_dn)
+    n_ok = ok.sum(axis=1)
+    saturated = n_ok < real.sum(axis=1)
+    # a Gaussian of fitted width cannot be told from the edge's position when the inside is
+    # clipped (measured: -1.9 +- 2.9 px at 0.18 ms): only the detector's own blur makes a
+    # saturated edge usable
+    usable = (n_ok >= 12) & (tabulated | ~saturated)
+    for i in np.flatnonzero(~usable):
+        log.debug("window at (%d, %d): %d unsaturated pixels%s, skipped", windows[i].row0,
+                  windows[i].col0, int(n_ok[i]),
+                  " (saturated, no detector PSF)" if saturated[i] else "")
+    # fit the well-exposed windows together and the saturated ones together (their model
+    # has no ramp): module steps 3-4
+    fits: dict[int, EdgeFit] = {}
+    for group in (usable & ~saturated, usable & saturated):
+        k = np.flatnonzero(group)
+        if not k.size:
             continue
         tables = None
         if tabulated:
-            tables = opt.spread.tables(camera, c[0] + R * normal[0],  # type: ignore[union-attr]
-                                       c[1] + R * normal[1], normal)
-        fit = fit_edge_window(dn[ok], rho[ok], t_arc[ok], R, options=opt, tables=tables,
-                              saturated=saturated)
-        blur = 1.0 if tables is not None else fit.sigma
-        outward = rho - R - fit.delta
+            edge = c + R * normal[k]
+            tables = [opt.spread.tables(camera, u, v, n)  # type: ignore[union-attr]
+                      for (u, v), n in zip(edge, normal[k], strict=True)]
+        got = _fit_windows(dn[k], ok[k], rho[k], t_arc[k], R, opt, tables,
+                           saturated=bool(saturated[k[0]]))
+        fits.update(zip(k.tolist(), got, strict=True))
+
+    pts, sig, fit_sig, sat_flags, overexposure = [], [], [], [], []
+    for i in sorted(fits):
+        fit = fits[i]
+        blur = 1.0 if tabulated else fit.sigma
+        outward = rho[i] - R - fit.delta
         a_step = fit.amplitudes[0]
         valid = (fit.converged and abs(fit.delta) < half and math.isfinite(fit.sigma_delta)
                  and a_step >= opt.min_contrast_dn
-                 and np.any(outward[ok] > blur) and np.any(outward < -blur))
-        if saturated:
+                 and bool(np.any(outward[ok[i]] > blur))
+                 and bool(np.any((outward < -blur) & real[i])))
+        if saturated[i]:
             # far past the full well the edge is blooming and halo, not the optics' blur
             overexposure.append(a_step / max(opt.saturation_dn - fit.background, 1.0))
             valid = valid and overexposure[-1] <= opt.max_overexposure
         if not valid:
             log.debug("window at (%d, %d): no valid edge (delta %.2f px, A %.1f DN, conv %s)",
-                      w.row0, w.col0, fit.delta, a_step, fit.converged)
+                      windows[i].row0, windows[i].col0, fit.delta, a_step, fit.converged)
             continue
-        pts.append(c + (R + fit.delta) * normal)
-        extra = sat_err if saturated else 0.0
+        pts.append(c + (R + fit.delta) * normal[i])
+        extra = sat_err if saturated[i] else 0.0
         sig.append(max(math.hypot(fit.sigma_delta, model_px, extra), opt.min_sigma_px))
         fit_sig.append(fit.sigma_delta)
-        sat_flags.append(saturated)
+        sat_flags.append(bool(saturated[i]))
     if overexposure and float(np.median(overexposure)) > opt.max_overexposure:
         # the frame is in the blooming regime (the paper's 7.7 ms): its saturated windows'
         # edges, even where one fits, are not the optics' blur of the limb
