@@ -533,8 +533,8 @@ def point_source_kernel(defocus_radius: float, sigma_radial: float, sigma_tangen
     (:func:`_point_source_integral`, cached) and read as a piecewise-constant density: the
     integral image ``C`` of such a density is exactly bilinear inside each sample cell, so
     bilinear interpolation of ``C`` at the shifted pixel edges integrates the shifted PSF over
-    each pixel exactly (no re-sampling, no FFT per star; the centroid moves by exactly
-    ``(du, dv)``, the sum is exactly 1)."""
+    each pixel exactly (no re-sampling, no FFT per star; the sum is exactly 1, and the
+    density's first moment moves by exactly ``(du, dv)``)."""
     C, half = _point_source_integral(float(defocus_radius), float(sigma_radial),
                                      float(sigma_tangential), float(angle), int(oversample))
     return _shifted_kernels(C, half, int(oversample), np.array([float(du)]),
