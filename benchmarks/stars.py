@@ -1,4 +1,9 @@
-"""The cost of the star field per frame: cone query, radiometry, injection through the PSF.
+"""The cost of the star field per frame: cone query, radiometry, injection through the PSF,
+and the attitude from the frame (centroids, lost-in-space identification, SVD/QUEST).
+
+The injection is printed before (part A: four node kernels per star sampled and FFT-convolved,
+``optics.point_source_kernel_sampled``, timed per star) and after (cached integral image per
+node, batched: ``optics.point_source_image``).
 
 AA-STR (1024 x 1024, 20.6 deg), default PSF, 200 ms, stars to V = 6.5 and 7.5 at a few
 pointings (sparse and Milky Way fields); the catalogue read (once per process) is timed apart.
@@ -23,21 +28,27 @@ POINTINGS = (("Orion belt", 84.05, -1.2), ("north galactic pole", 192.86, 27.13)
 
 def main() -> None:
     from starnav.camera import Camera
-    from starnav.detector import DetectorConfig
+    from starnav.detector import DetectorConfig, expose
     from starnav.detector.chain import ChainContext, add_point_sources
+    from starnav.detector.optics import _node_parameters, point_source_kernel_sampled
     from starnav.geometry import FrameGeometry, look_rotation
     from starnav.spectra import sensor_response
     from starnav.stars import StarsConfig, frame_stars
+    from starnav.stars.attitude import solve_attitude
     from starnav.stars.catalogue import hipparcos
 
     t0 = time.perf_counter()
-    hipparcos()
+    cat = hipparcos()
     t_read = time.perf_counter() - t0
     cam = Camera.preset("aa-str")
     det = DetectorConfig()
     resp = sensor_response("aa-str")
     frame_stars(FrameGeometry(np.array([0.0, 0.0, 1e12]), np.eye(3), np.array([1e11, 0, 0])),
                 cam, StarsConfig(enabled=True), resp, exposure_time=0.2)  # k-d tree, pyphot
+    from starnav.stars.identify import IdentifyOptions, star_index
+    t0 = time.perf_counter()
+    star_index(cat, IdentifyOptions().index_v_limit, cam.fov_diagonal, 2000.0)
+    t_index = time.perf_counter() - t0
     rows = []
     for vlim in (6.5, 7.5):
         for name, ra, dec in POINTINGS:
@@ -58,11 +69,42 @@ def main() -> None:
                 t2 = time.perf_counter()
                 tq.append(t1 - t0)
                 ti.append(t2 - t1)
-            rows.append({"field": name, "v_limit": vlim, "stars_drawn": len(f.point_sources()),
+            # before: the part-A per-star kernels (4 nodes, sampled + FFT), on 10 stars
+            _, _, par = _node_parameters(cam, det.optics.aberration)
+            t0 = time.perf_counter()
+            for k in range(10):
+                for p in (par[0][0], par[0][1], par[1][0], par[1][1]):
+                    point_source_kernel_sampled(*p, det.optics.aberration.oversample,
+                                                0.1 * k - 0.45, 0.3)
+            before_ms = (time.perf_counter() - t0) / 10 * 1e3
+            e = expose(np.zeros((cam.height, cam.width), np.float32), cam, det,
+                       exposure_time=0.2, point_sources=f.point_sources(), seed=1)
+            ta, sol = [], None
+            for rep in range(3):
+                t0 = time.perf_counter()
+                sol = solve_attitude(e.dn, cam, det, epoch_jyear=f.epoch_jyear)
+                ta.append(time.perf_counter() - t0)
+                if rep == 0:  # split: centroids alone
+                    from starnav.stars.centroid import find_stars, saturation_dn
+                    t0 = time.perf_counter()
+                    find_stars(e.dn, gain_e_per_dn=det.gain_e_per_dn,
+                               saturation_dn=saturation_dn(det))
+                    tc = time.perf_counter() - t0
+            n_ps = max(len(f.point_sources()), 1)
+            rows.append({"per_star_before_ms": round(before_ms, 2),
+                         "per_star_after_ms": round(statistics.median(ti) * 1e3 / n_ps, 3),
+                         "centroids_ms": round(tc * 1e3, 1),
+                         "attitude_total_ms": round(statistics.median(ta) * 1e3, 1),
+                         "attitude_ok": sol.ok,
+                         "stars_identified": sol.identification.n_matched
+                         if sol.identification else 0,
+                         "sigma_arcsec_xyz": [round(float(x), 2) for x in sol.sigma_arcsec],
+                         "field": name, "v_limit": vlim, "stars_drawn": len(f.point_sources()),
                          "stars_in_frame": len(f.visible()),
                          "query_radiometry_ms": round(statistics.median(tq) * 1e3, 1),
                          "injection_ms": round(statistics.median(ti) * 1e3, 1)})
-    print(json.dumps({"catalogue_read_s": round(t_read, 2), "frames": rows}, indent=1))
+    print(json.dumps({"catalogue_read_s": round(t_read, 2), "pair_index_s": round(t_index, 2),
+                      "frames": rows}, indent=1))
 
 
 if __name__ == "__main__":

@@ -449,15 +449,105 @@ class PointSources:
         return int(self.u.size)
 
 
+@lru_cache(maxsize=256)
+def _point_source_integral(defocus_radius: float, sigma_radial: float, sigma_tangential: float,
+                           angle: float, oversample: int) -> tuple[NDArray[np.float64], int]:
+    """The centred PSF of :func:`point_source_kernel` sampled ``oversample`` times per pixel
+    and axis (unit sum) and its integral image ``C[i, j] = sum(f[:i, :j])`` on the sample edges,
+    ``(n + 1, n + 1)``; returns ``(C, half)`` with the samples spanning ``[-half - 0.5,
+    half + 0.5]`` px. Cached per node: the per-star work is a shifted read of ``C``."""
+    smax = max(sigma_radial, sigma_tangential)
+    half = int(math.ceil(defocus_radius + GAUSS_TRUNCATE_SIGMA * smax + 1.0))
+    s = int(oversample)
+    n = (2 * half + 1) * s
+    step = 1.0 / s
+    t = (np.arange(n) + 0.5) * step - (half + 0.5)
+    x, y = np.meshgrid(t, t)
+    ca, sa = math.cos(angle), math.sin(angle)
+    sr = max(sigma_radial, 0.25 * step)
+    st = max(sigma_tangential, 0.25 * step)
+
+    def gauss(gx: NDArray[np.float64], gy: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.exp(-0.5 * (((ca * gx + sa * gy) / sr) ** 2 + ((-sa * gx + ca * gy) / st) ** 2))
+
+    disc = disc_coverage(defocus_radius, x, y, step) if defocus_radius > 0 else None
+    if disc is not None and disc.sum() == 0:
+        disc = None
+    if smax <= 0 and disc is None:  # no optics: a point at the centre
+        fine = np.zeros((n, n))
+        fine[n // 2, n // 2] = 1.0
+    elif disc is None:
+        fine = gauss(x, y)
+    elif smax <= 0:
+        fine = disc
+    else:
+        from scipy.signal import fftconvolve
+
+        m = int(math.ceil(GAUSS_TRUNCATE_SIGMA * smax / step))
+        g = np.arange(-m, m + 1) * step
+        gx, gy = np.meshgrid(g, g)
+        fine = fftconvolve(disc, gauss(gx, gy), mode="same")  # odd kernel: exactly centred
+    fine = np.clip(fine, 0.0, None)
+    fine /= fine.sum()
+    C = np.zeros((n + 1, n + 1))
+    C[1:, 1:] = np.cumsum(np.cumsum(fine, axis=0), axis=1)
+    C.flags.writeable = False
+    return C, half
+
+
+def _shifted_kernels(C: NDArray[np.float64], half: int, s: int, du: NDArray[np.float64],
+                     dv: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Pixel-integrated kernels ``(m, 2H + 1, 2H + 1)``, ``H = half + 1``, of the PSF whose
+    integral image is ``C`` shifted by ``(du[i], dv[i])`` [px]: bilinear reads of ``C`` at the
+    shifted pixel edges (indices clamped to ``[0, n]``: ``C`` is 0 before the first edge and
+    constant after the last), then the 2-D difference."""
+    n = C.shape[0] - 1
+    q = np.arange(-(half + 1), half + 3) * s
+
+    def edges(shift: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.intp],
+                                                   NDArray[np.float64]]:
+        k0 = (half - shift) * s
+        a = np.floor(k0)
+        i0 = q[None, :] + a.astype(np.intp)[:, None]
+        return np.clip(i0, 0, n), np.clip(i0 + 1, 0, n), (k0 - a)[:, None, None]
+
+    c0, c1, fu = edges(np.asarray(du, float))
+    r0, r1, fv = edges(np.asarray(dv, float))
+    r0, r1 = r0[:, :, None], r1[:, :, None]
+    c0, c1 = c0[:, None, :], c1[:, None, :]
+    E = ((1.0 - fv) * ((1.0 - fu) * C[r0, c0] + fu * C[r0, c1])
+         + fv * ((1.0 - fu) * C[r1, c0] + fu * C[r1, c1]))
+    return np.diff(np.diff(E, axis=1), axis=2)
+
+
 def point_source_kernel(defocus_radius: float, sigma_radial: float, sigma_tangential: float,
                         angle: float, oversample: int, du: float, dv: float) -> Float32Array:
     """The PSF of :func:`aberration_kernel` for a point source at ``(du, dv)`` [px] from the
-    centre of the kernel's middle pixel (``|du|, |dv| <= 0.5``), integrated over each pixel
-    (``oversample`` samples per pixel and axis): odd square, unit sum.
+    centre of the kernel's middle pixel (``|du|, |dv| <= 0.5``), integrated over each pixel:
+    odd square, unit sum (float64).
 
     A rendered (extended) image is already averaged over each pixel by the renderer; a point
     source is not, so its pixel values are the PSF integrated over the pixels at its sub-pixel
-    position, not the pixel-integrated kernel convolved once more with a pixel."""
+    position, not the pixel-integrated kernel convolved once more with a pixel. The PSF is
+    sampled ``oversample`` times per pixel and axis around its centre once per node
+    (:func:`_point_source_integral`, cached) and read as a piecewise-constant density: the
+    integral image ``C`` of such a density is exactly bilinear inside each sample cell, so
+    bilinear interpolation of ``C`` at the shifted pixel edges integrates the shifted PSF over
+    each pixel exactly (no re-sampling, no FFT per star; the sum is exactly 1, and the
+    density's first moment moves by exactly ``(du, dv)``)."""
+    C, half = _point_source_integral(float(defocus_radius), float(sigma_radial),
+                                     float(sigma_tangential), float(angle), int(oversample))
+    return _shifted_kernels(C, half, int(oversample), np.array([float(du)]),
+                            np.array([float(dv)]))[0]
+
+
+def point_source_kernel_sampled(defocus_radius: float, sigma_radial: float,
+                                sigma_tangential: float, angle: float, oversample: int,
+                                du: float, dv: float) -> Float32Array:
+    """Slow reference of :func:`point_source_kernel` (the part-A method, kept for tests and
+    ``benchmarks/stars.py``): the PSF sampled at the shifted sample centres (``oversample``
+    per pixel and axis, the disc convolved with the Gaussian by FFT for every call) and summed
+    per pixel: odd square, unit sum. ~7 ms per call on the AA-STR PSF."""
     smax = max(sigma_radial, sigma_tangential)
     half = int(math.ceil(defocus_radius + GAUSS_TRUNCATE_SIGMA * smax + 1.5))
     s = int(oversample)
@@ -502,41 +592,47 @@ def point_source_image(shape: tuple[int, int], sources: PointSources, electrons:
     at their sub-pixel positions (the tent blend of the four nearest node PSFs of
     :func:`psf_grid`, as :func:`apply_psf_grid` blends them for a source pixel there).
 
+    Per node, the kernels of all stars it weighs are read at once from the node's cached
+    integral image (:func:`point_source_kernel`) and everything is accumulated with one
+    ``bincount``: ~0.05 ms per star (``docs/performance.md``).
+
     Returns the ``(H, W)`` image [e-] and the electrons that fell outside the array."""
     H, W = shape
-    out = np.zeros((H, W), np.float32)
     el = np.broadcast_to(np.asarray(electrons, float), sources.u.shape)
-    lost = 0.0
+    keep = el > 0
+    u, v, e = sources.u[keep], sources.v[keep], el[keep]
+    if u.size == 0:
+        return np.zeros((H, W), np.float32), 0.0
     if cfg.enabled:
         u_nodes, v_nodes, params = _node_parameters(camera, cfg)
     else:
         u_nodes, v_nodes, params = (0.0,), (0.0,), [[(0.0, 0.0, 0.0, 0.0)]]
-    for u, v, e in zip(sources.u, sources.v, el, strict=True):
-        if e <= 0:
-            continue
-        iu, iv = int(math.floor(u + 0.5)), int(math.floor(v + 0.5))
-        du, dv = u - iu, v - iv
-        uu, vv = np.array([u]), np.array([v])
-        wu = [float(_tent(uu, u_nodes, i)[0]) for i in range(len(u_nodes))]
-        wv = [float(_tent(vv, v_nodes, j)[0]) for j in range(len(v_nodes))]
-        for j, b in enumerate(wv):
-            for i, a in enumerate(wu):
-                if a * b <= 0:
-                    continue
-                R, sr, st, ang = params[j][i]
-                k = point_source_kernel(R, sr, st, ang, cfg.oversample, du, dv)
-                h = k.shape[0] // 2
-                r0, c0 = iv - h, iu - h
-                rr0, rr1 = max(r0, 0), min(r0 + k.shape[0], H)
-                cc0, cc1 = max(c0, 0), min(c0 + k.shape[1], W)
-                amount = e * a * b
-                if rr0 < rr1 and cc0 < cc1:
-                    part = k[rr0 - r0:rr1 - r0, cc0 - c0:cc1 - c0]
-                    out[rr0:rr1, cc0:cc1] += (amount * part).astype(np.float32)
-                    lost += amount * (1.0 - float(part.sum(dtype=np.float64)))
-                else:
-                    lost += amount
-    return out, lost
+    iu, iv = np.floor(u + 0.5), np.floor(v + 0.5)
+    du, dv = u - iu, v - iv
+    iu, iv = iu.astype(np.intp), iv.astype(np.intp)
+    wu = [_tent(u, u_nodes, i) for i in range(len(u_nodes))]
+    wv = [_tent(v, v_nodes, j) for j in range(len(v_nodes))]
+    idx_parts, w_parts = [], []
+    for j in range(len(v_nodes)):
+        for i in range(len(u_nodes)):
+            amount = e * wu[i] * wv[j]
+            sel = amount > 0
+            if not sel.any():
+                continue
+            R, sr, st, ang = params[j][i]
+            C, half = _point_source_integral(R, sr, st, ang, int(cfg.oversample))
+            k = _shifted_kernels(C, half, int(cfg.oversample), du[sel], dv[sel])
+            off = np.arange(-(half + 1), half + 2)
+            rows = iv[sel][:, None, None] + off[None, :, None]
+            cols = iu[sel][:, None, None] + off[None, None, :]
+            inside = (rows >= 0) & (rows < H) & (cols >= 0) & (cols < W)
+            idx_parts.append((rows * W + cols)[inside])
+            w_parts.append((k * amount[sel][:, None, None])[inside])
+    if not idx_parts:
+        return np.zeros((H, W), np.float32), float(e.sum())
+    img = np.bincount(np.concatenate(idx_parts), weights=np.concatenate(w_parts),
+                      minlength=H * W).reshape(H, W)
+    return img.astype(np.float32), float(e.sum() - img.sum())
 
 
 # =========================================================================== distortion

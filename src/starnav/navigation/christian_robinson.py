@@ -85,9 +85,11 @@ class ChristianRobinsonOptions:
         Semi-axes of the body along its body-fixed axes [m]; default the Moon sphere.
     min_points : int
         Minimum number of limb points.
-    attitude_sigma_rad : float or (3,) tuple
-        Attitude knowledge 1-sigma [rad]: one value for every axis, or one per camera axis
-        ``(x, y, z)`` (z the boresight: roll), added to the inertial covariance.
+    attitude_sigma_rad : float, (3,) tuple or (3, 3) nested tuple
+        Attitude knowledge: a 1-sigma [rad] for every axis, one per camera axis ``(x, y, z)``
+        (z the boresight: roll), or a full 3x3 covariance of the error rotation in camera
+        axes [rad^2] (a star tracker's solution, :mod:`starnav.stars.attitude`); added to the
+        inertial covariance.
     """
 
     radii_m: tuple[float, float, float] = (MOON_RADIUS, MOON_RADIUS, MOON_RADIUS)
@@ -100,10 +102,27 @@ class ChristianRobinsonOptions:
             raise ConfigError("fix.radii_m", self.radii_m, "three finite semi-axes > 0 m")
         if self.min_points < 3:
             raise ConfigError("fix.min_points", self.min_points, "an integer >= 3")
-        a = np.atleast_1d(np.asarray(self.attitude_sigma_rad, float))
-        if a.size not in (1, 3) or not (np.all(a >= 0) and np.all(np.isfinite(a))):
-            raise ConfigError("fix.attitude_sigma_rad", self.attitude_sigma_rad,
-                              "one value or three (camera x, y, z) >= 0 rad")
+        attitude_covariance(self.attitude_sigma_rad)
+
+
+def attitude_covariance(attitude_sigma_rad: float | ArrayLike) -> FloatArray:
+    """The 3x3 attitude covariance [rad^2], camera axes, of ``attitude_sigma_rad``: one 1-sigma
+    [rad] (isotropic), three (per camera axis), or already a 3x3 symmetric positive
+    semi-definite covariance [rad^2]."""
+    a = np.asarray(attitude_sigma_rad, float)
+    if a.shape == (3, 3):
+        if not (np.all(np.isfinite(a)) and np.allclose(a, a.T, rtol=1e-9, atol=1e-30)
+                and np.linalg.eigvalsh(0.5 * (a + a.T))[0] >= -1e-12 * max(np.abs(a).max(),
+                                                                          1e-300)):
+            raise ConfigError("fix.attitude_sigma_rad", a.tolist(),
+                              "a symmetric positive semi-definite 3x3 covariance [rad^2]")
+        return 0.5 * (a + a.T)
+    a = np.atleast_1d(a)
+    if a.ndim != 1 or a.size not in (1, 3) or not (np.all(a >= 0) and np.all(np.isfinite(a))):
+        raise ConfigError("fix.attitude_sigma_rad", attitude_sigma_rad,
+                          "one value or three (camera x, y, z) >= 0 rad, or a 3x3 "
+                          "covariance [rad^2]")
+    return np.diag(np.broadcast_to(a, (3,)) ** 2)
 
 
 def _skew(v: FloatArray) -> FloatArray:
@@ -172,10 +191,12 @@ class LimbFix:
         ----------
         R_cam_to_inertial : (3, 3) array
             Attitude used for the fix.
-        attitude_sigma_rad : float or (3,) array
+        attitude_sigma_rad : float, (3,) array or (3, 3) array
             1-sigma attitude knowledge error [rad] (small-angle): isotropic, or per camera axis
-            ``(x, y, z)``. An error rotation ``dtheta`` (camera axes) moves the camera-frame
-            centre ``c`` by ``-dtheta x c``, so ``P += R [c x] diag(sigma^2) [c x]^T R^T``.
+            ``(x, y, z)``, or the full covariance ``S`` [rad^2] of the error rotation in camera
+            axes (:func:`attitude_covariance`). An error rotation ``dtheta`` (camera axes)
+            moves the camera-frame centre ``c`` by ``-dtheta x c``, so
+            ``P += R [c x] S [c x]^T R^T`` (``S = diag(sigma^2)`` for sigmas).
         radius_sigma_fraction : float
             1-sigma relative error of the body's apparent limb radius shared by every point
             (terrain, :mod:`starnav.dem.limb`): the fix scales with the radius, so
@@ -183,10 +204,9 @@ class LimbFix:
         """
         R = np.asarray(R_cam_to_inertial, float)
         P = R @ self.covariance_camera @ R.T
-        sig = np.atleast_1d(np.asarray(attitude_sigma_rad, float))
-        if np.any(sig > 0):
+        S = attitude_covariance(attitude_sigma_rad)
+        if np.any(S != 0):
             X = _skew(np.asarray(self.centre_camera, float))
-            S = np.diag(np.broadcast_to(sig, (3,)) ** 2)
             P = P + R @ X @ S @ X.T @ R.T
         if radius_sigma_fraction > 0:
             c = R @ np.asarray(self.centre_camera, float)
