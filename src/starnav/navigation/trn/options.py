@@ -32,6 +32,8 @@ class FrontEndOptions:
     drift_px_per_rad: float = 25.0
     centroid_sigma_fraction: float = 0.05
     radius_sigma_fraction: float = 0.02
+    correlation_factor: float = 1.0
+    max_track_turn: float = 3.141592653589793
 
     def __post_init__(self) -> None:
         if not 1 <= self.n_windows <= MAX_WINDOWS:
@@ -43,6 +45,12 @@ class FrontEndOptions:
             if getattr(self, name) < 1:
                 raise ConfigError(f"navigation.trn.front_end.{name}", getattr(self, name),
                                   "an integer >= 1")
+        if not self.correlation_factor >= 1.0:
+            raise ConfigError("navigation.trn.front_end.correlation_factor",
+                              self.correlation_factor, ">= 1 (a factor on the feature sigma)")
+        if not self.max_track_turn > 0:
+            raise ConfigError("navigation.trn.front_end.max_track_turn_deg",
+                              self.max_track_turn, "> 0 (the view change a track may live)")
         if self.search_margin_px < 0:
             raise ConfigError("navigation.trn.front_end.search_margin_px",
                               self.search_margin_px, "an integer >= 0")
