@@ -168,3 +168,32 @@ def test_a_moon_scenario_is_refused_before_rendering():
     with pytest.raises(ConfigError, match="trajectory.source"):
         check_flyby_scenario(static)
     assert math.isfinite(chi2_band(6, RUNS, PROBABILITY)[0])
+
+
+def test_cli_navigate_a_flyby_scenario(tmp_path):
+    """``starnav init --preset flyby`` then ``starnav navigate SCENARIO.yaml --runs 2`` (cut
+    to 5 frames): metrics.json with FlybyMetrics' flat keys and the Monte Carlo summary, the
+    four figures, report.md; a Moon scenario is one error line, exit 2."""
+    from typer.testing import CliRunner
+
+    from starnav.cli.main import app
+
+    env = {"COLUMNS": "50"}
+    cli = CliRunner()
+    sc = tmp_path / "fb.yaml"
+    assert cli.invoke(app, ["init", str(sc), "--preset", "flyby"], env=env).exit_code == 0
+    out = tmp_path / "out"
+    res = cli.invoke(app, ["navigate", str(sc), "--out", str(out), "--runs", "2",
+                           "--set", "trajectory.frames=5", "--set",
+                           "trajectory.flyby.start_s=-0.4"], env=env)
+    assert res.exit_code == 0, res.output
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["frames"] == 5 and m["monte_carlo"]["runs"] == 2
+    assert m["ca_range_m"] == pytest.approx(5e3, rel=1e-9)
+    for name in ("position.png", "velocity.png", "nees.png", "tracks.png", "report.md"):
+        assert (out / name).stat().st_size > 0
+    moon = tmp_path / "moon.yaml"
+    cli.invoke(app, ["init", str(moon)], env=env)
+    bad = cli.invoke(app, ["navigate", str(moon), "--out", str(tmp_path / "o2")], env=env)
+    assert bad.exit_code == 2
+    assert "trajectory.source" in bad.output and len(bad.output.strip().splitlines()) == 1

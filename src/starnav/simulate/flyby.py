@@ -38,22 +38,31 @@ Example
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from starnav.atomic import atomic_write_text
 from starnav.bodies.base import TargetBody
 from starnav.config import Scenario
 from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry
 from starnav.navigation.trn.filter import FlybyRun, TrnFilterOptions, run_filter
 from starnav.navigation.trn.measurements import FlybyMeasurement
-from starnav.navigation.trn.metrics import FlybyMetrics
+from starnav.navigation.trn.metrics import (
+    FlybyMetrics,
+    plot_flyby_errors,
+    plot_flyby_nees,
+    plot_tracks,
+    write_report,
+)
 from starnav.navigation.trn.montecarlo import summarise_runs
 from starnav.navigation.trn.options import FrontEndOptions
 from starnav.radiance import RadianceImage
@@ -266,3 +275,40 @@ def flyby_closed_loop(sim: Simulator, runs: int = 1, *, renders: Renders | None 
     for stage in ("detector", "front_end", "filter"):
         timings[stage] = float(np.mean([r.timings_s[stage] for r in out])) / K
     return FlybyClosedLoop(epochs, float(flyby.epoch_ca), X, out, summary, timings)
+
+
+def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: bool = True,
+                   probability: float = 0.99,
+                   progress: Callable[[str, int, int], None] | None = None) -> dict[str, Any]:
+    """``starnav navigate SCENARIO.yaml`` for a fly-by: the closed loop over ``runs`` runs,
+    then ``metrics.json`` (run 0's :class:`FlybyMetrics` flat keys, the per-frame timings and,
+    for >= 2 runs, the Monte Carlo summary), the figures (position and velocity errors with
+    3-sigma against time from CA, runs in grey; NEES with its band; tracks) and
+    ``report.md``, every file written atomically. Returns the metrics dict."""
+    check_flyby_scenario(sim.scenario)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    loop = flyby_closed_loop(sim, runs, probability=probability, progress=progress)
+    r0 = loop.runs[0]
+    t = loop.time_from_ca
+    metrics: dict[str, Any] = dict(r0.metrics.as_dict())
+    metrics["timing_s_per_frame"] = loop.timings_s
+    mc = None
+    if runs >= 2:
+        mc = {k: v for k, v in loop.summary.items() if k != "nees_per_frame"}
+        metrics["monte_carlo"] = mc
+    atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=1, default=float) + "\n")
+    figures: list[str] = []
+    if plots:
+        others = [r.filter.errors(loop.truth) for r in loop.runs[1:]]
+        e0 = r0.filter.errors(loop.truth)
+        figures.append(str(plot_flyby_errors(t, e0, r0.filter.sigma3(), out / "position.png",
+                                             "position", others)))
+        figures.append(str(plot_flyby_errors(t, e0, r0.filter.sigma3(), out / "velocity.png",
+                                             "velocity", others)))
+        figures.append(str(plot_flyby_nees(t, loop.summary["nees_per_frame"],
+                                           out / "nees.png", runs=runs,
+                                           probability=probability)))
+        figures.append(str(plot_tracks(t, r0.measurements, r0.filter, out / "tracks.png")))
+    write_report(out / "report.md", r0.metrics, mc, figures)
+    return metrics

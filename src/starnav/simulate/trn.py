@@ -20,8 +20,8 @@ TRN_STREAM)`` for the whole sequence (the front end is stateful).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
 import time
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
