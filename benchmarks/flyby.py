@@ -112,6 +112,26 @@ def bench_filter(runs: int = 3) -> None:
 def main() -> None:
     bench_front_end()
     bench_filter()
+    bench_closed_loop()
+
+
+def bench_closed_loop(runs: int = 3) -> None:
+    """Per-frame cost of the closed loop on rendered frames: render (once per frame), detector
+    (segments + windows exposures), front end, filter (mean over the runs)."""
+    from starnav.config import scenario_from_dict
+    from starnav.simulate import Simulator
+    from starnav.simulate.flyby import flyby_closed_loop
+
+    sc = scenario(256, 30.0, 21)
+    sc["trajectory"].update({"cadence_s": 0.2})
+    sc["trajectory"]["flyby"].update({"v_inf_km_s": 0.5, "phase_at_ca_deg": 60.0,
+                                      "start_s": -2.0})
+    loop = flyby_closed_loop(Simulator(scenario_from_dict(sc)), runs)
+    print(json.dumps({"machine": f"{platform.node()} {platform.machine()} {os.cpu_count()} cores",
+                      "date": datetime.date.today().isoformat(),
+                      "closed_loop_ms_per_frame": {k: round(1e3 * v, 2)
+                                                   for k, v in loop.timings_s.items()},
+                      "load": os.getloadavg()}, indent=1))
 
 
 if __name__ == "__main__":

@@ -134,6 +134,36 @@ def test_flyby_scene_truth_and_pointing():
         _ = scene.states_emb
 
 
+def test_flyby_roll_is_continuous_through_closest_approach():
+    """The fly-by's roll law (down hint = the fly-by plane's normal) has no singularity: with
+    an equatorial velocity and the default B-plane angle the CA direction is the J2000 pole,
+    so the line of sight sweeps through it at CA, where the north-up law (look_rotation's
+    default hint) flips the camera by 180 deg in roll. Here the camera +y stays on the plane's
+    normal (exactly: a straight line) and turns by less than 0.1 deg between consecutive
+    frames (0.5 s cadence: the line of sight itself turns by at most 5.7 deg per frame)."""
+    sc = scenario_from_dict({
+        "camera": {"width": 128, "height": 128},
+        "target": {"kind": "shape_model", "model": "itokawa"},
+        "trajectory": {"source": "flyby", "cadence_s": 0.5, "frames": 41,
+                       "flyby": {"closest_approach_km": 25.0, "v_inf_km_s": 5.0,
+                                 "velocity_dec_deg": 0.0, "start_s": -10.0}},
+        "pointing": {"moon_offset": "fixed", "roll": "fixed"}})
+    scene = scene_from_scenario(sc)
+    y = np.array([g.R_cam_to_inertial[:, 1] for g in scene.geometries()])
+    los = np.array([g.R_cam_to_inertial[:, 2] for g in scene.geometries()])
+    z = scene.flyby.z_hat
+    assert np.allclose(y, z, atol=1e-9)
+    assert np.abs(los @ z).max() < 1e-9
+    turn = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", y[1:], y[:-1]), -1, 1)))
+    assert turn.max() < 0.1
+    # the old law on the same geometry: the flip this test guards against
+    from starnav.geometry import look_rotation
+    y_old = np.array([look_rotation(np.array([0.0, 0.0, 1.0]), -g.camera_position)[:, 1]
+                      for g in scene.geometries()])
+    old = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", y_old[1:], y_old[:-1]), -1, 1)))
+    assert old.max() > 90.0
+
+
 def test_validate_reports_a_flyby_without_rendering():
     """``starnav validate`` (check_scenario) builds the fly-by: 21 frames over +-600 s at
     60 s, closest range the CA distance, farthest sqrt(20^2 + 3000^2) km."""

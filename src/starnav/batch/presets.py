@@ -264,3 +264,33 @@ PRESETS: Registry[SweepPreset] = Registry("sweep preset", {p.name: p for p in (
 def get_preset(name: str) -> SweepPreset:
     """The preset ``name``; an unknown name lists the known ones."""
     return PRESETS.get(name)
+
+
+# ============================================================================ fly-by
+#: The asteroid fly-by of ``starnav init --preset flyby``: the closed loop's scoring fly-by
+#: (tests/navigation/test_flyby_closed_loop.py) with 41 frames.
+FLYBY: dict[str, Any] = {
+    "camera": {"width": 256, "height": 256, "focal_length_mm": 30.0},
+    "render": {"spp": 4},
+    "target": {"kind": "shape_model", "model": "itokawa"},
+    "trajectory": {"source": "flyby", "cadence_s": 0.2, "frames": 41,
+                   "flyby": {"closest_approach_km": 5.0, "v_inf_km_s": 0.5,
+                             "phase_at_ca_deg": 60.0, "start_s": -4.0, "end_s": 4.0}},
+    "pointing": {"moon_offset": "fixed", "roll": "fixed"},
+    "detector": {"exposure_time_s": 3e-5},
+    "seed": 7}
+
+
+def flyby_header() -> str:
+    """The comment block of the fly-by preset."""
+    return ("# preset: asteroid fly-by terrain-relative navigation (issue 16)\n"
+            "# Itokawa (radar shape model, Hapke S-type) passed at 5 km and 0.5 km/s, Sun phase\n"
+            "# 60 deg at closest approach, a 256 x 256 px tracker reading segments then up to 16\n"
+            "# windows, 41 frames 0.2 s apart about CA. Run it end to end (render once, then the\n"
+            "# front end and the estimator per Monte Carlo run):\n"
+            "#   starnav navigate flyby.yaml --out out/flyby --runs 20\n")
+
+
+def flyby_scenario() -> dict[str, Any]:
+    """The complete fly-by preset scenario."""
+    return _resolved(dict(FLYBY))

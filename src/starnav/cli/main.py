@@ -103,9 +103,17 @@ def _demo_preset() -> tuple[str, dict[str, Any]]:
     return header, scenario_to_dict(scenario_from_dict(demo_scenario()))
 
 
+def _flyby_preset() -> tuple[str, dict[str, Any]]:
+    from starnav.batch.presets import flyby_header, flyby_scenario
+    from starnav.config import EXAMPLE_HEADER
+
+    return EXAMPLE_HEADER + flyby_header(), flyby_scenario()
+
+
 #: Scenario presets of ``starnav init``: name -> () -> (commented header, scenario mapping).
 INIT_PRESETS: Registry[Callable[[], tuple[str, dict[str, Any]]]] = Registry("preset", {
-    "default": _default_preset, "exposure-study": _exposure_study_preset, "demo": _demo_preset})
+    "default": _default_preset, "exposure-study": _exposure_study_preset, "demo": _demo_preset,
+    "flyby": _flyby_preset})
 
 
 @app.command()

@@ -55,6 +55,30 @@ def check_navigate_overrides(items: list[str] | tuple[str, ...]) -> None:
                               f"(make a new dataset to change {key.split('.')[0]}.*)")
 
 
+def _navigate_flyby(path: Path, out: Path, runs: int | None, set_: list[str] | None,
+                    seed: int | None, no_plots: bool) -> None:
+    """``navigate SCENARIO.yaml`` for a fly-by: the frames of a fly-by depend on each other
+    (the front end places this frame's windows from the last frame's tracks), so the closed
+    loop renders the scenario once and runs the front end and the estimator per run."""
+    from starnav.config import load_scenario
+    from starnav.simulate import Simulator
+    from starnav.simulate.flyby import check_flyby_scenario, navigate_flyby
+
+    overrides = tuple(set_ or ()) + ((f"seed={seed}",) if seed is not None else ())
+    sc = load_scenario(path, overrides)
+    check_flyby_scenario(sc)
+    n = sc.navigation.runs if runs is None else runs
+    m = navigate_flyby(Simulator(sc), out, n, plots=not no_plots)
+    typer.echo(f"position error at CA {m['ca_position_error_m']:.1f} m "
+               f"({m['ca_position_error_pct_range']:.3g} % of {m['ca_range_m'] / 1e3:.2f} km), "
+               f"feature error rms {m['feature_error_rms_px']:.2f} px")
+    if "monte_carlo" in m:
+        mc = m["monte_carlo"]
+        typer.echo(f"{mc['runs']} runs: mean NEES {mc['nees_mean']:.2f}, band "
+                   f"[{mc['nees_band'][0]:.2f}, {mc['nees_band'][1]:.2f}]: {mc['verdict']}")
+    typer.echo(f"outputs in {out}")
+
+
 def register(app: typer.Typer) -> None:
     """Add the ``navigate`` command to ``app``."""
 
@@ -76,11 +100,16 @@ def register(app: typer.Typer) -> None:
             "--seed", help="seed of the runs (default: the scenario's)")] = None,
         no_plots: Annotated[bool, typer.Option("--no-plots", help="skip the PNG figures")] = False,
     ) -> None:
-        """Run limb -> RANSAC -> Christian-Robinson -> EKF over DATASET; write CSV, JSON, PNG."""
+        """Run limb -> RANSAC -> Christian-Robinson -> EKF over DATASET; write CSV, JSON, PNG.
+        DATASET may also be a fly-by scenario YAML: the fly-by closed loop (render once, then
+        per run the front end and the estimator), metrics.json, figures, report.md."""
         from starnav.config import load_scenario
         from starnav.errors import StarnavError
         from starnav.navigation.report import budget_warning, navigate_dataset
 
+        if dataset.is_file() and dataset.suffix.lower() in (".yaml", ".yml"):
+            _navigate_flyby(dataset, out, runs, set_, seed, no_plots)
+            return
         try:
             check_navigate_overrides(set_ or ())
             ds = _open_dataset(dataset, None if exposure is None

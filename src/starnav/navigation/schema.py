@@ -177,14 +177,32 @@ class TrnFrontEndConfig(StrictModel):
     epipolar_px: PositiveFloat = Field(
         1.0, description="epipolar RANSAC threshold (known attitude) [px]")
     sigma_detect_px: NonNegativeFloat = Field(
-        0.05, description="1-sigma of a feature at its first detection [px]")
+        1.5, description="1-sigma of a feature at its first detection [px] (calibrated on "
+        "rendered frames: tools/calibrate_flyby_model_error.py)")
     drift_px_per_rad: NonNegativeFloat = Field(
-        25.0, description="growth of a feature's 1-sigma with the camera rotation summed "
+        7.1, description="growth of a feature's 1-sigma with the camera rotation summed "
         "along its track [px/rad] (the shading moves on the surface as the view turns)")
+
+    correlation_factor: Annotated[float, Field(ge=1)] = Field(
+        1.0, description="factor on every feature's 1-sigma for its error's correlation "
+        "along a track (calibrated on rendered frames: tools/calibrate_flyby_model_error.py) "
+        "[-]")
+    max_track_turn_deg: PositiveFloat = Field(
+        5.0, description="a track ends once the view has turned this much along it (bounds "
+        "its drift; the point is found again under a new id) [deg]")
+    centroid_sigma_fraction: NonNegativeFloat = Field(
+        0.0002, description="1-sigma of the segments' lit centroid per coordinate, times the "
+        "apparent radius (its noise; calibrated) [-]")
+    radius_sigma_fraction: NonNegativeFloat = Field(
+        0.00013, description="1-sigma of the segments' apparent radius, times the radius (its "
+        "noise; calibrated) [-]")
 
     def options(self) -> FrontEndOptions:
         """The :class:`~starnav.navigation.trn.frontend.FrontEndOptions` of this section."""
-        return FrontEndOptions(**self.model_dump())
+        si = self.to_si()
+        d = self.model_dump()
+        d.pop("max_track_turn_deg")
+        return FrontEndOptions(**d, max_track_turn=float(si.max_track_turn))
 
 
 class TrnFilterConfig(StrictModel):
@@ -204,9 +222,11 @@ class TrnFilterConfig(StrictModel):
     landmark_height_sigma_m: NonNegativeFloat = Field(
         1.0, description="shape-model height error at a new landmark, 1-sigma [m]")
     centroid_model_sigma_px: NonNegativeFloat = Field(
-        0.3, description="lit-centroid model error added in quadrature [px]")
+        0.9, description="lit-centroid model error added in quadrature [px] (calibrated on "
+        "rendered frames: tools/calibrate_flyby_model_error.py)")
     radius_model_fraction: NonNegativeFloat = Field(
-        0.01, description="apparent-radius model error as a fraction of the radius [-]")
+        0.016, description="apparent-radius model error as a fraction of the radius [-] "
+        "(calibrated)")
     use_centroid: bool = Field(True, description="use the lit silhouette's centroid")
     use_radius: bool = Field(True, description="use the lit silhouette's apparent radius")
     initial_position_sigma_km: PositiveFloat = Field(

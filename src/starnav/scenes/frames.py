@@ -264,8 +264,11 @@ class Scene:
                 moon_radius=g.moon_radius, index=i)
         rel = self.relative_states[i]
         sun = self._sun[i, :3] - self._moon[i, :3]
+        # a fly-by rolls about its plane's normal: north-up flips where the line of sight
+        # passes the pole (starnav.scenes.pointing, step 3)
         p = pointing_from_config(self.camera, rel[:3], pc, self.seed, i,
-                                 moon_radius=self.moon_radius, sun_position=sun)
+                                 moon_radius=self.moon_radius, sun_position=sun,
+                                 down_hint=None if self.flyby is None else self.flyby.z_hat)
         return FrameGeometry(
             camera_position=rel[:3], R_cam_to_inertial=p.R_true, sun_position=sun,
             R_moon_to_inertial=self._R_moon[i], epoch_tdb=float(self.epochs[i]),

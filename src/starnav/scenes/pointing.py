@@ -13,7 +13,12 @@ Technique
    detector, within ``max_offset`` of the principal point; each draw is accepted only if the
    exact limb (the ellipse of the tangency cone, :meth:`FrameGeometry.limb_points`) stays at
    least ``margin`` pixels inside the detector edges (rejection sampling).
-3. Roll: uniform in [0, 2 pi) or fixed (0 = inertial north towards the top of the image).
+3. Roll: uniform in [0, 2 pi) or fixed (0 = inertial north towards the top of the image, or,
+   with a ``down_hint``, that inertial direction towards the bottom). The north-up law is
+   singular where the line of sight passes the pole; a fly-by passes the hint = the normal of
+   its plane (:class:`~starnav.scenes.frames.Scene`), which is perpendicular to every line of
+   sight of a straight-line fly-by, so the body moves smoothly across the image through
+   closest approach instead of flipping by 180 deg in roll.
 4. Knowledge error: ``R_measured = R_true @ exp([e]x)``, ``e ~ N(0, diag(s_x^2, s_y^2, s_z^2))``
    a small rotation in camera axes (x, y cross-boresight, z roll). The true attitude is what the
    renderer uses; the measured one is the navigation input.
@@ -131,7 +136,7 @@ def rotation_from_vector(w: ArrayLike) -> FloatArray:
 
 
 def moon_pointing(camera: Camera, camera_position: ArrayLike, moon_pixel: ArrayLike,
-                  roll: float = 0.0) -> FloatArray:
+                  roll: float = 0.0, down_hint: ArrayLike | None = None) -> FloatArray:
     """Attitude (camera -> inertial) that puts the Moon centre on ``moon_pixel``.
 
     Parameters
@@ -143,6 +148,9 @@ def moon_pointing(camera: Camera, camera_position: ArrayLike, moon_pixel: ArrayL
         Wanted Moon-centre pixel ``(u, v)`` [px], in the camera's (distorted) image.
     roll : float
         Rotation about the Moon line [rad]; 0 puts inertial north (+z) towards the top.
+    down_hint : (3,) array, optional
+        Inertial direction put towards the bottom of the image (camera +y) at roll 0 instead
+        of inertial south (module step 3).
 
     Returns
     -------
@@ -150,7 +158,8 @@ def moon_pointing(camera: Camera, camera_position: ArrayLike, moon_pixel: ArrayL
     """
     pos = np.asarray(camera_position, dtype=float)
     los_cam = camera.unproject(np.asarray(moon_pixel, dtype=float), undistort=True)
-    return look_rotation(los_cam, -pos, roll=roll)
+    hint = None if down_hint is None else np.asarray(down_hint, dtype=float)
+    return look_rotation(los_cam, -pos, roll=roll, down_hint=hint)
 
 
 def disc_inside(geom: FrameGeometry, camera: Camera, margin: float) -> bool:
@@ -180,7 +189,8 @@ def sample_pointing(camera: Camera, camera_position: ArrayLike, rng: np.random.G
                     max_offset: float = 512.0, margin: float = 8.0, roll: str = "random",
                     roll_angle: float = 0.0, knowledge_sigma: ArrayLike = (0.0, 0.0, 0.0),
                     moon_radius: float = MOON_RADIUS,
-                    sun_position: ArrayLike | None = None) -> Pointing:
+                    sun_position: ArrayLike | None = None,
+                    down_hint: ArrayLike | None = None) -> Pointing:
     """Draw one frame's attitude (module docstring).
 
     Parameters
@@ -208,6 +218,8 @@ def sample_pointing(camera: Camera, camera_position: ArrayLike, rng: np.random.G
         [m].
     sun_position : (3,) array, optional
         Sun relative to the Moon [m] (only to build the trial geometry; any far point works).
+    down_hint : (3,) array, optional
+        The roll law's reference (:func:`moon_pointing`; default inertial south).
 
     Returns
     -------
@@ -230,7 +242,7 @@ def sample_pointing(camera: Camera, camera_position: ArrayLike, rng: np.random.G
         raise ConfigError("pointing.roll", roll, "'random' or 'fixed'")
 
     def trial(pixel: FloatArray, phi: float) -> tuple[FloatArray, bool]:
-        R = moon_pointing(camera, pos, pixel, phi)
+        R = moon_pointing(camera, pos, pixel, phi, down_hint)
         g = FrameGeometry(camera_position=pos, R_cam_to_inertial=R, sun_position=sun,
                           moon_radius=moon_radius)
         return R, disc_inside(g, camera, margin)
@@ -275,13 +287,15 @@ def sample_pointing(camera: Camera, camera_position: ArrayLike, rng: np.random.G
 
 def pointing_from_config(camera: Camera, camera_position: ArrayLike, cfg, seed: int, index: int,
                          moon_radius: float = MOON_RADIUS,
-                         sun_position: ArrayLike | None = None) -> Pointing:
+                         sun_position: ArrayLike | None = None,
+                         down_hint: ArrayLike | None = None) -> Pointing:
     """:func:`sample_pointing` for frame ``index`` from a
-    :class:`~starnav.scenes.schema.PointingConfig` and the scenario seed."""
+    :class:`~starnav.scenes.schema.PointingConfig` and the scenario seed (``down_hint``: the
+    roll law's reference, module step 3)."""
     rng, krng = frame_generators(seed, index)
     return sample_pointing(
         camera, camera_position, rng, krng,
         moon_offset=cfg.moon_offset, moon_offset_px=tuple(cfg.moon_offset_px),
         max_offset=cfg.moon_offset_max_px, margin=cfg.edge_margin_px, roll=cfg.roll,
         roll_angle=cfg.to_si().roll_angle, knowledge_sigma=cfg.knowledge_sigma,
-        moon_radius=moon_radius, sun_position=sun_position)
+        moon_radius=moon_radius, sun_position=sun_position, down_hint=down_hint)

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+from numpy.typing import NDArray
 
 from starnav.cache import BoundedCache
 from starnav.camera import Camera, camera_from_config
@@ -110,6 +111,16 @@ class Simulator:
         return acquire(radiance, geom, self.camera, scenario or self.scenario,
                        exposure_time=exposure_time, run=run, windows=windows)
 
+    def measured_attitude(self, geom: FrameGeometry, run: int = 0,
+                          seed: int | None = None) -> NDArray[np.float64]:
+        """The tracker's measured attitude (camera -> inertial) of frame ``geom`` in run
+        ``run``: every run after the first samples the attitude knowledge error afresh, as it
+        samples the detector noise (run 0 keeps the frame's own draw)."""
+        if run == 0:
+            return np.asarray(geom.R_cam_to_inertial_known, float)
+        return knowledge_for_run(geom.R_cam_to_inertial, self.knowledge_sigma,
+                                 self.scenario.seed if seed is None else seed, geom.index, run)
+
     def observe(self, radiance: RadianceImage | Any, geom: FrameGeometry, *, run: int = 0,
                 windows: str = "second", exposure_time: float | None = None,
                 scenario: Scenario | None = None) -> Observation:
@@ -117,11 +128,7 @@ class Simulator:
         sc = scenario or self.scenario
         acq = self.acquire(radiance, geom, exposure_time=exposure_time, run=run, windows=windows,
                            scenario=sc)
-        # every run after the first samples the attitude knowledge error afresh, as it samples
-        # the detector noise (run 0 keeps the frame's own draw)
-        R = (geom.R_cam_to_inertial_known if run == 0 else
-             knowledge_for_run(geom.R_cam_to_inertial, self.knowledge_sigma, sc.seed,
-                               geom.index, run))
+        R = self.measured_attitude(geom, run, sc.seed)
         frame = Frame(index=geom.index, epoch_tdb=geom.epoch_tdb, R_cam_to_inertial_measured=R,
                       sun_direction_inertial=geom.sun_position, segments=acq.segments,
                       windows=acq.windows, truth=geom, R_moon_to_inertial=geom.R_moon_to_inertial)

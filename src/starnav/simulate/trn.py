@@ -20,8 +20,9 @@ TRN_STREAM)`` for the whole sequence (the front end is stateful).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 from starnav.detector import Exposure, expose
@@ -51,30 +52,40 @@ class FlybyStep:
         Readout-law check of the segments and (when windows were read) windows acquisitions.
     geometry : FrameGeometry
         The frame's truth.
+    timings_s : dict
+        Wall time of the frame's ``detector`` (both acquisitions) and ``front_end`` (plan
+        and track) [s].
     """
 
     frame: FrontEndFrame
     readout: tuple[ReadoutTiming, ...]
     geometry: FrameGeometry
+    timings_s: dict[str, float] = field(default_factory=dict)
 
 
 def flyby_exposures(sim: Simulator, img: RadianceImage, geom: FrameGeometry, front_end:
-                    FlybyFrontEnd, *, run: int = 0
+                    FlybyFrontEnd, *, run: int = 0, R_measured: Any = None,
+                    timings: dict[str, float] | None = None
                     ) -> tuple[Exposure, Exposure | None, Any, WindowReader]:
     """Acquisitions 0 and 1 of one frame (module steps 2-3): ``(segments exposure, windows
     exposure or None, plan, reader)``; the reader holds the segments and the windows read
-    (their readout products only) and records every pixel the front end took from it."""
+    (their readout products only) and records every pixel the front end took from it.
+    ``R_measured``: the tracker's measured attitude (default the frame's own knowledge draw);
+    ``timings``: filled with the ``detector`` and ``plan`` wall times [s]."""
     sc = sim.scenario
     cfg = quiet_timing(sc.detector).model_copy(update={"sensor_seed": sensor_seed_of(sc)})
     cfg0 = cfg.model_copy(update={"readout": cfg.readout.model_copy(
         update={"windows": (), "modes": ("segments",)})})
     index = int(geom.index)
+    R = geom.R_cam_to_inertial_known if R_measured is None else R_measured
+    t0 = time.perf_counter()
     e0 = expose(img, sim.camera, cfg0, seed=acquisition_seed(sc.seed, run, 0),
                 frame_index=index, windows=())
+    t1 = time.perf_counter()
     reader = WindowReader.from_exposures(e0)
     plan = front_end.plan(reader, index=index, epoch_tdb=geom.epoch_tdb,
-                          R_cam_to_inertial=geom.R_cam_to_inertial_known,
-                          attitude_sigma=sc.pointing.knowledge_sigma)
+                          R_cam_to_inertial=R, attitude_sigma=sc.pointing.knowledge_sigma)
+    t2 = time.perf_counter()
     e1 = None
     if plan.windows:
         cfg1 = cfg.model_copy(update={"readout": cfg.readout.model_copy(
@@ -82,12 +93,16 @@ def flyby_exposures(sim: Simulator, img: RadianceImage, geom: FrameGeometry, fro
         e1 = expose(img, sim.camera, cfg1, seed=acquisition_seed(sc.seed, run, 1),
                     frame_index=index, windows=plan.windows)
         reader = reader.with_windows(e1.windows)
+    if timings is not None:
+        timings["detector"] = (t1 - t0) + (time.perf_counter() - t2)
+        timings["plan"] = t2 - t1
     return e0, e1, plan, reader
 
 
 def track_flyby(sim: Simulator, frames: Iterable[int] | None = None, *,
                 options: FrontEndOptions | None = None, run: int = 0,
-                renders: Sequence[tuple[FrameGeometry, RadianceImage]] | None = None
+                renders: Sequence[tuple[FrameGeometry, RadianceImage]] | None = None,
+                attitude: Callable[[FrameGeometry], Any] | None = None
                 ) -> list[FlybyStep]:
     """Run the fly-by front end over frames of ``sim``'s scenario (module steps 1-5).
 
@@ -103,6 +118,9 @@ def track_flyby(sim: Simulator, frames: Iterable[int] | None = None, *,
         Monte Carlo run (detector noise streams).
     renders : sequence of (FrameGeometry, RadianceImage), optional
         Frames already rendered (``frames`` is then ignored).
+    attitude : callable, optional
+        ``attitude(geometry) -> (3, 3)`` the tracker's measured attitude of a frame (a Monte
+        Carlo run's draw); default the frame's own knowledge draw.
 
     Returns
     -------
@@ -120,10 +138,15 @@ def track_flyby(sim: Simulator, frames: Iterable[int] | None = None, *,
         source = renders
     out = []
     for geom, img in source:
-        e0, e1, plan, reader = flyby_exposures(sim, img, geom, fe, run=run)
+        tm: dict[str, float] = {}
+        e0, e1, plan, reader = flyby_exposures(
+            sim, img, geom, fe, run=run, timings=tm,
+            R_measured=None if attitude is None else attitude(geom))
+        t0 = time.perf_counter()
         res = fe.track(reader, plan)
+        tm["front_end"] = tm.pop("plan") + time.perf_counter() - t0
         meas = book.annotate(res.measurement, geom, img.aovs, img.mask)
         res = FrontEndFrame(meas, res.status, res.counts, res.timings_s, res.window_pixels)
         timing = tuple(e0.timing) + (tuple(e1.timing) if e1 is not None else ())
-        out.append(FlybyStep(res, timing, geom))
+        out.append(FlybyStep(res, timing, geom, tm))
     return out

@@ -488,18 +488,17 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
     initial_covariance : (6, 6) array
     options : TrnFilterOptions
     sun_direction : (3,) array, optional
-        Body -> Sun unit vector (J2000) over the fly-by. Without it the centroid and radius
-        are predicted from the whole silhouette (phase 0), and the phase bias must be covered
-        by ``centroid_model_sigma_px`` / ``radius_model_fraction``.
+        Body -> Sun unit vector (J2000) over the fly-by; a measurement's own
+        ``sun_direction`` takes precedence for its frame. Without either the centroid and
+        radius are predicted from the whole silhouette (phase 0), and the phase bias must be
+        covered by ``centroid_model_sigma_px`` / ``radius_model_fraction``.
     """
     opt = options if options is not None else TrnFilterOptions()
     x0, P0 = validate_inputs(measurements, initial_state, initial_covariance)
-    sun = None
-    if sun_direction is not None:
-        sun = np.asarray(sun_direction, float)
-        if sun.shape != (3,) or not np.linalg.norm(sun) > 0:
-            raise ConfigError("sun_direction", sun.tolist(), "a (3,) non-zero vector (J2000)")
-        sun = sun / np.linalg.norm(sun)
+    sun = None if sun_direction is None else _unit_sun(sun_direction, "sun_direction")
+    frame_sun = [None if m.sun_direction is None else
+                 _unit_sun(m.sun_direction, f"measurements[{k}].sun_direction")
+                 for k, m in enumerate(measurements)]
     shape = body.shape
     gm = float(body.gm) if opt.gravity else 0.0
     gate = {d: float(chi2.ppf(opt.gate_probability, d)) for d in (1, 2)}
@@ -558,7 +557,8 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
         if need_sil:
             centre_cam = R_m.T @ (-r)
             placed = BodyInCamera.place(shape.vertices, shape.faces, R_m.T @ R_bi, centre_cam)
-            sun_cam = R_m.T @ sun if sun is not None else -centre_cam
+            s_k = frame_sun[k] if frame_sun[k] is not None else sun
+            sun_cam = R_m.T @ s_k if s_k is not None else -centre_cam
             try:
                 sil = lit_silhouette(placed, sun_cam, camera)
             except GeometryError:
@@ -704,6 +704,14 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
         out.covariances[k] = P[:6, :6]
         out.landmarks[k] = len(ids)
     return out
+
+
+def _unit_sun(value: ArrayLike, name: str) -> FloatArray:
+    """A Sun direction checked and normalised (before any work)."""
+    s = np.asarray(value, float)
+    if s.shape != (3,) or not np.all(np.isfinite(s)) or not np.linalg.norm(s) > 0:
+        raise ConfigError(name, np.ravel(s).tolist(), "a (3,) finite non-zero vector (J2000)")
+    return s / np.linalg.norm(s)
 
 
 def _slots(landmarks: list[int]) -> NDArray[np.int64]:

@@ -37,9 +37,16 @@ option                     default  effect
 ``min_distance_px``        5        between corners [px]
 ``fb_max_px``              0.3      forward-backward limit [px]
 ``epipolar_px``            1.0      epipolar RANSAC threshold [px]
-``sigma_detect_px``,       0.05,    per-feature 1-sigma ``hypot(detect, drift x turned)`` [px],
-``drift_px_per_rad``       25       ``turned`` the camera rotation summed along the track
-                                    [rad]; measured (tests/navigation/test_trn_frontend.py)
+``sigma_detect_px``,       cal.     per-feature 1-sigma ``k hypot(detect, drift x turned)``
+``drift_px_per_rad``,               [px], ``turned`` the camera rotation summed along the track
+``correlation_factor`` k            [rad]; ``k`` covers the drift's correlation along a track
+                                    (the same error in consecutive frames); calibrated on
+                                    rendered frames (tools/calibrate_flyby_model_error.py)
+``max_track_turn``         cal.     a track ends (``aged``) once the view turned this much
+                                    along it [rad]: bounds the drift; the point is found again
+                                    under a new id
+``centroid_sigma_fraction``, cal.   1-sigma of the segments' centroid (per coordinate) and
+``radius_sigma_fraction``           radius, times the radius (their noise over runs)
 =========================  =======  ==========================================================
 
 Example
@@ -128,7 +135,7 @@ class FrontEndFrame:
         ended) or ``no-windows``.
     counts : dict
         ``tracked``, ``born``, and deaths by cause (``lost`` LK/forward-backward, ``left``
-        the window, ``limb``, ``outlier`` epipolar).
+        the window, ``limb``, ``outlier`` epipolar, ``aged`` past ``max_track_turn``).
     timings_s : dict
         Wall time of each stage of :data:`STAGES` [s].
     window_pixels : int
@@ -223,7 +230,8 @@ class FlybyFrontEnd:
     def track(self, reader: WindowReader, plan: WindowPlan) -> FrontEndFrame:
         """Track, reject, end and start tracks in this frame's windows (module step 3)."""
         o = self.options
-        counts = {"tracked": 0, "born": 0, "lost": 0, "left": 0, "limb": 0, "outlier": 0}
+        counts = {"tracked": 0, "born": 0, "lost": 0, "left": 0, "limb": 0, "outlier": 0,
+                  "aged": 0}
         timings = dict(plan.timings_s)
         body = plan.body
         windows = reader.windows
@@ -284,6 +292,9 @@ class FlybyFrontEnd:
                 if body.clearance[int(round(p[1])), int(round(p[0]))] < o.limb_margin_px:
                     counts["limb"] += 1
                     continue
+                if tr.turned + turn > o.max_track_turn:
+                    counts["aged"] += 1
+                    continue
                 step = p - tr.uv
                 tr.step_rel = step - self._centroid_step
                 tr.uv, tr.window, tr.age, tr.turned = p, k, tr.age + 1, tr.turned + turn
@@ -331,7 +342,8 @@ class FlybyFrontEnd:
         o = self.options
         feats = tuple(FeatureObservation(
             track_id=tr.track_id, uv=np.array(tr.uv, float),
-            sigma_px=math.hypot(o.sigma_detect_px, o.drift_px_per_rad * tr.turned),
+            sigma_px=o.correlation_factor * math.hypot(o.sigma_detect_px,
+                                                       o.drift_px_per_rad * tr.turned),
             window=tr.window) for tr in self.tracks)
         H, W = reader.shape
         return FlybyMeasurement(

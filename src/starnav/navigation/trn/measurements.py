@@ -77,6 +77,9 @@ class FlybyMeasurement:
         Pixels the gate array read (segments + windows), for the exposure law.
     truth : tuple of FeatureTruth
         Per-feature truth, same order as ``features`` (empty when unknown).
+    sun_direction : (3,) array or None
+        Body -> Sun unit vector, J2000 (the phase bias of the lit silhouette); None: the
+        estimator's own ``sun_direction`` argument, else phase 0.
     """
 
     frame_index: int
@@ -91,3 +94,4 @@ class FlybyMeasurement:
     windows: tuple[tuple[int, int, int, int], ...] = ()
     pixels_read: int = 0
     truth: tuple[FeatureTruth, ...] = field(default_factory=tuple)
+    sun_direction: FloatArray | None = None

@@ -88,21 +88,35 @@ def flyby_monte_carlo(truth: FlybyTruth, camera: Camera, body: ShapeBodyLike, ru
                          sun_direction=truth.sun_direction)
         out_runs.append(res)
         out_metrics.append(FlybyMetrics.of(res, meas, truth.states, truth.epoch_ca))
+    summary = summarise_runs(out_runs, out_metrics, truth.states, truth.epochs,
+                             truth.epoch_ca, probability)
     nees = np.array([res.nees(truth.states) for res in out_runs])
+    return FlybyMonteCarlo(truth, out_runs, out_metrics, nees, summary)
+
+
+def summarise_runs(runs: Sequence[FlybyRun], metrics: Sequence[FlybyMetrics],
+                   truth: ArrayLike, epochs: ArrayLike, epoch_ca: float,
+                   probability: float = 0.99) -> dict[str, Any]:
+    """The Monte Carlo verdict of ``runs`` of one fly-by (module steps 3-4): the per-frame
+    NEES averaged over the runs, its mean against the two-sided ``probability`` band of an
+    ``R``-run mean of chi2(6), the NEES at CA, the CA position error over range (median,
+    max). ``truth`` (K, 6) true states, ``epochs`` (K,) [TDB s]."""
+    X = np.asarray(truth, float)
+    nees = np.array([res.nees(X) for res in runs])
     per_frame = nees.mean(axis=0)
-    lo, hi = chi2_band(6, runs, probability)
+    R = len(runs)
+    lo, hi = chi2_band(6, R, probability)
     m = float(per_frame.mean())
-    k = closest_approach_index(truth.epochs, truth.epoch_ca)
-    ca = np.array([x.ca_position_error_pct_range for x in out_metrics])
-    summary = {
-        "runs": runs, "probability": probability, "nees_mean": m, "nees_band": [lo, hi],
+    k = closest_approach_index(epochs, epoch_ca)
+    ca = np.array([x.ca_position_error_pct_range for x in metrics])
+    return {
+        "runs": R, "probability": probability, "nees_mean": m, "nees_band": [lo, hi],
         "verdict": ("consistent" if lo <= m <= hi else
                     "overconfident" if m > hi else "pessimistic"),
         "nees_ca": float(per_frame[k]), "nees_ca_band": [lo, hi],
         "ca_error_pct_range_median": float(np.median(ca)),
         "ca_error_pct_range_max": float(np.max(ca)),
         "nees_per_frame": per_frame.tolist()}
-    return FlybyMonteCarlo(truth, out_runs, out_metrics, nees, summary)
 
 
 def flyby_sweep(body: ShapeBodyLike, camera: Camera, *, v_inf_km_s: Sequence[float],

@@ -11,7 +11,9 @@ from starnav.errors import ConfigError
 
 @dataclass(frozen=True)
 class FrontEndOptions:
-    """Settings of the fly-by front end (module table; pixels, counts, fractions)."""
+    """Settings of the fly-by front end (module table; pixels, counts, fractions, radians);
+    the error terms are the rendered-frame calibration (tools/calibrate_flyby_model_error.py,
+    the defaults of ``navigation.trn.front_end``)."""
 
     n_windows: int = 8
     core_px: int = 16
@@ -28,10 +30,12 @@ class FrontEndOptions:
     epipolar_px: float = 1.0
     ransac_iterations: int = 100
     min_body_area_px: int = 50
-    sigma_detect_px: float = 0.05
-    drift_px_per_rad: float = 25.0
-    centroid_sigma_fraction: float = 0.05
-    radius_sigma_fraction: float = 0.02
+    sigma_detect_px: float = 1.5
+    drift_px_per_rad: float = 7.1
+    centroid_sigma_fraction: float = 0.0002
+    radius_sigma_fraction: float = 0.00013
+    correlation_factor: float = 1.0
+    max_track_turn: float = 0.08726646259971647  # 5 deg
 
     def __post_init__(self) -> None:
         if not 1 <= self.n_windows <= MAX_WINDOWS:
@@ -43,6 +47,12 @@ class FrontEndOptions:
             if getattr(self, name) < 1:
                 raise ConfigError(f"navigation.trn.front_end.{name}", getattr(self, name),
                                   "an integer >= 1")
+        if not self.correlation_factor >= 1.0:
+            raise ConfigError("navigation.trn.front_end.correlation_factor",
+                              self.correlation_factor, ">= 1 (a factor on the feature sigma)")
+        if not self.max_track_turn > 0:
+            raise ConfigError("navigation.trn.front_end.max_track_turn_deg",
+                              self.max_track_turn, "> 0 (the view change a track may live)")
         if self.search_margin_px < 0:
             raise ConfigError("navigation.trn.front_end.search_margin_px",
                               self.search_margin_px, "an integer >= 0")

@@ -285,7 +285,8 @@ def synthetic_measurements(truth: FlybyTruth, options: SyntheticOptions | None =
             frame_index=k, epoch_tdb=float(truth.epochs[k]), R_cam_to_inertial=R_m,
             attitude_sigma=sig.copy(), features=tuple(feats), centroid_uv=cen,
             centroid_sigma_px=max(opt.centroid_sigma_px, 1e-6), apparent_radius_px=float(rad),
-            apparent_radius_sigma_px=max(opt.radius_sigma_px, 1e-6), truth=tuple(tru)))
+            apparent_radius_sigma_px=max(opt.radius_sigma_px, 1e-6), truth=tuple(tru),
+            sun_direction=np.asarray(truth.sun_direction, float).copy()))
     return out
 
 

@@ -1,0 +1,314 @@
+"""The asteroid fly-by closed loop on rendered frames (model in the loop, as the seed paper).
+
+A fly-by scenario (``target.kind: shape_model``, ``trajectory.source: flyby``) end to end:
+
+1. **Render** every frame once (:meth:`~starnav.simulate.frames.Simulator.render`: geometry
+   and spectral radiance with the body-fixed AOVs); the radiance is reused by every Monte
+   Carlo run, as the limb case re-exposes a dataset's radiance.
+2. **Per run** ``r`` (a run is the same whatever the number of runs):
+
+   a. the *measured attitude* of every frame: run 0 the frame's own knowledge draw, run
+      ``r >= 1`` a fresh one (:meth:`Simulator.measured_attitude
+      <starnav.simulate.frames.Simulator.measured_attitude>`);
+   b. the tracker's acquisitions of every frame, segments then windows, with detector noise
+      keyed by ``(seed, r, acquisition, frame)`` (:func:`starnav.simulate.trn.track_flyby`),
+      and the front end (windows only): tracks, centroid, apparent radius, with the known Sun
+      direction attached to each :class:`~starnav.navigation.trn.measurements.
+      FlybyMeasurement`;
+   c. the estimator (:func:`~starnav.navigation.trn.filter.run_filter`) from the first true
+      state plus an error drawn from the initial covariance
+      (``navigation.trn.filter.initial_*_sigma``) on the stream
+      ``generator(seed, STAGE_NAVIGATION, r, 0, INITIAL_ERROR_STREAM)``;
+   d. :class:`~starnav.navigation.trn.metrics.FlybyMetrics` against the scenario's truth
+      (``Scene.relative_states``; CA the frame nearest the fly-by's CA epoch).
+
+3. **Consistency** over the runs (:func:`~starnav.navigation.trn.montecarlo.summarise_runs`):
+   mean NEES against its two-sided chi-square band, the position error at CA over range.
+
+Per-frame cost of each stage (render, detector, front end, filter) is kept in
+:attr:`FlybyClosedLoop.timings_s` (``benchmarks/flyby.py``).
+
+Example
+-------
+>>> sim = Simulator(load_scenario("flyby.yaml"))                          # doctest: +SKIP
+>>> loop = flyby_closed_loop(sim, runs=20)                                 # doctest: +SKIP
+>>> loop.summary["verdict"], loop.runs[0].metrics.ca_position_error_pct_range  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from starnav.atomic import atomic_write_text
+from starnav.bodies.base import TargetBody
+from starnav.config import Scenario
+from starnav.errors import ConfigError
+from starnav.geometry import FrameGeometry
+from starnav.navigation.trn.filter import FlybyRun, TrnFilterOptions, run_filter
+from starnav.navigation.trn.measurements import FlybyMeasurement
+from starnav.navigation.trn.metrics import (
+    FlybyMetrics,
+    plot_flyby_errors,
+    plot_flyby_nees,
+    plot_tracks,
+    write_report,
+)
+from starnav.navigation.trn.montecarlo import summarise_runs
+from starnav.navigation.trn.options import FrontEndOptions
+from starnav.radiance import RadianceImage
+from starnav.seeding import STAGE_NAVIGATION, generator
+from starnav.simulate.build import body_from_scenario
+from starnav.simulate.frames import Simulator
+from starnav.simulate.trn import FlybyStep, track_flyby
+
+log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+
+#: Last key of a run's initial-error stream ``(seed, STAGE_NAVIGATION, run, 0, 17)`` (never
+#: change; 16 is the front end's RANSAC, :data:`starnav.simulate.trn.TRN_STREAM`).
+INITIAL_ERROR_STREAM = 17
+
+Renders = Sequence[tuple[FrameGeometry, RadianceImage]]
+
+
+def check_flyby_scenario(sc: Scenario) -> None:
+    """A fly-by closed loop needs a small body on a fly-by; anything else is one clear error,
+    before any rendering."""
+    flyby = sc.trajectory is not None and sc.trajectory.source == "flyby"
+    small = sc.target is not None and sc.target.kind == "shape_model"
+    if not flyby:
+        src = None if sc.trajectory is None else sc.trajectory.source
+        raise ConfigError("trajectory.source", src,
+                          "'flyby' (with target.kind: shape_model) for the fly-by navigation; a "
+                          "Moon scenario is navigated from its dataset (starnav dataset, then "
+                          "starnav navigate DATASET)")
+    if not small:
+        raise ConfigError("target.kind", None if sc.target is None else sc.target.kind,
+                          "'shape_model' (a small body's shape model) for the fly-by "
+                          "navigation: the Moon is navigated from its limb")
+
+
+@dataclass
+class FlybyRunResult:
+    """One Monte Carlo run of the closed loop.
+
+    Attributes
+    ----------
+    run : int
+    filter : FlybyRun
+    measurements : list of FlybyMeasurement
+        The front end's output, truth attached (metrics only).
+    metrics : FlybyMetrics
+    steps : list of FlybyStep
+        The front end's book-keeping per frame (counts, readout checks, geometry).
+    timings_s : dict
+        Wall time of this run per stage summed over the frames [s]: ``detector``,
+        ``front_end``, ``filter``.
+    """
+
+    run: int
+    filter: FlybyRun
+    measurements: list[FlybyMeasurement]
+    metrics: FlybyMetrics
+    steps: list[FlybyStep]
+    timings_s: dict[str, float]
+
+
+@dataclass
+class FlybyClosedLoop:
+    """The closed loop of a fly-by scenario over its Monte Carlo runs.
+
+    Attributes
+    ----------
+    epochs : (K,) array [TDB s]
+    epoch_ca : float [TDB s]
+    truth : (K, 6) array
+        True ``(r, v)`` relative to the body, J2000 [m, m/s].
+    runs : list of FlybyRunResult
+    summary : dict
+        :func:`~starnav.navigation.trn.montecarlo.summarise_runs` (for >= 2 runs), else the
+        single run's NEES.
+    timings_s : dict
+        Per-frame wall time of each stage, mean over frames and runs [s]: ``render`` (once
+        per frame), ``detector``, ``front_end``, ``filter``.
+    """
+
+    epochs: FloatArray
+    epoch_ca: float
+    truth: FloatArray
+    runs: list[FlybyRunResult]
+    summary: dict[str, Any]
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def time_from_ca(self) -> FloatArray:
+        """Frame epochs relative to closest approach [s]."""
+        return self.epochs - self.epoch_ca
+
+
+def render_flyby(sim: Simulator, progress: Callable[[int, int], None] | None = None
+                 ) -> tuple[list[tuple[FrameGeometry, RadianceImage]], float]:
+    """Module step 1: every frame rendered once; returns the renders and the mean render
+    time per frame [s]."""
+    check_flyby_scenario(sim.scenario)
+    out = []
+    t0 = time.perf_counter()
+    for i in range(len(sim)):
+        out.append(sim.render(i))
+        if progress is not None:
+            progress(i + 1, len(sim))
+    return out, (time.perf_counter() - t0) / max(len(sim), 1)
+
+
+def initial_state(truth0: FloatArray, P0: FloatArray, seed: int, run: int) -> FloatArray:
+    """Run ``run``'s initial estimate: the first true state plus a draw from ``P0`` (module
+    step 2c)."""
+    L = np.linalg.cholesky(np.asarray(P0, float))
+    g = generator(int(seed), STAGE_NAVIGATION, int(run), 0, INITIAL_ERROR_STREAM)
+    return np.asarray(truth0, float) + L @ g.standard_normal(6)
+
+
+def flyby_run(sim: Simulator, renders: Renders, run: int, *,
+              front_end: FrontEndOptions | None = None,
+              filter_options: TrnFilterOptions | None = None,
+              initial_covariance: FloatArray | None = None,
+              body: TargetBody | None = None) -> FlybyRunResult:
+    """One run of the closed loop on frames already rendered (module step 2)."""
+    sc = sim.scenario
+    check_flyby_scenario(sc)
+    trn = sc.navigation.trn
+    fe = front_end if front_end is not None else trn.front_end.options()
+    fo = filter_options if filter_options is not None else trn.filter.options()
+    P0 = (trn.filter.initial_covariance() if initial_covariance is None
+          else np.asarray(initial_covariance, float))
+    body = body if body is not None else body_from_scenario(sc)
+    truth = sim.scene.relative_states
+    flyby = sim.scene.flyby
+    assert flyby is not None  # check_flyby_scenario
+    sun = np.asarray(flyby.sun_direction, float)
+    steps = track_flyby(sim, renders=renders, options=fe, run=run,
+                        attitude=lambda g: sim.measured_attitude(g, run))
+    meas = [dataclasses.replace(s.frame.measurement, sun_direction=sun.copy()) for s in steps]
+    idx = [int(s.geometry.index) for s in steps]
+    X = truth[idx]
+    x0 = initial_state(X[0], P0, sc.seed, run)
+    t0 = time.perf_counter()
+    res = run_filter(meas, sim.camera, body, x0, P0, fo)
+    t_filter = time.perf_counter() - t0
+    metrics = FlybyMetrics.of(res, meas, X, float(flyby.epoch_ca))
+    timings = {"detector": float(sum(s.timings_s["detector"] for s in steps)),
+               "front_end": float(sum(s.timings_s["front_end"] for s in steps)),
+               "filter": t_filter}
+    return FlybyRunResult(run, res, meas, metrics, steps, timings)
+
+
+def flyby_closed_loop(sim: Simulator, runs: int = 1, *, renders: Renders | None = None,
+                      front_end: FrontEndOptions | None = None,
+                      filter_options: TrnFilterOptions | None = None,
+                      initial_covariance: FloatArray | None = None,
+                      probability: float = 0.99, first_run: int = 0,
+                      progress: Callable[[str, int, int], None] | None = None
+                      ) -> FlybyClosedLoop:
+    """The fly-by closed loop of ``sim``'s scenario over ``runs`` Monte Carlo runs (module
+    essay): render once (unless ``renders`` are given), then runs ``first_run ...
+    first_run + runs - 1``.
+
+    Parameters
+    ----------
+    sim : Simulator
+        A fly-by scenario.
+    runs : int
+        Monte Carlo runs (>= 1; consistency is judged from 2 on).
+    renders : sequence of (FrameGeometry, RadianceImage), optional
+        Every frame of the scenario already rendered, in order.
+    front_end, filter_options : optional
+        Default the scenario's ``navigation.trn`` sections.
+    initial_covariance : (6, 6) array, optional
+        Default ``navigation.trn.filter.initial_covariance()``.
+    probability : float
+        Two-sided probability of the NEES band.
+    progress : callable, optional
+        ``progress(stage, done, total)`` with stage ``render`` or ``runs``.
+
+    Returns
+    -------
+    FlybyClosedLoop
+    """
+    check_flyby_scenario(sim.scenario)
+    if runs < 1:
+        raise ConfigError("runs", runs, ">= 1 Monte Carlo run")
+    if not 0.0 < probability < 1.0:
+        raise ConfigError("probability", probability, "in (0, 1)")
+    t_render = float("nan")
+    if renders is None:
+        renders, t_render = render_flyby(
+            sim, None if progress is None else (lambda d, n: progress("render", d, n)))
+    elif len(renders) != len(sim):
+        raise ConfigError("renders", len(renders), f"every frame of the scenario ({len(sim)})")
+    body = body_from_scenario(sim.scenario)
+    out = []
+    for k, r in enumerate(range(first_run, first_run + runs)):
+        out.append(flyby_run(sim, renders, r, front_end=front_end,
+                             filter_options=filter_options,
+                             initial_covariance=initial_covariance, body=body))
+        if progress is not None:
+            progress("runs", k + 1, runs)
+    flyby = sim.scene.flyby
+    assert flyby is not None
+    X = sim.scene.relative_states
+    epochs = np.asarray(sim.scene.epochs, float)
+    summary = summarise_runs([r.filter for r in out], [r.metrics for r in out], X, epochs,
+                             float(flyby.epoch_ca), probability)
+    K = len(renders)
+    timings = {"render": t_render}
+    for stage in ("detector", "front_end", "filter"):
+        timings[stage] = float(np.mean([r.timings_s[stage] for r in out])) / K
+    return FlybyClosedLoop(epochs, float(flyby.epoch_ca), X, out, summary, timings)
+
+
+def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: bool = True,
+                   probability: float = 0.99,
+                   progress: Callable[[str, int, int], None] | None = None) -> dict[str, Any]:
+    """``starnav navigate SCENARIO.yaml`` for a fly-by: the closed loop over ``runs`` runs,
+    then ``metrics.json`` (run 0's :class:`FlybyMetrics` flat keys, the per-frame timings and,
+    for >= 2 runs, the Monte Carlo summary), the figures (position and velocity errors with
+    3-sigma against time from CA, runs in grey; NEES with its band; tracks) and
+    ``report.md``, every file written atomically. Returns the metrics dict."""
+    check_flyby_scenario(sim.scenario)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    loop = flyby_closed_loop(sim, runs, probability=probability, progress=progress)
+    r0 = loop.runs[0]
+    t = loop.time_from_ca
+    metrics: dict[str, Any] = dict(r0.metrics.as_dict())
+    metrics["timing_s_per_frame"] = loop.timings_s
+    mc = None
+    if runs >= 2:
+        mc = {k: v for k, v in loop.summary.items() if k != "nees_per_frame"}
+        metrics["monte_carlo"] = mc
+    atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=1, default=float) + "\n")
+    figures: list[str] = []
+    if plots:
+        others = [r.filter.errors(loop.truth) for r in loop.runs[1:]]
+        e0 = r0.filter.errors(loop.truth)
+        figures.append(str(plot_flyby_errors(t, e0, r0.filter.sigma3(), out / "position.png",
+                                             "position", others)))
+        figures.append(str(plot_flyby_errors(t, e0, r0.filter.sigma3(), out / "velocity.png",
+                                             "velocity", others)))
+        figures.append(str(plot_flyby_nees(t, loop.summary["nees_per_frame"],
+                                           out / "nees.png", runs=runs,
+                                           probability=probability)))
+        figures.append(str(plot_tracks(t, r0.measurements, r0.filter, out / "tracks.png")))
+    write_report(out / "report.md", r0.metrics, mc, figures)
+    return metrics

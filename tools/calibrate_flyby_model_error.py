@@ -1,0 +1,156 @@
+#!/usr/bin/env python
+"""Calibrate the fly-by's measurement errors on RENDERED frames, on a *calibration fly-by*
+that never scores them; writes ``src/starnav/data/navigation/flyby_model_error.json``, whose
+rounded values are the defaults of ``navigation.trn.front_end`` / ``navigation.trn.filter``
+(``tests/navigation/test_flyby_closed_loop.py`` checks they agree).
+
+What is measured (the truth of the calibration fly-by: ``Scene.relative_states``, the AOVs'
+body-fixed points through :class:`~starnav.navigation.trn.truth.FeatureTruthBook`):
+
+1. **Silhouette noise and model error.** For every frame, the segments' lit centroid and
+   equivalent radius over ``RUNS`` noise runs of the same radiance, against the estimator's
+   model at the true state (:func:`~starnav.navigation.trn.body_view.lit_silhouette`, the lit
+   facets of the shape model under the known Sun). The spread over the runs is the front
+   end's noise (``centroid_sigma_fraction``, ``radius_sigma_fraction``: per coordinate, over
+   the apparent radius); the rms over the frames of the run-mean residual is what the facet
+   model leaves out (cast shadows, the segments' threshold, facets counted that the render
+   shows dark): ``centroid_model_sigma_px`` (per coordinate) and ``radius_model_fraction``.
+2. **Feature errors.** ``|uv - uv_true|`` of every tracked feature against ``turned``, the
+   camera rotation summed along its track (the front end's model ``sigma = hypot(detect,
+   drift x turned)``), fitted by least squares on ``e^2 / 2 = detect^2 + drift^2 turned^2``
+   (per coordinate). The error of a track grows almost linearly with its age (the template,
+   re-cut every frame, follows the texture's slow change of appearance, not the surface
+   point): it is a *drift*, the same in consecutive frames, which an EKF with independent
+   pixel noise would count as new information every frame. The drift is whitened by the
+   front end's track-length limit (``max_track_turn_deg``: a track ends, and its point may be
+   re-acquired under a new id, once the view has turned that much), and its correlation within
+   that span is left to ``correlation_factor`` (1: raising it changes the NEES of the
+   calibration fly-by by less than 10 %, the silhouette dominates).
+3. The calibration fly-by navigated with the values, its mean NEES and CA error recorded.
+
+Calibration fly-by: Itokawa, 256 x 256 px, 30 mm focal length, 4 spp, CA 6 km at 0.6 km/s,
+Sun phase 50 deg at CA (azimuth 160 deg), a frame every 0.2 s from -3 s to +3 s (31 frames,
+1.15 deg of view change per frame at CA), seed 4711; the tests score on another (CA 5 km at
+0.5 km/s, phase 60 deg, seed 7).
+
+Usage::
+
+    export DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM.so.19.1
+    .venv/bin/python tools/calibrate_flyby_model_error.py            # calibrate, write
+    .venv/bin/python tools/calibrate_flyby_model_error.py --dry-run  # print only
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime as _dt
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from starnav.config import scenario_from_dict
+from starnav.navigation.trn.body_view import BodyInCamera, lit_silhouette
+from starnav.simulate import Simulator, body_from_scenario
+from starnav.simulate.flyby import flyby_closed_loop, render_flyby
+
+OUT = Path(__file__).resolve().parents[1] / "src/starnav/data/navigation/flyby_model_error.json"
+#: Feature errors beyond this are gross (a jump the estimator's gate removes), not fitted [px].
+GROSS_PX = 5.0
+#: Noise runs of the silhouette / feature statistics and of the NEES bisection.
+RUNS = 6
+CALIBRATION = {
+    "camera": {"width": 256, "height": 256, "focal_length_mm": 30.0},
+    "render": {"spp": 4},
+    "target": {"kind": "shape_model", "model": "itokawa"},
+    "trajectory": {"source": "flyby", "cadence_s": 0.2, "frames": 31,
+                   "flyby": {"closest_approach_km": 6.0, "v_inf_km_s": 0.6,
+                             "phase_at_ca_deg": 50.0, "sun_azimuth_deg": 160.0,
+                             "start_s": -3.0}},
+    "pointing": {"moon_offset": "fixed", "roll": "fixed"},
+    "detector": {"exposure_time_s": 3e-5},
+    "seed": 4711}
+
+
+def silhouette_truth(sim: Simulator, body) -> tuple[np.ndarray, np.ndarray]:
+    """The estimator's lit-facet centroid (K, 2) and radius (K,) at the true states."""
+    sun = np.asarray(sim.scene.flyby.sun_direction, float)
+    cen, rad = [], []
+    for i in range(len(sim)):
+        g = sim.geometry(i)
+        R = g.R_cam_to_inertial
+        placed = BodyInCamera.place(body.shape.vertices, body.shape.faces,
+                                    R.T @ g.R_moon_to_inertial, R.T @ (-g.camera_position))
+        s = lit_silhouette(placed, R.T @ sun, sim.camera)
+        cen.append(s.centroid_uv)
+        rad.append(s.radius_px)
+    return np.array(cen), np.array(rad)
+
+
+def calibrate(dry_run: bool = False) -> dict:
+    sim = Simulator(scenario_from_dict(CALIBRATION))
+    body = body_from_scenario(sim.scenario)
+    renders, _ = render_flyby(sim)
+    base = sim.scenario.navigation.trn
+    fe0 = dataclasses.replace(base.front_end.options(), max_track_turn=math.pi)
+    loop = flyby_closed_loop(sim, RUNS, renders=renders, front_end=fe0)
+    # 1 silhouette
+    c_true, r_true = silhouette_truth(sim, body)
+    C = np.array([[m.centroid_uv for m in r.measurements] for r in loop.runs])   # (R, K, 2)
+    Rr = np.array([[m.apparent_radius_px for m in r.measurements] for r in loop.runs])
+    noise_c = float(np.sqrt(np.mean(np.var(C, axis=0, ddof=1)) ) / np.mean(r_true))
+    noise_r = float(np.sqrt(np.mean(np.var(Rr, axis=0, ddof=1))) / np.mean(r_true))
+    model_c = float(np.sqrt(np.mean((C.mean(axis=0) - c_true) ** 2)))
+    model_r = float(np.sqrt(np.mean(((Rr.mean(axis=0) - r_true) / r_true) ** 2)))
+    # 2 features: error against the view turned along the track
+    turned, err = [], []
+    for r in loop.runs:
+        acc: dict[int, float] = {}
+        prev_R = None
+        for m in r.measurements:
+            R = np.asarray(m.R_cam_to_inertial)
+            step = 0.0 if prev_R is None else math.acos(
+                min(max((np.trace(R.T @ prev_R) - 1.0) / 2.0, -1.0), 1.0))
+            prev_R = R
+            for f, t in zip(m.features, m.truth, strict=True):
+                acc[f.track_id] = acc.get(f.track_id, -step) + step
+                e2 = float(np.sum((f.uv - t.uv_true) ** 2))
+                if np.isfinite(e2) and e2 < GROSS_PX**2:
+                    turned.append(acc[f.track_id])
+                    err.append(e2 / 2.0)
+    A = np.column_stack([np.ones(len(turned)), np.square(turned)])
+    coef, *_ = np.linalg.lstsq(A, np.array(err), rcond=None)
+    detect = math.sqrt(max(coef[0], 0.0025))   # floor 0.05 px: the truth's own resolution
+    drift = math.sqrt(max(coef[1], 0.0))
+    out = {"centroid_sigma_fraction": noise_c, "radius_sigma_fraction": noise_r,
+           "centroid_model_sigma_px": model_c, "radius_model_fraction": model_r,
+           "sigma_detect_px": detect, "drift_px_per_rad": drift}
+    print(json.dumps(out, indent=1))
+    # 3 the calibration fly-by navigated with these values (reported, not tuned on: raising
+    # the silhouette or feature terms by up to 16x leaves its mean NEES near 40; the
+    # inconsistency is not in these terms, docs/navigation.md "Asteroid fly-by: end to end")
+    fe = dataclasses.replace(base.front_end.options(), centroid_sigma_fraction=noise_c,
+                             radius_sigma_fraction=noise_r, sigma_detect_px=detect,
+                             drift_px_per_rad=drift)
+    fo = dataclasses.replace(base.filter.options(), centroid_model_sigma_px=model_c,
+                             radius_model_fraction=model_r)
+    lp = flyby_closed_loop(sim, RUNS, renders=renders, front_end=fe, filter_options=fo)
+    out["calibration_nees_mean"] = float(lp.summary["nees_mean"])
+    out["calibration_ca_error_pct_range_median"] = float(lp.summary["ca_error_pct_range_median"])
+    out["max_track_turn_deg"] = math.degrees(fe.max_track_turn)
+    out["calibration_flyby"] = CALIBRATION
+    out["runs"] = RUNS
+    out["date"] = _dt.date.today().isoformat()
+    print(json.dumps({k: v for k, v in out.items() if k != "calibration_flyby"}, indent=1))
+    if not dry_run:
+        OUT.write_text(json.dumps(out, indent=1) + "\n")
+        print(f"wrote {OUT}")
+    return out
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--dry-run", action="store_true")
+    calibrate(ap.parse_args().dry_run)
