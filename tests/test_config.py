@@ -141,7 +141,9 @@ def test_si_suffix_factors_agree_with_astropy():
              "_w_m2": (u.W / u.m**2, u.W / u.m**2), "_km": (u.km, u.m), "_mm": (u.mm, u.m),
              "_um": (u.um, u.m), "_m": (u.m, u.m), "_au": (u.au, u.m), "_deg": (u.deg, u.rad),
              "_arcsec": (u.arcsec, u.rad), "_days": (u.day, u.s), "_s": (u.s, u.s),
-             "_ms": (u.ms, u.s), "_us": (u.us, u.s), "_k": (u.K, u.K)}
+             "_ms": (u.ms, u.s), "_us": (u.us, u.s), "_k": (u.K, u.K),
+             "_deg_rt_h": (u.deg / u.h**0.5, u.rad / u.s**0.5),
+             "_deg_h": (u.deg / u.h, u.rad / u.s)}
     for suffix, conv in SI_SUFFIXES.items():
         if conv is None:
             continue

@@ -60,6 +60,7 @@ SI_SUFFIXES: dict[str, tuple[float, float] | None] = {
     "_au": (AU, 0.0), "_deg": (DEG, 0.0), "_arcsec": (DEG / 3600.0, 0.0),
     "_days": (DAY, 0.0), "_s": (1.0, 0.0), "_ms": (1e-3, 0.0), "_us": (1e-6, 0.0),
     "_c": (1.0, 273.15), "_k": (1.0, 0.0),
+    "_deg_rt_h": (DEG / 60.0, 0.0), "_deg_h": (DEG / 3600.0, 0.0),
 }
 _SUFFIX_ORDER = sorted(SI_SUFFIXES, key=len, reverse=True)
 

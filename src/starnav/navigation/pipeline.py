@@ -535,6 +535,7 @@ def navigate(
     seed: int = 0,
     run: int = 0,
     measure_memory: bool = False,
+    chains: Sequence[ChainOptions] | None = None,
 ) -> NavigationRun:
     """Process every frame and filter the fixes (module step 3).
 
@@ -562,6 +563,9 @@ def navigate(
         give the same estimates.
     measure_memory : bool
         Trace the peak Python heap of each frame's chain (slower).
+    chains : sequence of ChainOptions, optional
+        Per-frame options instead of ``chain`` (one per frame): a solved attitude's own
+        covariance in each frame's fix (:mod:`starnav.simulate.attitude`).
 
     Returns
     -------
@@ -574,6 +578,10 @@ def navigate(
     if cam is None:
         raise ConfigError("camera", None, "a Camera (the dataset does not carry one)")
     chain = chain or ChainOptions()
+    if chains is not None and len(chains) != len(frames):
+        raise ConfigError("chains", f"{len(chains)} options",
+                          f"one ChainOptions per frame ({len(frames)})")
+    per_frame = list(chains) if chains is not None else [chain] * len(frames)
     truth = truth_states(frames, moon)
     P0 = np.asarray(P0, float)
     t0 = float(frames[0].epoch_tdb) if t0 is None else float(t0)
@@ -599,12 +607,12 @@ def navigate(
             rcopy = copy.deepcopy(frame_rngs[k])
             tracemalloc.start()
             tracemalloc.reset_peak()
-            shadow.step(k, process_frame(f, cam, options=chain, rng=rcopy))
+            shadow.step(k, process_frame(f, cam, options=per_frame[k], rng=rcopy))
             peak[k] = tracemalloc.get_traced_memory()[1]
             tracemalloc.stop()
             del shadow
         c0 = time.process_time()
-        m = process_frame(f, cam, options=chain, rng=frame_rngs[k])
+        m = process_frame(f, cam, options=per_frame[k], rng=frame_rngs[k])
         dt = rec.step(k, m)
         cpu[k] = time.process_time() - c0
         for j, s in enumerate(STAGES[:-1]):
@@ -613,7 +621,8 @@ def navigate(
         stage[k, -1] = dt
         meas.append(m)
         if f.truth is not None and m.points_used.size:
-            errs.append(limb_point_errors(m.points_used, cam, f.truth, chain.fix.radii_m))
+            errs.append(limb_point_errors(m.points_used, cam, f.truth,
+                                          per_frame[k].fix.radii_m))
         else:
             errs.append(np.empty(0))
     res = rec.result()

@@ -129,6 +129,30 @@ class FixConfig(StrictModel):
         "roll), 0 without a scenario")
 
 
+class AttitudeSourceConfig(StrictModel):
+    """Where the fix's attitude comes from (docs/stars.md, "Navigation with the solved attitude";
+    :mod:`starnav.simulate.attitude`)."""
+
+    source: Literal["assumed", "stars"] = Field(
+        "assumed", description="assumed: the pointing section's knowledge error and the fix's "
+        "attitude_sigma_arcsec; stars: the tracker's own attitude solved from star acquisitions "
+        "(needs stars.enabled), propagated by the gyro between them, with its covariance")
+    star_exposure_s: PositiveFloat = Field(
+        0.2, description="exposure of the star acquisitions [s] (the unmodified tracker: 200 ms)")
+    schedule_every: Annotated[int, Field(ge=1)] = Field(
+        1, description="a star acquisition at every k-th navigation frame (frames 0, k, 2k, ...);"
+        " the attitude of the others is propagated from the last solution")
+    navigation_frames: bool = Field(
+        True, description="also try the navigation frame's own stars (at its exposure) when no "
+        "star acquisition is scheduled or its solve failed, before propagating")
+    gyro_arw_deg_rt_h: NonNegativeFloat = Field(
+        0.005, description="gyro angle random walk per axis [deg/sqrt(h)] (default: an "
+        "assumption of the order of a space fibre-optic gyro)")
+    gyro_bias_deg_h: NonNegativeFloat = Field(
+        0.01, description="1-sigma of the gyro's uncalibrated rate bias per axis, a random "
+        "constant per run [deg/h] (assumption, as the ARW)")
+
+
 class FilterConfig(StrictModel):
     """EKF (starnav.navigation.ekf)."""
 
@@ -275,6 +299,9 @@ class NavigationConfig(StrictModel):
         default_factory=FixConfig, description="Christian-Robinson position fix from the limb")
     filter: FilterConfig = Field(
         default_factory=FilterConfig, description="extended Kalman filter over the fixes")
+    attitude: AttitudeSourceConfig = Field(
+        default_factory=AttitudeSourceConfig, description="the fix's attitude: assumed "
+        "knowledge error, or solved from the stars and propagated by the gyro")
     trn: TrnConfig = Field(
         default_factory=TrnConfig, description="asteroid fly-by terrain-relative navigation "
         "from windows (front end and estimator)")

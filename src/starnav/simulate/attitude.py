@@ -1,0 +1,327 @@
+"""The tracker's own attitude per navigation frame: star acquisitions on a schedule, the gyro
+between them (``navigation.attitude.source: stars``).
+
+Technique
+---------
+For frame ``k`` of a sequence (:meth:`StarAttitudeTracker.step`), in this order:
+
+1. **Star acquisition** (frames ``0, k, 2k, ...``, ``schedule_every = k``): the same rendered
+   radiance and geometry exposed again at ``star_exposure_s`` with the stars drawn (the Moon
+   occults them; its stray light, ghosts and blooming are on top: at 200 ms it is a saturated
+   blob), its own temporal noise (acquisition :data:`STAR_ACQUISITION`), solved by
+   :func:`starnav.stars.attitude.solve_attitude`: tracking from the propagated attitude when
+   there is one (lost in space if tracking fails or there is none). The Moon's disc and its
+   ghosts are excluded around its predicted image position (module note below).
+2. **The navigation frame's own stars** (``navigation_frames``) when step 1 is not scheduled
+   or failed: the segments acquisition's DN frame at the navigation exposure (stars drawn when
+   ``stars.enabled``). At 0.015 ms no star is detectable: "0 star candidates detected".
+3. **Propagation** when neither solves: the last solution carried by the gyro
+   (:func:`starnav.stars.gyro.propagate`, covariance ``dR^T P dR + (N^2 dt + sigma_b^2 dt^2) I``).
+4. **Assumed** only when no solution exists yet (the first star solve failed): the scenario's
+   attitude knowledge (:meth:`Simulator.measured_attitude`) and sigma.
+
+Every frame's :class:`AttitudeRecord` says which source gave its attitude and why the others
+did not (``reasons``), with the attitude error against the truth.
+
+Note: the exclusion discs are placed at the Moon's true image position (the navigation
+filter predicts it within a few pixels at these ranges; the discs' 20 px + 15 % margin covers
+that). The truth enters nowhere else: the gyro measures the true turn with its modelled error.
+
+Randomness: star acquisition of frame ``i``, run ``r``: ``acquisition_seed(seed, r, 2)`` with
+``frame_index = i`` (independent of the navigation acquisitions 0 and 1); the gyro errors of
+run ``r``: ``generator(seed, STAGE_NAVIGATION, r, GYRO_STREAM)``.
+
+Example
+-------
+>>> tracker = StarAttitudeTracker(sim)                                  # doctest: +SKIP
+>>> obs = sim.observe(img, geom)                                        # doctest: +SKIP
+>>> rec = tracker.step(img, geom, obs.acquisition)                      # doctest: +SKIP
+>>> frame, chain = with_attitude(obs.frame, chain, rec)                 # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from starnav.detector import expose
+from starnav.errors import ConfigError
+from starnav.navigation.pipeline import ChainOptions
+from starnav.seeding import STAGE_NAVIGATION, generator
+from starnav.simulate.acquire import (
+    Acquisition,
+    acquisition_seed,
+    quiet_timing,
+    sensor_seed_of,
+    star_field,
+)
+from starnav.simulate.build import chain_options
+from starnav.stars.attitude import ARCSEC, AttitudeSolution, error_rotation, solve_attitude
+from starnav.stars.catalogue import hipparcos, jyear_from_tdb
+from starnav.stars.centroid import body_exclusions
+from starnav.stars.gyro import GyroErrors, GyroModel, propagate
+
+if TYPE_CHECKING:
+    from starnav.geometry import FrameGeometry
+    from starnav.radiance import RadianceImage
+    from starnav.simulate.frames import Simulator
+
+FloatArray = NDArray[np.float64]
+
+#: Acquisition number of the star acquisition (0: segments, 1: windows; never change).
+STAR_ACQUISITION = 2
+#: Last key of the gyro error stream (never change).
+GYRO_STREAM = 7
+#: Attitude sources, best first (module steps 1-4).
+SOURCES = ("star-frame", "navigation-frame", "propagated", "assumed")
+
+
+@dataclass(frozen=True)
+class AttitudeRecord:
+    """The attitude one navigation frame used, and where it came from.
+
+    Attributes
+    ----------
+    index : int
+    epoch_tdb : float
+        [TDB s past J2000].
+    source : str
+        One of :data:`SOURCES`.
+    R_cam_to_inertial : (3, 3) array
+    covariance_rad2 : (3, 3) array
+        Error covariance, camera axes (z roll) [rad^2].
+    star_frame : bool
+        A star acquisition was scheduled at this frame.
+    reasons : tuple of str
+        Why the better sources gave no attitude (e.g. "star frame 200 ms: ...", "navigation
+        frame 0.015 ms: 0 star candidates detected, 4 needed ...").
+    mode : str
+        ``lost-in-space`` or ``tracking`` for a solved frame, else empty.
+    stars_matched : int
+        Identified stars of the solve (0 otherwise).
+    since_solution_s : float
+        Age of the solution the attitude comes from [s] (0 for a solved frame).
+    error_rad : (3,) array
+        Error rotation against the truth, camera axes [rad]
+        (:func:`~starnav.stars.attitude.error_rotation`).
+    timings_s : dict
+        ``star_exposure`` (drawing and exposing the star acquisition) and ``solve`` [s].
+    """
+
+    index: int
+    epoch_tdb: float
+    source: str
+    R_cam_to_inertial: FloatArray
+    covariance_rad2: FloatArray
+    star_frame: bool
+    reasons: tuple[str, ...]
+    mode: str
+    stars_matched: int
+    since_solution_s: float
+    error_rad: FloatArray
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def sigma_arcsec(self) -> FloatArray:
+        """1-sigma per camera axis (x, y cross-boresight, z roll) [arcsec]."""
+        return np.sqrt(np.diag(self.covariance_rad2)) / ARCSEC
+
+    @property
+    def nees(self) -> float:
+        """``e^T P^-1 e`` of the attitude error (3 dof)."""
+        return float(self.error_rad @ np.linalg.solve(self.covariance_rad2, self.error_rad))
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-safe row (arcsec)."""
+        e = self.error_rad / ARCSEC
+        return {"frame": self.index, "source": self.source, "star_frame": self.star_frame,
+                "mode": self.mode, "stars_matched": self.stars_matched,
+                "since_solution_s": self.since_solution_s,
+                "error_cross_arcsec": float(math.hypot(e[0], e[1])),
+                "error_roll_arcsec": float(e[2]),
+                "sigma_arcsec_xyz": [float(x) for x in self.sigma_arcsec],
+                "nees": self.nees, "reasons": list(self.reasons)}
+
+
+def assumed_covariance(chain: ChainOptions) -> FloatArray:
+    """The chain's assumed attitude covariance [rad^2] (its ``fix.attitude_sigma_rad``: one
+    sigma, three, or a 3x3 matrix)."""
+    a = np.asarray(chain.fix.attitude_sigma_rad, float)
+    if a.ndim == 2:
+        return a
+    return np.diag(np.broadcast_to(a, (3,)) ** 2)
+
+
+class StarAttitudeTracker:
+    """The schedule of star acquisitions and the gyro for one run over a sequence of frames
+    (module steps 1-4). Frames must be stepped in time order.
+
+    Parameters
+    ----------
+    sim : Simulator
+        Camera, scenario (``navigation.attitude``, ``stars``, ``detector``, ``seed``).
+    run : int
+        Monte Carlo run (its noise and gyro streams).
+    scenario : Scenario, optional
+        A variant of ``sim.scenario`` (one exposure's overrides); default ``sim.scenario``.
+
+    Raises
+    ------
+    ConfigError
+        ``navigation.attitude.source`` is not ``stars``, or ``stars.enabled`` is false:
+        before any frame is made.
+    """
+
+    def __init__(self, sim: Simulator, run: int = 0, scenario: Any | None = None) -> None:
+        sc = scenario if scenario is not None else sim.scenario
+        cfg = sc.navigation.attitude
+        if cfg.source != "stars":
+            raise ConfigError("navigation.attitude.source", cfg.source,
+                              "'stars' for a star attitude tracker")
+        if not sc.stars.enabled:
+            raise ConfigError("stars.enabled", False, "true when navigation.attitude.source is "
+                              "'stars' (the star acquisitions draw the stars section's stars)")
+        si = cfg.to_si()
+        self.sim, self.scenario, self.run = sim, sc, int(run)
+        self.camera = sim.camera
+        self.star_exposure = float(si.star_exposure)
+        self.every = int(cfg.schedule_every)
+        self.navigation_frames = bool(cfg.navigation_frames)
+        self.gyro = GyroModel(si.gyro_arw, si.gyro_bias)
+        self.errors = GyroErrors(self.gyro, generator(int(sc.seed), STAGE_NAVIGATION, int(run),
+                                                      GYRO_STREAM))
+        self.detector = quiet_timing(sc.detector).model_copy(
+            update={"sensor_seed": sensor_seed_of(sc)})
+        self.catalogue = hipparcos()
+        self._anchor: tuple[float, FloatArray, FloatArray, FloatArray] | None = None
+        self._k = 0
+
+    # ---------------------------------------------------------------- pieces
+    def is_star_frame(self, k: int) -> bool:
+        """Frame ``k`` (position in the sequence) has a star acquisition."""
+        return k % self.every == 0
+
+    def star_exposure_dn(self, radiance: RadianceImage | Any, geom: FrameGeometry
+                         ) -> NDArray[np.floating]:
+        """The star acquisition's DN frame (module step 1)."""
+        stars = star_field(radiance, geom, self.camera, self.scenario, self.star_exposure)
+        cfg = self.detector.model_copy(update={"readout": self.detector.readout.model_copy(
+            update={"windows": (), "modes": ("segments",)})})
+        e = expose(radiance, self.camera, cfg,
+                   seed=acquisition_seed(int(self.scenario.seed), self.run, STAR_ACQUISITION),
+                   frame_index=int(geom.index), exposure_time=self.star_exposure, windows=(),
+                   point_sources=stars.point_sources() if stars is not None else None)
+        return e.dn
+
+    def _exclusions(self, geom: FrameGeometry) -> tuple:
+        rel = geom.moon_centre_camera()
+        if rel[2] <= 0:
+            return ()
+        uv = geom.moon_centre_pixel(self.camera,
+                                    distort=bool(self.detector.optics.distortion.enabled))
+        r_px = self.camera.fx * math.tan(geom.apparent_radius)
+        return body_exclusions(uv, r_px, (self.camera.cx, self.camera.cy),
+                               self.detector.optics.ghosts.ghosts)
+
+    def _solve(self, dn: Any, geom: FrameGeometry, prior: tuple[FloatArray, FloatArray] | None
+               ) -> AttitudeSolution:
+        ex = self._exclusions(geom)
+        e = self.scenario.stars.epoch_jyear
+        ep = float(e) if e is not None else jyear_from_tdb(float(geom.epoch_tdb))
+        kw = dict(epoch_jyear=ep, exclusions=ex, catalogue=self.catalogue)
+        if prior is not None:
+            sig = float(np.sqrt(np.max(np.linalg.eigvalsh(prior[1]))))
+            sol = solve_attitude(dn, self.camera, self.detector, prior=prior[0],
+                                 prior_sigma_rad=sig, **kw)  # type: ignore[arg-type]
+            if sol.ok or "candidates detected" in sol.reason:
+                return sol
+        return solve_attitude(dn, self.camera, self.detector, **kw)  # type: ignore[arg-type]
+
+    def _propagated(self, geom: FrameGeometry) -> tuple[FloatArray, FloatArray, float] | None:
+        if self._anchor is None:
+            return None
+        t_a, R_a, P_a, Rt_a = self._anchor
+        dt = float(geom.epoch_tdb) - t_a
+        g = self.errors.error(float(geom.epoch_tdb))
+        R, P = propagate(R_a, P_a, Rt_a, geom.R_cam_to_inertial, dt, self.gyro, g)
+        return R, P, dt
+
+    # ---------------------------------------------------------------- the step
+    def step(self, radiance: RadianceImage | Any, geom: FrameGeometry,
+             acquisition: Acquisition | None, assumed_chain: ChainOptions | None = None
+             ) -> AttitudeRecord:
+        """The attitude of the next frame (module steps 1-4).
+
+        Parameters
+        ----------
+        radiance, geom :
+            The frame's render and geometry (the star acquisition re-exposes them).
+        acquisition : Acquisition or None
+            The navigation acquisitions (step 2 reads its segments DN frame).
+        assumed_chain : ChainOptions, optional
+            For step 4: the assumed sigma (default: the scenario's).
+        """
+        k = self._k
+        self._k += 1
+        star_frame = self.is_star_frame(k)
+        prop = self._propagated(geom)
+        prior = None if prop is None else (prop[0], prop[1])
+        reasons: list[str] = []
+        tm: dict[str, float] = {"star_exposure": 0.0, "solve": 0.0}
+        sol = None
+        source = ""
+        if star_frame:
+            t0 = time.perf_counter()
+            dn = self.star_exposure_dn(radiance, geom)
+            tm["star_exposure"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            s = self._solve(dn, geom, prior)
+            tm["solve"] += time.perf_counter() - t0
+            if s.ok:
+                sol, source = s, "star-frame"
+            else:
+                reasons.append(f"star frame {self.star_exposure * 1e3:.4g} ms: {s.reason}")
+        if sol is None and self.navigation_frames and acquisition is not None:
+            t0 = time.perf_counter()
+            s = self._solve(acquisition.segments_exposure.dn, geom, prior)
+            tm["solve"] += time.perf_counter() - t0
+            if s.ok:
+                sol, source = s, "navigation-frame"
+            else:
+                reasons.append(f"navigation frame {acquisition.exposure_time * 1e3:.4g} ms: "
+                               f"{s.reason}")
+        t = float(geom.epoch_tdb)
+        if sol is not None:
+            R, P = sol.R_cam_to_inertial, sol.covariance_rad2
+            self._anchor = (t, R, P, np.asarray(geom.R_cam_to_inertial, float))
+            self.errors.reset(t)
+            mode, n, age = sol.mode, (sol.identification.n_matched if sol.identification
+                                      else 0), 0.0
+        elif prop is not None:
+            R, P, age = prop
+            source, mode, n = "propagated", "", 0
+        else:
+            chain = assumed_chain if assumed_chain is not None else chain_options(self.scenario)
+            R = self.sim.measured_attitude(geom, self.run, int(self.scenario.seed))
+            P = assumed_covariance(chain)
+            source, mode, n, age = "assumed", "", 0, math.nan
+        err = error_rotation(R, geom.R_cam_to_inertial)
+        return AttitudeRecord(int(geom.index), t, source, np.asarray(R, float),
+                              np.asarray(P, float), star_frame, tuple(reasons), mode, int(n),
+                              float(age), err, tm)
+
+
+def with_attitude(frame: Any, chain: ChainOptions, record: AttitudeRecord
+                  ) -> tuple[Any, ChainOptions]:
+    """The navigation frame and chain options with the record's attitude and its 3x3
+    covariance in the fix (``R_cam_to_inertial_measured``, ``fix.attitude_sigma_rad``)."""
+    cov = tuple(tuple(float(x) for x in row) for row in record.covariance_rad2)
+    fix = dataclasses.replace(chain.fix, attitude_sigma_rad=cov)
+    return (dataclasses.replace(frame, R_cam_to_inertial_measured=record.R_cam_to_inertial),
+            dataclasses.replace(chain, fix=fix))
