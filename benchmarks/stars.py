@@ -10,6 +10,13 @@ pointings (sparse and Milky Way fields); the catalogue read (once per process) i
 Prints one JSON document. Usage::
 
     .venv/bin/python benchmarks/stars.py
+    .venv/bin/python benchmarks/stars.py --navigation   # the attitude schedule (part C)
+
+``--navigation``: the per-frame cost of the attitude schedule on the demo's arc (5 frames,
+1024 px, 8 spp, star acquisitions at 200 ms every 2nd frame, both demo exposures): the star
+acquisition (stars drawn + exposed), the solves (lost in space, tracking, the navigation
+frame's failed or tracking solve), then the comparison table of
+:func:`starnav.batch.attitude_study.attitude_comparison`.
 """
 
 from __future__ import annotations
@@ -107,5 +114,30 @@ def main() -> None:
                       "frames": rows}, indent=1))
 
 
+def navigation(frames: int = 5) -> None:
+    from starnav.batch.attitude_study import (
+        attitude_comparison,
+        comparison_markdown,
+        reduced_demo,
+    )
+
+    res = attitude_comparison(reduced_demo(frames=frames, size_px=1024, spp=8),
+                              attitude={"schedule_every": 2})
+    rows = []
+    for key, recs in res["records"].items():
+        for r in recs:
+            rows.append({"exposure_ms": float(key) * 1e3, "frame": r["frame"],
+                         "source": r["source"], "mode": r["mode"],
+                         "star_exposure_ms": round(r["timings_ms"]["star_exposure"], 1),
+                         "solve_ms": round(r["timings_ms"]["solve"], 1)})
+    print(json.dumps({"frames": rows, "wall_time_s": round(res["wall_time_s"], 1)}, indent=1))
+    print(comparison_markdown(res))
+
+
 if __name__ == "__main__":
-    main()
+    import sys
+
+    if "--navigation" in sys.argv:
+        navigation()
+    else:
+        main()

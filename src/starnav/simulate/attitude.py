@@ -146,7 +146,8 @@ class AttitudeRecord:
                 "error_cross_arcsec": float(math.hypot(e[0], e[1])),
                 "error_roll_arcsec": float(e[2]),
                 "sigma_arcsec_xyz": [float(x) for x in self.sigma_arcsec],
-                "nees": self.nees, "reasons": list(self.reasons)}
+                "nees": self.nees, "reasons": list(self.reasons),
+                "timings_ms": {k: 1e3 * v for k, v in self.timings_s.items()}}
 
 
 def assumed_covariance(chain: ChainOptions) -> FloatArray:
