@@ -142,6 +142,10 @@ MAX_STEP = 10.0
 ITERATION_TOLERANCE = 1e-3
 #: Orthonormality tolerance of a measured attitude matrix [-].
 ROTATION_TOLERANCE = 1e-6
+#: States before the landmarks: ``r`` (3), ``v`` (3), the centroid's model-error state
+#: (along and across the Sun's image direction, 2) [px] and the radius's (1) [-].
+CORE = 9
+BIAS = slice(6, 9)
 
 
 class ShapeBodyLike(Protocol):
@@ -179,6 +183,12 @@ class TrnFilterOptions:
         Use the silhouette's centroid / apparent radius.
     iterations : int
         Most relinearisations of the iterated update (1: the plain EKF).
+    silhouette_bias_time : float
+        Correlation time [s] of the silhouette's model errors, first-order Gauss-Markov
+        states (module step 4); 0: white, added to each frame's measurement noise.
+    centroid_sun_sigma_px : float or None
+        Stationary sigma of the centroid's model error along the Sun's image direction
+        [px] (None: ``centroid_model_sigma_px``); across it: ``centroid_model_sigma_px``.
     """
 
     accel_psd: float = 1e-8
@@ -192,6 +202,8 @@ class TrnFilterOptions:
     use_centroid: bool = True
     use_radius: bool = True
     iterations: int = 4
+    silhouette_bias_time: float = 12.0
+    centroid_sun_sigma_px: float | None = 1.6
 
     def __post_init__(self) -> None:
         checks = (("accel_psd", self.accel_psd >= 0, ">= 0"),
@@ -201,7 +213,11 @@ class TrnFilterOptions:
                   ("max_incidence", 0 < self.max_incidence < math.pi / 2, "in (0, pi/2) rad"),
                   ("landmark_height_sigma", self.landmark_height_sigma >= 0, ">= 0"),
                   ("centroid_model_sigma_px", self.centroid_model_sigma_px >= 0, ">= 0"),
-                  ("radius_model_fraction", self.radius_model_fraction >= 0, ">= 0"))
+                  ("radius_model_fraction", self.radius_model_fraction >= 0, ">= 0"),
+                  ("silhouette_bias_time", self.silhouette_bias_time >= 0
+                   and math.isfinite(self.silhouette_bias_time), ">= 0 [s], finite"),
+                  ("centroid_sun_sigma_px", self.centroid_sun_sigma_px is None
+                   or self.centroid_sun_sigma_px >= 0, ">= 0 [px] or None"))
         for name, ok, want in checks:
             if not ok:
                 raise ConfigError(f"options.{name}", getattr(self, name), want)
@@ -512,7 +528,18 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
         features_rejected=np.zeros(K, np.int64), landmarks=np.zeros(K, np.int64),
         landmarks_born=np.zeros(K, np.int64), centroid_used=np.zeros(K, bool),
         radius_used=np.zeros(K, bool))
-    x, P = x0.copy(), P0.copy()
+    nis_kind = {kd: np.zeros(K) for kd in ("feature", "centroid", "radius")}
+    dof_kind = {kd: np.zeros(K, np.int64) for kd in ("feature", "centroid", "radius")}
+    out.info["nis_by_kind"], out.info["nis_dof_by_kind"] = nis_kind, dof_kind
+    tau = opt.silhouette_bias_time
+    sig_b = np.array([opt.centroid_model_sigma_px if opt.centroid_sun_sigma_px is None
+                      else opt.centroid_sun_sigma_px, opt.centroid_model_sigma_px,
+                      opt.radius_model_fraction]) if tau > 0 else np.zeros(3)
+    x = np.r_[x0, np.zeros(3)]
+    P = np.zeros((CORE, CORE))
+    P[:6, :6], P[BIAS, BIAS] = P0, np.diag(sig_b**2)
+    out.info["bias"] = np.zeros((K, 3))
+    out.info["bias_sigma"] = np.zeros((K, 3))
     ids: list[int] = []                       # track id of each landmark, in state order
     banned: set[int] = set()
     t_prev = measurements[0].epoch_tdb
@@ -527,11 +554,17 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             P[:6, :] = Phi @ P[:6, :]
             P[:, :6] = P[:, :6] @ Phi.T
             P[:6, :6] += Q
+            if tau > 0:
+                a = math.exp(-dt / tau)
+                x[BIAS] *= a
+                P[BIAS, :] *= a
+                P[:, BIAS] *= a
+                P[BIAS, BIAS] += np.diag(sig_b**2 * (1.0 - a * a))
         # 2 drop the landmarks whose track ended
         seen = {f.track_id for f in m.features}
         keep = [j for j, tid in enumerate(ids) if tid in seen]
         if len(keep) != len(ids):
-            idx = np.r_[np.arange(6), _slots(keep)]
+            idx = np.r_[np.arange(CORE), _slots(keep)]
             x, P = x[idx], P[np.ix_(idx, idx)]
             ids = [ids[j] for j in keep]
         # 3 the frame's attitude error
@@ -551,30 +584,49 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             j = slot.get(f.track_id)
             if j is not None:
                 rows.append(("feature", np.asarray(f.uv, float), np.eye(2) * f.sigma_px**2,
-                             f.track_id, 6 + 3 * j))
+                             f.track_id, CORE + 3 * j))
         need_sil = ((opt.use_centroid and m.centroid_uv is not None)
                     or (opt.use_radius and m.apparent_radius_px is not None))
-        if need_sil:
-            centre_cam = R_m.T @ (-r)
-            placed = BodyInCamera.place(shape.vertices, shape.faces, R_m.T @ R_bi, centre_cam)
-            s_k = frame_sun[k] if frame_sun[k] is not None else sun
-            sun_cam = R_m.T @ s_k if s_k is not None else -centre_cam
-            try:
-                sil = lit_silhouette(placed, sun_cam, camera)
-            except GeometryError:
-                sil = None
-            if sil is not None and opt.use_centroid and m.centroid_uv is not None:
+        s_k = frame_sun[k] if frame_sun[k] is not None else sun
+        sil_cache: dict[bytes, tuple[FloatArray, FloatArray, float] | None] = {}
+
+        def silhouette_at(ri: FloatArray, R_m: FloatArray = R_m, R_bi: FloatArray = R_bi,
+                          s_k: FloatArray | None = s_k,
+                          cache: dict[bytes, Any] = sil_cache
+                          ) -> tuple[FloatArray, FloatArray, float] | None:
+            """The lit silhouette's frozen point D, bias axes and radius constant K seen
+            from ``ri`` (module step 4), None when nothing lit faces the camera."""
+            key = ri.tobytes()
+            if key not in cache:
+                centre_cam = R_m.T @ (-ri)
+                placed = BodyInCamera.place(shape.vertices, shape.faces, R_m.T @ R_bi,
+                                            centre_cam)
+                sun_cam = R_m.T @ s_k if s_k is not None else -centre_cam
+                try:
+                    sil = lit_silhouette(placed, sun_cam, camera)
+                except GeometryError:
+                    cache[key] = None
+                    return None
                 ray = camera.unproject(sil.centroid_uv)
-                D = R_m @ (ray * (centre_cam[2] / ray[2])) + r
-                var = m.centroid_sigma_px**2 + opt.centroid_model_sigma_px**2
-                rows.append(("centroid", np.asarray(m.centroid_uv, float), np.eye(2) * var,
-                             -1, D))
-            if sil is not None and opt.use_radius and m.apparent_radius_px is not None:
-                kk = sil.radius_px * float(np.linalg.norm(r))
-                var = m.apparent_radius_sigma_px**2 + (opt.radius_model_fraction
-                                                       * sil.radius_px) ** 2
-                rows.append(("radius", np.array([m.apparent_radius_px]), np.array([[var]]),
-                             -1, kk))
+                D = R_m @ (ray * (centre_cam[2] / ray[2])) + ri
+                # the Sun's direction in the image at the body (the bias states' axes)
+                e_s = camera.project_jacobian(centre_cam) @ sun_cam
+                ne = float(np.linalg.norm(e_s))
+                e_s = e_s / ne if ne > 1e-12 else np.array([1.0, 0.0])
+                E_b = np.column_stack([e_s, [-e_s[1], e_s[0]]])
+                cache[key] = (D, E_b, sil.radius_px * float(np.linalg.norm(ri)))
+            return cache[key]
+
+        sil0 = silhouette_at(r.copy()) if need_sil else None
+        if sil0 is not None and opt.use_centroid and m.centroid_uv is not None:
+            var = m.centroid_sigma_px**2 + (0.0 if tau > 0 else opt.centroid_model_sigma_px**2)
+            rows.append(("centroid", np.asarray(m.centroid_uv, float), np.eye(2) * var, -1,
+                         sil0))
+        if sil0 is not None and opt.use_radius and m.apparent_radius_px is not None:
+            var = m.apparent_radius_sigma_px**2 + (0.0 if tau > 0 else (
+                opt.radius_model_fraction * sil0[2] / float(np.linalg.norm(r))) ** 2)
+            rows.append(("radius", np.array([m.apparent_radius_px]), np.array([[var]]), -1,
+                         sil0))
 
         def predict_all(rs: list[tuple[str, FloatArray, FloatArray, int, Any]],
                         xi: FloatArray, n: int = n, th: slice = th, R_m: FloatArray = R_m,
@@ -591,8 +643,13 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
                 Lm = xi[slots[:, None] + np.arange(3)]
                 hf, Hr, Hl, Ht, front = features_model(camera, xi[:3], Lm, R_m, R_bi, xi[th])
             fi = 0
+            sil_i = None
+            if any(rw[0] != "feature" for rw in rs):
+                sil_i = silhouette_at(xi[:3].copy())
             for rw in rs:
                 kind, par = rw[0], rw[4]
+                if kind != "feature" and sil_i is not None:
+                    par = sil_i
                 H = np.zeros((rw[1].size, n))
                 good = True
                 if kind == "feature":
@@ -601,12 +658,13 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
                     good = bool(front[fi])
                     fi += 1
                 elif kind == "centroid":
-                    h, Hc, Htc = centroid_model(camera, xi[:3], par, R_m, xi[th])
-                    H[:, :3], H[:, th] = Hc, Htc
+                    h, Hc, Htc = centroid_model(camera, xi[:3], par[0], R_m, xi[th])
+                    h = h + par[1] @ xi[6:8]
+                    H[:, :3], H[:, th], H[:, 6:8] = Hc, Htc, par[1]
                 else:
-                    rho, Hrr = radius_model(xi[:3], par)
-                    h = np.array([rho])
-                    H[:, :3] = Hrr
+                    rho, Hrr = radius_model(xi[:3], par[2])
+                    h = np.array([rho * (1.0 + xi[8])])
+                    H[:, :3], H[0, 8] = Hrr * (1.0 + xi[8]), rho
                 hs.append(h)
                 Hs.append(H)
                 ok.append(good)
@@ -622,6 +680,8 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             nu = z - h1
             S = H1 @ P @ H1.T + Rn
             d2 = float(nu @ np.linalg.solve(S, nu))
+            nis_kind[kind][k] += d2
+            dof_kind[kind][k] += nu.size
             if d2 <= gate[nu.size]:
                 accepted.append(row)
                 out.centroid_used[k] |= kind == "centroid"
@@ -660,7 +720,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
         # drop the landmarks of rejected tracks
         if banned & set(ids):
             keep = [j for j, tid in enumerate(ids) if tid not in banned]
-            idx = np.r_[np.arange(6), _slots(keep),
+            idx = np.r_[np.arange(CORE), _slots(keep),
                         np.arange(n - 3, n)]
             x, P = x[idx], P[np.ix_(idx, idx)]
             ids = [ids[j] for j in keep]
@@ -701,6 +761,8 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
         idx = np.r_[np.arange(th.start), np.arange(th.stop, n)]
         x, P = x[idx], P[np.ix_(idx, idx)]
         out.states[k] = x[:6]
+        out.info["bias"][k] = x[BIAS]
+        out.info["bias_sigma"][k] = np.sqrt(np.diag(P)[BIAS])
         out.covariances[k] = P[:6, :6]
         out.landmarks[k] = len(ids)
     return out
@@ -717,7 +779,7 @@ def _unit_sun(value: ArrayLike, name: str) -> FloatArray:
 def _slots(landmarks: list[int]) -> NDArray[np.int64]:
     """State indices of the landmarks ``landmarks`` (their positions in the landmark list)."""
     j = np.asarray(landmarks, np.int64)
-    return (6 + 3 * np.repeat(j, 3) + np.tile(np.arange(3), j.size)).astype(np.int64)
+    return (CORE + 3 * np.repeat(j, 3) + np.tile(np.arange(3), j.size)).astype(np.int64)
 
 
 def _block_diag(blocks: list[FloatArray]) -> FloatArray:
