@@ -186,9 +186,9 @@ class TrnFilterOptions:
     silhouette_bias_time : float
         Correlation time [s] of the silhouette's model errors, first-order Gauss-Markov
         states (module step 4); 0: white, added to each frame's measurement noise.
-    centroid_sun_sigma_px : float or None
-        Stationary sigma of the centroid's model error along the Sun's image direction
-        [px] (None: ``centroid_model_sigma_px``); across it: ``centroid_model_sigma_px``.
+    centroid_sun_share : float
+        Share of the centroid model error's variance (``2 centroid_model_sigma_px^2``) along
+        the Sun's image direction [-]; the rest is across it (0.5: isotropic).
     """
 
     accel_psd: float = 1e-8
@@ -202,8 +202,8 @@ class TrnFilterOptions:
     use_centroid: bool = True
     use_radius: bool = True
     iterations: int = 4
-    silhouette_bias_time: float = 12.0
-    centroid_sun_sigma_px: float | None = 1.6
+    silhouette_bias_time: float = 85.0
+    centroid_sun_share: float = 0.994
 
     def __post_init__(self) -> None:
         checks = (("accel_psd", self.accel_psd >= 0, ">= 0"),
@@ -216,8 +216,7 @@ class TrnFilterOptions:
                   ("radius_model_fraction", self.radius_model_fraction >= 0, ">= 0"),
                   ("silhouette_bias_time", self.silhouette_bias_time >= 0
                    and math.isfinite(self.silhouette_bias_time), ">= 0 [s], finite"),
-                  ("centroid_sun_sigma_px", self.centroid_sun_sigma_px is None
-                   or self.centroid_sun_sigma_px >= 0, ">= 0 [px] or None"))
+                  ("centroid_sun_share", 0 <= self.centroid_sun_share <= 1, "in [0, 1]"))
         for name, ok, want in checks:
             if not ok:
                 raise ConfigError(f"options.{name}", getattr(self, name), want)
@@ -532,9 +531,9 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
     dof_kind = {kd: np.zeros(K, np.int64) for kd in ("feature", "centroid", "radius")}
     out.info["nis_by_kind"], out.info["nis_dof_by_kind"] = nis_kind, dof_kind
     tau = opt.silhouette_bias_time
-    sig_b = np.array([opt.centroid_model_sigma_px if opt.centroid_sun_sigma_px is None
-                      else opt.centroid_sun_sigma_px, opt.centroid_model_sigma_px,
-                      opt.radius_model_fraction]) if tau > 0 else np.zeros(3)
+    share = np.array([opt.centroid_sun_share, 1.0 - opt.centroid_sun_share])
+    sig_b = (np.r_[opt.centroid_model_sigma_px * np.sqrt(2.0 * share),
+                   opt.radius_model_fraction] if tau > 0 else np.zeros(3))
     x = np.r_[x0, np.zeros(3)]
     P = np.zeros((CORE, CORE))
     P[:6, :6], P[BIAS, BIAS] = P0, np.diag(sig_b**2)
