@@ -50,7 +50,9 @@ import math
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
+from starnav.atomic import atomic_write_text
 from starnav.config import scenario_from_dict
 from starnav.navigation.trn.body_view import BodyInCamera, lit_silhouette
 from starnav.simulate import Simulator, body_from_scenario
@@ -74,10 +76,11 @@ CALIBRATION = {
     "seed": 4711}
 
 
-def silhouette_truth(sim: Simulator, body) -> tuple[np.ndarray, np.ndarray]:
-    """The estimator's lit-facet centroid (K, 2) and radius (K,) at the true states."""
+def silhouette_truth(sim: Simulator, body) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The estimator's lit-facet centroid (K, 2) and radius (K,) at the true states, and the
+    Sun's unit direction in the image at the body (K, 2) (the filter's bias axes)."""
     sun = np.asarray(sim.scene.flyby.sun_direction, float)
-    cen, rad = [], []
+    cen, rad, axis = [], [], []
     for i in range(len(sim)):
         g = sim.geometry(i)
         R = g.R_cam_to_inertial
@@ -86,7 +89,28 @@ def silhouette_truth(sim: Simulator, body) -> tuple[np.ndarray, np.ndarray]:
         s = lit_silhouette(placed, R.T @ sun, sim.camera)
         cen.append(s.centroid_uv)
         rad.append(s.radius_px)
-    return np.array(cen), np.array(rad)
+        e = sim.camera.project_jacobian(R.T @ (-g.camera_position)) @ (R.T @ sun)
+        axis.append(e / np.linalg.norm(e))
+    return np.array(cen), np.array(rad), np.array(axis)
+
+
+def gauss_markov_time(x: np.ndarray, dt: float) -> float:
+    """Correlation time [s] of a first-order Gauss-Markov fit to the series ``x`` (K,) sampled
+    every ``dt``: its structure function ``D(L) = mean((x[k+L] - x[k])^2)`` against
+    ``2 s^2 (1 - exp(-L dt / tau))``, ``s^2`` the series' mean square (zero-mean process),
+    least squares over the lags 1 ... K/2 weighted by their pair counts."""
+    K = x.size
+    lags = np.arange(1, K // 2 + 1)
+    D = np.array([np.mean((x[L:] - x[:-L]) ** 2) for L in lags])
+    w = (K - lags).astype(float)
+    s2 = float(np.mean(x**2))
+
+    def cost(log_tau: float) -> float:
+        model = 2 * s2 * (1 - np.exp(-lags * dt / math.exp(log_tau)))
+        return float(np.sum(w * (D - model) ** 2))
+
+    res = minimize_scalar(cost, bounds=(math.log(dt), math.log(1e4)), method="bounded")
+    return float(math.exp(res.x))
 
 
 def calibrate(dry_run: bool = False) -> dict:
@@ -97,13 +121,28 @@ def calibrate(dry_run: bool = False) -> dict:
     fe0 = dataclasses.replace(base.front_end.options(), max_track_turn=math.pi)
     loop = flyby_closed_loop(sim, RUNS, renders=renders, front_end=fe0)
     # 1 silhouette
-    c_true, r_true = silhouette_truth(sim, body)
+    c_true, r_true, e_sun = silhouette_truth(sim, body)
     C = np.array([[m.centroid_uv for m in r.measurements] for r in loop.runs])   # (R, K, 2)
     Rr = np.array([[m.apparent_radius_px for m in r.measurements] for r in loop.runs])
     noise_c = float(np.sqrt(np.mean(np.var(C, axis=0, ddof=1)) ) / np.mean(r_true))
     noise_r = float(np.sqrt(np.mean(np.var(Rr, axis=0, ddof=1))) / np.mean(r_true))
     model_c = float(np.sqrt(np.mean((C.mean(axis=0) - c_true) ** 2)))
     model_r = float(np.sqrt(np.mean(((Rr.mean(axis=0) - r_true) / r_true) ** 2)))
+    # the model error's split along / across the Sun's image direction, its correlation time
+    # (first-order Gauss-Markov states of the filter) and its frame-to-frame (white) part
+    dc = C.mean(axis=0) - c_true
+    along = np.einsum("ki,ki->k", dc, e_sun)
+    across = dc[:, 1] * e_sun[:, 0] - dc[:, 0] * e_sun[:, 1]
+    dr = (Rr.mean(axis=0) - r_true) / r_true
+    share = float(np.mean(along**2) / (np.mean(along**2) + np.mean(across**2)))
+    dt = float(CALIBRATION["trajectory"]["cadence_s"])
+    taus = {"along": gauss_markov_time(along, dt), "radius": gauss_markov_time(dr, dt)}
+    white = {"along_px": float(np.sqrt(np.mean(np.diff(along) ** 2) / 2)),
+             "across_px": float(np.sqrt(np.mean(np.diff(across) ** 2) / 2)),
+             "radius_fraction": float(np.sqrt(np.mean(np.diff(dr) ** 2) / 2))}
+    lag1 = {k: float(np.sum((v - v.mean())[1:] * (v - v.mean())[:-1])
+                     / np.sum((v - v.mean()) ** 2))
+            for k, v in (("along", along), ("across", across), ("radius", dr))}
     # 2 features: error against the view turned along the track
     turned, err = [], []
     for r in loop.runs:
@@ -126,7 +165,11 @@ def calibrate(dry_run: bool = False) -> dict:
     drift = math.sqrt(max(coef[1], 0.0))
     out = {"centroid_sigma_fraction": noise_c, "radius_sigma_fraction": noise_r,
            "centroid_model_sigma_px": model_c, "radius_model_fraction": model_r,
-           "sigma_detect_px": detect, "drift_px_per_rad": drift}
+           "sigma_detect_px": detect, "drift_px_per_rad": drift,
+           "centroid_sun_share": share, "silhouette_bias_time_s": min(taus.values()),
+           "bias_time_fits_s": taus, "bias_white_part": white, "bias_lag1_autocorrelation": lag1,
+           "bias_mean": {"along_px": float(along.mean()), "across_px": float(across.mean()),
+                         "radius_fraction": float(dr.mean())}}
     print(json.dumps(out, indent=1))
     # 3 the calibration fly-by navigated with these values (reported, not tuned on: raising
     # the silhouette or feature terms by up to 16x leaves its mean NEES near 40; the
@@ -135,7 +178,8 @@ def calibrate(dry_run: bool = False) -> dict:
                              radius_sigma_fraction=noise_r, sigma_detect_px=detect,
                              drift_px_per_rad=drift)
     fo = dataclasses.replace(base.filter.options(), centroid_model_sigma_px=model_c,
-                             radius_model_fraction=model_r)
+                             radius_model_fraction=model_r, centroid_sun_share=share,
+                             silhouette_bias_time=min(taus.values()))
     lp = flyby_closed_loop(sim, RUNS, renders=renders, front_end=fe, filter_options=fo)
     out["calibration_nees_mean"] = float(lp.summary["nees_mean"])
     out["calibration_ca_error_pct_range_median"] = float(lp.summary["ca_error_pct_range_median"])
@@ -145,7 +189,7 @@ def calibrate(dry_run: bool = False) -> dict:
     out["date"] = _dt.date.today().isoformat()
     print(json.dumps({k: v for k, v in out.items() if k != "calibration_flyby"}, indent=1))
     if not dry_run:
-        OUT.write_text(json.dumps(out, indent=1) + "\n")
+        atomic_write_text(OUT, json.dumps(out, indent=1) + "\n")
         print(f"wrote {OUT}")
     return out
 
