@@ -86,25 +86,40 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--cold", action="store_true", help="also run every case with workers "
+                    "that are not warmed by the preload starnav.batch.warm")
     a = ap.parse_args()
+    from starnav.batch import cluster
+
+    preload = cluster.WORKER_PRELOAD
     root = Path(tempfile.mkdtemp(prefix="starnav-bench-sweep-"))
     print(f"load average before: {os.getloadavg()[0]:.2f} (1 min), cpus {os.cpu_count()}")
     print(f"sweep, exposure study: 4 exposures x {a.runs} runs x {a.frames} frames")
-    times: dict[int, list[float]] = defaultdict(list)
+    times: dict[tuple[str, int], list[float]] = defaultdict(list)
+    totals: dict[tuple[str, int], list[float]] = defaultdict(list)
+    kinds = ("warm", "cold") if a.cold else ("warm",)
     try:
         for _ in range(a.repeat):
-            for w in a.workers:
-                r = one_sweep(w, a.frames, a.runs, root)
-                times[w].append(float(r["sweep_s"]))  # type: ignore[arg-type]
-                busy = ", ".join(f"{k} {v:.1f}" for k, v in
-                                 sorted(r["busy"].items()))  # type: ignore[attr-defined]
-                peaks = ", ".join(f"{m:.0f}" for m in r["worker_peak_mb"])  # type: ignore[attr-defined]
-                print(f"  {w} worker(s): sweep {r['sweep_s']:6.1f} s (with cluster start "
-                      f"{r['total_s']:.1f} s), {r['tasks']} tasks; task time [s]: {busy}; "
-                      f"worker peak RSS [MB]: {peaks}")
-        if 1 in times and 2 in times:
-            s1, s2 = min(times[1]), min(times[2])
-            print(f"  speed-up 1 -> 2 workers (best of {a.repeat}): {s1 / s2:.2f}x")
+            for kind in kinds:
+                cluster.WORKER_PRELOAD = preload if kind == "warm" else ""
+                for w in a.workers:
+                    r = one_sweep(w, a.frames, a.runs, root)
+                    times[kind, w].append(float(r["sweep_s"]))  # type: ignore[arg-type]
+                    totals[kind, w].append(float(r["total_s"]))  # type: ignore[arg-type]
+                    busy = ", ".join(f"{k} {v:.1f}" for k, v in
+                                     sorted(r["busy"].items()))  # type: ignore[attr-defined]
+                    peaks = ", ".join(f"{m:.0f}" for m in
+                                      r["worker_peak_mb"])  # type: ignore[attr-defined]
+                    print(f"  {kind} {w} worker(s): sweep {r['sweep_s']:6.1f} s (with cluster "
+                          f"start {r['total_s']:.1f} s), {r['tasks']} tasks; task time [s]: "
+                          f"{busy}; worker peak RSS [MB]: {peaks}; load "
+                          f"{os.getloadavg()[0]:.1f}", flush=True)
+        for kind in kinds:
+            if (kind, 1) in times and (kind, 2) in times:
+                s1, s2 = min(times[kind, 1]), min(times[kind, 2])
+                t1, t2 = min(totals[kind, 1]), min(totals[kind, 2])
+                print(f"  {kind}: speed-up 1 -> 2 workers (best of {a.repeat}): sweep "
+                      f"{s1 / s2:.2f}x, with cluster start {t1 / t2:.2f}x")
         print(f"  this process peak RSS: {peak_rss_mb():.0f} MB")
         print(f"load average after: {os.getloadavg()[0]:.2f} (1 min)")
     finally:

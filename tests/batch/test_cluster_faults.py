@@ -60,3 +60,26 @@ def test_workers_and_scheduler_are_exclusive():
     runner = open_runner(2, "tcp://127.0.0.1:1")
     with pytest.raises(ConfigError, match="no --workers with --scheduler"):
         runner.__enter__()  # refused before any connection is tried
+
+
+def _kill_own_process() -> None:
+    import os
+    import signal
+
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def test_a_task_that_kills_every_worker_is_a_clear_error():
+    """Dask gives up on a task after ``allowed-failures`` + 1 dead workers (set to 0 here: the
+    first death); the runner says which task and why, as a ClusterError (one ``error:`` line
+    on the command line), instead of Dask's KilledWorker."""
+    import dask
+
+    from starnav.batch.cluster import ClusterError, open_runner
+
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}), \
+            open_runner(workers=1) as runner:
+        h = runner.submit(_kill_own_process, key="doomed-task")
+        with pytest.raises(ClusterError, match=r"task 'doomed-task' killed 1 workers .*"
+                           r"allowed-failures = 0"):
+            list(runner.as_completed([h]))

@@ -28,6 +28,7 @@ import psutil
 import yaml
 from typer.testing import CliRunner
 
+from starnav.batch.cluster import WORKER_PRELOAD
 from starnav.batch.table import read_table
 from starnav.dataset import format as F
 
@@ -54,6 +55,14 @@ class Deployment:
 
     def worker_pids(self) -> set[int]:
         return set(self.client.run(os.getpid).values())  # type: ignore[attr-defined]
+
+    def warm(self) -> list[bool]:
+        """Per worker: its preload has loaded Mitsuba and colour (before any task)."""
+        return list(self.client.run(_is_warm).values())  # type: ignore[attr-defined]
+
+
+def _is_warm() -> bool:
+    return {"mitsuba", "colour", "starnav.batch.tasks"} <= set(sys.modules)
 
 
 def _env() -> dict[str, str]:
@@ -132,7 +141,7 @@ def deployment(tmp: Path, seen: set[int]) -> Iterator[Deployment]:
             start(name, ["worker", "--scheduler-file", str(sfile), "--nworkers", "1",
                          "--nthreads", "1", "--nanny", "--no-dashboard", "--host",
                          "127.0.0.1", "--name", name, "--local-directory", str(tmp / name),
-                         "--death-timeout", "120s"])
+                         "--death-timeout", "120s", "--preload", WORKER_PRELOAD])
         client = Client(address, set_as_default=False, timeout="60s")
         try:
             client.wait_for_workers(2, timeout=START_DEADLINE_S)
@@ -244,6 +253,7 @@ def test_sweep_and_dataset_on_a_deployed_cluster_survive_a_killed_worker(tmp_pat
     _invoke([*dataset, "--out", str(tmp_path / "ds-ref"), "--workers", "0"])
     seen: set[int] = set()
     with deployment(tmp_path / "cluster", seen) as dep:
+        assert dep.warm() == [True, True]  # the preload ran before the workers registered
         # the sweep: a worker dies in the navigation chain of frame DOOMED_FRAME
         marker = tmp_path / "sweep-killed-once"
         before = dep.worker_pids()
