@@ -85,31 +85,34 @@ def _tail(paths: list[Path], n: int = 30) -> str:
     return "\n".join(out)
 
 
-def _all_pids(procs: list[subprocess.Popen]) -> set[int]:
-    """The started processes and every descendant (nannies' worker processes)."""
-    pids = set()
+def _processes(procs: list[subprocess.Popen]) -> dict[int, psutil.Process]:
+    """The started processes and every descendant (the nannies' worker processes), as psutil
+    handles (which know their start time: a pid reused later is not mistaken for them)."""
+    out = {}
     for p in procs:
-        pids.add(p.pid)
         with contextlib.suppress(psutil.NoSuchProcess):
-            pids.update(c.pid for c in psutil.Process(p.pid).children(recursive=True))
-    return pids
+            top = psutil.Process(p.pid)
+            for q in [top, *top.children(recursive=True)]:
+                out[q.pid] = q
+    return out
 
 
-def _alive(pids: set[int]) -> set[int]:
+def _alive(seen: dict[int, psutil.Process]) -> set[int]:
     alive = set()
-    for pid in pids:
-        try:
-            if psutil.Process(pid).status() != psutil.STATUS_ZOMBIE:
+    for pid, q in seen.items():
+        with contextlib.suppress(psutil.NoSuchProcess):
+            if q.is_running() and q.status() != psutil.STATUS_ZOMBIE:
                 alive.add(pid)
-        except psutil.NoSuchProcess:
-            pass
     return alive
 
 
 @contextlib.contextmanager
-def deployment(tmp: Path, seen: set[int]) -> Iterator[Deployment]:
+def deployment(tmp: Path, seen: dict[int, psutil.Process],
+               forced: set[int]) -> Iterator[Deployment]:
     """Start ``dask scheduler`` and two ``dask worker`` (nanny, 1 process, 1 thread each);
-    stop them all on exit. ``seen`` collects every pid the deployment ever had."""
+    stop them all on exit with SIGTERM, workers first. ``seen`` collects every process the
+    deployment had; ``forced`` the ones that had to be SIGKILLed because SIGTERM did not
+    stop them (so that nothing is left even when a test fails)."""
     from distributed import Client
 
     tmp.mkdir(parents=True, exist_ok=True)
@@ -148,11 +151,11 @@ def deployment(tmp: Path, seen: set[int]) -> Iterator[Deployment]:
         except TimeoutError:
             raise AssertionError("the workers did not join\n" + _tail(logs)) from None
         dep = Deployment(address, client, procs, logs)
-        seen.update(_all_pids(procs))
+        seen.update(_processes(procs))
         yield dep
-        seen.update(_all_pids(procs))
+        seen.update(_processes(procs))
     finally:
-        seen.update(_all_pids(procs))
+        seen.update(_processes(procs))
         if client is not None:
             client.close()
         for p in reversed(procs):  # workers first (their nannies stop their processes)
@@ -161,19 +164,22 @@ def deployment(tmp: Path, seen: set[int]) -> Iterator[Deployment]:
             try:
                 p.wait(timeout=60)
             except subprocess.TimeoutExpired:
+                forced.add(p.pid)
                 with contextlib.suppress(ProcessLookupError):
                     os.killpg(p.pid, signal.SIGKILL)  # its own session: only what it started
                 p.wait(timeout=30)
-        for pid in _alive(seen):  # a worker process its nanny did not stop
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, signal.SIGKILL)
+        if _wait_gone(seen, 30.0):  # a worker process its nanny did not stop
+            for pid in _alive(seen):
+                forced.add(pid)
+                with contextlib.suppress(psutil.NoSuchProcess):
+                    seen[pid].kill()
 
 
-def _wait_gone(pids: set[int], deadline_s: float = 60.0) -> set[int]:
+def _wait_gone(seen: dict[int, psutil.Process], deadline_s: float) -> set[int]:
     t0 = time.monotonic()
-    while _alive(pids) and time.monotonic() - t0 < deadline_s:
+    while _alive(seen) and time.monotonic() - t0 < deadline_s:
         time.sleep(0.2)
-    return _alive(pids)
+    return _alive(seen)
 
 
 # ------------------------------------------------------------------ functions run on workers
@@ -251,8 +257,9 @@ def test_sweep_and_dataset_on_a_deployed_cluster_survive_a_killed_worker(tmp_pat
     dataset = ["dataset", str(scen), "--exposures", "15us,7.7ms"]
     _invoke([*sweep, "--out", str(tmp_path / "sweep-ref"), "--workers", "0"])
     _invoke([*dataset, "--out", str(tmp_path / "ds-ref"), "--workers", "0"])
-    seen: set[int] = set()
-    with deployment(tmp_path / "cluster", seen) as dep:
+    seen: dict[int, psutil.Process] = {}
+    forced: set[int] = set()
+    with deployment(tmp_path / "cluster", seen, forced) as dep:
         assert dep.warm() == [True, True]  # the preload ran before the workers registered
         # the sweep: a worker dies in the navigation chain of frame DOOMED_FRAME
         marker = tmp_path / "sweep-killed-once"
@@ -264,6 +271,7 @@ def test_sweep_and_dataset_on_a_deployed_cluster_survive_a_killed_worker(tmp_pat
         dep.client.wait_for_workers(2, timeout=START_DEADLINE_S)  # type: ignore[attr-defined]
         after = dep.worker_pids()
         assert len(before - after) == 1 and len(after - before) == 1  # one process replaced
+        seen.update(_processes(dep.procs))
         # the dataset: a worker dies with frame DOOMED_FRAME half written
         marker = tmp_path / "dataset-killed-once"
         dep.client.run(_arm_dataset_death, str(marker))  # type: ignore[attr-defined]
@@ -273,7 +281,8 @@ def test_sweep_and_dataset_on_a_deployed_cluster_survive_a_killed_worker(tmp_pat
         dep.client.wait_for_workers(2, timeout=START_DEADLINE_S)  # type: ignore[attr-defined]
         assert len(after - dep.worker_pids()) == 1
         address = dep.address
-    assert _wait_gone(seen) == set(), "processes left behind"
+    assert forced == set(), "SIGTERM did not stop every process of the deployment"
+    assert _alive(seen) == set(), "processes left behind"
     assert len(seen) >= 7  # scheduler, 2 nannies, 2 worker processes, 2 replacements
 
     assert f"runner: scheduler {address}" in r.output.replace("\n", "")
