@@ -49,6 +49,7 @@ class Deployment:
     """A scheduler and its workers, started as processes of their own."""
 
     address: str
+    scheduler_file: Path
     client: object
     procs: list[subprocess.Popen] = field(default_factory=list)
     logs: list[Path] = field(default_factory=list)
@@ -150,7 +151,7 @@ def deployment(tmp: Path, seen: dict[int, psutil.Process],
             client.wait_for_workers(2, timeout=START_DEADLINE_S)
         except TimeoutError:
             raise AssertionError("the workers did not join\n" + _tail(logs)) from None
-        dep = Deployment(address, client, procs, logs)
+        dep = Deployment(address, sfile, client, procs, logs)
         seen.update(_processes(procs))
         yield dep
         seen.update(_processes(procs))
@@ -272,10 +273,12 @@ def test_sweep_and_dataset_on_a_deployed_cluster_survive_a_killed_worker(tmp_pat
         after = dep.worker_pids()
         assert len(before - after) == 1 and len(after - before) == 1  # one process replaced
         seen.update(_processes(dep.procs))
-        # the dataset: a worker dies with frame DOOMED_FRAME half written
+        # the dataset (the address from the scheduler file): a worker dies with frame
+        # DOOMED_FRAME half written
         marker = tmp_path / "dataset-killed-once"
         dep.client.run(_arm_dataset_death, str(marker))  # type: ignore[attr-defined]
-        _invoke([*dataset, "--out", str(tmp_path / "ds"), "--scheduler", dep.address])
+        _invoke([*dataset, "--out", str(tmp_path / "ds"), "--scheduler-file",
+                 str(dep.scheduler_file)])
         assert marker.read_text().startswith(F.TMP_PREFIX + F.frame_dirname(DOOMED_FRAME)), \
             "no worker was killed"
         dep.client.wait_for_workers(2, timeout=START_DEADLINE_S)  # type: ignore[attr-defined]

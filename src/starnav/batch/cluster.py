@@ -26,11 +26,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
 import os
 import re
 import threading
 from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
 from typing import Any
 
 from starnav.dataset.runner import InProcessRunner, TaskRunner
@@ -100,6 +102,37 @@ def check_address(address: str) -> str:
         raise ConfigError("--scheduler", address, "a Dask scheduler address such as "
                           "tcp://10.0.0.5:8786")
     return a
+
+
+def scheduler_file_address(path: str | os.PathLike[str]) -> str:
+    """The address in a scheduler file (``dask scheduler --scheduler-file PATH`` writes one:
+    JSON with an ``address`` field), checked as :func:`check_address` does."""
+    p = Path(path)
+    try:
+        info = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise ConfigError("--scheduler-file", str(p), "the file `dask scheduler "
+                          "--scheduler-file` writes (it does not exist: is the scheduler "
+                          "running, and is the file on a shared file system?)") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ConfigError("--scheduler-file", str(p), f"a readable JSON scheduler file "
+                          f"({type(err).__name__}: {err})") from None
+    address = info.get("address") if isinstance(info, dict) else None
+    if not isinstance(address, str):
+        raise ConfigError("--scheduler-file", str(p), "a scheduler file with an \"address\" "
+                          "field, as `dask scheduler --scheduler-file` writes")
+    return check_address(address)
+
+
+def resolve_scheduler(scheduler: str | None,
+                      scheduler_file: str | os.PathLike[str] | None) -> str | None:
+    """The scheduler address of ``--scheduler`` or ``--scheduler-file`` (at most one), or None."""
+    if scheduler and scheduler_file:
+        raise ConfigError("--scheduler-file", str(scheduler_file), "either --scheduler or "
+                          "--scheduler-file, not both")
+    if scheduler_file:
+        return scheduler_file_address(scheduler_file)
+    return scheduler
 
 
 def _probe(address: str, timeout_s: float) -> BaseException | None:
