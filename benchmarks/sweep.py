@@ -50,7 +50,15 @@ def _worker_peak() -> tuple[int, float]:
     return os.getpid(), peak_rss_mb()
 
 
-def one_sweep(workers: int, frames: int, runs: int, root: Path) -> dict[str, object]:
+def _set_drjit_threads(n: int) -> int:
+    import drjit as dr  # the experiment only: the library leaves Dr.Jit's pool alone
+
+    dr.set_thread_count(n)
+    return int(dr.thread_count())
+
+
+def one_sweep(workers: int, frames: int, runs: int, root: Path,
+              drjit_threads: int = 0) -> dict[str, object]:
     """Time the exposure study on a fresh local cluster of ``workers`` processes."""
     from distributed import get_task_stream
 
@@ -62,6 +70,8 @@ def one_sweep(workers: int, frames: int, runs: int, root: Path) -> dict[str, obj
     out = root / f"sweep_{workers}_{time.monotonic_ns()}"
     t0 = time.perf_counter()
     with open_runner(workers) as rn:
+        if drjit_threads:
+            rn.client.run(_set_drjit_threads, drjit_threads)
         t1 = time.perf_counter()
         with get_task_stream(client=rn.client) as ts:
             res = run_sweep(p.scenario(), p.grid, out, runs=runs, runner=rn, figures=False,
@@ -86,6 +96,8 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--drjit-threads", type=int, default=0, help="experiment: Dr.Jit's "
+                    "thread pool size in every worker (default: its own, the CPU count)")
     ap.add_argument("--cold", action="store_true", help="also run every case with workers "
                     "that are not warmed by the preload starnav.batch.warm")
     a = ap.parse_args()
@@ -103,7 +115,7 @@ def main() -> None:
             for kind in kinds:
                 cluster.WORKER_PRELOAD = preload if kind == "warm" else ""
                 for w in a.workers:
-                    r = one_sweep(w, a.frames, a.runs, root)
+                    r = one_sweep(w, a.frames, a.runs, root, a.drjit_threads)
                     times[kind, w].append(float(r["sweep_s"]))  # type: ignore[arg-type]
                     totals[kind, w].append(float(r["total_s"]))  # type: ignore[arg-type]
                     busy = ", ".join(f"{k} {v:.1f}" for k, v in
