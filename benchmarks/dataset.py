@@ -7,7 +7,11 @@ Measures, on the full AA-STR (1024 x 1024) along the LUMIO-like halo arc:
    on a local Dask cluster of 2 workers; set-up (trajectory, backend, manifest) reported apart.
 2. ``starnav.batch.run_sweep`` wall time of the paper's four exposures x ``--runs`` on 1 and 2
    local workers (cluster start-up included, as a user sees it) and the speed-up.
-3. The cost of durability (``--fsync``, or alone with ``--fsync-only``): ``starnav.atomic``
+3. ``--demo``: the main job (``make demo`` = ``starnav demo``: 25 frames, 1024 x 1024, 8 spp,
+   two exposures, navigation, report) in this process and with a local cluster of 2 workers
+   for its dataset: wall time, the dataset's frames/s, and the peak resident memory of this
+   process and of the largest worker (``ru_maxrss`` of the reaped children).
+4. The cost of durability (``--fsync``, or alone with ``--fsync-only``): ``starnav.atomic``
    fsyncs every file before its rename and its directory after it. Measured in the same run
    with and without the two fsyncs (patched out): ms per file for the sizes a dataset writes
    (JSON ~1 kB, a 16-bit DN PNG ~100 kB, a radiance EXR ~4 MB), and frames/s of a full-size
@@ -16,7 +20,7 @@ Measures, on the full AA-STR (1024 x 1024) along the LUMIO-like halo arc:
 Usage::
 
     DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM.so.19.1 python benchmarks/dataset.py \
-        [--frames 12] [--sweep-frames 12] [--runs 2] [--fsync | --fsync-only]
+        [--frames 12] [--sweep-frames 12] [--runs 2] [--fsync | --fsync-only] [--demo]
 
 Numbers depend on the machine's load; the DESIGN.md budget is >= 1 frame/s end to end.
 """
@@ -129,6 +133,27 @@ def fsync_section(frames: int, root: Path) -> None:
           f"{off:.2f} / {off2:.2f} frames/s without, {on:.2f} frames/s with fsync")
 
 
+def demo_section(root: Path) -> None:
+    """``make demo``'s job in this process and on 2 local workers, with peak memory."""
+    import resource
+
+    from starnav.batch import main_job
+
+    print(f"main job (make demo), load average {os.getloadavg()[0]:.2f}")
+    for w in (0, 2):
+        out = root / f"demo_{w}"
+        t0 = time.perf_counter()
+        res = main_job(out_dir=out, workers=w)
+        dt = time.perf_counter() - t0
+        me = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
+        label = "in-process" if w == 0 else f"{w} local workers"
+        print(f"  {label:18s}: {dt:6.1f} s, dataset {res['dataset_frames_per_s']:.2f} frames/s "
+              f"({res['frames']} frames); peak RSS this process {me:.0f} MB, largest worker "
+              f"{kids:.0f} MB; load {os.getloadavg()[0]:.2f}", flush=True)
+        shutil.rmtree(out, ignore_errors=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=12)
@@ -136,9 +161,13 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=2)
     ap.add_argument("--fsync", action="store_true", help="also measure the cost of fsync")
     ap.add_argument("--fsync-only", action="store_true", help="only measure the cost of fsync")
+    ap.add_argument("--demo", action="store_true", help="only measure the main job (make demo)")
     a = ap.parse_args()
     root = Path(tempfile.mkdtemp(prefix="starnav-bench-"))
     try:
+        if a.demo:
+            demo_section(root)
+            return
         if a.fsync or a.fsync_only:
             fsync_section(a.frames, root)
             if a.fsync_only:

@@ -2,10 +2,13 @@
 
 :func:`open_runner` is the one entry point: ``workers=0`` runs in this process (no Dask),
 ``workers=N`` starts a :class:`distributed.LocalCluster` of ``N`` single-threaded worker
-processes bound to 127.0.0.1 (nannies restart a worker that dies; the scheduler re-runs its
-tasks, up to ``distributed.scheduler.allowed-failures`` = 3 deaths per task), and
-``scheduler="tcp://host:port"`` connects to a running cluster (workers must have starnav
-installed and, for datasets, share the output file system).
+processes bound to 127.0.0.1, warmed by the preload :mod:`starnav.batch.warm` before they take
+work (nannies restart a worker that dies; the scheduler re-runs its tasks, up to
+``distributed.scheduler.allowed-failures`` = 3 deaths per task), and
+``scheduler="tcp://host:port"`` connects to a running cluster (the scheduler and the workers
+must have starnav installed, the scheduler because it unpickles the task graph; for datasets
+the workers share the output file system; ``dask worker --preload starnav.batch.warm`` warms
+them: docs/sweep.md, "A real cluster").
 
 Errors are immediate and clear: a malformed address, or a scheduler that does not answer
 within ``connect_timeout_s``, raises :class:`ClusterError` before any work starts.
@@ -23,11 +26,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
 import os
 import re
 import threading
 from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
 from typing import Any
 
 from starnav.dataset.runner import InProcessRunner, TaskRunner
@@ -39,6 +44,9 @@ log = logging.getLogger(__name__)
 CONNECT_TIMEOUT_S = 5.0
 #: Extra time the handshake may take after the connection [s].
 HANDSHAKE_GRACE_S = 2.0
+#: The preload that warms a worker process before it takes work (:mod:`starnav.batch.warm`;
+#: empty: none, as ``benchmarks/sweep.py --cold`` measures).
+WORKER_PRELOAD = "starnav.batch.warm"
 _ADDRESS_RE = re.compile(r"^(tcp|tls|ws|wss|inproc)://[^\s/:]+(:\d{1,5})?$")
 
 
@@ -59,9 +67,19 @@ class DaskRunner:
         return self.client.submit(fn, *args, key=key, pure=False)
 
     def as_completed(self, handles: Iterable[Any]) -> Iterator[tuple[Any, Any]]:
-        from distributed import as_completed
+        """Results as they finish; a task that killed every worker it ran on (Dask's
+        ``KilledWorker``) is a :class:`ClusterError` naming it."""
+        from distributed import KilledWorker, as_completed
 
-        yield from as_completed(list(handles), loop=self.client.loop, with_results=True)
+        try:
+            yield from as_completed(list(handles), loop=self.client.loop, with_results=True)
+        except KilledWorker as err:
+            raise ClusterError(
+                f"task {err.task!r} killed {err.allowed_failures + 1} workers (the last at "
+                f"{getattr(err.last_worker, 'address', err.last_worker)}); the scheduler "
+                "stopped re-running it (distributed.scheduler.allowed-failures = "
+                f"{err.allowed_failures}): see the workers' logs (out of memory? a crash in a "
+                "native library?)") from None
 
 
 @contextlib.contextmanager
@@ -84,6 +102,37 @@ def check_address(address: str) -> str:
         raise ConfigError("--scheduler", address, "a Dask scheduler address such as "
                           "tcp://10.0.0.5:8786")
     return a
+
+
+def scheduler_file_address(path: str | os.PathLike[str]) -> str:
+    """The address in a scheduler file (``dask scheduler --scheduler-file PATH`` writes one:
+    JSON with an ``address`` field), checked as :func:`check_address` does."""
+    p = Path(path)
+    try:
+        info = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise ConfigError("--scheduler-file", str(p), "the file `dask scheduler "
+                          "--scheduler-file` writes (it does not exist: is the scheduler "
+                          "running, and is the file on a shared file system?)") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ConfigError("--scheduler-file", str(p), f"a readable JSON scheduler file "
+                          f"({type(err).__name__}: {err})") from None
+    address = info.get("address") if isinstance(info, dict) else None
+    if not isinstance(address, str):
+        raise ConfigError("--scheduler-file", str(p), "a scheduler file with an \"address\" "
+                          "field, as `dask scheduler --scheduler-file` writes")
+    return check_address(address)
+
+
+def resolve_scheduler(scheduler: str | None,
+                      scheduler_file: str | os.PathLike[str] | None) -> str | None:
+    """The scheduler address of ``--scheduler`` or ``--scheduler-file`` (at most one), or None."""
+    if scheduler and scheduler_file:
+        raise ConfigError("--scheduler-file", str(scheduler_file), "either --scheduler or "
+                          "--scheduler-file, not both")
+    if scheduler_file:
+        return scheduler_file_address(scheduler_file)
+    return scheduler
 
 
 def _probe(address: str, timeout_s: float) -> BaseException | None:
@@ -188,7 +237,8 @@ def open_runner(workers: int | None = None, scheduler: str | None = None, *,
     try:
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                host="127.0.0.1", dashboard_address=None,
-                               silence_logs=logging.ERROR)
+                               silence_logs=logging.ERROR,
+                               preload=[WORKER_PRELOAD] if WORKER_PRELOAD else [])
     except Exception as err:  # noqa: BLE001 - any start-up failure is reported the same way
         quiet.close()
         raise ClusterError(f"could not start a local Dask cluster of {n} workers: {err} (worker "

@@ -120,6 +120,9 @@ def register(app: typer.Typer) -> None:
         scheduler: Annotated[str | None, typer.Option(
             "--scheduler", help="existing Dask scheduler tcp://HOST:PORT (shared file "
             "system)")] = None,
+        scheduler_file: Annotated[Path | None, typer.Option(
+            "--scheduler-file", help="read the scheduler's address from the file `dask "
+            "scheduler --scheduler-file` wrote")] = None,
         set_: Annotated[list[str] | None, typer.Option(
             "--set", help="override a scenario key: a.b=value")] = None,
     ) -> None:
@@ -129,7 +132,7 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
         from rich.table import Table
 
-        from starnav.batch.cluster import open_runner
+        from starnav.batch.cluster import open_runner, resolve_scheduler
         from starnav.config import load_scenario
         from starnav.dataset import DatasetOptions, generate
         from starnav.errors import StarnavError
@@ -137,6 +140,7 @@ def register(app: typer.Typer) -> None:
         console = Console()
         state = {"n": 0, "done": 0}
         try:
+            scheduler = resolve_scheduler(scheduler, scheduler_file)
             sc = load_scenario(scenario, tuple(set_ or ()))
             out = out if out is not None else sc.output.directory / "dataset"
             exps = None if exposures is None else parse_times(exposures, "--exposures")

@@ -35,6 +35,9 @@ def register(app: typer.Typer) -> None:
             "the CPU count)")] = None,
         scheduler: Annotated[str | None, typer.Option(
             "--scheduler", help="existing Dask scheduler, tcp://HOST:PORT")] = None,
+        scheduler_file: Annotated[Path | None, typer.Option(
+            "--scheduler-file", help="read the scheduler's address from the file `dask "
+            "scheduler --scheduler-file` wrote")] = None,
         windows: Annotated[str | None, typer.Option(
             "--windows", help="windows acquisition: second, same or none (default: second "
             "when navigation.refine.enabled, else none)")] = None,
@@ -48,6 +51,7 @@ def register(app: typer.Typer) -> None:
         """Run a what-if grid (product of --grid axes) x --runs Monte Carlo runs; write
         results.parquet/.csv, figures/ and report.md into OUT."""
         from starnav.batch import run_sweep
+        from starnav.batch.cluster import resolve_scheduler
         from starnav.batch.presets import get_preset
         from starnav.batch.sweep import summarize_points
         from starnav.cli._output import console, print_table
@@ -56,6 +60,7 @@ def register(app: typer.Typer) -> None:
         from starnav.errors import StarnavError
 
         try:
+            scheduler = resolve_scheduler(scheduler, scheduler_file)
             p = get_preset(preset) if preset else None
             if scenario is None and p is not None:
                 sc = scenario_from_dict(p.scenario(), tuple(set_ or ()))

@@ -1,0 +1,142 @@
+"""Benchmark: the exposure study on 1 and 2 Dask workers in the same run, the speed-up, and the
+peak memory of every worker process.
+
+For each worker count the script starts a local cluster (:func:`starnav.batch.cluster.
+open_runner`), runs the exposure study (``--preset exposure-study``: 4 exposures x ``--runs``
+runs x ``--frames`` frames, 1024 x 1024, the real Moon) on it and prints
+
+* the wall time of the sweep alone (cluster up, workers cold: every worker builds its renderer
+  and compiles its kernels inside the sweep, as a user's first sweep does), and with the
+  cluster start-up;
+* the sum over tasks of their run time by kind (render / expose / filter, from the workers'
+  task stream), so that the speed-up can be read against the work there is;
+* each worker's peak resident memory (``VmHWM`` of ``/proc/<pid>/status``, read by the worker
+  itself) and this process's.
+
+The order 1, 2, 1, 2 ... (``--repeat``) interleaves the configurations so that a change of the
+machine's load hits both. The load average is printed before and after: the machine is
+shared, compare numbers of one run only.
+
+Usage::
+
+    DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM.so.19.1 python benchmarks/sweep.py \
+        [--frames 12] [--runs 2] [--repeat 1] [--workers 1 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19.1")
+
+
+def peak_rss_mb(pid: int | None = None) -> float:
+    """Peak resident set size of process ``pid`` (default this one) [MB], from ``VmHWM``."""
+    path = f"/proc/{pid or 'self'}/status"
+    with open(path) as fh:
+        for line in fh:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def _worker_peak() -> tuple[int, float]:
+    return os.getpid(), peak_rss_mb()
+
+
+def _set_drjit_threads(n: int) -> int:
+    import drjit as dr  # the experiment only: the library leaves Dr.Jit's pool alone
+
+    dr.set_thread_count(n)
+    return int(dr.thread_count())
+
+
+def one_sweep(workers: int, frames: int, runs: int, root: Path,
+              drjit_threads: int = 0) -> dict[str, object]:
+    """Time the exposure study on a fresh local cluster of ``workers`` processes."""
+    from distributed import get_task_stream
+
+    from starnav.batch import run_sweep
+    from starnav.batch.cluster import open_runner
+    from starnav.batch.presets import get_preset
+
+    p = get_preset("exposure-study")
+    out = root / f"sweep_{workers}_{time.monotonic_ns()}"
+    t0 = time.perf_counter()
+    with open_runner(workers) as rn:
+        if drjit_threads:
+            rn.client.run(_set_drjit_threads, drjit_threads)
+        t1 = time.perf_counter()
+        with get_task_stream(client=rn.client) as ts:
+            res = run_sweep(p.scenario(), p.grid, out, runs=runs, runner=rn, figures=False,
+                            overrides=[f"trajectory.frames={frames}"])
+        t2 = time.perf_counter()
+        peaks = rn.client.run(_worker_peak)
+    busy: dict[str, float] = defaultdict(float)
+    for t in ts.data:
+        kind = str(t["key"]).split("-", 1)[0]
+        for s in t["startstops"]:
+            if s["action"] == "compute":
+                busy[kind] += s["stop"] - s["start"]
+    shutil.rmtree(out, ignore_errors=True)
+    return {"sweep_s": t2 - t1, "total_s": t2 - t0, "busy": dict(busy),
+            "tasks": res.render_tasks + res.expose_tasks + res.filter_tasks,
+            "worker_peak_mb": sorted(v[1] for v in peaks.values())}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=12)
+    ap.add_argument("--runs", type=int, default=2)
+    ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--drjit-threads", type=int, default=0, help="experiment: Dr.Jit's "
+                    "thread pool size in every worker (default: its own, the CPU count)")
+    ap.add_argument("--cold", action="store_true", help="also run every case with workers "
+                    "that are not warmed by the preload starnav.batch.warm")
+    a = ap.parse_args()
+    from starnav.batch import cluster
+
+    preload = cluster.WORKER_PRELOAD
+    root = Path(tempfile.mkdtemp(prefix="starnav-bench-sweep-"))
+    print(f"load average before: {os.getloadavg()[0]:.2f} (1 min), cpus {os.cpu_count()}")
+    print(f"sweep, exposure study: 4 exposures x {a.runs} runs x {a.frames} frames")
+    times: dict[tuple[str, int], list[float]] = defaultdict(list)
+    totals: dict[tuple[str, int], list[float]] = defaultdict(list)
+    kinds = ("warm", "cold") if a.cold else ("warm",)
+    try:
+        for _ in range(a.repeat):
+            for kind in kinds:
+                cluster.WORKER_PRELOAD = preload if kind == "warm" else ""
+                for w in a.workers:
+                    r = one_sweep(w, a.frames, a.runs, root, a.drjit_threads)
+                    times[kind, w].append(float(r["sweep_s"]))  # type: ignore[arg-type]
+                    totals[kind, w].append(float(r["total_s"]))  # type: ignore[arg-type]
+                    busy = ", ".join(f"{k} {v:.1f}" for k, v in
+                                     sorted(r["busy"].items()))  # type: ignore[attr-defined]
+                    peaks = ", ".join(f"{m:.0f}" for m in
+                                      r["worker_peak_mb"])  # type: ignore[attr-defined]
+                    print(f"  {kind} {w} worker(s): sweep {r['sweep_s']:6.1f} s (with cluster "
+                          f"start {r['total_s']:.1f} s), {r['tasks']} tasks; task time [s]: "
+                          f"{busy}; worker peak RSS [MB]: {peaks}; load "
+                          f"{os.getloadavg()[0]:.1f}", flush=True)
+        for kind in kinds:
+            if (kind, 1) in times and (kind, 2) in times:
+                s1, s2 = min(times[kind, 1]), min(times[kind, 2])
+                t1, t2 = min(totals[kind, 1]), min(totals[kind, 2])
+                print(f"  {kind}: speed-up 1 -> 2 workers (best of {a.repeat}): sweep "
+                      f"{s1 / s2:.2f}x, with cluster start {t1 / t2:.2f}x")
+        print(f"  this process peak RSS: {peak_rss_mb():.0f} MB")
+        print(f"load average after: {os.getloadavg()[0]:.2f} (1 min)")
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
