@@ -203,7 +203,8 @@ def test_a_moon_scenario_is_refused_before_rendering():
 def test_cli_navigate_a_flyby_scenario(tmp_path):
     """``starnav init --preset flyby`` then ``starnav navigate SCENARIO.yaml --runs 2`` (cut
     to 5 frames): metrics.json with FlybyMetrics' flat keys and the Monte Carlo summary, the
-    four figures, report.md; a Moon scenario is one error line, exit 2."""
+    four figures and the three frame overlays, report.md linking them; a Moon scenario is one
+    error line, exit 2."""
     from typer.testing import CliRunner
 
     from starnav.cli.main import app
@@ -220,8 +221,12 @@ def test_cli_navigate_a_flyby_scenario(tmp_path):
     m = json.loads((out / "metrics.json").read_text())
     assert m["frames"] == 5 and m["monte_carlo"]["runs"] == 2
     assert m["ca_range_m"] == pytest.approx(5e3, rel=1e-9)
-    for name in ("position.png", "velocity.png", "nees.png", "tracks.png", "report.md"):
+    for name in ("position.png", "velocity.png", "nees.png", "tracks.png", "report.md",
+                 "overlay_first.png", "overlay_ca.png", "overlay_last.png"):
         assert (out / name).stat().st_size > 0
+    report = (out / "report.md").read_text()
+    for stem in ("overlay_first", "overlay_ca", "overlay_last", "tracks"):
+        assert f"![{stem}]({stem}.png)" in report
     moon = tmp_path / "moon.yaml"
     cli.invoke(app, ["init", str(moon)], env=env)
     bad = cli.invoke(app, ["navigate", str(moon), "--out", str(tmp_path / "o2")], env=env)

@@ -52,24 +52,29 @@ from numpy.typing import NDArray
 from starnav.atomic import atomic_write_text
 from starnav.bodies.base import TargetBody
 from starnav.config import Scenario
-from starnav.errors import ConfigError
+from starnav.errors import ConfigError, GeometryError
 from starnav.geometry import FrameGeometry
 from starnav.navigation.trn.filter import FlybyRun, TrnFilterOptions, run_filter
+from starnav.navigation.trn.frontend import FlybyFrontEnd
 from starnav.navigation.trn.measurements import FlybyMeasurement
 from starnav.navigation.trn.metrics import (
     FlybyMetrics,
+    closest_approach_index,
     plot_flyby_errors,
     plot_flyby_nees,
+    plot_frame_overlay,
     plot_tracks,
+    predicted_silhouette,
     write_report,
 )
 from starnav.navigation.trn.montecarlo import summarise_runs
 from starnav.navigation.trn.options import FrontEndOptions
+from starnav.navigation.trn.windows import WindowReader
 from starnav.radiance import RadianceImage
 from starnav.seeding import STAGE_NAVIGATION, generator
 from starnav.simulate.build import body_from_scenario
 from starnav.simulate.frames import Simulator
-from starnav.simulate.trn import FlybyStep, track_flyby
+from starnav.simulate.trn import FlybyStep, flyby_exposures, track_flyby
 
 log = logging.getLogger(__name__)
 
@@ -277,18 +282,73 @@ def flyby_closed_loop(sim: Simulator, runs: int = 1, *, renders: Renders | None 
     return FlybyClosedLoop(epochs, float(flyby.epoch_ca), X, out, summary, timings)
 
 
+def segments_image(sim: Simulator, render: tuple[FrameGeometry, RadianceImage], run: int = 0,
+                   front_end: FrontEndOptions | None = None) -> NDArray[np.float32]:
+    """The segments DN of one frame of run ``run`` (0 where no run was read): the first
+    acquisition again, with the same noise stream as the closed loop's, so the very image its
+    front end read (the runs keep no image)."""
+    geom, img = render
+    fe = FlybyFrontEnd(sim.camera, front_end if front_end is not None
+                       else sim.scenario.navigation.trn.front_end.options())
+    e0, _, _, _ = flyby_exposures(sim, img, geom, fe, run=run)
+    return WindowReader.from_exposures(e0).segments_image()
+
+
+#: Frames of the overlay figures: ``(file label, title)``; the frame is the first, the one
+#: nearest closest approach, the last.
+OVERLAY_FRAMES = (("first", "first frame"), ("ca", "closest approach"), ("last", "last frame"))
+
+
+def plot_overlays(sim: Simulator, renders: Renders, loop: FlybyClosedLoop, out: str | Path,
+                  run: int = 0) -> list[Path]:
+    """The overlay figure (:func:`~starnav.navigation.trn.metrics.plot_frame_overlay`) of
+    run ``run`` (its position in ``loop.runs``) at the first frame, closest approach and the
+    last frame (one figure per distinct frame: ``overlay_first.png``, ``overlay_ca.png``,
+    ``overlay_last.png``); the predicted centroid is the lit silhouette seen from the run's
+    estimate after the frame's update."""
+    res = loop.runs[run]
+    K = len(res.measurements)
+    picks = dict(zip((k for k, _ in OVERLAY_FRAMES),
+                     (0, closest_approach_index(res.filter.epochs, loop.epoch_ca), K - 1),
+                     strict=True))
+    body = body_from_scenario(sim.scenario)
+    t = res.filter.epochs - loop.epoch_ca
+    paths, done = [], set()
+    for label, title in OVERLAY_FRAMES:
+        k = picks[label]
+        if k in done:
+            continue
+        done.add(k)
+        m = res.measurements[k]
+        idx = int(res.steps[k].geometry.index)
+        try:
+            pred = predicted_silhouette(sim.camera, body, res.filter.states[k, :3], m).centroid_uv
+        except GeometryError:
+            pred = None
+        img = segments_image(sim, renders[idx], res.run)
+        paths.append(plot_frame_overlay(
+            img, m, Path(out) / f"overlay_{label}.png", pred,
+            f"{title}: frame {idx}, t - t_CA = {t[k]:+.1f} s, run {res.run}"))
+    return paths
+
+
 def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: bool = True,
                    probability: float = 0.99,
                    progress: Callable[[str, int, int], None] | None = None) -> dict[str, Any]:
     """``starnav navigate SCENARIO.yaml`` for a fly-by: the closed loop over ``runs`` runs,
     then ``metrics.json`` (run 0's :class:`FlybyMetrics` flat keys, the per-frame timings and,
     for >= 2 runs, the Monte Carlo summary), the figures (position and velocity errors with
-    3-sigma against time from CA, runs in grey; NEES with its band; tracks) and
-    ``report.md``, every file written atomically. Returns the metrics dict."""
+    3-sigma against time from CA, runs in grey; NEES with its band; tracks; run 0's frame
+    overlays, :func:`plot_overlays`) and ``report.md``, every file written atomically.
+    Returns the metrics dict."""
     check_flyby_scenario(sim.scenario)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    loop = flyby_closed_loop(sim, runs, probability=probability, progress=progress)
+    renders, t_render = render_flyby(
+        sim, None if progress is None else (lambda d, n: progress("render", d, n)))
+    loop = flyby_closed_loop(sim, runs, renders=renders, probability=probability,
+                             progress=progress)
+    loop.timings_s["render"] = t_render
     r0 = loop.runs[0]
     t = loop.time_from_ca
     metrics: dict[str, Any] = dict(r0.metrics.as_dict())
@@ -310,5 +370,6 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
                                            out / "nees.png", runs=runs,
                                            probability=probability)))
         figures.append(str(plot_tracks(t, r0.measurements, r0.filter, out / "tracks.png")))
+        figures += [str(p) for p in plot_overlays(sim, renders, loop, out)]
     write_report(out / "report.md", r0.metrics, mc, figures)
     return metrics
