@@ -37,7 +37,10 @@ Example
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import io
+import itertools
 import json
 import logging
 import time
@@ -49,9 +52,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from starnav.atomic import atomic_write_text
+from starnav.atomic import atomic_path, atomic_write_text
 from starnav.bodies.base import TargetBody
-from starnav.config import Scenario
+from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
+from starnav.config_base import set_dotted
 from starnav.errors import ConfigError, GeometryError
 from starnav.geometry import FrameGeometry
 from starnav.navigation.trn.filter import FlybyRun, TrnFilterOptions, run_filter
@@ -373,3 +377,167 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
         figures += [str(p) for p in plot_overlays(sim, renders, loop, out)]
     write_report(out / "report.md", r0.metrics, mc, figures)
     return metrics
+
+
+# ----------------------------------------------------------------------------- rendered sweep
+#: Axes of the rendered fly-by sweep: keys of ``trajectory.flyby``.
+SWEEP_AXES = ("v_inf_km_s", "closest_approach_km", "phase_at_ca_deg")
+
+
+def parse_sweep_axes(items: Sequence[str]) -> dict[str, list[float]]:
+    """``["v_inf_km_s=0.4,0.6", "phase_at_ca_deg=30,60"]`` -> ``{axis: values}`` (axes of
+    :data:`SWEEP_AXES`; the CLI's ``--sweep``). A bad axis or value is a ConfigError naming
+    it."""
+    out: dict[str, list[float]] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip().removeprefix("trajectory.flyby.")
+        if not sep or key not in SWEEP_AXES:
+            raise ConfigError("--sweep", item, f"AXIS=V1,V2,... with AXIS one of "
+                              f"{', '.join(SWEEP_AXES)}")
+        try:
+            vals = [float(v) for v in text.split(",") if v.strip()]
+        except ValueError:
+            raise ConfigError(f"--sweep {key}", text, "comma-separated numbers") from None
+        if not vals:
+            raise ConfigError(f"--sweep {key}", text, "at least one value")
+        out[key] = vals
+    return out
+
+
+def flyby_rendered_sweep(base: Scenario, axes: dict[str, Sequence[float]], runs: int = 2, *,
+                         probability: float = 0.99,
+                         progress: Callable[[int, int], None] | None = None
+                         ) -> list[dict[str, Any]]:
+    """The closed loop (:func:`flyby_closed_loop`, render once per point) at every point of
+    the product of ``axes`` (``trajectory.flyby`` keys of :data:`SWEEP_AXES`; an axis not
+    given keeps the base scenario's value), ``runs`` Monte Carlo runs per point.
+
+    Every point's scenario and scene (geometry, pointing) is built before the first render.
+    Returns one row per point (the last axis varying fastest): the grid values,
+    ``ca_range_m``, ``ca_error_pct_range_median`` / ``_max`` over the runs, ``nees_mean``
+    with ``nees_band_lo`` / ``_hi`` (two-sided ``probability`` band of a ``runs``-run mean of
+    chi2(6)) and ``verdict`` (runs >= 2; else run 0's mean NEES and no band), and the
+    medians over runs of ``mean_tracks_per_frame``, ``mean_track_length_frames``,
+    ``feature_error_rms_px``.
+    """
+    check_flyby_scenario(base)
+    if runs < 1:
+        raise ConfigError("runs", runs, ">= 1 Monte Carlo run")
+    for k in axes:
+        if k not in SWEEP_AXES:
+            raise ConfigError("sweep axis", k, f"one of {', '.join(SWEEP_AXES)}")
+    flyby = base.trajectory.flyby if base.trajectory is not None else None
+    assert flyby is not None  # check_flyby_scenario
+    grid = {k: [float(v) for v in axes.get(k, [getattr(flyby, k)])] for k in SWEEP_AXES}
+    data = scenario_to_dict(base)
+    points = []
+    for combo in itertools.product(*grid.values()):
+        d = json.loads(json.dumps(data))
+        values = dict(zip(SWEEP_AXES, combo, strict=True))
+        for k, v in values.items():
+            set_dotted(d, f"trajectory.flyby.{k}", v)
+        try:
+            points.append((values, Simulator(scenario_from_dict(d))))
+        except ConfigError as err:
+            raise ConfigError(f"sweep point {values}: {err.field}", err.value,
+                              err.expected) from None
+    rows = []
+    for i, (values, sim) in enumerate(points):
+        loop = flyby_closed_loop(sim, runs, probability=probability)
+        ms = [r.metrics for r in loop.runs]
+        row: dict[str, Any] = dict(values)
+        row["runs"] = runs
+        row["ca_range_m"] = ms[0].ca_range_m
+        pct = [m.ca_position_error_pct_range for m in ms]
+        row["ca_error_pct_range_median"] = float(np.median(pct))
+        row["ca_error_pct_range_max"] = float(np.max(pct))
+        if runs >= 2:
+            row["nees_mean"] = float(loop.summary["nees_mean"])
+            row["nees_band_lo"], row["nees_band_hi"] = (float(x) for x in
+                                                        loop.summary["nees_band"])
+            row["verdict"] = loop.summary["verdict"]
+        else:
+            row["nees_mean"] = ms[0].nees_mean
+            row["nees_band_lo"] = row["nees_band_hi"] = float("nan")
+            row["verdict"] = "-"
+        for key in ("mean_tracks_per_frame", "mean_track_length_frames",
+                    "feature_error_rms_px"):
+            row[f"median_{key}"] = float(np.nanmedian([getattr(m, key) for m in ms]))
+        rows.append(row)
+        log.info("fly-by sweep point %d/%d %s: CA error median %.3g %% of range, NEES %.3g",
+                 i + 1, len(points), values, row["ca_error_pct_range_median"],
+                 row["nees_mean"])
+        if progress is not None:
+            progress(i + 1, len(points))
+    return rows
+
+
+#: Columns of the sweep's markdown table: (row key, heading, format).
+SWEEP_COLUMNS = (
+    ("v_inf_km_s", "v_inf [km/s]", "{:g}"), ("closest_approach_km", "CA [km]", "{:g}"),
+    ("phase_at_ca_deg", "phase [deg]", "{:g}"),
+    ("ca_error_pct_range_median", "CA error median [% range]", "{:.3f}"),
+    ("ca_error_pct_range_max", "CA error max [% range]", "{:.3f}"),
+    ("nees_mean", "mean NEES", "{:.2f}"), ("nees_band_lo", "band lo", "{:.2f}"),
+    ("nees_band_hi", "band hi", "{:.2f}"), ("verdict", "verdict", "{}"),
+    ("median_mean_tracks_per_frame", "tracks/frame", "{:.1f}"),
+    ("median_mean_track_length_frames", "track length [frames]", "{:.1f}"),
+    ("median_feature_error_rms_px", "feature err rms [px]", "{:.2f}"))
+
+
+def write_flyby_sweep(rows: Sequence[dict[str, Any]], out: str | Path, *, plots: bool = True
+                      ) -> dict[str, Path]:
+    """The sweep's ``sweep.csv`` (every key of the rows), ``sweep.md`` (the table of
+    :data:`SWEEP_COLUMNS`, linking the figure) and ``sweep.png`` (per point: the median and
+    max CA error over the range; the mean NEES with its band), atomically."""
+    if not rows:
+        raise ConfigError("rows", 0, "at least one sweep point")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(rows[0]), lineterminator="\n")
+    w.writeheader()
+    w.writerows(rows)
+    paths = {"csv": atomic_write_text(out / "sweep.csv", buf.getvalue())}
+    lines = ["# Fly-by sweep on rendered frames", "",
+             f"{len(rows)} point(s) x {rows[0]['runs']} run(s).", "",
+             "| " + " | ".join(h for _, h, _ in SWEEP_COLUMNS) + " |",
+             "|" + "---|" * len(SWEEP_COLUMNS)]
+    for r in rows:
+        lines.append("| " + " | ".join(
+            "-" if isinstance(r[k], float) and not np.isfinite(r[k]) else f.format(r[k])
+            for k, _, f in SWEEP_COLUMNS) + " |")
+    if plots:
+        paths["figure"] = _plot_sweep(rows, out / "sweep.png")
+        lines += ["", "![sweep](sweep.png)"]
+    paths["table"] = atomic_write_text(out / "sweep.md", "\n".join(lines) + "\n")
+    return paths
+
+
+def _plot_sweep(rows: Sequence[dict[str, Any]], path: Path) -> Path:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7.0, 5.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots(2, 1, sharex=True)
+    x = np.arange(len(rows))
+    ax[0].plot(x, [r["ca_error_pct_range_median"] for r in rows], "o", label="median")
+    ax[0].plot(x, [r["ca_error_pct_range_max"] for r in rows], "v", color="C3", label="max")
+    ax[0].set_ylabel("position error at CA [% range]")
+    ax[0].legend(loc="upper right")
+    ax[1].semilogy(x, [r["nees_mean"] for r in rows], "o", color="k", label="mean NEES")
+    lo = np.array([r["nees_band_lo"] for r in rows], float)
+    hi = np.array([r["nees_band_hi"] for r in rows], float)
+    if np.all(np.isfinite(lo)):
+        ax[1].vlines(x, lo, hi, color="C3", lw=3, alpha=0.4, label="band")
+    ax[1].axhline(6.0, color="C2", lw=0.8)
+    ax[1].set_ylabel("mean NEES (6 states)")
+    ax[1].legend(loc="upper right")
+    ax[1].set_xticks(x, [f"{r['v_inf_km_s']:g} km/s\n{r['closest_approach_km']:g} km\n"
+                         f"{r['phase_at_ca_deg']:g} deg" for r in rows], fontsize=7)
+    ax[1].set_xlabel("v_inf, CA distance, phase at CA")
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=120)
+    return path
