@@ -25,6 +25,12 @@ A fly-by scenario (``target.kind: shape_model``, ``trajectory.source: flyby``) e
 3. **Consistency** over the runs (:func:`~starnav.navigation.trn.montecarlo.summarise_runs`):
    mean NEES against its two-sided chi-square band, the position error at CA over range.
 
+The report (:func:`navigate_flyby`) adds run 0's frame overlays (:func:`plot_overlays`: the
+segments the front end read, re-exposed by :func:`segments_image`, with windows, tracks, truth
+and both centroids); :func:`flyby_rendered_sweep` runs the loop over a grid of ``v_inf``, CA
+distance and phase (``starnav navigate SCENARIO.yaml --sweep``), :func:`write_flyby_sweep`
+writes its table and figure.
+
 Per-frame cost of each stage (render, detector, front end, filter) is kept in
 :attr:`FlybyClosedLoop.timings_s` (``benchmarks/flyby.py``).
 
