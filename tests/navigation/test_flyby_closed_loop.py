@@ -166,10 +166,28 @@ def test_defaults_are_the_packaged_calibration():
     assert fo.centroid_model_sigma_px == pytest.approx(cal["centroid_model_sigma_px"], rel=0.05)
     assert fo.radius_model_fraction == pytest.approx(cal["radius_model_fraction"], rel=0.05)
     assert fe.max_track_turn_deg == pytest.approx(cal["max_track_turn_deg"])
+    assert fo.silhouette_bias_time_s == pytest.approx(cal["silhouette_bias_time_s"], rel=0.05)
+    assert fo.centroid_sun_share == pytest.approx(cal["centroid_sun_share"], abs=1e-3)
     fd = TrnFilterOptions()
     assert fd.silhouette_bias_time == pytest.approx(cal["silhouette_bias_time_s"], rel=0.05)
     assert fd.centroid_sun_share == pytest.approx(cal["centroid_sun_share"], abs=1e-3)
+    si = fo.options()
+    assert (si.silhouette_bias_time, si.centroid_sun_share) == (
+        fd.silhouette_bias_time, fd.centroid_sun_share)
     assert cal["calibration_flyby"]["seed"] != scoring_scenario().seed
+
+
+def test_silhouette_bias_keys_reach_the_filter_options():
+    """``navigation.trn.filter.silhouette_bias_time_s`` / ``centroid_sun_share`` of a scenario
+    are the estimator's ``silhouette_bias_time`` [s] / ``centroid_sun_share``; out of range is
+    a ConfigError naming the key."""
+    sc = scenario_from_dict({"navigation": {"trn": {"filter": {
+        "silhouette_bias_time_s": 0.0, "centroid_sun_share": 0.5}}}})
+    opt = sc.navigation.trn.filter.options()
+    assert opt.silhouette_bias_time == 0.0 and opt.centroid_sun_share == 0.5
+    for key, bad in (("silhouette_bias_time_s", -1.0), ("centroid_sun_share", 1.5)):
+        with pytest.raises(ConfigError, match=key):
+            scenario_from_dict({"navigation": {"trn": {"filter": {key: bad}}}})
 
 
 def test_a_moon_scenario_is_refused_before_rendering():
@@ -185,7 +203,8 @@ def test_a_moon_scenario_is_refused_before_rendering():
 def test_cli_navigate_a_flyby_scenario(tmp_path):
     """``starnav init --preset flyby`` then ``starnav navigate SCENARIO.yaml --runs 2`` (cut
     to 5 frames): metrics.json with FlybyMetrics' flat keys and the Monte Carlo summary, the
-    four figures, report.md; a Moon scenario is one error line, exit 2."""
+    four figures and the three frame overlays, report.md linking them; a Moon scenario is one
+    error line, exit 2."""
     from typer.testing import CliRunner
 
     from starnav.cli.main import app
@@ -202,8 +221,12 @@ def test_cli_navigate_a_flyby_scenario(tmp_path):
     m = json.loads((out / "metrics.json").read_text())
     assert m["frames"] == 5 and m["monte_carlo"]["runs"] == 2
     assert m["ca_range_m"] == pytest.approx(5e3, rel=1e-9)
-    for name in ("position.png", "velocity.png", "nees.png", "tracks.png", "report.md"):
+    for name in ("position.png", "velocity.png", "nees.png", "tracks.png", "report.md",
+                 "overlay_first.png", "overlay_ca.png", "overlay_last.png"):
         assert (out / name).stat().st_size > 0
+    report = (out / "report.md").read_text()
+    for stem in ("overlay_first", "overlay_ca", "overlay_last", "tracks"):
+        assert f"![{stem}]({stem}.png)" in report
     moon = tmp_path / "moon.yaml"
     cli.invoke(app, ["init", str(moon)], env=env)
     bad = cli.invoke(app, ["navigate", str(moon), "--out", str(tmp_path / "o2")], env=env)

@@ -56,18 +56,36 @@ def check_navigate_overrides(items: list[str] | tuple[str, ...]) -> None:
 
 
 def _navigate_flyby(path: Path, out: Path, runs: int | None, set_: list[str] | None,
-                    seed: int | None, no_plots: bool) -> None:
+                    seed: int | None, no_plots: bool, sweep: list[str] | None = None) -> None:
     """``navigate SCENARIO.yaml`` for a fly-by: the frames of a fly-by depend on each other
     (the front end places this frame's windows from the last frame's tracks), so the closed
-    loop renders the scenario once and runs the front end and the estimator per run."""
+    loop renders the scenario once and runs the front end and the estimator per run.
+    ``--sweep``: the closed loop over a grid of v_inf, CA distance and phase instead."""
     from starnav.config import load_scenario
     from starnav.simulate import Simulator
-    from starnav.simulate.flyby import check_flyby_scenario, navigate_flyby
+    from starnav.simulate.flyby import (
+        check_flyby_scenario,
+        flyby_rendered_sweep,
+        navigate_flyby,
+        parse_sweep_axes,
+        write_flyby_sweep,
+    )
 
     overrides = tuple(set_ or ()) + ((f"seed={seed}",) if seed is not None else ())
+    axes = parse_sweep_axes(sweep or ())
     sc = load_scenario(path, overrides)
     check_flyby_scenario(sc)
     n = sc.navigation.runs if runs is None else runs
+    if sweep:
+        rows = flyby_rendered_sweep(sc, axes, n)
+        paths = write_flyby_sweep(rows, out, plots=not no_plots)
+        for r in rows:
+            typer.echo(f"v_inf {r['v_inf_km_s']:g} km/s, CA {r['closest_approach_km']:g} km, "
+                       f"phase {r['phase_at_ca_deg']:g} deg: CA error median "
+                       f"{r['ca_error_pct_range_median']:.3g} % of range, mean NEES "
+                       f"{r['nees_mean']:.2f} ({r['verdict']})")
+        typer.echo(f"table: {paths['table']}")
+        return
     m = navigate_flyby(Simulator(sc), out, n, plots=not no_plots)
     typer.echo(f"position error at CA {m['ca_position_error_m']:.1f} m "
                f"({m['ca_position_error_pct_range']:.3g} % of {m['ca_range_m'] / 1e3:.2f} km), "
@@ -99,6 +117,10 @@ def register(app: typer.Typer) -> None:
         seed: Annotated[int | None, typer.Option(
             "--seed", help="seed of the runs (default: the scenario's)")] = None,
         no_plots: Annotated[bool, typer.Option("--no-plots", help="skip the PNG figures")] = False,
+        sweep: Annotated[list[str] | None, typer.Option(
+            "--sweep", help="fly-by scenario only: AXIS=V1,V2 (repeat), AXIS v_inf_km_s, "
+            "closest_approach_km or phase_at_ca_deg; the closed loop at every point of the "
+            "grid, --runs runs each; sweep.csv, sweep.md, sweep.png")] = None,
     ) -> None:
         """Run limb -> RANSAC -> Christian-Robinson -> EKF over DATASET; write CSV, JSON, PNG.
         DATASET may also be a fly-by scenario YAML: the fly-by closed loop (render once, then
@@ -108,9 +130,14 @@ def register(app: typer.Typer) -> None:
         from starnav.navigation.report import budget_warning, navigate_dataset
 
         if dataset.is_file() and dataset.suffix.lower() in (".yaml", ".yml"):
-            _navigate_flyby(dataset, out, runs, set_, seed, no_plots)
+            _navigate_flyby(dataset, out, runs, set_, seed, no_plots, sweep)
             return
         try:
+            if sweep:
+                from starnav.errors import ConfigError
+
+                raise ConfigError("--sweep", " ".join(sweep), "a fly-by scenario YAML as "
+                                  "the argument (a dataset's frames are already made)")
             check_navigate_overrides(set_ or ())
             ds = _open_dataset(dataset, None if exposure is None
                                else parse_time(exposure, "--exposure"))

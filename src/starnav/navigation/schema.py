@@ -251,6 +251,12 @@ class TrnFilterConfig(StrictModel):
     radius_model_fraction: NonNegativeFloat = Field(
         0.016, description="apparent-radius model error as a fraction of the radius [-] "
         "(calibrated)")
+    silhouette_bias_time_s: NonNegativeFloat = Field(
+        85.0, description="correlation time of the silhouette's model errors, first-order "
+        "Gauss-Markov bias states [s] (calibrated; 0: white, added to each frame's noise)")
+    centroid_sun_share: Annotated[float, Field(ge=0, le=1)] = Field(
+        0.994, description="share of the centroid model error's variance along the Sun's "
+        "image direction [-] (calibrated; 0.5: isotropic)")
     use_centroid: bool = Field(True, description="use the lit silhouette's centroid")
     use_radius: bool = Field(True, description="use the lit silhouette's apparent radius")
     initial_position_sigma_km: PositiveFloat = Field(
@@ -267,7 +273,8 @@ class TrnFilterConfig(StrictModel):
             landmark_height_sigma=si.landmark_height_sigma,
             centroid_model_sigma_px=si.centroid_model_sigma_px,
             radius_model_fraction=si.radius_model_fraction, use_centroid=si.use_centroid,
-            use_radius=si.use_radius)
+            use_radius=si.use_radius, silhouette_bias_time=si.silhouette_bias_time,
+            centroid_sun_share=si.centroid_sun_share)
 
     def initial_covariance(self) -> NDArray[np.float64]:
         """The diagonal initial covariance (6, 6) [m^2, m^2/s^2]."""

@@ -25,6 +25,12 @@ A fly-by scenario (``target.kind: shape_model``, ``trajectory.source: flyby``) e
 3. **Consistency** over the runs (:func:`~starnav.navigation.trn.montecarlo.summarise_runs`):
    mean NEES against its two-sided chi-square band, the position error at CA over range.
 
+The report (:func:`navigate_flyby`) adds run 0's frame overlays (:func:`plot_overlays`: the
+segments the front end read, re-exposed by :func:`segments_image`, with windows, tracks, truth
+and both centroids); :func:`flyby_rendered_sweep` runs the loop over a grid of ``v_inf``, CA
+distance and phase (``starnav navigate SCENARIO.yaml --sweep``), :func:`write_flyby_sweep`
+writes its table and figure.
+
 Per-frame cost of each stage (render, detector, front end, filter) is kept in
 :attr:`FlybyClosedLoop.timings_s` (``benchmarks/flyby.py``).
 
@@ -37,7 +43,10 @@ Example
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import io
+import itertools
 import json
 import logging
 import time
@@ -49,27 +58,33 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from starnav.atomic import atomic_write_text
+from starnav.atomic import atomic_path, atomic_write_text
 from starnav.bodies.base import TargetBody
-from starnav.config import Scenario
-from starnav.errors import ConfigError
+from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
+from starnav.config_base import set_dotted
+from starnav.errors import ConfigError, GeometryError
 from starnav.geometry import FrameGeometry
 from starnav.navigation.trn.filter import FlybyRun, TrnFilterOptions, run_filter
+from starnav.navigation.trn.frontend import FlybyFrontEnd
 from starnav.navigation.trn.measurements import FlybyMeasurement
 from starnav.navigation.trn.metrics import (
     FlybyMetrics,
+    closest_approach_index,
     plot_flyby_errors,
     plot_flyby_nees,
+    plot_frame_overlay,
     plot_tracks,
+    predicted_silhouette,
     write_report,
 )
 from starnav.navigation.trn.montecarlo import summarise_runs
 from starnav.navigation.trn.options import FrontEndOptions
+from starnav.navigation.trn.windows import WindowReader
 from starnav.radiance import RadianceImage
 from starnav.seeding import STAGE_NAVIGATION, generator
 from starnav.simulate.build import body_from_scenario
 from starnav.simulate.frames import Simulator
-from starnav.simulate.trn import FlybyStep, track_flyby
+from starnav.simulate.trn import FlybyStep, flyby_exposures, track_flyby
 
 log = logging.getLogger(__name__)
 
@@ -277,18 +292,73 @@ def flyby_closed_loop(sim: Simulator, runs: int = 1, *, renders: Renders | None 
     return FlybyClosedLoop(epochs, float(flyby.epoch_ca), X, out, summary, timings)
 
 
+def segments_image(sim: Simulator, render: tuple[FrameGeometry, RadianceImage], run: int = 0,
+                   front_end: FrontEndOptions | None = None) -> NDArray[np.float32]:
+    """The segments DN of one frame of run ``run`` (0 where no run was read): the first
+    acquisition again, with the same noise stream as the closed loop's, so the very image its
+    front end read (the runs keep no image)."""
+    geom, img = render
+    fe = FlybyFrontEnd(sim.camera, front_end if front_end is not None
+                       else sim.scenario.navigation.trn.front_end.options())
+    e0, _, _, _ = flyby_exposures(sim, img, geom, fe, run=run)
+    return WindowReader.from_exposures(e0).segments_image()
+
+
+#: Frames of the overlay figures: ``(file label, title)``; the frame is the first, the one
+#: nearest closest approach, the last.
+OVERLAY_FRAMES = (("first", "first frame"), ("ca", "closest approach"), ("last", "last frame"))
+
+
+def plot_overlays(sim: Simulator, renders: Renders, loop: FlybyClosedLoop, out: str | Path,
+                  run: int = 0) -> list[Path]:
+    """The overlay figure (:func:`~starnav.navigation.trn.metrics.plot_frame_overlay`) of
+    run ``run`` (its position in ``loop.runs``) at the first frame, closest approach and the
+    last frame (one figure per distinct frame: ``overlay_first.png``, ``overlay_ca.png``,
+    ``overlay_last.png``); the predicted centroid is the lit silhouette seen from the run's
+    estimate after the frame's update."""
+    res = loop.runs[run]
+    K = len(res.measurements)
+    picks = dict(zip((k for k, _ in OVERLAY_FRAMES),
+                     (0, closest_approach_index(res.filter.epochs, loop.epoch_ca), K - 1),
+                     strict=True))
+    body = body_from_scenario(sim.scenario)
+    t = res.filter.epochs - loop.epoch_ca
+    paths, done = [], set()
+    for label, title in OVERLAY_FRAMES:
+        k = picks[label]
+        if k in done:
+            continue
+        done.add(k)
+        m = res.measurements[k]
+        idx = int(res.steps[k].geometry.index)
+        try:
+            pred = predicted_silhouette(sim.camera, body, res.filter.states[k, :3], m).centroid_uv
+        except GeometryError:
+            pred = None
+        img = segments_image(sim, renders[idx], res.run)
+        paths.append(plot_frame_overlay(
+            img, m, Path(out) / f"overlay_{label}.png", pred,
+            f"{title}: frame {idx}, t - t_CA = {t[k]:+.1f} s, run {res.run}"))
+    return paths
+
+
 def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: bool = True,
                    probability: float = 0.99,
                    progress: Callable[[str, int, int], None] | None = None) -> dict[str, Any]:
     """``starnav navigate SCENARIO.yaml`` for a fly-by: the closed loop over ``runs`` runs,
     then ``metrics.json`` (run 0's :class:`FlybyMetrics` flat keys, the per-frame timings and,
     for >= 2 runs, the Monte Carlo summary), the figures (position and velocity errors with
-    3-sigma against time from CA, runs in grey; NEES with its band; tracks) and
-    ``report.md``, every file written atomically. Returns the metrics dict."""
+    3-sigma against time from CA, runs in grey; NEES with its band; tracks; run 0's frame
+    overlays, :func:`plot_overlays`) and ``report.md``, every file written atomically.
+    Returns the metrics dict."""
     check_flyby_scenario(sim.scenario)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    loop = flyby_closed_loop(sim, runs, probability=probability, progress=progress)
+    renders, t_render = render_flyby(
+        sim, None if progress is None else (lambda d, n: progress("render", d, n)))
+    loop = flyby_closed_loop(sim, runs, renders=renders, probability=probability,
+                             progress=progress)
+    loop.timings_s["render"] = t_render
     r0 = loop.runs[0]
     t = loop.time_from_ca
     metrics: dict[str, Any] = dict(r0.metrics.as_dict())
@@ -310,5 +380,170 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
                                            out / "nees.png", runs=runs,
                                            probability=probability)))
         figures.append(str(plot_tracks(t, r0.measurements, r0.filter, out / "tracks.png")))
+        figures += [str(p) for p in plot_overlays(sim, renders, loop, out)]
     write_report(out / "report.md", r0.metrics, mc, figures)
     return metrics
+
+
+# ----------------------------------------------------------------------------- rendered sweep
+#: Axes of the rendered fly-by sweep: keys of ``trajectory.flyby``.
+SWEEP_AXES = ("v_inf_km_s", "closest_approach_km", "phase_at_ca_deg")
+
+
+def parse_sweep_axes(items: Sequence[str]) -> dict[str, list[float]]:
+    """``["v_inf_km_s=0.4,0.6", "phase_at_ca_deg=30,60"]`` -> ``{axis: values}`` (axes of
+    :data:`SWEEP_AXES`; the CLI's ``--sweep``). A bad axis or value is a ConfigError naming
+    it."""
+    out: dict[str, list[float]] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip().removeprefix("trajectory.flyby.")
+        if not sep or key not in SWEEP_AXES:
+            raise ConfigError("--sweep", item, f"AXIS=V1,V2,... with AXIS one of "
+                              f"{', '.join(SWEEP_AXES)}")
+        try:
+            vals = [float(v) for v in text.split(",") if v.strip()]
+        except ValueError:
+            raise ConfigError(f"--sweep {key}", text, "comma-separated numbers") from None
+        if not vals:
+            raise ConfigError(f"--sweep {key}", text, "at least one value")
+        out[key] = vals
+    return out
+
+
+def flyby_rendered_sweep(base: Scenario, axes: dict[str, Sequence[float]], runs: int = 2, *,
+                         probability: float = 0.99,
+                         progress: Callable[[int, int], None] | None = None
+                         ) -> list[dict[str, Any]]:
+    """The closed loop (:func:`flyby_closed_loop`, render once per point) at every point of
+    the product of ``axes`` (``trajectory.flyby`` keys of :data:`SWEEP_AXES`; an axis not
+    given keeps the base scenario's value), ``runs`` Monte Carlo runs per point.
+
+    Every point's scenario and scene (geometry, pointing) is built before the first render.
+    Returns one row per point (the last axis varying fastest): the grid values,
+    ``ca_range_m``, ``ca_error_pct_range_median`` / ``_max`` over the runs, ``nees_mean``
+    with ``nees_band_lo`` / ``_hi`` (two-sided ``probability`` band of a ``runs``-run mean of
+    chi2(6)) and ``verdict`` (runs >= 2; else run 0's mean NEES and no band), and the
+    medians over runs of ``mean_tracks_per_frame``, ``mean_track_length_frames``,
+    ``feature_error_rms_px``.
+    """
+    check_flyby_scenario(base)
+    if runs < 1:
+        raise ConfigError("runs", runs, ">= 1 Monte Carlo run")
+    for k in axes:
+        if k not in SWEEP_AXES:
+            raise ConfigError("sweep axis", k, f"one of {', '.join(SWEEP_AXES)}")
+    flyby = base.trajectory.flyby if base.trajectory is not None else None
+    assert flyby is not None  # check_flyby_scenario
+    grid = {k: [float(v) for v in axes.get(k, [getattr(flyby, k)])] for k in SWEEP_AXES}
+    data = scenario_to_dict(base)
+    points = []
+    for combo in itertools.product(*grid.values()):
+        d = json.loads(json.dumps(data))
+        values = dict(zip(SWEEP_AXES, combo, strict=True))
+        for k, v in values.items():
+            set_dotted(d, f"trajectory.flyby.{k}", v)
+        try:
+            points.append((values, Simulator(scenario_from_dict(d))))
+        except ConfigError as err:
+            raise ConfigError(f"sweep point {values}: {err.field}", err.value,
+                              err.expected) from None
+    rows = []
+    for i, (values, sim) in enumerate(points):
+        loop = flyby_closed_loop(sim, runs, probability=probability)
+        ms = [r.metrics for r in loop.runs]
+        row: dict[str, Any] = dict(values)
+        row["runs"] = runs
+        row["ca_range_m"] = ms[0].ca_range_m
+        pct = [m.ca_position_error_pct_range for m in ms]
+        row["ca_error_pct_range_median"] = float(np.median(pct))
+        row["ca_error_pct_range_max"] = float(np.max(pct))
+        if runs >= 2:
+            row["nees_mean"] = float(loop.summary["nees_mean"])
+            row["nees_band_lo"], row["nees_band_hi"] = (float(x) for x in
+                                                        loop.summary["nees_band"])
+            row["verdict"] = loop.summary["verdict"]
+        else:
+            row["nees_mean"] = ms[0].nees_mean
+            row["nees_band_lo"] = row["nees_band_hi"] = float("nan")
+            row["verdict"] = "-"
+        for key in ("mean_tracks_per_frame", "mean_track_length_frames",
+                    "feature_error_rms_px"):
+            row[f"median_{key}"] = float(np.nanmedian([getattr(m, key) for m in ms]))
+        rows.append(row)
+        log.info("fly-by sweep point %d/%d %s: CA error median %.3g %% of range, NEES %.3g",
+                 i + 1, len(points), values, row["ca_error_pct_range_median"],
+                 row["nees_mean"])
+        if progress is not None:
+            progress(i + 1, len(points))
+    return rows
+
+
+#: Columns of the sweep's markdown table: (row key, heading, format).
+SWEEP_COLUMNS = (
+    ("v_inf_km_s", "v_inf [km/s]", "{:g}"), ("closest_approach_km", "CA [km]", "{:g}"),
+    ("phase_at_ca_deg", "phase [deg]", "{:g}"),
+    ("ca_error_pct_range_median", "CA error median [% range]", "{:.3f}"),
+    ("ca_error_pct_range_max", "CA error max [% range]", "{:.3f}"),
+    ("nees_mean", "mean NEES", "{:.2f}"), ("nees_band_lo", "band lo", "{:.2f}"),
+    ("nees_band_hi", "band hi", "{:.2f}"), ("verdict", "verdict", "{}"),
+    ("median_mean_tracks_per_frame", "tracks/frame", "{:.1f}"),
+    ("median_mean_track_length_frames", "track length [frames]", "{:.1f}"),
+    ("median_feature_error_rms_px", "feature err rms [px]", "{:.2f}"))
+
+
+def write_flyby_sweep(rows: Sequence[dict[str, Any]], out: str | Path, *, plots: bool = True
+                      ) -> dict[str, Path]:
+    """The sweep's ``sweep.csv`` (every key of the rows), ``sweep.md`` (the table of
+    :data:`SWEEP_COLUMNS`, linking the figure) and ``sweep.png`` (per point: the median and
+    max CA error over the range; the mean NEES with its band), atomically."""
+    if not rows:
+        raise ConfigError("rows", 0, "at least one sweep point")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(rows[0]), lineterminator="\n")
+    w.writeheader()
+    w.writerows(rows)
+    paths = {"csv": atomic_write_text(out / "sweep.csv", buf.getvalue())}
+    lines = ["# Fly-by sweep on rendered frames", "",
+             f"{len(rows)} point(s) x {rows[0]['runs']} run(s).", "",
+             "| " + " | ".join(h for _, h, _ in SWEEP_COLUMNS) + " |",
+             "|" + "---|" * len(SWEEP_COLUMNS)]
+    for r in rows:
+        lines.append("| " + " | ".join(
+            "-" if isinstance(r[k], float) and not np.isfinite(r[k]) else f.format(r[k])
+            for k, _, f in SWEEP_COLUMNS) + " |")
+    if plots:
+        paths["figure"] = _plot_sweep(rows, out / "sweep.png")
+        lines += ["", "![sweep](sweep.png)"]
+    paths["table"] = atomic_write_text(out / "sweep.md", "\n".join(lines) + "\n")
+    return paths
+
+
+def _plot_sweep(rows: Sequence[dict[str, Any]], path: Path) -> Path:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7.0, 5.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots(2, 1, sharex=True)
+    x = np.arange(len(rows))
+    ax[0].plot(x, [r["ca_error_pct_range_median"] for r in rows], "o", label="median")
+    ax[0].plot(x, [r["ca_error_pct_range_max"] for r in rows], "v", color="C3", label="max")
+    ax[0].set_ylabel("position error at CA [% range]")
+    ax[0].legend(loc="upper right")
+    ax[1].semilogy(x, [r["nees_mean"] for r in rows], "o", color="k", label="mean NEES")
+    lo = np.array([r["nees_band_lo"] for r in rows], float)
+    hi = np.array([r["nees_band_hi"] for r in rows], float)
+    if np.all(np.isfinite(lo)):
+        ax[1].vlines(x, lo, hi, color="C3", lw=3, alpha=0.4, label="band")
+    ax[1].axhline(6.0, color="C2", lw=0.8)
+    ax[1].set_ylabel("mean NEES (6 states)")
+    ax[1].legend(loc="upper right")
+    ax[1].set_xticks(x, [f"{r['v_inf_km_s']:g} km/s\n{r['closest_approach_km']:g} km\n"
+                         f"{r['phase_at_ca_deg']:g} deg" for r in rows], fontsize=7)
+    ax[1].set_xlabel("v_inf, CA distance, phase at CA")
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=120)
+    return path

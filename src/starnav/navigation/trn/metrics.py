@@ -12,8 +12,10 @@ Technique
    FeatureTruth`): ``|uv - uv_true|``.
 
 Figures (:func:`plot_flyby_errors`, :func:`plot_flyby_nees`, :func:`plot_tracks`) follow the
-limb case (:mod:`starnav.navigation.plots`) with the time axis from CA; :func:`write_report`
-writes the short markdown summary.
+limb case (:mod:`starnav.navigation.plots`) with the time axis from CA; :func:`plot_frame_overlay`
+shows what the front end saw in one frame (segments DN, windows, tracked features against
+their true projections, the measured and the predicted lit centroid,
+:func:`predicted_silhouette`); :func:`write_report` writes the short markdown summary.
 
 Reference: Bar-Shalom, Li and Kirubarajan (2001), section 5.4 (NEES, NIS, chi-square bands).
 """
@@ -32,8 +34,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from starnav.atomic import atomic_path, atomic_write_text
+from starnav.camera import Camera
 from starnav.navigation.metrics import chi2_band, consistency_fraction
-from starnav.navigation.trn.filter import FlybyRun
+from starnav.navigation.trn.body_view import BodyInCamera, LitSilhouette, lit_silhouette
+from starnav.navigation.trn.filter import FlybyRun, ShapeBodyLike
 from starnav.navigation.trn.measurements import FlybyMeasurement
 
 FloatArray = NDArray[np.float64]
@@ -242,6 +246,90 @@ def plot_tracks(time_from_ca_s: ArrayLike, measurements: Sequence[FlybyMeasureme
         ax[1].hist(L, bins=np.arange(0.5, L.max() + 1.5), color="C0")
     ax[1].set_xlabel("track length [frames]")
     ax[1].set_ylabel("tracks")
+    return _save(fig, path)
+
+
+def predicted_silhouette(camera: Camera, body: ShapeBodyLike, position: ArrayLike,
+                         measurement: FlybyMeasurement) -> LitSilhouette:
+    """The lit silhouette the estimator predicts for ``measurement``'s frame: the shape model
+    seen from the estimated body-relative ``position`` (J2000 [m]) with the frame's measured
+    attitude and Sun direction (phase 0 when it has none), as the filter's centroid and
+    radius model (:mod:`~starnav.navigation.trn.filter`, step 4; bias states not added)."""
+    r = np.asarray(position, float)
+    R_m = np.asarray(measurement.R_cam_to_inertial, float)
+    R_bi = np.asarray(body.orientation(measurement.epoch_tdb), float)
+    centre_cam = R_m.T @ (-r)
+    placed = BodyInCamera.place(body.shape.vertices, body.shape.faces, R_m.T @ R_bi,
+                                centre_cam)
+    sun = measurement.sun_direction
+    sun_cam = -centre_cam if sun is None else R_m.T @ np.asarray(sun, float)
+    return lit_silhouette(placed, sun_cam, camera)
+
+
+def draw_frame_overlay(ax: Any, image: ArrayLike, measurement: FlybyMeasurement,
+                       predicted_centroid_uv: ArrayLike | None = None) -> None:
+    """One frame as the front end saw it, on the axes ``ax`` (pixel centres at integers,
+    ``u`` the column, ``v`` the row [px]).
+
+    The segments DN ``image`` (0 where no run was read) square-root stretched between the 1st
+    and 99.5th percentile of the pixels read; every window ``(row0, col0, height, width)`` as
+    a rectangle over its pixels, labelled ``W<index>``; the tracked features (``+``, one colour
+    per track) and their true projections (``o``, same colour; truth only); the measured lit
+    centroid (``x``) and the predicted one (``*``).
+    """
+    from matplotlib.colors import PowerNorm
+    from matplotlib.patches import Rectangle
+
+    img = np.asarray(image, float)
+    H, W = img.shape
+    read = img[img > 0]
+    lo, hi = (np.percentile(read, [1.0, 99.5]) if read.size else (0.0, 1.0))
+    ax.imshow(img, cmap="gray", interpolation="nearest",
+              norm=PowerNorm(0.5, vmin=float(lo), vmax=float(max(hi, lo + 1.0)), clip=True))
+    for i, (r0, c0, h, w) in enumerate(measurement.windows):
+        ax.add_patch(Rectangle((c0 - 0.5, r0 - 0.5), w, h, fill=False, ec="C1", lw=0.8,
+                               label="windows" if i == 0 else None))
+        ax.text(c0 - 0.5, r0 - 1.0, f"W{i}", color="C1", fontsize=6, va="bottom")
+    cmap = _track_colours()
+    if measurement.features:
+        uv = np.array([f.uv for f in measurement.features], float)
+        col = [cmap(f.track_id % cmap.N) for f in measurement.features]
+        ax.scatter(uv[:, 0], uv[:, 1], c=col, marker="+", s=30, lw=0.9,
+                   label="tracked (measured)")
+    truth = [t for t in measurement.truth if np.all(np.isfinite(t.uv_true))]
+    if truth:
+        uvt = np.array([t.uv_true for t in truth], float)
+        ax.scatter(uvt[:, 0], uvt[:, 1], facecolors="none", marker="o", s=22, lw=0.8,
+                   edgecolors=[cmap(t.track_id % cmap.N) for t in truth],
+                   label="true projection")
+    if measurement.centroid_uv is not None:
+        c = np.asarray(measurement.centroid_uv, float)
+        ax.scatter([c[0]], [c[1]], marker="x", s=60, color="C3", label="lit centroid, measured")
+    if predicted_centroid_uv is not None:
+        c = np.asarray(predicted_centroid_uv, float)
+        ax.scatter([c[0]], [c[1]], marker="*", s=60, color="C9",
+                   label="lit centroid, predicted")
+    ax.set_xlim(-0.5, W - 0.5)
+    ax.set_ylim(H - 0.5, -0.5)
+    ax.set_xlabel("u (column) [px]")
+    ax.set_ylabel("v (row) [px]")
+    ax.legend(loc="upper right", fontsize=6)
+
+
+def _track_colours() -> Any:
+    from matplotlib import colormaps
+
+    return colormaps["tab20"]
+
+
+def plot_frame_overlay(image: ArrayLike, measurement: FlybyMeasurement,
+                       path: str | os.PathLike[str],
+                       predicted_centroid_uv: ArrayLike | None = None, title: str = "") -> Path:
+    """:func:`draw_frame_overlay` of one frame, saved to ``path`` (PNG, atomically)."""
+    fig, ax = _figure(1, (6.5, 6.5))
+    draw_frame_overlay(ax[0], image, measurement, predicted_centroid_uv)
+    if title:
+        ax[0].set_title(title, fontsize=9)
     return _save(fig, path)
 
 
