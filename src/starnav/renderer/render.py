@@ -320,6 +320,11 @@ class MoonRenderer:
         self._sun_band = sun_irradiance_in_band(sun_1au, response)
 
     # .................................................................. backend / scene
+    @property
+    def scene(self) -> Any:
+        """The loaded Mitsuba scene of the last frame (``None`` before the first)."""
+        return self._scene
+
     def _activate(self):
         return backend.activate(self.settings.variants)
 
