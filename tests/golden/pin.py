@@ -50,7 +50,7 @@ Re-pinned (each time the only difference, explained):
   of each image's maximum (400-1 100 pixels differ), the AOVs by float32 ulps (normals
   <= 7e-6, range <= 3e-7 relative), 10 of 65 536 DN values by 1 DN, the electron ledgers by
   <= 3.3e-7 relative, the limb bias by 7e-7 px, the fixes by ~35 m at 78 000 km (4e-7) and
-  the final position error by 21 m (73 603 -> 73 625 m; 8e-5 of its 3-sigma). The same
+  the final position error by 21 m (73 625 -> 73 603 m; 8e-5 of its 3-sigma). The same
   renders agree with the renderer before the change within Monte Carlo noise and to float32
   rounding seed for seed (``tests/renderer/test_speed_agreement.py``).
 """
