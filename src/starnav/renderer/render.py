@@ -551,10 +551,21 @@ class MoonRenderer:
             params.update()
             t0 = time.perf_counter()
             if fused:
-                img, raw = _render_fused(scene, box, int(seed) & 0xFFFFFFFF,
-                                         self.settings.spp, self.settings.aovs, near_shift,
-                                         M[:3, 2])
+                frame = None
+                if self.settings.aovs:
+                    frame = AovFrame(R_moon, pos_b, body_geom.sun_position,
+                                     self.moon.body_fixed_aovs)
+                img, crop_aovs = _render_fused(scene, box, int(seed) & 0xFFFFFFFF,
+                                               self.settings.spp, frame, near_shift, M[:3, 2])
                 self.last_timing["radiance_s"] = time.perf_counter() - t0
+                raw = None
+                if crop_aovs is not None:
+                    t0 = time.perf_counter()
+                    aovs = {}
+                    for name, v in crop_aovs.items():
+                        aovs[name] = np.zeros((H, W), np.float32)
+                        aovs[name][v0:v0 + bh, u0:u0 + bw] = v
+                    self.last_timing["aov_numpy_s"] = time.perf_counter() - t0
             else:
                 img = np.asarray(mi.render(scene, sensor=0, seed=int(seed) & 0xFFFFFFFF,
                                            spp=self.settings.spp))
@@ -621,9 +632,21 @@ class MoonRenderer:
         return RadianceImage(L, Le, aovs, meta)
 
 
-def _render_fused(scene, box: tuple[int, int, int, int], seed: int, spp: int, aovs: bool,
-                  near_shift: float = 0.0, boresight: NDArray[np.float64] | None = None
-                  ) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
+@dataclass(frozen=True)
+class AovFrame:
+    """What the geometric channels need besides the hit points: the Moon's attitude
+    (body-fixed to inertial), the camera and the Sun in the body-fixed frame [m]."""
+
+    R_moon_to_inertial: NDArray[np.float64]
+    camera_body: NDArray[np.float64]
+    sun_body: NDArray[np.float64]
+    body_fixed: bool = False
+
+
+def _render_fused(scene, box: tuple[int, int, int, int], seed: int, spp: int,
+                  aov_frame: AovFrame | None, near_shift: float = 0.0,
+                  boresight: NDArray[np.float64] | None = None
+                  ) -> tuple[NDArray[np.float32], dict[str, NDArray[np.float32]] | None]:
     """The radiance pass and the AOV pass over the crop ``box`` as Mitsuba's own wavefront
     render does them (``SamplingIntegrator::render`` / ``render_sample`` of Mitsuba 3.9, JIT
     variants), with two differences that change no number:
@@ -638,16 +661,17 @@ def _render_fused(scene, box: tuple[int, int, int, int], seed: int, spp: int, ao
       world +z) to the frame's near plane, as Mitsuba's ``perspective`` does with its own
       near clip (``o + d near / d_z``, and ``maxt`` shortened by as much);
     * the pixel values are the sums of each pixel's ``spp`` consecutive samples
-      (``dr.block_sum``) instead of the image block's scatter and the film's develop, and the
-      AOV pass is the scene intersection of the pixel-centre rays, evaluated in the same
-      ``dr.eval`` as the radiance.
+      accumulated in the kernel instead of the image block's scatter and the film's develop;
+    * the AOV pass is the scene intersection of the pixel-centre rays, and its geometric
+      channels (:func:`_aov_channels`'s, in float32 as there, angles formed in the body-fixed
+      frame) are computed in the same ``dr.eval`` as the radiance instead of in NumPy.
 
     The samples and their use are Mitsuba's: the images equal ``mi.render``'s to float32
     rounding (the ray of a sample is formed from full-frame instead of crop film coordinates;
     ``tests/renderer/test_speed_agreement.py``). Returns the
-    ``(bh, bw, 2)`` film channels (``L``, ``Le``, normalised responses) and, if ``aovs``, the
-    ``(bh, bw, 6)`` body-fixed hit point [km] and shading normal of each pixel-centre ray
-    (zero where it misses), both float32.
+    ``(bh, bw, 2)`` film channels (``L``, ``Le``, normalised responses) and, with an
+    ``aov_frame``, the crop's geometric channels (:data:`starnav.radiance.AOV_CHANNELS`, plus
+    the body-fixed ones if asked; zero where the pixel-centre ray misses), all float32.
     """
     import drjit as dr
     import mitsuba as mi
@@ -715,21 +739,57 @@ def _render_fused(scene, box: tuple[int, int, int, int], seed: int, spp: int, ao
         acc = dr.zeros(mi.Float, bw * bh)
         dr.scatter_reduce(dr.ReduceOp.Add, acc, c, pix, mode=dr.ReduceMode.Local)
         out.append(acc)
-    if aovs:
+    names: list[str] = []
+    if aov_frame is not None:
         # the pixel-centre ray (Mitsuba's 1-spp non-jittered stratified sample is at +0.5)
         centre = pixel(dr.arange(mi.UInt32, bw * bh)) + 0.5
         cray, _ = sensor.sample_ray(0.0, 0.5, centre * inv_size, mi.Point2f(0.5))
-        cray = to_near_plane(cray)
-        si = scene.ray_intersect(cray, mi.RayFlags.All, True)
-        hit = si.is_valid()
-        p = dr.select(hit, si.p, 0.0)
-        nrm = dr.select(hit, si.sh_frame.n, 0.0)
-        out += [p.x, p.y, p.z, nrm.x, nrm.y, nrm.z]
+        si = scene.ray_intersect(to_near_plane(cray), mi.RayFlags.All, True)
+        channels = _aov_kernel(si, aov_frame)
+        names = list(channels)
+        out += list(channels.values())
     dr.eval(out)
     out[0] = out[0] / float(spp)
     out[1] = out[1] / float(spp)
-    arr = np.stack([np.asarray(c, dtype=np.float32) for c in out], axis=-1).reshape(bh, bw, -1)
-    return arr[:, :, :2], (arr[:, :, 2:] if aovs else None)
+    arr = np.stack([np.asarray(c, dtype=np.float32) for c in out]).reshape(len(out), bh, bw)
+    img = np.moveaxis(arr[:2], 0, -1)
+    return img, (dict(zip(names, arr[2:], strict=True)) if aov_frame is not None else None)
+
+
+def _aov_kernel(si, frame: AovFrame) -> dict:
+    """:func:`_aov_channels` on Dr.Jit arrays (float32, zero where ``si`` is a miss): range,
+    inertial normal, lat/lon, incidence, emission and phase of the hit points of ``si`` (scene
+    in body-fixed km)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    hit = si.is_valid()
+    f = _uniforms(mi.Float, [*frame.R_moon_to_inertial.ravel().tolist(),
+                             *frame.camera_body.tolist(), *frame.sun_body.tolist()])
+    R = [f[3 * i:3 * i + 3] for i in range(3)]
+    cam = mi.Vector3f(*f[9:12])
+    sun = mi.Vector3f(*f[12:15])
+    pos = si.p * KM
+    n_b = dr.normalize(si.sh_frame.n)
+    n_i = [dr.fma(R[i][0], n_b.x, dr.fma(R[i][1], n_b.y, R[i][2] * n_b.z)) for i in range(3)]
+    to_cam = cam - pos
+    rng = dr.norm(to_cam)
+    v_hat = to_cam / rng
+    s_hat = dr.normalize(sun - pos)
+    r_b = dr.norm(pos)
+
+    def ang(a, b):
+        return dr.acos(dr.clip(dr.dot(a, b), -1.0, 1.0))
+
+    values = {
+        "range": rng, "nx": n_i[0], "ny": n_i[1], "nz": n_i[2],
+        "lat": dr.asin(dr.clip(pos.z / r_b, -1.0, 1.0)), "lon": dr.atan2(pos.y, pos.x),
+        "incidence": ang(n_b, s_hat), "emission": ang(n_b, v_hat), "phase": ang(s_hat, v_hat),
+        "mask": mi.Float(1.0),
+    }
+    if frame.body_fixed:
+        values.update({"x_body": pos.x, "y_body": pos.y, "z_body": pos.z})
+    return {k: dr.select(hit, v, 0.0) for k, v in values.items()}
 
 
 def _uniforms(dtype, values: list) -> list:
