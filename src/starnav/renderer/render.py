@@ -17,9 +17,12 @@ Technique
    responses are normalised to a peak of 1 for the film's wavelength sampling and scaled back.
 5. Only the pixels the Moon can cover are traced: the film's crop window is the bounding box of
    the projected sphere of radius ``R + h_max`` plus a margin (DESIGN.md budget).
-6. A second pass with the ``aov`` integrator, one non-jittered sample at each pixel centre,
-   gives the surface point and normal hit by the pixel-centre ray, from which range, lat/lon and
-   the incidence, emission and phase angles are computed in NumPy.
+6. One non-jittered ray through each pixel centre gives the surface point and normal, from
+   which range, lat/lon and the incidence, emission and phase angles are computed (float32).
+7. On the JIT variants the frame is traced by :func:`_render_fused`, Mitsuba's wavefront loop
+   with the crop window, seed and near plane passed as data instead of kernel literals (one
+   compiled kernel serves every frame of a sequence) and the AOVs of step 6 in the same
+   evaluation; the scalar variant uses ``mi.render`` and the ``aov`` integrator.
 
 Tuning knobs
 ------------
@@ -33,6 +36,8 @@ knob                default effect
 ``sampler``         multi-  jittered strata over pixel area and wavelength: 0.7 % per-pixel
                     jitter  noise at 16 spp on a Lambert disc (2.1 % with ``independent``)
 ``wavelength_step`` 1 nm    grid of the regular spectra handed to Mitsuba (O(1) lookups)
+``fused_loop``      True    the renderer's own render loop on JIT variants (``False``:
+                            ``mi.render``, the reference it is tested against)
 =================== ======= ===============================================================
 
 Example
