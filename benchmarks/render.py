@@ -111,7 +111,8 @@ def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float
     dr.set_flag(dr.JitFlag.KernelHistory, False)
     return {
         "shape": shape,
-        "loop": "fused" if fused else "mitsuba",
+        "loop": ("fused" if fused else "mitsuba") if hasattr(r.settings, "fused_loop")
+        else "before",
         "triangles": img.meta["moon"]["triangles"],
         "range_km": range_m / 1e3,
         "variant": img.meta["render"]["variant"],
