@@ -723,7 +723,7 @@ def _render_fused(scene, box: tuple[int, int, int, int], seed: int, spp: int,
         """Pixel (column, row) of the crop's pixel index ``idx``, in frame pixels."""
         i = mi.Int32(idx)
         row = i // width
-        return mi.Vector2f(mi.Vector2i(dr.fma(-width, row, i), row) + origin)
+        return mi.Vector2f(mi.Vector2i(i - width * row, row) + origin)
 
     idx = dr.arange(mi.UInt32, n)
     idx = (idx >> u32[1]) if pow2 else (idx // u32[1])
