@@ -566,10 +566,11 @@ class MoonRenderer:
                 raw = None
                 if crop_aovs is not None:
                     t0 = time.perf_counter()
-                    aovs = {}
-                    for name, v in crop_aovs.items():
-                        aovs[name] = np.zeros((H, W), np.float32)
-                        aovs[name][v0:v0 + bh, u0:u0 + bw] = v
+                    # one (channels, H, W) block: the channels are views of it
+                    block = np.zeros((len(crop_aovs), H, W), np.float32)
+                    for c, v in enumerate(crop_aovs.values()):
+                        block[c, v0:v0 + bh, u0:u0 + bw] = v
+                    aovs = dict(zip(crop_aovs, block, strict=True))
                     self.last_timing["aov_numpy_s"] = time.perf_counter() - t0
             else:
                 img = np.asarray(mi.render(scene, sensor=0, seed=int(seed) & 0xFFFFFFFF,
