@@ -1,77 +1,156 @@
-"""Render benchmark (issue 2): 1024 x 1024, 16 spp, Moon mesh >= 300 k triangles.
+"""Render benchmark (issues 2, 18): 1024 x 1024, 16 spp, at 60 000 km (Moon ~2 % of the frame)
+and at 9 715 km (the Moon fills the field).
 
-Prints seconds per frame for the first frame (scene build + JIT compilation) and the steady
-state (median of the next frames, camera moving), the variant, and the same figures for the
-exact sphere, at 60 000 km (Moon ~2 % of the frame) and at 9 715 km (Moon fills the field).
-``real`` is the default scenario's Moon (LOLA LDEM_4 mesh built for each view, included in the
-frame time, LROC albedo, calibrated Hapke, ROLO colour).
-Budget (DESIGN.md): <= 0.5 s per frame steady state on llvm on the 2-core machine.
+For each Moon (``real``: the default scenario's LDEM_4 mesh built for each view, LROC albedo,
+calibrated Hapke, ROLO colour; ``mesh``: a 327 680-triangle icosphere with Hapke; ``sphere``:
+Mitsuba's exact sphere with Hapke) it prints, in the same run:
 
-Usage: .venv/bin/python benchmarks/render.py [--frames N]
+* ``first_s``: the first frame (scene build and JIT compilation or disk-cache load);
+* ``steady_s``: the median of the next frames, camera moving (the Moon's place, size and phase
+  change every frame, as in a sequence), with the renderer's own loop (``fused``) and, with
+  ``--compare``, with Mitsuba's ``mi.render`` loop (``mitsuba``: the loop before issue 18);
+* ``compiles``: kernels compiled or loaded from Dr.Jit's disk cache during the steady frames
+  (``dr.kernel_history``): each new crop window did so with ``mi.render``;
+* ``floor_s``: casting the same number of camera rays over the same crop window
+  (``scene.ray_intersect`` on sensor rays, one kernel): the floor of any renderer.
+
+The Moon's place is offset by ``--place-seed`` (default: from the clock), so that the frames'
+crop windows are new to Dr.Jit's on-disk kernel cache, as in a new sequence. Blender Cycles,
+the paper's engine, is compared only where installed (``bpy``); it is not on this machine.
+
+Usage: .venv/bin/python benchmarks/render.py [--frames N] [--compare] [--place-seed S]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import importlib.util
 import math
+import os
 import platform
 import statistics
 import time
 
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
 from starnav.camera import Camera
 from starnav.config import scenario_from_dict
 from starnav.geometry import static_geometry
-from starnav.renderer.render import MoonModel, MoonRenderer, RenderSettings
+from starnav.renderer.render import MoonModel, MoonRenderer, RenderSettings, moon_bounding_box
 from starnav.renderer.scene import icosphere_mesh
 from starnav.simulate import renderer_from_scenario
 from starnav.spectra import sensor_response, solar_spectrum
 
 
-def run(shape: str, range_m: float, frames: int) -> dict:
+def make_renderer(shape: str, fused: bool) -> MoonRenderer:
     cam = Camera.preset("aa-str")
-    mesh = None
+    extra = {}
+    # a renderer from before issue 18 has no fused loop: Mitsuba's loop is its only one
+    if "fused_loop" in {f.name for f in dataclasses.fields(RenderSettings)}:
+        extra["fused_loop"] = fused
     if shape == "real":
-        # the default scenario's Moon: LDEM_4 mesh rebuilt per view, LROC albedo, Hapke, colour
         r = renderer_from_scenario(scenario_from_dict({"render": {"spp": 16}}))
-    else:
-        mesh = icosphere_mesh(1737.4e3, 7) if shape == "mesh" else None
-        moon = MoonModel(shape=shape, mesh=mesh)
-        r = MoonRenderer(cam, sensor_response(), solar_spectrum(), moon,
-                         RenderSettings(spp=16))
-    times = []
+        r.settings = dataclasses.replace(r.settings, **extra)
+        return r
+    mesh = icosphere_mesh(1737.4e3, 7) if shape == "mesh" else None
+    moon = MoonModel(shape=shape, mesh=mesh, model="hapke")
+    return MoonRenderer(cam, sensor_response(), solar_spectrum(), moon,
+                        RenderSettings(spp=16, **extra))
+
+
+def geometry(cam: Camera, range_m: float, k: int, place: tuple[float, float]):
+    # a moving camera: the Moon's place, size and the phase change every frame
+    return static_geometry(cam, range_m * (1.0 + 0.002 * k), math.radians(20 + 3 * k),
+                           (place[0] + 5.0 * k, place[1] - 3.0 * k), roll=0.01 * k)
+
+
+def ray_cast_floor(r: MoonRenderer, g, spp: int) -> float:
+    """Seconds to generate and intersect ``spp`` camera rays per pixel of the frame's crop
+    window with the renderer's loaded scene (one kernel; the renderer's sensor pose)."""
+    cam = r.camera
+    box = moon_bounding_box(cam, g, r.moon.radius + r.moon.max_height, 4.0)
+    u0, v0, bw, bh = box
+    scene = r.scene
+    sensor = scene.sensors()[0]
+    n = bw * bh * spp
+    best = math.inf
+    for _ in range(3):
+        idx = dr.arange(mi.UInt32, n) // spp
+        rng = mi.PCG32(n)
+        pos = mi.Vector2f(mi.Float(idx % bw + u0) + rng.next_float32(),
+                          mi.Float(idx // bw + v0) + rng.next_float32())
+        film = sensor.film().size()
+        ray, _ = sensor.sample_ray(0.0, 0.5, pos / mi.ScalarVector2f(film), mi.Point2f(0.5))
+        t0 = time.perf_counter()
+        si = scene.ray_intersect(ray)
+        hits = dr.count(si.is_valid())
+        dr.eval(hits)
+        dr.sync_thread()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float, float]
+        ) -> dict:
+    r = make_renderer(shape, fused)
+    cam = r.camera
+    times, compiles = [], 0
     for k in range(frames):
-        # a moving camera: the Moon's place and the phase change every frame
-        g = static_geometry(cam, range_m, math.radians(20 + 3 * k), (5.0 * k, -3.0 * k),
-                            roll=0.01 * k)
+        g = geometry(cam, range_m, k, place)
+        if k == 1:
+            dr.set_flag(dr.JitFlag.KernelHistory, True)
+            dr.kernel_history()
         t0 = time.perf_counter()
         img = r.render(g, seed=k)
         times.append(time.perf_counter() - t0)
+    compiles = sum(1 for h in dr.kernel_history()
+                   if h["type"] == dr.KernelType.JIT and (not h["cache_hit"] or h["cache_disk"]))
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
     return {
         "shape": shape,
+        "loop": ("fused" if fused else "mitsuba") if hasattr(r.settings, "fused_loop")
+        else "before",
         "triangles": img.meta["moon"]["triangles"],
         "range_km": range_m / 1e3,
         "variant": img.meta["render"]["variant"],
         "crop": img.meta["render"]["crop_box_uvwh"],
         "first_s": times[0],
         "steady_s": statistics.median(times[1:]),
+        "compiles": compiles,
+        "floor_s": ray_cast_floor(r, g, 16) if hasattr(r, "scene") else float("nan"),
         "moon_px": int(img.mask.sum()),
+        "timing": {k: round(v, 3) for k, v in r.last_timing.items()},
     }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--frames", type=int, default=6)
+    ap.add_argument("--compare", action="store_true", help="also Mitsuba's mi.render loop")
+    ap.add_argument("--place-seed", type=int, default=None)
+    ap.add_argument("--shapes", default="real,mesh,sphere")
     args = ap.parse_args()
-    print(f"machine: {platform.node()} {platform.machine()} python {platform.python_version()}")
-    print(f"{'shape':6s} {'triangles':>9s} {'range_km':>9s} {'variant':>17s} "
-          f"{'first_s':>8s} {'steady_s':>8s} {'moon_px':>8s}  crop")
+    seed = args.place_seed if args.place_seed is not None else time.time_ns() % 2**32
+    place = tuple(np.random.default_rng(seed).uniform(-20.0, 20.0, 2))
+    print(f"machine: {platform.node()} {platform.machine()} {os.cpu_count()} cpus, python "
+          f"{platform.python_version()}, mitsuba {mi.__version__}, drjit {dr.__version__}, "
+          f"load {os.getloadavg()[0]:.1f} (1 min), place seed {seed}")
+    print("Blender Cycles: " + ("installed (not run by this script)"
+                                if importlib.util.find_spec("bpy") else "not installed"))
+    print(f"{'shape':6s} {'loop':7s} {'triangles':>9s} {'range_km':>8s} {'first_s':>8s} "
+          f"{'steady_s':>8s} {'compiles':>8s} {'floor_s':>8s} {'moon_px':>8s}  last frame")
+    loops = (True, False) if args.compare else (True,)
     for range_m in (6.0e7, 9.715e6):
-        for shape in ("real", "mesh", "sphere"):
-            # each configuration in a fresh renderer; the icosphere is cached across them
-            res = run(shape, range_m, args.frames)
-            print(f"{res['shape']:6s} {str(res['triangles']):>9s} {res['range_km']:9.0f} "
-                  f"{res['variant']:>17s} {res['first_s']:8.3f} {res['steady_s']:8.3f} "
-                  f"{res['moon_px']:8d}  {res['crop']}")
+        for shape in args.shapes.split(","):
+            for fused in loops:
+                res = run(shape, range_m, args.frames, fused, place)
+                print(f"{res['shape']:6s} {res['loop']:7s} {str(res['triangles']):>9s} "
+                      f"{res['range_km']:8.0f} {res['first_s']:8.3f} {res['steady_s']:8.3f} "
+                      f"{res['compiles']:8d} {res['floor_s']:8.3f} {res['moon_px']:8d}  "
+                      f"{res['timing']} {res['variant']}", flush=True)
 
 
 if __name__ == "__main__":

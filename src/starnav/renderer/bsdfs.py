@@ -37,6 +37,8 @@ from starnav.registry import Registry
 
 INV_PI = 1.0 / math.pi
 INV_FOUR_PI = 1.0 / (4.0 * math.pi)
+#: tan((pi - 1e-4) / 2): the cap of tan(psi / 2) in Hapke's shadowing (psi -> pi).
+_TAN_HALF_PSI_MAX = math.tan((math.pi - 1e-4) / 2.0)
 
 #: Mitsuba plugin name for each photometric model name (derived from the model registry).
 PLUGIN_NAMES: Registry[str] = Registry(PHOTOMETRIC_MODELS.kind, {
@@ -171,9 +173,15 @@ def _define_classes() -> dict[str, type]:
             sin_e = dr.safe_sqrt(1.0 - mu * mu)
             cot_i = mu0 / dr.maximum(sin_i, 1e-7)
             cot_e = mu / dr.maximum(sin_e, 1e-7)
-            psi = dr.acos(dr.clip(cos_psi, -1.0, 1.0))
-            s2 = dr.square(dr.sin(psi * 0.5))
-            f = dr.exp(-2.0 * dr.tan(dr.minimum(psi, math.pi - 1e-4) * 0.5))
+            c_psi = dr.clip(cos_psi, -1.0, 1.0)
+            psi = dr.acos(c_psi)
+            # half-angle identities instead of sin and tan of psi / 2 (two transcendental
+            # functions fewer per sample): sin^2(psi/2) = (1 - cos psi) / 2 and
+            # tan(psi/2) = sqrt((1 - cos psi) / (1 + cos psi)), capped as tan((pi - 1e-4)/2)
+            s2 = (1.0 - c_psi) * 0.5
+            tan_half_psi = dr.minimum(
+                dr.safe_sqrt((1.0 - c_psi) / dr.maximum(1.0 + c_psi, 1e-30)), _TAN_HALF_PSI_MAX)
+            f = dr.exp(-2.0 * tan_half_psi)
 
             def E1(cot_x):
                 return dr.exp(-2.0 / math.pi * cot_tb * cot_x)
@@ -201,8 +209,11 @@ def _define_classes() -> dict[str, type]:
         def _r(self, si, wo, mu0, mu, cos_g, alb):
             w = alb
             b, c = self.b, self.c
-            p = ((1.0 + c) * 0.5 * (1.0 - b * b) / dr.power(1.0 - 2.0 * b * cos_g + b * b, 1.5)
-                 + (1.0 - c) * 0.5 * (1.0 - b * b) / dr.power(1.0 + 2.0 * b * cos_g + b * b, 1.5))
+            # double Henyey-Greenstein; x^-1.5 = rsqrt(x) / x (Dr.Jit's power is exp(y log x))
+            d_back = 1.0 - 2.0 * b * cos_g + b * b
+            d_fwd = 1.0 + 2.0 * b * cos_g + b * b
+            p = ((1.0 + c) * 0.5 * (1.0 - b * b) * dr.rsqrt(d_back) / d_back
+                 + (1.0 - c) * 0.5 * (1.0 - b * b) * dr.rsqrt(d_fwd) / d_fwd)
             # tan(g/2) = sqrt((1 - cos g) / (1 + cos g))
             tan_half = dr.safe_sqrt((1.0 - cos_g) / dr.maximum(1.0 + cos_g, 1e-12))
             bsh = 1.0 + self.bs0 / (1.0 + tan_half / self.hs)

@@ -17,9 +17,12 @@ Technique
    responses are normalised to a peak of 1 for the film's wavelength sampling and scaled back.
 5. Only the pixels the Moon can cover are traced: the film's crop window is the bounding box of
    the projected sphere of radius ``R + h_max`` plus a margin (DESIGN.md budget).
-6. A second pass with the ``aov`` integrator, one non-jittered sample at each pixel centre,
-   gives the surface point and normal hit by the pixel-centre ray, from which range, lat/lon and
-   the incidence, emission and phase angles are computed in NumPy.
+6. One non-jittered ray through each pixel centre gives the surface point and normal, from
+   which range, lat/lon and the incidence, emission and phase angles are computed (float32).
+7. On the JIT variants the frame is traced by :func:`_render_fused`, Mitsuba's wavefront loop
+   with the crop window, seed and near plane passed as data instead of kernel literals (one
+   compiled kernel serves every frame of a sequence) and the AOVs of step 6 in the same
+   evaluation; the scalar variant uses ``mi.render`` and the ``aov`` integrator.
 
 Tuning knobs
 ------------
@@ -33,6 +36,8 @@ knob                default effect
 ``sampler``         multi-  jittered strata over pixel area and wavelength: 0.7 % per-pixel
                     jitter  noise at 16 spp on a Lambert disc (2.1 % with ``independent``)
 ``wavelength_step`` 1 nm    grid of the regular spectra handed to Mitsuba (O(1) lookups)
+``fused_loop``      True    the renderer's own render loop on JIT variants (``False``:
+                            ``mi.render``, the reference it is tested against)
 =================== ======= ===============================================================
 
 Example
@@ -220,6 +225,7 @@ class RenderSettings:
     variants: tuple[str, ...] = ("cuda_ad_spectral", "llvm_ad_spectral", "scalar_spectral")
     sampler: str = "multijitter"
     wavelength_step_nm: float = 1.0
+    fused_loop: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.wavelength_step_nm) and 0 < self.wavelength_step_nm <= 50):
@@ -314,10 +320,16 @@ class MoonRenderer:
         self.last_timing: dict[str, float] = {}
         self._warned: set[str] = set()
         self._clip: dict[int, tuple[float, float]] = {}
+        self._crop: dict[int, tuple[int, int, int, int]] = {}
         self._spectra: dict[Any, tuple[Spectrum, dict]] = {}
         self._sun_band = sun_irradiance_in_band(sun_1au, response)
 
     # .................................................................. backend / scene
+    @property
+    def scene(self) -> Any:
+        """The loaded Mitsuba scene of the last frame (``None`` before the first)."""
+        return self._scene
+
     def _activate(self):
         return backend.activate(self.settings.variants)
 
@@ -480,6 +492,7 @@ class MoonRenderer:
     # .................................................................. render
     def render(self, geom: FrameGeometry, seed: int = 0) -> RadianceImage:
         """Render one frame; ``seed`` seeds Mitsuba's sampler (deterministic per seed)."""
+        import drjit as dr
         import mitsuba as mi
 
         t_start = time.perf_counter()
@@ -504,7 +517,8 @@ class MoonRenderer:
             R_cam_b = R_moon.T @ geom.R_cam_to_inertial
             body_geom = FrameGeometry(pos_b, R_cam_b, R_moon.T @ geom.sun_position,
                                       moon_radius=geom.moon_radius)
-            T = mi.ScalarTransform4f(to_world_matrix(body_geom))
+            M = to_world_matrix(body_geom)
+            T = mi.ScalarTransform4f(M)
             sun_dir_b = body_geom.sun_direction
             params = mi.traverse(scene)
             params["sensor.to_world"] = T
@@ -520,27 +534,59 @@ class MoonRenderer:
             clip = clip_planes(geom.moon_centre_camera(), r_b)
             # the clip distances are literals in the compiled kernels: touching them (even with
             # the same value) recompiles, so they are set only when they change
+            fused = self.settings.fused_loop and dr.is_jit_v(mi.Float)
+            near_shift = 0.0
+            if fused:
+                # the fused loop moves the ray origins to the near plane itself and traces the
+                # crop on a full-frame film: both stay out of the compiled kernels
+                near_shift = clip[0] - NEAR_CLIP_MIN_KM
+                clip = (NEAR_CLIP_MIN_KM, clip[1])
             set_clip = clip != self._clip.get(id(scene))
+            crop = (0, 0, W, H) if fused else box
+            set_crop = crop != self._crop.get(id(scene))
             for name in ("sensor", "sensor_aov"):
-                params[f"{name}.film.crop_offset"] = mi.ScalarPoint2u(u0, v0)
-                params[f"{name}.film.crop_size"] = mi.ScalarVector2u(bw, bh)
+                if set_crop:
+                    params[f"{name}.film.crop_offset"] = mi.ScalarPoint2u(crop[0], crop[1])
+                    params[f"{name}.film.crop_size"] = mi.ScalarVector2u(crop[2], crop[3])
                 if set_clip:
                     params[f"{name}.near_clip"] = clip[0]
                     params[f"{name}.far_clip"] = clip[1]
             self._clip = {id(scene): clip}
+            self._crop = {id(scene): crop}
             params.update()
             t0 = time.perf_counter()
-            img = np.asarray(mi.render(scene, sensor=0, seed=int(seed) & 0xFFFFFFFF,
-                                       spp=self.settings.spp), dtype=np.float64)
-            self.last_timing["radiance_s"] = time.perf_counter() - t0
+            if fused:
+                frame = None
+                if self.settings.aovs:
+                    frame = AovFrame(R_moon, pos_b, body_geom.sun_position,
+                                     self.moon.body_fixed_aovs)
+                img, crop_aovs = _render_fused(scene, box, int(seed) & 0xFFFFFFFF,
+                                               self.settings.spp, frame, near_shift, M[:3, 2])
+                self.last_timing["radiance_s"] = time.perf_counter() - t0
+                raw = None
+                if crop_aovs is not None:
+                    t0 = time.perf_counter()
+                    # one (channels, H, W) block: the channels are views of it
+                    block = np.zeros((len(crop_aovs), H, W), np.float32)
+                    for c, v in enumerate(crop_aovs.values()):
+                        block[c, v0:v0 + bh, u0:u0 + bw] = v
+                    aovs = dict(zip(crop_aovs, block, strict=True))
+                    self.last_timing["aov_numpy_s"] = time.perf_counter() - t0
+            else:
+                img = np.asarray(mi.render(scene, sensor=0, seed=int(seed) & 0xFFFFFFFF,
+                                           spp=self.settings.spp))
+                self.last_timing["radiance_s"] = time.perf_counter() - t0
+                raw = None
+                if self.settings.aovs:
+                    t0 = time.perf_counter()
+                    raw = np.asarray(mi.render(scene, sensor=1, integrator=self._aov_integrator,
+                                               seed=0, spp=1))
+                    self.last_timing["aov_s"] = time.perf_counter() - t0
             ch = self.channels
+            img = img.astype(np.float64)
             L[v0:v0 + bh, u0:u0 + bw] = img[:, :, 0] * ch.scale_L * sun_scale
             Le[v0:v0 + bh, u0:u0 + bw] = img[:, :, 1] * ch.scale_Le * sun_scale
-            if self.settings.aovs:
-                t0 = time.perf_counter()
-                raw = np.asarray(mi.render(scene, sensor=1, integrator=self._aov_integrator,
-                                           seed=0, spp=1), dtype=np.float64)
-                self.last_timing["aov_s"] = time.perf_counter() - t0
+            if raw is not None:
                 t0 = time.perf_counter()
                 aovs = _aov_channels(raw, geom, box, (H, W),
                                      body_fixed=self.moon.body_fixed_aovs)
@@ -592,6 +638,176 @@ class MoonRenderer:
         return RadianceImage(L, Le, aovs, meta)
 
 
+@dataclass(frozen=True)
+class AovFrame:
+    """What the geometric channels need besides the hit points: the Moon's attitude
+    (body-fixed to inertial), the camera and the Sun in the body-fixed frame [m]."""
+
+    R_moon_to_inertial: NDArray[np.float64]
+    camera_body: NDArray[np.float64]
+    sun_body: NDArray[np.float64]
+    body_fixed: bool = False
+
+
+def _render_fused(scene, box: tuple[int, int, int, int], seed: int, spp: int,
+                  aov_frame: AovFrame | None, near_shift: float = 0.0,
+                  boresight: NDArray[np.float64] | None = None
+                  ) -> tuple[NDArray[np.float32], dict[str, NDArray[np.float32]] | None]:
+    """The radiance pass and the AOV pass over the crop ``box`` as Mitsuba's own wavefront
+    render does them (``SamplingIntegrator::render`` / ``render_sample`` of Mitsuba 3.9, JIT
+    variants), with two differences that change no number:
+
+    * every value that depends on the crop window (its offset and size, hence the pixel of a
+      sample and the film coordinates) and the seed enters the kernels as an *opaque* value
+      instead of a literal, so one compiled kernel serves every frame (Mitsuba bakes them in:
+      each new crop window recompiled the radiance and AOV kernels, 0.5-0.9 s on a busy
+      machine, for kernels running 0.1-0.2 s at 60 000 km);
+    * the sensor's near clip plane stays at :data:`NEAR_CLIP_MIN_KM` (a literal too) and each
+      ray's origin is moved on by ``near_shift`` [km] along the ``boresight`` (the sensor's
+      world +z) to the frame's near plane, as Mitsuba's ``perspective`` does with its own
+      near clip (``o + d near / d_z``, and ``maxt`` shortened by as much);
+    * the pixel values are the sums of each pixel's ``spp`` consecutive samples
+      accumulated in the kernel instead of the image block's scatter and the film's develop;
+    * the AOV pass is the scene intersection of the pixel-centre rays, and its geometric
+      channels (:func:`_aov_channels`'s, in float32 as there, angles formed in the body-fixed
+      frame) are computed in the same ``dr.eval`` as the radiance instead of in NumPy.
+
+    The samples and their use are Mitsuba's: the images equal ``mi.render``'s to float32
+    rounding (the ray of a sample is formed from full-frame instead of crop film coordinates;
+    ``tests/renderer/test_speed_agreement.py``). Returns the
+    ``(bh, bw, 2)`` film channels (``L``, ``Le``, normalised responses) and, with an
+    ``aov_frame``, the crop's geometric channels (:data:`starnav.radiance.AOV_CHANNELS`, plus
+    the body-fixed ones if asked; zero where the pixel-centre ray misses), all float32.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    u0, v0, bw, bh = box
+    sensor = scene.sensors()[0]
+    film = sensor.film()
+    # sets the film's channels (L, Le, weight) that prepare_sample writes, as mi.render does
+    if film.prepare([]) != 3:
+        raise RuntimeError(f"specfilm has {film.prepare([])} channels, expected L, Le, W")
+    sampler = sensor.sampler()
+    sampler.set_sample_count(spp)
+    sampler.set_samples_per_wavefront(spp)
+    n = bw * bh * spp
+    # Every frame-dependent value is read from one evaluated array per type: single opaque
+    # values that happen to be equal (u0 = v0, bw = bh, a seed equal to log2 spp) would be
+    # merged into one kernel parameter, which changes the kernel and recompiles it.
+    log_spp = spp.bit_length() - 1
+    pow2 = (1 << log_spp) == spp
+    u32 = _uniforms(mi.UInt32, [seed, log_spp if pow2 else spp])
+    i32 = _uniforms(mi.Int32, [bw, u0, v0])
+    axis = np.zeros(3) if boresight is None else np.asarray(boresight, float)
+    f32 = _uniforms(mi.Float, [near_shift, *axis.tolist()])
+    shift, axis_o = f32[0], mi.Vector3f(f32[1], f32[2], f32[3])
+
+    def to_near_plane(ray):
+        """``ray`` started on the frame's near plane instead of the sensor's."""
+        if near_shift == 0.0:
+            return ray
+        t = shift / dr.dot(ray.d, axis_o)
+        ray.o = dr.fma(ray.d, t, ray.o)
+        ray.maxt = ray.maxt - t
+        return ray
+
+    sampler.seed(u32[0], n)
+    width = i32[0]
+    origin = mi.Vector2i(i32[1], i32[2])
+    # film coordinates over the whole frame (the film's crop stays the full frame: Mitsuba's
+    # sensor folds the crop into literals of its sample-to-camera transform)
+    frame = film.size()
+    inv_size = mi.ScalarVector2f(1.0 / frame[0], 1.0 / frame[1])
+
+    def pixel(idx):
+        """Pixel (column, row) of the crop's pixel index ``idx``, in frame pixels."""
+        i = mi.Int32(idx)
+        row = i // width
+        return mi.Vector2f(mi.Vector2i(i - width * row, row) + origin)
+
+    idx = dr.arange(mi.UInt32, n)
+    idx = (idx >> u32[1]) if pow2 else (idx // u32[1])
+    sample_pos = pixel(idx) + sampler.next_2d()
+    wavelength_sample = sampler.next_1d()
+    ray, ray_weight = sensor.sample_ray(
+        0.0, wavelength_sample, sample_pos * inv_size, mi.Point2f(0.5))
+    ray = to_near_plane(ray)
+    spec, valid, _ = scene.integrator().sample(scene, sampler, mi.RayDifferential3f(ray), None,
+                                               True)
+    channels = film.prepare_sample(ray_weight * spec, ray.wavelengths, 3, 1.0,
+                                   dr.select(valid, 1.0, 0.0), valid)
+    # box filter, every sample of weight 1: the developed pixel is the sum of its samples
+    # over spp, accumulated in the kernel (Mitsuba's image block does the same)
+    pix = mi.UInt32(idx)
+    out = []
+    for c in channels[:2]:
+        acc = dr.zeros(mi.Float, bw * bh)
+        dr.scatter_reduce(dr.ReduceOp.Add, acc, c, pix, mode=dr.ReduceMode.Local)
+        out.append(acc)
+    names: list[str] = []
+    if aov_frame is not None:
+        # the pixel-centre ray (Mitsuba's 1-spp non-jittered stratified sample is at +0.5)
+        centre = pixel(dr.arange(mi.UInt32, bw * bh)) + 0.5
+        cray, _ = sensor.sample_ray(0.0, 0.5, centre * inv_size, mi.Point2f(0.5))
+        si = scene.ray_intersect(to_near_plane(cray), mi.RayFlags.All, True)
+        channels = _aov_kernel(si, aov_frame)
+        names = list(channels)
+        out += list(channels.values())
+    dr.eval(out)
+    out[0] = out[0] / float(spp)
+    out[1] = out[1] / float(spp)
+    arr = np.stack([np.asarray(c, dtype=np.float32) for c in out]).reshape(len(out), bh, bw)
+    img = np.moveaxis(arr[:2], 0, -1)
+    return img, (dict(zip(names, arr[2:], strict=True)) if aov_frame is not None else None)
+
+
+def _aov_kernel(si, frame: AovFrame) -> dict:
+    """:func:`_aov_channels` on Dr.Jit arrays (float32, zero where ``si`` is a miss): range,
+    inertial normal, lat/lon, incidence, emission and phase of the hit points of ``si`` (scene
+    in body-fixed km)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    hit = si.is_valid()
+    f = _uniforms(mi.Float, [*frame.R_moon_to_inertial.ravel().tolist(),
+                             *frame.camera_body.tolist(), *frame.sun_body.tolist()])
+    R = [f[3 * i:3 * i + 3] for i in range(3)]
+    cam = mi.Vector3f(*f[9:12])
+    sun = mi.Vector3f(*f[12:15])
+    pos = si.p * KM
+    n_b = dr.normalize(si.sh_frame.n)
+    n_i = [dr.fma(R[i][0], n_b.x, dr.fma(R[i][1], n_b.y, R[i][2] * n_b.z)) for i in range(3)]
+    to_cam = cam - pos
+    rng = dr.norm(to_cam)
+    v_hat = to_cam / rng
+    s_hat = dr.normalize(sun - pos)
+    r_b = dr.norm(pos)
+
+    def ang(a, b):
+        return dr.acos(dr.clip(dr.dot(a, b), -1.0, 1.0))
+
+    values = {
+        "range": rng, "nx": n_i[0], "ny": n_i[1], "nz": n_i[2],
+        "lat": dr.asin(dr.clip(pos.z / r_b, -1.0, 1.0)), "lon": dr.atan2(pos.y, pos.x),
+        "incidence": ang(n_b, s_hat), "emission": ang(n_b, v_hat), "phase": ang(s_hat, v_hat),
+        "mask": mi.Float(1.0),
+    }
+    if frame.body_fixed:
+        values.update({"x_body": pos.x, "y_body": pos.y, "z_body": pos.z})
+    return {k: dr.select(hit, v, 0.0) for k, v in values.items()}
+
+
+def _uniforms(dtype, values: list) -> list:
+    """``values`` as one evaluated Dr.Jit array of ``dtype`` read back element by element: kernel
+    inputs whose values change between frames without changing the compiled kernel."""
+    import drjit as dr
+
+    arr = dtype(values)
+    dr.make_opaque(arr)
+    return [dr.gather(dtype, arr, i) for i in range(len(values))]
+
+
 def _any_perpendicular(v: NDArray[np.float64]) -> NDArray[np.float64]:
     a = np.array([0.0, 0.0, 1.0]) if abs(v[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
     p = np.cross(v, a)
@@ -607,11 +823,11 @@ def _aov_channels(raw: NDArray[np.float64], geom: FrameGeometry,
     u0, v0, bw, bh = box
     H, W = shape
     f32 = np.float32
-    pos_all = raw[:, :, 0:3]
+    pos_all = raw[:, :, 0:3].astype(np.float64)
     # a miss reports the origin; any surface point of a star-shaped body is far from it (a
     # fraction of the reference radius would drop the ends of a triaxial body's short axis)
     hit = np.einsum("ijk,ijk->ij", pos_all, pos_all) > (1e-3 * geom.moon_radius / KM) ** 2
-    sel = raw[hit].astype(f32)  # (n, 6): float32 is ample for image channels and 2x faster
+    sel = raw[hit].astype(f32, copy=False)  # (n, 6) float32: ample for image channels
     pos_b = sel[:, 0:3] * f32(KM)
     R = geom.R_moon_to_inertial.astype(f32)
     pos_i = pos_b @ R.T

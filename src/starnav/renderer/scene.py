@@ -35,6 +35,9 @@ of the shifted origin, ~3e-8 x range across the ray: a ray-direction error of ~3
 range. The clip distance is a literal in the compiled kernels (changing it on every frame cost
 0.13 s instead of 0.02 s per frame, for the recompilation), so the plane moves on a grid of one
 bounding radius and nearby frames share the kernels.
+The renderer's fused loop on the JIT variants (``render._render_fused``) keeps the sensor's
+near clip at :data:`NEAR_CLIP_MIN_KM` and moves the ray origins to this plane itself, as data:
+there the plane's value never recompiles anything.
 
 Only this subpackage imports Mitsuba and Dr.Jit.
 """
