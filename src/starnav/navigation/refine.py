@@ -118,6 +118,7 @@ import functools
 import json
 import logging
 import math
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -640,16 +641,32 @@ class _StackedTables:
     of window ``k`` at ``x[i]`` are at ``[:, k n + i]`` of ``tab`` (and their forward
     differences in ``diff``); ``shift[k]`` its curvature correction."""
 
+    #: The stacks of the last few window sets (the tables themselves are cached per field
+    #: cell and direction, so consecutive frames mostly ask for the same ones): key the
+    #: tables' ids, value the tables (held, so that the ids stay theirs) and the arrays.
+    _cache: dict[tuple[int, ...], tuple] = {}
+    _CACHE_SIZE = 8
+    _lock = threading.Lock()   # Dask runs frames in threads
+
     def __init__(self, tables: Sequence[EdgeTables], radius_px: float) -> None:
         x = tables[0].x
-        if any(t.x is not x and not np.array_equal(t.x, x) for t in tables[1:]):
-            raise ConfigError("edge tables", "grids", "one common sampling grid")
         self.x0, self.x1, self.h, self.n = float(x[0]), float(x[-1]), float(x[1] - x[0]), x.size
-        self.tab = np.array([np.concatenate([getattr(t, name) for t in tables])
-                             for name in ("b0", "b1", "lsf")])
-        # forward differences (the last sample of each table is never a left neighbour)
-        self.diff = np.diff(self.tab, axis=1, append=0.0)
-        self.mean = np.array([t.mean for t in tables])[:, None]
+        key = tuple(id(t) for t in tables)
+        with self._lock:
+            hit = self._cache.get(key)
+        if hit is None or any(a is not b for a, b in zip(hit[0], tables, strict=True)):
+            if any(t.x is not x and not np.array_equal(t.x, x) for t in tables[1:]):
+                raise ConfigError("edge tables", "grids", "one common sampling grid")
+            tab = np.array([np.concatenate([getattr(t, name) for t in tables])
+                            for name in ("b0", "b1", "lsf")])
+            # forward differences (the last sample of each table is never a left neighbour)
+            hit = (tuple(tables), tab, np.diff(tab, axis=1, append=0.0),
+                   np.array([t.mean for t in tables])[:, None])
+            with self._lock:
+                while len(self._cache) >= self._CACHE_SIZE:
+                    self._cache.pop(next(iter(self._cache)))
+                self._cache[key] = hit
+        self.tab, self.diff, self.mean = hit[1:]
         # a curved edge blurred looks like a straight one moved inwards by the blur's
         # variance along the edge over twice the radius of curvature (to first order)
         shift = np.array([t.tangent_variance for t in tables]) / (2.0 * radius_px)
