@@ -46,10 +46,11 @@ Re-pinned (each time the only difference, explained):
   minimum within half its length, 1e-4 px, the accepted-step threshold) instead of up to
   seven more damped retries, so a window that stopped there moves by < 1e-4 px. The second
   0.015 ms frame's fix moved by 240 m at 79 000 km (3e-6; 0.3 % of its 1-sigma), the 7.7 ms
-  fixes by up to 7 m (1e-7), the first 0.015 ms fix not at all, and the numbers downstream: sweep ``limb_bias_px`` 0.0196434 -> 0.0196387 px, the final
-  position error by 36 m (5e-4 of it), NEES by 1.5e-5 relative. Images, dataset, counts
-  and the first frame's fix unchanged; the other speed work of that change (limb scan, fix
-  stage, filter) is pinned to 1e-9 by ``tests/navigation/test_chain_regression.py``.
+  fixes by up to 7 m (1e-7), the first 0.015 ms fix not at all, and the numbers downstream:
+  sweep ``limb_bias_px`` 0.0196434 -> 0.0196387 px, the final position error by 36 m (5e-4
+  of it), NEES by 1.5e-5 relative. Images, dataset and counts are unchanged; the other speed
+  work of that change (limb scan, fix stage, filter) is pinned to 1e-9 by
+  ``tests/navigation/test_chain_regression.py``.
 """
 
 from __future__ import annotations
