@@ -15,7 +15,9 @@ Technique
 3. **Scans.** Four scans of the runs, one per image direction: the right end of the last run of
    every row (looking at +u), the left end of the first run (-u), the bottom end of the lowest
    run covering every column (+v) and the top end of the highest one (-v). Column ends are
-   found by painting the runs into a per-column array in row order, so no pixel is expanded.
+   a range-max (range-min) update over the runs, done as a sparse table in reverse (each run
+   written as two power-of-two blocks, pushed down level by level): no pixel is expanded and
+   no run is a Python step.
 4. **Four sectors.** The image is split into four sectors by the two diagonals through the disc
    centre ``c``: a scan's end point is kept only in its own sector (``+u`` ends where
    ``du >= |dv|``, and so on), so every point is found by a scan within 45 deg of the limb
