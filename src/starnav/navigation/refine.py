@@ -61,10 +61,14 @@ Technique
    16 x 3 ``np.interp``. A window has converged when an accepted step moves its edge by
    < 1e-4 px anywhere in it, or a rejected step by < 2e-4 px (the cost rose along it, so it
    brackets the minimum within half its length: without this, a window at its minimum
-   spent up to seven damped retries shrinking a 1.5e-4 px step below 1e-4 px). Against the
+   spent up to seven damped retries shrinking a 1.5e-4 px step below 1e-4 px). The first,
+   unweighted pass of a noise-weighted fit only sets the weights and stops at 1e-2 px
+   (the weights change by < 1e-3; the points by < 2e-5 px on the pinned frames; not for
+   saturated windows, whose rougher cost let such weights move a 7.7 ms fix by 4e-5).
+   Against the
    per-window fit this replaced (a Python loop, ``lstsq`` per evaluation, eight damped
    retries at every minimum): the same points to 1.7e-4 px and sigmas to 4e-6 on the
-   pinned frames (``tests/navigation/test_refine_regression.py``), ~13 evaluations and 11
+   pinned frames (``tests/navigation/test_refine_regression.py``), ~11 evaluations and 9
    Jacobians per frame (two passes) instead of ~27 evaluations of all 16 windows
    (``docs/performance.md``). Tried and left out: Newton terms for the offset and tilt
    (residual times the blur's second derivative; Gauss-Newton gains about one digit per
@@ -609,7 +613,9 @@ _LM_LAMBDA0, _LM_LAMBDA_MIN, _LM_GROWTH, _LM_RETRIES = 1e-3, 1e-9, 10.0, 8
 #: window: offset and tilt times 5 px); a rejected step (the cost rose) brackets the minimum
 #: along it within half its length, so one shorter than twice this is converged too.
 _CONVERGED_STEP = 1e-4
-_STALLED_STEP = 2.0 * _CONVERGED_STEP
+#: The same for the unweighted first pass when a second, weighted one follows [px]: it only
+#: sets the weights (the noise at its prediction), which a 1e-2 px edge changes by < 1e-3.
+_WEIGHTS_STEP = 1e-2
 
 
 def _gauss_bases(d: FloatArray, t_arc: FloatArray, sigma: FloatArray, nus: tuple[float, ...],
@@ -786,8 +792,10 @@ class _BatchFit:
         return np.concatenate([np.stack(rows, axis=1), st["Bm"]], axis=1) * \
             self.sw[k][:, None, :]
 
-    def run(self) -> dict:
-        """One Levenberg-Marquardt pass from the current parameters; returns the state."""
+    def run(self, tolerance_px: float = _CONVERGED_STEP) -> dict:
+        """One Levenberg-Marquardt pass from the current parameters, a window converged
+        once an accepted step moves its edge by < ``tolerance_px`` (or a rejected one by
+        less than twice that); returns the state."""
         K = self.y.shape[0]
         st = self.evaluate(_ALL, self.delta, self.tau, self.sigma)
         keys = [key for key, v in st.items() if v is not None]
@@ -822,14 +830,14 @@ class _BatchFit:
                     trial = self.evaluate(wg, nd, nt, ns)
                     acc = trial["cost"] <= st["cost"][wg]
                     wa = wg[acc]
-                    converged[wa] = mx[acc] < _CONVERGED_STEP
+                    converged[wa] = mx[acc] < tolerance_px
                     self.delta[wa], self.tau[wa], self.sigma[wa] = nd[acc], nt[acc], ns[acc]
                     for key in keys:
                         st[key][wa] = trial[key][acc]
                     lam[wa] = np.maximum(lam[wa] / _LM_GROWTH, _LM_LAMBDA_MIN)
                     # a rejected step this small is rounding at the minimum: converged
                     # (damped retries would move the edge by less)
-                    stall = ~acc & (mx < _STALLED_STEP)
+                    stall = ~acc & (mx < 2.0 * tolerance_px)
                     converged[wg[stall]] = True
                     lam[wg[~acc & ~stall]] *= _LM_GROWTH
                     trying[go[acc | stall]] = False
@@ -893,11 +901,13 @@ def _fit_windows(y: FloatArray, mask: NDArray[np.bool_], rho: FloatArray, t_arc:
             return _gauss_bases(d, t_arc, sigma, nus, fit_sigma)
 
         fit = _BatchFit(y, mask, rho, t_arc, radius_px, basis, sigma, fit_sigma, opt)
-    st = fit.run()
     if opt.noise is not None:
+        # (a saturated window's cost is rough at the 1e-3 px level: there the first pass
+        # converges as fully as the second, or its weights move the edge by ~1e-3 px)
+        st = fit.run(_CONVERGED_STEP if saturated else _WEIGHTS_STEP)
         # weighted pass: weights from the noise model at the unweighted fit's prediction
         fit.weight(opt.noise, st)
-        st = fit.run()
+    st = fit.run()
     return fit.results(st)
 
 
