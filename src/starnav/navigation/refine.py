@@ -835,8 +835,8 @@ class _BatchFit:
                     for key in keys:
                         st[key][wa] = trial[key][acc]
                     lam[wa] = np.maximum(lam[wa] / _LM_GROWTH, _LM_LAMBDA_MIN)
-                    # a rejected step this small is rounding at the minimum: converged
-                    # (damped retries would move the edge by less)
+                    # a rejected step (the cost rose along it) brackets the minimum within
+                    # half its length: one under twice the tolerance has converged
                     stall = ~acc & (mx < 2.0 * tolerance_px)
                     converged[wg[stall]] = True
                     lam[wg[~acc & ~stall]] *= _LM_GROWTH
