@@ -55,6 +55,28 @@ Re-pinned (each time the only difference, explained):
   the final position error by 21 m (73 625 -> 73 603 m; 8e-5 of its 3-sigma). The same
   renders agree with the renderer before the change within Monte Carlo noise and to float32
   rounding seed for seed (``tests/renderer/test_speed_agreement.py``).
+* 2026-11-25, the refinement's convergence test (issue 18, chain within 5 ms): a rejected
+  Levenberg-Marquardt step shorter than 2e-4 px now ends a window's fit (it brackets the
+  minimum within half its length, 1e-4 px, the accepted-step threshold) instead of up to
+  seven more damped retries, so a window that stopped there moves by < 1e-4 px. The second
+  0.015 ms frame's fix moved by 240 m at 79 000 km (3e-6; 0.3 % of its 1-sigma), the 7.7 ms
+  fixes by up to 7 m (1e-7), the first 0.015 ms fix not at all, and the numbers downstream:
+  sweep ``limb_bias_px`` 0.0196434 -> 0.0196387 px, the final position error by 36 m (5e-4
+  of it), NEES by 1.5e-5 relative. Images, dataset and counts are unchanged; the other speed
+  work of that change (limb scan, fix stage, filter) is pinned to 1e-9 by
+  ``tests/navigation/test_chain_regression.py``.
+* 2026-11-25, same issue: the unweighted first pass of a noise-weighted refinement (it only
+  sets the weights) stops once a step moves the edge < 1e-2 px instead of 1e-4 px (not for
+  saturated windows): the weights change by < 1e-3, the points by < 2e-5 px on the pinned
+  refinement frames. The first 0.015 ms fix moved by 230 m at 79 000 km (2.9e-6), the second
+  by 8 m, the 7.7 ms fixes not at all; sweep ``limb_bias_px`` 0.0196387 -> 0.0196341 px,
+  the final position error +28 m (4e-4 of it) and -5 m at the second sweep point, NEES by
+  4e-5 relative. Images, dataset and counts unchanged.
+* 2026-11-25, the two changes above merged, re-pinned on the merged code: the images and DN
+  equal the renderer change's pins exactly; the navigation numbers differ from either
+  branch's pins by at most 1.4e-3 relative (final position error 73 603 m with the renderer
+  change, 73 689 m with the refinement change, 73 668 m merged; 125 of 13 269 values moved,
+  each by the two changes' own amounts combined).
 """
 
 from __future__ import annotations

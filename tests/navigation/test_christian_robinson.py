@@ -20,6 +20,7 @@ from starnav.navigation.christian_robinson import (
     ChristianRobinsonOptions,
     FixError,
     christian_robinson,
+    christian_robinson_centres,
     christian_robinson_jacobian,
     ellipsoid_limb_points,
     scaled_rays,
@@ -207,3 +208,29 @@ def test_bad_input_messages(cam):
 
     with pytest.raises(ConfigError, match="fix.radii_m"):
         ChristianRobinsonOptions(radii_m=(1.0, -2.0, 3.0))
+
+
+def test_with_sigma_and_batched_centres_repeat_the_full_solve():
+    """The shortcuts the pipeline takes (issue 18) give what a full solve gives: the
+    covariance of other point sigmas from the stored Jacobian, and the centres of several
+    point sets solved together (the same arithmetic: equal to the last bit)."""
+    T = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix()
+    radii = (1738e3, 1737e3, 1735e3)
+    opt = ChristianRobinsonOptions(radii_m=radii)
+    c = np.array([2e5, -1e5, 2.0e7])
+    cam = distorted_camera()
+    uv = ellipsoid_limb_points(cam, c, shape_transform(radii, T), n=64)
+    rng = np.random.default_rng(3)
+    s1, s2 = rng.uniform(0.1, 1.0, len(uv)), rng.uniform(0.1, 1.0, len(uv))
+    fix = christian_robinson(uv, cam, sigma_px=s1, R_body_to_cam=T, options=opt)
+    want = christian_robinson(uv, cam, sigma_px=s2, R_body_to_cam=T, options=opt)
+    np.testing.assert_allclose(fix.with_sigma(s2).covariance_camera, want.covariance_camera,
+                               rtol=1e-12)
+    with pytest.raises(FixError, match="without its covariance"):
+        christian_robinson(uv, cam, with_covariance=False).with_sigma(s2)
+    sets = uv[None] + rng.normal(0.0, 0.3, (3,) + uv.shape)
+    got = christian_robinson_centres(sets, cam, R_body_to_cam=T, options=opt)
+    for k in range(3):
+        one = christian_robinson(sets[k], cam, R_body_to_cam=T, options=opt,
+                                 with_covariance=False)
+        np.testing.assert_array_equal(got[k], one.centre_camera)

@@ -12,6 +12,7 @@ from starnav.geometry import static_geometry
 from starnav.navigation.limb import (
     LimbNotFoundError,
     LimbScanOptions,
+    _column_scan,
     limb_points_from_segments,
     segments_centroid,
     sun_direction_in_image,
@@ -159,3 +160,25 @@ def test_multi_threshold_segments_of_the_detector_readout(cam, disc_frame):
     lp_ref, _ = _limb(cam, g, threshold_segments(dn, (300,)))
     assert np.array_equal(lp0.uv, lp_ref.uv)
     assert e1.mean() < e0.mean() - 0.2
+
+
+@pytest.mark.parametrize("down", [True, False])
+def test_column_scan_matches_painting_every_pixel(down):
+    """The sparse-table column scan (issue 18) against the plain definition: every pixel of
+    every run painted into a dense image, and per column the lowest (``down``) or highest
+    covered row. Random runs, overlapping ones and runs of one pixel and of the full width
+    included."""
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        W, n = int(rng.integers(1, 260)), int(rng.integers(1, 120))
+        row = rng.integers(0, 90, n)
+        c0 = rng.integers(0, W, n)
+        c1 = np.minimum(c0 + rng.integers(0, W, n), W - 1)
+        img = np.zeros((90, W), bool)
+        for r, a, b in zip(row, c0, c1, strict=True):
+            img[r, a:b + 1] = True
+        cols = np.flatnonzero(img.any(axis=0))
+        rows = (89 - np.argmax(img[::-1], axis=0) if down else np.argmax(img, axis=0))[cols]
+        u, v = _column_scan(row, c0, c1, W, down)
+        np.testing.assert_array_equal(u, cols)
+        np.testing.assert_array_equal(v, rows)

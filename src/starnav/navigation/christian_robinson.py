@@ -58,7 +58,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -165,6 +165,9 @@ class LimbFix:
         Per-point residual to the fitted limb cone [px] (module step 6).
     n_points : int
         Number of limb points used.
+    point_jacobian : (N, 3, 2) array or None
+        ``d centre_camera / d(u_i, v_i)`` [m/px] when the covariance was computed
+        (:meth:`with_sigma` reuses it).
     """
 
     centre_camera: FloatArray
@@ -172,6 +175,14 @@ class LimbFix:
     n: FloatArray
     residual_px: FloatArray
     n_points: int
+    point_jacobian: FloatArray | None = field(default=None, repr=False, compare=False)
+
+    def with_sigma(self, sigma_px: float | ArrayLike) -> LimbFix:
+        """The same fix with the covariance of other point sigmas [px] (the Jacobian is the
+        same: no new solve)."""
+        if self.point_jacobian is None:
+            raise FixError("LimbFix.with_sigma: the fix was solved without its covariance")
+        return replace(self, covariance_camera=_point_covariance(self.point_jacobian, sigma_px))
 
     @property
     def range_m(self) -> float:
@@ -227,9 +238,10 @@ def scaled_rays(uv: ArrayLike, camera: Camera, B: FloatArray,
     s = y / ny[:, None]
     if not with_jacobian:
         return s, None
-    Jx = camera.unproject_jacobian(uv)  # (N, 3, 2)
-    P = (np.eye(3)[None] - s[:, :, None] * s[:, None, :]) / ny[:, None, None]
-    return s, P @ (B[None] @ Jx)
+    BJ = np.matmul(B, camera.unproject_jacobian(uv))  # (N, 3, 2)
+    # (I - s s^T) / |y| applied to B Jx without forming the (N, 3, 3) projector
+    sBJ = np.matmul(s[:, None, :], BJ)                 # (N, 1, 2)
+    return s, (BJ - s[:, :, None] * sBJ) / ny[:, None, None]
 
 
 def cone_residual_px(s: FloatArray, n: FloatArray, pixel_angle_rad: float) -> FloatArray:
@@ -304,13 +316,45 @@ def christian_robinson(
                        "need >= 3 points spread along the limb")
     c = centre_from_n(n, B)
     res = cone_residual_px(s, n, 1.0 / camera.fx)
-    cov = np.zeros((3, 3))
+    cov, G = np.zeros((3, 3)), None
     if with_covariance:
         G = christian_robinson_jacobian_from(s, Js, n, B)
-        sig = np.broadcast_to(np.asarray(sigma_px, float), (N,))
-        cov = np.einsum("i,iak,ibk->ab", sig**2, G, G)
-        cov = 0.5 * (cov + cov.T)
-    return LimbFix(centre_camera=c, covariance_camera=cov, n=n, residual_px=res, n_points=N)
+        cov = _point_covariance(G, sigma_px)
+    return LimbFix(centre_camera=c, covariance_camera=cov, n=n, residual_px=res, n_points=N,
+                   point_jacobian=G)
+
+
+def _point_covariance(G: FloatArray, sigma_px: float | ArrayLike) -> FloatArray:
+    """``sum_i sigma_i^2 G_i G_i^T`` of the per-point Jacobians ``G (N, 3, 2)`` [m^2]."""
+    sig = np.broadcast_to(np.asarray(sigma_px, float), (G.shape[0],))
+    X = (G * sig[:, None, None]).transpose(1, 0, 2).reshape(3, -1)
+    cov = X @ X.T
+    return 0.5 * (cov + cov.T)
+
+
+def christian_robinson_centres(uv_sets: ArrayLike, camera: Camera, *,
+                               R_body_to_cam: ArrayLike | None = None,
+                               options: ChristianRobinsonOptions | None = None) -> FloatArray:
+    """Body centres ``(K, 3)`` [m, camera frame] of ``K`` sets of ``N`` limb points
+    ``(K, N, 2)`` [px], without covariance: the same arithmetic as :func:`christian_robinson`
+    on each set, the rays of all sets unprojected at once (the pipeline's sensitivity to
+    errors all points share moves every point and solves again)."""
+    opt = options or ChristianRobinsonOptions()
+    uv = np.asarray(uv_sets, float)
+    K, N = uv.shape[:2]
+    if N < opt.min_points:
+        raise FixError(f"Christian-Robinson: {N} limb points, need >= {opt.min_points}")
+    B = shape_transform(opt.radii_m, R_body_to_cam)
+    s = scaled_rays(uv.reshape(-1, 2), camera, B)[0].reshape(K, N, 3)
+    ones = np.ones(N)
+    out = np.empty((K, 3))
+    for k in range(K):
+        n, _, rank, _ = np.linalg.lstsq(s[k], ones, rcond=None)
+        if rank < 3:
+            raise FixError(f"Christian-Robinson: the {N} limb rays are degenerate (rank "
+                           f"{rank}); need >= 3 points spread along the limb")
+        out[k] = centre_from_n(n, B)
+    return out
 
 
 def christian_robinson_jacobian_from(s: FloatArray, Js: FloatArray, n: FloatArray,
@@ -322,9 +366,9 @@ def christian_robinson_jacobian_from(s: FloatArray, Js: FloatArray, n: FloatArra
     nn = float(n @ n)
     Binv = np.linalg.inv(B)
     Jc = Binv @ (np.eye(3) / math.sqrt(nn - 1.0) - np.outer(n, n) / (nn - 1.0) ** 1.5)
-    # dn/ds_i = Minv (e_i I - s_i n^T)
-    D = e[:, None, None] * np.eye(3)[None] - s[:, :, None] * n[None, None, :]
-    return (Jc @ Minv)[None] @ D @ Js
+    # dn/ds_i = Minv (e_i I - s_i n^T), applied to Js without forming the (N, 3, 3) D_i
+    DJ = e[:, None, None] * Js - s[:, :, None] * np.matmul(n, Js)[:, None, :]
+    return np.matmul(Jc @ Minv, DJ)
 
 
 def christian_robinson_jacobian(uv: ArrayLike, camera: Camera, *,

@@ -15,7 +15,9 @@ Technique
 3. **Scans.** Four scans of the runs, one per image direction: the right end of the last run of
    every row (looking at +u), the left end of the first run (-u), the bottom end of the lowest
    run covering every column (+v) and the top end of the highest one (-v). Column ends are
-   found by painting the runs into a per-column array in row order, so no pixel is expanded.
+   a range-max (range-min) update over the runs, done as a sparse table in reverse (each run
+   written as two power-of-two blocks, pushed down level by level): no pixel is expanded and
+   no run is a Python step.
 4. **Four sectors.** The image is split into four sectors by the two diagonals through the disc
    centre ``c``: a scan's end point is kept only in its own sector (``+u`` ends where
    ``du >= |dv|``, and so on), so every point is found by a scan within 45 deg of the limb
@@ -268,7 +270,14 @@ def fit_circle_kasa(uv: ArrayLike) -> tuple[FloatArray, float]:
     q = p - m
     A = np.column_stack([q, np.ones(q.shape[0])])
     b = np.sum(q * q, axis=1)
-    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    # the normal equations (3 x 3, well conditioned: the points are centred, so the constant
+    # column is orthogonal to the others); SVD least squares only when they are singular
+    N = A.T @ A
+    Suu, Svv, Suv = N[0, 0], N[1, 1], N[0, 1]
+    if Suu * Svv - Suv * Suv > 1e-12 * Suu * Svv:
+        sol = np.linalg.solve(N, A.T @ b)
+    else:   # collinear points: the minimum-norm solution, rejected below if it is no circle
+        sol, *_ = np.linalg.lstsq(A, b, rcond=None)
     c = sol[:2] / 2.0
     r2 = sol[2] + c @ c
     if not np.isfinite(r2) or r2 <= 0:
@@ -303,19 +312,34 @@ def _row_scan(row: NDArray, c0: NDArray, c1: NDArray, right: bool) -> tuple[NDAr
 
 def _column_scan(row: NDArray, c0: NDArray, c1: NDArray, width: int,
                  down: bool) -> tuple[NDArray, NDArray]:
-    """Lit-side end per column: lowest row (``down``) or highest row covering it.
+    """Lit-side end per column: lowest row (``down``: the largest row index) or highest row
+    covering it.
 
-    Runs are painted into a per-column array in row order (bottom-most last when ``down``), one
-    slice assignment per run: O(runs) Python steps, no per-pixel expansion.
+    A range-max (range-min) update with point queries, as a sparse table in reverse: run
+    ``[c0, c1]`` of length ``n`` is covered by the two blocks of ``2^floor(log2 n)`` columns
+    starting at ``c0`` and ending at ``c1`` (the extremum does not mind the overlap), written
+    with one scatter per table; the blocks are then pushed down level by level to single
+    columns. O(runs + width log width) array work, no per-run Python step and no per-pixel
+    expansion.
     """
-    order = np.argsort(row, kind="stable")
-    if not down:
-        order = order[::-1]
-    ext = np.full(width, -1, dtype=np.int64)
-    for r, a, b in zip(row[order].tolist(), c0[order].tolist(), c1[order].tolist(),
-                       strict=True):
-        ext[a:b + 1] = r
-    u = np.nonzero(ext >= 0)[0]
+    n = c1 - c0 + 1
+    lvl = np.frexp(n.astype(float))[1] - 1   # floor(log2 n), exact for integers
+    top = int(lvl.max()) + 1 if n.size else 1
+    if down:
+        op, fill = np.maximum, -1
+    else:
+        op, fill = np.minimum, np.iinfo(np.int64).max
+    T = np.full((top, width), fill, dtype=np.int64)
+    r = row.astype(np.int64)
+    op.at(T, (lvl, c0), r)
+    op.at(T, (lvl, c1 - (np.int64(1) << lvl) + 1), r)
+    for level in range(top - 1, 0, -1):
+        h = 1 << (level - 1)
+        lo, hi = T[level - 1], T[level]
+        op(lo, hi, out=lo)
+        op(lo[h:], hi[:width - h], out=lo[h:])
+    ext = T[0]
+    u = np.nonzero(ext != fill)[0]
     return u, ext[u]
 
 
@@ -408,7 +432,11 @@ def limb_points_from_segments(
     if ok.sum() >= opt.min_points:  # second pass with the centre of the lit limb alone
         centre, radius = fit_circle_kasa(cand[ok])
         ok = _sector_and_lit(cand, scan, centre, d, opt.min_sun_cos)
-    pts = np.unique(cand[ok], axis=0)  # a corner pixel can end a row and a column
+    # a corner pixel can end a row and a column: unique pixels, sorted by (u, v) as
+    # np.unique(axis=0) would, through one integer key (4x faster)
+    ij = cand[ok].astype(np.int64)
+    key = np.unique(ij[:, 0] * (int(H) + 1) + ij[:, 1])
+    pts = np.column_stack([key // (int(H) + 1), key % (int(H) + 1)]).astype(float)
     if pts.shape[0] < opt.min_points:
         raise LimbNotFoundError(
             f"degenerate arc: {pts.shape[0]} lit limb points (< {opt.min_points}) out of "

@@ -58,6 +58,7 @@ from starnav.navigation.christian_robinson import (
     FixError,
     LimbFix,
     christian_robinson,
+    christian_robinson_centres,
 )
 from starnav.navigation.dynamics import Dynamics, MoonEphemeris
 from starnav.navigation.ekf import EkfOptions, NavigationEkf
@@ -301,9 +302,9 @@ def process_frame(
         G = Gpx * float(refined.radius_px)
         if refined.fix_covariance_px2 is not None and refined.fit_sigma_px is not None:
             # the pixels' noise and the attitude, and the calibrated slowly varying rest
-            white = christian_robinson(refined.uv, camera, sigma_px=refined.fit_sigma_px,
-                                       R_body_to_cam=R_body_to_cam, options=opt.fix
-                                       ).covariance_inertial(R_ci, opt.fix.attitude_sigma_rad)
+            # the same points as the fix: its Jacobian with the fit's own sigmas
+            white = fix.with_sigma(refined.fit_sigma_px).covariance_inertial(
+                R_ci, opt.fix.attitude_sigma_rad)
             cov = white + Gpx @ np.asarray(refined.fix_covariance_px2, float) @ Gpx.T
         else:
             cov = noise + Gpx @ np.asarray(refined.common_covariance_px2, float) @ Gpx.T
@@ -329,13 +330,11 @@ def _common_jacobian(fix: LimbFix, refined: LimbPoints, camera: Camera, R_ci: Fl
     d = d / nd if nd > 0 else np.array([1.0, 0.0])
     rel = refined.uv - np.asarray(refined.centre_px, float)
     normals = rel / np.linalg.norm(rel, axis=1, keepdims=True)
-    G = np.empty((3, 3))
-    for j, move in enumerate((normals, np.broadcast_to(d, rel.shape),
-                              np.broadcast_to(np.array([-d[1], d[0]]), rel.shape))):
-        moved = christian_robinson(refined.uv + move, camera, R_body_to_cam=R_body_to_cam,
-                                   options=options, with_covariance=False)
-        G[:, j] = -R_ci @ (moved.centre_camera - fix.centre_camera)
-    return G
+    moves = np.stack([normals, np.broadcast_to(d, rel.shape),
+                      np.broadcast_to(np.array([-d[1], d[0]]), rel.shape)])
+    moved = christian_robinson_centres(refined.uv + moves, camera, R_body_to_cam=R_body_to_cam,
+                                       options=options)
+    return -R_ci @ (moved - fix.centre_camera).T
 
 
 # ----------------------------------------------------------------------------- filter
