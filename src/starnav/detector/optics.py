@@ -449,6 +449,37 @@ class PointSources:
         return int(self.u.size)
 
 
+def _sampled_psf(x: NDArray[np.float64], y: NDArray[np.float64], step: float,
+                 defocus_radius: float, sigma_radial: float, sigma_tangential: float,
+                 angle: float) -> NDArray[np.float64] | None:
+    """The point-source PSF (defocus disc convolved with the rotated aberration Gaussian)
+    sampled at the sample centres ``(x, y)`` [px] of pitch ``step``, unnormalised; ``None``
+    when there is no optics (no disc, no Gaussian)."""
+    smax = max(sigma_radial, sigma_tangential)
+    ca, sa = math.cos(angle), math.sin(angle)
+    sr = max(sigma_radial, 0.25 * step)
+    st = max(sigma_tangential, 0.25 * step)
+
+    def gauss(gx: NDArray[np.float64], gy: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.exp(-0.5 * (((ca * gx + sa * gy) / sr) ** 2 + ((-sa * gx + ca * gy) / st) ** 2))
+
+    disc = disc_coverage(defocus_radius, x, y, step) if defocus_radius > 0 else None
+    if disc is not None and disc.sum() == 0:
+        disc = None
+    if smax <= 0 and disc is None:
+        return None
+    if disc is None:
+        return gauss(x, y)
+    if smax <= 0:
+        return disc
+    from scipy.signal import fftconvolve
+
+    m = int(math.ceil(GAUSS_TRUNCATE_SIGMA * smax / step))
+    g = np.arange(-m, m + 1) * step
+    gx, gy = np.meshgrid(g, g)
+    return fftconvolve(disc, gauss(gx, gy), mode="same")  # odd kernel: exactly centred
+
+
 @lru_cache(maxsize=256)
 def _point_source_integral(defocus_radius: float, sigma_radial: float, sigma_tangential: float,
                            angle: float, oversample: int) -> tuple[NDArray[np.float64], int]:
@@ -463,30 +494,10 @@ def _point_source_integral(defocus_radius: float, sigma_radial: float, sigma_tan
     step = 1.0 / s
     t = (np.arange(n) + 0.5) * step - (half + 0.5)
     x, y = np.meshgrid(t, t)
-    ca, sa = math.cos(angle), math.sin(angle)
-    sr = max(sigma_radial, 0.25 * step)
-    st = max(sigma_tangential, 0.25 * step)
-
-    def gauss(gx: NDArray[np.float64], gy: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.exp(-0.5 * (((ca * gx + sa * gy) / sr) ** 2 + ((-sa * gx + ca * gy) / st) ** 2))
-
-    disc = disc_coverage(defocus_radius, x, y, step) if defocus_radius > 0 else None
-    if disc is not None and disc.sum() == 0:
-        disc = None
-    if smax <= 0 and disc is None:  # no optics: a point at the centre
+    fine = _sampled_psf(x, y, step, defocus_radius, sigma_radial, sigma_tangential, angle)
+    if fine is None:  # no optics: a point at the centre
         fine = np.zeros((n, n))
         fine[n // 2, n // 2] = 1.0
-    elif disc is None:
-        fine = gauss(x, y)
-    elif smax <= 0:
-        fine = disc
-    else:
-        from scipy.signal import fftconvolve
-
-        m = int(math.ceil(GAUSS_TRUNCATE_SIGMA * smax / step))
-        g = np.arange(-m, m + 1) * step
-        gx, gy = np.meshgrid(g, g)
-        fine = fftconvolve(disc, gauss(gx, gy), mode="same")  # odd kernel: exactly centred
     fine = np.clip(fine, 0.0, None)
     fine /= fine.sum()
     C = np.zeros((n + 1, n + 1))
@@ -555,31 +566,11 @@ def point_source_kernel_sampled(defocus_radius: float, sigma_radial: float,
     step = 1.0 / s
     t = (np.arange(n) + 0.5) * step - (half + 0.5)
     x, y = np.meshgrid(t - du, t - dv)
-    ca, sa = math.cos(angle), math.sin(angle)
-    sr = max(sigma_radial, 0.25 * step)
-    st = max(sigma_tangential, 0.25 * step)
-
-    def gauss(gx: NDArray[np.float64], gy: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.exp(-0.5 * (((ca * gx + sa * gy) / sr) ** 2 + ((-sa * gx + ca * gy) / st) ** 2))
-
-    disc = disc_coverage(defocus_radius, x, y, step) if defocus_radius > 0 else None
-    if disc is not None and disc.sum() == 0:
-        disc = None
-    if smax <= 0 and disc is None:  # no optics: the pixel that holds the point takes it all
+    fine = _sampled_psf(x, y, step, defocus_radius, sigma_radial, sigma_tangential, angle)
+    if fine is None:  # no optics: the pixel that holds the point takes it all
         k = np.zeros((2 * half + 1, 2 * half + 1))
         k[half + int(round(dv)), half + int(round(du))] = 1.0
         return k.astype(np.float32)
-    if disc is None:
-        fine = gauss(x, y)
-    elif smax <= 0:
-        fine = disc
-    else:
-        from scipy.signal import fftconvolve
-
-        m = int(math.ceil(GAUSS_TRUNCATE_SIGMA * smax / step))
-        g = np.arange(-m, m + 1) * step
-        gx, gy = np.meshgrid(g, g)
-        fine = fftconvolve(disc, gauss(gx, gy), mode="same")  # odd kernel: exactly centred
     fine = np.clip(fine, 0.0, None)
     k = fine.reshape(2 * half + 1, s, 2 * half + 1, s).sum(axis=(1, 3))
     return (k / k.sum()).astype(np.float32)
