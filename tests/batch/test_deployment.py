@@ -31,6 +31,7 @@ from typer.testing import CliRunner
 from starnav.batch.cluster import WORKER_PRELOAD
 from starnav.batch.table import read_table
 from starnav.dataset import format as F
+from tests.faults import die_once
 
 from .conftest import SMALL, deterministic
 
@@ -193,7 +194,7 @@ def _arm_sweep_death(marker: str) -> None:
 
     def dying_process_frame(frame, *args, **kwargs):
         if int(frame.index) == DOOMED_FRAME:
-            _die_once(marker, f"expose of frame {frame.index} in pid {os.getpid()}")
+            die_once(marker, f"expose of frame {frame.index} in pid {os.getpid()}")
         return real(frame, *args, **kwargs)
 
     tasks.process_frame = dying_process_frame
@@ -210,20 +211,10 @@ def _arm_dataset_death(marker: str) -> None:
     def dying_write(image, path, *args, **kwargs):
         frame_tmp = Path(path).parent.parent.name
         if frame_tmp.startswith(f"{F.TMP_PREFIX}{F.frame_dirname(DOOMED_FRAME)}-"):
-            _die_once(marker, frame_tmp)
+            die_once(marker, frame_tmp)
         return real(image, path, *args, **kwargs)
 
     w.write_dn_png = dying_write
-
-
-def _die_once(marker: str, note: str) -> None:
-    try:
-        fd = os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-    except FileExistsError:
-        return
-    os.write(fd, note.encode())
-    os.close(fd)
-    os.kill(os.getpid(), signal.SIGKILL)
 
 
 # ------------------------------------------------------------------ helpers

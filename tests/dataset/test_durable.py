@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import signal
 from pathlib import Path
 
 import pytest
@@ -18,6 +17,7 @@ from starnav.dataset import DatasetOptions, generate, verify
 from starnav.dataset import format as F
 from starnav.dataset.runner import InProcessRunner
 from starnav.errors import DataFileError
+from tests.faults import die_once
 
 from .conftest import small_scenario, tree_bytes
 
@@ -141,14 +141,7 @@ def _arm_worker_death(marker: str) -> None:
     def dying_write(image, path, *args, **kwargs):
         frame_tmp = Path(path).parent.parent.name
         if frame_tmp.startswith(f"{F.TMP_PREFIX}{F.frame_dirname(_DOOMED_FRAME)}-"):
-            try:
-                fd = os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-            except FileExistsError:
-                pass
-            else:
-                os.write(fd, frame_tmp.encode())
-                os.close(fd)
-                os.kill(os.getpid(), signal.SIGKILL)
+            die_once(marker, frame_tmp)
         return real(image, path, *args, **kwargs)
 
     w.write_dn_png = dying_write
