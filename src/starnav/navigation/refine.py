@@ -677,13 +677,14 @@ class _StackedTables:
             tab = np.array([np.concatenate([getattr(t, name) for t in tables])
                             for name in ("b0", "b1", "lsf")])
             # forward differences (the last sample of each table is never a left neighbour)
-            hit = (tuple(tables), tab, np.diff(tab, axis=1, append=0.0),
+            # values and forward differences in one array: one gather per evaluation
+            hit = (tuple(tables), np.concatenate([tab, np.diff(tab, axis=1, append=0.0)]),
                    np.array([t.mean for t in tables])[:, None])
             with self._lock:
                 while len(self._cache) >= self._CACHE_SIZE:
                     self._cache.pop(next(iter(self._cache)))
                 self._cache[key] = hit
-        self.tab, self.diff, self.mean = hit[1:]
+        self.tabdiff, self.mean = hit[1:]
         # a curved edge blurred looks like a straight one moved inwards by the blur's
         # variance along the edge over twice the radius of curvature (to first order)
         shift = np.array([t.tangent_variance for t in tables]) / (2.0 * radius_px)
@@ -698,26 +699,32 @@ class _StackedTables:
         ``np.interp``."""
         dd = d + self.shift[k]
         u = (dd - self.x0) / self.h
-        j = np.clip(u, 0, self.n - 2).astype(np.intp)    # floor, u >= 0 once clipped
+        j = u.clip(0, self.n - 2).astype(np.intp)    # floor, u >= 0 once clipped
         f = u - j
         j += self.base[k]
-        b0, b1, lsf = self.tab.take(j, axis=1) + f * self.diff.take(j, axis=1)
-        inside, outside = dd < self.x0, dd > self.x1    # asymptotes past the table
-        if inside.any():
+        g = self.tabdiff.take(j, axis=1)
+        g[3:] *= f
+        g[:3] += g[3:]
+        b0, b1, lsf = g[0], g[1], g[2]
+        if dd.min() < self.x0:    # asymptotes past the table (inside)
+            inside = dd < self.x0
             b0[inside] = 1.0
             b1[inside] = np.broadcast_to(self.mean[k], dd.shape)[inside] - dd[inside]
             lsf[inside] = 0.0
-        if outside.any():
+        if dd.max() > self.x1:    # outside
+            outside = dd > self.x1
             b0[outside] = b1[outside] = lsf[outside] = 0.0
         p = 4 if ramp else 3
-        Bm, dB = np.empty((d.shape[0], p, d.shape[1])), np.empty((d.shape[0], p, d.shape[1]))
+        K, M = d.shape
+        Bm, dB = np.empty((K, p, M)), np.empty((K, p, M))
         Bm[:, 0], dB[:, 0] = 1.0, 0.0
-        Bm[:, 1], dB[:, 1] = b0, -lsf
+        Bm[:, 1] = b0
+        np.negative(lsf, out=dB[:, 1])
         if ramp:
-            Bm[:, 2], dB[:, 2] = b1, -b0
+            Bm[:, 2] = b1
+            np.negative(b0, out=dB[:, 2])
         np.multiply(t_arc, b0, out=Bm[:, p - 1])
-        np.multiply(t_arc, lsf, out=dB[:, p - 1])
-        np.negative(dB[:, p - 1], out=dB[:, p - 1])
+        np.multiply(t_arc, dB[:, 1], out=dB[:, p - 1])
         return Bm, dB, None
 
 
@@ -784,13 +791,17 @@ class _BatchFit:
         """Weighted Jacobian ``(k, n, M)`` of the windows ``k`` (``st`` their state) with
         respect to ``(delta, tau[, sigma])`` and the amplitudes (``dd/ddelta = -1``,
         ``dd/dtau = -t_arc``)."""
-        lin = st["lin"][:, None, :]
-        dI_dd = (lin @ st["dBd"])[:, 0, :]
-        rows = [-dI_dd, -dI_dd * self.t_arc[k]]
+        lin, Bm = st["lin"][:, None, :], st["Bm"]
+        q = 3 if self.fit_sigma else 2   # rows of the nonlinear parameters
+        J = np.empty((Bm.shape[0], q + Bm.shape[1], Bm.shape[2]))
+        np.matmul(lin, st["dBd"], out=J[:, 0:1])
+        np.negative(J[:, 0], out=J[:, 0])
+        np.multiply(J[:, 0], self.t_arc[k], out=J[:, 1])
         if self.fit_sigma:
-            rows.append((lin @ st["dBs"])[:, 0, :])
-        return np.concatenate([np.stack(rows, axis=1), st["Bm"]], axis=1) * \
-            self.sw[k][:, None, :]
+            np.matmul(lin, st["dBs"], out=J[:, 2:3])
+        J[:, q:] = Bm
+        J *= self.sw[k][:, None, :]
+        return J
 
     def run(self, tolerance_px: float = _CONVERGED_STEP) -> dict:
         """One Levenberg-Marquardt pass from the current parameters, a window converged
@@ -806,8 +817,10 @@ class _BatchFit:
         while active.any():
             a = np.flatnonzero(active)   # the windows still iterating
             it[a] += 1
+            # (all windows: views instead of copies, the usual case but for the last ones)
+            ka = _ALL if a.size == K else a
             sa = st if a.size == K else {key: st[key][a] for key in keys}
-            J = self.jacobian(sa, a)
+            J = self.jacobian(sa, ka)
             JTJ = J @ J.transpose(0, 2, 1)
             g = (J @ sa["r"][..., None])[..., 0]
             diag = np.diagonal(JTJ, axis1=1, axis2=2).copy()
@@ -827,13 +840,17 @@ class _BatchFit:
                     nd, nt = self.delta[wg] + step[:, 0], self.tau[wg] + step[:, 1]
                     ns = (np.clip(self.sigma[wg] + step[:, 2], 0.2, 10.0) if self.fit_sigma
                           else self.sigma[wg])
-                    trial = self.evaluate(wg, nd, nt, ns)
+                    trial = self.evaluate(_ALL if wg.size == K else wg, nd, nt, ns)
                     acc = trial["cost"] <= st["cost"][wg]
                     wa = wg[acc]
                     converged[wa] = mx[acc] < tolerance_px
-                    self.delta[wa], self.tau[wa], self.sigma[wa] = nd[acc], nt[acc], ns[acc]
-                    for key in keys:
-                        st[key][wa] = trial[key][acc]
+                    if wa.size == K:   # every window stepped and improved: take the trial
+                        self.delta, self.tau, self.sigma = nd, nt, ns
+                        st = trial
+                    else:
+                        self.delta[wa], self.tau[wa], self.sigma[wa] = nd[acc], nt[acc], ns[acc]
+                        for key in keys:
+                            st[key][wa] = trial[key][acc]
                     lam[wa] = np.maximum(lam[wa] / _LM_GROWTH, _LM_LAMBDA_MIN)
                     # a rejected step (the cost rose along it) brackets the minimum within
                     # half its length: one under twice the tolerance has converged
