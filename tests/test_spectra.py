@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
+from colour.plotting.datasets.astm_g_173 import SD_ASTMG173_ETR
 
 from starnav.constants import AU, TSI_IAU2015
 from starnav.errors import ConfigError, UnknownNameError
@@ -92,3 +96,20 @@ def test_custom_table_and_errors():
         sensor_response("nope")
     with pytest.raises(UnknownNameError, match="astm-g173"):
         solar_spectrum("nope")
+
+
+def test_packaged_astm_g173_is_colours_table():
+    # the packaged CSV (tools/package_astm_g173.py) is colour-science's SD_ASTMG173_ETR bit for
+    # bit: the default Sun, hence every render, is the same as when it was read from colour
+    sp = solar_spectrum()
+    np.testing.assert_array_equal(sp.wavelengths, np.asarray(SD_ASTMG173_ETR.wavelengths, float))
+    np.testing.assert_array_equal(sp.values, np.asarray(SD_ASTMG173_ETR.values, float))
+
+
+def test_solar_spectrum_does_not_import_colour():
+    # the point of packaging the table: a worker's first render does not pay colour's import
+    code = ("import sys; from starnav.spectra import solar_spectrum; solar_spectrum(); "
+            "print('colour' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    assert out.stdout.strip() == "False"

@@ -50,6 +50,7 @@ from PIL import Image, ImageDraw, ImageFont
 from PIL.PngImagePlugin import PngInfo
 
 from starnav.atomic import atomic_path
+from starnav.detector.io import PNG_COMPRESS_LEVEL
 from starnav.errors import ConfigError
 from starnav.radiance import RadianceImage
 
@@ -212,7 +213,7 @@ def write_quicklook(values: ArrayLike, path: str | os.PathLike[str], caption: st
     info.add_text("starnav:unit", unit)
     p = Path(path)
     with atomic_path(p, suffix=".png") as tmp:
-        img.save(tmp, format="PNG", pnginfo=info)
+        img.save(tmp, format="PNG", pnginfo=info, compress_level=PNG_COMPRESS_LEVEL)
     return QuickLookInfo(p, lo, hi, unit, caption)
 
 

@@ -13,8 +13,8 @@ Quantities and units
 * Band irradiance ``E_band = integral E dlambda`` over the sensor band [W m^-2].
 * Photo-electron irradiance ``E_e = integral E QE T lambda / (h c) dlambda`` [e- s^-1 m^-2].
 
-Sources: ASTM G-173 extraterrestrial spectrum shipped by colour-science (280-4000 nm; it
-integrates to 1347.9 W/m^2); IAU 2015 nominal TSI 1361 W/m^2; Planck's law for the optional
+Sources: ASTM G-173 extraterrestrial spectrum as colour-science ships it, packaged in
+``data/sun`` (280-4000 nm; it integrates to 1347.9 W/m^2); IAU 2015 nominal TSI 1361 W/m^2; Planck's law for the optional
 black body. The AA-STR QE and optics transmission are the ABRAM AA-STR configuration
 (docs/facts.md section 1): 12 bands of 50 nm from 425 to 1025 nm, piecewise constant.
 
@@ -112,12 +112,16 @@ def product(a: Spectrum, b: Spectrum, unit: str = "") -> Spectrum:
 
 
 # --------------------------------------------------------------------------- the Sun
+#: The ASTM G-173-03 extraterrestrial spectrum, package-relative: colour-science's
+#: ``SD_ASTMG173_ETR`` copied by ``tools/package_astm_g173.py`` (importing ``colour`` to read
+#: it took 4 s at every worker start, issue 18).
+ASTM_G173_FILE = "sun/astm_g173_etr.csv"
+
+
 @lru_cache(maxsize=1)
 def _astm_g173() -> Spectrum:
-    from colour.plotting.datasets.astm_g_173 import SD_ASTMG173_ETR
-
-    return Spectrum(np.asarray(SD_ASTMG173_ETR.wavelengths, float),
-                    np.asarray(SD_ASTMG173_ETR.values, float), "W m^-2 nm^-1")
+    table = np.loadtxt(packaged_path(ASTM_G173_FILE), delimiter=",", skiprows=1, ndmin=2)
+    return Spectrum(table[:, 0], table[:, 1], "W m^-2 nm^-1")
 
 
 def planck_spectral_radiance(wavelength_nm: FloatArray, temperature: float) -> FloatArray:

@@ -3,8 +3,9 @@ task.
 
 A fresh worker process spends seconds before its first frame: importing starnav's chain
 (NumPy, SciPy, pydantic, the navigation and detector modules), loading Mitsuba and Dr.Jit and
-choosing the variant, and reading the ASTM G-173 solar spectrum through ``colour`` (whose import
-alone is ~4 s on the 2-core development machine). :func:`warm` does these once per process;
+choosing the variant, and reading the solar spectrum (packaged since issue 18: reading it
+through ``colour`` took ~4 s on the 2-core development machine). :func:`warm` does these once
+per process;
 the scenario-specific set-up (scene, renderer, kernels) stays in the per-process caches the
 tasks use (:func:`starnav.simulate.simulator_for`, :func:`starnav.dataset.writer.frame_maker`).
 

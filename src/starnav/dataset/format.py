@@ -130,6 +130,8 @@ def plain(obj: Any) -> Any:
     if isinstance(obj, list | tuple):
         return [plain(v) for v in obj]
     if isinstance(obj, np.ndarray):
+        if obj.dtype.kind in "biu" or (obj.dtype.kind == "f" and np.isfinite(obj).all()):
+            return obj.tolist()   # already Python bools, ints and finite floats
         return plain(obj.tolist())
     if isinstance(obj, bool | np.bool_):
         return bool(obj)

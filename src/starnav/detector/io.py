@@ -25,10 +25,17 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
+from PIL import Image
 
 from starnav.atomic import atomic_path
 from starnav.detector.products import Segments, Window
 from starnav.errors import DataFileError
+
+#: zlib level of the DN PNGs (and of the quick looks, :mod:`starnav.quicklook`): a DN frame is
+#: mostly read and shot noise, which zlib hardly compresses at any level: 1 writes it 5x faster
+#: than Pillow's default 6 (0.11 vs 0.6 s for a 1024 x 1024 frame) for 7 % more bytes
+#: (issue 18, docs/performance.md). The pixels are the same at every level.
+PNG_COMPRESS_LEVEL = 1
 
 if TYPE_CHECKING:
     from starnav.detector.chain import Exposure
@@ -42,11 +49,11 @@ def _atomic(path: Path, write: Any, suffix: str) -> Path:
 
 
 def write_dn_png(dn: NDArray[np.uint16], path: str | os.PathLike[str]) -> Path:
-    """Write a DN frame as a 16-bit grey PNG, atomically."""
-    import imageio.v3 as iio
-
-    arr = np.ascontiguousarray(dn, dtype=np.uint16)
-    return _atomic(Path(path), lambda tmp: iio.imwrite(tmp, arr, extension=".png"), ".png")
+    """Write a DN frame as a 16-bit grey PNG (zlib level :data:`PNG_COMPRESS_LEVEL`),
+    atomically."""
+    img = Image.fromarray(np.ascontiguousarray(dn, dtype=np.uint16))
+    return _atomic(Path(path), lambda tmp: img.save(tmp, format="PNG",
+                                                    compress_level=PNG_COMPRESS_LEVEL), ".png")
 
 
 def read_dn_png(path: str | os.PathLike[str]) -> NDArray[np.uint16]:
