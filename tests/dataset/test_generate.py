@@ -230,3 +230,38 @@ def test_a_second_writer_is_locked_out(tmp_path):
         with pytest.raises(DatasetLockedError, match="another process"):
             generate(small_scenario(frames=1), out)
         assert (out / ".lock").exists()  # the holder's lock is left alone
+
+
+def test_render_ahead_overlaps_the_next_render_and_keeps_the_bytes(tmp_path):
+    """In-process generation renders frame i+1 in a second thread while frame i is exposed
+    and written (writer module step 3): the next render is in flight when a frame is written,
+    runs outside the calling thread, and the frames are byte for byte those made one at a
+    time; a frame asked for out of the announced order is still the right one."""
+    import threading
+
+    from starnav.dataset.writer import FrameMaker
+
+    sc = small_scenario(frames=3)
+    opts = DatasetOptions(exposures_s=(1.5e-5,))
+    serial = FrameMaker(sc, opts)
+    for i in range(3):
+        serial.write_frame(i, tmp_path / "serial")
+    ahead = FrameMaker(sc, opts)
+    threads: list[tuple[int, str]] = []
+    render = ahead.render
+
+    def spy(index):
+        threads.append((index, threading.current_thread().name))
+        return render(index)
+
+    ahead.render = spy
+    with ahead.render_ahead([0, 1, 2]):
+        ahead.write_frame(0, tmp_path / "ahead")
+        assert ahead._pending is not None and ahead._pending[0] == 1
+        ahead.write_frame(2, tmp_path / "ahead")   # out of order: frame 1's render dropped
+        ahead.write_frame(1, tmp_path / "ahead")
+    assert ahead._pending is None and ahead._pool is None
+    main = threading.current_thread().name
+    assert threads[0] == (0, main)
+    assert threads[1][0] == 1 and threads[1][1].startswith("starnav-render")
+    assert tree_bytes(tmp_path / "ahead") == tree_bytes(tmp_path / "serial")

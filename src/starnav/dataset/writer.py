@@ -16,7 +16,11 @@ Technique
    of :mod:`starnav.simulate.acquire` (both made by :class:`starnav.simulate.Simulator`);
    every file goes into a temporary directory ``frames/.tmp-NNNNNN-*`` which is renamed to
    ``frames/NNNNNN`` only when whole. A directory rename is atomic: a frame is on disk whole
-   or not at all.
+   or not at all. In this process (no Dask) the frames are made in index order with the
+   next frame's render running in a second thread while this one is exposed, encoded and
+   written (:meth:`FrameMaker.render_ahead`: Dr.Jit's kernels, NumPy's large operations,
+   zlib and the disk release the GIL; one render at a time, so the bytes are those of the
+   serial order).
 4. **Manifest last.** As frames land, the manifest is rewritten atomically (at most every
    ``manifest_interval_s``, and at the end) with the finished frames sorted by index, each with
    its files' sizes and SHA-256. When a frame lands, the temporary directories an earlier
@@ -54,8 +58,10 @@ import logging
 import os
 import shutil
 import tempfile
+import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -302,13 +308,59 @@ class FrameMaker:
         self.camera = self.simulator.camera
         self._per_exposure = {t: self.options.scenario_for(scenario, t)
                               for t in self.options.exposures_s or ()}
+        self._order: list[int] = []   # frames to come, in order (render_ahead)
+        self._pending: tuple[int, Future] | None = None   # the render running ahead
+        self._pool: ThreadPoolExecutor | None = None
+        self._render_lock = threading.Lock()   # one render at a time
 
     def __len__(self) -> int:
         return len(self.simulator)
 
     def render(self, index: int) -> tuple[Any, Any]:
         """Geometry and RadianceImage of frame ``index``."""
-        return self.simulator.render(index)
+        with self._render_lock:
+            return self.simulator.render(index)
+
+    @contextlib.contextmanager
+    def render_ahead(self, order: Sequence[int]) -> Iterator[None]:
+        """While open, :meth:`write_frame` of a frame in ``order`` starts the render of the
+        next one in a second thread (module step 3); the frames must then be written in that
+        order (in-process generation). A render started ahead and not used is waited for
+        and dropped on exit."""
+        self._order = [int(i) for i in order]
+        try:
+            yield
+        finally:
+            self._order = []
+            pending, self._pending = self._pending, None
+            if pending is not None:
+                with contextlib.suppress(Exception):   # its frame was never asked for
+                    pending[1].result()
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
+                self._pool = None
+
+    def _rendered(self, index: int) -> tuple[Any, Any]:
+        """Frame ``index``'s render (the one started ahead, if it is this frame's), and the
+        next frame's started."""
+        pending, self._pending = self._pending, None
+        got = None
+        if pending is not None:
+            if pending[0] == index:
+                got = pending[1].result()
+            else:
+                with contextlib.suppress(Exception):
+                    pending[1].result()
+        if got is None:
+            got = self.render(index)
+        if index in self._order:
+            k = self._order.index(index)
+            if k + 1 < len(self._order):
+                if self._pool is None:
+                    self._pool = ThreadPoolExecutor(1, thread_name_prefix="starnav-render")
+                nxt = self._order[k + 1]
+                self._pending = (nxt, self._pool.submit(self.render, nxt))
+        return got
 
     def write_frame(self, index: int, root: Path) -> dict[str, Any]:
         """Make frame ``index`` and move it into ``root/frames`` whole (module step 3).
@@ -323,7 +375,7 @@ class FrameMaker:
         final = frames / F.frame_dirname(index)
         if final.exists():
             return frame_entry(root, index)
-        geom, img = self.render(index)
+        geom, img = self._rendered(index)
         tmp = Path(tempfile.mkdtemp(prefix=f"{F.TMP_PREFIX}{F.frame_dirname(index)}-",
                                     dir=frames))
         try:
@@ -607,18 +659,22 @@ def generate(scenario: Scenario, out: str | os.PathLike[str], *,
         t_frames = time.perf_counter()
         setup_s = t_frames - t_start
         last = time.monotonic()
+        # in this process the frames are made in order: the next render runs ahead
+        ahead = (frame_maker(cfg, od).render_ahead(todo)
+                 if todo and isinstance(runner, InProcessRunner) else contextlib.nullcontext())
         try:
             handles = [runner.submit(make_frame, cfg, od, str(out.absolute()), i,
                                      key=f"frame-{i:06d}")
                        for i in todo]
-            for _, entry in runner.as_completed(handles):
-                entries[int(entry["index"])] = entry
-                _remove_temporaries(out, int(entry["index"]))
-                if progress:
-                    progress(len(entries), n)
-                if time.monotonic() - last >= manifest_interval_s:
-                    F.write_json(out / F.MANIFEST, manifest(head, entries, False))
-                    last = time.monotonic()
+            with ahead:
+                for _, entry in runner.as_completed(handles):
+                    entries[int(entry["index"])] = entry
+                    _remove_temporaries(out, int(entry["index"]))
+                    if progress:
+                        progress(len(entries), n)
+                    if time.monotonic() - last >= manifest_interval_s:
+                        F.write_json(out / F.MANIFEST, manifest(head, entries, False))
+                        last = time.monotonic()
         except BaseException:
             try:  # what has landed is kept for --resume
                 F.write_json(out / F.MANIFEST, manifest(head, entries, False))

@@ -43,7 +43,7 @@ from starnav.renderer.render import (
 from starnav.renderer.scene import check_camera_for_render
 from starnav.scenes.ephemeris import Ephemeris
 from starnav.scenes.frames import Scene
-from starnav.scenes.trajectory import Trajectory
+from starnav.scenes.trajectory import Trajectory, default_cache_dir
 from starnav.spectra import sensor_response_from_config, solar_spectrum_from_config
 
 log = logging.getLogger(__name__)
@@ -102,8 +102,14 @@ def scene_from_scenario(sc: Scenario, ephemeris: Ephemeris | None = None, *,
                         camera: Camera | None = None, arc: Trajectory | None = None,
                         cache_dir: str | Path | None = None) -> Scene:
     """The :class:`~starnav.scenes.frames.Scene` of ``sc``: its trajectory's frames, or the one
-    frame of its static ``geometry`` section (with the attitude-knowledge error either way)."""
+    frame of its static ``geometry`` section (with the attitude-knowledge error either way).
+
+    A halo arc is kept on disk in ``cache_dir`` (default
+    :func:`starnav.scenes.trajectory.default_cache_dir`): the client of a dataset or sweep
+    writes it and each worker process reads it instead of shooting it again (~2 s each).
+    """
     camera = camera_from_config(sc.camera) if camera is None else camera
+    cache_dir = default_cache_dir() if cache_dir is None else cache_dir
     body = body_from_scenario(sc)
     eph = ephemeris or Ephemeris.default()
     return Scene(camera, sc.pointing, trajectory=sc.trajectory, static=sc.geometry,
