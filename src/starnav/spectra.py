@@ -16,7 +16,8 @@ Quantities and units
 Sources: ASTM G-173 extraterrestrial spectrum as colour-science ships it, packaged in
 ``data/sun`` (280-4000 nm; it integrates to 1347.9 W/m^2); IAU 2015 nominal TSI 1361 W/m^2;
 Planck's law for the optional black body. The AA-STR QE and optics transmission are the
-ABRAM AA-STR configuration (docs/facts.md section 1): 12 bands of 50 nm from 425 to 1025 nm, piecewise constant.
+ABRAM AA-STR configuration (docs/facts.md section 1): 12 bands of 50 nm from 425 to 1025 nm,
+piecewise constant.
 
 Example
 -------
