@@ -7,11 +7,14 @@ Measures, on the full AA-STR (1024 x 1024) along the LUMIO-like halo arc:
    on a local Dask cluster of 2 workers; set-up (trajectory, backend, manifest) reported apart.
 2. ``starnav.batch.run_sweep`` wall time of the paper's four exposures x ``--runs`` on 1 and 2
    local workers (cluster start-up included, as a user sees it) and the speed-up.
-3. ``--demo``: the main job (``make demo`` = ``starnav demo``: 25 frames, 1024 x 1024, 8 spp,
+3. ``--demo-dataset N``: the demo dataset alone (N frames at ``make demo``'s settings) in this
+   process, serial and with the next frame's render running ahead, against issue 18's target
+   of 3 frames/s, with the CPU time per frame.
+4. ``--demo``: the main job (``make demo`` = ``starnav demo``: 25 frames, 1024 x 1024, 8 spp,
    two exposures, navigation, report) in this process and with a local cluster of 2 workers
    for its dataset: wall time, the dataset's frames/s, and the peak resident memory of this
    process and of the largest worker (``ru_maxrss`` of the reaped children).
-4. The cost of durability (``--fsync``, or alone with ``--fsync-only``): ``starnav.atomic``
+5. The cost of durability (``--fsync``, or alone with ``--fsync-only``): ``starnav.atomic``
    fsyncs every file before its rename and its directory after it. Measured in the same run
    with and without the two fsyncs (patched out): ms per file for the sizes a dataset writes
    (JSON ~1 kB, a 16-bit DN PNG ~100 kB, a radiance EXR ~4 MB), and frames/s of a full-size
@@ -154,6 +157,51 @@ def demo_section(root: Path) -> None:
         shutil.rmtree(out, ignore_errors=True)
 
 
+#: Issue 18's target for the dataset at the demo settings, end to end [frames/s].
+DEMO_TARGET_FPS = 3.0
+
+
+def demo_dataset_rate(frames: int, root: Path, ahead: bool) -> tuple[float, float, float]:
+    """(frames/s, CPU s per frame, set-up s) of the demo dataset alone (``make demo``'s
+    settings: 1024 x 1024, 8 spp, 0.015 and 7.7 ms, windows, radiance and quick looks), in
+    this process, with the next frame's render running ahead (``ahead``) or not."""
+    from starnav.batch.mainjob import DEMO_EXPOSURE_OVERRIDES, DEMO_EXPOSURES_S
+    from starnav.batch.presets import demo_scenario
+    from starnav.config import scenario_from_dict
+    from starnav.dataset import DatasetOptions, generate
+    from starnav.dataset.writer import FrameMaker
+
+    d = demo_scenario()
+    d["trajectory"]["frames"] = frames
+    sc = scenario_from_dict(d)
+    opts = DatasetOptions(exposures_s=tuple(DEMO_EXPOSURES_S), exposure_overrides=tuple(
+        (float(t), tuple(o)) for t, o in DEMO_EXPOSURE_OVERRIDES))
+    out = root / f"demo_ds_{int(ahead)}"
+    saved = FrameMaker.render_ahead
+    if not ahead:
+        FrameMaker.render_ahead = lambda self, order: contextlib.nullcontext()  # type: ignore
+    c0 = time.process_time()
+    try:
+        s = generate(sc, out, options=opts)
+    finally:
+        FrameMaker.render_ahead = saved  # type: ignore[method-assign]
+    cpu = (time.process_time() - c0) / max(s.frames_made, 1)
+    shutil.rmtree(out, ignore_errors=True)
+    return s.frames_per_s, cpu, s.setup_s
+
+
+def demo_dataset_section(frames: int, root: Path) -> None:
+    print(f"demo dataset ({frames} frames, make demo's settings), in-process; load average "
+          f"{' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
+    demo_dataset_rate(2, root, True)  # warm: Mitsuba, kernels, the arc on disk
+    for ahead in (False, True, False, True):
+        rate, cpu, setup = demo_dataset_rate(frames, root, ahead)
+        label = "render ahead" if ahead else "serial"
+        print(f"  {label:13s}: {rate:5.2f} frames/s vs target {DEMO_TARGET_FPS:.0f} "
+              f"({'met' if rate >= DEMO_TARGET_FPS else 'NOT met'}); CPU {cpu:.2f} s per frame "
+              f"(all threads); set-up {setup:.1f} s; load {os.getloadavg()[0]:.2f}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=12)
@@ -162,9 +210,15 @@ def main() -> None:
     ap.add_argument("--fsync", action="store_true", help="also measure the cost of fsync")
     ap.add_argument("--fsync-only", action="store_true", help="only measure the cost of fsync")
     ap.add_argument("--demo", action="store_true", help="only measure the main job (make demo)")
+    ap.add_argument("--demo-dataset", type=int, default=0, metavar="FRAMES",
+                    help="only measure the demo dataset of FRAMES frames, serial and with the "
+                    "render ahead")
     a = ap.parse_args()
     root = Path(tempfile.mkdtemp(prefix="starnav-bench-"))
     try:
+        if a.demo_dataset:
+            demo_dataset_section(a.demo_dataset, root)
+            return
         if a.demo:
             demo_section(root)
             return
