@@ -10,6 +10,7 @@ import pytest
 from starnav.constants import DAY
 from starnav.errors import ConfigError
 from starnav.scenes.ephemeris import (
+    _SCALAR_EPOCHS,
     J2000_JD,
     EphemerisRangeError,
     format_epoch,
@@ -190,3 +191,16 @@ def test_moon_angular_velocity_matches_orientation_rate(eph):
     assert np.allclose(w, w_fd, rtol=0, atol=1e-12)
     # sidereal rotation period 27.32 d (synchronous with the orbit)
     assert 2 * math.pi / np.linalg.norm(w) / DAY == pytest.approx(27.32, abs=0.5)
+
+
+def test_few_epoch_chebyshev_path_equals_the_array_path_bit_for_bit(eph):
+    # a few epochs (an RK4 step's stages) take the Python-float recurrence; it must give the
+    # array form's values exactly (the chain and golden pins hold the filter to 1e-9)
+    t = 8.0e8 + np.array([0.0, 150.0, 300.0, 17.3 * DAY, 41.9 * DAY])
+    many = np.concatenate([t, 8.0e8 + np.linspace(1.0, 50.0 * DAY, 2 * _SCALAR_EPOCHS)])
+    assert t.size <= _SCALAR_EPOCHS < many.size
+    for name in ("moon", "earthmoon", "sun"):
+        few = eph._chebyshev(name, t)
+        ref = eph._chebyshev(name, many)
+        for a, b in zip(few, ref, strict=True):
+            np.testing.assert_array_equal(a, b[: t.size])
