@@ -28,6 +28,7 @@ import psutil
 import yaml
 from typer.testing import CliRunner
 
+from starnav import spectra
 from starnav.batch.cluster import WORKER_PRELOAD
 from starnav.batch.table import read_table
 from starnav.dataset import format as F
@@ -59,12 +60,14 @@ class Deployment:
         return set(self.client.run(os.getpid).values())  # type: ignore[attr-defined]
 
     def warm(self) -> list[bool]:
-        """Per worker: its preload has loaded Mitsuba and colour (before any task)."""
+        """Per worker: its preload has loaded Mitsuba, the tasks and the solar spectrum
+        (before any task)."""
         return list(self.client.run(_is_warm).values())  # type: ignore[attr-defined]
 
 
 def _is_warm() -> bool:
-    return {"mitsuba", "colour", "starnav.batch.tasks"} <= set(sys.modules)
+    return ({"mitsuba", "starnav.batch.tasks"} <= set(sys.modules)
+            and spectra._astm_g173.cache_info().currsize == 1)
 
 
 def _env() -> dict[str, str]:
