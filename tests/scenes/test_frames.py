@@ -13,6 +13,8 @@ from starnav.config import scenario_from_dict
 from starnav.constants import AU, MOON_RADIUS
 from starnav.errors import ConfigError
 from starnav.geometry import static_geometry_from_config
+from starnav.scenes import frames as scene_frames
+from starnav.scenes import trajectory as traj_mod
 from starnav.scenes.ephemeris import parse_epoch
 from starnav.scenes.oem import write_oem
 from starnav.simulate import frame_geometries, frame_states, scene_from_scenario
@@ -173,3 +175,21 @@ def test_cli_trajectory_writes_oem_plot_and_config(tmp_path):
     bad = CliRunner().invoke(app, ["trajectory", str(scen), "--out", str(out), "--set",
                                    "trajectory.epoch=2250-01-01T00:00:00 TDB"])
     assert bad.exit_code == 2 and "outside the DE421 span" in bad.output
+
+
+
+def test_scene_from_scenario_keeps_the_halo_arc_on_disk(tmp_path, monkeypatch):
+    """The halo arc is written to the cache directory by the first process that shoots it and
+    read back, unchanged, by the next one (a dataset's or sweep's workers: issue 18)."""
+    monkeypatch.setenv("STARNAV_CACHE_DIR", str(tmp_path))
+    sc = scenario_from_dict({"trajectory": {"frames": 3, "cadence_s": 1800.0,
+                                            "duration_days": 0.5}})
+    scene_frames._ARC_MEMO.clear()   # as in a fresh process
+    first = scene_from_scenario(sc)
+    assert len(list((tmp_path / "trajectories").glob("halo-*.npz"))) == 1
+    scene_frames._ARC_MEMO.clear()   # the next process reads the file and shoots nothing
+    monkeypatch.setattr(traj_mod, "multiple_shooting",
+                        lambda *a, **k: pytest.fail("the arc was shot again"))
+    second = scene_from_scenario(sc)
+    np.testing.assert_array_equal(second.trajectory.times, first.trajectory.times)
+    np.testing.assert_array_equal(second.trajectory.states, first.trajectory.states)
