@@ -363,6 +363,9 @@ def _write_outputs(tmp: Path, out: Path, base: Scenario, axes: Sequence[GridAxis
                                           for k in a.keys],
                                    tmp / "figures" / "error_vs_exposure.png")
         fig_paths["error_vs_exposure"] = "figures/error_vs_exposure.png"
+        if "attitude_source" in columns:
+            FIG.plot_attitude_vs_exposure(rows, tmp / "figures" / "attitude_vs_exposure.png")
+            fig_paths["attitude_vs_exposure"] = "figures/attitude_vs_exposure.png"
         for p in points:
             res = results[p.index]
             if res.errors is None or res.sigma3 is None or len(res.epochs) < 2:
