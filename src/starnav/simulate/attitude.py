@@ -23,6 +23,14 @@ For frame ``k`` of a sequence (:meth:`StarAttitudeTracker.step`), in this order:
 Every frame's :class:`AttitudeRecord` says which source gave its attitude and why the others
 did not (``reasons``), with the attitude error against the truth.
 
+Step 1 runs on frames whose index is a multiple of ``schedule_every``. The steps work on DN
+frames (:meth:`StarAttitudeTracker.advance`), so every user-facing run shares them: the
+attitude study and the sweep expose the star acquisition from the radiance
+(:func:`star_acquisition_dn`), a ``source: stars`` dataset records it (``stars_dn.png``) and
+``starnav navigate`` reads it back (:mod:`starnav.dataset.attitude`). Every solve goes
+through :class:`StarSolver`, also the exposure study's lost-in-space solve of each navigation
+frame (:func:`frame_attitude_summary`).
+
 Note: the exclusion discs are placed at the Moon's true image position (the navigation
 filter predicts it within a few pixels at these ranges; the discs' 20 px + 15 % margin covers
 that). The truth enters nowhere else: the gyro measures the true turn with its modelled error.
