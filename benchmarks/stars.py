@@ -92,13 +92,18 @@ def main() -> None:
                 sol = solve_attitude(e.dn, cam, det, epoch_jyear=f.epoch_jyear)
                 ta.append(time.perf_counter() - t0)
                 if rep == 0:  # split: centroids alone
-                    from starnav.stars.centroid import background, find_stars, saturation_dn
+                    from starnav.stars.centroid import (
+                        CentroidOptions,
+                        background,
+                        find_stars,
+                        saturation_dn,
+                    )
                     t0 = time.perf_counter()
                     find_stars(e.dn, gain_e_per_dn=det.gain_e_per_dn,
                                saturation_dn=saturation_dn(det))
                     tc = time.perf_counter() - t0
                     t0 = time.perf_counter()
-                    background(np.asarray(e.dn, float), 64)
+                    background(np.asarray(e.dn, float), CentroidOptions().block_px)
                     tb = time.perf_counter() - t0
             n_ps = max(len(f.point_sources()), 1)
             rows.append({"per_star_before_ms": round(before_ms, 2),

@@ -10,6 +10,7 @@ frame's own stars at frame 1."""
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 
@@ -50,6 +51,7 @@ def _case(res, name):
     return next(c for c in res["cases"] if c["case"] == name)
 
 
+@pytest.mark.slow
 def test_navigate_dataset_with_star_attitude_equals_the_in_memory_run(
         stars_scenario, in_memory, tmp_path_factory):
     """A dataset made with ``source: stars`` records the star acquisitions of frames 0 and 2
@@ -57,7 +59,7 @@ def test_navigate_dataset_with_star_attitude_equals_the_in_memory_run(
     frame's own DN through the tracker and gives the in-memory run's fixes, final error and
     NEES (same numbers to 1e-9), and each frame's attitude source, error and sigma
     (``attitude.json``); the solved attitude changed the result (it differs from the
-    assumed case)."""
+    assumed case). ``--runs 2``: run 0 of the Monte Carlo is the same run."""
     root = tmp_path_factory.mktemp("ds")
     generate(stars_scenario, root / "ds", options=DatasetOptions(exposures_s=(T_NAV,)))
     ds = open_dataset(root / "ds")
@@ -81,6 +83,17 @@ def test_navigate_dataset_with_star_attitude_equals_the_in_memory_run(
     for a, b in zip(rows, mem, strict=True):
         assert a["error_roll_arcsec"] == pytest.approx(b["error_roll_arcsec"], rel=REL)
         assert a["sigma_arcsec_xyz"] == pytest.approx(b["sigma_arcsec_xyz"], rel=REL)
+    # --runs: the Monte Carlo re-exposes the star acquisitions per run; run 0 is the dataset's
+    r = CliRunner().invoke(app, ["navigate", str(root / "ds"), "--out", str(root / "mc"),
+                                 "--runs", "2", "--no-plots"], env={"COLUMNS": "50"})
+    assert r.exit_code == 0, r.output
+    with open(root / "mc" / "runs.csv", newline="") as fh:
+        runs = list(csv.DictReader(fh))
+    assert [x["attitude_source"] for x in runs] == ["stars", "stars"]
+    assert float(runs[0]["final_position_error_m"]) == pytest.approx(
+        ref["final_position_error_m"], rel=REL)
+    assert float(runs[1]["final_position_error_m"]) != pytest.approx(
+        ref["final_position_error_m"], rel=1e-6)
 
 
 def test_sweep_with_star_attitude_beats_the_assumed_roll_at_77ms(stars_scenario, in_memory,
