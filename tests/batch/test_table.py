@@ -8,7 +8,7 @@ import math
 import re
 from pathlib import Path
 
-from starnav.batch.table import COLUMNS, column_names, to_arrow, to_csv, write_table
+from starnav.batch.table import COLUMNS, STAR_COLUMNS, column_names, to_arrow, to_csv, write_table
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "sweep.md"
 
@@ -17,16 +17,16 @@ def test_every_column_is_documented_with_its_unit():
     text = DOC.read_text()
     rows = {m.group(1): (m.group(2).strip(), m.group(3).strip())
             for m in re.finditer(r"^\| `([a-z0-9_]+)` \| (\w+) \| ([^|]+) \|", text, re.M)}
-    for c in COLUMNS:
+    for c in COLUMNS + STAR_COLUMNS:
         assert c.name in rows, f"{c.name} missing from docs/sweep.md"
         assert rows[c.name] == (c.kind, c.unit), c.name
-    assert set(rows) >= {c.name for c in COLUMNS}
+    assert set(rows) >= {c.name for c in COLUMNS + STAR_COLUMNS}
 
 
 def test_units_in_names_match_the_declared_units():
     suffix_unit = {"_m": "m", "_m_s": "m/s", "_px": "px", "_s": "s", "_pct_range": "%",
                    "_pct_speed": "%"}
-    for c in COLUMNS:
+    for c in COLUMNS + STAR_COLUMNS:
         for suf, unit in sorted(suffix_unit.items(), key=lambda kv: -len(kv[0])):
             if c.name.endswith(suf):
                 assert c.unit == unit, c.name

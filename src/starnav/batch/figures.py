@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from starnav.atomic import atomic_path
 from starnav.timeaxis import elapsed_axis
@@ -170,4 +170,55 @@ def plot_error_vs_exposure(rows: Sequence[dict[str, Any]], series_keys: Sequence
         ax[0, 0].legend(fontsize=7)
     fig.suptitle("Error vs exposure (median over runs, bars: min-max); dotted: the paper's "
                  "1 % and 0.5 %")
+    return _save(fig, path)
+
+
+def plot_attitude_vs_exposure(rows: Sequence[dict[str, Any]],
+                              path: str | os.PathLike[str]) -> Path:
+    """The attitude side of the exposure trade-off: stars detected and identified in the
+    navigation frames (left) and the cross-boresight and roll 1-sigma of the frames that
+    solve (right, log), median over runs against the exposure time (rows with the
+    :data:`starnav.batch.table.STAR_COLUMNS`)."""
+    by: dict[float, list[dict[str, Any]]] = {}
+    for r in rows:
+        if "stars_detected_median" in r:
+            by.setdefault(float(r["exposure_time_s"]), []).append(r)
+    xs = sorted(by)
+
+    def med(col: str) -> NDArray[np.float64]:
+        out = []
+        for x in xs:
+            v = np.array([float(r[col]) for r in by[x]], float)
+            v = v[np.isfinite(v)]
+            out.append(np.median(v) if v.size else np.nan)
+        return np.array(out)
+
+    fig, ax = _figure(1, 2, (10.0, 4.0))
+    xm = np.array(xs) * 1e3
+    a = ax[0, 0]
+    a.plot(xm, med("stars_detected_median"), "o-", label="detected")
+    a.plot(xm, med("stars_identified_median"), "s--", label="identified (lost in space)")
+    a.axhline(4, color="C3", ls=":", lw=0.8, label="4 needed")
+    a.set_xscale("log")
+    a.set_xlabel("exposure time [ms]")
+    a.set_ylabel("stars per navigation frame")
+    a.legend(fontsize=7)
+    a.grid(True, which="both", lw=0.3)
+    a = ax[0, 1]
+    cross, roll = med("frame_attitude_sigma_cross_arcsec"), med("frame_attitude_sigma_roll_arcsec")
+    a.plot(xm, cross, "o-", label="cross-boresight")
+    a.plot(xm, roll, "s-", label="roll")
+    for x, c in zip(xm, cross, strict=True):
+        if not np.isfinite(c):
+            a.text(x, 0.05, "no attitude", transform=a.get_xaxis_transform(), rotation=90,
+                   fontsize=7, ha="center", va="bottom").set_in_layout(False)
+    a.set_xscale("log")
+    a.set_xlim(ax[0, 0].get_xlim())
+    if np.any(np.isfinite(cross)):
+        a.set_yscale("log")
+    a.set_xlabel("exposure time [ms]")
+    a.set_ylabel("attitude 1-sigma from the frame's stars [arcsec]")
+    a.legend(fontsize=7)
+    a.grid(True, which="both", lw=0.3)
+    fig.suptitle("The attitude side: the navigation frame's own stars (median over runs)")
     return _save(fig, path)

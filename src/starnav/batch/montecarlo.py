@@ -13,7 +13,10 @@ Technique
    and attitude: its fixes are those of ``starnav navigate`` without ``--runs``), runs the
    chain (segments, limb, RANSAC, windows, fix) and the filter from its own initial error
    drawn from ``P0``: :func:`starnav.batch.tasks.expose_task` and
-   :func:`~starnav.batch.tasks.filter_task`, the sweep's own tasks.
+   :func:`~starnav.batch.tasks.filter_task`, the sweep's own tasks. With
+   ``navigation.attitude.source: stars`` the run's star tracker gives each frame's attitude
+   (its star acquisitions re-exposed from the radiance with the run's stream, run 0 the
+   dataset's): :func:`~starnav.batch.tasks.expose_sequence_task`.
 3. :func:`~starnav.batch.consistency.consistency_metrics` judges the covariance: the
    run-averaged NEES against the two-sided 99 % chi-square band of an ``N``-run mean, NIS
    likewise, and the fraction of errors inside the 3-sigma bounds; the accuracy is the final
@@ -42,10 +45,11 @@ import numpy as np
 from starnav.atomic import atomic_write_text
 from starnav.batch.consistency import consistency_metrics
 from starnav.batch.table import to_csv
-from starnav.batch.tasks import RenderedFrame, expose_task, filter_task
+from starnav.batch.tasks import RenderedFrame, expose_sequence_task, expose_task, filter_task
 from starnav.config import scenario_to_dict
 from starnav.errors import ConfigError, DataFileError
 from starnav.navigation import plots as P
+from starnav.simulate.attitude import uses_star_attitude
 
 
 def rendered_from_dataset(dataset: Any) -> list[RenderedFrame]:
@@ -97,7 +101,10 @@ def navigate_runs(dataset: Any, runs: int, *, scenario: Any | None = None,
     windows = str(dataset.manifest.get("options", {}).get("windows", "second"))
     t0 = time.perf_counter()
     rendered = rendered_from_dataset(dataset)
-    frames = [expose_task(cfg, r, runs, windows, 1.0) for r in rendered]
+    if uses_star_attitude(sc):  # the tracker's attitude of a frame needs the frames before
+        frames = expose_sequence_task(cfg, rendered, runs, windows, 1.0)
+    else:
+        frames = [expose_task(cfg, r, runs, windows, 1.0) for r in rendered]
     res = filter_task(cfg, 0, frames, runs)
     m = consistency_metrics(res, probability)
     le = res.limb_errors_px.astype(float)

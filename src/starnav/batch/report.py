@@ -172,6 +172,44 @@ def consistency_section(rows: Sequence[dict[str, Any]], summary: Sequence[dict[s
     return L + [""]
 
 
+def attitude_section(rows: Sequence[dict[str, Any]], summary: Sequence[dict[str, Any]]
+                     ) -> list[str]:
+    """The attitude side of each point (points that draw the stars): what the navigation
+    frame's own stars give at its exposure (lost in space) and the attitude the fixes used
+    (empty without stars)."""
+    if not any("attitude_source" in r for r in rows):
+        return []
+    src = {int(r["point"]): r.get("attitude_source", "-") for r in rows}
+    L = ["## Attitude (median over runs)", "",
+         "The navigation frame's own stars, solved lost in space (centroids with the Moon and "
+         "its ghosts excluded, triangle identification, QUEST), and the attitude each fix "
+         "used (`navigation.attitude.source`; assumed: the pointing knowledge error and "
+         "sigma).", "",
+         "| point | exposure [ms] | stars detected | stars identified | solved | frame 1-sigma "
+         "cross / roll [arcsec] | frame error cross / roll [arcsec RMS] | fix attitude | its "
+         "error cross / roll [arcsec RMS] | its 1-sigma cross / roll [arcsec] |",
+         "|---|---|---|---|---|---|---|---|---|---|"]
+    for s in summary:
+        if "stars_detected_median" not in s:
+            continue
+        solved = s.get("frame_attitude_solved_fraction", math.nan)
+        L.append(
+            f"| {s['point']} | {_g(s['exposure_time_s'], '.4g', 1e3)} | "
+            f"{_g(s.get('stars_detected_median'), '.0f')} | "
+            f"{_g(s.get('stars_identified_median'), '.0f')} | "
+            f"{'yes' if solved == 1 else 'no' if solved == 0 else _g(100 * solved, '.0f') + ' %'}"
+            f" | {_g(s.get('frame_attitude_sigma_cross_arcsec'), '.2f')} / "
+            f"{_g(s.get('frame_attitude_sigma_roll_arcsec'), '.2f')} | "
+            f"{_g(s.get('frame_attitude_error_cross_rms_arcsec'), '.2f')} / "
+            f"{_g(s.get('frame_attitude_error_roll_rms_arcsec'), '.2f')} | "
+            f"{src.get(int(s['point']), '-')} | "
+            f"{_g(s.get('attitude_error_cross_rms_arcsec'), '.2f')} / "
+            f"{_g(s.get('attitude_error_roll_rms_arcsec'), '.2f')} | "
+            f"{_g(s.get('attitude_sigma_cross_arcsec'), '.2f')} / "
+            f"{_g(s.get('attitude_sigma_roll_arcsec'), '.2f')} |")
+    return L + [""]
+
+
 def write_report(path: str | os.PathLike[str], *, base: Scenario, axes: Sequence[GridAxis],
                  points: Sequence[GridPoint], rows: Sequence[dict[str, Any]], runs: int,
                  n_frames: dict[str, int], groups: dict[str, list[GridPoint]], runner: str,
@@ -209,6 +247,7 @@ def write_report(path: str | os.PathLike[str], *, base: Scenario, axes: Sequence
             f"{'ok' if s['readout_feasible'] else 'infeasible (fictitious)'} |")
     L += ["", "Every run's row is in `results.parquet` / `results.csv` (columns and units: "
           "docs/sweep.md and `sweep.json`).", ""]
+    L += attitude_section(rows, summary)
     L += consistency_section(rows, summary, runs)
     L += paper_comparison(summary)
     if figures:
@@ -219,6 +258,10 @@ def write_report(path: str | os.PathLike[str], *, base: Scenario, axes: Sequence
         if "error_vs_exposure" in figures:
             L += ["Limb bias and final navigation errors against the exposure time:", "",
                   f"![error vs exposure]({figures['error_vs_exposure']})", ""]
+        if "attitude_vs_exposure" in figures:
+            L += ["The attitude side: stars identified in the navigation frames and the "
+                  "attitude 1-sigma they give, against the exposure time:", "",
+                  f"![attitude vs exposure]({figures['attitude_vs_exposure']})", ""]
         for p in points:
             k = f"error_vs_time_{p.index:03d}"
             if k in figures:

@@ -60,8 +60,14 @@ from starnav.batch import figures as FIG
 from starnav.batch.cluster import open_runner
 from starnav.batch.grid import GridAxis, GridPoint, expand, parse_grid, render_config, render_groups
 from starnav.batch.report import write_report
-from starnav.batch.table import COLUMNS, column_names, write_table
-from starnav.batch.tasks import PointResult, expose_task, filter_task, render_task
+from starnav.batch.table import column_names, columns_of, write_table
+from starnav.batch.tasks import (
+    PointResult,
+    expose_sequence_task,
+    expose_task,
+    filter_task,
+    render_task,
+)
 from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
 from starnav.dataset import format as F
 from starnav.dataset.runner import TaskRunner
@@ -69,6 +75,7 @@ from starnav.dataset.writer import check_output_dir
 from starnav.errors import ConfigError, DataFileError
 from starnav.simulate import scene_from_scenario
 from starnav.simulate.acquire import check_windows_mode
+from starnav.simulate.attitude import uses_star_attitude
 
 log = logging.getLogger(__name__)
 
@@ -226,6 +233,8 @@ def run_sweep(
     base = scenario if isinstance(scenario, Scenario) else scenario_from_dict(dict(scenario))
     axes = parse_grid(grid)
     points = expand(base, axes, overrides)
+    for p in points:  # source: stars needs the stars drawn: said before any work
+        uses_star_attitude(p.scenario)
     n_runs = int(base.navigation.runs if runs is None else runs)
     if n_runs < 1:
         raise ConfigError("--runs", runs, "an integer >= 1")
@@ -278,9 +287,15 @@ def _execute(rn: TaskRunner, points: Sequence[GridPoint], groups: dict[str, list
         for p in pts:
             cfg_p = scenario_to_dict(p.scenario)
             mode = windows or ("second" if p.scenario.navigation.refine.enabled else "none")
-            exps = [rn.submit(expose_task, cfg_p, renders[k], runs, mode, p.albedo_factor,
-                              key=f"expose-{tok}-{p.index}-{k}") for k in range(len(renders))]
-            fh = rn.submit(filter_task, cfg_p, p.index, exps, runs,
+            if uses_star_attitude(p.scenario):  # a frame's attitude needs the ones before
+                exps = [rn.submit(expose_sequence_task, cfg_p, renders, runs, mode,
+                                  p.albedo_factor, key=f"expose-{tok}-{p.index}")]
+            else:
+                exps = [rn.submit(expose_task, cfg_p, renders[k], runs, mode, p.albedo_factor,
+                                  key=f"expose-{tok}-{p.index}-{k}")
+                        for k in range(len(renders))]
+            fh = rn.submit(filter_task, cfg_p, p.index,
+                           exps[0] if uses_star_attitude(p.scenario) else exps, runs,
                            key=f"filter-{tok}-{p.index}")
             handles += exps + [fh]
             filters[fh] = p.index
@@ -317,7 +332,7 @@ def _rows(points: Sequence[GridPoint], axes: Sequence[GridAxis],
                 row[k] = p.values[k]
             rows.append(row)
     rows.sort(key=lambda r: (r["point"], r["run"]))
-    return rows, column_names(keys)
+    return rows, column_names(keys, stars=any("attitude_source" in r for r in rows))
 
 
 def _write_outputs(tmp: Path, out: Path, base: Scenario, axes: Sequence[GridAxis],
@@ -348,6 +363,9 @@ def _write_outputs(tmp: Path, out: Path, base: Scenario, axes: Sequence[GridAxis
                                           for k in a.keys],
                                    tmp / "figures" / "error_vs_exposure.png")
         fig_paths["error_vs_exposure"] = "figures/error_vs_exposure.png"
+        if "attitude_source" in columns:
+            FIG.plot_attitude_vs_exposure(rows, tmp / "figures" / "attitude_vs_exposure.png")
+            fig_paths["attitude_vs_exposure"] = "figures/attitude_vs_exposure.png"
         for p in points:
             res = results[p.index]
             if res.errors is None or res.sigma3 is None or len(res.epochs) < 2:
@@ -369,7 +387,8 @@ def _write_outputs(tmp: Path, out: Path, base: Scenario, axes: Sequence[GridAxis
         "runner": runner,
         "elapsed_s": elapsed,
         "columns": [{"name": c.name, "type": c.kind, "unit": c.unit,
-                     "description": c.description} for c in COLUMNS],
+                     "description": c.description}
+                    for c in columns_of("attitude_source" in columns)],
         "files": paths,
     }
     F.write_json(tmp / MARKER, info)

@@ -85,14 +85,59 @@ COLUMNS: tuple[Column, ...] = (
           "ekf": " (one predict + update)"}.get(s, " (navigation chain)"))
     for s in TIMED_STAGES)
 
+#: The attitude side, present when the points draw the stars (``stars.enabled``): the
+#: attitude each fix used and what the navigation frame's own stars give at its exposure
+#: (:func:`starnav.batch.tasks.attitude_columns`).
+STAR_COLUMNS: tuple[Column, ...] = (
+    _C("attitude_source", "str", "-", "navigation.attitude.source of the run: assumed (the "
+       "pointing knowledge error and the fix's assumed sigma) or stars (the tracker's own "
+       "attitude: star acquisitions, the navigation frames' stars, the gyro between them)"),
+    _C("attitude_solved_fraction", "float", "-", "fraction of frames whose attitude was "
+       "solved from stars at that frame (a star acquisition or the navigation frame)"),
+    _C("attitude_error_cross_rms_arcsec", "float", "arcsec", "RMS over frames of the "
+       "cross-boresight error of the attitude the fixes used"),
+    _C("attitude_error_roll_rms_arcsec", "float", "arcsec", "RMS over frames of its roll "
+       "error (about the boresight)"),
+    _C("attitude_sigma_cross_arcsec", "float", "arcsec", "mean over frames of its predicted "
+       "cross-boresight 1-sigma (hypot of the x and y sigmas)"),
+    _C("attitude_sigma_roll_arcsec", "float", "arcsec", "mean over frames of its predicted "
+       "roll 1-sigma"),
+    _C("attitude_nees_mean", "float", "-", "mean over frames of its NEES (3 dof; consistent: "
+       "~3)"),
+    _C("stars_detected_median", "float", "-", "median over frames of the star candidates "
+       "accepted by the centroiding in the navigation frame (segments acquisition, Moon "
+       "and ghosts excluded)"),
+    _C("stars_identified_median", "float", "-", "median over frames of the stars identified "
+       "in a lost-in-space solve of the navigation frame (0 when not solved)"),
+    _C("frame_attitude_solved_fraction", "float", "-", "fraction of navigation frames whose "
+       "own stars give an attitude (lost in space)"),
+    _C("frame_attitude_sigma_cross_arcsec", "float", "arcsec", "median over solved navigation "
+       "frames of the predicted cross-boresight 1-sigma (nan: none solved)"),
+    _C("frame_attitude_sigma_roll_arcsec", "float", "arcsec", "median over solved navigation "
+       "frames of the predicted roll 1-sigma (nan: none solved)"),
+    _C("frame_attitude_error_cross_rms_arcsec", "float", "arcsec", "RMS over solved navigation "
+       "frames of the cross-boresight error"),
+    _C("frame_attitude_error_roll_rms_arcsec", "float", "arcsec", "RMS over solved navigation "
+       "frames of the roll error"),
+    _C("time_stars_s", "float", "s", "median over frames of the wall time of the star work "
+       "(star acquisition and solves)"),
+)
+
 #: Columns that are wall-clock measurements (not reproducible).
-TIMING_COLUMNS: tuple[str, ...] = tuple(f"time_{s}_s" for s in TIMED_STAGES)
+TIMING_COLUMNS: tuple[str, ...] = tuple(f"time_{s}_s" for s in TIMED_STAGES) + ("time_stars_s",)
 
 
-def column_names(grid_keys: Sequence[str] = ()) -> list[str]:
-    """Column order: ``point, run, label``, the grid keys, then the rest of :data:`COLUMNS`."""
+def column_names(grid_keys: Sequence[str] = (), stars: bool = False) -> list[str]:
+    """Column order: ``point, run, label``, the grid keys, then the rest of :data:`COLUMNS`
+    (and :data:`STAR_COLUMNS` with ``stars``)."""
     names = [c.name for c in COLUMNS]
-    return names[:3] + [k for k in grid_keys if k not in names] + names[3:]
+    extra = [c.name for c in STAR_COLUMNS] if stars else []
+    return names[:3] + [k for k in grid_keys if k not in names] + names[3:] + extra
+
+
+def columns_of(stars: bool) -> tuple[Column, ...]:
+    """The documented columns of a table (:data:`STAR_COLUMNS` with ``stars``)."""
+    return COLUMNS + (STAR_COLUMNS if stars else ())
 
 
 def _fmt(v: Any) -> str:

@@ -49,6 +49,7 @@ from numpy.typing import NDArray
 from starnav.batch.cluster import quiet_logger
 from starnav.cache import BoundedCache
 from starnav.config import scenario_from_dict
+from starnav.errors import ConfigError
 from starnav.navigation.dynamics import PointMassDynamics
 from starnav.navigation.metrics import NavMetrics, limb_point_errors
 from starnav.navigation.pipeline import (
@@ -59,7 +60,16 @@ from starnav.navigation.pipeline import (
 )
 from starnav.seeding import STAGE_NAVIGATION, generator
 from starnav.simulate import simulator_for
+from starnav.simulate.attitude import (
+    StarAttitudeTracker,
+    StarSolver,
+    assumed_covariance,
+    frame_attitude_summary,
+    uses_star_attitude,
+    with_attitude,
+)
 from starnav.simulate.build import chain_options
+from starnav.stars.attitude import ARCSEC, error_rotation
 
 FloatArray = NDArray[np.float64]
 
@@ -140,6 +150,12 @@ class FrameResult:
         The fix's sensitivity to the errors its points share [m per unit of disc radius] and
         its covariance from the pixels' noise and the attitude alone [m^2] (the
         ``limb-common`` bias model).
+    attitude : dict or None
+        With ``stars.enabled``: the attitude the fix used (``source``: assumed, star-frame,
+        navigation-frame, propagated; its error ``error_x/y/roll`` against the truth and
+        predicted 1-sigma ``sigma_x/y/roll``, camera axes [rad]) and what the navigation
+        frame's own stars give, solved lost in space (``frame_*``:
+        :func:`starnav.simulate.attitude.frame_attitude_summary`).
     """
 
     index: int
@@ -160,6 +176,7 @@ class FrameResult:
     points: LimbPointRecord | None = None
     common_jacobian: FloatArray | None = None
     white_covariance: FloatArray | None = None
+    attitude: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -316,7 +333,8 @@ def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, wind
     Parameters
     ----------
     config : dict
-        The point's resolved scenario.
+        The point's resolved scenario (``navigation.attitude.source: assumed``; with
+        ``stars`` the frames depend on each other: :func:`expose_sequence_task`).
     rendered : RenderedFrame
     runs : int
         Monte Carlo runs.
@@ -328,16 +346,75 @@ def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, wind
         Number of the first run (runs ``first_run .. first_run + runs - 1``: a run's streams
         depend on its number only).
     """
-    sc = _scenario(config)
-    sim = simulator_for(config)
-    cam = sim.camera
-    chain = chain_options(sc)
-    chain = dataclasses.replace(chain, use_windows=chain.use_windows and windows != "none")
+    x = _Exposer(config, windows)
+    if uses_star_attitude(x.sc):
+        raise ConfigError("navigation.attitude.source", "stars", "expose_sequence_task (the "
+                          "attitude of a frame depends on the frames before it)")
     le = rendered.electron_radiance(albedo_factor)
-    g = rendered.geometry
-    out = []
-    for r in range(int(first_run), int(first_run) + int(runs)):
-        acq, frame = sim.observe(le, g, run=r, windows=windows)
+    return [x.frame(le, rendered, r) for r in range(int(first_run), int(first_run) + int(runs))]
+
+
+def expose_sequence_task(config: dict[str, Any], rendered: list[RenderedFrame], runs: int,
+                         windows: str, albedo_factor: float, first_run: int = 0
+                         ) -> list[list[FrameResult]]:
+    """Every run of one point on all its frames in time order (worker side): the task of a
+    ``navigation.attitude.source: stars`` point, whose frame attitude comes from the star
+    tracker of its run (:class:`~starnav.simulate.attitude.StarAttitudeTracker`: star
+    acquisitions on the schedule, the navigation frame's stars, the gyro between them).
+
+    Parameters are those of :func:`expose_task`, with ``rendered`` every frame of the point.
+
+    Returns
+    -------
+    list (frames, in ``rendered`` order) of list (runs) of FrameResult
+    """
+    x = _Exposer(config, windows)
+    run_ids = range(int(first_run), int(first_run) + int(runs))
+    trackers = {r: StarAttitudeTracker(x.sim, r, x.sc) for r in run_ids} \
+        if uses_star_attitude(x.sc) else {}
+    order = sorted(range(len(rendered)), key=lambda i: rendered[i].index)
+    out: list[list[FrameResult]] = [[] for _ in rendered]
+    for i in order:
+        le = rendered[i].electron_radiance(albedo_factor)
+        out[i] = [x.frame(le, rendered[i], r, trackers.get(r)) for r in run_ids]
+    return out
+
+
+class _Exposer:
+    """One point's per-frame work: acquisitions, the frame's attitude, the on-board chain."""
+
+    def __init__(self, config: dict[str, Any], windows: str) -> None:
+        self.sc = sc = _scenario(config)
+        self.sim = simulator_for(config)
+        self.windows = windows
+        chain = chain_options(sc)
+        self.chain = dataclasses.replace(chain,
+                                         use_windows=chain.use_windows and windows != "none")
+        self.solver = StarSolver(self.sim.camera, sc) if sc.stars.enabled else None
+
+    def frame(self, le: NDArray[np.float32], rendered: RenderedFrame, r: int,
+              tracker: StarAttitudeTracker | None = None) -> FrameResult:
+        sc, sim, cam, g = self.sc, self.sim, self.sim.camera, rendered.geometry
+        acq, frame = sim.observe(le, g, run=r, windows=self.windows)
+        chain, att = self.chain, None
+        t0 = time.perf_counter()
+        if tracker is not None:
+            rec = tracker.step(le, g, acq, chain)
+            frame, chain = with_attitude(frame, chain, rec)
+            src, err, P = rec.source, rec.error_rad, rec.covariance_rad2
+        else:
+            src = "assumed"
+            err = error_rotation(frame.R_cam_to_inertial_measured, g.R_cam_to_inertial)
+            P = assumed_covariance(chain)
+        if self.solver is not None:  # the attitude side of the exposure trade-off
+            fa = frame_attitude_summary(self.solver.solve(acq.segments_exposure.dn, g), g)
+            sig = np.sqrt(np.diag(P))
+            att = {"source": src, **{f"frame_{k}": v for k, v in fa.items()},
+                   **{f"error_{a}": float(e) for a, e in zip("xy", err[:2], strict=True)},
+                   "error_roll": float(err[2]), "sigma_x": float(sig[0]),
+                   "sigma_y": float(sig[1]), "sigma_roll": float(sig[2]),
+                   "nees": float(err @ np.linalg.solve(P, err))}
+        t_stars = time.perf_counter() - t0
         m = process_frame(frame, cam, options=chain,
                           rng=generator(sc.seed, STAGE_NAVIGATION, r, g.index))
         pts = m.points_used
@@ -347,8 +424,10 @@ def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, wind
         tm = {"render": rendered.render_s, "detector": acq.timings_s["detector"],
               "plan": acq.timings_s["plan"]}
         tm.update({k: float(v) for k, v in m.timings_s.items()})
+        if att is not None:
+            tm["stars"] = t_stars
         feasible = e0.feasible and (acq.windows_exposure is None or acq.windows_exposure.feasible)
-        out.append(FrameResult(
+        return FrameResult(
             index=int(g.index), run=r, epoch_tdb=float(g.epoch_tdb), status=m.status,
             position=m.position, covariance=m.covariance, limb_errors_px=errs,
             saturated_pixels=int(np.count_nonzero(
@@ -358,8 +437,50 @@ def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, wind
             truth_emb=None if g.camera_state_emb is None else np.asarray(g.camera_state_emb),
             range_m=float(g.range), timings_s=tm,
             points=LimbPointRecord.of(m, float(g.phase_angle), g.camera_position),
-            common_jacobian=m.common_jacobian, white_covariance=m.white_covariance))
-    return out
+            common_jacobian=m.common_jacobian, white_covariance=m.white_covariance,
+            attitude=att)
+
+
+def attitude_columns(fr: list[FrameResult]) -> dict[str, Any]:
+    """The attitude columns of one run (:data:`starnav.batch.table.STAR_COLUMNS`) from its
+    frames' :attr:`FrameResult.attitude` [arcsec]; empty without stars."""
+    a = [f.attitude for f in fr if f.attitude is not None]
+    if not a or len(a) != len(fr):
+        return {}
+
+    def col(k: str) -> NDArray[np.float64]:
+        return np.array([x[k] for x in a], float) / ARCSEC
+
+    solved = np.array([x["frame_solved"] for x in a], bool)
+    fx, fy, fr_ = col("frame_error_x"), col("frame_error_y"), col("frame_error_roll")
+    sx, sy, sr = col("frame_sigma_x"), col("frame_sigma_y"), col("frame_sigma_roll")
+    ex, ey, er = col("error_x"), col("error_y"), col("error_roll")
+
+    def rms(x: NDArray[np.float64]) -> float:
+        return float(np.sqrt(np.mean(x * x))) if x.size else math.nan
+
+    return {
+        "attitude_source": a[0]["source"] if all(x["source"] == "assumed" for x in a)
+        else "stars",
+        "attitude_solved_fraction": float(np.mean([x["source"] in ("star-frame",
+                                                                    "navigation-frame")
+                                                   for x in a])),
+        "attitude_error_cross_rms_arcsec": rms(np.hypot(ex, ey)),
+        "attitude_error_roll_rms_arcsec": rms(er),
+        "attitude_sigma_cross_arcsec": float(np.mean(np.hypot(col("sigma_x"),
+                                                              col("sigma_y")))),
+        "attitude_sigma_roll_arcsec": float(np.mean(col("sigma_roll"))),
+        "attitude_nees_mean": float(np.mean([x["nees"] for x in a])),
+        "stars_detected_median": float(np.median([x["frame_stars_detected"] for x in a])),
+        "stars_identified_median": float(np.median([x["frame_stars_identified"]
+                                                    for x in a])),
+        "frame_attitude_solved_fraction": float(np.mean(solved)),
+        "frame_attitude_sigma_cross_arcsec": _median(list(np.hypot(sx, sy)[solved])),
+        "frame_attitude_sigma_roll_arcsec": _median(list(sr[solved])),
+        "frame_attitude_error_cross_rms_arcsec": rms(np.hypot(fx, fy)[solved]),
+        "frame_attitude_error_roll_rms_arcsec": rms(fr_[solved]),
+        "time_stars_s": _median([f.timings_s.get("stars", math.nan) for f in fr]),
+    }
 
 
 def _stats(x: NDArray[Any]) -> tuple[float, float, float, int]:
@@ -440,6 +561,7 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
             nm = NavMetrics.of(res, truth, fr_r[-1].range_m)
             nav_cols.update({k: getattr(nm, k) for k in nav_cols})
         row.update(nav_cols)
+        row.update(attitude_columns(fr_r))
         for stage in TIMED_STAGES:
             vals = ekf_times if stage == "ekf" else [f.timings_s.get(stage, math.nan)
                                                      for f in fr_r]

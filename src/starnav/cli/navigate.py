@@ -156,9 +156,16 @@ def register(app: typer.Typer) -> None:
                 typer.echo(verdict_line(nav["metrics"]).replace("**", ""))
                 typer.echo(f"outputs in {out}")
                 return
-            summary = navigate_dataset(ds, out, config=scenario.navigation, runs=1,
-                                       seed=int(scenario.seed), plots=not no_plots,
-                                       scenario=scenario)
+            if scenario.navigation.attitude.source == "stars":
+                from starnav.dataset.attitude import navigate_with_star_attitude
+
+                summary = navigate_with_star_attitude(ds, out, scenario, plots=not no_plots)
+                typer.echo("attitude from the stars: " + ", ".join(
+                    f"{k} {v}" for k, v in summary["attitude"].items()) + " frames")
+            else:
+                summary = navigate_dataset(ds, out, config=scenario.navigation, runs=1,
+                                           seed=int(scenario.seed), plots=not no_plots,
+                                           scenario=scenario)
         except StarnavError as err:
             typer.echo(f"error: {err}", err=True)
             raise typer.Exit(code=2) from None

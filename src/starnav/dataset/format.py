@@ -67,6 +67,9 @@ FRAMES_DIR = "frames"
 TRUTH = "truth.json"
 RADIANCE = "radiance.exr"
 DN = "dn.png"
+#: The star acquisition's DN frame at a scheduled star frame (``navigation.attitude.source:
+#: stars``; 16-bit PNG, :func:`starnav.simulate.attitude.star_acquisition_dn`, run 0).
+STAR_DN = "stars_dn.png"
 #: 8-bit quick looks (pictures for a person; the data are ``dn.png`` and ``radiance.exr``).
 DN_QUICKLOOK = "dn_quicklook.png"
 RADIANCE_QUICKLOOK = "radiance_quicklook.png"

@@ -125,6 +125,12 @@ class DatasetFrame:
         """Full DN frame of acquisition 0 [DN] (16-bit PNG)."""
         return read_dn_png(self.exposure_dir / F.DN)
 
+    def star_dn(self) -> NDArray[np.uint16] | None:
+        """The star acquisition's DN frame [DN] (``stars_dn.png``: a scheduled star frame of a
+        ``navigation.attitude.source: stars`` dataset), None when the frame has none."""
+        p = self.exposure_dir / F.STAR_DN
+        return read_dn_png(p) if p.is_file() else None
+
     def radiance(self) -> Any:
         """:class:`~starnav.radiance.RadianceImage` (``radiance.exr``)."""
         p = self.directory / F.RADIANCE

@@ -94,6 +94,7 @@ from starnav.simulate import (
     scene_from_scenario,
 )
 from starnav.simulate.acquire import sensor_seed_of
+from starnav.simulate.attitude import is_star_frame, star_acquisition_dn, uses_star_attitude
 from starnav.spectra import (
     band_integrals,
     sensor_response_from_config,
@@ -312,6 +313,7 @@ class FrameMaker:
         self._pending: tuple[int, Future] | None = None   # the render running ahead
         self._pool: ThreadPoolExecutor | None = None
         self._render_lock = threading.Lock()   # one render at a time
+        self._stars = {t: uses_star_attitude(sc) for t, sc in self._per_exposure.items()}
 
     def __len__(self) -> int:
         return len(self.simulator)
@@ -400,6 +402,10 @@ class FrameMaker:
                 F.write_json(d / F.WINDOWS, F.windows_to_dict(
                     acq.windows, None if not acq.windows else
                     (1 if acq.windows_exposure is not None else 0)), compact=True)
+                sc_t = self._per_exposure[t]
+                if self._stars[t] and is_star_frame(sc_t, index):
+                    write_dn_png(F.uint16_image(star_acquisition_dn(img, geom, self.camera,
+                                                                    sc_t, 0)), d / F.STAR_DN)
                 F.write_json(d / F.READOUT, {**acq.summary(),
                                              "overrides": list(self.options.overrides_for(t))})
             os.chmod(tmp, 0o777 & ~_umask())
@@ -632,6 +638,8 @@ def generate(scenario: Scenario, out: str | os.PathLike[str], *,
     """
     t_start = time.perf_counter()
     opts = (options or DatasetOptions()).resolved(scenario)
+    for t in opts.exposures_s or ():  # source: stars needs the stars drawn
+        uses_star_attitude(opts.scenario_for(scenario, t))
     out = Path(out)
     check_output_dir(out)
     scene = scene_from_scenario(scenario)

@@ -255,6 +255,8 @@ def navigate_dataset(
     measure_memory: bool = True,
     plots: bool = True,
     scenario: Any | None = None,
+    frames: Sequence[Any] | None = None,
+    chains: Sequence[Any] | None = None,
 ) -> dict[str, Any]:
     """Navigate over a dataset and write every output (the library side of ``starnav navigate``).
 
@@ -281,6 +283,11 @@ def navigate_dataset(
     scenario : Scenario, optional
         What the frames were made with (the chain's noise, terrain and attitude models);
         default ``dataset.scenario()`` when the dataset has one.
+    frames, chains : sequences, optional
+        The dataset's frames as the chain is to see them and the chain options of each (the
+        tracker's own attitude and its covariance:
+        :func:`starnav.dataset.attitude.star_attitude_frames`); default the dataset's frames
+        and one chain.
 
     Returns
     -------
@@ -303,16 +310,20 @@ def navigate_dataset(
         scenario = dataset.scenario()
     if seed is None:
         seed = int(scenario.seed) if scenario is not None else 0
-    run = navigate(dataset, dynamics=dyn, moon=dyn, P0=P0,
-                   chain=cfg.chain_options(scenario=scenario),
+    if (frames is None) != (chains is None) or (frames is not None and chains is not None
+                                                 and len(frames) != len(chains)):
+        raise ConfigError("frames/chains", None, "both or neither, one chain per frame")
+    run = navigate(dataset if frames is None else frames, camera=dataset.camera,
+                   dynamics=dyn, moon=dyn, P0=P0,
+                   chain=cfg.chain_options(scenario=scenario), chains=chains,
                    ekf=cfg.ekf_options(), seed=seed, measure_memory=measure_memory)
     mc: list[FilterResult] = []
     if n_runs > 1 and run.truth is not None:
         mc = monte_carlo(run.measurements, run.truth, dynamics=dyn, moon=dyn, P0=P0,
                          runs=n_runs, seed=seed, options=cfg.ekf_options())
     chain = cfg.chain_options(scenario=scenario)
-    frames = list(dataset) if plots else []
-    paths = write_outputs(run, out_dir, mc, plots=plots, frames=frames,
+    shown = list(dataset) if plots else []
+    paths = write_outputs(run, out_dir, mc, plots=plots, frames=shown,
                           camera=dataset.camera, radii_m=chain.fix.radii_m)
     out = Path(out_dir)
     atomic_write_text(out / "navigation_config.json",

