@@ -30,8 +30,8 @@ class FrontEndOptions:
     epipolar_px: float = 1.0
     ransac_iterations: int = 100
     min_body_area_px: int = 50
-    sigma_detect_px: float = 1.5
-    drift_px_per_rad: float = 7.1
+    sigma_detect_px: float = 1.6
+    drift_px_per_rad: float = 6.9
     centroid_sigma_fraction: float = 0.0002
     radius_sigma_fraction: float = 0.00013
     correlation_factor: float = 1.0
