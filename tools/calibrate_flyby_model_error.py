@@ -26,12 +26,25 @@ body-fixed points through :class:`~starnav.navigation.trn.truth.FeatureTruthBook
    re-acquired under a new id, once the view has turned that much), and its correlation within
    that span is left to ``correlation_factor`` (1: raising it changes the NEES of the
    calibration fly-by by less than 10 %, the silhouette dominates).
-3. The calibration fly-by navigated with the values, its mean NEES and CA error recorded.
+   Their correlation *within a frame* (``feature_correlation``: the shading of every window
+   moves the same way as the view turns), ``sum_{i != j} e_i . e_j / ((N - 1) sum |e_i|^2)``
+   pooled over frames and runs, which the filter uses to count N features as
+   ``N / (1 + (N - 1) c)`` independent ones.
+3. **Geometry laws** (``navigation.trn.filter.silhouette_scale``): the centroid error over
+   ``rho sin(phase)`` (its percentiles: constant if the terminator-shift law holds) and a
+   least-squares fit of the radius error to ``w / (rho (1 + cos a)) - tan(a / 2) delta / 2``
+   (``limb_blur_px``, ``terminator_shift_deg``). With ``--scaling geometry`` the sigmas and
+   correlation time are those of the error series divided by the law's factors (the filter's
+   ``silhouette_scaling: geometry``); by default (``constant``) of the raw series.
+4. The calibration fly-by navigated with the values, its mean NEES and CA error recorded.
 
 Calibration fly-by: Itokawa, 256 x 256 px, 30 mm focal length, 4 spp, CA 6 km at 0.6 km/s,
-Sun phase 50 deg at CA (azimuth 160 deg), a frame every 0.2 s from -3 s to +3 s (31 frames,
-1.15 deg of view change per frame at CA), seed 4711; the tests score on another (CA 5 km at
-0.5 km/s, phase 60 deg, seed 7).
+Sun phase 50 deg at CA (azimuth 160 deg), a frame every 0.2 s from -6 s to +6 s (61 frames,
+1.15 deg of view change per frame at CA, phase 23 - 80 deg over the pass), seed 4711; the
+tests score on others (CA 5 km at 0.5 km/s, phase 60 deg, seed 7; CA 5 km at 1 km/s, phase
+40 deg, seed 11). The pass was lengthened from +-3 s (31 frames) because the silhouette
+bias's correlation time (85 s from the short pass) was longer than the pass and not
+identified by it; the +-6 s pass gives 48 s and a wider phase range for the laws.
 
 Usage::
 

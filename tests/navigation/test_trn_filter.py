@@ -408,7 +408,8 @@ def test_silhouette_scale_is_the_sphere_terminator_shift_law():
         cm, rm, _ = _sphere_lit(a - h, camera)
         deriv[deg] = ((cp - cm) / (2 * h), (math.log(rp) - math.log(rm)) / (2 * h), rho)
     opt = TrnFilterOptions(reference_radius_px=deriv[50.0][2],
-                           reference_phase=math.radians(50.0), limb_blur_px=0.0)
+                           reference_phase=math.radians(50.0), limb_blur_px=0.0,
+                           silhouette_scaling="geometry")
     for deg in (30.0, 70.0):
         s = silhouette_scale(deriv[deg][2], math.radians(deg), opt)
         assert s[0] == pytest.approx(s[1])

@@ -215,10 +215,10 @@ class TrnFrontEndConfig(StrictModel):
         5.0, description="a track ends once the view has turned this much along it (bounds "
         "its drift; the point is found again under a new id) [deg]")
     centroid_sigma_fraction: NonNegativeFloat = Field(
-        0.0002, description="1-sigma of the segments' lit centroid per coordinate, times the "
+        0.00022, description="1-sigma of the segments' lit centroid per coordinate, times the "
         "apparent radius (its noise; calibrated) [-]")
     radius_sigma_fraction: NonNegativeFloat = Field(
-        0.00013, description="1-sigma of the segments' apparent radius, times the radius (its "
+        0.000144, description="1-sigma of the segments' apparent radius, times the radius (its "
         "noise; calibrated) [-]")
 
     def options(self) -> FrontEndOptions:

@@ -373,7 +373,8 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
     the front end and filter per frame scaled to the MCU against its 650 ms, and their peak
     memory from a traced re-run of run 0) and, for >= 2 runs, the Monte Carlo summary), the
     figures (position and velocity errors with 3-sigma against time from CA, runs in grey;
-    NEES with its band; tracks; run 0's frame overlays, :func:`plot_overlays`) and ``report.md``, every file written atomically.
+    NEES with its band; tracks; run 0's frame overlays, :func:`plot_overlays`) and
+    ``report.md``, every file written atomically.
     Returns the metrics dict."""
     check_flyby_scenario(sim.scenario)
     out = Path(out)

@@ -98,12 +98,11 @@ Technique (per frame)
    columns of ``P``, before the update (the factor is a known function of the prediction,
    not differentiated).
 4b. **Features share part of their error** within a frame (the shading of every window moves
-   the same way as the view turns): with a pairwise correlation ``c`` (calibrated 0.31), ``N``
-   features carry the information of ``N / (1 + (N - 1) c)`` independent ones, so each
-   feature's variance is multiplied by ``1 + (N - 1) c`` (the information of an equicorrelated set about a common
-   shift). The closer or larger the body, the more
-   features, the more it matters: at CA 5 km (12 - 15 tracks per frame) leaving it out
-   doubled the mean NEES.
+   the same way as the view turns): with a pairwise correlation ``c`` (calibrated 0.31),
+   ``N`` features carry the information of ``N / (1 + (N - 1) c)`` independent ones about a
+   shift common to all, so each feature's variance is multiplied by ``1 + (N - 1) c``. The
+   closer or larger the body, the more features (12 - 15 tracks per frame at CA 5 km), the
+   more it matters.
 5. **Gate** each feature, the centroid and the radius on their own innovation,
    ``nu^T S^-1 nu < chi2.ppf(gate_probability, dof)``; a rejected feature's landmark is
    dropped and its track id ignored from then on (a tracker that jumped keeps the id).

@@ -32,8 +32,8 @@ class FrontEndOptions:
     min_body_area_px: int = 50
     sigma_detect_px: float = 1.6
     drift_px_per_rad: float = 6.9
-    centroid_sigma_fraction: float = 0.0002
-    radius_sigma_fraction: float = 0.00013
+    centroid_sigma_fraction: float = 0.00022
+    radius_sigma_fraction: float = 0.000144
     correlation_factor: float = 1.0
     max_track_turn: float = 0.08726646259971647  # 5 deg
 
