@@ -22,8 +22,8 @@ geometries": 0.28 - 1.67 %), 0.12 - 1.67 % (median 0.77 %) over the 20 runs of t
 
 Consistency (mean NEES of the 6 states over the frames and runs inside the two-sided 99 %
 band of the runs' mean of chi2(6)): 4.04 over 4 runs (band [2.47, 11.39]; 4.70 before the
-recalibration), 4.70 over 20 (band [4.19, 8.18], before the recalibration); before the silhouette bias states ~40 (docs/navigation.md, "Asteroid
-fly-by: end to end").
+recalibration), 4.70 over 20 (band [4.19, 8.18], before the recalibration); before the
+silhouette bias states ~40 (docs/navigation.md, "Asteroid fly-by: end to end").
 """
 
 from __future__ import annotations
