@@ -8,7 +8,8 @@ tracks per frame. Rendering and the detector are timed apart (not front-end stag
 estimator on synthetic measurements (:func:`bench_filter`). Usage::
 
     export DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM.so.19.1
-    .venv/bin/python benchmarks/flyby.py
+    .venv/bin/python benchmarks/flyby.py                 # everything
+    .venv/bin/python benchmarks/flyby.py --closed-loop   # the closed loop and the budget
 """
 
 from __future__ import annotations
@@ -110,6 +111,11 @@ def bench_filter(runs: int = 3) -> None:
 
 
 def main() -> None:
+    import sys
+
+    if "--closed-loop" in sys.argv:
+        bench_closed_loop()
+        return
     bench_front_end()
     bench_filter()
     bench_closed_loop()
@@ -117,20 +123,28 @@ def main() -> None:
 
 def bench_closed_loop(runs: int = 3) -> None:
     """Per-frame cost of the closed loop on rendered frames: render (once per frame), detector
-    (segments + windows exposures), front end, filter (mean over the runs)."""
+    (segments + windows exposures), front end, filter (mean over the runs); then the tracker's
+    budget (front end + filter scaled desktop -> MCU against 650 ms; peak traced memory of a
+    re-run of run 0 under tracemalloc against 900 kB)."""
     from starnav.config import scenario_from_dict
+    from starnav.navigation.trn.metrics import tracker_budget
     from starnav.simulate import Simulator
-    from starnav.simulate.flyby import flyby_closed_loop
+    from starnav.simulate.flyby import flyby_closed_loop, flyby_run, render_flyby
 
     sc = scenario(256, 30.0, 21)
     sc["trajectory"].update({"cadence_s": 0.2})
     sc["trajectory"]["flyby"].update({"v_inf_km_s": 0.5, "phase_at_ca_deg": 60.0,
                                       "start_s": -2.0})
-    loop = flyby_closed_loop(Simulator(scenario_from_dict(sc)), runs)
+    sim = Simulator(scenario_from_dict(sc))
+    renders, t_render = render_flyby(sim)
+    loop = flyby_closed_loop(sim, runs, renders=renders)
+    loop.timings_s["render"] = t_render
+    mem = flyby_run(sim, renders, 0, memory=True).memory_bytes
     print(json.dumps({"machine": f"{platform.node()} {platform.machine()} {os.cpu_count()} cores",
                       "date": datetime.date.today().isoformat(),
                       "closed_loop_ms_per_frame": {k: round(1e3 * v, 2)
                                                    for k, v in loop.timings_s.items()},
+                      "tracker_budget": tracker_budget(loop.timings_s, mem),
                       "load": os.getloadavg()}, indent=1))
 
 

@@ -116,3 +116,48 @@ def test_cli_navigate_sweep(tmp_path):
     ds = CliRunner().invoke(app, ["navigate", str(tmp_path), "--out", str(out), "--sweep",
                                   "v_inf_km_s=1"], env=env)
     assert ds.exit_code == 2 and "--sweep" in ds.output
+
+
+def test_cli_sweep_of_a_flyby_runs_the_points_on_the_batch_runner(rows, tmp_path):
+    """``starnav sweep FLYBY.yaml --grid phase_at_ca_deg=40,70 --runs 2 --workers 0`` runs
+    one batch task per point (:func:`starnav.simulate.flyby.flyby_sweep_row`, the function
+    the in-process sweep maps): its sweep.csv equals the in-process rows, with the tracker's
+    per-frame stage costs; sweep.md, sweep.png, sweep.json and the resolved scenario are
+    written; a second run into the same directory needs --overwrite; a bad axis is one error
+    line, exit 2, nothing written."""
+    import json
+
+    import yaml
+    from typer.testing import CliRunner
+
+    from starnav.cli.main import app
+    from starnav.config import scenario_to_dict
+
+    env = {"COLUMNS": "50"}
+    sc = tmp_path / "fb.yaml"
+    sc.write_text(yaml.safe_dump(scenario_to_dict(base())))
+    out = tmp_path / "sw"
+    args = ["sweep", str(sc), "--grid", "phase_at_ca_deg=40,70", "--runs", "2",
+            "--workers", "0", "--out", str(out)]
+    res = CliRunner().invoke(app, args, env=env)
+    assert res.exit_code == 0, res.output
+    got = list(csv.DictReader(open(out / "sweep.csv", newline="")))
+    assert [float(g["phase_at_ca_deg"]) for g in got] == PHASES
+    for g, r in zip(got, rows, strict=True):
+        assert float(g["nees_mean"]) == pytest.approx(r["nees_mean"], rel=1e-12)
+        assert float(g["ca_error_pct_range_median"]) == pytest.approx(
+            r["ca_error_pct_range_median"], rel=1e-12)
+        for stage in ("detector", "front_end", "filter"):
+            assert float(g[f"{stage}_s_per_frame"]) > 0
+    info = json.loads((out / "sweep.json").read_text())
+    assert info["kind"] == "flyby" and info["runs"] == 2 and info["points"] == 2
+    assert info["grid"] == [{"key": "trajectory.flyby.phase_at_ca_deg", "values": PHASES}]
+    assert (out / "sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "| 0.5 | 5 | 70 |" in (out / "sweep.md").read_text()
+    assert (out / "scenario.resolved.yaml").is_file()
+    again = CliRunner().invoke(app, args, env=env)
+    assert again.exit_code == 2 and "--overwrite" in again.output
+    bad = CliRunner().invoke(app, ["sweep", str(sc), "--grid", "spin_deg=1,2", "--workers",
+                                   "0", "--out", str(tmp_path / "sw2")], env=env)
+    assert bad.exit_code == 2 and len(bad.output.strip().splitlines()) == 1
+    assert "--grid" in bad.output and "v_inf_km_s" in bad.output and not (tmp_path / "sw2").exists()

@@ -16,7 +16,7 @@ from starnav.camera import Camera
 from starnav.errors import ConfigError, StarnavError
 from starnav.navigation.metrics import chi2_band
 from starnav.navigation.schema import NavigationConfig, TrnConfig, TrnFilterConfig
-from starnav.navigation.trn.body_view import BodyInCamera, raycast, visible
+from starnav.navigation.trn.body_view import BodyInCamera, lit_silhouette, raycast, visible
 from starnav.navigation.trn.filter import (
     TrnFilterOptions,
     centroid_model,
@@ -26,6 +26,7 @@ from starnav.navigation.trn.filter import (
     radius_model,
     rotation_vector_matrix,
     run_filter,
+    silhouette_scale,
 )
 from starnav.navigation.trn.measurements import FeatureObservation, FlybyMeasurement
 from starnav.navigation.trn.metrics import (
@@ -207,7 +208,9 @@ def test_noise_free_run_converges_to_truth(truth, camera, body):
 
 @pytest.fixture(scope="module")
 def mc(truth, camera, body):
-    c = TrnFilterConfig()
+    # the synthetic features' errors are independent draws: no shared part (the scenario's
+    # 0.5 is the rendered frames' calibration)
+    c = TrnFilterConfig(feature_correlation=0.0)
     return flyby_monte_carlo(truth, camera, body, RUNS, c.initial_covariance(), seed=11,
                              synthetic=SyntheticOptions(max_features=20), options=c.options())
 
@@ -239,7 +242,7 @@ def test_gate_rejects_tracker_jumps(truth, camera, body):
     meas = run_measurements(truth, 5, 0, syn)
     jumps = sum(np.linalg.norm(f.uv - t.uv_true) > 5 for m in meas
                 for f, t in zip(m.features, m.truth, strict=True))
-    c = TrnFilterConfig()
+    c = TrnFilterConfig(feature_correlation=0.0)   # independent synthetic features
     run = run_filter(meas, camera, body, truth.states[0], c.initial_covariance(), c.options(),
                      sun_direction=truth.sun_direction)
     assert jumps > 10
@@ -369,3 +372,58 @@ def test_silhouette_bias_states_keep_a_shared_model_error_consistent(truth, came
     white = _biased_runs(truth, camera, body, replace(TrnFilterOptions(), silhouette_bias_time=0.0))
     assert lo <= gm.mean() <= hi, gm.mean()
     assert white.mean() > hi, white.mean()
+
+
+# ----------------------------------------------------------------------------- scaling law
+def _sphere_lit(alpha: float, camera: Camera) -> tuple[float, float, float]:
+    """Lit-facet centroid offset towards the Sun [px], equivalent radius [px] and the whole
+    disc's radius [px] of an icosphere (radius 100 m, 40 km ahead: nearly orthographic) with
+    the Sun at phase ``alpha`` in the image's +u direction."""
+    m = trimesh.creation.icosphere(subdivisions=6, radius=100.0)
+    b = BodyInCamera.place(m.vertices, m.faces, np.eye(3), [0.0, 0.0, 4.0e4])
+    sun = [math.sin(alpha), 0.0, -math.cos(alpha)]     # from the body, camera at -z
+    lit = lit_silhouette(b, sun, camera)
+    disc = lit_silhouette(b, [0.0, 0.0, -1.0], camera)
+    return (float(lit.centroid_uv[0] - disc.centroid_uv[0]), lit.radius_px, disc.radius_px)
+
+
+def test_silhouette_scale_is_the_sphere_terminator_shift_law():
+    """The lit sphere against its closed form (half disc plus half ellipse of semi-axis
+    ``rho cos alpha``): centroid offset ``4 rho (1 - cos alpha) / (3 pi)`` towards the Sun and
+    equivalent radius ``rho sqrt((1 + cos alpha) / 2)``, within 0.5 % of rho (the facets of a
+    40 962-vertex icosphere); and ``silhouette_scale``'s factors are the ratios of the
+    derivatives of these with respect to a shift of the terminator (central differences of
+    3 deg, wider than the facets) between phase 70 (or 30) deg and the reference 50 deg,
+    within 3 %: the centroid law the filter scales its bias sigmas with (the radius factor
+    with the limb-blur term off: ``limb_blur_px = 0``). "constant" gives ones."""
+    camera = Camera.preset("aa-str")
+    h = math.radians(3.0)
+    deriv = {}
+    for deg in (30.0, 50.0, 70.0):
+        a = math.radians(deg)
+        c, r, rho = _sphere_lit(a, camera)
+        assert c == pytest.approx(4 * rho * (1 - math.cos(a)) / (3 * math.pi), abs=5e-3 * rho)
+        assert r == pytest.approx(rho * math.sqrt((1 + math.cos(a)) / 2), abs=5e-3 * rho)
+        cp, rp, _ = _sphere_lit(a + h, camera)
+        cm, rm, _ = _sphere_lit(a - h, camera)
+        deriv[deg] = ((cp - cm) / (2 * h), (math.log(rp) - math.log(rm)) / (2 * h), rho)
+    opt = TrnFilterOptions(reference_radius_px=deriv[50.0][2],
+                           reference_phase=math.radians(50.0), limb_blur_px=0.0,
+                           silhouette_scaling="geometry")
+    for deg in (30.0, 70.0):
+        s = silhouette_scale(deriv[deg][2], math.radians(deg), opt)
+        assert s[0] == pytest.approx(s[1])
+        assert s[0] == pytest.approx(deriv[deg][0] / deriv[50.0][0], rel=0.03)
+        assert s[2] == pytest.approx(deriv[deg][1] / deriv[50.0][1], rel=0.03)
+    # twice the apparent radius, twice the centroid factor; the radius factor is a fraction
+    s2 = silhouette_scale(2 * deriv[50.0][2], math.radians(50.0), opt)
+    assert s2 == pytest.approx([2.0, 2.0, 1.0])
+    # the limb-blur term alone: dA = pi rho w over A = pi rho^2 (1 + cos a) / 2, halved
+    limb = replace(opt, limb_blur_px=2.0, terminator_shift=0.0)
+    s3 = silhouette_scale(30.0, math.radians(70.0), limb)
+    assert s3[2] == pytest.approx(deriv[50.0][2] * (1 + math.cos(math.radians(50.0)))
+                                  / (30.0 * (1 + math.cos(math.radians(70.0)))))
+    flat = replace(opt, silhouette_scaling="constant")
+    assert silhouette_scale(10.0, 1.2, flat) == pytest.approx([1.0, 1.0, 1.0])
+    with pytest.raises(ConfigError, match="silhouette_scaling.*geometry"):
+        TrnFilterOptions(silhouette_scaling="phase")

@@ -3,6 +3,7 @@
 Public API (imports are lazy: importing :mod:`starnav.batch` loads neither Dask nor Mitsuba)::
 
     run_sweep(scenario, grid, out, runs=..., workers=..., scheduler=...) -> SweepResult
+    run_flyby_sweep(scenario, grid, out, runs=..., workers=...) -> FlybySweepResult
     parse_grid, expand, GridAxis, GridPoint       # starnav.batch.grid
     open_runner(workers, scheduler), ClusterError # starnav.batch.cluster
     COLUMNS, read_table                           # starnav.batch.table (documented columns)
@@ -27,6 +28,7 @@ _EXPORTS = {
     "demo_scenario": "presets", "get_preset": "presets", "PRESETS": "presets",
     "PAPER_CASES": "presets", "PAPER_EXPOSURES_S": "presets",
     "main_job": "mainjob",
+    "run_flyby_sweep": "flyby_sweep", "FlybySweepResult": "flyby_sweep",
 }
 
 __all__ = sorted(_EXPORTS)

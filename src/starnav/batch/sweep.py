@@ -147,7 +147,7 @@ def _frames_of(sc: Scenario) -> int:
 
 
 @contextlib.contextmanager
-def _staging(out: Path) -> Iterator[Path]:
+def staging(out: Path) -> Iterator[Path]:
     parent = out.absolute().parent
     parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=parent))
@@ -251,7 +251,7 @@ def run_sweep(
         runner_desc = rn.description
     elapsed = time.perf_counter() - t_start
     rows, columns = _rows(points, axes, results)
-    with _staging(out) as tmp:
+    with staging(out) as tmp:
         paths = _write_outputs(tmp, out, base, axes, points, groups, n_frames, n_runs, rows,
                                columns, results, runner_desc, elapsed, counts, figures, title)
     log.info("sweep: %d points x %d runs in %.1f s (%s)", len(points), n_runs, elapsed,

@@ -7,9 +7,12 @@ rich progress bar over the tasks, and prints the per-point medians and where the
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
+
+if TYPE_CHECKING:
+    from starnav.config import Scenario
 
 
 def register(app: typer.Typer) -> None:
@@ -49,9 +52,12 @@ def register(app: typer.Typer) -> None:
             "--set", help="override a base-scenario key: a.b=value")] = None,
     ) -> None:
         """Run a what-if grid (product of --grid axes) x --runs Monte Carlo runs; write
-        results.parquet/.csv, figures/ and report.md into OUT."""
+        results.parquet/.csv, figures/ and report.md into OUT. A fly-by scenario sweeps
+        v_inf_km_s, closest_approach_km, phase_at_ca_deg (one task per point) and writes
+        sweep.csv/.md/.png."""
         from starnav.batch import run_sweep
         from starnav.batch.cluster import resolve_scheduler
+        from starnav.batch.flyby_sweep import is_flyby
         from starnav.batch.presets import get_preset
         from starnav.batch.sweep import summarize_points
         from starnav.cli._output import console, print_table
@@ -68,6 +74,9 @@ def register(app: typer.Typer) -> None:
                 sc = load_scenario(scenario, tuple(set_ or ()))
             axes = list(grid or ()) or (list(p.grid) if p else [])
             n_runs = runs if runs is not None else (p.runs if p else None)
+            if is_flyby(sc):
+                _flyby(sc, axes, out, n_runs, workers, scheduler, overwrite, no_figures)
+                return
             bar = frames_progress()
             task = bar.add_task("tasks", total=None, rate="", start=False)
             started: list[bool] = []
@@ -106,3 +115,39 @@ def register(app: typer.Typer) -> None:
         print_table(title, heads, rows, console)
         console.print(f"runner: {res.runner}")
         console.print(f"report: [bold]{res.paths['report']}[/]; table: {res.paths['parquet']}")
+
+
+def _flyby(sc: Scenario, axes: list[str], out: Path, runs: int | None, workers: int | None,
+           scheduler: str | None, overwrite: bool, no_figures: bool) -> None:
+    """The fly-by sweep (:func:`starnav.batch.flyby_sweep.run_flyby_sweep`) with a progress
+    bar over the points, then its table."""
+    from starnav.batch.flyby_sweep import run_flyby_sweep
+    from starnav.cli._output import console, print_table
+    from starnav.cli.dataset import frames_progress
+
+    bar = frames_progress()
+    task = bar.add_task("points", total=None, rate="", start=False)
+    started: list[bool] = []
+
+    def progress(done: int, total: int) -> None:
+        if not started:          # after the checks: an error is one line
+            started.append(True)
+            bar.start()
+            bar.start_task(task)
+        bar.update(task, completed=done, total=total)
+
+    try:
+        res = run_flyby_sweep(sc, axes, out, runs=runs, workers=workers, scheduler=scheduler,
+                              progress=progress, figures=not no_figures, overwrite=overwrite)
+    finally:
+        bar.stop()
+    heads = ["v_inf [km/s]", "CA [km]", "phase [deg]", "CA err med [% range]", "mean NEES",
+             "band", "verdict"]
+    rows = [[f"{r['v_inf_km_s']:g}", f"{r['closest_approach_km']:g}",
+             f"{r['phase_at_ca_deg']:g}", f"{r['ca_error_pct_range_median']:.3f}",
+             f"{r['nees_mean']:.2f}", f"[{r['nees_band_lo']:.2f}, {r['nees_band_hi']:.2f}]",
+             str(r["verdict"])] for r in res.rows]
+    print_table(f"fly-by sweep: {len(res.rows)} point(s), {res.elapsed_s:.1f} s", heads, rows,
+                console)
+    console.print(f"runner: {res.runner}")
+    console.print(f"table: [bold]{res.paths['table']}[/]")

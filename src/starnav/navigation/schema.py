@@ -201,10 +201,10 @@ class TrnFrontEndConfig(StrictModel):
     epipolar_px: PositiveFloat = Field(
         1.0, description="epipolar RANSAC threshold (known attitude) [px]")
     sigma_detect_px: NonNegativeFloat = Field(
-        1.5, description="1-sigma of a feature at its first detection [px] (calibrated on "
+        1.6, description="1-sigma of a feature at its first detection [px] (calibrated on "
         "rendered frames: tools/calibrate_flyby_model_error.py)")
     drift_px_per_rad: NonNegativeFloat = Field(
-        7.1, description="growth of a feature's 1-sigma with the camera rotation summed "
+        6.9, description="growth of a feature's 1-sigma with the camera rotation summed "
         "along its track [px/rad] (the shading moves on the surface as the view turns)")
 
     correlation_factor: Annotated[float, Field(ge=1)] = Field(
@@ -215,10 +215,10 @@ class TrnFrontEndConfig(StrictModel):
         5.0, description="a track ends once the view has turned this much along it (bounds "
         "its drift; the point is found again under a new id) [deg]")
     centroid_sigma_fraction: NonNegativeFloat = Field(
-        0.0002, description="1-sigma of the segments' lit centroid per coordinate, times the "
+        0.00022, description="1-sigma of the segments' lit centroid per coordinate, times the "
         "apparent radius (its noise; calibrated) [-]")
     radius_sigma_fraction: NonNegativeFloat = Field(
-        0.00013, description="1-sigma of the segments' apparent radius, times the radius (its "
+        0.000144, description="1-sigma of the segments' apparent radius, times the radius (its "
         "noise; calibrated) [-]")
 
     def options(self) -> FrontEndOptions:
@@ -246,17 +246,36 @@ class TrnFilterConfig(StrictModel):
     landmark_height_sigma_m: NonNegativeFloat = Field(
         1.0, description="shape-model height error at a new landmark, 1-sigma [m]")
     centroid_model_sigma_px: NonNegativeFloat = Field(
-        0.9, description="lit-centroid model error added in quadrature [px] (calibrated on "
+        0.89, description="lit-centroid model error added in quadrature [px] (calibrated on "
         "rendered frames: tools/calibrate_flyby_model_error.py)")
     radius_model_fraction: NonNegativeFloat = Field(
-        0.016, description="apparent-radius model error as a fraction of the radius [-] "
+        0.0174, description="apparent-radius model error as a fraction of the radius [-] "
         "(calibrated)")
     silhouette_bias_time_s: NonNegativeFloat = Field(
-        85.0, description="correlation time of the silhouette's model errors, first-order "
+        48.0, description="correlation time of the silhouette's model errors, first-order "
         "Gauss-Markov bias states [s] (calibrated; 0: white, added to each frame's noise)")
     centroid_sun_share: Annotated[float, Field(ge=0, le=1)] = Field(
         0.994, description="share of the centroid model error's variance along the Sun's "
         "image direction [-] (calibrated; 0.5: isotropic)")
+    silhouette_scaling: Literal["geometry", "constant"] = Field(
+        "constant", description="how the silhouette model-error sigmas follow the geometry: "
+        "geometry (centroid ~ apparent radius x sin(phase); radius fraction: limb blur and "
+        "terminator shift, filter.silhouette_scale; relative to the reference below) or "
+        "constant")
+    silhouette_reference_radius_px: PositiveFloat = Field(
+        54.2, description="apparent radius at which the model-error sigmas were calibrated "
+        "[px] (the calibration fly-by's CA)")
+    silhouette_reference_phase_deg: Annotated[float, Field(ge=0, lt=180)] = Field(
+        50.0, description="Sun phase at which the model-error sigmas were calibrated [deg]")
+    silhouette_limb_blur_px: NonNegativeFloat = Field(
+        3.95, description="outward spread of the lit limb above the segments threshold [px] "
+        "(the radius model error's limb term; calibrated)")
+    silhouette_terminator_shift_deg: NonNegativeFloat = Field(
+        8.23, description="shift of the effective terminator against the lit-facet model "
+        "[deg] (the radius model error's terminator term; calibrated)")
+    feature_correlation: Annotated[float, Field(ge=0, lt=1)] = Field(
+        0.31, description="correlation of the tracked features' errors within a frame [-]: N "
+        "features count as N / (1 + (N - 1) c) independent ones (calibrated)")
     use_centroid: bool = Field(True, description="use the lit silhouette's centroid")
     use_radius: bool = Field(True, description="use the lit silhouette's apparent radius")
     initial_position_sigma_km: PositiveFloat = Field(
@@ -274,7 +293,13 @@ class TrnFilterConfig(StrictModel):
             centroid_model_sigma_px=si.centroid_model_sigma_px,
             radius_model_fraction=si.radius_model_fraction, use_centroid=si.use_centroid,
             use_radius=si.use_radius, silhouette_bias_time=si.silhouette_bias_time,
-            centroid_sun_share=si.centroid_sun_share)
+            centroid_sun_share=si.centroid_sun_share,
+            silhouette_scaling=si.silhouette_scaling,
+            reference_radius_px=si.silhouette_reference_radius_px,
+            reference_phase=si.silhouette_reference_phase,
+            limb_blur_px=si.silhouette_limb_blur_px,
+            terminator_shift=si.silhouette_terminator_shift,
+            feature_correlation=si.feature_correlation)
 
     def initial_covariance(self) -> NDArray[np.float64]:
         """The diagonal initial covariance (6, 6) [m^2, m^2/s^2]."""

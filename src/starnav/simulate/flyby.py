@@ -50,6 +50,7 @@ import itertools
 import json
 import logging
 import time
+import tracemalloc
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -75,6 +76,7 @@ from starnav.navigation.trn.metrics import (
     plot_frame_overlay,
     plot_tracks,
     predicted_silhouette,
+    tracker_budget,
     write_report,
 )
 from starnav.navigation.trn.montecarlo import summarise_runs
@@ -130,6 +132,10 @@ class FlybyRunResult:
     timings_s : dict
         Wall time of this run per stage summed over the frames [s]: ``detector``,
         ``front_end``, ``filter``.
+    memory_bytes : dict or None
+        With ``memory=True``: the peak traced Python heap [bytes] of ``front_end`` (the
+        acquisitions and the front end of every frame, detector included) and ``filter``
+        over the pass, above what was allocated before (an upper bound of one frame's).
     """
 
     run: int
@@ -138,6 +144,7 @@ class FlybyRunResult:
     metrics: FlybyMetrics
     steps: list[FlybyStep]
     timings_s: dict[str, float]
+    memory_bytes: dict[str, float] | None = None
 
 
 @dataclass
@@ -198,8 +205,10 @@ def flyby_run(sim: Simulator, renders: Renders, run: int, *,
               front_end: FrontEndOptions | None = None,
               filter_options: TrnFilterOptions | None = None,
               initial_covariance: FloatArray | None = None,
-              body: TargetBody | None = None) -> FlybyRunResult:
-    """One run of the closed loop on frames already rendered (module step 2)."""
+              body: TargetBody | None = None, memory: bool = False) -> FlybyRunResult:
+    """One run of the closed loop on frames already rendered (module step 2); with
+    ``memory`` the peak traced memory of the front end and of the filter (tracemalloc: slower,
+    the run's timings are then not representative)."""
     sc = sim.scenario
     check_flyby_scenario(sc)
     trn = sc.navigation.trn
@@ -212,8 +221,17 @@ def flyby_run(sim: Simulator, renders: Renders, run: int, *,
     flyby = sim.scene.flyby
     assert flyby is not None  # check_flyby_scenario
     sun = np.asarray(flyby.sun_direction, float)
+    mem: dict[str, float] | None = None
+    if memory:
+        tracemalloc.start()
+        base = tracemalloc.get_traced_memory()[0]
     steps = track_flyby(sim, renders=renders, options=fe, run=run,
                         attitude=lambda g: sim.measured_attitude(g, run))
+    if memory:
+        cur, peak = tracemalloc.get_traced_memory()
+        mem = {"front_end": float(peak - base)}
+        tracemalloc.reset_peak()
+        base = cur
     meas = [dataclasses.replace(s.frame.measurement, sun_direction=sun.copy()) for s in steps]
     idx = [int(s.geometry.index) for s in steps]
     X = truth[idx]
@@ -221,11 +239,15 @@ def flyby_run(sim: Simulator, renders: Renders, run: int, *,
     t0 = time.perf_counter()
     res = run_filter(meas, sim.camera, body, x0, P0, fo)
     t_filter = time.perf_counter() - t0
+    if memory:
+        assert mem is not None
+        mem["filter"] = float(tracemalloc.get_traced_memory()[1] - base)
+        tracemalloc.stop()
     metrics = FlybyMetrics.of(res, meas, X, float(flyby.epoch_ca))
     timings = {"detector": float(sum(s.timings_s["detector"] for s in steps)),
                "front_end": float(sum(s.timings_s["front_end"] for s in steps)),
                "filter": t_filter}
-    return FlybyRunResult(run, res, meas, metrics, steps, timings)
+    return FlybyRunResult(run, res, meas, metrics, steps, timings, mem)
 
 
 def flyby_closed_loop(sim: Simulator, runs: int = 1, *, renders: Renders | None = None,
@@ -346,10 +368,13 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
                    probability: float = 0.99,
                    progress: Callable[[str, int, int], None] | None = None) -> dict[str, Any]:
     """``starnav navigate SCENARIO.yaml`` for a fly-by: the closed loop over ``runs`` runs,
-    then ``metrics.json`` (run 0's :class:`FlybyMetrics` flat keys, the per-frame timings and,
-    for >= 2 runs, the Monte Carlo summary), the figures (position and velocity errors with
-    3-sigma against time from CA, runs in grey; NEES with its band; tracks; run 0's frame
-    overlays, :func:`plot_overlays`) and ``report.md``, every file written atomically.
+    then ``metrics.json`` (run 0's :class:`FlybyMetrics` flat keys, the per-frame timings, the
+    tracker's budget (:func:`~starnav.navigation.trn.metrics.tracker_budget`: desktop time of
+    the front end and filter per frame scaled to the MCU against its 650 ms, and their peak
+    memory from a traced re-run of run 0) and, for >= 2 runs, the Monte Carlo summary), the
+    figures (position and velocity errors with 3-sigma against time from CA, runs in grey;
+    NEES with its band; tracks; run 0's frame overlays, :func:`plot_overlays`) and
+    ``report.md``, every file written atomically.
     Returns the metrics dict."""
     check_flyby_scenario(sim.scenario)
     out = Path(out)
@@ -363,6 +388,8 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
     t = loop.time_from_ca
     metrics: dict[str, Any] = dict(r0.metrics.as_dict())
     metrics["timing_s_per_frame"] = loop.timings_s
+    mem = flyby_run(sim, renders, 0, memory=True).memory_bytes
+    metrics["tracker_budget"] = budget = tracker_budget(loop.timings_s, mem)
     mc = None
     if runs >= 2:
         mc = {k: v for k, v in loop.summary.items() if k != "nees_per_frame"}
@@ -381,7 +408,7 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
                                            probability=probability)))
         figures.append(str(plot_tracks(t, r0.measurements, r0.filter, out / "tracks.png")))
         figures += [str(p) for p in plot_overlays(sim, renders, loop, out)]
-    write_report(out / "report.md", r0.metrics, mc, figures)
+    write_report(out / "report.md", r0.metrics, mc, figures, budget)
     return metrics
 
 
@@ -390,46 +417,35 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
 SWEEP_AXES = ("v_inf_km_s", "closest_approach_km", "phase_at_ca_deg")
 
 
-def parse_sweep_axes(items: Sequence[str]) -> dict[str, list[float]]:
+def parse_sweep_axes(items: Sequence[str], flag: str = "--sweep") -> dict[str, list[float]]:
     """``["v_inf_km_s=0.4,0.6", "phase_at_ca_deg=30,60"]`` -> ``{axis: values}`` (axes of
-    :data:`SWEEP_AXES`; the CLI's ``--sweep``). A bad axis or value is a ConfigError naming
-    it."""
+    :data:`SWEEP_AXES`; the CLI's ``navigate --sweep`` / ``sweep --grid``, named by
+    ``flag``). A bad axis or value is a ConfigError naming it."""
     out: dict[str, list[float]] = {}
     for item in items:
         key, sep, text = item.partition("=")
         key = key.strip().removeprefix("trajectory.flyby.")
         if not sep or key not in SWEEP_AXES:
-            raise ConfigError("--sweep", item, f"AXIS=V1,V2,... with AXIS one of "
+            raise ConfigError(flag, item, f"AXIS=V1,V2,... with AXIS one of "
                               f"{', '.join(SWEEP_AXES)}")
         try:
             vals = [float(v) for v in text.split(",") if v.strip()]
         except ValueError:
-            raise ConfigError(f"--sweep {key}", text, "comma-separated numbers") from None
+            raise ConfigError(f"{flag} {key}", text, "comma-separated numbers") from None
         if not vals:
-            raise ConfigError(f"--sweep {key}", text, "at least one value")
+            raise ConfigError(f"{flag} {key}", text, "at least one value")
         out[key] = vals
     return out
 
 
-def flyby_rendered_sweep(base: Scenario, axes: dict[str, Sequence[float]], runs: int = 2, *,
-                         probability: float = 0.99,
-                         progress: Callable[[int, int], None] | None = None
-                         ) -> list[dict[str, Any]]:
-    """The closed loop (:func:`flyby_closed_loop`, render once per point) at every point of
-    the product of ``axes`` (``trajectory.flyby`` keys of :data:`SWEEP_AXES`; an axis not
-    given keeps the base scenario's value), ``runs`` Monte Carlo runs per point.
-
-    Every point's scenario and scene (geometry, pointing) is built before the first render.
-    Returns one row per point (the last axis varying fastest): the grid values,
-    ``ca_range_m``, ``ca_error_pct_range_median`` / ``_max`` over the runs, ``nees_mean``
-    with ``nees_band_lo`` / ``_hi`` (two-sided ``probability`` band of a ``runs``-run mean of
-    chi2(6)) and ``verdict`` (runs >= 2; else run 0's mean NEES and no band), and the
-    medians over runs of ``mean_tracks_per_frame``, ``mean_track_length_frames``,
-    ``feature_error_rms_px``.
-    """
+def flyby_sweep_points(base: Scenario, axes: dict[str, Sequence[float]]
+                       ) -> list[tuple[dict[str, float], Scenario]]:
+    """Every point of the product of ``axes`` (``trajectory.flyby`` keys of
+    :data:`SWEEP_AXES`; an axis not given keeps the base scenario's value), the last axis
+    varying fastest: its grid values and its scenario, each one built and its scene checked
+    (geometry, pointing) before anything is rendered; a bad point is one ConfigError naming
+    it."""
     check_flyby_scenario(base)
-    if runs < 1:
-        raise ConfigError("runs", runs, ">= 1 Monte Carlo run")
     for k in axes:
         if k not in SWEEP_AXES:
             raise ConfigError("sweep axis", k, f"one of {', '.join(SWEEP_AXES)}")
@@ -444,32 +460,68 @@ def flyby_rendered_sweep(base: Scenario, axes: dict[str, Sequence[float]], runs:
         for k, v in values.items():
             set_dotted(d, f"trajectory.flyby.{k}", v)
         try:
-            points.append((values, Simulator(scenario_from_dict(d))))
+            sc = scenario_from_dict(d)
+            Simulator(sc)
         except ConfigError as err:
             raise ConfigError(f"sweep point {values}: {err.field}", err.value,
                               err.expected) from None
+        points.append((values, sc))
+    return points
+
+
+def flyby_sweep_row(values: dict[str, float], scenario: Scenario | dict[str, Any],
+                    runs: int, probability: float = 0.99) -> dict[str, Any]:
+    """One sweep point: the closed loop of ``scenario`` (rendered once, ``runs`` runs) as a
+    row of :func:`flyby_rendered_sweep`. A pure function of its arguments (a batch task: the
+    scenario may be given as its dict)."""
+    sc = scenario if isinstance(scenario, Scenario) else scenario_from_dict(dict(scenario))
+    sim = Simulator(sc)
+    loop = flyby_closed_loop(sim, runs, probability=probability)
+    ms = [r.metrics for r in loop.runs]
+    row: dict[str, Any] = dict(values)
+    row["runs"] = runs
+    row["ca_range_m"] = ms[0].ca_range_m
+    pct = [m.ca_position_error_pct_range for m in ms]
+    row["ca_error_pct_range_median"] = float(np.median(pct))
+    row["ca_error_pct_range_max"] = float(np.max(pct))
+    if runs >= 2:
+        row["nees_mean"] = float(loop.summary["nees_mean"])
+        row["nees_band_lo"], row["nees_band_hi"] = (float(x) for x in loop.summary["nees_band"])
+        row["verdict"] = loop.summary["verdict"]
+    else:
+        row["nees_mean"] = ms[0].nees_mean
+        row["nees_band_lo"] = row["nees_band_hi"] = float("nan")
+        row["verdict"] = "-"
+    for key in ("mean_tracks_per_frame", "mean_track_length_frames", "feature_error_rms_px"):
+        row[f"median_{key}"] = float(np.nanmedian([getattr(m, key) for m in ms]))
+    for stage in ("detector", "front_end", "filter"):
+        row[f"{stage}_s_per_frame"] = float(loop.timings_s[stage])
+    return row
+
+
+def flyby_rendered_sweep(base: Scenario, axes: dict[str, Sequence[float]], runs: int = 2, *,
+                         probability: float = 0.99,
+                         progress: Callable[[int, int], None] | None = None
+                         ) -> list[dict[str, Any]]:
+    """The closed loop (:func:`flyby_closed_loop`, render once per point) at every point of
+    :func:`flyby_sweep_points` ``(base, axes)``, ``runs`` Monte Carlo runs per point, in this
+    process (``starnav sweep`` runs the same rows, :func:`flyby_sweep_row`, on the batch
+    runner: :func:`starnav.batch.flyby_sweep.run_flyby_sweep`).
+
+    Returns one row per point (the last axis varying fastest): the grid values,
+    ``ca_range_m``, ``ca_error_pct_range_median`` / ``_max`` over the runs, ``nees_mean``
+    with ``nees_band_lo`` / ``_hi`` (two-sided ``probability`` band of a ``runs``-run mean of
+    chi2(6)) and ``verdict`` (runs >= 2; else run 0's mean NEES and no band), the medians
+    over runs of ``mean_tracks_per_frame``, ``mean_track_length_frames``,
+    ``feature_error_rms_px``, and the per-frame wall time of the tracker's stages
+    (``detector_s_per_frame``, ``front_end_s_per_frame``, ``filter_s_per_frame``).
+    """
+    if runs < 1:
+        raise ConfigError("runs", runs, ">= 1 Monte Carlo run")
+    points = flyby_sweep_points(base, axes)
     rows = []
-    for i, (values, sim) in enumerate(points):
-        loop = flyby_closed_loop(sim, runs, probability=probability)
-        ms = [r.metrics for r in loop.runs]
-        row: dict[str, Any] = dict(values)
-        row["runs"] = runs
-        row["ca_range_m"] = ms[0].ca_range_m
-        pct = [m.ca_position_error_pct_range for m in ms]
-        row["ca_error_pct_range_median"] = float(np.median(pct))
-        row["ca_error_pct_range_max"] = float(np.max(pct))
-        if runs >= 2:
-            row["nees_mean"] = float(loop.summary["nees_mean"])
-            row["nees_band_lo"], row["nees_band_hi"] = (float(x) for x in
-                                                        loop.summary["nees_band"])
-            row["verdict"] = loop.summary["verdict"]
-        else:
-            row["nees_mean"] = ms[0].nees_mean
-            row["nees_band_lo"] = row["nees_band_hi"] = float("nan")
-            row["verdict"] = "-"
-        for key in ("mean_tracks_per_frame", "mean_track_length_frames",
-                    "feature_error_rms_px"):
-            row[f"median_{key}"] = float(np.nanmedian([getattr(m, key) for m in ms]))
+    for i, (values, sc) in enumerate(points):
+        row = flyby_sweep_row(values, sc, runs, probability)
         rows.append(row)
         log.info("fly-by sweep point %d/%d %s: CA error median %.3g %% of range, NEES %.3g",
                  i + 1, len(points), values, row["ca_error_pct_range_median"],

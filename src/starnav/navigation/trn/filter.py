@@ -87,6 +87,22 @@ Technique (per frame)
 
    Jacobians are analytic (``tests/navigation/test_trn_filter.py`` checks them by central
    differences).
+4a. **The bias sigmas follow the geometry** (``silhouette_scaling = "geometry"``,
+   :func:`silhouette_scale`): the model error of the lit centroid is a shift of the effective
+   terminator, so in pixels it grows as ``rho sin(alpha)`` (apparent radius, Sun phase; on the
+   calibration fly-by the error over ``rho sin alpha`` stays within 0.030 - 0.033 over phases
+   35 - 66 deg), the radius's as the root sum square of a limb-blur term ``w / (rho (1 +
+   cos alpha))`` and a terminator term ``tan(alpha / 2) delta / 2``. With ``s_k`` the factors
+   at frame ``k`` (from the predicted state), the bias states are the stationary
+   Gauss-Markov process scaled by ``s_k``: ``b <- (s_k / s_k-1) b`` with its rows and
+   columns of ``P``, before the update (the factor is a known function of the prediction,
+   not differentiated).
+4b. **Features share part of their error** within a frame (the shading of every window moves
+   the same way as the view turns): with a pairwise correlation ``c`` (calibrated 0.31),
+   ``N`` features carry the information of ``N / (1 + (N - 1) c)`` independent ones about a
+   shift common to all, so each feature's variance is multiplied by ``1 + (N - 1) c``. The
+   closer or larger the body, the more features (12 - 15 tracks per frame at CA 5 km), the
+   more it matters.
 5. **Gate** each feature, the centroid and the radius on their own innovation,
    ``nu^T S^-1 nu < chi2.ppf(gate_probability, dof)``; a rejected feature's landmark is
    dropped and its track id ignored from then on (a tracker that jumped keeps the id).
@@ -117,8 +133,14 @@ max_incidence            75 deg        steepest ray-to-normal angle of a landmar
 landmark_height_sigma    1 m           shape-model height error at a landmark birth
 centroid_model_sigma_px  0.3 px        centroid model error, rms per image coordinate
 radius_model_fraction    0.01          radius model error, fraction of the radius
-silhouette_bias_time     85 s          their correlation time (0: white, per frame)
+silhouette_bias_time     48 s          their correlation time (0: white, per frame)
+silhouette_scaling       constant      "geometry": sigmas follow radius and phase (4a)
+reference_radius_px      54.2 px       ... relative to the calibration geometry's radius
+reference_phase          50 deg        ... and phase
+limb_blur_px             3.95 px       radius error's limb-blur term (silhouette_scale)
+terminator_shift         8.23 deg      radius error's terminator term
 centroid_sun_share       0.994         share of the centroid's error along the Sun
+feature_correlation      0             features' error correlation within a frame (4b)
 use_centroid, use_radius True          which silhouette measurements are used
 ======================== ============= =====================================================
 
@@ -169,6 +191,63 @@ CORE = 9
 BIAS = slice(6, 9)
 
 
+#: Names of the silhouette model-error scalings (:func:`silhouette_scale`).
+SILHOUETTE_SCALINGS = ("geometry", "constant")
+#: Phase below which the terminator-shift law is held at its value [rad]: near zero phase the
+#: terminator leaves the view and what remains (the limb's threshold) is not phase-driven.
+PHASE_FLOOR = math.radians(15.0)
+
+
+def silhouette_scale(radius_px: float, phase: float, options: TrnFilterOptions) -> FloatArray:
+    """Factors ``(centroid along, centroid across, radius)`` by which the silhouette's
+    model-error sigmas at the calibration geometry (``options.reference_radius_px``,
+    ``reference_phase``) scale at apparent radius ``radius_px`` [px] and Sun phase ``phase``
+    [rad] (module step 4a); ones for ``silhouette_scaling = "constant"``.
+
+    Two mechanisms, each a closed form on a sphere of apparent radius ``rho`` at phase
+    ``alpha``, whose lit area is ``A = pi rho^2 (1 + cos alpha) / 2`` with its centroid
+    ``c = 4 rho (1 - cos alpha) / (3 pi)`` from the disc centre towards the Sun (the half disc
+    plus the half ellipse of semi-axis ``rho cos alpha``):
+
+    * *terminator shift*: what the lit-facet model leaves out near the terminator (cast
+      shadows, the segments' threshold on the dim pixels there) moves the effective
+      terminator by a small angle ``delta``, about the same at every geometry (a band of
+      incidence angles near 90 deg). It moves the centroid by ``4 rho sin(alpha) delta /
+      (3 pi)`` [px] and the equivalent radius ``sqrt(A / pi)`` by the fraction
+      ``-tan(alpha / 2) delta / 2``;
+    * *limb blur*: the detector's PSF spreads the lit limb (a half circle, ``pi rho`` long)
+      outwards by ``w`` px above the threshold: ``dA = pi rho w``, a radius fraction
+      ``w / (rho (1 + cos alpha))``.
+
+    The centroid's factor is ``(rho / rho_ref) (sin alpha / sin alpha_ref)`` (the terminator
+    term; the limb blur moves it little); the radius's is the ratio of
+    ``hypot(w / (rho (1 + cos alpha)), tan(alpha / 2) delta / 2)`` to its reference value
+    (``w = options.limb_blur_px``, ``delta = options.terminator_shift``; the two have opposite
+    signs, the sigma takes their root sum square: it never vanishes where they cancel).
+    On the calibration fly-by (phase 35 - 66 deg) the centroid error over ``rho sin alpha``
+    stays within 0.030 - 0.033 and the radius error follows the two terms
+    (tools/calibrate_flyby_model_error.py).
+
+    Phases below :data:`PHASE_FLOOR` are held at it.
+    """
+    if options.silhouette_scaling == "constant":
+        return np.ones(3)
+    a = max(float(phase), PHASE_FLOOR)
+    a0 = max(float(options.reference_phase), PHASE_FLOOR)
+    rho, rho0 = float(radius_px), options.reference_radius_px
+    c = (rho / rho0) * (math.sin(a) / math.sin(a0))
+    r = radius_model_term(rho, a, options) / radius_model_term(rho0, a0, options)
+    return np.array([c, c, r])
+
+
+def radius_model_term(radius_px: float, phase: float, options: TrnFilterOptions) -> float:
+    """``hypot(w / (rho (1 + cos alpha)), tan(alpha / 2) delta / 2)`` of
+    :func:`silhouette_scale` [-] (``alpha`` already floored)."""
+    w, d = options.limb_blur_px, options.terminator_shift
+    return math.hypot(w / (radius_px * (1.0 + math.cos(phase))),
+                      0.5 * d * math.tan(phase / 2.0))
+
+
 class ShapeBodyLike(Protocol):
     """What the filter reads of a body (:class:`~starnav.bodies.small_body.ShapeModelBody`)."""
 
@@ -210,6 +289,18 @@ class TrnFilterOptions:
     centroid_sun_share : float
         Share of the centroid model error's variance (``2 centroid_model_sigma_px^2``) along
         the Sun's image direction [-]; the rest is across it (0.5: isotropic).
+    silhouette_scaling : str
+        How the model-error sigmas follow the geometry (:func:`silhouette_scale`):
+        ``"geometry"`` (the terminator-shift law) or ``"constant"`` (as calibrated).
+    reference_radius_px, reference_phase : float
+        The geometry at which ``centroid_model_sigma_px`` and ``radius_model_fraction`` hold
+        (the calibration fly-by's apparent radius [px] and Sun phase [rad] at CA).
+    limb_blur_px, terminator_shift : float
+        The radius model error's two mechanisms (:func:`silhouette_scale`): the lit limb's
+        outward spread [px] and the effective terminator's shift [rad] (calibrated).
+    feature_correlation : float
+        Pairwise correlation of the frame's feature errors [-] (module step 4b; 0: independent,
+        the synthetic measurements; the rendered calibration gives 0.31, the scenario default).
     """
 
     accel_psd: float = 1e-8
@@ -223,8 +314,14 @@ class TrnFilterOptions:
     use_centroid: bool = True
     use_radius: bool = True
     iterations: int = 4
-    silhouette_bias_time: float = 85.0
+    silhouette_bias_time: float = 48.0
     centroid_sun_share: float = 0.994
+    silhouette_scaling: str = "constant"
+    reference_radius_px: float = 54.2
+    reference_phase: float = math.radians(50.0)
+    limb_blur_px: float = 3.95
+    feature_correlation: float = 0.0
+    terminator_shift: float = math.radians(8.23)
 
     def __post_init__(self) -> None:
         checks = (("accel_psd", self.accel_psd >= 0, ">= 0"),
@@ -237,7 +334,18 @@ class TrnFilterOptions:
                   ("radius_model_fraction", self.radius_model_fraction >= 0, ">= 0"),
                   ("silhouette_bias_time", self.silhouette_bias_time >= 0
                    and math.isfinite(self.silhouette_bias_time), ">= 0 [s], finite"),
-                  ("centroid_sun_share", 0 <= self.centroid_sun_share <= 1, "in [0, 1]"))
+                  ("centroid_sun_share", 0 <= self.centroid_sun_share <= 1, "in [0, 1]"),
+                  ("silhouette_scaling", self.silhouette_scaling in SILHOUETTE_SCALINGS,
+                   f"one of {', '.join(SILHOUETTE_SCALINGS)}"),
+                  ("reference_radius_px", self.reference_radius_px > 0
+                   and math.isfinite(self.reference_radius_px), "> 0 [px], finite"),
+                  ("reference_phase", 0 <= self.reference_phase < math.pi, "in [0, pi) rad"),
+                  ("limb_blur_px", self.limb_blur_px >= 0, ">= 0 [px]"),
+                  ("feature_correlation", 0 <= self.feature_correlation < 1, "in [0, 1)"),
+                  ("terminator_shift", self.terminator_shift >= 0, ">= 0 [rad]"),
+                  ("limb_blur_px + terminator_shift",
+                   self.limb_blur_px > 0 or self.terminator_shift > 0,
+                   "one of them > 0 (the radius model error's two terms)"))
         for name, ok, want in checks:
             if not ok:
                 raise ConfigError(f"options.{name}", getattr(self, name), want)
@@ -560,6 +668,8 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
     P[:6, :6], P[BIAS, BIAS] = P0, np.diag(sig_b**2)
     out.info["bias"] = np.zeros((K, 3))
     out.info["bias_sigma"] = np.zeros((K, 3))
+    out.info["silhouette_scale"] = np.ones((K, 3))
+    scale = np.ones(3)                        # the bias sigmas' geometry factor (step 4a)
     ids: list[int] = []                       # track id of each landmark, in state order
     banned: set[int] = set()
     t_prev = measurements[0].epoch_tdb
@@ -579,7 +689,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
                 x[BIAS] *= a
                 P[BIAS, :] *= a
                 P[:, BIAS] *= a
-                P[BIAS, BIAS] += np.diag(sig_b**2 * (1.0 - a * a))
+                P[BIAS, BIAS] += np.diag((sig_b * scale) ** 2 * (1.0 - a * a))
         # 2 drop the landmarks whose track ended
         seen = {f.track_id for f in m.features}
         keep = [j for j, tid in enumerate(ids) if tid in seen]
@@ -600,11 +710,13 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
         # 4 measurements: (kind, z, R, track id, model parameter)
         rows: list[tuple[str, FloatArray, FloatArray, int, Any]] = []
         slot = {tid: j for j, tid in enumerate(ids)}
-        for f in m.features:
-            j = slot.get(f.track_id)
-            if j is not None:
-                rows.append(("feature", np.asarray(f.uv, float), np.eye(2) * f.sigma_px**2,
-                             f.track_id, CORE + 3 * j))
+        tracked = [(f, slot[f.track_id]) for f in m.features if f.track_id in slot]
+        # 4b the frame's features share part of their error (feature_correlation): N of
+        # them carry the information of N / (1 + (N - 1) c) independent ones
+        share = 1.0 + max(len(tracked) - 1, 0) * opt.feature_correlation
+        for f, j in tracked:
+            rows.append(("feature", np.asarray(f.uv, float), np.eye(2) * f.sigma_px**2 * share,
+                         f.track_id, CORE + 3 * j))
         need_sil = ((opt.use_centroid and m.centroid_uv is not None)
                     or (opt.use_radius and m.apparent_radius_px is not None))
         s_k = frame_sun[k] if frame_sun[k] is not None else sun
@@ -638,6 +750,18 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             return cache[key]
 
         sil0 = silhouette_at(r.copy()) if need_sil else None
+        # 4a the bias states follow the geometry: b <- (s_k / s_k-1) b (silhouette_scale)
+        if sil0 is not None and tau > 0:
+            rn = float(np.linalg.norm(r))
+            phase = (math.acos(min(max(float(r @ s_k) / rn, -1.0), 1.0)) if s_k is not None
+                     else 0.0)
+            s_new = silhouette_scale(sil0[2] / rn, phase, opt)
+            f = s_new / scale
+            x[BIAS] *= f
+            P[BIAS, :] *= f[:, None]
+            P[:, BIAS] *= f
+            scale = s_new
+        out.info["silhouette_scale"][k] = scale
         if sil0 is not None and opt.use_centroid and m.centroid_uv is not None:
             var = m.centroid_sigma_px**2 + (0.0 if tau > 0 else opt.centroid_model_sigma_px**2)
             rows.append(("centroid", np.asarray(m.centroid_uv, float), np.eye(2) * var, -1,

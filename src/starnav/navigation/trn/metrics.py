@@ -333,9 +333,43 @@ def plot_frame_overlay(image: ArrayLike, measurement: FlybyMeasurement,
     return _save(fig, path)
 
 
+#: The tracker's processing budget per frame on its MCU [s] and its memory [bytes]: the seed
+#: paper's processor-in-the-loop figures for the limb chain (< 650 ms, < 900 kB;
+#: /work/shared/REFERENCE.md), the only measured budget of this tracker's MCU.
+MCU_BUDGET_S = 0.650
+MCU_MEMORY_BYTES = 900 * 1024
+#: Desktop -> MCU time factor [-]: 650 ms / 5 ms = 130, the ratio of the paper's MCU time for
+#: the limb chain to the project's desktop budget for the same chain (DESIGN.md "Budgets");
+#: an assumption (a ~100-200 MHz space MCU without vector units against one desktop core
+#: with SIMD numpy is 100-200x), to be replaced by a processor-in-the-loop measurement.
+DESKTOP_TO_MCU = 130.0
+#: The tracker's own processing stages of the fly-by (the detector is the sensor, rendering
+#: the simulation: neither runs on the MCU).
+TRACKER_STAGES = ("front_end", "filter")
+
+
+def tracker_budget(timings_s_per_frame: dict[str, float],
+                   memory_bytes: dict[str, float] | None = None) -> dict[str, Any]:
+    """Per-frame cost of the tracker's stages against its MCU budget: the desktop time per
+    stage [ms], their sum scaled by :data:`DESKTOP_TO_MCU` against :data:`MCU_BUDGET_S`, and
+    (when measured) the peak traced memory per stage [kB] against :data:`MCU_MEMORY_BYTES`."""
+    ms = {s: 1e3 * float(timings_s_per_frame[s]) for s in TRACKER_STAGES}
+    mcu = sum(ms.values()) * DESKTOP_TO_MCU
+    out: dict[str, Any] = {
+        "desktop_ms_per_frame": ms, "desktop_to_mcu_factor": DESKTOP_TO_MCU,
+        "mcu_ms_per_frame_estimate": mcu, "mcu_budget_ms": 1e3 * MCU_BUDGET_S,
+        "time_within_budget": bool(mcu <= 1e3 * MCU_BUDGET_S)}
+    if memory_bytes is not None:
+        kb = {s: float(memory_bytes[s]) / 1024.0 for s in TRACKER_STAGES}
+        out["peak_memory_kb"] = kb
+        out["memory_budget_kb"] = MCU_MEMORY_BYTES / 1024.0
+        out["memory_within_budget"] = bool(max(kb.values()) <= MCU_MEMORY_BYTES / 1024.0)
+    return out
+
+
 def write_report(path: str | os.PathLike[str], metrics: FlybyMetrics,
                  monte_carlo: dict[str, Any] | None = None,
-                 figures: Sequence[str] = ()) -> Path:
+                 figures: Sequence[str] = (), budget: dict[str, Any] | None = None) -> Path:
     """A short markdown report: the accuracy at CA first, then consistency and tracking."""
     m = metrics
     lines = ["# Asteroid fly-by navigation", "",
@@ -355,6 +389,19 @@ def write_report(path: str | os.PathLike[str], metrics: FlybyMetrics,
                   f"**{monte_carlo['verdict']}**; NEES at CA {monte_carlo['nees_ca']:.2f}; "
                   f"position error at CA: median {monte_carlo['ca_error_pct_range_median']:.3f} %"
                   f", max {monte_carlo['ca_error_pct_range_max']:.3f} % of range."]
+    if budget:
+        ms = budget["desktop_ms_per_frame"]
+        lines += ["", "## Tracker budget per frame", "",
+                  "Desktop time: " + ", ".join(f"{k} {v:.1f} ms" for k, v in ms.items())
+                  + f"; x {budget['desktop_to_mcu_factor']:g} (desktop -> MCU, assumed) = "
+                  f"**{budget['mcu_ms_per_frame_estimate']:.0f} ms** on the MCU against its "
+                  f"{budget['mcu_budget_ms']:.0f} ms (the paper's limb chain): "
+                  + ("within" if budget["time_within_budget"] else "**over**") + "."]
+        if "peak_memory_kb" in budget:
+            lines.append("Peak traced memory over the pass: " + ", ".join(
+                f"{k} {v:.0f} kB" for k, v in budget["peak_memory_kb"].items())
+                + f" against {budget['memory_budget_kb']:.0f} kB: "
+                + ("within" if budget["memory_within_budget"] else "**over**") + ".")
     if figures:
         lines += [""] + [f"![{Path(f).stem}]({Path(f).name})" for f in figures]
     return atomic_write_text(path, "\n".join(lines) + "\n")
