@@ -40,8 +40,9 @@ Technique
    refined surface); a view whose spacing is nowhere finer than the posting is unchanged.
 6. **Cache.** Meshes are kept per (DEM, albedo, resolution level, cap, frustum) key in an LRU.
    With ``cache_quantum_px > 0`` the key is quantised (sub-camera direction to that many
-   pixels, range to 1/8 octave) and the mesh is made conservative for the whole cell of the
-   key (cap widened, spacing from the nearest range): consecutive frames reuse it.
+   nadir pixels but at most :data:`MAX_CELL_ANGLE`, range to 1/8 octave) and the mesh is made
+   conservative for the whole cell of the key (cap widened, spacing from the nearest range):
+   consecutive frames reuse it.
 
 Tuning (:class:`MeshOptions`)
 -----------------------------
@@ -107,6 +108,8 @@ THETA_SAMPLES = 8192
 MIN_RING_VERTICES = 6
 #: Range quantum of the cache key: 1/8 octave of the altitude.
 RANGE_BINS_PER_OCTAVE = 8
+#: Largest cell of the quantised sub-camera direction [rad] (``cache_quantum_px``).
+MAX_CELL_ANGLE = math.radians(1.0)
 
 
 @dataclass(frozen=True)
@@ -230,7 +233,9 @@ def _quantise_view(c: FloatArray, camera: Camera, cam_to_body: FloatArray | None
     k = math.floor(math.log2(alt) * RANGE_BINS_PER_OCTAVE)
     d_near = radius + 2.0 ** (k / RANGE_BINS_PER_OCTAVE)
     d_far = radius + 2.0 ** ((k + 1) / RANGE_BINS_PER_OCTAVE)
-    step = q * a * (d_near - radius) / radius   # q pixels at nadir, as an angle at the centre
+    # q pixels at nadir, as an angle at the centre, at most MAX_CELL_ANGLE (a far Moon of a few
+    # pixels would otherwise share one mesh over a large turn of the view)
+    step = min(q * a * (d_near - radius) / radius, MAX_CELL_ANGLE)
     oq = np.round(o / step) * step
     oq /= np.linalg.norm(oq)
     slack = step  # |o - oq| <= step sqrt(3)/2 < step
