@@ -4,13 +4,16 @@ Technique
 ---------
 1. The scene is built in the **Moon body-fixed frame** (km): the Moon never moves, so one
    loaded scene (and its acceleration structure and compiled kernels) serves every frame of a
-   sequence; only the sensor pose and the Sun direction change, through ``mi.traverse``.
+   sequence; only the sensor pose and the Sun direction change, through ``mi.traverse``. A
+   view-adapted mesh (``mesh_provider``) keeps the scene as long as the provider returns the
+   same mesh (the real Moon's: one per view cell, :mod:`starnav.renderer.dem_hook`).
 2. The Sun is a ``directional`` emitter whose irradiance is the tabulated solar spectrum at
    1 AU [W m^-2 nm^-1] (never a bare number, which Mitsuba would turn into D65). The output is
    scaled by ``(1 AU / d_sun)^2`` afterwards (exact: radiance is linear in irradiance).
 3. The surface is one of starnav's photometric plugins (:mod:`.bsdfs`); the ``direct``
    integrator with one emitter sample per camera sample gives the single-scattering radiance
-   ``L = r(i, e, g) E`` with cast shadows.
+   ``L = r(i, e, g) E`` with cast shadows; on the JIT variants :func:`_direct_lighting` runs
+   it with the shadow ray cast only where the BSDF is non-zero.
 4. The ``specfilm`` integrates each sample's spectral radiance against two responses in the
    same pass: a unit box over the sensor band gives the band radiance ``L`` [W m^-2 sr^-1], and
    ``QE T lambda / (h c)`` gives the electron radiance ``Le`` [e- s^-1 m^-2 sr^-1]. Both
