@@ -5,10 +5,14 @@ For each Moon (``real``: the default scenario's LDEM_4 mesh built for each view,
 calibrated Hapke, ROLO colour; ``mesh``: a 327 680-triangle icosphere with Hapke; ``sphere``:
 Mitsuba's exact sphere with Hapke) it prints, in the same run:
 
-* ``first_s``: the first frame (scene build and JIT compilation or disk-cache load);
-* ``steady_s``: the median of the next frames, camera moving (the Moon's place, size and phase
+* ``first_s``: the first frame (mesh and scene build, JIT compilation or disk-cache load);
+* ``steady_s``: the median of frames 2..N, camera moving (the Moon's place, size and phase
   change every frame, as in a sequence), with the renderer's own loop (``fused``) and, with
   ``--compare``, with Mitsuba's ``mi.render`` loop (``mitsuba``: the loop before issue 18);
+  its parts ``mesh_s`` (view mesh, or the cached one), ``scene_s`` (Mitsuba scene and BVH,
+  0 when the frame reuses the loaded scene), ``rad_s`` (the render kernel and its AOVs), and
+  ``rebuilds``: frames 2..N that built a scene. ``--rebuild`` adds the real Moon with
+  ``cache_quantum_px = 0`` (a mesh and a scene per frame: before the sequence reuse);
 * ``compiles``: kernels compiled or loaded from Dr.Jit's disk cache during the steady frames
   (``dr.kernel_history``): each new crop window did so with ``mi.render``;
 * ``floor_s``: casting the same number of camera rays over the same crop window
@@ -18,7 +22,8 @@ The Moon's place is offset by ``--place-seed`` (default: from the clock), so tha
 crop windows are new to Dr.Jit's on-disk kernel cache, as in a new sequence. Blender Cycles,
 the paper's engine, is compared only where installed (``bpy``); it is not on this machine.
 
-Usage: .venv/bin/python benchmarks/render.py [--frames N] [--compare] [--place-seed S]
+Usage: .venv/bin/python benchmarks/render.py [--frames N] [--compare] [--rebuild] [--place-seed S]
+       [--shapes real,mesh,sphere] [--ranges-km 60000,9715]
 """
 
 from __future__ import annotations
@@ -45,14 +50,17 @@ from starnav.simulate import renderer_from_scenario
 from starnav.spectra import sensor_response, solar_spectrum
 
 
-def make_renderer(shape: str, fused: bool) -> MoonRenderer:
+def make_renderer(shape: str, fused: bool, quantum_px: float | None = None) -> MoonRenderer:
     cam = Camera.preset("aa-str")
     extra = {}
     # a renderer from before issue 18 has no fused loop: Mitsuba's loop is its only one
     if "fused_loop" in {f.name for f in dataclasses.fields(RenderSettings)}:
         extra["fused_loop"] = fused
     if shape == "real":
-        r = renderer_from_scenario(scenario_from_dict({"render": {"spp": 16}}))
+        sc: dict = {"render": {"spp": 16}}
+        if quantum_px is not None:
+            sc["moon"] = {"dem": {"mesh": {"cache_quantum_px": quantum_px}}}
+        r = renderer_from_scenario(scenario_from_dict(sc))
         r.settings = dataclasses.replace(r.settings, **extra)
         return r
     mesh = icosphere_mesh(1737.4e3, 7) if shape == "mesh" else None
@@ -93,11 +101,11 @@ def ray_cast_floor(r: MoonRenderer, g, spp: int) -> float:
     return best
 
 
-def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float, float]
-        ) -> dict:
-    r = make_renderer(shape, fused)
+def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float, float],
+        quantum_px: float | None = None) -> dict:
+    r = make_renderer(shape, fused, quantum_px)
     cam = r.camera
-    times, compiles = [], 0
+    times, compiles, parts = [], 0, []
     for k in range(frames):
         g = geometry(cam, range_m, k, place)
         if k == 1:
@@ -106,13 +114,23 @@ def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float
         t0 = time.perf_counter()
         img = r.render(g, seed=k)
         times.append(time.perf_counter() - t0)
+        if k >= 1:
+            parts.append(r.last_timing)
     compiles = sum(1 for h in dr.kernel_history()
                    if h["type"] == dr.KernelType.JIT and (not h["cache_hit"] or h["cache_disk"]))
     dr.set_flag(dr.JitFlag.KernelHistory, False)
+    def steady(name: str) -> float:
+        return statistics.median(p.get(name, 0.0) for p in parts)
+
     return {
         "shape": shape,
         "loop": ("fused" if fused else "mitsuba") if hasattr(r.settings, "fused_loop")
         else "before",
+        "quantum": "-" if quantum_px is None else f"{quantum_px:g}",
+        "rebuilds": sum(1 for p in parts if "scene_build_s" in p),
+        "steady_mesh_s": steady("mesh_s"),
+        "steady_scene_s": steady("scene_build_s"),
+        "steady_radiance_s": steady("radiance_s"),
         "triangles": img.meta["moon"]["triangles"],
         "range_km": range_m / 1e3,
         "variant": img.meta["render"]["variant"],
@@ -126,12 +144,43 @@ def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float
     }
 
 
+def miss_cost(frames: int, place: tuple[float, float]) -> None:
+    """What a sample that misses the Moon costs: the exact sphere at 60 000 km traced over its
+    crop window (~78 % of the samples hit) and over the whole frame (~2 % hit), same frames.
+    Solving ``t = n_hit c_hit + n_miss c_miss`` for the two gives each sample's cost."""
+    rows = []
+    for crop in (True, False):
+        cam = Camera.preset("aa-str")
+        r = MoonRenderer(cam, sensor_response(), solar_spectrum(),
+                         MoonModel(shape="sphere", model="hapke"),
+                         RenderSettings(spp=16, crop=crop))
+        ts = []
+        for k in range(frames):
+            img = r.render(geometry(cam, 6.0e7, k, place), seed=k)
+            ts.append(r.last_timing["radiance_s"])
+        box = img.meta["render"]["crop_box_uvwh"]
+        n = box[2] * box[3] * 16
+        hits = int(img.mask.sum()) * 16
+        rows.append((statistics.median(ts[1:]), hits, n - hits))
+    (t1, h1, m1), (t2, h2, m2) = rows
+    c_hit, c_miss = np.linalg.solve([[h1, m1], [h2, m2]], [t1, t2])
+    print(f"miss cost (sphere, 60 000 km, 16 spp): crop {t1:.3f} s ({h1} hit / {m1} missed "
+          f"samples), whole frame {t2:.3f} s ({h2} / {m2}): {c_hit * 1e9:.0f} ns a hit, "
+          f"{c_miss * 1e9:.0f} ns a miss", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--compare", action="store_true", help="also Mitsuba's mi.render loop")
     ap.add_argument("--place-seed", type=int, default=None)
     ap.add_argument("--shapes", default="real,mesh,sphere")
+    ap.add_argument("--ranges-km", default="60000,9715")
+    ap.add_argument("--rebuild", action="store_true",
+                    help="real Moon: also with cache_quantum_px = 0 (a mesh and a scene built "
+                    "for every frame: the renderer before the sequence reuse)")
+    ap.add_argument("--miss-cost", action="store_true",
+                    help="also the cost of a sample missing the Moon (sphere, crop vs frame)")
     args = ap.parse_args()
     seed = args.place_seed if args.place_seed is not None else time.time_ns() % 2**32
     place = tuple(np.random.default_rng(seed).uniform(-20.0, 20.0, 2))
@@ -140,17 +189,29 @@ def main() -> None:
           f"load {os.getloadavg()[0]:.1f} (1 min), place seed {seed}")
     print("Blender Cycles: " + ("installed (not run by this script)"
                                 if importlib.util.find_spec("bpy") else "not installed"))
-    print(f"{'shape':6s} {'loop':7s} {'triangles':>9s} {'range_km':>8s} {'first_s':>8s} "
-          f"{'steady_s':>8s} {'compiles':>8s} {'floor_s':>8s} {'moon_px':>8s}  last frame")
+    print("steady = median of frames 2..N; mesh/scene/radiance = its parts (medians); "
+          "rebuilds = frames 2..N that built a Mitsuba scene; q = the real Moon's "
+          "cache_quantum_px (-: the scenario default)")
+    print(f"{'shape':6s} {'loop':7s} {'q':>3s} {'triangles':>9s} {'range_km':>8s} "
+          f"{'first_s':>8s} {'steady_s':>8s} {'mesh_s':>7s} {'scene_s':>7s} {'rad_s':>7s} "
+          f"{'rebuilds':>8s} {'compiles':>8s} {'floor_s':>8s} {'moon_px':>8s}  load")
     loops = (True, False) if args.compare else (True,)
-    for range_m in (6.0e7, 9.715e6):
+    for range_km in args.ranges_km.split(","):
+        range_m = float(range_km) * 1e3
         for shape in args.shapes.split(","):
+            quanta = (None, 0.0) if (shape == "real" and args.rebuild) else (None,)
             for fused in loops:
-                res = run(shape, range_m, args.frames, fused, place)
-                print(f"{res['shape']:6s} {res['loop']:7s} {str(res['triangles']):>9s} "
-                      f"{res['range_km']:8.0f} {res['first_s']:8.3f} {res['steady_s']:8.3f} "
-                      f"{res['compiles']:8d} {res['floor_s']:8.3f} {res['moon_px']:8d}  "
-                      f"{res['timing']} {res['variant']}", flush=True)
+                for q in quanta:
+                    res = run(shape, range_m, args.frames, fused, place, q)
+                    print(f"{res['shape']:6s} {res['loop']:7s} {res['quantum']:>3s} "
+                          f"{str(res['triangles']):>9s} {res['range_km']:8.0f} "
+                          f"{res['first_s']:8.3f} {res['steady_s']:8.3f} "
+                          f"{res['steady_mesh_s']:7.3f} {res['steady_scene_s']:7.3f} "
+                          f"{res['steady_radiance_s']:7.3f} {res['rebuilds']:8d} "
+                          f"{res['compiles']:8d} {res['floor_s']:8.3f} {res['moon_px']:8d}  "
+                          f"{os.getloadavg()[0]:.1f} {res['variant']}", flush=True)
+    if args.miss_cost:
+        miss_cost(args.frames, place)
 
 
 if __name__ == "__main__":

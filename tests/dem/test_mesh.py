@@ -291,8 +291,10 @@ def test_vertex_budget_coarsens_edges():
 
 def test_frame_mesh_of_a_scenario():
     sc = scenario_from_dict({
+        # quantum 0: the mesh of this exact view (the default shares one per 8 px cell)
         "moon": {"shape": "dem", "dem": {"procedural": {"pixels_per_degree": 1.0},
-                                         "albedo": {"source": "procedural"}}},
+                                         "albedo": {"source": "procedural"},
+                                         "mesh": {"cache_quantum_px": 0.0}}},
         "geometry": {"range_km": 60_000.0, "sub_observer_lat_deg": 10.0,
                      "sub_observer_lon_deg": 30.0},
     })

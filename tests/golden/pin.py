@@ -77,6 +77,21 @@ Re-pinned (each time the only difference, explained):
   branch's pins by at most 1.4e-3 relative (final position error 73 603 m with the renderer
   change, 73 689 m with the refinement change, 73 668 m merged; 125 of 13 269 values moved,
   each by the two changes' own amounts combined).
+* 2026-11-25, a frame sequence shares the real Moon's view mesh (issue 18, steady state):
+  ``moon.dem.mesh.cache_quantum_px`` defaults to 8 px (was 0), so each frame's DEM mesh is
+  the one of its cell (sub-camera direction to 8 nadir pixels, at most 1 deg; range to 1/8
+  octave), made conservative for the cell: finer (the static render's 3 035 -> 3 357
+  triangles) and from another set of vertex places and DEM levels. Nothing else changed; the
+  differences are those of another tessellation of the same terrain: radiance sums by
+  <= 8e-4 relative (1 100 of the static render's pixels, ~440 of each dataset frame's, mostly
+  at the limb and on slopes), one limb pixel centre of the second frame, the electron ledgers
+  by <= 8e-4, DN sums by <= 8e-4, the AOV normals and angles at those pixels. On this 128 px
+  camera the limb (a disc of ~15 px radius) is a few dozen pixels, so the navigation numbers
+  downstream move by as much as a new tessellation moves the limb: sweep ``limb_bias_px``
+  0.0196 -> 0.0254 and 0.0218 -> 0.0269 px, final position errors 73.7 -> 74.3 km and
+  7.1 -> 12.1 km (within their 3-sigma), NEES means 17.1 -> 19.5 and 11.3 -> 15.1. The exact
+  meshes of two neighbouring frames differed as much before this change
+  (``tests/renderer/test_sequence_reuse.py``); ``cache_quantum_px: 0`` gives the old pins.
 """
 
 from __future__ import annotations

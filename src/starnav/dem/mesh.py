@@ -26,7 +26,9 @@ Technique
    on the true limb, and its error is the chord sagitta (~ e^2 / (8 r_px) px).
 3. **Frustum.** Given the camera attitude, each ring keeps only the arc inside the cone that
    bounds the field of view (plus ``frustum_margin_px`` and the terrain's parallax); the arc
-   is solved in closed form per ring (the range is constant along a ring).
+   is solved in closed form per ring (the range is constant along a ring). When the ball of
+   the highest terrain lies inside the field cone the culling would keep every ring whole:
+   the attitude is then dropped (the same mesh, and a key that a pointing change keeps).
 4. **Stitching.** Consecutive rings (or arcs) are joined by merging their vertices by azimuth
    (the classic strip triangulation between two polylines), outward-facing.
 5. **Heights and albedo** are sampled bilinearly at each vertex from the DEM's mip level whose
@@ -38,8 +40,9 @@ Technique
    refined surface); a view whose spacing is nowhere finer than the posting is unchanged.
 6. **Cache.** Meshes are kept per (DEM, albedo, resolution level, cap, frustum) key in an LRU.
    With ``cache_quantum_px > 0`` the key is quantised (sub-camera direction to that many
-   pixels, range to 1/8 octave) and the mesh is made conservative for the whole cell of the
-   key (cap widened, spacing from the nearest range): consecutive frames reuse it.
+   nadir pixels but at most :data:`MAX_CELL_ANGLE`, range to 1/8 octave) and the mesh is made
+   conservative for the whole cell of the key (cap widened, spacing from the nearest range):
+   consecutive frames reuse it.
 
 Tuning (:class:`MeshOptions`)
 -----------------------------
@@ -105,6 +108,8 @@ THETA_SAMPLES = 8192
 MIN_RING_VERTICES = 6
 #: Range quantum of the cache key: 1/8 octave of the altitude.
 RANGE_BINS_PER_OCTAVE = 8
+#: Largest cell of the quantised sub-camera direction [rad] (``cache_quantum_px``).
+MAX_CELL_ANGLE = math.radians(1.0)
 
 
 @dataclass(frozen=True)
@@ -209,13 +214,17 @@ class _View:
 
 
 def _quantise_view(c: FloatArray, camera: Camera, cam_to_body: FloatArray | None,
-                   opts: MeshOptions, radius: float) -> _View:
+                   opts: MeshOptions, radius: float, r_bound: float = 0.0) -> _View:
     d = float(np.linalg.norm(c))
     o = c / d
     a = pixel_angle(camera)
     q = opts.cache_quantum_px
     b = None if cam_to_body is None else cam_to_body[:, 2] / np.linalg.norm(cam_to_body[:, 2])
     cone = 0.0 if cam_to_body is None else field_cone(camera) + opts.frustum_margin_px * a
+    if b is not None and _ball_in_cone(o, d, b, r_bound, field_cone(camera) - a):
+        # the whole Moon is in the field: culling would keep every ring whole, so the mesh
+        # does not depend on the attitude (and a pointing change finds it in the cache)
+        b, cone = None, 0.0
     if q <= 0:
         return _View(o=tuple(np.round(o, 15)), d_near=round(d, 3), d_far=round(d, 3), slack=0.0,
                      a=a, boresight=None if b is None else tuple(np.round(b, 15)), cone=cone,
@@ -224,7 +233,9 @@ def _quantise_view(c: FloatArray, camera: Camera, cam_to_body: FloatArray | None
     k = math.floor(math.log2(alt) * RANGE_BINS_PER_OCTAVE)
     d_near = radius + 2.0 ** (k / RANGE_BINS_PER_OCTAVE)
     d_far = radius + 2.0 ** ((k + 1) / RANGE_BINS_PER_OCTAVE)
-    step = q * a * (d_near - radius) / radius   # q pixels at nadir, as an angle at the centre
+    # q pixels at nadir, as an angle at the centre, at most MAX_CELL_ANGLE (a far Moon of a few
+    # pixels would otherwise share one mesh over a large turn of the view)
+    step = min(q * a * (d_near - radius) / radius, MAX_CELL_ANGLE)
     oq = np.round(o / step) * step
     oq /= np.linalg.norm(oq)
     slack = step  # |o - oq| <= step sqrt(3)/2 < step
@@ -237,6 +248,16 @@ def _quantise_view(c: FloatArray, camera: Camera, cam_to_body: FloatArray | None
         cone += bstep
     return _View(o=tuple(oq), d_near=d_near, d_far=d_far, slack=slack, a=a, boresight=bq,
                  cone=cone, d_true_spread=spread)
+
+
+def _ball_in_cone(o: FloatArray, d: float, b: FloatArray, r_bound: float, cone: float) -> bool:
+    """Whether the ball of radius ``r_bound`` [m] about the Moon centre, seen from distance
+    ``d`` [m] in direction ``-o`` (``o``: unit sub-camera direction), lies inside the cone of
+    half-angle ``cone`` [rad] about the unit boresight ``b``."""
+    if not (0.0 < r_bound < d):
+        return False
+    beta = math.acos(max(-1.0, min(1.0, -float(np.dot(b, o)))))
+    return beta + math.asin(r_bound / d) < cone
 
 
 def _ring_thetas(view: _View, radius: float, r_lo: float, r_hi: float, edge: float,
@@ -499,7 +520,8 @@ def view_mesh(dem: DemGrid, camera: Camera, camera_position_body_m: ArrayLike,
         if cam_to_body.shape != (3, 3) or not np.allclose(cam_to_body @ cam_to_body.T,
                                                           np.eye(3), atol=1e-9):
             raise GeometryError(f"camera_to_body must be a rotation matrix, got {cam_to_body!r}")
-    view = _quantise_view(c, camera, cam_to_body, opts, R)
+    r_bound = r_hi + (0.0 if detail is None else float(detail.max_detail_m))
+    view = _quantise_view(c, camera, cam_to_body, opts, R, r_bound)
     key = (dem.uid, None if albedo is None else albedo.uid, _opts_key(opts), view,
            round(R, 3), None if detail is None else detail.key)
     if cache is not None:

@@ -230,8 +230,9 @@ class MeshConfig(StrictModel):
     )
     cache_size: Annotated[int, Field(ge=0)] = Field(4, description="meshes kept in memory")
     cache_quantum_px: NonNegativeFloat = Field(
-        0.0, description="reuse a cached mesh when the camera moved less than this [px]; "
-        "0 = only identical geometry"
+        8.0, description="frames whose sub-camera point lies in the same cell of this many "
+        "nadir pixels (and range in the same 1/8 octave) share one mesh, made conservative "
+        "for the whole cell [px]; 0 = only identical geometry"
     )
 
 

@@ -1,5 +1,9 @@
 """The renderer's use of :mod:`starnav.dem`: ``moon.shape: dem`` renders a view-adapted mesh
-of a real or procedural DEM, rebuilt (or taken from the DEM cache) for each frame."""
+of a real or procedural DEM, taken from the DEM cache when the frame's view falls in the cell
+of an earlier frame's (``moon.dem.mesh.cache_quantum_px``: the sub-camera direction to that many
+pixels, the range to 1/8 octave; the attitude only when the Moon overfills the field) and
+built otherwise. A frame that gets the earlier frame's mesh gets the renderer's loaded Mitsuba
+scene with it: only the sensor and the Sun move (:mod:`starnav.renderer.render`, step 1)."""
 
 from __future__ import annotations
 
@@ -7,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from starnav.cache import BoundedCache
 from starnav.camera import Camera
 from starnav.dem.detail import sub_posting_detail
 from starnav.dem.load import as_dem_config, load_albedo, load_dem
@@ -47,16 +52,26 @@ def dem_moon_model(dem_config: DemConfig | dict[str, Any], common: dict[str, Any
         albedo_parameter(np.array([albedo_grid.values.max() * factor]), quantity, model,
                          params, "moon.dem.albedo")
 
+    # the renderer's meshes by view mesh (id of the cached trimesh, which each MoonMesh keeps
+    # alive as its key): a frame whose view mesh comes from the DEM cache gets the very
+    # MoonMesh of the earlier frame, so the renderer keeps its loaded scene
+    meshes: BoundedCache[int, MoonMesh] = BoundedCache(2)
+
     def provider(camera: Camera, geom: FrameGeometry) -> MoonMesh:
         Rb = geom.R_moon_to_inertial.T
         tm = view_mesh(dem, camera, Rb @ geom.camera_position, albedo_grid,
                        camera_to_body=Rb @ geom.R_cam_to_inertial, options=options,
                        detail=detail)
+        mesh = meshes.get(id(tm))
+        if mesh is not None and mesh.key is tm:
+            return mesh
         alb = None
         if albedo_grid is not None:
             raw = np.asarray(tm.vertex_attributes["albedo"], float) * factor
             alb = albedo_parameter(raw, quantity, model, params, "moon.dem.albedo")
-        return MoonMesh.from_trimesh(tm, albedo=alb, key=tm)
+        mesh = MoonMesh.from_trimesh(tm, albedo=alb, key=tm)
+        meshes.put(id(tm), mesh)
+        return mesh
 
     h_min, h_max = dem.height_range
     extra = 0.0 if detail is None else float(detail.max_detail_m)

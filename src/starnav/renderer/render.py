@@ -4,13 +4,16 @@ Technique
 ---------
 1. The scene is built in the **Moon body-fixed frame** (km): the Moon never moves, so one
    loaded scene (and its acceleration structure and compiled kernels) serves every frame of a
-   sequence; only the sensor pose and the Sun direction change, through ``mi.traverse``.
+   sequence; only the sensor pose and the Sun direction change, through ``mi.traverse``. A
+   view-adapted mesh (``mesh_provider``) keeps the scene as long as the provider returns the
+   same mesh (the real Moon's: one per view cell, :mod:`starnav.renderer.dem_hook`).
 2. The Sun is a ``directional`` emitter whose irradiance is the tabulated solar spectrum at
    1 AU [W m^-2 nm^-1] (never a bare number, which Mitsuba would turn into D65). The output is
    scaled by ``(1 AU / d_sun)^2`` afterwards (exact: radiance is linear in irradiance).
 3. The surface is one of starnav's photometric plugins (:mod:`.bsdfs`); the ``direct``
    integrator with one emitter sample per camera sample gives the single-scattering radiance
-   ``L = r(i, e, g) E`` with cast shadows.
+   ``L = r(i, e, g) E`` with cast shadows; on the JIT variants :func:`_direct_lighting` runs
+   it with the shadow ray cast only where the BSDF is non-zero.
 4. The ``specfilm`` integrates each sample's spectral radiance against two responses in the
    same pass: a unit box over the sensor band gives the band radiance ``L`` [W m^-2 sr^-1], and
    ``QE T lambda / (h c)`` gives the electron radiance ``Le`` [e- s^-1 m^-2 sr^-1]. Both
@@ -496,6 +499,7 @@ class MoonRenderer:
         import mitsuba as mi
 
         t_start = time.perf_counter()
+        self.last_timing = {}
         cam = self.camera
         W, H = cam.width, cam.height
         L = np.zeros((H, W), np.float32)
@@ -506,7 +510,9 @@ class MoonRenderer:
         if box is not None and not self.settings.crop:
             box = (0, 0, W, H)
         self._check_validity(geom)
+        t0 = time.perf_counter()
         mesh, mesh_key = self._mesh(geom)
+        self.last_timing["mesh_s"] = time.perf_counter() - t0
         scene, info = self._scene_for(mesh, mesh_key)
         sun_scale = (AU / geom.sun_distance) ** 2
         if box is not None:
@@ -733,8 +739,7 @@ def _render_fused(scene, box: tuple[int, int, int, int], seed: int, spp: int,
     ray, ray_weight = sensor.sample_ray(
         0.0, wavelength_sample, sample_pos * inv_size, mi.Point2f(0.5))
     ray = to_near_plane(ray)
-    spec, valid, _ = scene.integrator().sample(scene, sampler, mi.RayDifferential3f(ray), None,
-                                               True)
+    spec, valid = _direct_lighting(scene, sampler, mi.RayDifferential3f(ray))
     channels = film.prepare_sample(ray_weight * spec, ray.wavelengths, 3, 1.0,
                                    dr.select(valid, 1.0, 0.0), valid)
     # box filter, every sample of weight 1: the developed pixel is the sum of its samples
@@ -760,6 +765,41 @@ def _render_fused(scene, box: tuple[int, int, int, int], seed: int, spp: int,
     arr = np.stack([np.asarray(c, dtype=np.float32) for c in out]).reshape(len(out), bh, bw)
     img = np.moveaxis(arr[:2], 0, -1)
     return img, (dict(zip(names, arr[2:], strict=True)) if aov_frame is not None else None)
+
+
+def _direct_lighting(scene, sampler, ray):
+    """Mitsuba's ``direct`` integrator with one emitter sample and no BSDF sample (the scene's:
+    ``DirectIntegrator::sample`` of Mitsuba 3.9), tracing the shadow ray only where it can
+    matter.
+
+    Mitsuba's integrator asks the scene for the emitter sample *with* its visibility test, so
+    every surface sample casts a shadow ray, even where the BSDF is zero: the Sun below the
+    surface's horizon (``cos_theta(wo) <= 0``: the night side and the far side of each facet
+    at the terminator) or the camera below it. Every starnav BSDF is zero there
+    (:mod:`.bsdfs`: ``lit = mu > 0 and mu0 > 0``), so here the emitter is sampled without the
+    test and the occlusion ray (Mitsuba's own, ``si.spawn_ray_to(ds.p)`` and ``ray_test``) is
+    cast only for the samples whose BSDF value is non-zero. The sampler draws the same numbers
+    in the same order, so the radiance is Mitsuba's sample for sample
+    (``tests/renderer/test_speed_agreement.py``). No emitter is hit by camera rays (the Sun is
+    a ``directional`` emitter), as in every starnav scene. Returns the spectral radiance and
+    the hit mask.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    si = scene.ray_intersect(ray, mi.RayFlags.All, True)
+    valid = si.is_valid()
+    bsdf = si.bsdf(ray)
+    active = valid & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+    ds, emitter_val = scene.sample_emitter_direction(si, sampler.next_2d(active), False, active)
+    active &= ds.pdf != 0.0
+    wo = si.to_local(ds.d)
+    lit = active & (mi.Frame3f.cos_theta(wo) > 0.0) & (mi.Frame3f.cos_theta(si.wi) > 0.0)
+    occluded = scene.ray_test(si.spawn_ray_to(ds.p), lit)
+    lit &= ~occluded
+    value = bsdf.eval(mi.BSDFContext(), si, wo, lit)
+    # a delta emitter (the Sun): multiple-importance weight 1, as in Mitsuba's integrator
+    return dr.select(lit, value * emitter_val, 0.0), valid
 
 
 def _aov_kernel(si, frame: AovFrame) -> dict:
