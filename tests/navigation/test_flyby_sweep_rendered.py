@@ -161,3 +161,44 @@ def test_cli_sweep_of_a_flyby_runs_the_points_on_the_batch_runner(rows, tmp_path
                                    "0", "--out", str(tmp_path / "sw2")], env=env)
     assert bad.exit_code == 2 and len(bad.output.strip().splitlines()) == 1
     assert "--grid" in bad.output and "v_inf_km_s" in bad.output and not (tmp_path / "sw2").exists()
+
+
+def test_cli_navigate_a_flyby_dataset_equals_the_scenario(tmp_path):
+    """``starnav dataset FLYBY.yaml`` stores every frame's radiance with its per-pixel truth;
+    ``starnav navigate DATASET`` re-exposes the segments and windows from it at navigate time
+    (the closed loop cannot be fixed in a dataset): its metrics equal ``navigate FLYBY.yaml``
+    exactly (same radiance through the EXR round trip, same seeded runs). A fly-by dataset
+    made with --no-radiance is one error line naming radiance.exr, exit 2."""
+    import json
+
+    import yaml
+    from typer.testing import CliRunner
+
+    from starnav.cli.main import app
+    from starnav.config import scenario_to_dict
+
+    env = {"COLUMNS": "50"}
+    cli = CliRunner()
+    sc = tmp_path / "fb.yaml"
+    sc.write_text(yaml.safe_dump(scenario_to_dict(base())))
+    ds = tmp_path / "ds"
+    assert cli.invoke(app, ["dataset", str(sc), "--out", str(ds)], env=env).exit_code == 0
+    assert (ds / "frames" / "000002" / "radiance.exr").is_file()
+    a, b = tmp_path / "from_ds", tmp_path / "from_yaml"
+    for src, out in ((ds, a), (sc, b)):
+        res = cli.invoke(app, ["navigate", str(src), "--out", str(out), "--runs", "2",
+                               "--no-plots"], env=env)
+        assert res.exit_code == 0, res.output
+    ma = json.loads((a / "metrics.json").read_text())
+    mb = json.loads((b / "metrics.json").read_text())
+    assert ma["frames"] == 3
+    for key in ("ca_position_error_m", "ca_velocity_error_m_s", "feature_error_rms_px",
+                "nees_mean"):
+        assert ma[key] == mb[key], key
+    assert ma["monte_carlo"]["nees_mean"] == mb["monte_carlo"]["nees_mean"]
+    bare = tmp_path / "bare"
+    assert cli.invoke(app, ["dataset", str(sc), "--out", str(bare), "--no-radiance"],
+                      env=env).exit_code == 0
+    bad = cli.invoke(app, ["navigate", str(bare), "--out", str(tmp_path / "o3")], env=env)
+    assert bad.exit_code == 2 and "radiance.exr" in bad.output
+    assert len(bad.output.strip().splitlines()) == 1

@@ -55,6 +55,20 @@ def check_navigate_overrides(items: list[str] | tuple[str, ...]) -> None:
                               f"(make a new dataset to change {key.split('.')[0]}.*)")
 
 
+def _navigate_flyby_dataset(path: Path, out: Path, runs: int | None, set_: list[str] | None,
+                            seed: int | None, no_plots: bool) -> None:
+    """``navigate DATASET`` of a fly-by dataset: the closed loop on its stored radiance
+    (:func:`starnav.dataset.flyby.navigate_flyby_dataset`)."""
+    from starnav.dataset.flyby import navigate_flyby_dataset
+
+    overrides = tuple(set_ or ()) + ((f"seed={seed}",) if seed is not None else ())
+    m = navigate_flyby_dataset(path, out, runs, overrides, plots=not no_plots)
+    typer.echo(f"position error at CA {m['ca_position_error_m']:.1f} m "
+               f"({m['ca_position_error_pct_range']:.3g} % of {m['ca_range_m'] / 1e3:.2f} km), "
+               f"feature error rms {m['feature_error_rms_px']:.2f} px")
+    typer.echo(f"report: {out / 'report.md'}")
+
+
 def _navigate_flyby(path: Path, out: Path, runs: int | None, set_: list[str] | None,
                     seed: int | None, no_plots: bool, sweep: list[str] | None = None) -> None:
     """``navigate SCENARIO.yaml`` for a fly-by: the frames of a fly-by depend on each other
@@ -131,6 +145,11 @@ def register(app: typer.Typer) -> None:
 
         if dataset.is_file() and dataset.suffix.lower() in (".yaml", ".yml"):
             _navigate_flyby(dataset, out, runs, set_, seed, no_plots, sweep)
+            return
+        from starnav.dataset.flyby import is_flyby_dataset
+
+        if dataset.is_dir() and is_flyby_dataset(dataset) and not sweep:
+            _navigate_flyby_dataset(dataset, out, runs, set_, seed, no_plots)
             return
         try:
             if sweep:

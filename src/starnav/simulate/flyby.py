@@ -365,7 +365,7 @@ def plot_overlays(sim: Simulator, renders: Renders, loop: FlybyClosedLoop, out: 
 
 
 def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: bool = True,
-                   probability: float = 0.99,
+                   probability: float = 0.99, renders: Renders | None = None,
                    progress: Callable[[str, int, int], None] | None = None) -> dict[str, Any]:
     """``starnav navigate SCENARIO.yaml`` for a fly-by: the closed loop over ``runs`` runs,
     then ``metrics.json`` (run 0's :class:`FlybyMetrics` flat keys, the per-frame timings, the
@@ -379,8 +379,10 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
     check_flyby_scenario(sim.scenario)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    renders, t_render = render_flyby(
-        sim, None if progress is None else (lambda d, n: progress("render", d, n)))
+    t_render = float("nan")      # frames given (a dataset's radiance): nothing rendered
+    if renders is None:
+        renders, t_render = render_flyby(
+            sim, None if progress is None else (lambda d, n: progress("render", d, n)))
     loop = flyby_closed_loop(sim, runs, renders=renders, probability=probability,
                              progress=progress)
     loop.timings_s["render"] = t_render
