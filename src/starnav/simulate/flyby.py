@@ -99,6 +99,13 @@ INITIAL_ERROR_STREAM = 17
 Renders = Sequence[tuple[FrameGeometry, RadianceImage]]
 
 
+def is_flyby_scenario(sc: Scenario) -> bool:
+    """Whether ``sc`` is a small body's fly-by (``trajectory.source: flyby`` and
+    ``target.kind: shape_model``): the scenarios :func:`check_flyby_scenario` accepts."""
+    return (sc.trajectory is not None and sc.trajectory.source == "flyby"
+            and sc.target is not None and sc.target.kind == "shape_model")
+
+
 def check_flyby_scenario(sc: Scenario) -> None:
     """A fly-by closed loop needs a small body on a fly-by; anything else is one clear error,
     before any rendering."""
@@ -365,7 +372,7 @@ def plot_overlays(sim: Simulator, renders: Renders, loop: FlybyClosedLoop, out: 
 
 
 def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: bool = True,
-                   probability: float = 0.99,
+                   probability: float = 0.99, renders: Renders | None = None,
                    progress: Callable[[str, int, int], None] | None = None) -> dict[str, Any]:
     """``starnav navigate SCENARIO.yaml`` for a fly-by: the closed loop over ``runs`` runs,
     then ``metrics.json`` (run 0's :class:`FlybyMetrics` flat keys, the per-frame timings, the
@@ -374,13 +381,19 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
     memory from a traced re-run of run 0) and, for >= 2 runs, the Monte Carlo summary), the
     figures (position and velocity errors with 3-sigma against time from CA, runs in grey;
     NEES with its band; tracks; run 0's frame overlays, :func:`plot_overlays`) and
-    ``report.md``, every file written atomically.
+    ``report.md``, every file written atomically. ``renders``: every frame already rendered
+    (a fly-by dataset's frames read back, ``starnav navigate DATASET``:
+    :func:`starnav.dataset.flyby.navigate_flyby_dataset`); the render time is then NaN.
     Returns the metrics dict."""
     check_flyby_scenario(sim.scenario)
+    if renders is not None and len(renders) != len(sim):
+        raise ConfigError("renders", len(renders), f"every frame of the scenario ({len(sim)})")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    renders, t_render = render_flyby(
-        sim, None if progress is None else (lambda d, n: progress("render", d, n)))
+    t_render = float("nan")
+    if renders is None:
+        renders, t_render = render_flyby(
+            sim, None if progress is None else (lambda d, n: progress("render", d, n)))
     loop = flyby_closed_loop(sim, runs, renders=renders, probability=probability,
                              progress=progress)
     loop.timings_s["render"] = t_render

@@ -1,0 +1,120 @@
+"""A fly-by dataset read back and navigated through the fly-by closed loop.
+
+Why a fly-by dataset holds no exposure: the fly-by front end places each frame's windows from
+the previous frame's tracks (:mod:`starnav.simulate.flyby`, step 2b), so the window pixels
+depend on the run (its detector noise, its attitude draw) and cannot be stored once. A fly-by
+dataset (``target_kind: "flyby"`` in the manifest, :mod:`starnav.dataset.writer`, "Fly-by
+datasets") stores per frame what every run starts from: the full-frame radiance with the
+renderer's AOVs (hit mask, body-fixed coordinates: the features' truth) and ``truth.json``
+(geometry, relative state, attitude, Sun).
+
+Technique
+---------
+1. :func:`read_flyby`: the manifest (complete, fly-by), the dataset's resolved scenario with
+   the ``navigation.*`` / ``seed`` overrides, a :class:`~starnav.simulate.Simulator` of it
+   (camera, scene, body; nothing is rendered), and every frame read back as the
+   ``(FrameGeometry, RadianceImage)`` pair the closed loop renders: the geometry from
+   ``truth.json`` (checked against the scenario's: same epoch), the radiance from
+   ``radiance.exr`` (float32, lossless).
+2. :func:`navigate_flyby_dataset`: :func:`starnav.simulate.flyby.navigate_flyby` on those
+   frames; its runs are those of ``starnav navigate SCENARIO.yaml`` with the same seed
+   (metrics equal: ``tests/dataset/test_flyby_dataset.py``).
+
+Example
+-------
+>>> from starnav.dataset.flyby import navigate_flyby_dataset
+>>> navigate_flyby_dataset("out/fb_ds", "out/fb_nav", runs=4)               # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from starnav.config import scenario_from_dict
+from starnav.dataset import format as F
+from starnav.dataset.reader import read_manifest
+from starnav.errors import ConfigError, DataFileError
+from starnav.geometry import FrameGeometry
+from starnav.radiance import RadianceImage, read_exr
+from starnav.simulate.flyby import check_flyby_scenario, navigate_flyby
+from starnav.simulate.frames import Simulator
+
+#: ``--set`` keys a fly-by dataset's navigation may change (the frames are already rendered).
+NAVIGATE_KEYS = ("navigation.", "seed")
+
+
+def is_flyby_dataset(path: str | os.PathLike[str]) -> bool:
+    """Whether the directory ``path`` holds a fly-by dataset (its manifest says
+    ``target_kind: "flyby"``)."""
+    root = Path(path)
+    return (root / F.MANIFEST).is_file() and read_manifest(root).get("target_kind") == "flyby"
+
+
+def read_flyby(path: str | os.PathLike[str], overrides: Sequence[str] = ()
+               ) -> tuple[Simulator, list[tuple[FrameGeometry, RadianceImage]]]:
+    """The dataset's scenario (with ``overrides``) as a Simulator and its frames read back
+    (module step 1).
+
+    Raises
+    ------
+    DataFileError
+        Not a complete fly-by dataset, a missing radiance, a frame whose stored epoch is
+        not the scenario's.
+    ConfigError
+        An override of anything but ``navigation.*`` or ``seed``.
+    """
+    root = Path(path)
+    man = read_manifest(root)
+    if man.get("target_kind") != "flyby":
+        raise DataFileError(f"dataset {str(root)!r} is not a fly-by dataset (no target_kind "
+                            "'flyby' in its manifest); navigate it with the limb chain")
+    if not man.get("complete"):
+        raise DataFileError(
+            f"dataset {str(root)!r} is incomplete ({len(man.get('frames', []))} of "
+            f"{man.get('frames_expected')} frames): finish it with `starnav dataset ... "
+            "--resume`")
+    for item in overrides:
+        key = str(item).split("=", 1)[0].strip()
+        if not (key == "seed" or key.startswith("navigation.")):
+            raise ConfigError("--set", item, "a navigation.* or seed override: the fly-by "
+                              "dataset's frames are already rendered (make a new dataset "
+                              f"to change {key.split('.')[0]}.*)")
+    sc = scenario_from_dict(man["config"], list(overrides))
+    check_flyby_scenario(sc)
+    sim = Simulator(sc)
+    if len(man["frames"]) != len(sim):
+        raise DataFileError(f"dataset {str(root)!r}: {len(man['frames'])} frames, its scenario "
+                            f"has {len(sim)}")
+    renders = []
+    for e in man["frames"]:
+        d = root / e["directory"]
+        geom = F.geometry_of_truth(F.read_json(d / F.TRUTH))
+        want = float(sim.scene.epochs[int(e["index"])])
+        if int(geom.index) != int(e["index"]) or float(geom.epoch_tdb) != want:
+            raise DataFileError(f"{str(d / F.TRUTH)!r}: frame {geom.index} at epoch "
+                                f"{geom.epoch_tdb!r} TDB s, the scenario's frame {e['index']} "
+                                f"is at {want!r}")
+        p = d / F.RADIANCE
+        if not p.is_file():
+            raise DataFileError(f"{str(p)!r} does not exist: a fly-by dataset needs every "
+                                "frame's radiance")
+        renders.append((geom, read_exr(p)))
+    return sim, renders
+
+
+def navigate_flyby_dataset(path: str | os.PathLike[str], out: str | os.PathLike[str],
+                           runs: int | None = None, *, overrides: Sequence[str] = (),
+                           plots: bool = True, probability: float = 0.99,
+                           progress: Callable[[str, int, int], None] | None = None
+                           ) -> dict[str, Any]:
+    """``starnav navigate DATASET`` for a fly-by dataset (module step 2): the closed loop of
+    :func:`starnav.simulate.flyby.navigate_flyby` over ``runs`` runs (default
+    ``navigation.runs``) on the stored frames; writes its ``metrics.json``, figures and
+    ``report.md`` in ``out`` and returns the metrics dict."""
+    sim, renders = read_flyby(path, overrides)
+    n = sim.scenario.navigation.runs if runs is None else int(runs)
+    return navigate_flyby(sim, out, n, plots=plots, probability=probability, renders=renders,
+                          progress=progress)
