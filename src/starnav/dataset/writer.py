@@ -40,6 +40,18 @@ Technique
 A lock file (``.lock``, ``flock``) stops two processes from writing one dataset; the kernel
 releases it when a process dies, so a killed run can be resumed at once.
 
+Fly-by datasets
+---------------
+A fly-by scenario (:func:`starnav.simulate.flyby.is_flyby_scenario`) places each frame's
+windows from the previous frame's tracks, per Monte Carlo run: no fixed window pixels can be
+stored. Its dataset stores per frame the radiance (with the AOVs: hit mask, body-fixed
+coordinates) and ``truth.json`` with a ``flyby`` block (relative position and velocity, Sun
+direction), no exposure directory; the head gains ``target_kind: "flyby"`` and ``flyby``
+(CA epoch, Sun direction), its options are ``exposures_s=()``, ``windows="closed-loop"``
+(limb options are refused). A limb dataset's head and files are unchanged.
+``starnav navigate DATASET`` re-exposes the windows through the fly-by closed loop
+(:mod:`starnav.dataset.flyby`).
+
 Example
 -------
 >>> from starnav.config import load_scenario
