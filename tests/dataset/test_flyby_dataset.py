@@ -116,6 +116,8 @@ def test_navigate_dataset_equals_navigate_scenario(made):
     mb = json.loads((b / "metrics.json").read_text())
     assert ma["monte_carlo"]["runs"] == 2
     assert np.isfinite(ma["ca_position_error_m"]) and ma["ca_range_m"] > 4e3
+    assert ma["timing_s_per_frame"]["render"] is None     # not rendered: read back
+    assert isinstance(mb["timing_s_per_frame"]["render"], float)
     for k in MACHINE_KEYS:
         ma.pop(k), mb.pop(k)
     assert ma == mb
@@ -149,3 +151,20 @@ def test_limb_options_of_dataset_are_refused_for_a_fly_by_before_writing(made):
         assert res.exit_code == 2, (extra, res.output)
         assert len(res.output.strip().splitlines()) == 1 and "fly-by" in res.output
         assert not out.exists()
+
+
+def test_navigate_dataset_renders_nothing(made, monkeypatch):
+    """The closed loop runs on the stored frames: with the renderer disabled it still runs
+    and gives the metrics of the scenario's own renders."""
+    from starnav.dataset.flyby import navigate_flyby_dataset
+
+    root, _, ds, _ = made
+
+    def no_render(self, index):
+        raise AssertionError(f"frame {index} rendered")
+
+    monkeypatch.setattr(Simulator, "render", no_render)
+    m = navigate_flyby_dataset(ds, root / "nav_lib", 1, plots=False)
+    ref = json.loads((root / "nav_yaml" / "metrics.json").read_text())
+    assert m["ca_position_error_m"] == ref["ca_position_error_m"]
+    assert m["feature_error_rms_px"] == ref["feature_error_rms_px"]

@@ -400,7 +400,9 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
     r0 = loop.runs[0]
     t = loop.time_from_ca
     metrics: dict[str, Any] = dict(r0.metrics.as_dict())
-    metrics["timing_s_per_frame"] = loop.timings_s
+    # render: null when the frames were given (a dataset's), not a JSON NaN
+    metrics["timing_s_per_frame"] = {k: (float(v) if np.isfinite(v) else None)
+                                     for k, v in loop.timings_s.items()}
     mem = flyby_run(sim, renders, 0, memory=True).memory_bytes
     metrics["tracker_budget"] = budget = tracker_budget(loop.timings_s, mem)
     mc = None
