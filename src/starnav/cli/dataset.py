@@ -182,6 +182,9 @@ def register(app: typer.Typer) -> None:
         table.add_row("rate", f"{summary.frames_per_s:.3g} frames/s" if summary.frames_made
                       else "nothing left to make")
         table.add_row("elapsed", f"{summary.elapsed_s:.1f} s")
+        if not summary.exposures_s:
+            table.add_row("fly-by", "radiance and truth per frame; segments and windows "
+                          "exposed by `starnav navigate DIR`")
         for name, s in summary.per_exposure.items():
             sat = s["saturated_pixels_median"]
             wp = s["windows_planned_fraction"]

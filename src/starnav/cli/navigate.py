@@ -10,7 +10,10 @@ calls the library:
 * ``--runs N`` (N >= 2): :func:`starnav.batch.montecarlo.navigate_runs`, a Monte Carlo over
   detector noise (each frame's radiance re-exposed), attitude knowledge error and initial
   error, with the consistency verdict (``report.md``, ``metrics.json``, ``runs.csv``,
-  ``consistency.png``, error figures).
+  ``consistency.png``, error figures);
+* a fly-by dataset (manifest ``target_kind: flyby``): the fly-by closed loop on its stored
+  radiance, :func:`starnav.dataset.flyby.navigate_flyby_dataset` (the same runs as
+  ``navigate SCENARIO.yaml``); a fly-by scenario YAML: the closed loop rendering it.
 """
 
 from __future__ import annotations
@@ -55,20 +58,6 @@ def check_navigate_overrides(items: list[str] | tuple[str, ...]) -> None:
                               f"(make a new dataset to change {key.split('.')[0]}.*)")
 
 
-def _navigate_flyby_dataset(path: Path, out: Path, runs: int | None, set_: list[str] | None,
-                            seed: int | None, no_plots: bool) -> None:
-    """``navigate DATASET`` of a fly-by dataset: the closed loop on its stored radiance
-    (:func:`starnav.dataset.flyby.navigate_flyby_dataset`)."""
-    from starnav.dataset.flyby import navigate_flyby_dataset
-
-    overrides = tuple(set_ or ()) + ((f"seed={seed}",) if seed is not None else ())
-    m = navigate_flyby_dataset(path, out, runs, overrides, plots=not no_plots)
-    typer.echo(f"position error at CA {m['ca_position_error_m']:.1f} m "
-               f"({m['ca_position_error_pct_range']:.3g} % of {m['ca_range_m'] / 1e3:.2f} km), "
-               f"feature error rms {m['feature_error_rms_px']:.2f} px")
-    typer.echo(f"report: {out / 'report.md'}")
-
-
 def _navigate_flyby(path: Path, out: Path, runs: int | None, set_: list[str] | None,
                     seed: int | None, no_plots: bool, sweep: list[str] | None = None) -> None:
     """``navigate SCENARIO.yaml`` for a fly-by: the frames of a fly-by depend on each other
@@ -100,7 +89,11 @@ def _navigate_flyby(path: Path, out: Path, runs: int | None, set_: list[str] | N
                        f"{r['nees_mean']:.2f} ({r['verdict']})")
         typer.echo(f"table: {paths['table']}")
         return
-    m = navigate_flyby(Simulator(sc), out, n, plots=not no_plots)
+    _echo_flyby(navigate_flyby(Simulator(sc), out, n, plots=not no_plots), out)
+
+
+def _echo_flyby(m: dict, out: Path) -> None:
+    """The fly-by closed loop's summary lines."""
     typer.echo(f"position error at CA {m['ca_position_error_m']:.1f} m "
                f"({m['ca_position_error_pct_range']:.3g} % of {m['ca_range_m'] / 1e3:.2f} km), "
                f"feature error rms {m['feature_error_rms_px']:.2f} px")
@@ -109,6 +102,27 @@ def _navigate_flyby(path: Path, out: Path, runs: int | None, set_: list[str] | N
         typer.echo(f"{mc['runs']} runs: mean NEES {mc['nees_mean']:.2f}, band "
                    f"[{mc['nees_band'][0]:.2f}, {mc['nees_band'][1]:.2f}]: {mc['verdict']}")
     typer.echo(f"outputs in {out}")
+
+
+def _navigate_flyby_dataset(path: Path, out: Path, runs: int | None, set_: list[str] | None,
+                            seed: int | None, no_plots: bool, exposure: str | None,
+                            config: Path | None) -> None:
+    """``navigate DATASET`` for a fly-by dataset: the closed loop on its stored radiance
+    (:func:`starnav.dataset.flyby.navigate_flyby_dataset`); the limb chain's options that
+    select an exposure or another scenario are refused."""
+    from starnav.dataset.flyby import navigate_flyby_dataset
+    from starnav.errors import ConfigError
+
+    if exposure is not None:
+        raise ConfigError("--exposure", exposure, "none for a fly-by dataset: it stores no "
+                          "exposure, the closed loop exposes each run's segments and windows "
+                          "(detector.exposure_time_s)")
+    if config is not None:
+        raise ConfigError("--config", str(config), "none for a fly-by dataset: its own "
+                          "scenario is used (change navigation.* with --set)")
+    overrides = tuple(set_ or ()) + ((f"seed={seed}",) if seed is not None else ())
+    _echo_flyby(navigate_flyby_dataset(path, out, runs, overrides=overrides,
+                                       plots=not no_plots), out)
 
 
 def register(app: typer.Typer) -> None:
@@ -146,17 +160,18 @@ def register(app: typer.Typer) -> None:
         if dataset.is_file() and dataset.suffix.lower() in (".yaml", ".yml"):
             _navigate_flyby(dataset, out, runs, set_, seed, no_plots, sweep)
             return
-        from starnav.dataset.flyby import is_flyby_dataset
-
-        if dataset.is_dir() and is_flyby_dataset(dataset) and not sweep:
-            _navigate_flyby_dataset(dataset, out, runs, set_, seed, no_plots)
-            return
         try:
             if sweep:
                 from starnav.errors import ConfigError
 
                 raise ConfigError("--sweep", " ".join(sweep), "a fly-by scenario YAML as "
                                   "the argument (a dataset's frames are already made)")
+            from starnav.dataset.flyby import is_flyby_dataset
+
+            if dataset.is_dir() and is_flyby_dataset(dataset):
+                _navigate_flyby_dataset(dataset, out, runs, set_, seed, no_plots, exposure,
+                                        config)
+                return
             check_navigate_overrides(set_ or ())
             ds = _open_dataset(dataset, None if exposure is None
                                else parse_time(exposure, "--exposure"))

@@ -9,7 +9,7 @@ Public API (imports are lazy: importing :mod:`starnav.dataset` loads nothing hea
     acquire(radiance, geom, camera, scenario, exposure_time=..., run=..., windows=...)
     Acquisition, acquisition_seed                 # the emulated tracker acquisitions
     TaskRunner, InProcessRunner                   # how frames are made (Dask: starnav.batch)
-    navigate_flyby_dataset(path, out, runs)       # a fly-by dataset: the closed loop on it
+    read_flyby(path), navigate_flyby_dataset(path, out, runs)   # a fly-by dataset
 
 The format is documented in ``docs/dataset.md`` and :mod:`starnav.dataset.format`.
 """
@@ -27,7 +27,7 @@ _EXPORTS = {
     "WINDOWS_MODES": "acquire",
     "TaskRunner": "runner", "InProcessRunner": "runner",
     "SCHEMA_VERSION": "format",
-    "navigate_flyby_dataset": "flyby", "is_flyby_dataset": "flyby",
+    "read_flyby": "flyby", "navigate_flyby_dataset": "flyby", "is_flyby_dataset": "flyby",
 }
 
 __all__ = sorted(_EXPORTS)

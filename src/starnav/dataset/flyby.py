@@ -1,71 +1,120 @@
-"""``starnav navigate DATASET`` of a fly-by: the closed loop on a dataset's stored radiance.
+"""A fly-by dataset read back and navigated through the fly-by closed loop.
 
-A fly-by's acquisitions cannot be fixed in a dataset: the front end places a frame's windows
-from the previous frame's tracks (and from the run's own noise and estimate), so the windows
-a run reads exist only inside that run. A fly-by dataset (``starnav dataset FLYBY.yaml``)
-therefore keeps what does not depend on the run: every frame's full-frame spectral radiance
-with its per-pixel truth (``radiance.exr``: the body-fixed surface point, normal and
-coordinates AOVs), the frame's truth (``truth.json``: geometry, the true trajectory) and the
-exposures of the dataset's own acquisitions (for inspection). Navigating it re-exposes the
-segments and windows from the stored radiance at navigate time, run by run
-(:func:`starnav.simulate.flyby.navigate_flyby` with the dataset's renders), exactly as the
-scenario's closed loop does after rendering: the same radiance gives the same runs.
+Why a fly-by dataset holds no exposure: the fly-by front end places each frame's windows from
+the previous frame's tracks (:mod:`starnav.simulate.flyby`, step 2b), so the window pixels
+depend on the run (its detector noise, its attitude draw) and cannot be stored once. A fly-by
+dataset (``target_kind: "flyby"`` in the manifest, :mod:`starnav.dataset.writer`, "Fly-by
+datasets") stores per frame what every run starts from: the full-frame radiance with the
+renderer's AOVs (hit mask, body-fixed coordinates: the features' truth) and ``truth.json``
+(geometry, relative state, attitude, Sun).
 
-Steps: (1) open the dataset (complete, with radiance) and its resolved scenario, check it is
-a fly-by; (2) rebuild the frames' geometry from that scenario and check it against the
-dataset's frame count and indices; (3) the closed loop and its outputs.
+Technique
+---------
+1. :func:`read_flyby`: the manifest (complete, fly-by), the dataset's resolved scenario with
+   the ``navigation.*`` / ``seed`` overrides, a :class:`~starnav.simulate.Simulator` of it
+   (camera, scene, body; nothing is rendered), and every frame read back as the
+   ``(FrameGeometry, RadianceImage)`` pair the closed loop renders: the geometry from
+   ``truth.json`` (checked against the scenario's: same epoch), the radiance from
+   ``radiance.exr`` (float32, lossless).
+2. :func:`navigate_flyby_dataset`: :func:`starnav.simulate.flyby.navigate_flyby` on those
+   frames; its runs are those of ``starnav navigate SCENARIO.yaml`` with the same seed
+   (metrics equal: ``tests/dataset/test_flyby_dataset.py``).
+
+Example
+-------
+>>> from starnav.dataset.flyby import navigate_flyby_dataset
+>>> navigate_flyby_dataset("out/fb_ds", "out/fb_nav", runs=4)               # doctest: +SKIP
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from starnav.dataset.reader import Dataset, read_manifest
-from starnav.dataset.reader import open as open_dataset
-from starnav.errors import DataFileError, StarnavError
-from starnav.simulate.flyby import Renders, check_flyby_scenario, navigate_flyby
+from starnav.config import scenario_from_dict
+from starnav.dataset import format as F
+from starnav.dataset.reader import read_manifest
+from starnav.errors import ConfigError, DataFileError
+from starnav.geometry import FrameGeometry
+from starnav.radiance import RadianceImage, read_exr
+from starnav.simulate.flyby import check_flyby_scenario, navigate_flyby
 from starnav.simulate.frames import Simulator
+
+#: ``--set`` keys a fly-by dataset's navigation may change (the frames are already rendered).
+NAVIGATE_KEYS = ("navigation.", "seed")
 
 
 def is_flyby_dataset(path: str | os.PathLike[str]) -> bool:
-    """True when ``path`` is a dataset made from a fly-by scenario (False for anything
-    else, errors included: the limb path reports those)."""
-    try:
-        cfg = read_manifest(path).get("config", {})
-    except (StarnavError, OSError, ValueError):
-        return False
-    return (cfg.get("trajectory") or {}).get("source") == "flyby"
+    """Whether the directory ``path`` holds a fly-by dataset (its manifest says
+    ``target_kind: "flyby"``)."""
+    root = Path(path)
+    return (root / F.MANIFEST).is_file() and read_manifest(root).get("target_kind") == "flyby"
 
 
-def flyby_renders(ds: Dataset, sim: Simulator) -> Renders:
-    """Every frame of the dataset as ``(geometry, radiance)``, the geometry rebuilt from the
-    dataset's scenario (``sim``); a dataset that does not hold every frame of it, in order,
-    or was made without radiance, is a DataFileError naming it."""
-    if len(ds) != len(sim):
-        raise DataFileError(f"dataset {str(ds.path)!r}: {len(ds)} frames, its scenario has "
-                            f"{len(sim)} (a fly-by is navigated over every frame)")
-    out = []
-    for i in range(len(sim)):
-        frame = ds[i]
-        if frame.index != i:
-            raise DataFileError(f"dataset {str(ds.path)!r}: frame {i} is index {frame.index}")
-        out.append((sim.geometry(i), frame.radiance()))
-    return out
+def read_flyby(path: str | os.PathLike[str], overrides: Sequence[str] = ()
+               ) -> tuple[Simulator, list[tuple[FrameGeometry, RadianceImage]]]:
+    """The dataset's scenario (with ``overrides``) as a Simulator and its frames read back
+    (module step 1).
+
+    Raises
+    ------
+    DataFileError
+        Not a complete fly-by dataset, a missing radiance, a frame whose stored epoch is
+        not the scenario's.
+    ConfigError
+        An override of anything but ``navigation.*`` or ``seed``.
+    """
+    root = Path(path)
+    man = read_manifest(root)
+    if man.get("target_kind") != "flyby":
+        raise DataFileError(f"dataset {str(root)!r} is not a fly-by dataset (no target_kind "
+                            "'flyby' in its manifest); navigate it with the limb chain")
+    if not man.get("complete"):
+        raise DataFileError(
+            f"dataset {str(root)!r} is incomplete ({len(man.get('frames', []))} of "
+            f"{man.get('frames_expected')} frames): finish it with `starnav dataset ... "
+            "--resume`")
+    for item in overrides:
+        key = str(item).split("=", 1)[0].strip()
+        if not (key == "seed" or key.startswith("navigation.")):
+            raise ConfigError("--set", item, "a navigation.* or seed override: the fly-by "
+                              "dataset's frames are already rendered (make a new dataset "
+                              f"to change {key.split('.')[0]}.*)")
+    sc = scenario_from_dict(man["config"], list(overrides))
+    check_flyby_scenario(sc)
+    sim = Simulator(sc)
+    if len(man["frames"]) != len(sim):
+        raise DataFileError(f"dataset {str(root)!r}: {len(man['frames'])} frames, its scenario "
+                            f"has {len(sim)}")
+    renders = []
+    for e in man["frames"]:
+        d = root / e["directory"]
+        geom = F.geometry_of_truth(F.read_json(d / F.TRUTH))
+        want = float(sim.scene.epochs[int(e["index"])])
+        if int(geom.index) != int(e["index"]) or float(geom.epoch_tdb) != want:
+            raise DataFileError(f"{str(d / F.TRUTH)!r}: frame {geom.index} at epoch "
+                                f"{geom.epoch_tdb!r} TDB s, the scenario's frame {e['index']} "
+                                f"is at {want!r}")
+        p = d / F.RADIANCE
+        if not p.is_file():
+            raise DataFileError(f"{str(p)!r} does not exist: a fly-by dataset needs every "
+                                "frame's radiance")
+        renders.append((geom, read_exr(p)))
+    return sim, renders
 
 
 def navigate_flyby_dataset(path: str | os.PathLike[str], out: str | os.PathLike[str],
-                           runs: int | None = None, overrides: tuple[str, ...] = (), *,
-                           plots: bool = True) -> dict[str, Any]:
-    """The fly-by closed loop over the dataset at ``path`` (module essay): ``runs`` runs
-    (default ``navigation.runs``), outputs as :func:`~starnav.simulate.flyby.navigate_flyby`
-    into ``out``. ``overrides`` (``KEY=VALUE``) apply to the dataset's scenario (navigation
-    settings, the seed of the runs). Returns the metrics dict."""
-    ds = open_dataset(Path(path))
-    sc = ds.scenario(overrides)
-    check_flyby_scenario(sc)
-    sim = Simulator(sc)
-    renders = flyby_renders(ds, sim)
-    n = sc.navigation.runs if runs is None else runs
-    return navigate_flyby(sim, out, n, plots=plots, renders=renders)
+                           runs: int | None = None, *, overrides: Sequence[str] = (),
+                           plots: bool = True, probability: float = 0.99,
+                           progress: Callable[[str, int, int], None] | None = None
+                           ) -> dict[str, Any]:
+    """``starnav navigate DATASET`` for a fly-by dataset (module step 2): the closed loop of
+    :func:`starnav.simulate.flyby.navigate_flyby` over ``runs`` runs (default
+    ``navigation.runs``) on the stored frames; writes its ``metrics.json``, figures and
+    ``report.md`` in ``out`` and returns the metrics dict."""
+    sim, renders = read_flyby(path, overrides)
+    n = sim.scenario.navigation.runs if runs is None else int(runs)
+    return navigate_flyby(sim, out, n, plots=plots, probability=probability, renders=renders,
+                          progress=progress)

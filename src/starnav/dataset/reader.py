@@ -288,6 +288,12 @@ def open(path: str | os.PathLike[str], exposure: float | None = None, *,  # noqa
             f"dataset {str(root)!r} is incomplete ({len(man.get('frames', []))} of "
             f"{man.get('frames_expected')} frames): finish it with `starnav dataset ... "
             "--resume`, or open it with allow_incomplete=True")
+    if man.get("target_kind") == "flyby":
+        raise DataFileError(
+            f"dataset {str(root)!r} is a fly-by dataset (radiance and truth, no exposure: its "
+            "windows depend on the previous frame's tracks); it is navigated only by the "
+            "fly-by closed loop, `starnav navigate DATASET` (starnav.dataset.flyby), not by "
+            "the limb chain")
     return Dataset(root, man, _pick_exposure(man, exposure))
 
 

@@ -40,6 +40,18 @@ Technique
 A lock file (``.lock``, ``flock``) stops two processes from writing one dataset; the kernel
 releases it when a process dies, so a killed run can be resumed at once.
 
+Fly-by datasets
+---------------
+A fly-by scenario (:func:`starnav.simulate.flyby.is_flyby_scenario`) places each frame's
+windows from the previous frame's tracks, per Monte Carlo run: no fixed window pixels can be
+stored. Its dataset stores per frame the radiance (with the AOVs: hit mask, body-fixed
+coordinates) and ``truth.json`` with a ``flyby`` block (relative position and velocity, Sun
+direction), no exposure directory; the head gains ``target_kind: "flyby"`` and ``flyby``
+(CA epoch, Sun direction), its options are ``exposures_s=()``, ``windows="closed-loop"``
+(limb options are refused). A limb dataset's head and files are unchanged.
+``starnav navigate DATASET`` re-exposes the windows through the fly-by closed loop
+(:mod:`starnav.dataset.flyby`).
+
 Example
 -------
 >>> from starnav.config import load_scenario
@@ -95,6 +107,7 @@ from starnav.simulate import (
 )
 from starnav.simulate.acquire import sensor_seed_of
 from starnav.simulate.attitude import is_star_frame, star_acquisition_dn, uses_star_attitude
+from starnav.simulate.flyby import is_flyby_scenario
 from starnav.spectra import (
     band_integrals,
     sensor_response_from_config,
@@ -104,6 +117,11 @@ from starnav.spectra import (
 log = logging.getLogger(__name__)
 
 Progress = Callable[[int, int], None]
+
+#: ``options.windows`` of a fly-by dataset: the windows are placed by the closed loop.
+FLYBY_WINDOWS = "closed-loop"
+#: ``target_kind`` of a fly-by dataset's manifest (a limb dataset's manifest has no such key).
+FLYBY_KIND = "flyby"
 
 #: Default minimum time between two manifest rewrites while frames land [s].
 MANIFEST_INTERVAL_S = 2.0
@@ -143,7 +161,10 @@ class DatasetOptions:
     exposure_overrides: tuple[tuple[float, tuple[str, ...]], ...] = ()
 
     def resolved(self, scenario: Scenario) -> DatasetOptions:
-        """Validated options with the exposures filled in."""
+        """Validated options with the exposures filled in (a fly-by: no exposure, windows
+        ``closed-loop``, radiance stored; module "Fly-by datasets")."""
+        if is_flyby_scenario(scenario):
+            return self._resolved_flyby()
         exps = (scenario.detector.exposure_time_s,) if self.exposures_s is None \
             else self.exposures_s
         check_windows_mode(self.windows)
@@ -167,6 +188,24 @@ class DatasetOptions:
         for t in exps:
             out.scenario_for(scenario, t)  # validates the overrides
         return out
+
+    def _resolved_flyby(self) -> DatasetOptions:
+        why = ("a fly-by dataset stores the radiance and the truth only: the closed loop "
+               "exposes its segments and windows at navigate time")
+        if self.exposures_s not in (None, ()):
+            raise ConfigError("exposures", list(self.exposures_s),
+                              f"none for a fly-by ({why}; its exposure is "
+                              "detector.exposure_time_s)")
+        if self.exposure_overrides:
+            raise ConfigError("exposure_overrides", [t for t, _ in self.exposure_overrides],
+                              f"none for a fly-by ({why})")
+        if self.windows not in ("second", FLYBY_WINDOWS):
+            raise ConfigError("windows", self.windows, f"the default for a fly-by ({why})")
+        if not self.radiance:
+            raise ConfigError("radiance", False, f"stored for a fly-by ({why}, from it)")
+        if not (isinstance(self.limb_points, int) and 8 <= self.limb_points <= 100_000):
+            raise ConfigError("limb_points", self.limb_points, "an integer in 8..100000")
+        return DatasetOptions((), FLYBY_WINDOWS, True, int(self.limb_points), ())
 
     def overrides_for(self, exposure_time: float) -> tuple[str, ...]:
         """The overrides of one exposure (empty if none)."""
@@ -255,7 +294,7 @@ def dataset_head(scenario: Scenario, options: DatasetOptions, n_frames: int) -> 
         exposures.append({"exposure_s": t, "directory": F.exposure_dirname(t),
                           "overrides": list(opts.overrides_for(t)),
                           "readout_law": readout_feasibility(opts.scenario_for(sc, t), t)})
-    return {
+    head = {
         "schema": F.SCHEMA,
         "schema_version": F.SCHEMA_VERSION,
         "software": {"starnav": __version__, "mitsuba": info.mitsuba_version,
@@ -280,6 +319,16 @@ def dataset_head(scenario: Scenario, options: DatasetOptions, n_frames: int) -> 
                    "radiance_quicklook": F.RADIANCE_QUICKLOOK if opts.radiance else None,
                    "per_exposure": [F.DN, F.DN_QUICKLOOK, F.SEGMENTS, F.WINDOWS, F.READOUT]},
     }
+    if is_flyby_scenario(sc):  # a limb dataset's head is unchanged (its bytes are pinned)
+        flyby = scene_from_scenario(sc).flyby
+        assert flyby is not None
+        head["target_kind"] = FLYBY_KIND
+        head["flyby"] = {"epoch_ca_tdb_s": float(flyby.epoch_ca),
+                         "sun_direction_j2000": np.asarray(flyby.sun_direction, float),
+                         "navigate": "starnav navigate DATASET: the closed loop of "
+                                     "starnav.simulate.flyby on the stored radiance"}
+        head["layout"]["per_exposure"] = []
+    return head
 
 
 def camera_to_manifest(cam: Any) -> dict[str, Any]:
@@ -314,6 +363,7 @@ class FrameMaker:
         self._pool: ThreadPoolExecutor | None = None
         self._render_lock = threading.Lock()   # one render at a time
         self._stars = {t: uses_star_attitude(sc) for t, sc in self._per_exposure.items()}
+        self.flyby = is_flyby_scenario(scenario)
 
     def __len__(self) -> int:
         return len(self.simulator)
@@ -381,8 +431,16 @@ class FrameMaker:
         tmp = Path(tempfile.mkdtemp(prefix=f"{F.TMP_PREFIX}{F.frame_dirname(index)}-",
                                     dir=frames))
         try:
-            F.write_json(tmp / F.TRUTH, F.truth_to_dict(geom, self.camera,
-                                                        self.options.limb_points))
+            truth = F.truth_to_dict(geom, self.camera, self.options.limb_points)
+            if self.flyby:
+                rel = self.simulator.scene.relative_states[index]
+                truth["flyby"] = {"relative_position_m": rel[:3],
+                                  "relative_velocity_m_s": rel[3:],
+                                  "frame": "J2000 axes, spacecraft relative to the body",
+                                  "sun_direction_j2000": self.simulator.scene.flyby.sun_direction,
+                                  "per_pixel": "radiance.exr AOVs (hit mask, body-fixed "
+                                               "coordinates)"}
+            F.write_json(tmp / F.TRUTH, truth)
             if self.options.radiance:
                 write_exr(img, tmp / F.RADIANCE)
                 write_radiance_quicklook(img, tmp / F.RADIANCE_QUICKLOOK, index=index)

@@ -99,6 +99,13 @@ INITIAL_ERROR_STREAM = 17
 Renders = Sequence[tuple[FrameGeometry, RadianceImage]]
 
 
+def is_flyby_scenario(sc: Scenario) -> bool:
+    """Whether ``sc`` is a small body's fly-by (``trajectory.source: flyby`` and
+    ``target.kind: shape_model``): the scenarios :func:`check_flyby_scenario` accepts."""
+    return (sc.trajectory is not None and sc.trajectory.source == "flyby"
+            and sc.target is not None and sc.target.kind == "shape_model")
+
+
 def check_flyby_scenario(sc: Scenario) -> None:
     """A fly-by closed loop needs a small body on a fly-by; anything else is one clear error,
     before any rendering."""
@@ -374,12 +381,16 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
     memory from a traced re-run of run 0) and, for >= 2 runs, the Monte Carlo summary), the
     figures (position and velocity errors with 3-sigma against time from CA, runs in grey;
     NEES with its band; tracks; run 0's frame overlays, :func:`plot_overlays`) and
-    ``report.md``, every file written atomically.
+    ``report.md``, every file written atomically. ``renders``: every frame already rendered
+    (a fly-by dataset's frames read back, ``starnav navigate DATASET``:
+    :func:`starnav.dataset.flyby.navigate_flyby_dataset`); the render time is then NaN.
     Returns the metrics dict."""
     check_flyby_scenario(sim.scenario)
+    if renders is not None and len(renders) != len(sim):
+        raise ConfigError("renders", len(renders), f"every frame of the scenario ({len(sim)})")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    t_render = float("nan")      # frames given (a dataset's radiance): nothing rendered
+    t_render = float("nan")
     if renders is None:
         renders, t_render = render_flyby(
             sim, None if progress is None else (lambda d, n: progress("render", d, n)))
@@ -389,7 +400,9 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
     r0 = loop.runs[0]
     t = loop.time_from_ca
     metrics: dict[str, Any] = dict(r0.metrics.as_dict())
-    metrics["timing_s_per_frame"] = loop.timings_s
+    # render: null when the frames were given (a dataset's), not a JSON NaN
+    metrics["timing_s_per_frame"] = {k: (float(v) if np.isfinite(v) else None)
+                                     for k, v in loop.timings_s.items()}
     mem = flyby_run(sim, renders, 0, memory=True).memory_bytes
     metrics["tracker_budget"] = budget = tracker_budget(loop.timings_s, mem)
     mc = None
