@@ -28,7 +28,8 @@ Technique
    ``E``: 4 mas at 90 deg, 1.75 arcsec at the limb), stellar parallax (< 0.8 arcsec,
    Proxima Cen), and the body's own aberration (the rendered Moon is drawn at its geometric
    direction: its apparent direction differs by the camera's velocity relative to the Moon,
-   ``|v_cam/Moon| / c`` = 0.69 arcsec per km/s, below 1 arcsec at LUMIO's < 1 km/s).
+   ``|v_cam/Moon| / c`` = 0.69 arcsec per km/s: 0.64-0.93 arcsec at LUMIO's
+   0.93-1.35 km/s).
 
 Use
 ---
