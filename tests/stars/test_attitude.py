@@ -187,7 +187,8 @@ def test_lost_in_space_on_random_pointings_with_false_stars(n_pointings):
         b = np.c_[xy, np.ones(len(xy))]
         b /= np.linalg.norm(b, axis=1, keepdims=True)
         sig_rad = np.hypot(sig, 0.02) / CAM.fx
-        ident = identify_lost_in_space(b, sig_rad, cat, f.epoch_jyear, CAM.fov_diagonal)
+        ident = identify_lost_in_space(b, sig_rad, cat, f.epoch_jyear, CAM.fov_diagonal,
+                                       observer_velocity=f.observer_velocity_m_s)
         if not ident.ok:
             continue
         A = wahba_svd(b[ident.detection_index], ident.directions,
@@ -227,7 +228,8 @@ def test_rendered_frames_attitude_is_accurate_and_nees_consistent():
     for k in range(6):
         R = _pointing(rng)
         f, e = _rendered(R, seed=k)
-        sol = solve_attitude(e.dn, CAM, DET, epoch_jyear=f.epoch_jyear)
+        sol = solve_attitude(e.dn, CAM, DET, epoch_jyear=f.epoch_jyear,
+                             observer_velocity=f.observer_velocity_m_s)
         assert sol.ok, sol.reason
         d = error_rotation(sol.R_cam_to_inertial, R)
         nees.append(float(d @ np.linalg.solve(sol.covariance_rad2, d)))
@@ -250,6 +252,7 @@ def test_tracking_mode_from_a_propagated_prior():
     from scipy.spatial.transform import Rotation
     prior = R @ Rotation.from_rotvec(off).as_matrix()
     sol = solve_attitude(e.dn, CAM, DET, epoch_jyear=f.epoch_jyear, prior=prior,
+                         observer_velocity=f.observer_velocity_m_s,
                          prior_sigma_rad=math.radians(0.05))
     assert sol.ok and sol.mode == "tracking" and sol.identification.hypotheses == 1
     d = error_rotation(sol.R_cam_to_inertial, R)
@@ -272,7 +275,8 @@ def test_moon_in_the_field_false_stars_are_not_matched():
         np.float32)
     f, e = _rendered(R, seed=2, radiance=le, geom=geom)
     ex = body_exclusions(moon_uv, r_px, (CAM.cx, CAM.cy), DET.optics.ghosts.ghosts)
-    sol = solve_attitude(e.dn, CAM, DET, epoch_jyear=f.epoch_jyear, exclusions=ex)
+    sol = solve_attitude(e.dn, CAM, DET, epoch_jyear=f.epoch_jyear, exclusions=ex,
+                         observer_velocity=f.observer_velocity_m_s)
     assert sol.ok, sol.reason
     vis = f.visible()
     d = np.min(np.linalg.norm(sol.centroids.uv[:, None] - vis.pixel_px[None], axis=2), axis=1)

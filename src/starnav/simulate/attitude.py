@@ -71,6 +71,7 @@ from starnav.simulate.acquire import (
     star_field,
 )
 from starnav.simulate.build import chain_options
+from starnav.stars.aberration import observer_velocity
 from starnav.stars.attitude import ARCSEC, AttitudeSolution, error_rotation, solve_attitude
 from starnav.stars.catalogue import hipparcos, jyear_from_tdb
 from starnav.stars.centroid import body_exclusions
@@ -200,6 +201,16 @@ class StarSolver:
         return body_exclusions(uv, r_px, (self.camera.cx, self.camera.cy),
                                self.detector.optics.ghosts.ghosts)
 
+    def observer_velocity(self, geom: FrameGeometry) -> FloatArray | None:
+        """The tracker's knowledge of its barycentric velocity [m/s] when it corrects stellar
+        aberration (``stars.aberration`` and ``stars.aberration_correction``), else None. It is
+        the truth geometry's (DE421 + the camera's velocity relative to the Moon): a knowledge
+        error of ``dv`` would leave at most ``|dv| / c`` = 0.69 arcsec per km/s."""
+        st = self.scenario.stars
+        if not (st.aberration and st.aberration_correction):
+            return None
+        return observer_velocity(geom)
+
     def solve(self, dn: Any, geom: FrameGeometry,
               prior: tuple[FloatArray, FloatArray] | None = None) -> AttitudeSolution:
         """The attitude of DN frame ``dn`` taken at ``geom``; ``prior`` = (attitude,
@@ -207,7 +218,8 @@ class StarSolver:
         ex = self.exclusions(geom)
         e = self.scenario.stars.epoch_jyear
         ep = float(e) if e is not None else jyear_from_tdb(float(geom.epoch_tdb))
-        kw = dict(epoch_jyear=ep, exclusions=ex, catalogue=self.catalogue)
+        kw = dict(epoch_jyear=ep, exclusions=ex, catalogue=self.catalogue,
+                  observer_velocity=self.observer_velocity(geom))
         if prior is not None:
             sig = float(np.sqrt(np.max(np.linalg.eigvalsh(prior[1]))))
             sol = solve_attitude(dn, self.camera, self.detector, prior=prior[0],

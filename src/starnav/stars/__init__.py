@@ -4,6 +4,8 @@
   epoch, V from Hp and B - V, cone queries (unit vectors, magnitudes, Hipparcos numbers).
 * :mod:`~starnav.stars.radiometry`: spectral irradiance from V and B - V (Vega-based zero
   point, black body by colour), electrons through the sensor response.
+* :mod:`~starnav.stars.aberration`: apparent directions for the observer's barycentric
+  velocity (DE421), drawn and corrected.
 * :mod:`~starnav.stars.field`: a frame's true star list (pixel positions, electrons,
   occultation by the body) and the point sources the detector chain draws.
 

@@ -160,7 +160,8 @@ def solve_attitude(dn: ArrayLike, camera: Camera, detector: DetectorConfig, *,
                    epoch_jyear: float, prior: ArrayLike | None = None,
                    prior_sigma_rad: float = 0.0, exclusions: tuple[Exclusion, ...] = (),
                    catalogue: StarCatalogue | None = None,
-                   options: AttitudeOptions | None = None) -> AttitudeSolution:
+                   options: AttitudeOptions | None = None,
+                   observer_velocity: ArrayLike | None = None) -> AttitudeSolution:
     """The attitude of one DN frame from its stars.
 
     Parameters
@@ -182,6 +183,11 @@ def solve_attitude(dn: ArrayLike, camera: Camera, detector: DetectorConfig, *,
     catalogue : StarCatalogue, optional
         Default Hipparcos.
     options : AttitudeOptions, optional
+    observer_velocity : (3,) array, optional
+        The tracker's knowledge of its barycentric velocity, ICRF axes [m/s]: the catalogue is
+        corrected to apparent directions (stellar aberration, :mod:`starnav.stars.aberration`)
+        and the attitude is the true one. ``None``: astrometric catalogue places (an attitude
+        biased by up to 20.5 arcsec when the sky is aberrated).
 
     Returns
     -------
@@ -204,11 +210,12 @@ def solve_attitude(dn: ArrayLike, camera: Camera, detector: DetectorConfig, *,
     sig = centroid_sigma_rad(cents, camera, opt.floor_px)
     if prior is None:
         ident = identify_lost_in_space(b, sig, cat, epoch_jyear, camera.fov_diagonal,
-                                       options=opt.identify)
+                                       options=opt.identify,
+                                       observer_velocity=observer_velocity)
     else:
         ident = identify_tracking(b, sig, cat, epoch_jyear, camera.fov_diagonal,
                                   np.asarray(prior, float), prior_sigma_rad,
-                                  options=opt.identify)
+                                  options=opt.identify, observer_velocity=observer_velocity)
     if not ident.ok or ident.n_matched < opt.min_stars:
         why = ident.reason or f"{ident.n_matched} identified stars, {opt.min_stars} needed"
         return AttitudeSolution("no-attitude", why, mode, None, None, cents, ident)

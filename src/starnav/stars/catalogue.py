@@ -22,7 +22,8 @@ Technique
    (``tests/stars/test_catalogue.py``); the neglected perspective acceleration of Barnard's star
    (radial velocity -110 km/s) is ~1 arcsec over those 39 years, the largest of the catalogue.
    No annual aberration and no parallax are applied: directions are astrometric (ICRS)
-   places, the frame of the scenario's inertial axes (J2000/ICRF).
+   places, the frame of the scenario's inertial axes (J2000/ICRF); the frame and the tracker
+   aberrate them (:mod:`starnav.stars.aberration`).
 4. **Cone query.** A k-d tree (``scipy.spatial.cKDTree``) on the J1991.25 unit vectors; a
    query of radius ``r`` at epoch ``t`` asks the tree for ``r`` plus the largest proper-motion
    displacement since J1991.25, then propagates the candidates and keeps those within ``r``

@@ -5,6 +5,9 @@ Technique
 1. **Query.** The camera's boresight (true attitude) and the half-diagonal of its field plus
    ``margin_px`` give a cone; :meth:`~starnav.stars.catalogue.StarCatalogue.cone` returns the
    stars brighter than ``magnitude_limit`` at the frame's epoch (or ``epoch_jyear``).
+   With ``aberration`` on (the default) the cone is widened by the largest aberration and
+   each star moves to its apparent direction for the camera's barycentric velocity
+   (:mod:`starnav.stars.aberration`: DE421 + the camera's velocity at the frame's epoch).
 2. **Project.** Each unit vector goes to the camera frame with the TRUE attitude
    (``R_cam_to_inertial.T``) and through the pinhole (``pinhole_px``); the detector position
    (``pixel_px``) adds the lens distortion when the detector chain applies it (the chain draws
@@ -32,13 +35,15 @@ import math
 from dataclasses import dataclass, fields
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from starnav.camera import Camera
 from starnav.detector import DetectorConfig, PointSources
 from starnav.geometry import FrameGeometry
 from starnav.radiance import RadianceImage
 from starnav.spectra import SensorResponse
+from starnav.stars.aberration import ABERRATION_MARGIN, apparent_directions
+from starnav.stars.aberration import observer_velocity as observer_velocity_of
 from starnav.stars.catalogue import StarCatalogue, hipparcos, jyear_from_tdb
 from starnav.stars.radiometry import electron_rates
 from starnav.stars.schema import StarsConfig
@@ -57,8 +62,9 @@ class StarField:
     v, b_v : (n,) arrays
         Johnson V and B - V [mag].
     direction_inertial, direction_camera : (n, 3) arrays
-        Unit vectors, inertial (ICRS/J2000) at the epoch and in the camera frame (true
-        attitude) [-].
+        Unit vectors, inertial (ICRS/J2000 axes) at the epoch and in the camera frame (true
+        attitude) [-]: apparent (aberrated) directions when aberration is on, else the
+        astrometric catalogue places.
     pinhole_px : (n, 2) array
         ``(u, v)`` in the undistorted pinhole image [px].
     pixel_px : (n, 2) array
@@ -74,6 +80,9 @@ class StarField:
         ``pixel_px`` inside the detector (``-0.5 <= u < W - 0.5``, same for v).
     epoch_jyear, exposure_time : float
         [Julian year], [s].
+    observer_velocity_m_s : tuple of 3 floats
+        The barycentric velocity the directions are aberrated with, ICRF axes [m/s] (zeros:
+        astrometric places).
     """
 
     hip: NDArray[np.int64]
@@ -89,6 +98,7 @@ class StarField:
     in_frame: NDArray[np.bool_]
     epoch_jyear: float
     exposure_time: float
+    observer_velocity_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __len__(self) -> int:
         return int(self.hip.size)
@@ -147,7 +157,8 @@ def _occulted(dirs_cam: FloatArray, pinhole: FloatArray, geom: FrameGeometry,
 def frame_stars(geom: FrameGeometry, camera: Camera, config: StarsConfig,
                 response: SensorResponse, *, exposure_time: float,
                 detector: DetectorConfig | None = None, radiance: RadianceImage | None = None,
-                catalogue: StarCatalogue | None = None) -> StarField:
+                catalogue: StarCatalogue | None = None,
+                observer_velocity: ArrayLike | None = None) -> StarField:
     """The star field of one frame (module steps 1-4).
 
     Parameters
@@ -156,7 +167,8 @@ def frame_stars(geom: FrameGeometry, camera: Camera, config: StarsConfig,
         True attitude and epoch (``epoch_tdb``) of the frame.
     camera : Camera
     config : StarsConfig
-        Magnitude limit, margin, epoch override (``enabled`` is not read here).
+        Magnitude limit, margin, epoch override, ``aberration`` (``enabled`` is not read
+        here).
     response : SensorResponse
         The sensor's QE x T (the Moon's).
     exposure_time : float
@@ -167,15 +179,24 @@ def frame_stars(geom: FrameGeometry, camera: Camera, config: StarsConfig,
         The rendered frame: its ``mask`` AOV occults stars; else the reference sphere.
     catalogue : StarCatalogue, optional
         Default: :func:`~starnav.stars.catalogue.hipparcos`.
+    observer_velocity : (3,) array, optional
+        Barycentric velocity [m/s] of the camera, ICRF axes, when ``config.aberration``;
+        default :func:`~starnav.stars.aberration.observer_velocity` of ``geom`` (DE421).
     """
     det = detector if detector is not None else DetectorConfig()
     cat = catalogue if catalogue is not None else hipparcos()
     epoch = (config.epoch_jyear if config.epoch_jyear is not None
              else jyear_from_tdb(geom.epoch_tdb))
     R = geom.R_cam_to_inertial
-    sel = cat.cone(R[:, 2], field_radius(camera, config.margin_px), epoch,
-                   config.magnitude_limit)
-    dcam = sel.directions @ R  # rows: R^T d
+    vel = np.zeros(3)
+    if config.aberration:
+        vel = (observer_velocity_of(geom) if observer_velocity is None
+               else np.asarray(observer_velocity, float))
+    radius = field_radius(camera, config.margin_px) + (ABERRATION_MARGIN if config.aberration
+                                                       else 0.0)
+    sel = cat.cone(R[:, 2], radius, epoch, config.magnitude_limit)
+    dirs = apparent_directions(sel.directions, vel) if config.aberration else sel.directions
+    dcam = dirs @ R  # rows: R^T d
     front = dcam[:, 2] > 1e-6
     dcam, keep_ix = dcam[front], np.nonzero(front)[0]
     pin = camera.project(dcam, distort=False) if dcam.size else np.zeros((0, 2))
@@ -194,7 +215,8 @@ def frame_stars(geom: FrameGeometry, camera: Camera, config: StarsConfig,
                 & (pix[:, 1] >= -0.5) & (pix[:, 1] < camera.height - 0.5))
     occ = _occulted(dcam, pin, geom, radiance) if keep_ix.size else np.zeros(0, bool)
     return StarField(hip=sel.hip[keep_ix], v=sel.v[keep_ix], b_v=sel.b_v[keep_ix],
-                     direction_inertial=sel.directions[keep_ix], direction_camera=dcam,
+                     direction_inertial=dirs[keep_ix], direction_camera=dcam,
                      pinhole_px=pin, pixel_px=pix, rate=rate, electrons=el, occulted=occ,
                      in_frame=in_frame, epoch_jyear=float(epoch),
-                     exposure_time=float(exposure_time))
+                     exposure_time=float(exposure_time),
+                     observer_velocity_m_s=tuple(float(x) for x in vel))

@@ -29,6 +29,12 @@ Technique
 5. **Tracking.** With a prior attitude (previous frame propagated), step 3's match is done
    directly with a radius widened by ``3 prior_sigma`` and step 4 follows; the same count rule
    with ``N_hyp = 1`` accepts it.
+6. **Aberration.** With the tracker's barycentric velocity ``observer_velocity`` the catalogue
+   stars of steps 3-5 are moved to their apparent directions
+   (:func:`starnav.stars.aberration.apparent_directions`), so the attitude is the true one in
+   ICRF axes. The pair table stays astrometric (built once, independent of the velocity):
+   aberration changes a separation ``theta`` by at most ``2 beta tan(theta / 2)`` (10.6 arcsec
+   at 30 km/s and the 29 deg diagonal), added to the pair tolerance of step 2.
 
 Tuning
 ------
@@ -58,11 +64,13 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 from scipy.stats import poisson
 
+from starnav.constants import SPEED_OF_LIGHT
 from starnav.errors import ConfigError
+from starnav.stars.aberration import ABERRATION_MARGIN, apparent_directions
 from starnav.stars.catalogue import StarCatalogue, hipparcos
 
 FloatArray = NDArray[np.float64]
@@ -211,23 +219,27 @@ def _match(b: FloatArray, A: FloatArray, tree: cKDTree, radius: FloatArray | flo
     return det[keep], cat[keep]
 
 
-def _field(cat: StarCatalogue, A: FloatArray, epoch: float, radius: float, v_limit: float):
+def _field(cat: StarCatalogue, A: FloatArray, epoch: float, radius: float, v_limit: float,
+           velocity: FloatArray | None):
     sel_rows = _cone_rows(cat, A[2], radius, epoch, v_limit)
     d = cat.directions(epoch, sel_rows)
+    if velocity is not None:
+        d = apparent_directions(d, velocity)  # module step 6
     return sel_rows, d
 
 
 def _cone_rows(cat: StarCatalogue, centre: FloatArray, radius: float, epoch: float,
                v_limit: float) -> NDArray[np.int64]:
-    cand = np.asarray(cat._tree.query_ball_point(centre, 2.0 * math.sin(0.5 * radius + 1e-4)),
-                      np.int64)
+    cand = np.asarray(cat._tree.query_ball_point(
+        centre, 2.0 * math.sin(0.5 * (radius + ABERRATION_MARGIN) + 1e-4)), np.int64)
     return cand[cat.v[cand] <= v_limit]
 
 
 def _refine(b: FloatArray, sig: FloatArray, A: FloatArray, cat: StarCatalogue, epoch: float,
-            field_radius: float, opt: IdentifyOptions, radius0: float
+            field_radius: float, opt: IdentifyOptions, radius0: float,
+            velocity: FloatArray | None
             ) -> tuple[FloatArray, NDArray[np.int64], NDArray[np.int64], FloatArray, int]:
-    rows, d = _field(cat, A, epoch, field_radius * 1.05, opt.verify_v_limit)
+    rows, d = _field(cat, A, epoch, field_radius * 1.05, opt.verify_v_limit, velocity)
     if rows.size == 0:
         return A, np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), 0
     tree = cKDTree(d)
@@ -247,10 +259,15 @@ def _refine(b: FloatArray, sig: FloatArray, A: FloatArray, cat: StarCatalogue, e
 def identify_lost_in_space(b: FloatArray, sigma_rad: FloatArray,
                            catalogue: StarCatalogue | None, epoch_jyear: float,
                            fov_diagonal_rad: float, *,
-                           options: IdentifyOptions | None = None) -> Identification:
+                           options: IdentifyOptions | None = None,
+                           observer_velocity: ArrayLike | None = None) -> Identification:
     """Identify detections (camera unit vectors ``b``, brightest first, 1-sigma ``sigma_rad``)
-    without an attitude (module steps 1-4). Never raises for the content of ``b``."""
+    without an attitude (module steps 1-4); with ``observer_velocity`` [m/s, barycentric, ICRF]
+    against the apparent catalogue (step 6), else the astrometric one. Never raises for the
+    content of ``b``."""
     opt = options or IdentifyOptions()
+    vel = None if observer_velocity is None else np.asarray(observer_velocity, float)
+    beta = 0.0 if vel is None else float(np.linalg.norm(vel)) / SPEED_OF_LIGHT
     cat = catalogue if catalogue is not None else hipparcos()
     n = b.shape[0]
     if n < 3:
@@ -263,7 +280,8 @@ def identify_lost_in_space(b: FloatArray, sigma_rad: FloatArray,
 
     def cand(i: int, j: int) -> tuple[NDArray[np.int32], NDArray[np.int32]]:
         dij = math.acos(min(1.0, max(-1.0, float(b[i] @ b[j]))))
-        tol = opt.n_sigma * math.hypot(sigma_rad[i], sigma_rad[j]) + tol_cat
+        tol = (opt.n_sigma * math.hypot(sigma_rad[i], sigma_rad[j]) + tol_cat
+               + 2.0 * beta * math.tan(0.5 * dij))
         lo, hi = np.searchsorted(idx.angle, [dij - tol, dij + tol])
         return idx.pair_a[lo:hi], idx.pair_b[lo:hi]
 
@@ -282,7 +300,8 @@ def identify_lost_in_space(b: FloatArray, sigma_rad: FloatArray,
         if common.size == 0:
             continue
         ajk_d = math.acos(min(1.0, max(-1.0, float(b[j] @ b[k]))))
-        tol_jk = opt.n_sigma * math.hypot(sigma_rad[j], sigma_rad[k]) + tol_cat
+        tol_jk = (opt.n_sigma * math.hypot(sigma_rad[j], sigma_rad[k]) + tol_cat
+                  + 2.0 * beta * math.tan(0.5 * ajk_d))
         sense = float(b[i] @ np.cross(b[j], b[k]))
         for si in common:
             for sj in bij[aij == si]:
@@ -296,7 +315,8 @@ def identify_lost_in_space(b: FloatArray, sigma_rad: FloatArray,
                         continue
                     hyp += 1
                     A = _svd3(b[[i, j, k]], np.stack([di, dj, dk]))
-                    rows, d = _field(cat, A, epoch_jyear, field_radius, opt.verify_v_limit)
+                    rows, d = _field(cat, A, epoch_jyear, field_radius, opt.verify_v_limit,
+                                     vel)
                     if rows.size < 3:
                         continue
                     det, _ = _match(b, A, cKDTree(d), r_match)
@@ -306,7 +326,7 @@ def identify_lost_in_space(b: FloatArray, sigma_rad: FloatArray,
                     extra = int(np.setdiff1d(det, [i, j, k]).size)
                     if extra >= k_req:
                         A2, det2, crow, cdir, _ = _refine(b, sigma_rad, A, cat, epoch_jyear,
-                                                          field_radius, opt, r_match)
+                                                          field_radius, opt, r_match, vel)
                         if not accepted:
                             accepted.append((A2, det2, crow, cdir, k_req, lam))
                         elif _angle(accepted[0][0], A2) > 10 * r_match:
@@ -326,11 +346,13 @@ def identify_lost_in_space(b: FloatArray, sigma_rad: FloatArray,
 
 def identify_tracking(b: FloatArray, sigma_rad: FloatArray, catalogue: StarCatalogue | None,
                       epoch_jyear: float, fov_diagonal_rad: float, prior: FloatArray,
-                      prior_sigma_rad: float, *, options: IdentifyOptions | None = None
-                      ) -> Identification:
+                      prior_sigma_rad: float, *, options: IdentifyOptions | None = None,
+                      observer_velocity: ArrayLike | None = None) -> Identification:
     """Identify detections by nearest neighbour around the prior attitude ``prior`` (camera
-    -> inertial) of 1-sigma ``prior_sigma_rad`` [rad] (module step 5)."""
+    -> inertial) of 1-sigma ``prior_sigma_rad`` [rad] (module step 5); ``observer_velocity``
+    as in :func:`identify_lost_in_space`."""
     opt = options or IdentifyOptions()
+    vel = None if observer_velocity is None else np.asarray(observer_velocity, float)
     cat = catalogue if catalogue is not None else hipparcos()
     n = b.shape[0]
     if n < 3:
@@ -339,7 +361,7 @@ def identify_tracking(b: FloatArray, sigma_rad: FloatArray, catalogue: StarCatal
     field_radius = 0.5 * fov_diagonal_rad
     r0 = opt.match_radius_arcsec * ARCSEC + 3.0 * float(prior_sigma_rad) * 1.5
     A, det, crow, cdir, ncat = _refine(b, sigma_rad, A0, cat, epoch_jyear, field_radius, opt,
-                                       r0)
+                                       r0, vel)
     k_req, lam = required_confirmations(n, ncat, r0, field_radius, 1,
                                         opt.false_match_probability, opt.min_confirmed + 3)
     if det.size < k_req:

@@ -25,3 +25,12 @@ class StarsConfig(StrictModel):
     epoch_jyear: float | None = Field(
         None, description="epoch of the star positions (proper motion) [Julian year]; null: "
         "each frame's own epoch (J2000.0 for a static frame)")
+    aberration: bool = Field(
+        True, description="draw the stars at their apparent directions, aberrated by the "
+        "camera's barycentric velocity (DE421 Earth-Moon barycentre + Moon + spacecraft; up to "
+        "20.5 arcsec), and let the tracker correct for it; false: astrometric (ICRS) places "
+        "drawn and solved, the behaviour before aberration was modelled")
+    aberration_correction: bool = Field(
+        True, description="with aberration on: the tracker corrects its catalogue to apparent "
+        "directions with its own velocity (false, for comparison: the uncorrected tracker, "
+        "its attitude biased by up to 20.5 arcsec)")
