@@ -160,6 +160,10 @@ def calibrate(dry_run: bool = False, scaling: str = "constant") -> dict:
     (w_fit, d_fit), *_ = np.linalg.lstsq(A2, dr_raw, rcond=None)
     fit_rms = float(np.sqrt(np.mean((A2 @ [w_fit, d_fit] - dr_raw) ** 2)))
     d_centroid = float(np.mean(along_px / (r_true * np.sin(phase))) * 3 * math.pi / 4)
+    # the centroid's offset law along = c rho sin(a), least squares over the frames (the
+    # filter's silhouette_offset, module step 4c)
+    x_c = r_true * np.sin(phase)
+    c_fit = float(x_c @ along_px / (x_c @ x_c))
     ref = TrnFilterOptions(reference_radius_px=float(r_true[ca]),
                            reference_phase=float(phase[ca]), limb_blur_px=max(w_fit, 0.0),
                            terminator_shift=max(d_fit, 0.0), silhouette_scaling=scaling)
@@ -232,6 +236,22 @@ def calibrate(dry_run: bool = False, scaling: str = "constant") -> dict:
            "bias_time_fits_s": taus, "bias_white_part": white, "bias_lag1_autocorrelation": lag1,
            "bias_mean": {"along_px": float(along.mean()), "across_px": float(across.mean()),
                          "radius_fraction": float(dr.mean())}}
+    # 3a the residual after the deterministic offset (silhouette_offset: the fitted laws put
+    # into the predicted measurement); the bias states then carry only this
+    along_o = along_px - c_fit * x_c
+    dr_o = dr_raw - A2 @ [ref.limb_blur_px, ref.terminator_shift]
+    taus_o = {"along": gauss_markov_time(along_o, dt), "radius": gauss_markov_time(dr_o, dt)}
+    offset = {"centroid_offset_fraction": c_fit,
+              "centroid_model_sigma_px": float(np.sqrt(np.mean(along_o**2 + across_px**2) / 2)),
+              "radius_model_fraction": float(np.sqrt(np.mean(dr_o**2))),
+              "centroid_sun_share": float(np.mean(along_o**2)
+                                          / (np.mean(along_o**2) + np.mean(across_px**2))),
+              "silhouette_bias_time_s": min(taus_o.values()), "bias_time_fits_s": taus_o,
+              "bias_mean": {"along_px": float(along_o.mean()),
+                            "radius_fraction": float(dr_o.mean())},
+              "along_px_first_last": [float(along_o[0]), float(along_o[-1])],
+              "radius_fraction_first_last": [float(dr_o[0]), float(dr_o[-1])]}
+    out["silhouette_offset"] = offset
     print(json.dumps(out, indent=1))
     # 3 the calibration fly-by navigated with these values (reported, not tuned on: raising
     # the silhouette or feature terms by up to 16x leaves its mean NEES near 40; the
@@ -250,6 +270,17 @@ def calibrate(dry_run: bool = False, scaling: str = "constant") -> dict:
     lp = flyby_closed_loop(sim, RUNS, renders=renders, front_end=fe, filter_options=fo)
     out["calibration_nees_mean"] = float(lp.summary["nees_mean"])
     out["calibration_ca_error_pct_range_median"] = float(lp.summary["ca_error_pct_range_median"])
+    # ... and with the offset in the measurement model, the residual sigmas on the states
+    fo_o = dataclasses.replace(
+        fo, silhouette_offset=True, centroid_offset_fraction=c_fit,
+        centroid_model_sigma_px=offset["centroid_model_sigma_px"],
+        radius_model_fraction=offset["radius_model_fraction"],
+        centroid_sun_share=offset["centroid_sun_share"],
+        silhouette_bias_time=offset["silhouette_bias_time_s"])
+    lo = flyby_closed_loop(sim, RUNS, renders=renders, front_end=fe, filter_options=fo_o)
+    offset["calibration_nees_mean"] = float(lo.summary["nees_mean"])
+    offset["calibration_ca_error_pct_range_median"] = float(
+        lo.summary["ca_error_pct_range_median"])
     out["max_track_turn_deg"] = math.degrees(fe.max_track_turn)
     out["calibration_flyby"] = CALIBRATION
     out["runs"] = RUNS
