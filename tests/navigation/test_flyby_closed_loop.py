@@ -232,6 +232,13 @@ def test_defaults_are_the_packaged_calibration():
     assert (si.silhouette_bias_time, si.centroid_sun_share) == (
         fd.silhouette_bias_time, fd.centroid_sun_share)
     assert cal["calibration_flyby"]["seed"] != scoring_scenario().seed
+    # the deterministic silhouette offset (filter step 4c): its centroid law fitted on the same
+    # pass, the radius's terms the ones above; default off (docs/navigation.md)
+    off = cal["silhouette_offset"]
+    assert fo.silhouette_centroid_offset_fraction == pytest.approx(
+        off["centroid_offset_fraction"], rel=0.05)
+    assert fo.options().centroid_offset_fraction == fo.silhouette_centroid_offset_fraction
+    assert not fo.silhouette_offset and not fd.silhouette_offset
 
 
 def test_silhouette_bias_keys_reach_the_filter_options():

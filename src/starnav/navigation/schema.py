@@ -281,7 +281,7 @@ class TrnFilterConfig(StrictModel):
         "centroid offset law below, the radius's limb-blur and terminator terms) into the "
         "predicted measurement; the bias states then carry the residual (filter step 4c)")
     silhouette_centroid_offset_fraction: Annotated[float, Field(gt=-0.5, lt=0.5)] = Field(
-        0.032, description="lit-centroid offset along the Sun's image direction over apparent "
+        0.033, description="lit-centroid offset along the Sun's image direction over apparent "
         "radius x sin(phase) [-] (calibrated; used with silhouette_offset)")
     use_centroid: bool = Field(True, description="use the lit silhouette's centroid")
     use_radius: bool = Field(True, description="use the lit silhouette's apparent radius")
