@@ -36,6 +36,12 @@ body-fixed points through :class:`~starnav.navigation.trn.truth.FeatureTruthBook
    (``limb_blur_px``, ``terminator_shift_deg``). With ``--scaling geometry`` the sigmas and
    correlation time are those of the error series divided by the law's factors (the filter's
    ``silhouette_scaling: geometry``); by default (``constant``) of the raw series.
+   ``silhouette_offset`` (the filter's step 4c, the same laws put into the predicted
+   measurement): the centroid law's coefficient ``c`` (least squares of the along-Sun error on
+   ``rho sin(phase)``), and the *residual* after the laws, twice: in sample (the laws fitted
+   on the whole pass) and out of sample (``cross_validated``: fitted on the frames before CA,
+   measured on those after, and vice versa), each with its sigmas, share and correlation time
+   and the calibration fly-by's NEES navigated with them.
 4. The calibration fly-by navigated with the values, its mean NEES and CA error recorded.
 
 Calibration fly-by: Itokawa, 256 x 256 px, 30 mm focal length, 4 spp, CA 6 km at 0.6 km/s,

@@ -279,7 +279,8 @@ class TrnFilterConfig(StrictModel):
     silhouette_offset: bool = Field(
         False, description="put the deterministic part of the silhouette's model error (the "
         "centroid offset law below, the radius's limb-blur and terminator terms) into the "
-        "predicted measurement; the bias states then carry the residual (filter step 4c)")
+        "predicted measurement; the bias states then carry the residual (filter step 4c; off: "
+        "measured worse at phase 70 deg, docs/navigation.md)")
     silhouette_centroid_offset_fraction: Annotated[float, Field(gt=-0.5, lt=0.5)] = Field(
         0.033, description="lit-centroid offset along the Sun's image direction over apparent "
         "radius x sin(phase) [-] (calibrated; used with silhouette_offset)")
