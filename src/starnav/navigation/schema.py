@@ -276,6 +276,14 @@ class TrnFilterConfig(StrictModel):
     feature_correlation: Annotated[float, Field(ge=0, lt=1)] = Field(
         0.31, description="correlation of the tracked features' errors within a frame [-]: N "
         "features count as N / (1 + (N - 1) c) independent ones (calibrated)")
+    silhouette_offset: bool = Field(
+        False, description="put the deterministic part of the silhouette's model error (the "
+        "centroid offset law below, the radius's limb-blur and terminator terms) into the "
+        "predicted measurement; the bias states then carry the residual (filter step 4c; off: "
+        "measured worse at phase 70 deg, docs/navigation.md)")
+    silhouette_centroid_offset_fraction: Annotated[float, Field(gt=-0.5, lt=0.5)] = Field(
+        0.033, description="lit-centroid offset along the Sun's image direction over apparent "
+        "radius x sin(phase) [-] (calibrated; used with silhouette_offset)")
     use_centroid: bool = Field(True, description="use the lit silhouette's centroid")
     use_radius: bool = Field(True, description="use the lit silhouette's apparent radius")
     initial_position_sigma_km: PositiveFloat = Field(
@@ -299,7 +307,9 @@ class TrnFilterConfig(StrictModel):
             reference_phase=si.silhouette_reference_phase,
             limb_blur_px=si.silhouette_limb_blur_px,
             terminator_shift=si.silhouette_terminator_shift,
-            feature_correlation=si.feature_correlation)
+            feature_correlation=si.feature_correlation,
+            silhouette_offset=si.silhouette_offset,
+            centroid_offset_fraction=si.silhouette_centroid_offset_fraction)
 
     def initial_covariance(self) -> NDArray[np.float64]:
         """The diagonal initial covariance (6, 6) [m^2, m^2/s^2]."""
