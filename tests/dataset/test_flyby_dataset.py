@@ -22,29 +22,20 @@ from typer.testing import CliRunner
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 
 from starnav.cli.main import app
-from starnav.config import scenario_from_dict, scenario_to_dict
+from starnav.config import scenario_to_dict
 from starnav.dataset import open as open_dataset
 from starnav.dataset import read_manifest
 from starnav.dataset.flyby import read_flyby
 from starnav.errors import DataFileError
 from starnav.simulate import Simulator
 from starnav.simulate.flyby import flyby_closed_loop, render_flyby
+from tests.flyby_scenarios import tiny_flyby
 
 ENV = {"COLUMNS": "50"}
 #: metrics.json keys that are wall times or memory (not results of the closed loop).
 MACHINE_KEYS = ("timing_s_per_frame", "tracker_budget")
 
 
-def tiny():
-    return scenario_from_dict({
-        "camera": {"width": 128, "height": 128, "focal_length_mm": 15.0},
-        "render": {"spp": 2},
-        "target": {"kind": "shape_model", "model": "itokawa"},
-        "trajectory": {"source": "flyby", "cadence_s": 0.2, "frames": 3,
-                       "flyby": {"closest_approach_km": 5.0, "v_inf_km_s": 0.5,
-                                 "phase_at_ca_deg": 60.0, "start_s": -0.2}},
-        "pointing": {"moon_offset": "fixed", "roll": "fixed"},
-        "detector": {"exposure_time_s": 3e-5}, "seed": 3})
 
 
 def invoke(*args: str):
@@ -55,7 +46,7 @@ def invoke(*args: str):
 def made(tmp_path_factory):
     root = tmp_path_factory.mktemp("fbds")
     sc = root / "fb.yaml"
-    sc.write_text(yaml.safe_dump(scenario_to_dict(tiny())))
+    sc.write_text(yaml.safe_dump(scenario_to_dict(tiny_flyby())))
     ds = root / "ds"
     res = invoke("dataset", str(sc), "--out", str(ds))
     assert res.exit_code == 0, res.output
@@ -68,7 +59,7 @@ def test_the_dataset_is_marked_fly_by_and_holds_radiance_and_truth_only(made):
     man = read_manifest(ds)
     assert man["target_kind"] == "flyby" and man["complete"]
     assert man["exposures"] == [] and man["options"]["windows"] == "closed-loop"
-    sim = Simulator(tiny())
+    sim = Simulator(tiny_flyby())
     assert man["flyby"]["epoch_ca_tdb_s"] == sim.scene.flyby.epoch_ca
     assert len(man["frames"]) == 3
     for e in man["frames"]:
@@ -84,7 +75,7 @@ def test_frames_read_back_are_the_renders(made):
     AOVs (hit mask, body-fixed coordinates) included."""
     _, _, ds, _ = made
     sim, back = read_flyby(ds)
-    renders, _ = render_flyby(Simulator(tiny()))
+    renders, _ = render_flyby(Simulator(tiny_flyby()))
     for (g0, i0), (g1, i1) in zip(renders, back, strict=True):
         assert g1.index == g0.index and g1.epoch_tdb == g0.epoch_tdb
         np.testing.assert_array_equal(g1.camera_position, g0.camera_position)
@@ -159,7 +150,7 @@ def test_navigate_dataset_renders_nothing(made, monkeypatch):
     from starnav.dataset.flyby import navigate_flyby_dataset
 
     root, _, ds, _ = made
-    ref = flyby_closed_loop(Simulator(tiny()), 1).runs[0].metrics
+    ref = flyby_closed_loop(Simulator(tiny_flyby()), 1).runs[0].metrics
 
     def no_render(self, index):
         raise AssertionError(f"frame {index} rendered")

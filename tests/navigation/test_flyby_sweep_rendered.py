@@ -16,7 +16,6 @@ import pytest
 
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 
-from starnav.config import scenario_from_dict
 from starnav.errors import ConfigError
 from starnav.navigation.metrics import chi2_band
 from starnav.simulate import Simulator
@@ -26,25 +25,16 @@ from starnav.simulate.flyby import (
     parse_sweep_axes,
     write_flyby_sweep,
 )
+from tests.flyby_scenarios import tiny_flyby
 
 PHASES = [40.0, 70.0]
 
 
-def base(phase: float = 60.0):
-    return scenario_from_dict({
-        "camera": {"width": 128, "height": 128, "focal_length_mm": 15.0},
-        "render": {"spp": 2},
-        "target": {"kind": "shape_model", "model": "itokawa"},
-        "trajectory": {"source": "flyby", "cadence_s": 0.2, "frames": 3,
-                       "flyby": {"closest_approach_km": 5.0, "v_inf_km_s": 0.5,
-                                 "phase_at_ca_deg": phase, "start_s": -0.2}},
-        "pointing": {"moon_offset": "fixed", "roll": "fixed"},
-        "detector": {"exposure_time_s": 3e-5}, "seed": 3})
 
 
 @pytest.fixture(scope="module")
 def rows():
-    return flyby_rendered_sweep(base(), {"phase_at_ca_deg": PHASES}, runs=2)
+    return flyby_rendered_sweep(tiny_flyby(), {"phase_at_ca_deg": PHASES}, runs=2)
 
 
 def test_one_row_per_point_with_its_own_closed_loop(rows):
@@ -52,7 +42,7 @@ def test_one_row_per_point_with_its_own_closed_loop(rows):
     scenario (the same seeded runs as a direct call); NEES band of a 2-run mean."""
     assert [(r["v_inf_km_s"], r["closest_approach_km"], r["phase_at_ca_deg"]) for r in rows] \
         == [(0.5, 5.0, p) for p in PHASES]
-    direct = flyby_closed_loop(Simulator(base(PHASES[1])), 2)
+    direct = flyby_closed_loop(Simulator(tiny_flyby(PHASES[1])), 2)
     pct = [r.metrics.ca_position_error_pct_range for r in direct.runs]
     assert rows[1]["ca_error_pct_range_median"] == pytest.approx(np.median(pct), rel=1e-12)
     assert rows[1]["ca_error_pct_range_max"] == pytest.approx(max(pct), rel=1e-12)
@@ -88,7 +78,7 @@ def test_bad_axes_are_refused_before_rendering():
     assert parse_sweep_axes(["trajectory.flyby.v_inf_km_s=0.4, 0.6"]) == {
         "v_inf_km_s": [0.4, 0.6]}
     with pytest.raises(ConfigError, match="sweep point.*phase_at_ca_deg"):
-        flyby_rendered_sweep(base(), {"phase_at_ca_deg": [40.0, 200.0]}, runs=1)
+        flyby_rendered_sweep(tiny_flyby(), {"phase_at_ca_deg": [40.0, 200.0]}, runs=1)
 
 
 def test_cli_navigate_sweep(tmp_path):
@@ -102,7 +92,7 @@ def test_cli_navigate_sweep(tmp_path):
 
     env = {"COLUMNS": "50"}
     sc = tmp_path / "fb.yaml"
-    sc.write_text(yaml.safe_dump(scenario_to_dict(base())))
+    sc.write_text(yaml.safe_dump(scenario_to_dict(tiny_flyby())))
     out = tmp_path / "out"
     res = CliRunner().invoke(app, ["navigate", str(sc), "--out", str(out), "--runs", "1",
                                    "--sweep", "v_inf_km_s=0.6", "--no-plots"], env=env)
@@ -135,7 +125,7 @@ def test_cli_sweep_of_a_flyby_runs_the_points_on_the_batch_runner(rows, tmp_path
 
     env = {"COLUMNS": "50"}
     sc = tmp_path / "fb.yaml"
-    sc.write_text(yaml.safe_dump(scenario_to_dict(base())))
+    sc.write_text(yaml.safe_dump(scenario_to_dict(tiny_flyby())))
     out = tmp_path / "sw"
     args = ["sweep", str(sc), "--grid", "phase_at_ca_deg=40,70", "--runs", "2",
             "--workers", "0", "--out", str(out)]
