@@ -188,41 +188,45 @@ def body_exclusions(centre_px: ArrayLike, radius_px: float, camera_centre_px: Ar
     return tuple(out)
 
 
+def _patch(img_e: FloatArray, u: float, v: float, s: float, h: int):
+    """The (2h+1)^2 patch of ``img_e`` about the pixel nearest ``(u, v)``, its pixel
+    coordinates' offsets from ``(u, v)`` and the Gaussian weights of width ``s``; None where
+    the patch leaves the frame."""
+    H, W = img_e.shape
+    iu, iv = int(round(u)), int(round(v))
+    r0, r1, c0, c1 = iv - h, iv + h + 1, iu - h, iu + h + 1
+    if r0 < 0 or c0 < 0 or r1 > H or c1 > W:
+        return None
+    yy, xx = np.mgrid[r0:r1, c0:c1]
+    dx, dy = xx - u, yy - v
+    return img_e[r0:r1, c0:c1], dx, dy, np.exp(-0.5 * (dx * dx + dy * dy) / (s * s))
+
+
 def iwc(img_e: FloatArray, u0: float, v0: float, s: float, var_b: float,
         max_iterations: int = 20) -> tuple[float, float, float, float, float, bool]:
     """Iteratively weighted centroid of the background-subtracted ``img_e`` [e-] from
     ``(u0, v0)`` [px] (module steps 4-5). Returns ``(u, v, sigma_u, sigma_v, flux, ok)``."""
-    H, W = img_e.shape
     h = int(math.ceil(4.0 * s))
     u, v = float(u0), float(v0)
     for _ in range(max_iterations):
-        iu, iv = int(round(u)), int(round(v))
-        r0, r1, c0, c1 = iv - h, iv + h + 1, iu - h, iu + h + 1
-        if r0 < 0 or c0 < 0 or r1 > H or c1 > W:
+        patch = _patch(img_e, u, v, s, h)
+        if patch is None:
             return u, v, math.inf, math.inf, 0.0, False
-        I = img_e[r0:r1, c0:c1]
-        yy, xx = np.mgrid[r0:r1, c0:c1]
-        dx, dy = xx - u, yy - v
-        w = np.exp(-0.5 * (dx * dx + dy * dy) / (s * s))
+        I, dx, dy, w = patch
         wi = w * I
         sw = float(wi.sum())
         if sw <= 0:
             return u, v, math.inf, math.inf, 0.0, False
-        un, vn = float((wi * xx).sum() / sw), float((wi * yy).sum() / sw)
-        moved = math.hypot(un - u, vn - v)
-        u, v = un, vn
-        if moved < 1e-4:
+        du, dv = float((wi * dx).sum() / sw), float((wi * dy).sum() / sw)
+        u, v = u + du, v + dv
+        if math.hypot(du, dv) < 1e-4:
             break
     if abs(u - u0) > h or abs(v - v0) > h:
         return u, v, math.inf, math.inf, 0.0, False
-    iu, iv = int(round(u)), int(round(v))
-    r0, r1, c0, c1 = iv - h, iv + h + 1, iu - h, iu + h + 1
-    if r0 < 0 or c0 < 0 or r1 > H or c1 > W:
+    patch = _patch(img_e, u, v, s, h)
+    if patch is None:
         return u, v, math.inf, math.inf, 0.0, False
-    I = img_e[r0:r1, c0:c1]
-    yy, xx = np.mgrid[r0:r1, c0:c1]
-    dx, dy = xx - u, yy - v
-    w = np.exp(-0.5 * (dx * dx + dy * dy) / (s * s))
+    I, dx, dy, w = patch
     var = np.maximum(I, 0.0) + var_b
     Du = float((w * I * (1.0 - dx * dx / (s * s))).sum())
     Dv = float((w * I * (1.0 - dy * dy / (s * s))).sum())
