@@ -266,18 +266,20 @@ def fit_circle_kasa(uv: ArrayLike) -> tuple[FloatArray, float]:
     if p.shape[0] < 3:
         raise LimbNotFoundError(f"a circle needs >= 3 points, got {p.shape[0]}",
                                 "degenerate-arc")
-    m = p.mean(axis=0)
-    q = p - m
-    A = np.column_stack([q, np.ones(q.shape[0])])
-    b = np.sum(q * q, axis=1)
-    # the normal equations (3 x 3, well conditioned: the points are centred, so the constant
-    # column is orthogonal to the others); SVD least squares only when they are singular
-    N = A.T @ A
-    Suu, Svv, Suv = N[0, 0], N[1, 1], N[0, 1]
+    u, v = p.T.copy()   # contiguous coordinates: every sum below is one dot product
+    m = np.array([u.mean(), v.mean()])
+    u -= m[0]
+    v -= m[1]
+    b = u * u + v * v
+    # the normal equations of [u, v, 1] x = b (3 x 3, well conditioned: the points are
+    # centred, so the constant column is orthogonal to the others); SVD least squares only
+    # when they are singular
+    Suu, Svv, Suv, Su, Sv = u @ u, v @ v, u @ v, u.sum(), v.sum()
+    N = np.array([[Suu, Suv, Su], [Suv, Svv, Sv], [Su, Sv, float(u.size)]])
     if Suu * Svv - Suv * Suv > 1e-12 * Suu * Svv:
-        sol = np.linalg.solve(N, A.T @ b)
+        sol = np.linalg.solve(N, np.array([u @ b, v @ b, b.sum()]))
     else:   # collinear points: the minimum-norm solution, rejected below if it is no circle
-        sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+        sol, *_ = np.linalg.lstsq(np.column_stack([u, v, np.ones(u.size)]), b, rcond=None)
     c = sol[:2] / 2.0
     r2 = sol[2] + c @ c
     if not np.isfinite(r2) or r2 <= 0:
@@ -288,8 +290,11 @@ def fit_circle_kasa(uv: ArrayLike) -> tuple[FloatArray, float]:
 
 def _robust_circle(uv: FloatArray) -> tuple[FloatArray, float]:
     c, r = fit_circle_kasa(uv)
-    res = np.abs(np.linalg.norm(uv - c, axis=1) - r)
-    mad = float(np.median(res)) * 1.4826 + 0.5
+    du, dv = uv[:, 0] - c[0], uv[:, 1] - c[1]
+    res = np.abs(np.sqrt(du * du + dv * dv) - r)
+    n = res.size   # the median, as np.median (the middle value, or the mean of the two)
+    part = np.partition(res, [(n - 1) // 2, n // 2])
+    mad = 0.5 * (part[(n - 1) // 2] + part[n // 2]) * 1.4826 + 0.5
     keep = res <= 3.0 * mad
     if 3 <= keep.sum() < len(uv):
         c, r = fit_circle_kasa(uv[keep])
@@ -343,7 +348,8 @@ def _column_scan(row: NDArray, c0: NDArray, c1: NDArray, width: int,
     return u, ext[u]
 
 
-_SCAN_DIRECTIONS = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+#: Outward direction of each scan (+u, -u, +v, -v): the image axis and its sign.
+_SCAN_SIGN = np.array([1.0, -1.0, 1.0, -1.0])
 
 
 def _sector_and_lit(cand: FloatArray, scan: NDArray, centre: FloatArray, d: FloatArray,
@@ -351,10 +357,10 @@ def _sector_and_lit(cand: FloatArray, scan: NDArray, centre: FloatArray, d: Floa
     """Keep a candidate if it lies in its scan's sector (within 45 deg of the scan direction,
     seen from ``centre``) and its outward direction faces the Sun (``n . d >= min_cos``)."""
     rel = cand - centre
-    dist = np.linalg.norm(rel, axis=1)
+    dist = np.sqrt(rel[:, 0] * rel[:, 0] + rel[:, 1] * rel[:, 1])
     with np.errstate(invalid="ignore", divide="ignore"):
         n = rel / dist[:, None]
-    along = np.sum(n * _SCAN_DIRECTIONS[scan], axis=1)
+    along = np.where(scan < 2, n[:, 0], n[:, 1]) * _SCAN_SIGN[scan]   # n . scan direction
     return (dist > 0) & (along >= math.sqrt(0.5) - 1e-12) & (n @ d >= min_cos)
 
 
@@ -448,8 +454,8 @@ def limb_points_from_segments(
     order = np.argsort(np.mod(ang - a0, 2.0 * np.pi))
     pts = pts[order]
     if pts.shape[0] > opt.max_points:
-        idx = np.unique(np.round(np.linspace(0, pts.shape[0] - 1, opt.max_points)).astype(int))
-        pts = pts[idx]
+        # evenly spaced, more than 1 apart: distinct once rounded
+        pts = pts[np.round(np.linspace(0, pts.shape[0] - 1, opt.max_points)).astype(int)]
     if opt.point_offset_px != 0.0:
         rel = pts - centre
         pts = pts - opt.point_offset_px * rel / np.linalg.norm(rel, axis=1)[:, None]
