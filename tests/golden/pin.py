@@ -92,6 +92,20 @@ Re-pinned (each time the only difference, explained):
   7.1 -> 12.1 km (within their 3-sigma), NEES means 17.1 -> 19.5 and 11.3 -> 15.1. The exact
   meshes of two neighbouring frames differed as much before this change
   (``tests/renderer/test_sequence_reuse.py``); ``cache_quantum_px: 0`` gives the old pins.
+* 2026-11-26, the refinement's fit (issue 18, whole chain within 5 ms): the detector-psf
+  model's step and ramp are the exact integrals of the linearly interpolated line spread
+  function (quadratic between the table's 0.02 px samples instead of linear: up to 2.5e-5 of
+  the step, and the cost smooth in the edge's position), and the fit is Levenberg-Marquardt
+  on the reduced (amplitudes solved) normal equations with a secant rescaling of its steps,
+  its last step of < 1e-4 px taken unevaluated and a rejected step's parabola as the
+  stopping test (refine module, step 4). The refined points move by ~1e-4 px (on
+  ``tests/navigation/test_refine_regression.py``'s frames <= 9e-5 px; saturated windows,
+  whose old cost was rough, by up to 2.2e-3 px), on this 128 px camera's ~15 px disc
+  ``limb_bias_px`` 0.025361 -> 0.025426 and 0.026928 -> 0.027010 px, so the fixes by
+  1.1-1.6e-5 relative at 0.015 ms (0.8-1.2 km at 79 000 km; their 1-sigma 18-67 km) and
+  2.8-3.3e-5 at 7.7 ms, the final position errors 74.31 -> 74.03 km and 12.13 -> 11.85 km
+  (3-sigma 255 km), NEES means 19.501 -> 19.509 and 15.074 -> 15.091. Images, dataset and
+  counts unchanged.
 """
 
 from __future__ import annotations

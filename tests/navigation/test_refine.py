@@ -151,6 +151,94 @@ def test_edge_tables_of_a_gaussian_blur_are_the_closed_form():
     assert b0.tolist() == [1.0, 0.0] and b1[0] == pytest.approx(20.0) and b1[1] == 0.0
 
 
+def test_edge_table_values_are_the_integrals_of_the_interpolated_lsf():
+    """``b0`` is the integral of the linearly interpolated line spread function and ``b1``
+    that of ``b0`` (to ``h^2 max|lsf'| / 4``, the trapezoid rule of the table's own
+    construction), so the window model is smooth in the edge's position and the Jacobian
+    of the fit (``-lsf``, ``-b0``) is its derivative: central differences against them,
+    within steps and exactly on samples."""
+    from starnav.navigation.refine import EdgeTables
+
+    s, h = 0.9, 0.02
+    x = np.arange(-600, 601) * h
+    lsf = np.exp(-0.5 * (x / s) ** 2) / (s * math.sqrt(2 * math.pi))
+    t = EdgeTables.from_lsf(x, lsf)
+    d = np.concatenate([np.linspace(-5, 5, 1001) + 0.0037, x[200:1000:37]])
+    eps = 1e-6
+    b0p, b1p, _ = t.evaluate(d + eps)
+    b0m, b1m, _ = t.evaluate(d - eps)
+    b0, _, lf = t.evaluate(d)
+    assert np.allclose((b0p - b0m) / (2 * eps), -lf, rtol=0, atol=1e-8)
+    bound = h**2 * np.abs(np.diff(lsf) / h).max() / 4
+    assert np.allclose((b1p - b1m) / (2 * eps), -b0, rtol=0, atol=1.01 * bound + 1e-8)
+
+
+def test_window_model_gradient_and_normal_matrix_against_finite_differences(monkeypatch):
+    """The detector-psf window model's reduced Gauss-Newton system (refine module step 4):
+    its gradient ``g`` is minus half the derivative of the cost with the amplitudes solved
+    for (central differences in the edge's offset and tilt), and its normal matrix ``S`` is
+    ``J_p^T J_p``, ``J`` the weighted model's Jacobian at fixed amplitudes (central
+    differences) and ``J_p`` its part orthogonal to the basis functions (the Schur
+    complement of the amplitudes). The gradient takes the ramp's derivative as ``-b0``,
+    exact to ``h^2 max|lsf'| / 4`` (previous test): ``g`` may differ from the differences
+    by that times the ramp amplitude and ``sum |w r dd/dx|``, no more."""
+    from starnav.detector.schema import AberrationPsfConfig
+    from starnav.navigation import refine
+    from starnav.navigation.refine import EdgeSpread
+
+    cam, dn, noise, c, R = _detector_disc(1500.0, 0)
+    opt = RefineOptions(edge_model="detector-psf", spread=EdgeSpread(AberrationPsfConfig()),
+                        noise=noise)
+    ang = np.linspace(0, 2 * math.pi, 16, endpoint=False) + math.radians(11.25)
+    wins = cut_windows(dn, plan_windows(c + R * np.column_stack([np.cos(ang), np.sin(ang)]),
+                                        c, shape=dn.shape, options=opt))
+    seen = []
+    real = refine._fit_windows
+
+    def spy(*args, **kwargs):
+        seen.append(args)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(refine, "_fit_windows", spy)
+    refine_limb(wins, c + 0.3, R + 0.4, options=opt, camera=cam)
+    y, mask, rho, t_arc, radius, _, tables = seen[0][:7]
+    model = refine._TableModel(y, mask, rho, t_arc, radius,
+                               refine._StackedTables(tables, radius), ramp=True)
+    sw = 1.0 / np.sqrt(noise.variance_dn2(y))   # any positive weights
+    model.weigh(sw)
+    K, p = y.shape[0], model.p
+    X = np.zeros((K, 3))
+    X[:, 0], X[:, 1] = np.linspace(-0.4, 0.4, K), 0.02
+    Z = model.evaluate(slice(None), X)
+    lin, S, g = Z[:, :p], Z[:, p + 1:p + 5].reshape(K, 2, 2), Z[:, p + 5:]
+
+    def weighted_model(Xe, ramp=1.0):
+        b0, b1, _ = model._values(slice(None), Xe)
+        return sw * (lin[:, :1] + (lin[:, 1:2] + lin[:, 3:4] * t_arc) * b0
+                     + ramp * lin[:, 2:3] * b1)
+
+    b0, b1, _ = model._values(slice(None), X)
+    Bw = np.stack([sw, sw * b0, sw * b1, sw * t_arc * b0], axis=1)
+    wr = np.abs(sw * (sw * y - weighted_model(X)))
+    x = tables[0].x
+    ramp_err = (np.abs(lin[:, 2]) * (x[1] - x[0]) ** 2
+                * max(np.abs(np.diff(t.lsf)).max() / (x[1] - x[0]) for t in tables) / 4)
+    J = np.empty((K, 2, y.shape[1]))
+    for i, eps in ((0, 1e-5), (1, 1e-6)):
+        Xp, Xm = X.copy(), X.copy()
+        Xp[:, i] += eps
+        Xm[:, i] -= eps
+        dcost = (model.evaluate(slice(None), Xp)[:, p] - model.evaluate(slice(None), Xm)[:, p])
+        bound = ramp_err * (wr * np.abs(t_arc) ** i).sum(axis=1) + 1e-6 * np.abs(g[:, i])
+        assert np.all(np.abs(g[:, i] + dcost / (4 * eps)) <= bound)
+        # (S holds the step's terms; the ramp's, a basis function's derivative, projects out)
+        J[:, i] = (weighted_model(Xp, 0.0) - weighted_model(Xm, 0.0)) / (2 * eps)
+    A = Bw @ Bw.transpose(0, 2, 1)
+    Jp = J - np.linalg.solve(A, Bw @ J.transpose(0, 2, 1)).transpose(0, 2, 1) @ Bw
+    np.testing.assert_allclose(S, Jp @ Jp.transpose(0, 2, 1), rtol=1e-6,
+                               atol=1e-9 * np.abs(S).max())
+
+
 def _detector_disc(amplitude_dn: float, seed: int, radius: float = 62.3,
                    centre=(712.4, 331.7)):
     """A uniform disc (the Moon at ~80 000 km, off axis) through the detector's own optics

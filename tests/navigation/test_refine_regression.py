@@ -2,14 +2,24 @@
 
 Seeded regression test (exact frames, pinned outputs): ``data/refine_pins.json`` holds the
 refined points, their sigmas and the fix of a few frames as the per-window Levenberg-Marquardt
-implementation (commit 7e3f772) gave them. The batched Gauss-Newton must agree to 1e-3 px in
-position, 1 % in sigma and 1e-6 relative in the fix position: both minimise the same weighted
-cost, and the old fit stopped within 1e-4 px of its minimum, so anything beyond that is a
-different minimum, not rounding. Cases: the benchmark's 20 000 km frame (600 limb points, 16
-windows, 0.8 px Gaussian PSF) refined with the Gaussian model of fitted width, with a known
-width and noise, and with the detector-psf model, noise model and packaged calibration (the
-pipeline's configuration); a disc through the detector's own optics, well exposed and
-saturated (detector-psf, the saturated windows fitted without the ramp).
+implementation (commit 7e3f772) gave them. The batched fit must agree to 1e-3 px in position,
+1 % in sigma and 1e-6 relative in the fix position: both minimise the same weighted cost, and
+the old fit stopped within 1e-4 px of its minimum, so anything beyond that is a different
+minimum, not rounding. Cases: the benchmark's 20 000 km frame (600 limb points, 16 windows,
+0.8 px Gaussian PSF) refined with the Gaussian model of fitted width, with a known width and
+noise, and with the detector-psf model, noise model and packaged calibration (the pipeline's
+configuration); a disc through the detector's own optics, well exposed and saturated
+(detector-psf, the saturated windows fitted without the ramp).
+
+Saturated windows (2026-11-26): the detector-psf model's step and ramp are now the exact
+integrals of the linearly interpolated line spread function (refine module, step 3b), so
+the cost is smooth in the edge's position. The pinned fit interpolated them linearly too,
+which with a step 5x the full scale made a saturated window's cost rough at the 1e-3 px level
+(a kink wherever a pixel crosses a table sample, every ~2e-4 px; its minimum 2.4e-3 px from
+the Gauss-Newton stationary point on window 8), and it stopped wherever its steps were first
+rejected: window 3's pinned point is 2.2e-3 px from the minimum of the smooth cost. A
+saturated point is therefore held to 0.1 of its fit sigma (0.010-0.043 px on this disc;
+measured: at most 0.06 of it), the others to 1e-3 px.
 
 Re-pin (only after an explained, legitimate change)::
 
@@ -44,6 +54,8 @@ from starnav.navigation.synthetic import pointing_geometry, synthetic_frame
 PINS = Path(__file__).with_name("data") / "refine_pins.json"
 #: Agreement of the refined points [px], their sigmas [relative] and the fix [relative].
 POINT_TOL_PX = 1e-3
+#: Agreement of the points of saturated windows [fraction of their fit sigma] (docstring).
+SATURATED_POINT_TOL = 0.1
 SIGMA_TOL = 0.01
 FIX_TOL = 1e-6
 
@@ -160,7 +172,9 @@ def test_refined_points_and_sigmas_match_the_per_window_fit(measured, pins, name
     assert got["saturated"] == want["saturated"]
     uv, uv0 = np.asarray(got["uv"]), np.asarray(want["uv"])
     assert uv.shape == uv0.shape and uv.shape[0] >= 12
-    assert np.max(np.hypot(*(uv - uv0).T)) < POINT_TOL_PX
+    moved, sat = np.hypot(*(uv - uv0).T), np.asarray(want["saturated"], bool)
+    assert np.all(moved[~sat] < POINT_TOL_PX)
+    assert np.all(moved[sat] < SATURATED_POINT_TOL * np.asarray(want["fit_sigma_px"])[sat])
     np.testing.assert_allclose(got["sigma_px"], want["sigma_px"], rtol=SIGMA_TOL)
     # the fit's own sigma (before the model errors and the floor are added)
     np.testing.assert_allclose(got["fit_sigma_px"], want["fit_sigma_px"], rtol=SIGMA_TOL)
