@@ -5,6 +5,7 @@ whole VBN chain in < 650 ms and < 900 kB (seed paper, PIL). Issue 18: the subpix
 16 windows and the whole chain with it within the same 5 ms. Run::
 
     .venv/bin/python benchmarks/navigation.py [--repeat 200] [--json out.json]
+    .venv/bin/python benchmarks/navigation.py --against 4a236fa [--rounds 8] [--repeat 40]
 
 Frames are analytic (starnav.navigation.synthetic): a well-exposed Lambert Moon with a 0.8 px
 Gaussian PSF, thresholded at 10 % of the peak into segments. Cases: 20 000 km (more than 600
@@ -14,25 +15,37 @@ of starnav.scenes.dynamics (RK4 + STM, one 300 s step) and a Joseph update.
 
 The refinement runs as the navigate command configures it for a dataset (the detector's own
 blur, ``detector-psf``, the pixel noise model of the default detector settings, the packaged
-model-error calibration: two weighted passes), and, for comparison, with the Gaussian edge model
-of fitted width. ``chain`` is the chain without windows (pixel-level points, as before issue
-18); ``chain_with_refinement`` the same frame through the whole chain with its 16 windows.
+model-error calibration: an unweighted pass that sets the weights, then the weighted one), and,
+for comparison, with the Gaussian edge model of fitted width. ``chain`` is the chain without
+windows (pixel-level points, as before issue 18); ``chain_with_refinement`` the same frame
+through the whole chain with its 16 windows.
 
 Timings are wall-clock medians and 90th percentiles over ``--repeat`` runs after a warm-up,
 single process (note the machine's load: its cores are shared), with the median CPU time of
 the process next to them (it leaves out the time other jobs hold the core); memory is
 the peak traced Python heap (numpy buffers included) of one full chain step, measured in a
 separate traced pass (``tracemalloc`` slows the code it traces).
+
+``--against REF`` times the whole chain with refinement of this checkout and of the package
+at git revision ``REF`` (``src/starnav`` extracted to a temporary directory) interleaved: the
+two run alternately, ``--rounds`` times each, ``--repeat`` frames per run in a fresh process,
+so both see the same load; the medians and 90th percentiles are of all their frames.
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import math
 import os
+import subprocess
+import sys
+import tarfile
+import tempfile
 import time
 import tracemalloc
+from pathlib import Path
 
 import numpy as np
 
@@ -86,7 +99,10 @@ def navigate_refine_options() -> RefineOptions:
                          model_error_table=packaged_model_error())
 
 
-def bench_case(range_km: float, repeat: int, dyn: PointMassDynamics) -> dict:
+def _case(range_km: float, dyn: PointMassDynamics):
+    """The benchmark frame at ``range_km`` and its chain: ``(camera, geometry, frame, chain
+    options without windows, with them, chain_step(options))``; ``chain_step`` runs
+    ``process_frame`` and a 300 s EKF step."""
     cam = Camera.preset("aa-str")
     t0 = 8.0e8  # 2025-05-09, inside DE421
     moon = dyn.moon_state(t0)
@@ -97,11 +113,28 @@ def bench_case(range_km: float, repeat: int, dyn: PointMassDynamics) -> dict:
                           epoch_tdb=t0, moon_offset_px=(60.0, -40.0))
     frame = synthetic_frame(cam, g, supersample=4, psf_sigma_px=0.8, read_noise_dn=2.0,
                             rng=np.random.default_rng(0))
+    chain = ChainOptions(use_windows=False)
+    full = ChainOptions(refine=navigate_refine_options())
+    rng = np.random.default_rng(1)
+    x_true = moon + np.concatenate([g.camera_position, g.camera_velocity])
+    P0 = np.diag([100e3**2] * 3 + [1.0] * 3)
+
+    def chain_step(options: ChainOptions = chain):
+        ekf = NavigationEkf(dyn, dyn, t0 - 300.0, x_true, P0)
+        m = process_frame(frame, cam, options=options, rng=rng)
+        ekf.predict(t0)
+        ekf.update(m.position, m.covariance)
+        return m
+
+    return cam, g, frame, chain, full, chain_step
+
+
+def bench_case(range_km: float, repeat: int, dyn: PointMassDynamics) -> dict:
+    cam, g, frame, chain, full, chain_step = _case(range_km, dyn)
+    t0 = float(g.epoch_tdb)
     seg = frame.segments
     R = frame.R_cam_to_inertial_measured
-    chain = ChainOptions(use_windows=False)
-    refine_opt = navigate_refine_options()
-    full = ChainOptions(refine=refine_opt)
+    refine_opt = full.refine
     rng = np.random.default_rng(1)
 
     def limb():
@@ -111,7 +144,7 @@ def bench_case(range_km: float, repeat: int, dyn: PointMassDynamics) -> dict:
 
     lp = limb()
     rr = ransac_limb(lp.uv, cam, rng=rng)
-    x_true = moon + np.concatenate([g.camera_position, g.camera_velocity])
+    x_true = dyn.moon_state(t0) + np.concatenate([g.camera_position, g.camera_velocity])
     P0 = np.diag([100e3**2] * 3 + [1.0] * 3)
     m0 = process_frame(frame, cam, options=chain, rng=rng)
 
@@ -119,13 +152,6 @@ def bench_case(range_km: float, repeat: int, dyn: PointMassDynamics) -> dict:
         ekf = NavigationEkf(dyn, dyn, t0 - 300.0, x_true, P0)
         ekf.predict(t0)
         ekf.update(m0.position, m0.covariance)
-
-    def chain_step(options: ChainOptions = chain):
-        ekf = NavigationEkf(dyn, dyn, t0 - 300.0, x_true, P0)
-        m = process_frame(frame, cam, options=options, rng=rng)
-        ekf.predict(t0)
-        ekf.update(m.position, m.covariance)
-        return m
 
     mw = chain_step(full)
 
@@ -181,15 +207,87 @@ def bench_case(range_km: float, repeat: int, dyn: PointMassDynamics) -> dict:
     return out
 
 
+RANGES_KM = (20_000.0, 60_000.0)
+
+
+def chain_times(repeat: int) -> dict:
+    """Wall and CPU time [ms] of each of ``repeat`` whole chains with refinement (after a
+    warm-up of 5), per range."""
+    dyn = PointMassDynamics(step_s=300.0)
+    out = {}
+    for r in RANGES_KM:
+        *_, full, chain_step = _case(r, dyn)
+        for _ in range(5):
+            chain_step(full)
+        wall, cpu = [], []
+        for _ in range(repeat):
+            c, t = time.process_time(), time.perf_counter()
+            chain_step(full)
+            wall.append((time.perf_counter() - t) * 1e3)
+            cpu.append((time.process_time() - c) * 1e3)
+        out[f"{r:.0f}"] = {"wall": wall, "cpu": cpu}
+    return out
+
+
+def compare_against(ref: str, rounds: int, repeat: int) -> dict:
+    """The whole chain with refinement of this checkout and of git revision ``ref``, run
+    alternately (module docstring)."""
+    root = Path(__file__).resolve().parents[1]
+    archive = subprocess.run(["git", "-C", str(root), "archive", "--format=tar", ref,
+                              "src/starnav"], capture_output=True, check=True).stdout
+    with tempfile.TemporaryDirectory() as d:
+        with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+            tar.extractall(d, filter="data")
+        srcs = {ref: str(Path(d) / "src"), "this checkout": str(root / "src")}
+        runs: dict[str, dict[str, dict[str, list[float]]]] = {
+            k: {f"{r:.0f}": {"wall": [], "cpu": []} for r in RANGES_KM} for k in srcs}
+        load0 = os.getloadavg()
+        for i in range(rounds):
+            for label in (list(srcs) if i % 2 == 0 else list(srcs)[::-1]):
+                env = {**os.environ, "PYTHONPATH": srcs[label]}
+                got = json.loads(subprocess.run(
+                    [sys.executable, __file__, "--chain-times", "--repeat", str(repeat)],
+                    env=env, capture_output=True, text=True, check=True).stdout)
+                for r, v in got.items():
+                    for k in ("wall", "cpu"):
+                        runs[label][r][k] += v[k]
+        load1 = os.getloadavg()
+    return {"load_before": load0, "load_after": load1, "runs": runs}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=200)
     ap.add_argument("--json", type=str, default=None, help="write the results here")
+    ap.add_argument("--against", type=str, default=None,
+                    help="git revision to time the whole chain against (interleaved)")
+    ap.add_argument("--rounds", type=int, default=8, help="runs of each with --against")
+    ap.add_argument("--chain-times", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.chain_times:   # one run of --against, in the package on PYTHONPATH
+        print(json.dumps(chain_times(args.repeat)))
+        return
+    if args.against:
+        res = compare_against(args.against, args.rounds, args.repeat)
+        print(f"load average before: {' '.join(f'{x:.2f}' for x in res['load_before'])}, "
+              f"after: {' '.join(f'{x:.2f}' for x in res['load_after'])} "
+              f"on {os.cpu_count()} cores")
+        print(f"whole chain with refinement + EKF step, {args.rounds} x {args.repeat} frames "
+              "each, interleaved [ms]:")
+        for label, per in res["runs"].items():
+            for r, v in per.items():
+                w, c = np.asarray(v["wall"]), np.asarray(v["cpu"])
+                print(f"  {label:14s} {r:>6s} km: median {np.median(w):6.2f}  p90 "
+                      f"{np.percentile(w, 90):6.2f}  CPU median {np.median(c):6.2f}  min "
+                      f"{c.min():6.2f}")
+        if args.json:
+            with open(args.json, "w", encoding="utf-8") as fh:
+                json.dump(res, fh, indent=1)
+        return
     dyn = PointMassDynamics(step_s=300.0)
     print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())} "
           f"on {os.cpu_count()} cores")
-    results = [bench_case(r, args.repeat, dyn) for r in (20_000.0, 60_000.0)]
+    results = [bench_case(r, args.repeat, dyn) for r in RANGES_KM]
     for r in results:
         print(f"\n{r['range_km']:.0f} km: {r['segments_runs']} runs, {r['segment_pixels']} "
               f"pixels, {r['limb_points']} limb points, {r['inliers']} inliers, "
