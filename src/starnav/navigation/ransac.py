@@ -162,8 +162,14 @@ class _CircleModel:
         """``(N, K)`` residuals for ``K`` hypotheses."""
         du = self.uv[:, 0:1] - h[None, :, 0]
         dv = self.uv[:, 1:2] - h[None, :, 1]
+        du *= du
+        dv *= dv
+        du += dv
         with np.errstate(invalid="ignore"):
-            return np.abs(np.hypot(du, dv) - h[None, :, 2])
+            # (sqrt of the sum: np.hypot is 5x slower on the (N, K) batch, and within an ulp)
+            np.sqrt(du, out=du)
+            du -= h[None, :, 2]
+            return np.abs(du, out=du)
 
     def refit(self, inl: NDArray[np.bool_]) -> FloatArray:
         c, r = fit_circle_kasa(self.uv[inl])
