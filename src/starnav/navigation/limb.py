@@ -441,7 +441,10 @@ def limb_points_from_segments(
     # a corner pixel can end a row and a column: unique pixels, sorted by (u, v) as
     # np.unique(axis=0) would, through one integer key (4x faster)
     ij = cand[ok].astype(np.int64)
-    key = np.unique(ij[:, 0] * (int(H) + 1) + ij[:, 1])
+    key = np.sort(ij[:, 0] * (int(H) + 1) + ij[:, 1])   # np.unique, without its hash table
+    first = np.ones(key.size, bool)
+    np.not_equal(key[1:], key[:-1], out=first[1:])
+    key = key[first]
     pts = np.column_stack([key // (int(H) + 1), key % (int(H) + 1)]).astype(float)
     if pts.shape[0] < opt.min_points:
         raise LimbNotFoundError(
@@ -455,7 +458,10 @@ def limb_points_from_segments(
     pts = pts[order]
     if pts.shape[0] > opt.max_points:
         # evenly spaced, more than 1 apart: distinct once rounded
-        pts = pts[np.round(np.linspace(0, pts.shape[0] - 1, opt.max_points)).astype(int)]
+        step = (pts.shape[0] - 1) / (opt.max_points - 1)   # np.linspace's, end point exact
+        idx = np.rint(np.arange(opt.max_points) * step).astype(int)
+        idx[-1] = pts.shape[0] - 1
+        pts = pts[idx]
     if opt.point_offset_px != 0.0:
         rel = pts - centre
         pts = pts - opt.point_offset_px * rel / np.linalg.norm(rel, axis=1)[:, None]
