@@ -16,11 +16,12 @@ Technique
    of :mod:`starnav.simulate.acquire` (both made by :class:`starnav.simulate.Simulator`);
    every file goes into a temporary directory ``frames/.tmp-NNNNNN-*`` which is renamed to
    ``frames/NNNNNN`` only when whole. A directory rename is atomic: a frame is on disk whole
-   or not at all. In this process (no Dask) the frames are made in index order with the
-   next frame's render running in a second thread while this one is exposed, encoded and
-   written (:meth:`FrameMaker.render_ahead`: Dr.Jit's kernels, NumPy's large operations,
-   zlib and the disk release the GIL; one render at a time, so the bytes are those of the
-   serial order).
+   or not at all. In this process (no Dask) :data:`FRAME_THREADS` frames are made at once,
+   each whole in its own thread, taken in index order (:meth:`FrameMaker.making_ahead`:
+   Dr.Jit's kernels, NumPy's large operations, the noise draws, zlib, OpenEXR and the disk
+   release the GIL). A frame's bytes depend only on its index (its random streams are its
+   own, the renders run one at a time), so they are those of the serial order; frames may
+   land out of order, which the manifest (sorted) and a resume (step 5) do not see.
 4. **Manifest last.** As frames land, the manifest is rewritten atomically (at most every
    ``manifest_interval_s``, and at the end) with the finished frames sorted by index, each with
    its files' sizes and SHA-256. When a frame lands, the temporary directories an earlier
@@ -122,6 +123,10 @@ Progress = Callable[[int, int], None]
 FLYBY_WINDOWS = "closed-loop"
 #: ``target_kind`` of a fly-by dataset's manifest (a limb dataset's manifest has no such key).
 FLYBY_KIND = "flyby"
+
+#: Frames made at once by in-process generation (:meth:`FrameMaker.making_ahead`): the
+#: machine's cores, at most 2 (each frame in flight holds ~0.1 GB of full-frame arrays).
+FRAME_THREADS = max(1, min(2, os.cpu_count() or 1))
 
 #: Default minimum time between two manifest rewrites while frames land [s].
 MANIFEST_INTERVAL_S = 2.0
@@ -358,8 +363,10 @@ class FrameMaker:
         self.camera = self.simulator.camera
         self._per_exposure = {t: self.options.scenario_for(scenario, t)
                               for t in self.options.exposures_s or ()}
-        self._order: list[int] = []   # frames to come, in order (render_ahead)
-        self._pending: tuple[int, Future] | None = None   # the render running ahead
+        self._order: list[int] = []   # frames to come, in order (making_ahead)
+        self._root: Path | None = None
+        self._threads = 1
+        self._started: dict[int, Future] = {}   # frames being made ahead, by index
         self._pool: ThreadPoolExecutor | None = None
         self._render_lock = threading.Lock()   # one render at a time
         self._stars = {t: uses_star_attitude(sc) for t, sc in self._per_exposure.items()}
@@ -369,50 +376,51 @@ class FrameMaker:
         return len(self.simulator)
 
     def render(self, index: int) -> tuple[Any, Any]:
-        """Geometry and RadianceImage of frame ``index``."""
+        """Geometry and RadianceImage of frame ``index`` (one render at a time)."""
         with self._render_lock:
             return self.simulator.render(index)
 
     @contextlib.contextmanager
-    def render_ahead(self, order: Sequence[int]) -> Iterator[None]:
-        """While open, :meth:`write_frame` of a frame in ``order`` starts the render of the
-        next one in a second thread (module step 3); the frames must then be written in that
-        order (in-process generation). A render started ahead and not used is waited for
-        and dropped on exit."""
+    def making_ahead(self, order: Sequence[int], root: Path,
+                     threads: int = FRAME_THREADS) -> Iterator[None]:
+        """While open, :meth:`write_frame` of a frame in ``order`` makes it and the next ones
+        of ``order`` in ``threads`` threads (module step 3) and returns its entry when it is
+        on disk; the calls should come in that order (in-process generation). A frame asked
+        for out of order is made in the calling thread. On exit the frames started and not
+        asked for are cancelled if they have not begun, else waited for (they land, or clean
+        up after themselves on an error); ``threads <= 1`` makes every frame in the calling
+        thread."""
         self._order = [int(i) for i in order]
+        self._root = Path(root)
+        self._threads = max(1, int(threads))
         try:
             yield
         finally:
-            self._order = []
-            pending, self._pending = self._pending, None
-            if pending is not None:
-                with contextlib.suppress(Exception):   # its frame was never asked for
-                    pending[1].result()
+            self._order, self._root, self._threads = [], None, 1
+            started, self._started = self._started, {}
+            for fut in started.values():
+                fut.cancel()
+            for fut in started.values():
+                if not fut.cancelled():
+                    with contextlib.suppress(Exception):   # its frame was never asked for
+                        fut.result()
             if self._pool is not None:
                 self._pool.shutdown(wait=True)
                 self._pool = None
 
-    def _rendered(self, index: int) -> tuple[Any, Any]:
-        """Frame ``index``'s render (the one started ahead, if it is this frame's), and the
-        next frame's started."""
-        pending, self._pending = self._pending, None
-        got = None
-        if pending is not None:
-            if pending[0] == index:
-                got = pending[1].result()
-            else:
-                with contextlib.suppress(Exception):
-                    pending[1].result()
-        if got is None:
-            got = self.render(index)
-        if index in self._order:
-            k = self._order.index(index)
-            if k + 1 < len(self._order):
-                if self._pool is None:
-                    self._pool = ThreadPoolExecutor(1, thread_name_prefix="starnav-render")
-                nxt = self._order[k + 1]
-                self._pending = (nxt, self._pool.submit(self.render, nxt))
-        return got
+    def _claim(self, index: int, root: Path) -> Future | None:
+        """The future of frame ``index`` when it is made ahead, after starting the frames
+        that follow it in the announced order (``threads`` running and one queued)."""
+        if self._threads <= 1 or self._root is None or Path(root) != self._root \
+                or index not in self._order:
+            return None
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(self._threads, thread_name_prefix="starnav-frame")
+        k = self._order.index(index)
+        for i in self._order[k : k + self._threads + 1]:
+            if i not in self._started:
+                self._started[i] = self._pool.submit(self._write_frame, i, self._root)
+        return self._started.pop(index)
 
     def write_frame(self, index: int, root: Path) -> dict[str, Any]:
         """Make frame ``index`` and move it into ``root/frames`` whole (module step 3).
@@ -422,12 +430,19 @@ class FrameMaker:
         dict
             The frame's manifest entry.
         """
+        fut = self._claim(int(index), root)
+        if fut is not None:
+            return fut.result()
+        return self._write_frame(int(index), root)
+
+    def _write_frame(self, index: int, root: Path) -> dict[str, Any]:
+        """:meth:`write_frame` in this thread."""
         frames = root / F.FRAMES_DIR
         frames.mkdir(parents=True, exist_ok=True)
         final = frames / F.frame_dirname(index)
         if final.exists():
             return frame_entry(root, index)
-        geom, img = self._rendered(index)
+        geom, img = self.render(index)
         tmp = Path(tempfile.mkdtemp(prefix=f"{F.TMP_PREFIX}{F.frame_dirname(index)}-",
                                     dir=frames))
         try:
@@ -725,8 +740,8 @@ def generate(scenario: Scenario, out: str | os.PathLike[str], *,
         t_frames = time.perf_counter()
         setup_s = t_frames - t_start
         last = time.monotonic()
-        # in this process the frames are made in order: the next render runs ahead
-        ahead = (frame_maker(cfg, od).render_ahead(todo)
+        # in this process the frames are made in order, FRAME_THREADS at a time
+        ahead = (frame_maker(cfg, od).making_ahead(todo, out.absolute(), FRAME_THREADS)
                  if todo and isinstance(runner, InProcessRunner) else contextlib.nullcontext())
         try:
             handles = [runner.submit(make_frame, cfg, od, str(out.absolute()), i,
