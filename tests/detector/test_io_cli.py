@@ -73,9 +73,10 @@ def test_cli_expose_writes_the_library_result(tmp_path):
 
 
 def test_png_encoder_round_trips_through_pillow_and_imageio():
-    """:func:`starnav.detector.io.png_bytes` (filter none, zlib run-length) decodes to the
-    array in Pillow and imageio (libpng's rules: CRCs, chunk order, big-endian 16-bit samples),
-    8 and 16 bit, odd sizes, the extreme values; text chunks in order, Latin-1 or not."""
+    """:func:`starnav.detector.io.png_bytes` (filter none, zlib Huffman-only or run-length)
+    decodes to the array in Pillow and imageio (libpng's rules: CRCs, chunk order, big-endian
+    16-bit samples), 8 and 16 bit, odd sizes, the extreme values, a noisy and a mostly black
+    image; text chunks in order, Latin-1 or not."""
     import io
 
     import imageio.v3 as iio
@@ -87,7 +88,8 @@ def test_png_encoder_round_trips_through_pillow_and_imageio():
     arrays = [rng.integers(0, 65536, (37, 53)).astype(np.uint16),
               rng.integers(0, 256, (1, 1)).astype(np.uint8),
               np.array([[0, 65535, 1, 256]], np.uint16),
-              rng.integers(0, 256, (64, 3)).astype(np.uint8)]
+              rng.integers(0, 256, (64, 3)).astype(np.uint8),
+              np.where(rng.random((40, 30)) < 0.02, 200, 0).astype(np.uint8)]  # runs: Z_RLE
     text = [("Title", "frame 3"), ("starnav:unit", "W m^-2 sr^-1"), ("note", "µ 5 ✓")]
     for a in arrays:
         data = png_bytes(a, text)

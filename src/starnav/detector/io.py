@@ -19,14 +19,16 @@ PNG encoding (:func:`png_bytes`)
 --------------------------------
 The PNGs (the DN frames here, the 8-bit quick looks of :mod:`starnav.quicklook`) are encoded
 by this module, not by Pillow: greyscale, 8 or 16 bit, every row with PNG filter 0 (none)
-and one zlib stream at level :data:`PNG_COMPRESS_LEVEL` with the run-length strategy
-(``Z_RLE``), optional ``tEXt`` chunks before the image data, no time stamp. A DN frame is
-mostly read and shot noise: no PNG filter makes it smaller (Pillow's adaptive filter costs
-more than it gains) and zlib's string matching finds almost nothing in it, so run-length
-matching plus Huffman coding gives the same size 3x faster than Pillow at level 1 (1024 x
-1024: 15 vs 50 ms, 0.82 vs 0.85 MB; a quick look 11 vs 27 ms, 0.35 vs 0.45 MB;
-docs/performance.md). Any PNG reader decodes it (PNG 1.2, ISO/IEC 15948); the pixels are
-those of the array, the file's bytes are deterministic for one zlib build.
+and one zlib stream at level :data:`PNG_COMPRESS_LEVEL`, optional ``tEXt`` chunks before
+the image data, no time stamp. A DN frame is mostly read and shot noise: no PNG filter makes
+it smaller (Pillow's adaptive filter costs more than it gains) and zlib's string matching
+finds almost nothing in it, so Huffman coding alone (``Z_HUFFMAN_ONLY``) gives the same size
+3x faster than Pillow at level 1 (1024 x 1024: 15 vs 50 ms, 0.82 vs 0.85 MB; a DN quick look
+8 vs 27 ms, 0.32 vs 0.45 MB); an image whose neighbouring samples are mostly equal (the black
+sky of a radiance quick look) is coded with run-length matches (``Z_RLE``: 2 ms, 9 kB,
+where Huffman alone would give 137 kB); docs/performance.md. Any PNG reader decodes it
+(PNG 1.2, ISO/IEC 15948); the pixels are those of the array, the file's bytes are
+deterministic for one zlib build.
 """
 
 from __future__ import annotations
@@ -50,8 +52,11 @@ from starnav.errors import ConfigError, DataFileError
 #: strategy (:data:`PNG_ZLIB_STRATEGY`) zlib's levels 1-9 give the same stream; 0 would store
 #: the frame uncompressed. The pixels are the same at every level.
 PNG_COMPRESS_LEVEL = 1
-#: zlib strategy of the PNGs: run-length matches only (module essay, "PNG encoding").
-PNG_ZLIB_STRATEGY = zlib.Z_RLE
+#: zlib strategies of the PNGs (module essay, "PNG encoding"): run-length matches for an image
+#: whose neighbouring samples are mostly equal (a black sky), Huffman coding alone otherwise
+#: (a noisy frame: no match is worth looking for).
+PNG_ZLIB_STRATEGY_RUNS = zlib.Z_RLE
+PNG_ZLIB_STRATEGY_NOISE = zlib.Z_HUFFMAN_ONLY
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -107,8 +112,10 @@ def png_bytes(image: NDArray[Any], text: Iterable[tuple[str, str]] = ()) -> byte
     rows = np.empty((h, 1 + w * a.dtype.itemsize), np.uint8)
     rows[:, 0] = 0  # filter type 0 (none) on every row
     rows[:, 1:].view(">u2" if depth == 16 else np.uint8)[...] = a  # PNG: big-endian samples
+    flat = a.ravel()
+    runs = flat.size > 1 and np.count_nonzero(flat[1:] != flat[:-1]) < flat.size // 2
     z = zlib.compressobj(PNG_COMPRESS_LEVEL, zlib.DEFLATED, zlib.MAX_WBITS, 9,
-                         PNG_ZLIB_STRATEGY)
+                         PNG_ZLIB_STRATEGY_RUNS if runs else PNG_ZLIB_STRATEGY_NOISE)
     idat = z.compress(rows.data) + z.flush()
     head = struct.pack(">IIBBBBB", w, h, depth, 0, 0, 0, 0)  # grey, deflate, no interlace
     return b"".join([_PNG_SIGNATURE, _chunk(b"IHDR", head),
