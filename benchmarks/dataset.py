@@ -16,7 +16,10 @@ Measures, on the full AA-STR (1024 x 1024) along the LUMIO-like halo arc:
    two exposures, navigation, report) in this process and with a local cluster of 2 workers
    for its dataset: wall time, the dataset's frames/s, and the peak resident memory of this
    process and of the largest worker (``ru_maxrss`` of the reaped children).
-5. The cost of durability (``--fsync``, or alone with ``--fsync-only``): ``starnav.atomic``
+5. ``--pipeline N``: N demo frames made by ``FrameMaker.write_frame`` alone with one thread,
+   two threads in one process and two processes (half the frames each), alternately, each in
+   fresh warm processes: whether the GIL limits the two frame threads.
+6. The cost of durability (``--fsync``, or alone with ``--fsync-only``): ``starnav.atomic``
    fsyncs every file before its rename and its directory after it. Measured in the same run
    with and without the two fsyncs (patched out): ms per file for the sizes a dataset writes
    (JSON ~1 kB, a 16-bit DN PNG ~100 kB, a radiance EXR ~4 MB), and frames/s of a full-size
@@ -262,6 +265,90 @@ def demo_dataset_against(frames: int, old_src: str, rounds: int) -> None:
             _report(f"{label} (round {r + 1})", json.loads(line[-1][7:]))
 
 
+def _demo_frame_maker(frames: int):
+    """A :class:`FrameMaker` of the demo dataset's scenario and options."""
+    from starnav.batch.mainjob import DEMO_EXPOSURE_OVERRIDES, DEMO_EXPOSURES_S
+    from starnav.batch.presets import demo_scenario
+    from starnav.config import scenario_from_dict
+    from starnav.dataset import DatasetOptions
+    from starnav.dataset.writer import FrameMaker
+
+    d = demo_scenario()
+    d["trajectory"]["frames"] = frames
+    opts = DatasetOptions(exposures_s=tuple(DEMO_EXPOSURES_S), exposure_overrides=tuple(
+        (float(t), tuple(o)) for t, o in DEMO_EXPOSURE_OVERRIDES))
+    return FrameMaker(scenario_from_dict(d), opts)
+
+
+#: Frames of the demo arc used by ``--pipeline`` (the last two warm a process up).
+_PIPE_ARC = 24
+
+
+def _pipeline_child(mode: str, first: int, count: int, go: str, ready: str) -> None:
+    """``--pipeline`` worker: warm a FrameMaker, signal ``ready``, wait for ``go``, make frames
+    ``first .. first + count - 1`` (``mode``: ``serial`` or ``threads``), print the wall time."""
+    fm = _demo_frame_maker(_PIPE_ARC)
+    root = Path(tempfile.mkdtemp(prefix="starnav-bench-"))
+    try:
+        for i in (_PIPE_ARC - 1, _PIPE_ARC - 2):
+            fm.write_frame(i, root)
+        Path(ready).touch()
+        while not Path(go).exists():
+            time.sleep(0.005)
+        order = list(range(first, first + count))
+        t0 = time.perf_counter()
+        with (fm.making_ahead(order, root, 2) if mode == "threads"
+              else contextlib.nullcontext()):
+            for i in order:
+                fm.write_frame(i, root)
+        print(f"WALL {time.perf_counter() - t0}", flush=True)
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+
+
+def pipeline_section(frames: int, rounds: int) -> None:
+    """Frames of the demo dataset made by ``FrameMaker.write_frame`` (no manifest, no final
+    verification): one thread, two threads in one process (``making_ahead``), and two
+    processes each making half the frames one at a time (no shared GIL), alternately, each
+    in fresh warm processes. If two threads come close to two processes, the GIL is not what
+    limits the threads."""
+    import subprocess
+    import sys
+
+    print(f"frame pipeline, {frames} demo frames per run: 1 thread / 2 threads / 2 processes; "
+          f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())} on "
+          f"{os.cpu_count()} cores")
+
+    def run(parts: list[tuple[str, int, int]]) -> float:
+        d = Path(tempfile.mkdtemp(prefix="starnav-bench-"))
+        go = d / "go"
+        procs = [subprocess.Popen([sys.executable, __file__, "--pipeline-child", mode,
+                                   str(first), str(count), str(go), str(d / f"ready{k}")],
+                                  stdout=subprocess.PIPE, text=True)
+                 for k, (mode, first, count) in enumerate(parts)]
+        try:
+            while not all((d / f"ready{k}").exists() for k in range(len(parts))):
+                if any(p.poll() is not None for p in procs):
+                    raise RuntimeError("a pipeline worker died before it was ready")
+                time.sleep(0.01)
+            t0 = time.perf_counter()
+            go.touch()
+            for p in procs:
+                p.communicate()
+            return time.perf_counter() - t0
+        finally:
+            shutil.rmtree(d, ignore_errors=True)
+
+    half = frames // 2
+    setups = [("1 thread", [("serial", 0, frames)]), ("2 threads", [("threads", 0, frames)]),
+              ("2 processes", [("serial", 0, half), ("serial", half, frames - half)])]
+    for _ in range(rounds):
+        for label, parts in setups:
+            wall = run(parts)
+            print(f"  {label:12s}: {frames / wall:5.2f} frames/s ({wall:.2f} s); load "
+                  f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=12)
@@ -277,11 +364,22 @@ def main() -> None:
                     help="with --demo-dataset: compare with the code in SRC (a src/ "
                     "directory), alternately, each run in a fresh process")
     ap.add_argument("--rounds", type=int, default=2, help="rounds of --against")
+    ap.add_argument("--pipeline", type=int, default=0, metavar="FRAMES",
+                    help="only compare 1 thread, 2 threads and 2 processes making FRAMES demo "
+                    "frames (--rounds times)")
     ap.add_argument("--demo-dataset-child", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--serial", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--pipeline-child", nargs=5, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.demo_dataset_child:
         _demo_dataset_child(a.demo_dataset_child, a.serial)
+        return
+    if a.pipeline_child:
+        mode, first, count, go, ready = a.pipeline_child
+        _pipeline_child(mode, int(first), int(count), go, ready)
+        return
+    if a.pipeline:
+        pipeline_section(a.pipeline, a.rounds)
         return
     if a.demo_dataset and a.against:
         demo_dataset_against(a.demo_dataset, a.against, a.rounds)
