@@ -241,8 +241,9 @@ def test_a_second_writer_is_locked_out(tmp_path):
 def test_frames_made_ahead_in_threads_keep_the_bytes(tmp_path):
     """In-process generation makes FRAME_THREADS frames at once, each in its own thread
     (writer module step 3): the frames are made outside the calling thread, two at a time,
-    and are byte for byte those made one at a time; a frame asked for out of the announced
-    order is still the right one, and nothing is left running or half-written on exit."""
+    write their files one frame at a time in the announced order, and are byte for byte those
+    made one at a time; a frame asked for out of the announced order is still the right one,
+    and nothing is left running or half-written on exit."""
     import threading
     import time
 
@@ -272,6 +273,15 @@ def test_frames_made_ahead_in_threads_keep_the_bytes(tmp_path):
                 running[0] -= 1
 
     ahead._write_frame = spy
+    written: list[int] = []
+    write_files = ahead._write_files
+
+    def spy_files(index, *args):
+        with lock:
+            written.append(index)
+        return write_files(index, *args)
+
+    ahead._write_files = spy_files
     root = tmp_path / "ahead"
     with ahead.making_ahead([0, 1, 2, 3], root, threads=2):
         assert ahead.write_frame(0, root)["index"] == 0
@@ -284,5 +294,6 @@ def test_frames_made_ahead_in_threads_keep_the_bytes(tmp_path):
     assert all(name.startswith("starnav-frame") for i, name in made if i != 4)
     assert (4, main) in made
     assert overlap[0] >= 2   # two frames (at least) were being made at once
+    assert [i for i in written if i != 4] == [0, 1, 2, 3]   # they land in the announced order
     assert tree_bytes(root) == tree_bytes(tmp_path / "serial")
     assert not [p for p in (root / "frames").iterdir() if p.name.startswith(F.TMP_PREFIX)]
