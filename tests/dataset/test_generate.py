@@ -297,3 +297,33 @@ def test_frames_made_ahead_in_threads_keep_the_bytes(tmp_path):
     assert [i for i in written if i != 4] == [0, 1, 2, 3]   # they land in the announced order
     assert tree_bytes(root) == tree_bytes(tmp_path / "serial")
     assert not [p for p in (root / "frames").iterdir() if p.name.startswith(F.TMP_PREFIX)]
+
+
+def test_frames_asked_for_out_of_order_while_others_are_made_ahead(tmp_path):
+    """A caller that asks for frames in another order than it announced gets every frame
+    right, with no deadlock: a frame behind the frames already started is made in the calling
+    thread, the others ahead; the bytes are those of the serial order."""
+    import threading
+
+    from starnav.dataset.writer import FrameMaker
+
+    sc = small_scenario(frames=6)
+    opts = DatasetOptions(exposures_s=(1.5e-5,), radiance=False)
+    serial = FrameMaker(sc, opts)
+    for i in range(6):
+        serial.write_frame(i, tmp_path / "serial")
+    ahead = FrameMaker(sc, opts)
+    root = tmp_path / "ahead"
+    got: list[int] = []
+
+    def run():
+        with ahead.making_ahead(range(6), root, threads=2):
+            for i in (3, 0, 4, 1, 5, 2, 3):   # 3 twice: the second call finds it on disk
+                got.append(ahead.write_frame(i, root)["index"])
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    t.join(timeout=120)
+    assert not t.is_alive(), "deadlock"
+    assert got == [3, 0, 4, 1, 5, 2, 3]
+    assert tree_bytes(root) == tree_bytes(tmp_path / "serial")

@@ -366,9 +366,11 @@ class FrameMaker:
         self._per_exposure = {t: self.options.scenario_for(scenario, t)
                               for t in self.options.exposures_s or ()}
         self._order: list[int] = []   # frames to come, in order (making_ahead)
+        self._order_pos: dict[int, int] = {}   # their positions in it
         self._root: Path | None = None
         self._threads = 1
-        self._started: dict[int, Future] = {}   # frames being made ahead, by index
+        self._started: dict[int, Future] = {}   # frames made ahead, by index
+        self._claimed: set[int] = set()   # ... whose result the caller took
         self._pool: ThreadPoolExecutor | None = None
         # positions (in the announced order) of the frames made ahead that have not written
         # their files yet: the first of them writes (frames land in order)
@@ -400,13 +402,15 @@ class FrameMaker:
         cancelled if they have not begun, else waited for (they land, or clean up after
         themselves on an error); ``threads <= 1`` makes every frame in the calling thread."""
         self._order = [int(i) for i in order]
+        self._order_pos = {i: k for k, i in enumerate(self._order)}
         self._root = Path(root)
         self._threads = max(1, int(threads))
         try:
             yield
         finally:
-            self._order, self._root, self._threads = [], None, 1
-            started, self._started = self._started, {}
+            self._order, self._order_pos, self._root, self._threads = [], {}, None, 1
+            started = {i: f for i, f in self._started.items() if i not in self._claimed}
+            self._started, self._claimed = {}, set()
             for i, fut in started.items():
                 if fut.cancel():   # never begun: it will not take its turn
                     self._end_turn(i)
@@ -424,19 +428,25 @@ class FrameMaker:
     def _claim(self, index: int, root: Path) -> Future | None:
         """The future of frame ``index`` when it is made ahead, after starting the frames
         that follow it in the announced order (``threads`` running and one queued)."""
-        if self._threads <= 1 or self._root is None or Path(root) != self._root \
-                or index not in self._order:
+        k = self._order_pos.get(index)
+        if self._threads <= 1 or self._root is None or Path(root) != self._root or k is None \
+                or index in self._claimed:
+            return None
+        with self._turn:
+            behind = index not in self._started and k < max(self._position.values(),
+                                                            default=-1)
+        if behind:   # behind frames already started: made here (the pool stays in order)
             return None
         if self._pool is None:
             self._pool = ThreadPoolExecutor(self._threads, thread_name_prefix="starnav-frame")
-        k = self._order.index(index)
         for pos, i in enumerate(self._order[k : k + self._threads + 1], k):
             if i not in self._started:
                 with self._turn:
                     self._position[i] = pos
                     self._unwritten.add(pos)
                 self._started[i] = self._pool.submit(self._write_frame, i, self._root)
-        return self._started.pop(index)
+        self._claimed.add(index)
+        return self._started[index]
 
     def _wait_turn(self, index: int) -> None:
         """Wait until every frame made ahead before ``index`` (in the announced order) has
