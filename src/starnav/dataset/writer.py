@@ -126,8 +126,8 @@ FLYBY_WINDOWS = "closed-loop"
 FLYBY_KIND = "flyby"
 
 #: Frames made at once by in-process generation (:meth:`FrameMaker.making_ahead`): the
-#: machine's cores, at most 2 (the demo dataset's peak RSS: 1.15 GB with 2, 0.74 GB with 1;
-#: docs/performance.md).
+#: machine's cores, at most 2 (the demo dataset's peak RSS with 2: 1.08-1.18 GB; 0.74 GB
+#: before, one frame at a time; docs/performance.md).
 FRAME_THREADS = max(1, min(2, os.cpu_count() or 1))
 
 #: Default minimum time between two manifest rewrites while frames land [s].
