@@ -8,13 +8,18 @@ Measures, on the full AA-STR (1024 x 1024) along the LUMIO-like halo arc:
 2. ``starnav.batch.run_sweep`` wall time of the paper's four exposures x ``--runs`` on 1 and 2
    local workers (cluster start-up included, as a user sees it) and the speed-up.
 3. ``--demo-dataset N``: the demo dataset alone (N frames at ``make demo``'s settings) in this
-   process, serial and with the next frame's render running ahead, against issue 18's target
-   of 3 frames/s, with the CPU time per frame.
+   process, as ``generate`` makes it (two frames at once in threads) and one frame at a time,
+   against issue 18's target of 3 frames/s, with the CPU time per frame. With
+   ``--against SRC`` (another checkout's ``src/``, e.g. ``git archive`` of the commit before a
+   change) the old and the new code alternate, each run in a fresh process, ``--rounds`` times.
 4. ``--demo``: the main job (``make demo`` = ``starnav demo``: 25 frames, 1024 x 1024, 8 spp,
    two exposures, navigation, report) in this process and with a local cluster of 2 workers
    for its dataset: wall time, the dataset's frames/s, and the peak resident memory of this
    process and of the largest worker (``ru_maxrss`` of the reaped children).
-5. The cost of durability (``--fsync``, or alone with ``--fsync-only``): ``starnav.atomic``
+5. ``--pipeline N``: N demo frames made by ``FrameMaker.write_frame`` alone with one thread,
+   two threads in one process and two processes (half the frames each), alternately, each in
+   fresh warm processes: whether the GIL limits the two frame threads.
+6. The cost of durability (``--fsync``, or alone with ``--fsync-only``): ``starnav.atomic``
    fsyncs every file before its rename and its directory after it. Measured in the same run
    with and without the two fsyncs (patched out): ms per file for the sizes a dataset writes
    (JSON ~1 kB, a 16-bit DN PNG ~100 kB, a radiance EXR ~4 MB), and frames/s of a full-size
@@ -161,45 +166,187 @@ def demo_section(root: Path) -> None:
 DEMO_TARGET_FPS = 3.0
 
 
-def demo_dataset_rate(frames: int, root: Path, ahead: bool) -> tuple[float, float, float]:
-    """(frames/s, CPU s per frame, set-up s) of the demo dataset alone (``make demo``'s
-    settings: 1024 x 1024, 8 spp, 0.015 and 7.7 ms, windows, radiance and quick looks), in
-    this process, with the next frame's render running ahead (``ahead``) or not."""
+def demo_dataset_rate(frames: int, root: Path, serial: bool) -> dict[str, float]:
+    """The demo dataset alone (``make demo``'s settings: 1024 x 1024, 8 spp, 0.015 and 7.7 ms,
+    windows, radiance and quick looks) made by ``generate`` in this process, as the imported
+    code makes it (``serial``: one frame at a time, whatever the code would do). Returns
+    frames/s, CPU seconds per frame (all threads, frames only: from the first progress call,
+    after the set-up, to the end) and the set-up [s]."""
+    import starnav.dataset.writer as writer
     from starnav.batch.mainjob import DEMO_EXPOSURE_OVERRIDES, DEMO_EXPOSURES_S
     from starnav.batch.presets import demo_scenario
     from starnav.config import scenario_from_dict
     from starnav.dataset import DatasetOptions, generate
-    from starnav.dataset.writer import FrameMaker
 
     d = demo_scenario()
     d["trajectory"]["frames"] = frames
     sc = scenario_from_dict(d)
     opts = DatasetOptions(exposures_s=tuple(DEMO_EXPOSURES_S), exposure_overrides=tuple(
         (float(t), tuple(o)) for t, o in DEMO_EXPOSURE_OVERRIDES))
-    out = root / f"demo_ds_{int(ahead)}"
-    saved = FrameMaker.render_ahead
-    if not ahead:
-        FrameMaker.render_ahead = lambda self, order: contextlib.nullcontext()  # type: ignore
-    c0 = time.process_time()
-    try:
-        s = generate(sc, out, options=opts)
-    finally:
-        FrameMaker.render_ahead = saved  # type: ignore[method-assign]
-    cpu = (time.process_time() - c0) / max(s.frames_made, 1)
+    out = root / f"demo_ds_{int(serial)}"
+    cpu0: list[float] = []
+
+    def progress(done: int, total: int) -> None:
+        if not cpu0:
+            cpu0.append(time.process_time())
+
+    with contextlib.ExitStack() as stack:
+        if serial and hasattr(writer, "FRAME_THREADS"):   # frames made in threads
+            stack.callback(setattr, writer, "FRAME_THREADS", writer.FRAME_THREADS)
+            writer.FRAME_THREADS = 1
+        elif serial:   # the code before: the next render ran ahead in a second thread
+            saved = writer.FrameMaker.render_ahead
+            stack.callback(setattr, writer.FrameMaker, "render_ahead", saved)
+            writer.FrameMaker.render_ahead = (  # type: ignore[attr-defined]
+                lambda self, order: contextlib.nullcontext())
+        s = generate(sc, out, options=opts, progress=progress)
+    cpu = (time.process_time() - cpu0[0]) / max(s.frames_made, 1)
     shutil.rmtree(out, ignore_errors=True)
-    return s.frames_per_s, cpu, s.setup_s
+    return {"fps": s.frames_per_s, "cpu": cpu, "setup": s.setup_s}
+
+
+def _report(label: str, r: dict[str, float]) -> None:
+    met = "met" if r["fps"] >= DEMO_TARGET_FPS else "NOT met"
+    rss = f"; peak RSS {r['rss_mb']:.0f} MB" if "rss_mb" in r else ""
+    print(f"  {label:22s}: {r['fps']:5.2f} frames/s vs target {DEMO_TARGET_FPS:.0f} ({met}); "
+          f"CPU {r['cpu']:.3f} s per frame (all threads); set-up {r['setup']:.1f} s{rss}; "
+          f"load {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
 
 
 def demo_dataset_section(frames: int, root: Path) -> None:
     print(f"demo dataset ({frames} frames, make demo's settings), in-process; load average "
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
-    demo_dataset_rate(2, root, True)  # warm: Mitsuba, kernels, the arc on disk
-    for ahead in (False, True, False, True):
-        rate, cpu, setup = demo_dataset_rate(frames, root, ahead)
-        label = "render ahead" if ahead else "serial"
-        print(f"  {label:13s}: {rate:5.2f} frames/s vs target {DEMO_TARGET_FPS:.0f} "
-              f"({'met' if rate >= DEMO_TARGET_FPS else 'NOT met'}); CPU {cpu:.2f} s per frame "
-              f"(all threads); set-up {setup:.1f} s; load {os.getloadavg()[0]:.2f}", flush=True)
+    demo_dataset_rate(2, root, False)  # warm: Mitsuba, kernels, the arc on disk
+    for serial in (False, True, False, True):
+        _report("one frame at a time" if serial else "as generate does",
+                demo_dataset_rate(frames, root, serial))
+
+
+def _demo_dataset_child(frames: int, serial: bool) -> None:
+    """One measurement in a fresh process (``--against``): warm, measure, print JSON."""
+    import json
+    import resource
+
+    root = Path(tempfile.mkdtemp(prefix="starnav-bench-"))
+    try:
+        demo_dataset_rate(2, root, False)  # warm: Mitsuba, kernels, the arc on disk
+        r = demo_dataset_rate(frames, root, serial)
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+    r["rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    print("RESULT " + json.dumps(r), flush=True)
+
+
+def demo_dataset_against(frames: int, old_src: str, rounds: int) -> None:
+    """The demo dataset made by the code in ``old_src`` and by this checkout's, alternately,
+    each in a fresh process (import path set with PYTHONPATH), ``rounds`` times; this
+    checkout also one frame at a time."""
+    import json
+    import subprocess
+    import sys
+
+    new_src = str(Path(__file__).resolve().parents[1] / "src")
+    print(f"demo dataset ({frames} frames, make demo's settings), in-process, old = {old_src}, "
+          f"new = {new_src}; load average {' '.join(f'{x:.2f}' for x in os.getloadavg())} on "
+          f"{os.cpu_count()} cores; each run in a fresh process, warmed by 2 frames")
+    runs = [("old", old_src, False), ("new", new_src, False), ("new, 1 frame at a time",
+                                                               new_src, True)]
+    for r in range(rounds):
+        for label, src, serial in runs:
+            env = {**os.environ, "PYTHONPATH": src}
+            cmd = [sys.executable, __file__, "--demo-dataset-child", str(frames)]
+            if serial:
+                cmd.append("--serial")
+            res = subprocess.run(cmd, env=env, capture_output=True, text=True)
+            line = [x for x in res.stdout.splitlines() if x.startswith("RESULT ")]
+            if res.returncode or not line:
+                print(f"  {label}: failed\n{res.stdout}\n{res.stderr}")
+                continue
+            _report(f"{label} (round {r + 1})", json.loads(line[-1][7:]))
+
+
+def _demo_frame_maker(frames: int):
+    """A :class:`FrameMaker` of the demo dataset's scenario and options."""
+    from starnav.batch.mainjob import DEMO_EXPOSURE_OVERRIDES, DEMO_EXPOSURES_S
+    from starnav.batch.presets import demo_scenario
+    from starnav.config import scenario_from_dict
+    from starnav.dataset import DatasetOptions
+    from starnav.dataset.writer import FrameMaker
+
+    d = demo_scenario()
+    d["trajectory"]["frames"] = frames
+    opts = DatasetOptions(exposures_s=tuple(DEMO_EXPOSURES_S), exposure_overrides=tuple(
+        (float(t), tuple(o)) for t, o in DEMO_EXPOSURE_OVERRIDES))
+    return FrameMaker(scenario_from_dict(d), opts)
+
+
+#: Frames of the demo arc used by ``--pipeline`` (the last two warm a process up).
+_PIPE_ARC = 24
+
+
+def _pipeline_child(mode: str, first: int, count: int, go: str, ready: str) -> None:
+    """``--pipeline`` worker: warm a FrameMaker, signal ``ready``, wait for ``go``, make frames
+    ``first .. first + count - 1`` (``mode``: ``serial`` or ``threads``), print the wall time."""
+    fm = _demo_frame_maker(_PIPE_ARC)
+    root = Path(tempfile.mkdtemp(prefix="starnav-bench-"))
+    try:
+        for i in (_PIPE_ARC - 1, _PIPE_ARC - 2):
+            fm.write_frame(i, root)
+        Path(ready).touch()
+        while not Path(go).exists():
+            time.sleep(0.005)
+        order = list(range(first, first + count))
+        t0 = time.perf_counter()
+        with (fm.making_ahead(order, root, 2) if mode == "threads"
+              else contextlib.nullcontext()):
+            for i in order:
+                fm.write_frame(i, root)
+        print(f"WALL {time.perf_counter() - t0}", flush=True)
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+
+
+def pipeline_section(frames: int, rounds: int) -> None:
+    """Frames of the demo dataset made by ``FrameMaker.write_frame`` (no manifest, no final
+    verification): one thread, two threads in one process (``making_ahead``), and two
+    processes each making half the frames one at a time (no shared GIL), alternately, each
+    in fresh warm processes. If two threads come close to two processes, the GIL is not what
+    limits the threads."""
+    import subprocess
+    import sys
+
+    print(f"frame pipeline, {frames} demo frames per run: 1 thread / 2 threads / 2 processes; "
+          f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())} on "
+          f"{os.cpu_count()} cores")
+
+    def run(parts: list[tuple[str, int, int]]) -> float:
+        d = Path(tempfile.mkdtemp(prefix="starnav-bench-"))
+        go = d / "go"
+        procs = [subprocess.Popen([sys.executable, __file__, "--pipeline-child", mode,
+                                   str(first), str(count), str(go), str(d / f"ready{k}")],
+                                  stdout=subprocess.PIPE, text=True)
+                 for k, (mode, first, count) in enumerate(parts)]
+        try:
+            while not all((d / f"ready{k}").exists() for k in range(len(parts))):
+                if any(p.poll() is not None for p in procs):
+                    raise RuntimeError("a pipeline worker died before it was ready")
+                time.sleep(0.01)
+            t0 = time.perf_counter()
+            go.touch()
+            for p in procs:
+                p.communicate()
+            return time.perf_counter() - t0
+        finally:
+            shutil.rmtree(d, ignore_errors=True)
+
+    half = frames // 2
+    setups = [("1 thread", [("serial", 0, frames)]), ("2 threads", [("threads", 0, frames)]),
+              ("2 processes", [("serial", 0, half), ("serial", half, frames - half)])]
+    for _ in range(rounds):
+        for label, parts in setups:
+            wall = run(parts)
+            print(f"  {label:12s}: {frames / wall:5.2f} frames/s ({wall:.2f} s); load "
+                  f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
 
 
 def main() -> None:
@@ -211,9 +358,32 @@ def main() -> None:
     ap.add_argument("--fsync-only", action="store_true", help="only measure the cost of fsync")
     ap.add_argument("--demo", action="store_true", help="only measure the main job (make demo)")
     ap.add_argument("--demo-dataset", type=int, default=0, metavar="FRAMES",
-                    help="only measure the demo dataset of FRAMES frames, serial and with the "
-                    "render ahead")
+                    help="only measure the demo dataset of FRAMES frames, as generate makes "
+                    "it and one frame at a time")
+    ap.add_argument("--against", metavar="SRC", default=None,
+                    help="with --demo-dataset: compare with the code in SRC (a src/ "
+                    "directory), alternately, each run in a fresh process")
+    ap.add_argument("--rounds", type=int, default=2, help="rounds of --against")
+    ap.add_argument("--pipeline", type=int, default=0, metavar="FRAMES",
+                    help="only compare 1 thread, 2 threads and 2 processes making FRAMES demo "
+                    "frames (--rounds times)")
+    ap.add_argument("--demo-dataset-child", type=int, default=0, help=argparse.SUPPRESS)
+    ap.add_argument("--serial", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--pipeline-child", nargs=5, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
+    if a.demo_dataset_child:
+        _demo_dataset_child(a.demo_dataset_child, a.serial)
+        return
+    if a.pipeline_child:
+        mode, first, count, go, ready = a.pipeline_child
+        _pipeline_child(mode, int(first), int(count), go, ready)
+        return
+    if a.pipeline:
+        pipeline_section(a.pipeline, a.rounds)
+        return
+    if a.demo_dataset and a.against:
+        demo_dataset_against(a.demo_dataset, a.against, a.rounds)
+        return
     root = Path(tempfile.mkdtemp(prefix="starnav-bench-"))
     try:
         if a.demo_dataset:

@@ -104,13 +104,13 @@ def test_written_atomically(tmp_path, monkeypatch):
     """A failure while the PNG is being written leaves neither the PNG nor a temporary."""
     dn, _ = _moon_dn()
 
-    def broken_save(self, fp, *a, **k):
-        with open(fp, "wb") as fh:
-            fh.write(b"\x89PNG half")
+    def broken_write(self, data):
+        with open(self, "wb") as fh:
+            fh.write(data[:100])
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(Q.Image.Image, "save", broken_save)
-    with pytest.raises(OSError):
+    monkeypatch.setattr(Q.Path, "write_bytes", broken_write)
+    with pytest.raises(OSError, match="No space left"):
         write_quicklook(dn, tmp_path / "q.png", "frame 0", unit="DN")
     assert list(tmp_path.iterdir()) == []
 
@@ -120,3 +120,59 @@ def test_bytes_are_deterministic(tmp_path):
     a = write_quicklook(dn, tmp_path / "a.png", "frame 0", unit="DN").path.read_bytes()
     b = write_quicklook(dn, tmp_path / "b.png", "frame 0", unit="DN").path.read_bytes()
     assert a == b
+
+
+# ------------------------------------------------- fast levels and stretch vs the plain formula
+def _levels_reference(values, black=None):
+    """:func:`quicklook_levels` as its docstring states it, with ``np.median`` and
+    ``np.percentile`` on the whole frame converted to float64 (the slow reference)."""
+    a = np.asarray(values, np.float64)
+    b = float(np.median(a)) if black is None else float(black)
+    sigma = 1.4826 * float(np.median(np.abs(a - b)))
+    above = a[a > b + max(Q.QUICKLOOK_SKY_SIGMAS * sigma, 0.0)]
+    if above.size == 0:
+        return b, b + 1.0
+    w = float(np.percentile(above, Q.QUICKLOOK_WHITE_PERCENTILE))
+    return b, (w if w > b else float(above.max()))
+
+
+def _stretch_reference(values, black, white, s=Q.QUICKLOOK_SOFTENING):
+    """255 asinh(x / s) / asinh(1 / s) on every pixel."""
+    x = np.clip((np.asarray(values, np.float64) - black) / (white - black), 0.0, 1.0)
+    return np.round(np.clip(np.arcsinh(x / s) / np.arcsinh(1.0 / s), 0, 1) * 255).astype(
+        np.uint8)
+
+
+def _frames(seed: int = 11):
+    """DN frames (odd and even pixel counts, saturated pixels, a given half-integer black) and
+    radiance frames (float32, mostly or partly zero), as ``(values, black)``."""
+    rng = np.random.default_rng(seed)
+    out = [(_moon_dn()[0], None)]
+    for i in range(30):
+        shape = (int(rng.integers(1, 400)), int(rng.integers(1, 40)))
+        dn = np.clip(rng.normal(100, rng.uniform(0.1, 30), shape), 0, 4095).astype(np.uint16)
+        dn[rng.random(shape) < 0.01] = 4095
+        out += [(dn, None), (dn, float(rng.integers(0, 200)) + 0.5 * (i % 2))]
+        lit = rng.random(shape) < rng.uniform(0.0, 0.8)
+        rad = np.where(lit, rng.exponential(1.0, shape), 0.0).astype(np.float32)
+        out += [(rad, 0.0), (rad, None), (rng.normal(3, 1, shape), None)]
+    return out
+
+
+def test_levels_equal_the_median_reference_exactly():
+    """The histogram medians of a 16-bit frame and the zero-count MAD of a radiance frame give
+    the very numbers of np.median / np.percentile on the whole frame (a seeded comparison:
+    equality, not a tolerance)."""
+    for values, black in _frames():
+        assert quicklook_levels(values, black=black) == _levels_reference(values, black)
+
+
+def test_stretch_equals_the_formula_on_every_pixel():
+    """The table look-up (integer frames) and the masked evaluation (float frames) give the
+    formula's bytes on every pixel, the sky (at or below black) included."""
+    for values, black in _frames(12):
+        lo, hi = quicklook_levels(values, black=black)
+        assert np.array_equal(asinh_stretch(values, lo, hi), _stretch_reference(values, lo, hi))
+    big = np.random.default_rng(2).exponential(1.0, (200, 200)).astype(np.float32)
+    big[:150] = 0.0
+    assert np.array_equal(asinh_stretch(big, 0.0, 2.0), _stretch_reference(big, 0.0, 2.0))

@@ -19,7 +19,8 @@ Technique
    ``starnav:stretch``) and, burnt in, a caption band over the top rows (frame index, exposure
    time in ms, range in km, phase in deg, the black..white range and the stretch) and a scale
    bar over the bottom-left rows labelled with black and white. Single-channel 8-bit PNG the
-   frame's shape, deterministic bytes (Pillow, no time stamp), written atomically.
+   frame's shape, deterministic bytes (:func:`starnav.detector.io.png_bytes`, no time
+   stamp), written atomically.
 
 ========================  =====  ======================================================
 knob                      value  effect
@@ -47,10 +48,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from PIL import Image, ImageDraw, ImageFont
-from PIL.PngImagePlugin import PngInfo
 
-from starnav.atomic import atomic_path
-from starnav.detector.io import PNG_COMPRESS_LEVEL
+from starnav.detector.io import write_png
 from starnav.errors import ConfigError
 from starnav.radiance import RadianceImage
 
@@ -111,6 +110,11 @@ def asinh_stretch(values: ArrayLike, black: float, white: float,
     both visible and the saturated core is white without clipping a wide band
     (Lupton, Gunn & Szalay 1999, AJ 118, 1406).
 
+    The formula is evaluated once per distinct value of an integer frame (a table of at most
+    65 536 entries, then a look-up) and only on the pixels above ``black`` of a float frame
+    (the others are 0): the same numbers as evaluating it on every pixel, in a few ms instead
+    of ~10 ms for a 1024 x 1024 frame.
+
     Parameters
     ----------
     values : array
@@ -122,8 +126,72 @@ def asinh_stretch(values: ArrayLike, black: float, white: float,
     """
     if not white > black:
         white = black + 1.0
-    x = np.clip((np.asarray(values, np.float64) - black) / (white - black), 0.0, 1.0)
+    a = np.asarray(values)
+    if _small_unsigned(a):
+        table = _stretch(np.arange(int(a.max()) + 1 if a.size else 1, dtype=np.float64),
+                         black, white, softening)
+        return table[a]
+    if a.dtype.kind == "f" and a.size > _STRETCH_MASKED_MIN:
+        # x <= 0 is 0 (asinh(0) = 0); compared in float64 as the formula does; NaN pixels go
+        # through the formula
+        above = np.greater(a, np.float64(black))
+        above |= np.isnan(a)
+        out = np.zeros(a.shape, np.uint8)
+        out[above] = _stretch(a[above].astype(np.float64), black, white, softening)
+        return out
+    return _stretch(np.asarray(a, np.float64), black, white, softening)
+
+
+#: Above this many pixels a float frame is stretched only where it exceeds black.
+_STRETCH_MASKED_MIN = 4096
+
+
+def _stretch(v: NDArray[np.float64], black: float, white: float,
+             softening: float) -> NDArray[np.uint8]:
+    """The formula of :func:`asinh_stretch` on every element (``white > black``)."""
+    x = np.clip((v - black) / (white - black), 0.0, 1.0)
     return to_uint8(np.arcsinh(x / softening) / np.arcsinh(1.0 / softening))
+
+
+def _small_unsigned(a: NDArray) -> bool:
+    """An unsigned integer frame of at most 16 bits (a table of its values is small)."""
+    return a.dtype.kind == "u" and a.dtype.itemsize <= 2
+
+
+def _order_stats_from_counts(counts: NDArray[np.int64], values: NDArray[np.float64],
+                             ks: tuple[int, ...]) -> list[float]:
+    """Order statistics ``ks`` (0-based) of a sample given as ``counts[i]`` copies of
+    ``values[i]`` (``values`` ascending)."""
+    cum = np.cumsum(counts)
+    return [float(values[int(np.searchsorted(cum, k, side="right"))]) for k in ks]
+
+
+def _median_of_counts(counts: NDArray[np.int64], values: NDArray[np.float64]) -> float:
+    """``np.median`` of the sample ``counts`` x ``values`` (``values`` ascending): the middle
+    element, or the mean of the two middle ones, computed as NumPy does (``(a + b) / 2``)."""
+    n = int(counts.sum())
+    if n % 2:
+        return _order_stats_from_counts(counts, values, (n // 2,))[0]
+    lo, hi = _order_stats_from_counts(counts, values, (n // 2 - 1, n // 2))
+    return (lo + hi) / 2.0
+
+
+def _sky_levels(a: NDArray, black: float | None) -> tuple[float, float]:
+    """Black level and sky MAD of :func:`quicklook_levels` (the numbers of ``np.median`` on the
+    whole frame), from a histogram for a 16-bit frame and from the zero count for a frame that
+    is zero over more than half its pixels with black 0 (a radiance frame)."""
+    if _small_unsigned(a):
+        counts = np.bincount(a.ravel())
+        levels = np.arange(counts.size, dtype=np.float64)
+        b = _median_of_counts(counts, levels) if black is None else float(black)
+        dist = np.abs(levels - b)
+        order = np.argsort(dist, kind="stable")
+        return b, _median_of_counts(counts[order], dist[order])
+    if black is not None and float(black) == 0.0 and a.size - np.count_nonzero(a) > a.size // 2:
+        return float(black), 0.0  # both middle elements of |a - 0| are 0
+    f = np.asarray(a, np.float64)
+    b = float(np.median(f)) if black is None else float(black)
+    return b, float(np.median(np.abs(f - b)))
 
 
 def quicklook_levels(values: ArrayLike, *, black: float | None = None
@@ -135,14 +203,21 @@ def quicklook_levels(values: ArrayLike, *, black: float | None = None
     5 sky sigmas (sigma from the median absolute deviation, at least 1 unit of the last digit
     for DN) above ``black``. A percentile over *all* pixels would land on the sky when the
     Moon covers under 0.5 % of the frame.
+
+    The medians of a 16-bit frame come from its histogram, and the MAD of a radiance frame
+    that is black (0) over most of the field is 0 without sorting: the same numbers as
+    ``np.median`` on the whole frame, ~1 ms instead of ~20 ms for 1024 x 1024 pixels.
     """
-    a = np.asarray(values, np.float64)
-    if a.size == 0 or not np.all(np.isfinite(a)):
+    a = np.asarray(values)
+    if not (_small_unsigned(a) or a.dtype.kind == "f"):
+        a = a.astype(np.float64)
+    if a.size == 0 or (a.dtype.kind == "f" and not np.all(np.isfinite(a))):
         raise ConfigError("quick look", "empty frame or NaN/inf pixels", "finite pixel values")
-    b = float(np.median(a)) if black is None else float(black)
-    mad = float(np.median(np.abs(a - b)))
+    b, mad = _sky_levels(a, black)
     sigma = 1.4826 * mad
-    above = a[a > b + max(QUICKLOOK_SKY_SIGMAS * sigma, 0.0)]
+    # compared in float64 (a float32 frame too), as on the frame converted to float64
+    above = a[np.greater(a, np.float64(b + max(QUICKLOOK_SKY_SIGMAS * sigma, 0.0)))]
+    above = above.astype(np.float64)
     if above.size == 0:
         return b, b + 1.0
     w = float(np.percentile(above, QUICKLOOK_WHITE_PERCENTILE))
@@ -178,7 +253,7 @@ def write_quicklook(values: ArrayLike, path: str | os.PathLike[str], caption: st
     -------
     QuickLookInfo
     """
-    a = np.asarray(values, np.float64)
+    a = np.asarray(values)
     if a.ndim != 2:
         raise ConfigError("quick look", a.shape, "a 2-D frame")
     lo, hi = quicklook_levels(a, black=black)
@@ -204,16 +279,11 @@ def write_quicklook(values: ArrayLike, path: str | os.PathLike[str], caption: st
         draw.text((2, y0 + 1), f"{lo:.4g}", fill=255, font=font)
         draw.text((bar_w + 4, h - QUICKLOOK_BAR_PX - 4), f"{hi:.4g} {unit}", fill=255,
                   font=font)
-    info = PngInfo()
-    info.add_text("Title", caption)
-    info.add_text("Description", f"{caption}; {stretch}")
-    info.add_text("starnav:stretch", f"asinh softening={QUICKLOOK_SOFTENING:g}")
-    info.add_text("starnav:black", repr(lo))
-    info.add_text("starnav:white", repr(hi))
-    info.add_text("starnav:unit", unit)
+    text = [("Title", caption), ("Description", f"{caption}; {stretch}"),
+            ("starnav:stretch", f"asinh softening={QUICKLOOK_SOFTENING:g}"),
+            ("starnav:black", repr(lo)), ("starnav:white", repr(hi)), ("starnav:unit", unit)]
     p = Path(path)
-    with atomic_path(p, suffix=".png") as tmp:
-        img.save(tmp, format="PNG", pnginfo=info, compress_level=PNG_COMPRESS_LEVEL)
+    write_png(np.asarray(img), p, text)
     return QuickLookInfo(p, lo, hi, unit, caption)
 
 

@@ -149,15 +149,21 @@ def test_incomplete_dataset_is_refused_unless_asked(tmp_path):
             raise Boom
 
     with pytest.raises(Boom):
-        generate(small_scenario(), out, options=DatasetOptions(radiance=False),
+        generate(small_scenario(frames=6), out, options=DatasetOptions(radiance=False),
                  progress=progress)
     man = json.loads((out / "manifest.json").read_text())
     assert man["complete"] is False and man["frames_done"] == 2
     with pytest.raises(DataFileError, match="incomplete"):
         ds.open(out)
     assert len(ds.open(out, allow_incomplete=True)) == 2
-    s = generate(small_scenario(), out, options=DatasetOptions(radiance=False), resume=True)
-    assert s.frames_made == 2 and verify(out) == []
+    # the frames already in flight in the other threads when the crash came (at most
+    # FRAME_THREADS + 1 ahead) land whole: FrameMaker.making_ahead waits for them; the resume
+    # makes the others
+    on_disk = len([p for p in (out / "frames").iterdir() if F.is_frame_dirname(p.name)])
+    assert 2 <= on_disk < 6
+    s = generate(small_scenario(frames=6), out, options=DatasetOptions(radiance=False),
+                 resume=True)
+    assert s.frames_made == 6 - on_disk and verify(out) == []
 
 
 def test_one_and_two_workers_give_identical_datasets(tmp_path):
@@ -232,36 +238,92 @@ def test_a_second_writer_is_locked_out(tmp_path):
         assert (out / ".lock").exists()  # the holder's lock is left alone
 
 
-def test_render_ahead_overlaps_the_next_render_and_keeps_the_bytes(tmp_path):
-    """In-process generation renders frame i+1 in a second thread while frame i is exposed
-    and written (writer module step 3): the next render is in flight when a frame is written,
-    runs outside the calling thread, and the frames are byte for byte those made one at a
-    time; a frame asked for out of the announced order is still the right one."""
+def test_frames_made_ahead_in_threads_keep_the_bytes(tmp_path):
+    """In-process generation makes FRAME_THREADS frames at once, each in its own thread
+    (writer module step 3): the frames are made outside the calling thread, two at a time,
+    write their files one frame at a time in the announced order, and are byte for byte those
+    made one at a time; a frame asked for out of the announced order is still the right one,
+    and nothing is left running or half-written on exit."""
+    import threading
+    import time
+
+    from starnav.dataset.writer import FrameMaker
+
+    sc = small_scenario(frames=5)
+    opts = DatasetOptions(exposures_s=(1.5e-5, 7.7e-3))
+    serial = FrameMaker(sc, opts)
+    for i in range(5):
+        serial.write_frame(i, tmp_path / "serial")
+    ahead = FrameMaker(sc, opts)
+    made: list[tuple[int, str]] = []
+    running, overlap = [0], [0]
+    lock = threading.Lock()
+    write = ahead._write_frame
+
+    def spy(index, root):
+        with lock:
+            made.append((index, threading.current_thread().name))
+            running[0] += 1
+            overlap[0] = max(overlap[0], running[0])
+        try:
+            time.sleep(0.2)   # long enough for the next frame to start meanwhile
+            return write(index, root)
+        finally:
+            with lock:
+                running[0] -= 1
+
+    ahead._write_frame = spy
+    written: list[int] = []
+    write_files = ahead._write_files
+
+    def spy_files(index, *args):
+        with lock:
+            written.append(index)
+        return write_files(index, *args)
+
+    ahead._write_files = spy_files
+    root = tmp_path / "ahead"
+    with ahead.making_ahead([0, 1, 2, 3], root, threads=2):
+        assert ahead.write_frame(0, root)["index"] == 0
+        assert ahead.write_frame(4, root)["index"] == 4   # not announced: this thread
+        for i in (1, 2, 3):
+            assert ahead.write_frame(i, root)["index"] == i
+    assert ahead._started == {} and ahead._pool is None
+    main = threading.current_thread().name
+    assert sorted(i for i, _ in made) == [0, 1, 2, 3, 4]
+    assert all(name.startswith("starnav-frame") for i, name in made if i != 4)
+    assert (4, main) in made
+    assert overlap[0] >= 2   # two frames (at least) were being made at once
+    assert [i for i in written if i != 4] == [0, 1, 2, 3]   # they land in the announced order
+    assert tree_bytes(root) == tree_bytes(tmp_path / "serial")
+    assert not [p for p in (root / "frames").iterdir() if p.name.startswith(F.TMP_PREFIX)]
+
+
+def test_frames_asked_for_out_of_order_while_others_are_made_ahead(tmp_path):
+    """A caller that asks for frames in another order than it announced gets every frame
+    right, with no deadlock: a frame behind the frames already started is made in the calling
+    thread, the others ahead; the bytes are those of the serial order."""
     import threading
 
     from starnav.dataset.writer import FrameMaker
 
-    sc = small_scenario(frames=3)
-    opts = DatasetOptions(exposures_s=(1.5e-5,))
+    sc = small_scenario(frames=6)
+    opts = DatasetOptions(exposures_s=(1.5e-5,), radiance=False)
     serial = FrameMaker(sc, opts)
-    for i in range(3):
+    for i in range(6):
         serial.write_frame(i, tmp_path / "serial")
     ahead = FrameMaker(sc, opts)
-    threads: list[tuple[int, str]] = []
-    render = ahead.render
+    root = tmp_path / "ahead"
+    got: list[int] = []
 
-    def spy(index):
-        threads.append((index, threading.current_thread().name))
-        return render(index)
+    def run():
+        with ahead.making_ahead(range(6), root, threads=2):
+            for i in (3, 0, 4, 1, 5, 2, 3):   # 3 twice: the second call finds it on disk
+                got.append(ahead.write_frame(i, root)["index"])
 
-    ahead.render = spy
-    with ahead.render_ahead([0, 1, 2]):
-        ahead.write_frame(0, tmp_path / "ahead")
-        assert ahead._pending is not None and ahead._pending[0] == 1
-        ahead.write_frame(2, tmp_path / "ahead")   # out of order: frame 1's render dropped
-        ahead.write_frame(1, tmp_path / "ahead")
-    assert ahead._pending is None and ahead._pool is None
-    main = threading.current_thread().name
-    assert threads[0] == (0, main)
-    assert threads[1][0] == 1 and threads[1][1].startswith("starnav-render")
-    assert tree_bytes(tmp_path / "ahead") == tree_bytes(tmp_path / "serial")
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    t.join(timeout=120)
+    assert not t.is_alive(), "deadlock"
+    assert got == [3, 0, 4, 1, 5, 2, 3]
+    assert tree_bytes(root) == tree_bytes(tmp_path / "serial")

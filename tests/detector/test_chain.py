@@ -158,3 +158,77 @@ def test_paper_order_saturates_before_distortion(cam64):
     assert f.electrons.max() > 1e5 * 1.001       # the area factor lifts the plateau
     phys = expose(le, cam, cfg.model_copy(update={"order": "physical"}), exposure_time=1e-3)
     assert phys.electrons.max() <= 1e5 * (1 + 1e-6)
+
+
+# ------------------------------------------------------------- the deterministic part, reused
+def _same_exposure(a, b) -> None:
+    """Equal to the last bit: DN, charge, signal, readouts, ledger, stage copies."""
+    assert np.array_equal(a.dn, b.dn) and np.array_equal(a.electrons, b.electrons)
+    assert np.array_equal(a.signal, b.signal)
+    assert a.ledger == b.ledger
+    assert (a.segments is None) == (b.segments is None)
+    if a.segments is not None:
+        assert np.array_equal(a.segments.values, b.segments.values)
+        assert np.array_equal(a.segments.row, b.segments.row)
+    assert len(a.windows) == len(b.windows)
+    assert all(np.array_equal(x.dn, y.dn) for x, y in zip(a.windows, b.windows, strict=True))
+    assert list(a.stages) == list(b.stages)
+    assert all(np.array_equal(a.stages[k], b.stages[k]) for k in a.stages)
+
+
+@pytest.mark.parametrize("order", ["physical", "paper"])
+def test_second_acquisition_from_the_mean_charge_equals_a_full_run(order):
+    """A second acquisition of the same radiance that starts from the first one's frame before
+    shot noise (MeanCharge) is bit for bit a full run of the chain with its own seed: every
+    effect on, stars added, both stage orders, stage copies kept (a seeded regression test:
+    exact equality)."""
+    from starnav.detector.optics import PointSources
+
+    cam = small_camera(64, k1=-0.3)
+    cfg = DetectorConfig.model_validate({
+        "order": order, "debug": {"keep_stages": True}, "sensor_seed": 9,
+        "readout": {"timing": {"policy": "ignore"}},
+        "smear": {"rolling_shutter": {"enabled": True, "angular_rate_deg_s": (0.3, 0.2)}}})
+    le = _disc(peak=5e17)
+    stars = PointSources(u=np.array([5.0, 50.2]), v=np.array([8.5, 55.0]),
+                         rate=np.array([3e6, 8e5]))
+    first = expose(le, cam, cfg, seed=1, frame_index=4, exposure_time=2e-3,
+                   point_sources=stars, keep_mean_charge=True)
+    mean = first.mean_charge
+    assert mean is not None and not mean.image.flags.writeable
+    assert chain_order(order)[mean.position] == "shot_noise"
+    wins = [(10, 10, 12, 12), (40, 30, 8, 16)]
+    reused = expose(le, cam, cfg, seed=77, frame_index=4, exposure_time=2e-3, windows=wins,
+                    point_sources=stars, mean_charge=mean)
+    full = expose(le, cam, cfg, seed=77, frame_index=4, exposure_time=2e-3, windows=wins,
+                  point_sources=stars)
+    _same_exposure(reused, full)
+    assert not np.array_equal(reused.dn, first.dn)   # its own noise
+    assert reused.mean_charge is None and full.mean_charge is None
+    # the first acquisition is unchanged by keeping its mean charge
+    _same_exposure(first, expose(le, cam, cfg, seed=1, frame_index=4, exposure_time=2e-3,
+                                 point_sources=stars))
+
+
+def test_a_mean_charge_of_other_inputs_is_refused():
+    cam = small_camera(64)
+    cfg = DetectorConfig(readout={"timing": {"policy": "ignore"}}, sensor_seed=3)
+    le = _disc()
+    mean = expose(le, cam, cfg, seed=1, exposure_time=1e-3, keep_mean_charge=True).mean_charge
+    # the readout (modes, windows, thresholds) and the temporal seed may differ; the sensor
+    # (the fixed pattern: here detector.sensor_seed, else the seed) may not
+    expose(le, cam, cfg.model_copy(update={"readout": cfg.readout.model_copy(
+        update={"modes": ("windows",)})}), seed=2, exposure_time=1e-3, windows=[(0, 0, 4, 4)],
+        mean_charge=mean)
+    others = [
+        dict(radiance=le.copy()),                       # another radiance object
+        dict(exposure_time=2e-3),
+        dict(config=DetectorConfig(readout={"timing": {"policy": "ignore"}}, sensor_seed=3,
+                                   charge={"prnu": {"sigma_fraction": 0.03}})),
+        dict(config=cfg.model_copy(update={"sensor_seed": 5})),
+    ]
+    for change in others:
+        kw = dict(radiance=le, exposure_time=1e-3, config=cfg) | change
+        with pytest.raises(ConfigError, match="mean_charge"):
+            expose(kw["radiance"], cam, kw["config"], seed=2,
+                   exposure_time=kw["exposure_time"], mean_charge=mean)

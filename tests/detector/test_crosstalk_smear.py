@@ -30,6 +30,26 @@ def test_ipc_kernel_on_a_point_and_conservation_everywhere():
     assert not np.allclose(out, q)
 
 
+def _ipc_whole_frame(charge, nearest, diagonal):
+    """The IPC formula on the whole frame at once, float32 (the slow reference)."""
+    p = np.pad(charge.astype(np.float32), 1, mode="symmetric")
+    out = p[1:-1, 1:-1] * np.float32(1.0 - 4.0 * (nearest + diagonal))
+    out += (((p[:-2, 1:-1] + p[2:, 1:-1]) + p[1:-1, :-2]) + p[1:-1, 2:]) * np.float32(nearest)
+    out += (((p[:-2, :-2] + p[:-2, 2:]) + p[2:, :-2]) + p[2:, 2:]) * np.float32(diagonal)
+    return out
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (70, 45), (64, 64), (33, 5)])
+def test_ipc_in_row_blocks_equals_the_whole_frame_formula_bit_for_bit(shape):
+    """The row-blocked IPC (for the cache) does every pixel's float32 operations in the same
+    order as the whole-frame formula: equal to the last bit (seeded comparison), for sizes that
+    are and are not multiples of the block."""
+    q = np.random.default_rng(4).exponential(3e4, shape).astype(np.float32)
+    assert np.array_equal(interpixel_capacitance(q, 0.005, 0.0005),
+                          _ipc_whole_frame(q, 0.005, 0.0005))
+    assert np.array_equal(interpixel_capacitance(q, 0.01, 0.0), _ipc_whole_frame(q, 0.01, 0.0))
+
+
 def test_electrical_crosstalk_adds_a_row_streak():
     s = np.zeros((6, 10), np.float32)
     s[2, 3:7] = 1e5

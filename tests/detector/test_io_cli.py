@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 import yaml
 from typer.testing import CliRunner
 
@@ -69,3 +70,44 @@ def test_cli_expose_writes_the_library_result(tmp_path):
                                    str(out), "--exposure-s", "-1"])
     assert bad.exit_code == 2
     assert "--exposure = '-1': expected a time > 0" in " ".join(bad.output.split())
+
+
+def test_png_encoder_round_trips_through_pillow_and_imageio():
+    """:func:`starnav.detector.io.png_bytes` (filter none, zlib Huffman-only or run-length)
+    decodes to the array in Pillow and imageio (libpng's rules: CRCs, chunk order, big-endian
+    16-bit samples), 8 and 16 bit, odd sizes, the extreme values, a noisy and a mostly black
+    image; text chunks in order, Latin-1 or not."""
+    import io
+
+    import imageio.v3 as iio
+    from PIL import Image
+
+    from starnav.detector.io import png_bytes
+
+    rng = np.random.default_rng(8)
+    arrays = [rng.integers(0, 65536, (37, 53)).astype(np.uint16),
+              rng.integers(0, 256, (1, 1)).astype(np.uint8),
+              np.array([[0, 65535, 1, 256]], np.uint16),
+              rng.integers(0, 256, (64, 3)).astype(np.uint8),
+              np.where(rng.random((40, 30)) < 0.02, 200, 0).astype(np.uint8)]  # runs: Z_RLE
+    text = [("Title", "frame 3"), ("starnav:unit", "W m^-2 sr^-1"), ("note", "µ 5 ✓")]
+    for a in arrays:
+        data = png_bytes(a, text)
+        assert data == png_bytes(a, text)  # deterministic
+        with Image.open(io.BytesIO(data)) as im:
+            im.load()
+            assert im.size == (a.shape[1], a.shape[0])
+            assert np.array_equal(np.asarray(im).astype(a.dtype), a)
+            assert list(im.text.items()) == text
+        back = iio.imread(data, extension=".png")
+        assert back.dtype == a.dtype and np.array_equal(back, a)
+
+
+def test_png_encoder_refuses_what_it_cannot_store():
+    from starnav.detector.io import png_bytes
+    from starnav.errors import ConfigError
+
+    for bad in (np.zeros((4, 4), np.float32), np.zeros((2, 2, 3), np.uint8),
+                np.zeros((0, 4), np.uint8)):
+        with pytest.raises(ConfigError, match="2-D uint8 or uint16"):
+            png_bytes(bad)

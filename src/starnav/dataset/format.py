@@ -190,7 +190,9 @@ def segments_to_dict(seg: Any) -> dict[str, Any]:
 
     Run ``k`` covers row ``row[k]``, columns ``col_start[k] .. col_start[k] + length[k] - 1``;
     its DN are ``values[offset_k : offset_k + length[k]]`` with ``offset_k`` the sum of the
-    previous lengths; ``level[k]`` is the index of the highest threshold reached.
+    previous lengths; ``level[k]`` is the index of the highest threshold reached. The arrays
+    stay NumPy arrays (:func:`dumps` writes them as JSON lists in one ``tolist`` each instead of
+    walking every element).
     """
     return {
         "format": "starnav-segments",
@@ -199,11 +201,11 @@ def segments_to_dict(seg: Any) -> dict[str, Any]:
         "thresholds_dn": [int(t) for t in seg.thresholds],
         "truncated": bool(seg.truncated),
         "runs": len(seg),
-        "row": seg.row.tolist(),
-        "col_start": seg.col_start.tolist(),
-        "length": seg.length.tolist(),
-        "level": seg.level.tolist(),
-        "values": seg.values.tolist(),
+        "row": np.asarray(seg.row),
+        "col_start": np.asarray(seg.col_start),
+        "length": np.asarray(seg.length),
+        "level": np.asarray(seg.level),
+        "values": np.asarray(seg.values),
     }
 
 
@@ -224,13 +226,14 @@ def segments_from_dict(d: Mapping[str, Any]) -> Any:
 
 
 def windows_to_dict(windows: Sequence[Any], acquisition: int | None) -> dict[str, Any]:
-    """JSON form of a windows readout: per window its top-left pixel, size and DN rows."""
+    """JSON form of a windows readout: per window its top-left pixel, size and DN rows (a
+    NumPy array; :func:`dumps` writes it as a list of rows)."""
     return {
         "format": "starnav-windows",
         "version": 1,
         "acquisition": acquisition,
         "windows": [{"row0": int(w.row0), "col0": int(w.col0), "height": int(w.height),
-                     "width": int(w.width), "dn": w.dn.tolist()} for w in windows],
+                     "width": int(w.width), "dn": np.asarray(w.dn)} for w in windows],
     }
 
 

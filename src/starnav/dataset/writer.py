@@ -16,11 +16,13 @@ Technique
    of :mod:`starnav.simulate.acquire` (both made by :class:`starnav.simulate.Simulator`);
    every file goes into a temporary directory ``frames/.tmp-NNNNNN-*`` which is renamed to
    ``frames/NNNNNN`` only when whole. A directory rename is atomic: a frame is on disk whole
-   or not at all. In this process (no Dask) the frames are made in index order with the
-   next frame's render running in a second thread while this one is exposed, encoded and
-   written (:meth:`FrameMaker.render_ahead`: Dr.Jit's kernels, NumPy's large operations,
-   zlib and the disk release the GIL; one render at a time, so the bytes are those of the
-   serial order).
+   or not at all. In this process (no Dask) :data:`FRAME_THREADS` frames are made at once,
+   each whole in its own thread, taken in index order (:meth:`FrameMaker.making_ahead`:
+   Dr.Jit's kernels, NumPy's large operations, the noise draws, zlib, OpenEXR and the disk
+   release the GIL); the frames are computed at the same time and write their files one
+   after another in index order, so they land in order, as in a serial run. A frame's bytes
+   depend only on its index (its random streams are its own, the renders run one at a time),
+   so they are those of the serial order.
 4. **Manifest last.** As frames land, the manifest is rewritten atomically (at most every
    ``manifest_interval_s``, and at the end) with the finished frames sorted by index, each with
    its files' sizes and SHA-256. When a frame lands, the temporary directories an earlier
@@ -122,6 +124,11 @@ Progress = Callable[[int, int], None]
 FLYBY_WINDOWS = "closed-loop"
 #: ``target_kind`` of a fly-by dataset's manifest (a limb dataset's manifest has no such key).
 FLYBY_KIND = "flyby"
+
+#: Frames made at once by in-process generation (:meth:`FrameMaker.making_ahead`): the
+#: machine's cores, at most 2 (the demo dataset's peak RSS with 2: 1.08-1.18 GB; 0.74 GB
+#: before, one frame at a time; docs/performance.md).
+FRAME_THREADS = max(1, min(2, os.cpu_count() or 1))
 
 #: Default minimum time between two manifest rewrites while frames land [s].
 MANIFEST_INTERVAL_S = 2.0
@@ -358,9 +365,18 @@ class FrameMaker:
         self.camera = self.simulator.camera
         self._per_exposure = {t: self.options.scenario_for(scenario, t)
                               for t in self.options.exposures_s or ()}
-        self._order: list[int] = []   # frames to come, in order (render_ahead)
-        self._pending: tuple[int, Future] | None = None   # the render running ahead
+        self._order: list[int] = []   # frames to come, in order (making_ahead)
+        self._order_pos: dict[int, int] = {}   # their positions in it
+        self._root: Path | None = None
+        self._threads = 1
+        self._started: dict[int, Future] = {}   # frames made ahead, by index
+        self._claimed: set[int] = set()   # ... whose result the caller took
         self._pool: ThreadPoolExecutor | None = None
+        # positions (in the announced order) of the frames made ahead that have not written
+        # their files yet: the first of them writes (frames land in order)
+        self._unwritten: set[int] = set()
+        self._position: dict[int, int] = {}
+        self._turn = threading.Condition()
         self._render_lock = threading.Lock()   # one render at a time
         self._stars = {t: uses_star_attitude(sc) for t, sc in self._per_exposure.items()}
         self.flyby = is_flyby_scenario(scenario)
@@ -369,50 +385,84 @@ class FrameMaker:
         return len(self.simulator)
 
     def render(self, index: int) -> tuple[Any, Any]:
-        """Geometry and RadianceImage of frame ``index``."""
+        """Geometry and RadianceImage of frame ``index`` (one render at a time)."""
         with self._render_lock:
             return self.simulator.render(index)
 
     @contextlib.contextmanager
-    def render_ahead(self, order: Sequence[int]) -> Iterator[None]:
-        """While open, :meth:`write_frame` of a frame in ``order`` starts the render of the
-        next one in a second thread (module step 3); the frames must then be written in that
-        order (in-process generation). A render started ahead and not used is waited for
-        and dropped on exit."""
+    def making_ahead(self, order: Sequence[int], root: Path,
+                     threads: int = FRAME_THREADS) -> Iterator[None]:
+        """While open, :meth:`write_frame` of a frame in ``order`` makes it and the next ones
+        of ``order`` in ``threads`` threads (module step 3) and returns its entry when it is
+        on disk; the calls should come in that order (in-process generation). The frames are
+        computed (render, acquisitions) at the same time but write their files one frame at a
+        time, in that order, so they land in index order as in a serial run (a run stopped by
+        an error, a full disk say, keeps the frames before it). A frame asked for out of order
+        is made in the calling thread. On exit the frames started and not asked for are
+        cancelled if they have not begun, else waited for (they land, or clean up after
+        themselves on an error); ``threads <= 1`` makes every frame in the calling thread."""
         self._order = [int(i) for i in order]
+        self._order_pos = {i: k for k, i in enumerate(self._order)}
+        self._root = Path(root)
+        self._threads = max(1, int(threads))
         try:
             yield
         finally:
-            self._order = []
-            pending, self._pending = self._pending, None
-            if pending is not None:
-                with contextlib.suppress(Exception):   # its frame was never asked for
-                    pending[1].result()
+            self._order, self._order_pos, self._root, self._threads = [], {}, None, 1
+            started = {i: f for i, f in self._started.items() if i not in self._claimed}
+            self._started, self._claimed = {}, set()
+            for i, fut in started.items():
+                if fut.cancel():   # never begun: it will not take its turn
+                    self._end_turn(i)
+            for fut in started.values():
+                if not fut.cancelled():
+                    with contextlib.suppress(Exception):   # its frame was never asked for
+                        fut.result()
             if self._pool is not None:
                 self._pool.shutdown(wait=True)
                 self._pool = None
+            with self._turn:
+                self._unwritten.clear()
+                self._position.clear()
 
-    def _rendered(self, index: int) -> tuple[Any, Any]:
-        """Frame ``index``'s render (the one started ahead, if it is this frame's), and the
-        next frame's started."""
-        pending, self._pending = self._pending, None
-        got = None
-        if pending is not None:
-            if pending[0] == index:
-                got = pending[1].result()
-            else:
-                with contextlib.suppress(Exception):
-                    pending[1].result()
-        if got is None:
-            got = self.render(index)
-        if index in self._order:
-            k = self._order.index(index)
-            if k + 1 < len(self._order):
-                if self._pool is None:
-                    self._pool = ThreadPoolExecutor(1, thread_name_prefix="starnav-render")
-                nxt = self._order[k + 1]
-                self._pending = (nxt, self._pool.submit(self.render, nxt))
-        return got
+    def _claim(self, index: int, root: Path) -> Future | None:
+        """The future of frame ``index`` when it is made ahead, after starting the frames
+        that follow it in the announced order (``threads`` running and one queued)."""
+        k = self._order_pos.get(index)
+        if self._threads <= 1 or self._root is None or Path(root) != self._root or k is None \
+                or index in self._claimed:
+            return None
+        with self._turn:
+            behind = index not in self._started and k < max(self._position.values(),
+                                                            default=-1)
+        if behind:   # behind frames already started: made here (the pool stays in order)
+            return None
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(self._threads, thread_name_prefix="starnav-frame")
+        for pos, i in enumerate(self._order[k : k + self._threads + 1], k):
+            if i not in self._started:
+                with self._turn:
+                    self._position[i] = pos
+                    self._unwritten.add(pos)
+                self._started[i] = self._pool.submit(self._write_frame, i, self._root)
+        self._claimed.add(index)
+        return self._started[index]
+
+    def _wait_turn(self, index: int) -> None:
+        """Wait until every frame made ahead before ``index`` (in the announced order) has
+        written its files (or failed); at once for a frame not made ahead."""
+        with self._turn:
+            pos = self._position.get(index)
+            if pos is not None:
+                self._turn.wait_for(lambda: min(self._unwritten, default=pos) >= pos)
+
+    def _end_turn(self, index: int) -> None:
+        """Frame ``index`` has written its files, or will not: the next one may write."""
+        with self._turn:
+            pos = self._position.pop(index, None)
+            if pos is not None:
+                self._unwritten.discard(pos)
+                self._turn.notify_all()
 
     def write_frame(self, index: int, root: Path) -> dict[str, Any]:
         """Make frame ``index`` and move it into ``root/frames`` whole (module step 3).
@@ -422,15 +472,21 @@ class FrameMaker:
         dict
             The frame's manifest entry.
         """
-        frames = root / F.FRAMES_DIR
-        frames.mkdir(parents=True, exist_ok=True)
-        final = frames / F.frame_dirname(index)
-        if final.exists():
-            return frame_entry(root, index)
-        geom, img = self._rendered(index)
-        tmp = Path(tempfile.mkdtemp(prefix=f"{F.TMP_PREFIX}{F.frame_dirname(index)}-",
-                                    dir=frames))
+        fut = self._claim(int(index), root)
+        if fut is not None:
+            return fut.result()
+        return self._write_frame(int(index), root)
+
+    def _write_frame(self, index: int, root: Path) -> dict[str, Any]:
+        """:meth:`write_frame` in this thread: compute the frame (render, truth,
+        acquisitions), then, at its turn (:meth:`making_ahead`), write it."""
         try:
+            frames = root / F.FRAMES_DIR
+            frames.mkdir(parents=True, exist_ok=True)
+            final = frames / F.frame_dirname(index)
+            if final.exists():
+                return frame_entry(root, index)
+            geom, img = self.render(index)
             truth = F.truth_to_dict(geom, self.camera, self.options.limb_points)
             if self.flyby:
                 rel = self.simulator.scene.relative_states[index]
@@ -440,16 +496,34 @@ class FrameMaker:
                                   "sun_direction_j2000": self.simulator.scene.flyby.sun_direction,
                                   "per_pixel": "radiance.exr AOVs (hit mask, body-fixed "
                                                "coordinates)"}
+            acqs = {t: self.simulator.acquire(img, geom, exposure_time=t, run=0,
+                                              windows=self.options.windows,
+                                              scenario=self._per_exposure[t])
+                    for t in self.options.exposures_s or ()}
+            stars = {t: star_acquisition_dn(img, geom, self.camera, self._per_exposure[t], 0)
+                     for t in acqs
+                     if self._stars[t] and is_star_frame(self._per_exposure[t], index)}
+            self._wait_turn(index)
+            self._write_files(index, frames, geom, img, truth, acqs, stars)
+        finally:
+            self._end_turn(index)
+        return frame_entry(root, index)
+
+    def _write_files(self, index: int, frames: Path, geom: Any, img: Any,
+                     truth: dict[str, Any], acqs: dict[float, Any],
+                     stars: dict[float, Any]) -> None:
+        """Write frame ``index`` into a temporary directory and rename it into ``frames``."""
+        final = frames / F.frame_dirname(index)
+        tmp = Path(tempfile.mkdtemp(prefix=f"{F.TMP_PREFIX}{F.frame_dirname(index)}-",
+                                    dir=frames))
+        try:
             F.write_json(tmp / F.TRUTH, truth)
             if self.options.radiance:
                 write_exr(img, tmp / F.RADIANCE)
                 write_radiance_quicklook(img, tmp / F.RADIANCE_QUICKLOOK, index=index)
-            for t in self.options.exposures_s or ():
+            for t, acq in acqs.items():
                 d = tmp / F.exposure_dirname(t)
                 d.mkdir()
-                acq = self.simulator.acquire(img, geom, exposure_time=t, run=0,
-                                             windows=self.options.windows,
-                                             scenario=self._per_exposure[t])
                 write_dn_png(F.uint16_image(acq.segments_exposure.dn), d / F.DN)
                 write_dn_quicklook(acq.segments_exposure.dn, d / F.DN_QUICKLOOK, index=index,
                                    exposure_time=t, range_m=geom.range,
@@ -460,10 +534,8 @@ class FrameMaker:
                 F.write_json(d / F.WINDOWS, F.windows_to_dict(
                     acq.windows, None if not acq.windows else
                     (1 if acq.windows_exposure is not None else 0)), compact=True)
-                sc_t = self._per_exposure[t]
-                if self._stars[t] and is_star_frame(sc_t, index):
-                    write_dn_png(F.uint16_image(star_acquisition_dn(img, geom, self.camera,
-                                                                    sc_t, 0)), d / F.STAR_DN)
+                if t in stars:
+                    write_dn_png(F.uint16_image(stars[t]), d / F.STAR_DN)
                 F.write_json(d / F.READOUT, {**acq.summary(),
                                              "overrides": list(self.options.overrides_for(t))})
             os.chmod(tmp, 0o777 & ~_umask())
@@ -473,7 +545,6 @@ class FrameMaker:
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
-        return frame_entry(root, index)
 
 
 def _umask() -> int:
@@ -725,8 +796,8 @@ def generate(scenario: Scenario, out: str | os.PathLike[str], *,
         t_frames = time.perf_counter()
         setup_s = t_frames - t_start
         last = time.monotonic()
-        # in this process the frames are made in order: the next render runs ahead
-        ahead = (frame_maker(cfg, od).render_ahead(todo)
+        # in this process the frames are made in order, FRAME_THREADS at a time
+        ahead = (frame_maker(cfg, od).making_ahead(todo, out.absolute(), FRAME_THREADS)
                  if todo and isinstance(runner, InProcessRunner) else contextlib.nullcontext())
         try:
             handles = [runner.submit(make_frame, cfg, od, str(out.absolute()), i,

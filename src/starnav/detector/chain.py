@@ -55,6 +55,14 @@ Randomness follows DESIGN.md: fixed-pattern maps come from the sensor seed, temp
 ``(seed, frame_index, effect)`` (:mod:`starnav.detector.seeding`), so frames can be made in any
 order, by any number of workers, with identical DN.
 
+Everything before the chain's first temporal-noise effect (:data:`TEMPORAL_EFFECTS`; in both
+orders the optics, smear, PRNU and dark current) is a deterministic function of the radiance,
+the exposure time, the stars and the sensor. A second acquisition of the same radiance (the
+dataset's windows acquisition: same exposure, its own noise) can start from the first one's
+frame at that point instead of recomputing it: ``expose(..., keep_mean_charge=True)`` keeps it
+as :attr:`Exposure.mean_charge` (a :class:`MeanCharge`), ``expose(..., mean_charge=...)``
+starts from it, with the very same arrays and charge ledger as a full run (tested).
+
 Example
 -------
 >>> import numpy as np
@@ -131,6 +139,8 @@ class ChainContext:
     #: ``config`` in SI (:meth:`~starnav.config_base.StrictModel.to_si`): what adapters read
     #: for any quantity with a unit other than px, e- or DN.
     si: SIView = field(init=False)
+    _last_total: tuple[Float32Array, float] | None = field(default=None, init=False,
+                                                            repr=False)
 
     def __post_init__(self) -> None:
         self.si = self.config.to_si()
@@ -141,6 +151,16 @@ class ChainContext:
 
     def book(self, key: str, value: float) -> None:
         self.ledger[key] = self.ledger.get(key, 0.0) + float(value)
+
+    def total(self, image: Float32Array) -> float:
+        """``image.sum(dtype=float64)`` [e-]; the last image's sum is kept, so an effect's
+        input, which is the previous effect's output, is summed once."""
+        last = self._last_total
+        if last is not None and last[0] is image:
+            return last[1]
+        t = float(image.sum(dtype=np.float64))
+        self._last_total = (image, t)
+        return t
 
 
 @dataclass(frozen=True)
@@ -163,7 +183,7 @@ def _photoelectrons(le: Float32Array, ctx: ChainContext) -> Float32Array:
     ri = (optics.relative_illumination_map(ctx.camera)
           if ctx.config.optics.radiometry.relative_illumination else None)
     out = optics.photoelectrons(le, ctx.exposure_time, ctx.camera.etendue, ri)
-    ctx.book("photoelectrons_e", out.sum(dtype=np.float64))
+    ctx.book("photoelectrons_e", ctx.total(out))
     return out
 
 
@@ -196,7 +216,7 @@ def add_point_sources(img: Float32Array, ctx: ChainContext, sources: PointSource
 
 def _book_loss(ctx: ChainContext, before: Float32Array, after: Float32Array) -> None:
     """Book what a conserving-except-at-the-edges effect moved off the array [e-]."""
-    ctx.book("optics_lost_e", before.sum(dtype=np.float64) - after.sum(dtype=np.float64))
+    ctx.book("optics_lost_e", ctx.total(before) - ctx.total(after))
 
 
 def _distortion(img: Float32Array, ctx: ChainContext) -> Float32Array:
@@ -344,6 +364,16 @@ CHAIN_ORDERS: Registry[tuple[str, ...]] = Registry("detector chain order", {
 })
 
 
+#: Effects that draw from the frame's temporal streams; the chain before the first of them is
+#: deterministic (:class:`MeanCharge`).
+TEMPORAL_EFFECTS = ("shot_noise", "read_noise")
+
+
+def first_temporal(order: Sequence[str]) -> int:
+    """Position in ``order`` of the first temporal-noise effect (``len(order)`` if none)."""
+    return next((k for k, n in enumerate(order) if n in TEMPORAL_EFFECTS), len(order))
+
+
 def get_effect(name: str) -> Effect:
     """The effect registered as ``name``."""
     return EFFECTS.get(name)
@@ -355,6 +385,67 @@ def chain_order(name: str) -> tuple[str, ...]:
 
 
 # =========================================================================== result
+def _prefix_settings(cfg: DetectorConfig) -> dict[str, Any]:
+    """The settings the deterministic part of the chain may read: all but the readout modes,
+    windows and segment thresholds, the temporal seeds and the debug switches."""
+    return cfg.model_dump(exclude={"readout": {"modes", "windows", "segments"},
+                                   "debug": True})
+
+
+@dataclass(frozen=True)
+class MeanCharge:
+    """The frame before the chain's first temporal-noise effect and what made it (module
+    essay): another acquisition of the same radiance, camera, exposure, stars and sensor can
+    start from it (``expose(..., mean_charge=...)``).
+
+    Attributes
+    ----------
+    image : (H, W) float32, read-only
+        The frame at that point of the chain [e-].
+    position : int
+        Index in the chain order of the first effect not applied.
+    ledger : dict
+        Charge ledger so far [e-].
+    stages : dict
+        Copies after each applied effect (when kept).
+    electrons : (H, W) float32 or None
+        The charge at the end of the pixel stage, if that came before ``position``.
+    radiance, camera, point_sources : object
+        The inputs, held by identity.
+    settings : dict
+        :func:`_prefix_settings` of the detector configuration.
+    exposure_time : float
+        [s].
+    sensor_seed : int
+    """
+
+    image: Float32Array
+    position: int
+    ledger: dict[str, float]
+    stages: dict[str, NDArray[Any]]
+    electrons: Float32Array | None
+    radiance: Any
+    camera: Camera
+    point_sources: PointSources | None
+    settings: dict[str, Any]
+    exposure_time: float
+    sensor_seed: int
+
+    def check(self, radiance: Any, camera: Camera, cfg: DetectorConfig, exposure_time: float,
+              point_sources: PointSources | None, sensor_seed: int) -> None:
+        """Raise :class:`~starnav.errors.ConfigError` unless an exposure with these inputs
+        would have computed this very frame."""
+        same = (radiance is self.radiance and camera is self.camera
+                and point_sources is self.point_sources
+                and exposure_time == self.exposure_time and sensor_seed == self.sensor_seed
+                and _prefix_settings(cfg) == self.settings)
+        if not same:
+            raise ConfigError("mean_charge", "the mean charge of another exposure",
+                              "the MeanCharge of an exposure of the same radiance object, "
+                              "camera, stars, exposure time, sensor seed and detector "
+                              "settings (readout modes, windows and thresholds aside)")
+
+
 @dataclass
 class Exposure:
     """One exposed frame.
@@ -386,6 +477,9 @@ class Exposure:
         [e-/DN].
     seed, sensor_seed, frame_index : int
     config : DetectorConfig
+    mean_charge : MeanCharge or None
+        The frame before the first temporal-noise effect, when asked for
+        (``keep_mean_charge``).
     """
 
     dn: NDArray[np.uint16]
@@ -403,6 +497,7 @@ class Exposure:
     sensor_seed: int
     frame_index: int
     config: DetectorConfig
+    mean_charge: MeanCharge | None = None
 
     @property
     def feasible(self) -> bool:
@@ -472,7 +567,9 @@ def expose(radiance: RadianceImage | NDArray[Any], camera: Camera,
            exposure_time: float | None = None,
            windows: Sequence[WindowSpec | Sequence[int] | dict] | None = None,
            keep_stages: bool | None = None,
-           point_sources: PointSources | None = None) -> Exposure:
+           point_sources: PointSources | None = None,
+           keep_mean_charge: bool = False,
+           mean_charge: MeanCharge | None = None) -> Exposure:
     """Expose the detector to a radiance image and read it out like the AA-STR.
 
     Parameters
@@ -498,6 +595,14 @@ def expose(radiance: RadianceImage | NDArray[Any], camera: Camera,
     point_sources : PointSources, optional
         Stars (pinhole positions [px], rates [e-/s]), added after the aberration PSF's place
         in the chain (step 2b of the module table); ``None``: the frame is exactly as without.
+    keep_mean_charge : bool
+        Keep the frame before the first temporal-noise effect as
+        :attr:`Exposure.mean_charge` (module essay), for another acquisition of the same
+        radiance.
+    mean_charge : MeanCharge, optional
+        Start from that frame (the ``mean_charge`` of an exposure of the same ``radiance``
+        object, camera, stars, exposure time, sensor and detector settings, readout modes,
+        windows and thresholds aside): the result is the one of a full run.
 
     Returns
     -------
@@ -508,7 +613,7 @@ def expose(radiance: RadianceImage | NDArray[Any], camera: Camera,
     ConfigError
         Exposure not > 0 s; exposure shorter than a requested readout needs (policy
         ``enforce``); more than 16 windows or a window outside the array; radiance with NaN,
-        negative values or the wrong shape.
+        negative values or the wrong shape; a ``mean_charge`` made from other inputs.
     """
     cfg = config if config is not None else DetectorConfig()
     t_exp = _check_exposure(cfg.exposure_time_s if exposure_time is None else exposure_time)
@@ -523,19 +628,42 @@ def expose(radiance: RadianceImage | NDArray[Any], camera: Camera,
     if win and "windows" not in modes:
         timings.append(readout.readout_timing("windows", shape, t_exp, cfg.readout.timing, win))
     readout.check_timing(timings, cfg.readout.timing.policy)
-    le = _electron_radiance(radiance, camera)
-    sensor_seed = cfg.sensor_seed if cfg.sensor_seed is not None else seed
-    ctx = ChainContext(camera, cfg, t_exp, int(seed), int(sensor_seed), int(frame_index),
+    sensor_seed = int(cfg.sensor_seed if cfg.sensor_seed is not None else seed)
+    keep = cfg.debug.keep_stages if keep_stages is None else keep_stages
+    if mean_charge is not None:
+        mean_charge.check(radiance, camera, cfg, t_exp, point_sources, sensor_seed)
+        if keep and not mean_charge.stages and mean_charge.position:
+            mean_charge = None   # stage copies wanted, and not kept by the first run
+    le = (_electron_radiance(radiance, camera) if mean_charge is None
+          else mean_charge.image)   # (the radiance was checked by the first run)
+    ctx = ChainContext(camera, cfg, t_exp, int(seed), sensor_seed, int(frame_index),
                        {"photoelectrons_e": 0.0, "optics_lost_e": 0.0, "drained_e": 0.0,
                         "left_array_e": 0.0})
     # validate the seeds early (clear message instead of a numpy error mid-chain)
     ctx.temporal("shot_noise")
-    keep = cfg.debug.keep_stages if keep_stages is None else keep_stages
     stages: dict[str, NDArray[Any]] = {}
     times: dict[str, float] = {}
     img = le
     electrons: Float32Array | None = None
-    for name in chain_order(cfg.order):
+    order = chain_order(cfg.order)
+    start, mean_at = 0, first_temporal(order)
+    if mean_charge is not None:   # the deterministic part, as the first run made it
+        start, img, electrons = mean_charge.position, mean_charge.image, mean_charge.electrons
+        ctx.ledger = dict(mean_charge.ledger)
+        if keep:
+            stages.update(mean_charge.stages)
+    kept: MeanCharge | None = None
+    for k in range(start, len(order) + 1):
+        if k == mean_at and keep_mean_charge:
+            if img is le:   # no effect before it: never lock the caller's radiance
+                img = img.copy()
+            img.flags.writeable = False   # shared with the next acquisition: never changed
+            kept = MeanCharge(img, k, dict(ctx.ledger), dict(stages) if keep else {},
+                              electrons, radiance, camera, point_sources,
+                              _prefix_settings(cfg), t_exp, sensor_seed)
+        if k == len(order):
+            break
+        name = order[k]
         eff = get_effect(name)
         if electrons is None and eff.stage in ("signal", "image"):
             electrons = img
@@ -568,4 +696,5 @@ def expose(radiance: RadianceImage | NDArray[Any], camera: Camera,
     return Exposure(dn=dn, electrons=electrons, signal=img, segments=segs, windows=wins,
                     timing=tuple(timings), ledger=ctx.ledger, stages=stages, timings_ms=times,
                     exposure_time=t_exp, gain=cfg.gain_e_per_dn, seed=int(seed),
-                    sensor_seed=int(sensor_seed), frame_index=int(frame_index), config=cfg)
+                    sensor_seed=int(sensor_seed), frame_index=int(frame_index), config=cfg,
+                    mean_charge=kept)

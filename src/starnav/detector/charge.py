@@ -117,7 +117,7 @@ def shot_noise(mean: Float32Array, rng: np.random.Generator,
     """
     # a PSF applied by FFT leaves round-off of either sign (~1e-2 e-) where there is no light:
     # a negative mean charge is zero charge
-    lam = np.maximum(mean.astype(np.float64), 0.0)
+    lam = np.maximum(mean, 0.0, dtype=np.float64)   # (cast, then clipped: one pass)
     gauss = None
     if gaussian_above is not None:
         gauss = lam >= gaussian_above

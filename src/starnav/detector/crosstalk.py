@@ -24,6 +24,9 @@ from numpy.typing import NDArray
 
 Float32Array = NDArray[np.float32]
 
+#: Rows per block of :func:`interpixel_capacitance` (a block's temporaries stay in the cache).
+IPC_BLOCK_ROWS = 32
+
 
 def ipc_kernel(nearest: float, diagonal: float) -> NDArray[np.float64]:
     """The 3 x 3 IPC kernel [-] (unit sum)."""
@@ -50,20 +53,28 @@ def interpixel_capacitance(charge: Float32Array, nearest: float = 0.005,
         Coupled signal [e-], same total as ``charge``.
     """
     p = np.pad(charge.astype(np.float32, copy=False), 1, mode="symmetric")
-    out = p[1:-1, 1:-1] * np.float32(1.0 - 4.0 * (nearest + diagonal))
-    if nearest:
-        # vertical pair + horizontal pair, accumulated in place to keep float32 traffic low
-        acc = p[:-2, 1:-1] + p[2:, 1:-1]
-        acc += p[1:-1, :-2]
-        acc += p[1:-1, 2:]
-        acc *= np.float32(nearest)
-        out += acc
-    if diagonal:
-        acc = p[:-2, :-2] + p[:-2, 2:]
-        acc += p[2:, :-2]
-        acc += p[2:, 2:]
-        acc *= np.float32(diagonal)
-        out += acc
+    H, W = charge.shape
+    out = np.empty((H, W), np.float32)
+    centre = np.float32(1.0 - 4.0 * (nearest + diagonal))
+    acc = np.empty((min(IPC_BLOCK_ROWS, H), W), np.float32)
+    # row blocks small enough for the cache; every pixel gets the same float32 operations in
+    # the same order as on the whole frame at once (same bits, ~2x faster on 1024 x 1024)
+    for r0 in range(0, H, IPC_BLOCK_ROWS):
+        q = p[r0 : min(r0 + IPC_BLOCK_ROWS, H) + 2]
+        o, a = out[r0 : r0 + q.shape[0] - 2], acc[: q.shape[0] - 2]
+        np.multiply(q[1:-1, 1:-1], centre, out=o)
+        if nearest:   # vertical pair + horizontal pair
+            np.add(q[:-2, 1:-1], q[2:, 1:-1], out=a)
+            a += q[1:-1, :-2]
+            a += q[1:-1, 2:]
+            a *= np.float32(nearest)
+            o += a
+        if diagonal:
+            np.add(q[:-2, :-2], q[:-2, 2:], out=a)
+            a += q[2:, :-2]
+            a += q[2:, 2:]
+            a *= np.float32(diagonal)
+            o += a
     return out
 
 

@@ -4,12 +4,13 @@ The optics effects convolve only the part of the frame that holds signal (a Moon
 covers ~2 % of the AA-STR frame), so the transforms are sized on that region plus the kernel
 margin. FFT shapes are rounded up to a multiple of :data:`FFT_QUANTUM` and then to a fast length,
 so that successive frames with the Moon in slightly different places reuse the same kernel
-spectra from the cache.
+spectra from the cache (guarded by a lock: a dataset makes frames in two threads).
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Hashable
 
 import numpy as np
@@ -30,6 +31,7 @@ FFT_WORKERS = 2
 
 _SPECTRA: BoundedCache[tuple[Hashable, tuple[int, int]], NDArray[np.complex64]] = BoundedCache(
     SPECTRUM_CACHE_SIZE)
+_SPECTRA_LOCK = threading.Lock()
 
 
 def fft_shape(n_rows: int, n_cols: int) -> tuple[int, int]:
@@ -52,12 +54,19 @@ def kernel_spectrum(kernel: Float32Array, shape: tuple[int, int],
 
     if key is None:
         return make()
-    return _SPECTRA.get_or_make((key, shape), make)
+    with _SPECTRA_LOCK:   # frames are made in threads (starnav.dataset.writer)
+        hit = _SPECTRA.get((key, shape))
+    if hit is None:
+        hit = make()   # outside the lock: two threads may both make it, with equal results
+        with _SPECTRA_LOCK:
+            _SPECTRA.put((key, shape), hit)
+    return hit
 
 
 def clear_cache() -> None:
     """Forget every cached kernel spectrum."""
-    _SPECTRA.clear()
+    with _SPECTRA_LOCK:
+        _SPECTRA.clear()
 
 
 def convolve_add(out: Float32Array, src: Float32Array, r0: int, c0: int,

@@ -53,8 +53,10 @@ def nonlinearity(signal: Float32Array, full_well: float, deficit: float) -> Floa
     if deficit == 0.0:
         return signal.copy()
     beta = deficit / (1.0 - deficit)
-    s = np.maximum(signal, 0.0)
-    return (signal / (1.0 + np.float32(beta / full_well) * s)).astype(np.float32)
+    d = np.maximum(signal, 0.0)   # the denominator 1 + beta/F max(S, 0), built in place
+    d *= np.float32(beta / full_well)
+    d += 1.0
+    return np.divide(signal, d, out=d).astype(np.float32, copy=False)
 
 
 def read_noise(signal: Float32Array, sigma: float, rng: np.random.Generator) -> Float32Array:

@@ -22,7 +22,10 @@ Technique
    1 km/s and 60 000 km the Moon moves by ~1e-5 px between them, so the geometry is shared,
    while shot and read noise are independent, as on the real sensor. ``windows = "same"`` cuts
    the windows out of acquisition 0 instead (cheaper; the windows then share the segments'
-   noise, which the tracker cannot do); ``"none"`` skips them.
+   noise, which the tracker cannot do); ``"none"`` skips them. Acquisition 1 starts from
+   acquisition 0's frame before shot noise (the optics, smear, PRNU and dark current are the
+   same deterministic numbers: :class:`starnav.detector.chain.MeanCharge`) and draws its own
+   noise from there; its bytes are those of a full second run of the chain.
 
 Randomness
 ----------
@@ -300,7 +303,8 @@ def acquire(radiance: RadianceImage | Any, geom: FrameGeometry, camera: Camera,
     sources = stars.point_sources() if stars is not None else None
     t0 = time.perf_counter()
     e0 = expose(radiance, camera, cfg0, seed=acquisition_seed(seed, run, 0), frame_index=index,
-                exposure_time=t_exp, windows=(), point_sources=sources)
+                exposure_time=t_exp, windows=(), point_sources=sources,
+                keep_mean_charge=mode == "second")
     t_det = time.perf_counter() - t0
     status, message, planned = "skipped", "windows mode 'none'", []
     t_plan = 0.0
@@ -324,9 +328,10 @@ def acquire(radiance: RadianceImage | Any, geom: FrameGeometry, camera: Camera,
                 t0 = time.perf_counter()
                 e1 = expose(radiance, camera, cfg1, seed=acquisition_seed(seed, run, 1),
                             frame_index=index, exposure_time=t_exp, windows=planned,
-                            point_sources=sources)
+                            point_sources=sources, mean_charge=e0.mean_charge)
                 t_det += time.perf_counter() - t0
                 wins = e1.windows
+    e0.mean_charge = None   # (4 MB; the acquisitions are made)
     if status != "ok":
         log.debug("frame %d, %.4g ms: no windows (%s: %s)", index, t_exp * 1e3, status, message)
     return Acquisition(exposure_time=t_exp, run=int(run), segments_exposure=e0, windows=wins,
