@@ -12,6 +12,17 @@ Prints one JSON document. Usage::
     .venv/bin/python benchmarks/stars.py
     .venv/bin/python benchmarks/stars.py --navigation   # the attitude schedule (part C)
 
+``--survey [N]``: lost-in-space identification over ``N`` (default 1000) random pointings of
+the sky, each rendered at 200 ms through the whole detector chain and solved without a prior
+(:func:`starnav.stars.survey.identification_survey`), then ``N / 5`` with a saturated Moon in the
+field (false-star rate), with and without the Moon's exclusion discs: counts, rates and the
+per-frame times (drawing + exposing, solving).
+
+``--monte-carlo [R]``: the navigation Monte Carlo with the solved attitude
+(:func:`starnav.batch.attitude_study.attitude_monte_carlo`: ``R`` runs, default 20, each on its
+own terrain; 13 frames of the demo's arc at 1024 px, 8 spp, both demo exposures); prints the
+table and writes the JSON next to the working directory (``attitude_monte_carlo.json``).
+
 ``--navigation``: the per-frame cost of the attitude schedule on the demo's arc (5 frames,
 1024 px, 8 spp, star acquisitions at 200 ms every 2nd frame, both demo exposures): the star
 acquisition (stars drawn + exposed), the solves (lost in space, tracking, the navigation
@@ -143,10 +154,58 @@ def navigation(frames: int = 5) -> None:
     print(comparison_markdown(res))
 
 
+def survey(n: int = 1000) -> None:
+    from starnav.stars.survey import identification_survey
+
+    out = {}
+    for name, kw, count, seed in (("open sky", {}, n, 17),
+                                  ("Moon in the field", {"moon": True}, max(n // 5, 1), 18),
+                                  ("Moon, no exclusions", {"moon": True, "exclude_body": False},
+                                   max(n // 5, 1), 18)):
+        t0 = time.perf_counter()
+        res = identification_survey(count, np.random.default_rng(seed),
+                                    first_seed=0 if not kw else 1000, **kw)
+        s = res.summary()
+        s["wall_time_s"] = round(time.perf_counter() - t0, 1)
+        s["not_correct"] = [{"index": p.index, "outcome": p.outcome, "reason": p.reason,
+                             "stars_in_frame": p.stars_in_frame, "candidates": p.candidates}
+                            for p in res.pointings if p.outcome != "correct"]
+        out[name] = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in s.items()}
+    print(json.dumps(out, indent=1))
+
+
+def monte_carlo(runs: int = 20) -> None:
+    import os
+
+    from starnav.batch.attitude_study import (
+        attitude_monte_carlo,
+        monte_carlo_markdown,
+        reduced_demo,
+    )
+
+    res = attitude_monte_carlo(reduced_demo(frames=13, size_px=1024, spp=8), runs,
+                               attitude={"schedule_every": 2})
+    print(monte_carlo_markdown(res))
+    print(json.dumps({"wall_time_s": round(res["wall_time_s"], 1),
+                      "run_wall_time_median_s": round(statistics.median(
+                          res["run_wall_times_s"]), 1),
+                      "load_average": os.getloadavg()}))
+    with open("attitude_monte_carlo.json", "w") as fh:
+        json.dump(res, fh, indent=1)
+
+
 if __name__ == "__main__":
     import sys
 
+    def _arg(flag: str, default: int) -> int:
+        i = sys.argv.index(flag)
+        return int(sys.argv[i + 1]) if len(sys.argv) > i + 1 else default
+
     if "--navigation" in sys.argv:
         navigation()
+    elif "--survey" in sys.argv:
+        survey(_arg("--survey", 1000))
+    elif "--monte-carlo" in sys.argv:
+        monte_carlo(_arg("--monte-carlo", 20))
     else:
         main()

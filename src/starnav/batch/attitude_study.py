@@ -44,6 +44,7 @@ from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
 from starnav.config_base import apply_overrides
 from starnav.errors import ConfigError
 from starnav.navigation.dynamics import PointMassDynamics
+from starnav.navigation.metrics import chi2_band, nees
 from starnav.navigation.pipeline import navigate
 from starnav.simulate.attitude import (
     SOURCES,
@@ -102,11 +103,45 @@ def _nav_stats(run: Any) -> dict[str, Any]:
     m = run.metrics()
     k = int(m.frames)
     lo, hi = _band(6, k)
-    return {"frames": k, "fixes": int(m.fixes), "accepted": int(m.accepted),
-            "final_position_error_m": float(m.final_position_error_m),
-            "final_position_error_pct_range": float(m.final_position_error_pct_range),
-            "nees_mean": float(m.nees_mean), "nees_band": [lo, hi],
-            "nees_in_band": bool(lo <= m.nees_mean <= hi)}
+    out = {"frames": k, "fixes": int(m.fixes), "accepted": int(m.accepted),
+           "final_position_error_m": float(m.final_position_error_m),
+           "final_position_error_pct_range": float(m.final_position_error_pct_range),
+           "nees_mean": float(m.nees_mean), "nees_band": [lo, hi],
+           "nees_in_band": bool(lo <= m.nees_mean <= hi)}
+    if run.truth is not None:
+        # per step: the whole NEES (6 states) and its position and velocity blocks (3 each)
+        e = run.filter.errors(run.truth)
+        P = run.filter.covariances[:, :6, :6]
+        out["nees_per_step"] = np.asarray(nees(e, P), float).tolist()
+        out["nees_position_per_step"] = np.asarray(nees(e[:, :3], P[:, :3, :3]),
+                                                   float).tolist()
+        out["nees_velocity_per_step"] = np.asarray(nees(e[:, 3:], P[:, 3:, 3:]),
+                                                   float).tolist()
+    return out
+
+
+def _fix_stats(run: Any, geoms: Sequence[Any]) -> dict[str, Any]:
+    """Per frame, the limb fix's own NEES (3 dof) against the true Moon-relative position:
+    with its whole covariance and with its ``white`` part alone (pixel noise and attitude:
+    the ``limb-common`` filter's measurement noise); the error along the line of sight
+    (range) and across it [m] (NaN without a fix)."""
+    out: dict[str, list[float]] = {"fix_nees_per_step": [], "fix_nees_white_per_step": [],
+                                   "fix_error_range_m": [], "fix_error_cross_m": []}
+    for m, g in zip(run.measurements, geoms, strict=True):
+        if m.position is None or m.covariance is None:
+            for v in out.values():
+                v.append(math.nan)
+            continue
+        e = np.asarray(m.position, float) - np.asarray(g.camera_position, float)
+        out["fix_nees_per_step"].append(float(e @ np.linalg.solve(m.covariance, e)))
+        W = m.white_covariance
+        out["fix_nees_white_per_step"].append(
+            math.nan if W is None else float(e @ np.linalg.solve(W, e)))
+        los = -np.asarray(g.camera_position, float)
+        los /= np.linalg.norm(los)
+        out["fix_error_range_m"].append(float(-e @ los))
+        out["fix_error_cross_m"].append(float(np.linalg.norm(e - (e @ los) * los)))
+    return out
 
 
 def exposure_scenario(base: dict[str, Any], exposure_time: float,
@@ -180,8 +215,10 @@ def attitude_comparison(
     chains_s: list[list[Any]] = [[] for _ in scs]
     assumed_err: list[list[np.ndarray]] = [[] for _ in scs]
     records: list[list[Any]] = [[] for _ in scs]
+    geoms = []
     for k in range(K):
         geom, img = sim.render(k)
+        geoms.append(geom)
         for j, (sc, tr, ch) in enumerate(zip(scs, trackers, chains, strict=True)):
             obs = sim.observe(img, geom, run=run, exposure_time=float(sc.detector.exposure_time_s),
                               scenario=sc)
@@ -205,13 +242,15 @@ def attitude_comparison(
         rs = navigate(frames_s[j], chains=chains_s[j], **common)
         t_exp = float(sc.detector.exposure_time_s)
         P_a = np.repeat(assumed_covariance(chains[j])[None], K, axis=0)
-        cases.append({"exposure_s": t_exp, "case": "assumed", "navigation": _nav_stats(ra),
+        cases.append({"exposure_s": t_exp, "case": "assumed",
+                      "navigation": {**_nav_stats(ra), **_fix_stats(ra, geoms)},
                       "attitude": _attitude_stats(np.array(assumed_err[j]), P_a)})
         recs = records[j]
         st = _attitude_stats(np.array([r.error_rad for r in recs]),
                              np.array([r.covariance_rad2 for r in recs]))
         st["sources"] = {s: sum(r.source == s for r in recs) for s in SOURCES}
-        cases.append({"exposure_s": t_exp, "case": "stars", "navigation": _nav_stats(rs),
+        cases.append({"exposure_s": t_exp, "case": "stars",
+                      "navigation": {**_nav_stats(rs), **_fix_stats(rs, geoms)},
                       "attitude": st})
         rec_rows[f"{t_exp:.6g}"] = [r.summary() for r in recs]
     a = scs[0].navigation.attitude
@@ -260,4 +299,181 @@ def comparison_markdown(result: dict[str, Any]) -> str:
                 seen.setdefault(why.split(":")[0], f"frame {r['frame']}: {why}")
         for why in seen.values():
             L.append(f"- {float(key) * 1e3:.4g} ms: {why}")
+    return "\n".join(L) + "\n"
+
+
+# ----------------------------------------------------------------------------- Monte Carlo
+#: Two-sided probability of the Monte Carlo NEES bands.
+MC_BAND_PROBABILITY = 0.99
+
+
+def _verdict(x: float, band: Sequence[float]) -> str:
+    if not math.isfinite(x):
+        return "no truth"
+    return "consistent" if band[0] <= x <= band[1] else (
+        "overconfident" if x > band[1] else "pessimistic")
+
+
+def attitude_monte_carlo(
+    scenario: Scenario | dict[str, Any],
+    runs: int,
+    *,
+    exposures_s: Sequence[float] = DEMO_EXPOSURES_S,
+    exposure_overrides: Sequence[tuple[float, Sequence[str]]] = DEMO_EXPOSURE_OVERRIDES,
+    attitude: dict[str, Any] | None = None,
+    terrain: bool = True,
+    probability: float = MC_BAND_PROBABILITY,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, Any]:
+    """The comparison (:func:`attitude_comparison`) over ``runs`` Monte Carlo runs, each on
+    its own terrain: is the filter consistent with the assumed and with the solved attitude?
+
+    Run ``r`` is ``attitude_comparison(scenario, run=r)`` with the Moon's DEM and albedo
+    turned about the pole by :func:`starnav.batch.consistency.terrain_offsets_deg`'s angle
+    ``r`` (run 0: the Moon as it is), so every run draws its own detector noise, attitude
+    knowledge error, star acquisitions, gyro errors, initial error *and* lit-terrain limb
+    error. Without the terrain draw every run shares the arc's one terrain error and the
+    verdict is conditional on it (docs/navigation.md, "Consistency needs the terrain
+    sampled").
+
+    Verdict per exposure and case: the mean over runs of each run's mean NEES (6 states)
+    against the two-sided ``probability`` band of an ``R``-run mean of chi2(6)
+    (:func:`~starnav.navigation.metrics.chi2_band`). A run's time mean over its ``K``
+    correlated steps has at most the variance of one chi2(6) sample, so the band is
+    conservative over frames (its false-alarm rate is at most ``1 - probability`` for a
+    consistent filter). The position and velocity blocks (3 dof each) and the attitude NEES
+    (3 dof) are judged the same way.
+
+    Parameters
+    ----------
+    scenario : Scenario or dict
+        Needs a ``trajectory`` and, with ``terrain``, ``moon.shape: dem``.
+    runs : int
+        Monte Carlo runs (>= 2).
+    exposures_s, exposure_overrides, attitude :
+        As :func:`attitude_comparison`.
+    terrain : bool
+        Each run on its own terrain (default). ``False``: noise runs on the arc's terrain.
+    probability : float
+        Two-sided probability of the bands (default 0.99).
+    progress : callable, optional
+        ``progress(done, total)`` after each run.
+
+    Returns
+    -------
+    dict
+        ``cases``: per (exposure, case) the run-averaged NEES (whole, position, velocity) with
+        bands and verdicts, the run-averaged NEES per step, each run's mean NEES, the final
+        position error per run (m and % of range; median, max), the attitude's NEES and
+        errors, the attitude sources summed over runs; ``terrain_offsets_deg``, ``frames``,
+        ``runs``, ``settings``, ``run_wall_times_s``, ``wall_time_s``.
+    """
+    from starnav.batch.consistency import terrain_offsets_deg
+
+    if not (isinstance(runs, int) and runs >= 2):
+        raise ConfigError("runs", runs, "an integer >= 2 (a Monte Carlo verdict needs runs)")
+    if not (0.0 < probability < 1.0):
+        raise ConfigError("probability", probability, "a probability in (0, 1)")
+    sc = scenario if isinstance(scenario, Scenario) else scenario_from_dict(scenario)
+    if terrain and sc.moon.shape != "dem":
+        raise ConfigError("moon.shape", sc.moon.shape, "'dem' for terrain realisations")
+    base = scenario_to_dict(sc)
+    offsets = terrain_offsets_deg(int(sc.seed), runs) if terrain else [0.0] * runs
+    t_start = time.perf_counter()
+    results, walls = [], []
+    for r in range(runs):
+        d = (base if offsets[r] == 0.0 else
+             apply_overrides(base, [f"moon.dem.longitude_offset_deg={offsets[r]!r}"]))
+        res = attitude_comparison(d, exposures_s=exposures_s,
+                                  exposure_overrides=exposure_overrides, attitude=attitude,
+                                  run=r)
+        results.append(res)
+        walls.append(float(res["wall_time_s"]))
+        log.info("attitude Monte Carlo: run %d/%d (terrain %+.1f deg) in %.1f s", r + 1, runs,
+                 offsets[r], walls[-1])
+        if progress is not None:
+            progress(r + 1, runs)
+    band6 = chi2_band(6, runs, probability)
+    band3 = chi2_band(3, runs, probability)
+    cases = []
+    for i, c0 in enumerate(results[0]["cases"]):
+        per = [res["cases"][i] for res in results]
+        nav = [c["navigation"] for c in per]
+        att = [c["attitude"] for c in per]
+        step = {k: np.array([n[k] for n in nav], float)
+                for k in ("nees_per_step", "nees_position_per_step", "nees_velocity_per_step")}
+        run_mean = {k: v.mean(axis=1) for k, v in step.items()}
+        m6, mp, mv = (float(run_mean[k].mean()) for k in step)
+        fix = {k: np.array([n[k] for n in nav], float)
+               for k in ("fix_nees_per_step", "fix_nees_white_per_step", "fix_error_range_m",
+                         "fix_error_cross_m")}
+        fe = np.array([n["final_position_error_m"] for n in nav], float)
+        fp = np.array([n["final_position_error_pct_range"] for n in nav], float)
+        an = np.array([a["nees_mean"] for a in att], float)
+        sources: dict[str, int] = {}
+        for a in att:
+            for k, v in a.get("sources", {}).items():
+                sources[k] = sources.get(k, 0) + int(v)
+        cases.append({
+            "exposure_s": c0["exposure_s"], "case": c0["case"],
+            "fixes": int(sum(n["fixes"] for n in nav)),
+            "nees_mean": m6, "nees_band": list(band6), "verdict": _verdict(m6, band6),
+            "nees_position_mean": mp, "nees_velocity_mean": mv, "nees_band_3dof": list(band3),
+            "verdict_position": _verdict(mp, band3), "verdict_velocity": _verdict(mv, band3),
+            "nees_per_run": run_mean["nees_per_step"].tolist(),
+            "nees_per_step": step["nees_per_step"].mean(axis=0).tolist(),
+            "nees_position_per_step": step["nees_position_per_step"].mean(axis=0).tolist(),
+            "nees_velocity_per_step": step["nees_velocity_per_step"].mean(axis=0).tolist(),
+            "fix_nees_mean": float(np.nanmean(fix["fix_nees_per_step"])),
+            "fix_nees_white_mean": float(np.nanmean(fix["fix_nees_white_per_step"])),
+            "fix_nees_per_step": np.nanmean(fix["fix_nees_per_step"], axis=0).tolist(),
+            "fix_nees_white_per_step": np.nanmean(fix["fix_nees_white_per_step"],
+                                                  axis=0).tolist(),
+            "fix_error_range_rms_m": float(np.sqrt(np.nanmean(fix["fix_error_range_m"] ** 2))),
+            "fix_error_cross_rms_m": float(np.sqrt(np.nanmean(fix["fix_error_cross_m"] ** 2))),
+            "final_position_error_m": {"median": float(np.median(fe)), "max": float(fe.max()),
+                                       "per_run": fe.tolist()},
+            "final_position_error_pct_range": {"median": float(np.median(fp)),
+                                               "max": float(fp.max())},
+            "attitude": {"nees_mean": float(an.mean()), "nees_band": list(band3),
+                         "verdict": _verdict(float(an.mean()), band3),
+                         "error_cross_rms_arcsec": float(np.sqrt(np.mean(
+                             [a["error_cross_rms_arcsec"] ** 2 for a in att]))),
+                         "error_roll_rms_arcsec": float(np.sqrt(np.mean(
+                             [a["error_roll_rms_arcsec"] ** 2 for a in att]))),
+                         "sigma_cross_mean_arcsec": float(np.mean(
+                             [a["sigma_cross_mean_arcsec"] for a in att])),
+                         "sigma_roll_mean_arcsec": float(np.mean(
+                             [a["sigma_roll_mean_arcsec"] for a in att])),
+                         "sources": sources}})
+    return {"cases": cases, "runs": runs, "frames": results[0]["frames"],
+            "probability": probability, "terrain": bool(terrain),
+            "terrain_offsets_deg": offsets, "settings": results[0]["settings"],
+            "run_wall_times_s": walls, "wall_time_s": time.perf_counter() - t_start}
+
+
+def monte_carlo_markdown(result: dict[str, Any]) -> str:
+    """The Monte Carlo verdict (:func:`attitude_monte_carlo`) as a Markdown table."""
+    s = result["settings"]
+    p = 100 * result["probability"]
+    L = [f"Attitude Monte Carlo: {result['runs']} runs"
+         f"{' each on its own terrain' if result['terrain'] else ' (one terrain)'}, "
+         f"{result['frames']} frames, {s['image_px'][0]} x {s['image_px'][1]} px; star "
+         f"acquisitions at {s['star_exposure_s'] * 1e3:.4g} ms every {s['schedule_every']} "
+         f"frame(s); bands: two-sided {p:g} % of an {result['runs']}-run mean", "",
+         "| exposure | attitude | NEES (6) [band] | verdict | position / velocity NEES (3) "
+         "[band] | final error median / max [% range] | att. error cross / roll [arcsec RMS] "
+         "| att. NEES (3) | sources |",
+         "|---|---|---|---|---|---|---|---|---|"]
+    for c in result["cases"]:
+        b, b3, a = c["nees_band"], c["nees_band_3dof"], c["attitude"]
+        fp = c["final_position_error_pct_range"]
+        src = ", ".join(f"{k} {v}" for k, v in a["sources"].items() if v) or "-"
+        L.append(f"| {c['exposure_s'] * 1e3:.4g} ms | {c['case']} | {c['nees_mean']:.2f} "
+                 f"[{b[0]:.2f}-{b[1]:.2f}] | {c['verdict']} | {c['nees_position_mean']:.2f} / "
+                 f"{c['nees_velocity_mean']:.2f} [{b3[0]:.2f}-{b3[1]:.2f}] | "
+                 f"{_f(fp['median'], '.3g')} / {_f(fp['max'], '.3g')} | "
+                 f"{_f(a['error_cross_rms_arcsec'], '.2f')} / "
+                 f"{_f(a['error_roll_rms_arcsec'], '.2f')} | {_f(a['nees_mean'], '.2f')} | "
+                 f"{src} |")
     return "\n".join(L) + "\n"
