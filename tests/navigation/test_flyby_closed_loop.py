@@ -21,13 +21,17 @@ geometries": 0.28 - 1.67 %), 0.12 - 1.67 % (median 0.77 %) over the 20 runs of t
 (before the recalibration; not re-run since).
 
 Consistency (mean NEES of the 6 states over the frames and runs inside the two-sided 99 %
-band of the runs' mean of chi2(6)): 4.04 over 4 runs (band [2.47, 11.39]; 4.70 before the
-recalibration), 4.70 over 20 (band [4.19, 8.18]) before the recalibration and 4.08 after it
-(just below the band: conservative; the slow test is a strict xfail); before the
-silhouette bias states ~40 (docs/navigation.md, "Asteroid fly-by: end to end"). With the
-silhouette offset in the measurement model (``silhouette_offset``, off by default: measured
-worse, docs/navigation.md "the silhouette offset in the measurement model"): 4 runs 15.1 /
-4.23, 20 runs 13.8 / 3.61 (in-sample / out-of-sample residual sigmas).
+band of the runs' mean of chi2(6)) is judged over runs that each draw the fly-by's
+orientation relative to the body (``navigation.trn.dispersion: orientation``): the
+silhouette's model error is a deterministic function of the aspect, so runs that re-expose
+one rendered fly-by share one draw of it and their NEES is conditional on it (the former
+fixed-geometry verdicts, 4.08 over 20 runs, were one such draw). Measured 2026-11-27 with
+the defaults calibrated over 16 orientations (docs/navigation.md, "Asteroid fly-by:
+consistency over orientations"): 10.65 over the 20 dispersed runs of the scoring fly-by
+(band [4.19, 8.18]; overconfident, strict xfail), 61.3 over 8 runs of the second geometry
+(one run locked out of its silhouette after a 5-sigma first update; strict xfail); with
+the former single-orientation calibration 23.0. The CA accuracy holds over the dispersed
+runs (test below).
 """
 
 from __future__ import annotations
@@ -135,36 +139,48 @@ def test_runs_differ_by_their_noise_attitude_and_initial_error(loop, rendered):
     assert all(np.allclose(m.sun_direction, sun) for m in a.measurements)
 
 
-def test_reduced_monte_carlo_nees_inside_its_band(loop):
-    """Mean NEES over the frames and the RUNS runs inside the two-sided 99 % band of a
-    RUNS-run mean of chi2(6), [2.47, 11.39] (a consistent filter fails it with probability
-    <= 1 %; wider than the slow test's 20-run band). Measured 4.04. The per-frame NEES must
-    not grow over the pass either (the former model's signature: ~15 at the start, ~80 at the
-    end): its mean over the last third stays below the band's upper edge."""
-    lo, hi = chi2_band(6, RUNS, PROBABILITY)
+def dispersed(sc):
+    """``sc`` with ``navigation.trn.dispersion: orientation``: each run its own fly-by."""
+    d = scenario_to_dict(sc)
+    d["navigation"]["trn"]["dispersion"] = "orientation"
+    return scenario_from_dict(d)
+
+
+@pytest.fixture(scope="module")
+def dispersed_loop():
+    """The scoring fly-by over ``SLOW_RUNS`` = 20 runs, each run with its own orientation of
+    the fly-by relative to the body (``navigation.trn.dispersion: orientation``), rendered
+    and navigated (~2 s a run on a quiet machine)."""
+    return flyby_closed_loop(Simulator(dispersed(scoring_scenario())), SLOW_RUNS,
+                             probability=PROBABILITY)
+
+
+@pytest.mark.xfail(strict=True, reason="overconfident: mean NEES 10.65 over the 20 dispersed "
+                   "runs (band 4.19-8.18; per-frame mean growing 6.0 -> 14.5; per-run 1.7-43.7) "
+                   "with the 16-orientation calibration (in sample 5.72); docs/navigation.md, "
+                   "'Asteroid fly-by: consistency over orientations'")
+def test_monte_carlo_over_orientations_nees_inside_its_band(dispersed_loop):
+    """The consistency verdict of issue 16: 20 runs, each its own fly-by orientation (the
+    silhouette's model error, a function of the aspect, drawn afresh per run, as the band
+    assumes; module essay of starnav.simulate.flyby), detector noise, attitude and initial
+    error: mean NEES of the 6 states over frames and runs inside the two-sided 99 % band of a
+    20-run mean of chi2(6), [4.19, 8.18] (false alarm 1 %), and the per-frame NEES not growing
+    over the pass (its last third below the band's top)."""
+    loop = dispersed_loop
+    lo, hi = chi2_band(6, SLOW_RUNS, PROBABILITY)
+    assert loop.summary["dispersion"] == "orientation"
     assert loop.summary["nees_band"] == pytest.approx([lo, hi])
     assert lo <= loop.summary["nees_mean"] <= hi, loop.summary["nees_mean"]
     per_frame = np.asarray(loop.summary["nees_per_frame"], float)
     assert per_frame[-len(per_frame) // 3:].mean() < hi, per_frame
 
 
-@pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=(
-    "after the recalibration on the longer calibration pass (feature_correlation 0.31, bias "
-    "time 48 s; docs/navigation.md 'other geometries') the 20-run mean NEES is 4.08, just "
-    "below the band [4.19, 8.18]: the filter is slightly conservative on the scoring fly-by. "
-    "Not re-tuned on these runs; strict, so a fixed model makes this fail until unmarked. "
-    "The silhouette offset in the measurement model (silhouette_offset, off by default) did "
-    "not fix it: 13.8 with the in-sample residual sigmas, 3.61 with the out-of-sample ones"))
-def test_monte_carlo_nees_inside_its_band_over_20_runs(rendered):
-    """20 runs: mean NEES inside the two-sided 99 % band of a 20-run mean of chi2(6), [4.19,
-    8.18] (false alarm 1 %), and the CA error < 2 % of range in every run. Measured: NEES 4.70,
-    CA error 0.12 - 1.67 % (~2.5 min on 2 loaded cores)."""
-    sim, renders = rendered
-    mc = flyby_closed_loop(sim, SLOW_RUNS, renders=renders, probability=PROBABILITY)
-    assert mc.summary["ca_error_pct_range_max"] < 100 * CA_FRACTION
-    lo, hi = mc.summary["nees_band"]
-    assert lo <= mc.summary["nees_mean"] <= hi, mc.summary["nees_mean"]
+def test_monte_carlo_over_orientations_position_at_closest_approach(dispersed_loop):
+    """Accuracy over the 20 dispersed runs (module docstring for the 2 %): the CA position
+    error below 2 % of range in at least 19 of 20 runs (95 %) and its median below 1 %."""
+    pct = np.array([r.metrics.ca_position_error_pct_range for r in dispersed_loop.runs])
+    assert np.sum(pct < 100 * CA_FRACTION) >= 19, pct
+    assert np.median(pct) < 100 * CA_FRACTION / 2, pct
 
 
 #: A second geometry (issue 16, consistency at other geometries): twice the speed of the
@@ -180,29 +196,32 @@ def second_geometry(frames: int):
     return scenario_from_dict(d)
 
 
+@pytest.mark.xfail(strict=True, reason="mean NEES 61.3 over 8 dispersed runs (band to 9.62): "
+                   "run 4's first update lands 5 sigma off (260 m) and the gate then rejects "
+                   "every later silhouette (lock-out; its NEES 450, the 7 others 2.6-9.8); "
+                   "docs/navigation.md, 'Asteroid fly-by: consistency over orientations'")
 def test_consistent_at_a_second_geometry():
-    """Reduced: 21 frames, 3 runs, mean NEES inside the two-sided 99 % band of a 3-run mean
-    of chi2(6), [2.09, 12.39] (false alarm 1 %), CA error < 2 % of range. Measured 4.94 (CA
-    error 0.40 - 0.71 %; with the silhouette offset on, not the default: 9.53 / 4.36 with the
-    in-sample / out-of-sample residual sigmas). At this length it guards the model as a
-    whole; the inconsistency grows over the pass, so the slow test runs the whole 41-frame
-    pass."""
-    loop = flyby_closed_loop(Simulator(second_geometry(21)), 3, probability=PROBABILITY)
+    """Reduced: 21 frames, 8 runs over orientations, mean NEES inside the two-sided 99 % band
+    of an 8-run mean of chi2(6) (false alarm 1 %), CA error < 2 % of range in 7 of 8 runs."""
+    loop = flyby_closed_loop(Simulator(dispersed(second_geometry(21))), 8,
+                             probability=PROBABILITY)
     lo, hi = loop.summary["nees_band"]
     assert lo <= loop.summary["nees_mean"] <= hi, loop.summary["nees_mean"]
-    assert loop.summary["ca_error_pct_range_max"] < 100 * CA_FRACTION
+    pct = np.array([r.metrics.ca_position_error_pct_range for r in loop.runs])
+    assert np.sum(pct < 100 * CA_FRACTION) >= 7, pct
 
 
 @pytest.mark.slow
 def test_consistent_at_a_second_geometry_over_the_whole_pass():
-    """41 frames (-4 s ... +4 s: the view turns by 77 deg), 6 runs: mean NEES inside the
-    two-sided 99 % band of a 6-run mean, [2.98, 10.26] (false alarm 1 %), CA error < 2 % of
-    range in every run. Measured 8.78, CA error <= 0.82 % (docs/navigation.md, "Asteroid
-    fly-by: other geometries")."""
-    loop = flyby_closed_loop(Simulator(second_geometry(41)), 6, probability=PROBABILITY)
+    """41 frames (-4 s ... +4 s: the view turns by 77 deg), 20 runs over orientations: mean
+    NEES inside the two-sided 99 % band of a 20-run mean, [4.19, 8.18] (false alarm 1 %), CA
+    error < 2 % of range in 19 of 20 runs."""
+    loop = flyby_closed_loop(Simulator(dispersed(second_geometry(41))), SLOW_RUNS,
+                             probability=PROBABILITY)
     lo, hi = loop.summary["nees_band"]
     assert lo <= loop.summary["nees_mean"] <= hi, loop.summary["nees_mean"]
-    assert loop.summary["ca_error_pct_range_max"] < 100 * CA_FRACTION
+    pct = np.array([r.metrics.ca_position_error_pct_range for r in loop.runs])
+    assert np.sum(pct < 100 * CA_FRACTION) >= 19, pct
 
 
 def test_defaults_are_the_packaged_calibration():

@@ -180,6 +180,14 @@ def test_raycast_on_a_sphere_against_its_closed_form():
     assert face[3] == -1 and math.isinf(t[3])
     assert visible(b, [[0.0, 0.0, 900.0 + 0.1]], tolerance=0.5).all()
     assert not visible(b, [[0.0, 0.0, 1100.0]], tolerance=0.5).any()
+    # a ray inside a facet's bounding box but off the facet: no hit (not an error; met
+    # between a limb facet's box corner and its hypotenuse)
+    tri = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [0.0, 10.0, 0.0]])
+    one = BodyInCamera.place(tri, np.array([[0, 2, 1]]), np.eye(3), [0.0, 0.0, 100.0])
+    t1, f1 = raycast(one, [[0.09, 0.09, 1.0]])       # (9, 9) at 100 m: beyond x + y = 10
+    assert f1[0] == -1 and math.isinf(t1[0])
+    t2, f2 = raycast(one, [[0.01, 0.01, 1.0], [0.09, 0.09, 1.0]])
+    assert f2.tolist() == [0, -1] and t2[0] == pytest.approx(math.sqrt(2e-4 + 1) * 100.0)
 
 
 # ----------------------------------------------------------------------------- runs
@@ -209,9 +217,14 @@ def test_noise_free_run_converges_to_truth(truth, camera, body):
 
 @pytest.fixture(scope="module")
 def mc(truth, camera, body):
-    # the synthetic features' errors are independent draws: no shared part (the scenario's
-    # 0.5 is the rendered frames' calibration)
-    c = TrnFilterConfig(feature_correlation=0.0)
+    # the synthetic features' errors are independent draws: no shared part, and the
+    # synthetic silhouette is the lit-facet model itself: no model error beyond the
+    # algorithm's own small default (TrnFilterOptions: 0.3 px, 1 %, unscaled); the scenario's
+    # values are the rendered frames' calibration (tools/calibrate_flyby_model_error.py)
+    d = TrnFilterOptions()
+    c = TrnFilterConfig(feature_correlation=0.0, silhouette_scaling="constant",
+                        centroid_model_sigma_px=d.centroid_model_sigma_px,
+                        radius_model_fraction=d.radius_model_fraction)
     return flyby_monte_carlo(truth, camera, body, RUNS, c.initial_covariance(), seed=11,
                              synthetic=SyntheticOptions(max_features=20), options=c.options())
 

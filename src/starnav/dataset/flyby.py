@@ -84,6 +84,11 @@ def read_flyby(path: str | os.PathLike[str], overrides: Sequence[str] = ()
                               f"to change {key.split('.')[0]}.*)")
     sc = scenario_from_dict(man["config"], list(overrides))
     check_flyby_scenario(sc)
+    if sc.navigation.trn.dispersion != "none":
+        raise ConfigError("navigation.trn.dispersion", sc.navigation.trn.dispersion,
+                          "'none' for a fly-by dataset: its frames are one fly-by; a "
+                          "dispersed Monte Carlo renders each run's own (navigate the "
+                          "scenario YAML)")
     sim = Simulator(sc)
     if len(man["frames"]) != len(sim):
         raise DataFileError(f"dataset {str(root)!r}: {len(man['frames'])} frames, its scenario "

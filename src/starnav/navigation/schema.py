@@ -17,6 +17,8 @@ Example (YAML)::
 
 from __future__ import annotations
 
+import functools
+import json
 import math
 from typing import Annotated, Any, Literal
 
@@ -26,6 +28,7 @@ from pydantic import Field
 
 from starnav.config_base import StrictModel
 from starnav.constants import MOON_RADIUS
+from starnav.data import packaged_path
 from starnav.dem.limb import limb_topography_for
 from starnav.fields import NonNegativeFloat, PositiveFloat
 from starnav.navigation.christian_robinson import ChristianRobinsonOptions
@@ -201,10 +204,10 @@ class TrnFrontEndConfig(StrictModel):
     epipolar_px: PositiveFloat = Field(
         1.0, description="epipolar RANSAC threshold (known attitude) [px]")
     sigma_detect_px: NonNegativeFloat = Field(
-        1.6, description="1-sigma of a feature at its first detection [px] (calibrated on "
+        1.72, description="1-sigma of a feature at its first detection [px] (calibrated on "
         "rendered frames: tools/calibrate_flyby_model_error.py)")
     drift_px_per_rad: NonNegativeFloat = Field(
-        6.9, description="growth of a feature's 1-sigma with the camera rotation summed "
+        3.8, description="growth of a feature's 1-sigma with the camera rotation summed "
         "along its track [px/rad] (the shading moves on the surface as the view turns)")
 
     correlation_factor: Annotated[float, Field(ge=1)] = Field(
@@ -215,10 +218,10 @@ class TrnFrontEndConfig(StrictModel):
         5.0, description="a track ends once the view has turned this much along it (bounds "
         "its drift; the point is found again under a new id) [deg]")
     centroid_sigma_fraction: NonNegativeFloat = Field(
-        0.00022, description="1-sigma of the segments' lit centroid per coordinate, times the "
+        0.000297, description="1-sigma of the segments' lit centroid per coordinate, times the "
         "apparent radius (its noise; calibrated) [-]")
     radius_sigma_fraction: NonNegativeFloat = Field(
-        0.000144, description="1-sigma of the segments' apparent radius, times the radius (its "
+        0.000194, description="1-sigma of the segments' apparent radius, times the radius (its "
         "noise; calibrated) [-]")
 
     def options(self) -> FrontEndOptions:
@@ -246,35 +249,37 @@ class TrnFilterConfig(StrictModel):
     landmark_height_sigma_m: NonNegativeFloat = Field(
         1.0, description="shape-model height error at a new landmark, 1-sigma [m]")
     centroid_model_sigma_px: NonNegativeFloat = Field(
-        0.89, description="lit-centroid model error added in quadrature [px] (calibrated on "
+        0.98, description="lit-centroid model error added in quadrature [px] (calibrated on "
         "rendered frames: tools/calibrate_flyby_model_error.py)")
     radius_model_fraction: NonNegativeFloat = Field(
-        0.0174, description="apparent-radius model error as a fraction of the radius [-] "
+        0.0212, description="apparent-radius model error as a fraction of the radius [-] "
         "(calibrated)")
     silhouette_bias_time_s: NonNegativeFloat = Field(
-        48.0, description="correlation time of the silhouette's model errors, first-order "
+        20.3, description="correlation time of the silhouette's model errors, first-order "
         "Gauss-Markov bias states [s] (calibrated; 0: white, added to each frame's noise)")
     centroid_sun_share: Annotated[float, Field(ge=0, le=1)] = Field(
-        0.994, description="share of the centroid model error's variance along the Sun's "
+        0.975, description="share of the centroid model error's variance along the Sun's "
         "image direction [-] (calibrated; 0.5: isotropic)")
-    silhouette_scaling: Literal["geometry", "constant"] = Field(
-        "constant", description="how the silhouette model-error sigmas follow the geometry: "
+    silhouette_scaling: Literal["table", "geometry", "constant"] = Field(
+        "geometry", description="how the silhouette model-error sigmas follow the geometry: "
         "geometry (centroid ~ apparent radius x sin(phase); radius fraction: limb blur and "
-        "terminator shift, filter.silhouette_scale; relative to the reference below) or "
-        "constant")
+        "terminator shift, filter.silhouette_scale; relative to the reference below; chosen "
+        "by the calibration, tools/calibrate_flyby_model_error.py), table (the errors "
+        "measured per bin of phase on the calibration fly-by, centroid ~ apparent radius; "
+        "the packaged data/navigation/flyby_model_error.json) or constant")
     silhouette_reference_radius_px: PositiveFloat = Field(
-        54.2, description="apparent radius at which the model-error sigmas were calibrated "
+        49.8, description="apparent radius at which the model-error sigmas were calibrated "
         "[px] (the calibration fly-by's CA)")
     silhouette_reference_phase_deg: Annotated[float, Field(ge=0, lt=180)] = Field(
         50.0, description="Sun phase at which the model-error sigmas were calibrated [deg]")
     silhouette_limb_blur_px: NonNegativeFloat = Field(
-        3.95, description="outward spread of the lit limb above the segments threshold [px] "
+        3.13, description="outward spread of the lit limb above the segments threshold [px] "
         "(the radius model error's limb term; calibrated)")
     silhouette_terminator_shift_deg: NonNegativeFloat = Field(
-        8.23, description="shift of the effective terminator against the lit-facet model "
+        7.11, description="shift of the effective terminator against the lit-facet model "
         "[deg] (the radius model error's terminator term; calibrated)")
     feature_correlation: Annotated[float, Field(ge=0, lt=1)] = Field(
-        0.31, description="correlation of the tracked features' errors within a frame [-]: N "
+        0.37, description="correlation of the tracked features' errors within a frame [-]: N "
         "features count as N / (1 + (N - 1) c) independent ones (calibrated)")
     silhouette_offset: bool = Field(
         False, description="put the deterministic part of the silhouette's model error (the "
@@ -282,7 +287,7 @@ class TrnFilterConfig(StrictModel):
         "predicted measurement; the bias states then carry the residual (filter step 4c; off: "
         "measured worse at phase 70 deg, docs/navigation.md)")
     silhouette_centroid_offset_fraction: Annotated[float, Field(gt=-0.5, lt=0.5)] = Field(
-        0.033, description="lit-centroid offset along the Sun's image direction over apparent "
+        0.0347, description="lit-centroid offset along the Sun's image direction over apparent "
         "radius x sin(phase) [-] (calibrated; used with silhouette_offset)")
     use_centroid: bool = Field(True, description="use the lit silhouette's centroid")
     use_radius: bool = Field(True, description="use the lit silhouette's apparent radius")
@@ -309,12 +314,29 @@ class TrnFilterConfig(StrictModel):
             terminator_shift=si.silhouette_terminator_shift,
             feature_correlation=si.feature_correlation,
             silhouette_offset=si.silhouette_offset,
-            centroid_offset_fraction=si.silhouette_centroid_offset_fraction)
+            centroid_offset_fraction=si.silhouette_centroid_offset_fraction,
+            silhouette_table=(packaged_silhouette_table() if si.silhouette_scaling == "table"
+                              else None))
 
     def initial_covariance(self) -> NDArray[np.float64]:
         """The diagonal initial covariance (6, 6) [m^2, m^2/s^2]."""
         si = self.to_si()
         return np.diag([si.initial_position_sigma**2] * 3 + [si.initial_velocity_sigma**2] * 3)
+
+
+@functools.lru_cache(maxsize=1)
+def packaged_silhouette_table() -> tuple[tuple[float, ...], ...]:
+    """The silhouette model errors per bin of phase of the packaged fly-by calibration
+    (``data/navigation/flyby_model_error.json``, ``silhouette_table``;
+    tools/calibrate_flyby_model_error.py): ``(phase [rad], along-Sun centroid error over the
+    apparent radius, across-Sun ditto, radius error fraction)``, the
+    :attr:`~starnav.navigation.trn.filter.TrnFilterOptions.silhouette_table` of
+    ``silhouette_scaling: table``."""
+    t = json.loads(packaged_path("navigation/flyby_model_error.json").read_text())[
+        "silhouette_table"]
+    return (tuple(math.radians(a) for a in t["phase_deg"]),
+            tuple(t["along_over_radius"]), tuple(t["across_over_radius"]),
+            tuple(t["radius_fraction"]))
 
 
 class TrnConfig(StrictModel):
@@ -324,6 +346,12 @@ class TrnConfig(StrictModel):
         default_factory=TrnFrontEndConfig, description="windows and feature tracking")
     filter: TrnFilterConfig = Field(
         default_factory=TrnFilterConfig, description="the estimator: EKF with landmark states")
+    dispersion: Literal["none", "orientation"] = Field(
+        "none", description="what the Monte Carlo runs draw besides detector noise, attitude "
+        "knowledge and initial error: none (one geometry rendered once, every run re-exposes "
+        "it) or orientation (each run draws the fly-by's orientation relative to the body "
+        "uniformly and renders its own frames: the silhouette model error the filter's bias "
+        "states stand for is then sampled, not one draw shared by all runs)")
 
 
 class NavigationConfig(StrictModel):

@@ -22,8 +22,26 @@ A fly-by scenario (``target.kind: shape_model``, ``trajectory.source: flyby``) e
    d. :class:`~starnav.navigation.trn.metrics.FlybyMetrics` against the scenario's truth
       (``Scene.relative_states``; CA the frame nearest the fly-by's CA epoch).
 
+   e. with ``navigation.trn.dispersion: orientation``, run ``r`` first draws the fly-by's
+      orientation relative to the body (:func:`dispersed_flyby`, stream
+      ``generator(seed, STAGE_NAVIGATION, r, 0, DISPERSION_STREAM)``) and renders its own
+      frames (:func:`flyby_dispersed_runs`); step 1 is then per run.
+
 3. **Consistency** over the runs (:func:`~starnav.navigation.trn.montecarlo.summarise_runs`):
    mean NEES against its two-sided chi-square band, the position error at CA over range.
+
+Why disperse the orientation: the band of step 3 holds when every error the filter treats as
+random is drawn afresh in every run. The lit silhouette's model error (cast shadows, the
+segments' threshold at the terminator, the limb's blur) is a deterministic function of how the
+body is seen; the filter carries it as Gauss-Markov bias states with a stationary sigma, i.e.
+as a random draw over aspects. Runs that re-expose one geometry share one draw of that error,
+so their mean NEES measures the noise around one bias, not the filter's consistency (a 20-run
+mean then sits wherever that one draw puts it, inside or outside the band). Drawing the
+fly-by's orientation relative to the body uniformly over the rotations (the CA velocity
+uniform on the sphere, the B-plane angle uniform: the frame they build is Haar-distributed,
+while the body keeps its IAU orientation) keeps what defines the fly-by (v_inf, CA distance,
+phase at CA, Sun azimuth) and samples the aspect, hence the silhouette error, once per run.
+Its cost is one render of the pass per run instead of one in all.
 
 The report (:func:`navigate_flyby`) adds run 0's frame overlays (:func:`plot_overlays`: the
 segments the front end read, re-exposed by :func:`segments_image`, with windows, tracks, truth
@@ -49,6 +67,7 @@ import io
 import itertools
 import json
 import logging
+import math
 import time
 import tracemalloc
 from collections.abc import Callable, Sequence
@@ -69,8 +88,10 @@ from starnav.navigation.trn.filter import FlybyRun, TrnFilterOptions, run_filter
 from starnav.navigation.trn.frontend import FlybyFrontEnd
 from starnav.navigation.trn.measurements import FlybyMeasurement
 from starnav.navigation.trn.metrics import (
+    FLYBY_AXES,
     FlybyMetrics,
     closest_approach_index,
+    errors_in_flyby_frame,
     plot_flyby_errors,
     plot_flyby_nees,
     plot_frame_overlay,
@@ -95,6 +116,9 @@ FloatArray = NDArray[np.float64]
 #: Last key of a run's initial-error stream ``(seed, STAGE_NAVIGATION, run, 0, 17)`` (never
 #: change; 16 is the front end's RANSAC, :data:`starnav.simulate.trn.TRN_STREAM`).
 INITIAL_ERROR_STREAM = 17
+#: Last key of a run's orientation draw ``(seed, STAGE_NAVIGATION, run, 0, 18)`` under
+#: ``navigation.trn.dispersion: orientation`` (never change).
+DISPERSION_STREAM = 18
 
 Renders = Sequence[tuple[FrameGeometry, RadianceImage]]
 
@@ -163,14 +187,27 @@ class FlybyClosedLoop:
     epochs : (K,) array [TDB s]
     epoch_ca : float [TDB s]
     truth : (K, 6) array
-        True ``(r, v)`` relative to the body, J2000 [m, m/s].
+        True ``(r, v)`` relative to the body, J2000 [m, m/s] (of the first run when the
+        orientation is dispersed: each run's own is in ``run_truths``).
     runs : list of FlybyRunResult
     summary : dict
         :func:`~starnav.navigation.trn.montecarlo.summarise_runs` (for >= 2 runs), else the
         single run's NEES.
     timings_s : dict
         Per-frame wall time of each stage, mean over frames and runs [s]: ``render`` (once
-        per frame), ``detector``, ``front_end``, ``filter``.
+        per frame, or per frame and run when dispersed), ``detector``, ``front_end``,
+        ``filter``.
+    dispersion : str
+        ``navigation.trn.dispersion`` of the runs (``none`` or ``orientation``).
+    run_truths : list of (K, 6) arrays, optional
+        Each run's true states when the orientation is dispersed (J2000, its own fly-by).
+    draws : list of dict, optional
+        Each run's drawn orientation (:func:`dispersed_flyby`).
+    run_axes : list of (3, 3) arrays, optional
+        Rows ``x, y, z`` of each run's fly-by frame in J2000 (CA direction, CA velocity,
+        plane normal) when dispersed: the frame its errors are plotted in.
+    first : (Simulator, renders), optional
+        The first run's simulator and frames when dispersed (overlays, memory budget).
     """
 
     epochs: FloatArray
@@ -179,11 +216,20 @@ class FlybyClosedLoop:
     runs: list[FlybyRunResult]
     summary: dict[str, Any]
     timings_s: dict[str, float] = field(default_factory=dict)
+    dispersion: str = "none"
+    run_truths: list[FloatArray] | None = None
+    draws: list[dict[str, float]] | None = None
+    run_axes: list[FloatArray] | None = None
+    first: tuple[Simulator, Renders] | None = None
 
     @property
     def time_from_ca(self) -> FloatArray:
         """Frame epochs relative to closest approach [s]."""
         return self.epochs - self.epoch_ca
+
+    def truth_of(self, k: int) -> FloatArray:
+        """True states ``(K, 6)`` of the ``k``-th run in :attr:`runs` [m, m/s]."""
+        return self.truth if self.run_truths is None else self.run_truths[k]
 
 
 def render_flyby(sim: Simulator, progress: Callable[[int, int], None] | None = None
@@ -294,6 +340,16 @@ def flyby_closed_loop(sim: Simulator, runs: int = 1, *, renders: Renders | None 
         raise ConfigError("runs", runs, ">= 1 Monte Carlo run")
     if not 0.0 < probability < 1.0:
         raise ConfigError("probability", probability, "in (0, 1)")
+    if sim.scenario.navigation.trn.dispersion == "orientation":
+        if renders is not None:
+            raise ConfigError("navigation.trn.dispersion", "orientation",
+                              "'none' when the frames are given (a dataset's, or rendered "
+                              "once): a dispersed run renders its own fly-by")
+        return flyby_dispersed_runs(sim.scenario, runs, front_end=front_end,
+                                    filter_options=filter_options,
+                                    initial_covariance=initial_covariance,
+                                    probability=probability, first_run=first_run,
+                                    progress=progress)
     t_render = float("nan")
     if renders is None:
         renders, t_render = render_flyby(
@@ -314,11 +370,93 @@ def flyby_closed_loop(sim: Simulator, runs: int = 1, *, renders: Renders | None 
     epochs = np.asarray(sim.scene.epochs, float)
     summary = summarise_runs([r.filter for r in out], [r.metrics for r in out], X, epochs,
                              float(flyby.epoch_ca), probability)
+    summary["dispersion"] = "none"
     K = len(renders)
     timings = {"render": t_render}
     for stage in ("detector", "front_end", "filter"):
         timings[stage] = float(np.mean([r.timings_s[stage] for r in out])) / K
     return FlybyClosedLoop(epochs, float(flyby.epoch_ca), X, out, summary, timings)
+
+
+def dispersed_flyby(base: Scenario, run: int) -> tuple[Scenario, dict[str, float]]:
+    """Run ``run``'s fly-by under ``navigation.trn.dispersion: orientation`` (module step 2e):
+    ``base`` with the fly-by's orientation relative to the body drawn uniformly over the
+    rotations from ``generator(seed, STAGE_NAVIGATION, run, 0, DISPERSION_STREAM)``,
+    ``u ~ U(0, 1)^3``: the CA velocity direction uniform on the sphere
+    (``velocity_ra_deg = 360 u1``, ``velocity_dec_deg = asin(2 u2 - 1)``) and the B-plane
+    angle uniform (``ca_angle_deg = 360 u3``). v_inf, CA distance, phase at CA and the Sun's
+    azimuth are the base's. Returns the run's scenario (built and checked; a concrete
+    fly-by, its ``navigation.trn.dispersion`` set to ``none``) and the three drawn values
+    [deg]."""
+    g = generator(int(base.seed), STAGE_NAVIGATION, int(run), 0, DISPERSION_STREAM)
+    u = g.random(3)
+    draw = {"velocity_ra_deg": 360.0 * float(u[0]),
+            "velocity_dec_deg": math.degrees(math.asin(2.0 * float(u[1]) - 1.0)),
+            "ca_angle_deg": 360.0 * float(u[2])}
+    d = scenario_to_dict(base)
+    for k, v in draw.items():
+        set_dotted(d, f"trajectory.flyby.{k}", v)
+    set_dotted(d, "navigation.trn.dispersion", "none")
+    try:
+        sc = scenario_from_dict(d)
+    except ConfigError as err:
+        raise ConfigError(f"dispersed run {run} {draw}: {err.field}", err.value,
+                          err.expected) from None
+    return sc, draw
+
+
+def flyby_dispersed_runs(base: Scenario, runs: int, *,
+                         front_end: FrontEndOptions | None = None,
+                         filter_options: TrnFilterOptions | None = None,
+                         initial_covariance: FloatArray | None = None,
+                         probability: float = 0.99, first_run: int = 0,
+                         progress: Callable[[str, int, int], None] | None = None
+                         ) -> FlybyClosedLoop:
+    """The closed loop with the orientation dispersed (module step 2e): run ``r`` renders
+    its own fly-by (:func:`dispersed_flyby`) and runs step 2 on it with its own noise,
+    measured attitude and initial error; the consistency of step 3 is then judged over
+    independent draws of the silhouette's model error. ``flyby_closed_loop`` dispatches here
+    for ``navigation.trn.dispersion: orientation``; the arguments are its own. Every run's
+    scenario is built before the first render (a bad draw is one error naming the run)."""
+    check_flyby_scenario(base)
+    scenarios = [dispersed_flyby(base, r) for r in range(first_run, first_run + runs)]
+    out, truths, axes, draws = [], [], [], []
+    first: tuple[Simulator, Renders] | None = None
+    t_render = 0.0
+    n_frames = 0
+    for k, (r, (sc, draw)) in enumerate(zip(range(first_run, first_run + runs), scenarios,
+                                            strict=True)):
+        sim = Simulator(sc)
+        renders, t = render_flyby(sim)
+        t_render += t * len(renders)
+        n_frames += len(renders)
+        out.append(flyby_run(sim, renders, r, front_end=front_end,
+                             filter_options=filter_options,
+                             initial_covariance=initial_covariance))
+        fb = sim.scene.flyby
+        assert fb is not None  # check_flyby_scenario
+        truths.append(np.asarray(sim.scene.relative_states, float))
+        axes.append(np.array([fb.x_hat, fb.y_hat, fb.z_hat], float))
+        draws.append(draw)
+        if first is None:
+            first = (sim, renders)
+        if progress is not None:
+            progress("runs", k + 1, runs)
+    assert first is not None
+    sim0 = first[0]
+    fb0 = sim0.scene.flyby
+    assert fb0 is not None
+    epochs = np.asarray(sim0.scene.epochs, float)
+    summary = summarise_runs([r.filter for r in out], [r.metrics for r in out], truths,
+                             epochs, float(fb0.epoch_ca), probability)
+    summary["dispersion"] = "orientation"
+    K = len(first[1])
+    timings = {"render": t_render / max(n_frames, 1)}
+    for stage in ("detector", "front_end", "filter"):
+        timings[stage] = float(np.mean([r.timings_s[stage] for r in out])) / K
+    return FlybyClosedLoop(epochs, float(fb0.epoch_ca), truths[0], out, summary, timings,
+                           dispersion="orientation", run_truths=truths, draws=draws,
+                           run_axes=axes, first=first)
 
 
 def segments_image(sim: Simulator, render: tuple[FrameGeometry, RadianceImage], run: int = 0,
@@ -386,38 +524,56 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
     :func:`starnav.dataset.flyby.navigate_flyby_dataset`); the render time is then NaN.
     Returns the metrics dict."""
     check_flyby_scenario(sim.scenario)
+    dispersed = sim.scenario.navigation.trn.dispersion == "orientation"
+    if renders is not None and dispersed:
+        raise ConfigError("navigation.trn.dispersion", "orientation",
+                          "'none' for frames already rendered (a fly-by dataset's): a "
+                          "dispersed run renders its own fly-by, navigate the scenario YAML")
     if renders is not None and len(renders) != len(sim):
         raise ConfigError("renders", len(renders), f"every frame of the scenario ({len(sim)})")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t_render = float("nan")
-    if renders is None:
+    if renders is None and not dispersed:
         renders, t_render = render_flyby(
             sim, None if progress is None else (lambda d, n: progress("render", d, n)))
     loop = flyby_closed_loop(sim, runs, renders=renders, probability=probability,
                              progress=progress)
-    loop.timings_s["render"] = t_render
+    if loop.first is not None:        # dispersed: run 0's own fly-by
+        sim, renders = loop.first
+    else:
+        loop.timings_s["render"] = t_render
+    assert renders is not None
     r0 = loop.runs[0]
     t = loop.time_from_ca
     metrics: dict[str, Any] = dict(r0.metrics.as_dict())
     # render: null when the frames were given (a dataset's), not a JSON NaN
     metrics["timing_s_per_frame"] = {k: (float(v) if np.isfinite(v) else None)
                                      for k, v in loop.timings_s.items()}
-    mem = flyby_run(sim, renders, 0, memory=True).memory_bytes
+    mem = flyby_run(sim, renders, r0.run, memory=True).memory_bytes
     metrics["tracker_budget"] = budget = tracker_budget(loop.timings_s, mem)
     mc = None
     if runs >= 2:
         mc = {k: v for k, v in loop.summary.items() if k != "nees_per_frame"}
         metrics["monte_carlo"] = mc
+    if loop.draws is not None:
+        metrics["dispersion"] = {"kind": loop.dispersion, "draws_deg": loop.draws}
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=1, default=float) + "\n")
     figures: list[str] = []
     if plots:
-        others = [r.filter.errors(loop.truth) for r in loop.runs[1:]]
-        e0 = r0.filter.errors(loop.truth)
-        figures.append(str(plot_flyby_errors(t, e0, r0.filter.sigma3(), out / "position.png",
-                                             "position", others)))
-        figures.append(str(plot_flyby_errors(t, e0, r0.filter.sigma3(), out / "velocity.png",
-                                             "velocity", others)))
+        errs, sig3 = [], []
+        for k, r in enumerate(loop.runs):
+            e = r.filter.errors(loop.truth_of(k))
+            s3 = r.filter.sigma3()
+            if loop.run_axes is not None:   # each run its own fly-by: plot in its frame
+                e, s3 = errors_in_flyby_frame(e, r.filter.covariances, loop.run_axes[k])
+            errs.append(e)
+            sig3.append(s3)
+        frame = ({"frame": "fly-by frame", "axis_names": FLYBY_AXES}
+                 if loop.run_axes is not None else {})
+        for kind in ("position", "velocity"):
+            figures.append(str(plot_flyby_errors(t, errs[0], sig3[0], out / f"{kind}.png",
+                                                 kind, errs[1:], **frame)))
         figures.append(str(plot_flyby_nees(t, loop.summary["nees_per_frame"],
                                            out / "nees.png", runs=runs,
                                            probability=probability)))

@@ -133,6 +133,8 @@ def raycast(body: BodyInCamera, directions: ArrayLike) -> tuple[FloatArray, IntA
     hit = (ok & (u >= -EDGE_TOLERANCE) & (w >= -EDGE_TOLERANCE)
            & (u + w <= 1.0 + EDGE_TOLERANCE) & (t > 0))
     ray, cand, t = ray[hit], cand[hit], t[hit]
+    if ray.size == 0:                    # inside facets' boxes, but missing every facet
+        return t_out, f_out
     order = np.lexsort((t, ray))
     ray, cand, t = ray[order], cand[order], t[order]
     first = np.r_[True, ray[1:] != ray[:-1]]

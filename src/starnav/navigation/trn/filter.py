@@ -98,7 +98,7 @@ Technique (per frame)
    columns of ``P``, before the update (the factor is a known function of the prediction,
    not differentiated).
 4b. **Features share part of their error** within a frame (the shading of every window moves
-   the same way as the view turns): with a pairwise correlation ``c`` (calibrated 0.31),
+   the same way as the view turns): with a pairwise correlation ``c`` (calibrated 0.37),
    ``N`` features carry the information of ``N / (1 + (N - 1) c)`` independent ones about a
    shift common to all, so each feature's variance is multiplied by ``1 + (N - 1) c``. The
    closer or larger the body, the more features (12 - 15 tracks per frame at CA 5 km), the
@@ -106,7 +106,7 @@ Technique (per frame)
 4c. **The deterministic part of the silhouette offset in the prediction**
    (``silhouette_offset``, :func:`silhouette_offset`): the same two mechanisms as offsets, not
    sigmas. The centroid is predicted ``c rho sin(alpha)`` further along ``e_s`` (``c =
-   centroid_offset_fraction``, 0.033 on the calibration fly-by), the radius ``w / (1 + cos
+   centroid_offset_fraction``, 0.035 on the calibration fly-by), the radius ``w / (1 + cos
    alpha) - rho tan(alpha / 2) delta / 2`` px larger (``limb_blur_px``, ``terminator_shift``),
    ``rho`` and ``alpha`` from the iterate (their gradients in ``H``; ``e_s`` is held, as for
    the bias states). The bias states then carry only the residual (on the calibration fly-by
@@ -145,16 +145,17 @@ max_incidence            75 deg        steepest ray-to-normal angle of a landmar
 landmark_height_sigma    1 m           shape-model height error at a landmark birth
 centroid_model_sigma_px  0.3 px        centroid model error, rms per image coordinate
 radius_model_fraction    0.01          radius model error, fraction of the radius
-silhouette_bias_time     48 s          their correlation time (0: white, per frame)
-silhouette_scaling       constant      "geometry": sigmas follow radius and phase (4a)
-reference_radius_px      54.2 px       ... relative to the calibration geometry's radius
+silhouette_bias_time     20.3 s        their correlation time (0: white, per frame)
+silhouette_scaling       constant      "geometry": sigmas follow radius and phase (4a;
+                                       the scenario's default, calibrated so)
+reference_radius_px      49.8 px       ... relative to the calibration geometry's radius
 reference_phase          50 deg        ... and phase
-limb_blur_px             3.95 px       radius error's limb-blur term (silhouette_scale)
-terminator_shift         8.23 deg      radius error's terminator term
-centroid_sun_share       0.994         share of the centroid's error along the Sun
+limb_blur_px             3.13 px       radius error's limb-blur term (silhouette_scale)
+terminator_shift         7.11 deg      radius error's terminator term
+centroid_sun_share       0.975         share of the centroid's error along the Sun
 feature_correlation      0             features' error correlation within a frame (4b)
 silhouette_offset        False         predict the silhouette's deterministic offset (4c)
-centroid_offset_fraction 0.033         ... the centroid's, over ``rho sin(alpha)``
+centroid_offset_fraction 0.0347        ... the centroid's, over ``rho sin(alpha)``
 use_centroid, use_radius True          which silhouette measurements are used
 ======================== ============= =====================================================
 
@@ -206,7 +207,7 @@ BIAS = slice(6, 9)
 
 
 #: Names of the silhouette model-error scalings (:func:`silhouette_scale`).
-SILHOUETTE_SCALINGS = ("geometry", "constant")
+SILHOUETTE_SCALINGS = ("table", "geometry", "constant")
 #: Phase below which the terminator-shift law is held at its value [rad]: near zero phase the
 #: terminator leaves the view and what remains (the limb's threshold) is not phase-driven.
 PHASE_FLOOR = math.radians(15.0)
@@ -243,9 +244,27 @@ def silhouette_scale(radius_px: float, phase: float, options: TrnFilterOptions) 
     (tools/calibrate_flyby_model_error.py).
 
     Phases below :data:`PHASE_FLOOR` are held at it.
+
+    ``silhouette_scaling = "table"``: the rms errors measured per bin of phase on the
+    calibration fly-by seen from many aspects (``options.silhouette_table``: phase [rad],
+    along-Sun and across-Sun centroid error over the apparent radius, radius error fraction;
+    linear between the bins' phases, held beyond them): the centroid's factors are
+    ``(rho / rho_ref) T(alpha) / T(alpha_ref)`` per axis, the radius's
+    ``T_r(alpha) / T_r(alpha_ref)``. No law's form is assumed (the calibration showed the
+    radius error *falling* with phase, 2.7 % at 20-35 deg to 1.2 % at 75-85 deg, where the
+    root sum square above rises, and the across-Sun error growing faster than the along-Sun
+    one; tools/calibrate_flyby_model_error.py).
     """
     if options.silhouette_scaling == "constant":
         return np.ones(3)
+    if options.silhouette_scaling == "table":
+        assert options.silhouette_table is not None  # __post_init__
+        ph, *cols = (np.asarray(c, float) for c in options.silhouette_table)
+        a, a0 = float(phase), float(options.reference_phase)
+        t = np.array([np.interp(a, ph, c) for c in cols])
+        t0 = np.array([np.interp(a0, ph, c) for c in cols])
+        rho = float(radius_px) / options.reference_radius_px
+        return t / t0 * np.array([rho, rho, 1.0])
     a = max(float(phase), PHASE_FLOOR)
     a0 = max(float(options.reference_phase), PHASE_FLOOR)
     rho, rho0 = float(radius_px), options.reference_radius_px
@@ -370,7 +389,12 @@ class TrnFilterOptions:
         the Sun's image direction [-]; the rest is across it (0.5: isotropic).
     silhouette_scaling : str
         How the model-error sigmas follow the geometry (:func:`silhouette_scale`):
-        ``"geometry"`` (the terminator-shift law) or ``"constant"`` (as calibrated).
+        ``"table"`` (measured per bin of phase, ``silhouette_table``), ``"geometry"`` (the
+        terminator-shift law) or ``"constant"`` (as calibrated).
+    silhouette_table : tuple of 4 tuples, optional
+        With ``"table"``: phases [rad] (increasing) and, at each, the rms along-Sun and
+        across-Sun centroid errors over the apparent radius [-] and the radius error fraction
+        [-] (the scenario's default: the packaged calibration's).
     reference_radius_px, reference_phase : float
         The geometry at which ``centroid_model_sigma_px`` and ``radius_model_fraction`` hold
         (the calibration fly-by's apparent radius [px] and Sun phase [rad] at CA).
@@ -401,18 +425,28 @@ class TrnFilterOptions:
     use_centroid: bool = True
     use_radius: bool = True
     iterations: int = 4
-    silhouette_bias_time: float = 48.0
-    centroid_sun_share: float = 0.994
+    silhouette_bias_time: float = 20.3
+    centroid_sun_share: float = 0.975
     silhouette_scaling: str = "constant"
-    reference_radius_px: float = 54.2
+    reference_radius_px: float = 49.8
     reference_phase: float = math.radians(50.0)
-    limb_blur_px: float = 3.95
+    limb_blur_px: float = 3.13
     feature_correlation: float = 0.0
-    terminator_shift: float = math.radians(8.23)
+    terminator_shift: float = math.radians(7.11)
     silhouette_offset: bool = False
-    centroid_offset_fraction: float = 0.033
+    centroid_offset_fraction: float = 0.0347
+    silhouette_table: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:
+        if self.silhouette_scaling == "table":
+            t = self.silhouette_table
+            ok = (t is not None and len(t) == 4 and len({len(c) for c in t}) == 1
+                  and len(t[0]) >= 1 and bool(np.all(np.diff(np.asarray(t[0], float)) > 0))
+                  and all(math.isfinite(v) and v > 0 for c in t[1:] for v in c))
+            if not ok:
+                raise ConfigError("options.silhouette_table", t, "(phases [rad] increasing, "
+                                  "along, across, radius: positive), equal lengths, for "
+                                  "silhouette_scaling 'table'")
         checks = (("accel_psd", self.accel_psd >= 0, ">= 0"),
                   ("gate_probability", 0 < self.gate_probability < 1, "in (0, 1)"),
                   ("max_landmarks", self.max_landmarks >= 0, ">= 0"),

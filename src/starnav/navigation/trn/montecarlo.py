@@ -95,14 +95,20 @@ def flyby_monte_carlo(truth: FlybyTruth, camera: Camera, body: ShapeBodyLike, ru
 
 
 def summarise_runs(runs: Sequence[FlybyRun], metrics: Sequence[FlybyMetrics],
-                   truth: ArrayLike, epochs: ArrayLike, epoch_ca: float,
+                   truth: ArrayLike | Sequence[ArrayLike], epochs: ArrayLike, epoch_ca: float,
                    probability: float = 0.99) -> dict[str, Any]:
     """The Monte Carlo verdict of ``runs`` of one fly-by (module steps 3-4): the per-frame
     NEES averaged over the runs, its mean against the two-sided ``probability`` band of an
     ``R``-run mean of chi2(6), the NEES at CA, the CA position error over range (median,
-    max). ``truth`` (K, 6) true states, ``epochs`` (K,) [TDB s]."""
+    max). ``truth``: the (K, 6) true states shared by every run, or one (K, 6) per run
+    (runs of dispersed fly-bys, same epochs); ``epochs`` (K,) [TDB s]."""
     X = np.asarray(truth, float)
-    nees = np.array([res.nees(X) for res in runs])
+    if X.ndim == 3:
+        if X.shape[0] != len(runs):
+            raise ConfigError("truth", X.shape, f"one (K, 6) array per run ({len(runs)})")
+        nees = np.array([res.nees(x) for res, x in zip(runs, X, strict=True)])
+    else:
+        nees = np.array([res.nees(X) for res in runs])
     per_frame = nees.mean(axis=0)
     R = len(runs)
     lo, hi = chi2_band(6, R, probability)
