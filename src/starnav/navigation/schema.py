@@ -204,10 +204,10 @@ class TrnFrontEndConfig(StrictModel):
     epipolar_px: PositiveFloat = Field(
         1.0, description="epipolar RANSAC threshold (known attitude) [px]")
     sigma_detect_px: NonNegativeFloat = Field(
-        1.72, description="1-sigma of a feature at its first detection [px] (calibrated on "
+        1.51, description="1-sigma of a feature at its first detection [px] (calibrated on "
         "rendered frames: tools/calibrate_flyby_model_error.py)")
     drift_px_per_rad: NonNegativeFloat = Field(
-        3.8, description="growth of a feature's 1-sigma with the camera rotation summed "
+        3.75, description="growth of a feature's 1-sigma with the camera rotation summed "
         "along its track [px/rad] (the shading moves on the surface as the view turns)")
 
     correlation_factor: Annotated[float, Field(ge=1)] = Field(
@@ -218,10 +218,10 @@ class TrnFrontEndConfig(StrictModel):
         5.0, description="a track ends once the view has turned this much along it (bounds "
         "its drift; the point is found again under a new id) [deg]")
     centroid_sigma_fraction: NonNegativeFloat = Field(
-        0.000297, description="1-sigma of the segments' lit centroid per coordinate, times the "
+        0.000326, description="1-sigma of the segments' lit centroid per coordinate, times the "
         "apparent radius (its noise; calibrated) [-]")
     radius_sigma_fraction: NonNegativeFloat = Field(
-        0.000194, description="1-sigma of the segments' apparent radius, times the radius (its "
+        0.000208, description="1-sigma of the segments' apparent radius, times the radius (its "
         "noise; calibrated) [-]")
 
     def options(self) -> FrontEndOptions:
@@ -249,16 +249,16 @@ class TrnFilterConfig(StrictModel):
     landmark_height_sigma_m: NonNegativeFloat = Field(
         1.0, description="shape-model height error at a new landmark, 1-sigma [m]")
     centroid_model_sigma_px: NonNegativeFloat = Field(
-        0.98, description="lit-centroid model error added in quadrature [px] (calibrated on "
+        1.27, description="lit-centroid model error added in quadrature [px] (calibrated on "
         "rendered frames: tools/calibrate_flyby_model_error.py)")
     radius_model_fraction: NonNegativeFloat = Field(
-        0.0212, description="apparent-radius model error as a fraction of the radius [-] "
+        0.025, description="apparent-radius model error as a fraction of the radius [-] "
         "(calibrated)")
     silhouette_bias_time_s: NonNegativeFloat = Field(
-        20.3, description="correlation time of the silhouette's model errors, first-order "
+        19.0, description="correlation time of the silhouette's model errors, first-order "
         "Gauss-Markov bias states [s] (calibrated; 0: white, added to each frame's noise)")
     centroid_sun_share: Annotated[float, Field(ge=0, le=1)] = Field(
-        0.975, description="share of the centroid model error's variance along the Sun's "
+        0.962, description="share of the centroid model error's variance along the Sun's "
         "image direction [-] (calibrated; 0.5: isotropic)")
     silhouette_scaling: Literal["table", "geometry", "constant"] = Field(
         "geometry", description="how the silhouette model-error sigmas follow the geometry: "
@@ -268,18 +268,18 @@ class TrnFilterConfig(StrictModel):
         "measured per bin of phase on the calibration fly-by, centroid ~ apparent radius; "
         "the packaged data/navigation/flyby_model_error.json) or constant")
     silhouette_reference_radius_px: PositiveFloat = Field(
-        49.8, description="apparent radius at which the model-error sigmas were calibrated "
+        48.95, description="apparent radius at which the model-error sigmas were calibrated "
         "[px] (the calibration fly-by's CA)")
     silhouette_reference_phase_deg: Annotated[float, Field(ge=0, lt=180)] = Field(
         50.0, description="Sun phase at which the model-error sigmas were calibrated [deg]")
     silhouette_limb_blur_px: NonNegativeFloat = Field(
-        3.13, description="outward spread of the lit limb above the segments threshold [px] "
+        1.85, description="outward spread of the lit limb above the segments threshold [px] "
         "(the radius model error's limb term; calibrated)")
     silhouette_terminator_shift_deg: NonNegativeFloat = Field(
-        7.11, description="shift of the effective terminator against the lit-facet model "
+        4.12, description="shift of the effective terminator against the lit-facet model "
         "[deg] (the radius model error's terminator term; calibrated)")
     feature_correlation: Annotated[float, Field(ge=0, lt=1)] = Field(
-        0.37, description="correlation of the tracked features' errors within a frame [-]: N "
+        0.25, description="correlation of the tracked features' errors within a frame [-]: N "
         "features count as N / (1 + (N - 1) c) independent ones (calibrated)")
     silhouette_offset: bool = Field(
         False, description="put the deterministic part of the silhouette's model error (the "
@@ -287,7 +287,7 @@ class TrnFilterConfig(StrictModel):
         "predicted measurement; the bias states then carry the residual (filter step 4c; off: "
         "measured worse at phase 70 deg, docs/navigation.md)")
     silhouette_centroid_offset_fraction: Annotated[float, Field(gt=-0.5, lt=0.5)] = Field(
-        0.0347, description="lit-centroid offset along the Sun's image direction over apparent "
+        0.0374, description="lit-centroid offset along the Sun's image direction over apparent "
         "radius x sin(phase) [-] (calibrated; used with silhouette_offset)")
     use_centroid: bool = Field(True, description="use the lit silhouette's centroid")
     use_radius: bool = Field(True, description="use the lit silhouette's apparent radius")

@@ -145,17 +145,17 @@ max_incidence            75 deg        steepest ray-to-normal angle of a landmar
 landmark_height_sigma    1 m           shape-model height error at a landmark birth
 centroid_model_sigma_px  0.3 px        centroid model error, rms per image coordinate
 radius_model_fraction    0.01          radius model error, fraction of the radius
-silhouette_bias_time     20.3 s        their correlation time (0: white, per frame)
+silhouette_bias_time     19.0 s        their correlation time (0: white, per frame)
 silhouette_scaling       constant      "geometry": sigmas follow radius and phase (4a;
                                        the scenario's default, calibrated so)
-reference_radius_px      49.8 px       ... relative to the calibration geometry's radius
+reference_radius_px      48.95 px      ... relative to the calibration geometry's radius
 reference_phase          50 deg        ... and phase
-limb_blur_px             3.13 px       radius error's limb-blur term (silhouette_scale)
-terminator_shift         7.11 deg      radius error's terminator term
-centroid_sun_share       0.975         share of the centroid's error along the Sun
+limb_blur_px             1.85 px       radius error's limb-blur term (silhouette_scale)
+terminator_shift         4.12 deg      radius error's terminator term
+centroid_sun_share       0.962         share of the centroid's error along the Sun
 feature_correlation      0             features' error correlation within a frame (4b)
 silhouette_offset        False         predict the silhouette's deterministic offset (4c)
-centroid_offset_fraction 0.0347        ... the centroid's, over ``rho sin(alpha)``
+centroid_offset_fraction 0.0374        ... the centroid's, over ``rho sin(alpha)``
 use_centroid, use_radius True          which silhouette measurements are used
 ======================== ============= =====================================================
 
@@ -425,16 +425,16 @@ class TrnFilterOptions:
     use_centroid: bool = True
     use_radius: bool = True
     iterations: int = 4
-    silhouette_bias_time: float = 20.3
-    centroid_sun_share: float = 0.975
+    silhouette_bias_time: float = 19.0
+    centroid_sun_share: float = 0.962
     silhouette_scaling: str = "constant"
-    reference_radius_px: float = 49.8
+    reference_radius_px: float = 48.95
     reference_phase: float = math.radians(50.0)
-    limb_blur_px: float = 3.13
+    limb_blur_px: float = 1.85
     feature_correlation: float = 0.0
-    terminator_shift: float = math.radians(7.11)
+    terminator_shift: float = math.radians(4.12)
     silhouette_offset: bool = False
-    centroid_offset_fraction: float = 0.0347
+    centroid_offset_fraction: float = 0.0374
     silhouette_table: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:

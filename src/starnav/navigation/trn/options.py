@@ -30,10 +30,10 @@ class FrontEndOptions:
     epipolar_px: float = 1.0
     ransac_iterations: int = 100
     min_body_area_px: int = 50
-    sigma_detect_px: float = 1.72
-    drift_px_per_rad: float = 3.8
-    centroid_sigma_fraction: float = 0.000297
-    radius_sigma_fraction: float = 0.000194
+    sigma_detect_px: float = 1.51
+    drift_px_per_rad: float = 3.75
+    centroid_sigma_fraction: float = 0.000326
+    radius_sigma_fraction: float = 0.000208
     correlation_factor: float = 1.0
     max_track_turn: float = 0.08726646259971647  # 5 deg
 
