@@ -79,6 +79,9 @@ def main() -> None:
     ap.add_argument("--dry-run", action="store_true")
     ap.add_argument("--records", type=Path, default=None,
                     help="keep the Monte Carlo acquisitions in this pickle (reused if present)")
+    ap.add_argument("--exposure", type=float, action="append", default=None,
+                    help="tune only this exposure [s] (repeatable); the others are kept "
+                    "from the packaged file")
     args = ap.parse_args()
     import pickle
 
@@ -99,12 +102,19 @@ def main() -> None:
                               "|ln(mean NIS / 3)|)",
                  "written": _dt.date.today().isoformat(), "tool": "tools/tune_bias_states.py",
                  "exposures": {}}
+    grids = GRIDS
+    if args.exposure:
+        doc["exposures"] = json.loads(OUT.read_text())["exposures"]
+        grids = {t: g for t, g in GRIDS.items()
+                 if any(math.isclose(t, x) for x in args.exposure)}
+        if not grids:
+            raise SystemExit(f"--exposure {args.exposure}: expected one of {list(GRIDS)}")
     # every arc rendered once: the exposures and filter settings act after the renderer
     renders = {tuple(a): None if any(k[0] == tuple(a) for k in cache) else
                terrain_renders(scenario_to_dict(scenario_from_dict(_resolved(DEMO),
                                                                    a + COMMON)), RUNS)
                for a in (*ARCS, *OUTSIDE)}
-    for exposure, (model, grid) in GRIDS.items():
+    for exposure, (model, grid) in grids.items():
         extra = [f"detector.exposure_time_s={exposure!r}"]
         for t, ov in DEMO_EXPOSURE_OVERRIDES:
             if math.isclose(t, exposure):

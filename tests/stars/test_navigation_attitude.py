@@ -13,7 +13,9 @@ from scipy.stats import chi2
 
 from starnav.batch.attitude_study import (
     attitude_comparison,
+    attitude_monte_carlo,
     comparison_markdown,
+    monte_carlo_markdown,
     reduced_demo,
 )
 from starnav.config import scenario_from_dict
@@ -241,12 +243,80 @@ def test_navigation_with_solved_attitude_at_the_demo_exposures(demo_comparison):
     assert s0["navigation-frame"] == 0 and s0["propagated"] == 6
 
 
+#: The case the Monte Carlo finds overconfident (docs/stars.md, "Navigation with the solved
+#: attitude: Monte Carlo"): 0.015 ms with the solved attitude.
+OVERCONFIDENT = (1.5e-5, "stars")
+
+
+def _check_monte_carlo(res: dict, runs: int, cases: str) -> None:
+    """Every run on its own terrain (run 0 the Moon as it is), and per exposure and case
+    (``cases``: "consistent" all but :data:`OVERCONFIDENT`, "overconfident" that one) the
+    filter's mean NEES (6 states, runs x frames) not above the two-sided 99 % band of a
+    ``runs``-run mean of chi2(6) (overconfidence is the failure that matters: a filter whose
+    sigma under-states its error; false alarm <= 0.5 % for a consistent one), the position
+    and velocity blocks likewise (3 dof), and the solved attitude's NEES not above its
+    band."""
+    off = res["terrain_offsets_deg"]
+    assert off[0] == 0.0 and len(set(off)) == runs
+    print(monte_carlo_markdown(res))
+    for c in res["cases"]:
+        if ((c["exposure_s"], c["case"]) == OVERCONFIDENT) != (cases == "overconfident"):
+            continue
+        assert c["nees_mean"] <= c["nees_band"][1], (c["exposure_s"], c["case"], c["nees_mean"])
+        assert c["nees_position_mean"] <= c["nees_band_3dof"][1], c["nees_position_mean"]
+        assert c["nees_velocity_mean"] <= c["nees_band_3dof"][1], c["nees_velocity_mean"]
+        assert len(set(np.round(c["nees_per_run"], 9))) == runs   # the runs differ
+        if c["case"] == "stars":
+            assert c["attitude"]["nees_mean"] <= c["attitude"]["nees_band"][1]
+            assert c["attitude"]["sources"]["star-frame"] >= runs
+
+
+@pytest.fixture(scope="module")
+def short_monte_carlo():
+    """4 runs, each on its own terrain, 5 frames (2 h) of the demo's arc at 1024 px, 4 spp,
+    both demo exposures, star acquisitions at 200 ms every 2nd frame (~25 s)."""
+    return attitude_monte_carlo(reduced_demo(frames=5, size_px=1024, spp=4), 4,
+                                attitude={"schedule_every": 2})
+
+
+def test_attitude_monte_carlo_is_not_overconfident_on_a_short_arc(short_monte_carlo):
+    """The Monte Carlo verdict's fast version (the slow tests below are the verdict): the
+    assumed attitude at both exposures and the solved one at 7.7 ms not overconfident
+    (measured 7.24, 7.35, 7.30 against the 4-run band's top 11.39)."""
+    _check_monte_carlo(short_monte_carlo, 4, "consistent")
+
+
+@pytest.mark.xfail(strict=True, reason="0.015 ms with the solved attitude: NEES 22.3 over the "
+                   "short arc, velocity block 18.6 (band tops 11.39, 7.07); docs/stars.md")
+def test_attitude_monte_carlo_solved_attitude_at_0015ms_on_a_short_arc(short_monte_carlo):
+    _check_monte_carlo(short_monte_carlo, 4, "overconfident")
+
+
+@pytest.fixture(scope="module")
+def demo_monte_carlo():
+    """20 Monte Carlo runs, each on its own terrain (the lit-terrain limb error drawn afresh
+    per run, as the band assumes: docs/navigation.md, "Consistency needs the terrain
+    sampled"), 13 frames at 1024 px, 8 spp, both demo exposures (~5 min)."""
+    return attitude_monte_carlo(reduced_demo(frames=13, size_px=1024, spp=8), 20,
+                                attitude={"schedule_every": 2})
+
+
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="at 0.015 ms the filter with the solved attitude is "
-                   "overconfident on the real Moon (mean NEES 15.5, band 4.3-8.0, single run): "
-                   "with 0.4 arcsec on star frames the limb fix's own error model is what is "
-                   "left, and it under-states the lit-terrain error; the assumed 5 arcsec sigma "
-                   "hid part of that (NEES 9.4, also above). docs/stars.md")
-def test_navigation_with_solved_attitude_is_nees_consistent_at_0015ms(demo_comparison):
-    _, by = demo_comparison
-    assert by[(1.5e-5, "stars")]["navigation"]["nees_in_band"]
+def test_navigation_with_solved_attitude_is_consistent_over_terrains(demo_monte_carlo):
+    """Issue 17's consistency verdict on the demo's arc: the assumed attitude at both
+    exposures and the solved one at 7.7 ms inside the two-sided 99 % band of a 20-run mean
+    of chi2(6), [4.19, 8.18] (measured 7.28, 4.79, 4.79; docs/stars.md)."""
+    _check_monte_carlo(demo_monte_carlo, 20, "consistent")
+    for c in demo_monte_carlo["cases"]:
+        if (c["exposure_s"], c["case"]) != OVERCONFIDENT:
+            assert c["verdict"] == "consistent", (c["exposure_s"], c["case"], c["nees_mean"])
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="0.015 ms with the solved attitude: NEES 9.24 over 20 "
+                   "runs (band 4.19-8.18), velocity block 5.56 (top 4.60); 58.3 before the "
+                   "filter's limb-common states took the fix's calibrated covariance; "
+                   "docs/stars.md")
+def test_navigation_with_solved_attitude_at_0015ms_is_consistent_over_terrains(
+        demo_monte_carlo):
+    _check_monte_carlo(demo_monte_carlo, 20, "overconfident")

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
+from starnav.batch.consistency import terrain_offsets_deg
 from starnav.batch.presets import DEMO_EXPOSURE_OVERRIDES, DEMO_EXPOSURES_S, demo_scenario
 from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
 from starnav.config_base import apply_overrides
@@ -307,6 +308,15 @@ def comparison_markdown(result: dict[str, Any]) -> str:
 MC_BAND_PROBABILITY = 0.99
 
 
+def _nanmean(x: np.ndarray, axis: int | None = None) -> Any:
+    """``np.nanmean`` that gives NaN without a warning where every value is NaN (a case
+    without white fix covariances: the saturated frames' range-scale model)."""
+    x = np.asarray(x, float)
+    n = np.sum(np.isfinite(x), axis=axis)
+    s = np.nansum(x, axis=axis)
+    return np.where(n > 0, s / np.maximum(n, 1), np.nan)
+
+
 def _verdict(x: float, band: Sequence[float]) -> str:
     if not math.isfinite(x):
         return "no truth"
@@ -368,8 +378,6 @@ def attitude_monte_carlo(
         errors, the attitude sources summed over runs; ``terrain_offsets_deg``, ``frames``,
         ``runs``, ``settings``, ``run_wall_times_s``, ``wall_time_s``.
     """
-    from starnav.batch.consistency import terrain_offsets_deg
-
     if not (isinstance(runs, int) and runs >= 2):
         raise ConfigError("runs", runs, "an integer >= 2 (a Monte Carlo verdict needs runs)")
     if not (0.0 < probability < 1.0):
@@ -424,13 +432,13 @@ def attitude_monte_carlo(
             "nees_per_step": step["nees_per_step"].mean(axis=0).tolist(),
             "nees_position_per_step": step["nees_position_per_step"].mean(axis=0).tolist(),
             "nees_velocity_per_step": step["nees_velocity_per_step"].mean(axis=0).tolist(),
-            "fix_nees_mean": float(np.nanmean(fix["fix_nees_per_step"])),
-            "fix_nees_white_mean": float(np.nanmean(fix["fix_nees_white_per_step"])),
-            "fix_nees_per_step": np.nanmean(fix["fix_nees_per_step"], axis=0).tolist(),
-            "fix_nees_white_per_step": np.nanmean(fix["fix_nees_white_per_step"],
+            "fix_nees_mean": float(_nanmean(fix["fix_nees_per_step"])),
+            "fix_nees_white_mean": float(_nanmean(fix["fix_nees_white_per_step"])),
+            "fix_nees_per_step": _nanmean(fix["fix_nees_per_step"], axis=0).tolist(),
+            "fix_nees_white_per_step": _nanmean(fix["fix_nees_white_per_step"],
                                                   axis=0).tolist(),
-            "fix_error_range_rms_m": float(np.sqrt(np.nanmean(fix["fix_error_range_m"] ** 2))),
-            "fix_error_cross_rms_m": float(np.sqrt(np.nanmean(fix["fix_error_cross_m"] ** 2))),
+            "fix_error_range_rms_m": float(np.sqrt(_nanmean(fix["fix_error_range_m"] ** 2))),
+            "fix_error_cross_rms_m": float(np.sqrt(_nanmean(fix["fix_error_cross_m"] ** 2))),
             "final_position_error_m": {"median": float(np.median(fe)), "max": float(fe.max()),
                                        "per_run": fe.tolist()},
             "final_position_error_pct_range": {"median": float(np.median(fp)),

@@ -463,7 +463,12 @@ class NavigationConfig(StrictModel):
         fsi = f.to_si()
         common = None
         if f.bias_model == "limb-common":
-            common = packaged_model_error().common_covariance
+            # the states carry what the fix's own covariance carries besides its pixels and
+            # the attitude: the calibrated slowly varying fix error in the three limb modes
+            # (ModelErrorCalibration.fix_covariance), not the points' shared error
+            # (common_covariance, half of it: the filter was overconfident wherever the
+            # attitude's sigma no longer hid the difference, docs/stars.md)
+            common = packaged_model_error().fix_covariance
         return EkfOptions(bias_model=f.bias_model, bias_sigma_m=fsi.bias_sigma,
                           common_covariance=common,
                           range_scale_sigma=f.range_scale_sigma,
