@@ -52,8 +52,8 @@ body-fixed points through :class:`~starnav.navigation.trn.truth.FeatureTruthBook
    (``limb_blur_px``, ``terminator_shift_deg``). With ``--scaling geometry`` the sigmas and
    correlation time are those of the error series divided by the law's factors (the filter's
    ``silhouette_scaling: geometry``, the packaged choice and the default); with
-   ``constant`` of the raw series; with ``table`` of the series divided by the per-phase-bin
-   rms (``silhouette_table``, written in every case).
+   ``constant`` of the raw series. ``silhouette_table`` (the rms per 10-deg phase bin) is
+   written as a diagnostic; a ``table`` scaling by it was measured (below) and removed.
    ``silhouette_offset`` (the filter's step 4c, the same laws put into the predicted
    measurement): the centroid law's coefficient ``c`` (least squares of the along-Sun error on
    ``rho sin(phase)``), and the *residual* after the laws, twice: in sample (the laws fitted
@@ -66,7 +66,8 @@ body-fixed points through :class:`~starnav.navigation.trn.truth.FeatureTruthBook
    thirds (``silhouette_scaling``: the worse of ``|ln(NEES / 6)|`` over the thirds; 2026-11-26:
    ``geometry`` 0.28 (thirds 4.94, 4.53, 7.71; mean 5.72) against ``constant`` 0.62 (thirds
    3.24, 4.40, 9.32): the constant sigma under-states the high-phase departure and
-   over-states the approach; 2026-11-27: ``table`` 0.44 (thirds 5.07, 5.47, 9.28; mean 6.58:
+   over-states the approach; 2026-11-27: a ``table`` scaling (the sigmas per phase bin;
+   removed since) 0.44 (thirds 5.07, 5.47, 9.28; mean 6.58:
    the residual the table leaves is nearly constant over the pass, its fitted correlation
    time 99 s, and the departure's bias is carried too long), so ``geometry`` is packaged;
    the draws over geometries, 2026-11-27, with ``geometry``: thirds 4.49, 6.33, 9.22, mean
@@ -238,9 +239,10 @@ TABLE_EDGES_DEG = tuple(range(20, 91, 10))
 
 def phase_table(phase: np.ndarray, along: np.ndarray, across: np.ndarray, radius: np.ndarray
                 ) -> tuple[tuple[float, ...], ...]:
-    """The filter's ``silhouette_table``: per bin of :data:`TABLE_EDGES_DEG` holding frames,
-    their mean phase [rad] and the rms of ``along``, ``across`` (centroid errors over the
-    apparent radius) and ``radius`` (error fraction) [-]."""
+    """The errors per phase bin (``silhouette_table`` of the JSON, a diagnostic: a filter
+    scaling by it was measured worse, module step 4): per bin of :data:`TABLE_EDGES_DEG`
+    holding frames, their mean phase [rad] and the rms of ``along``, ``across`` (centroid
+    errors over the apparent radius) and ``radius`` (error fraction) [-]."""
     edges = np.radians(TABLE_EDGES_DEG)
     cols: list[list[float]] = [[], [], [], []]
     for lo, hi in zip(edges[:-1], edges[1:], strict=True):
@@ -284,7 +286,7 @@ def navigate_draws(scs: list, fe, fo) -> dict:
 
 def calibrate(dry_run: bool = False, scaling: str = "geometry",
               orientations: int = ORIENTATIONS, geometries: bool = True) -> dict:
-    # the filter's scaling plays no part in the measurements; 'constant' needs no table
+    # the filter's scaling plays no part in the measurements
     base_sc = scenario_from_dict({**CALIBRATION, "navigation": {"trn": {
         "dispersion": "orientation", "filter": {"silhouette_scaling": "constant"}}}})
     base = base_sc.navigation.trn
@@ -325,7 +327,7 @@ def calibrate(dry_run: bool = False, scaling: str = "geometry",
     ref = TrnFilterOptions(reference_radius_px=float(np.median(ca_r)),
                            reference_phase=math.radians(NOMINAL["phase_at_ca_deg"]),
                            limb_blur_px=max(w_fit, 0.0), terminator_shift=max(d_fit, 0.0),
-                           silhouette_scaling=scaling, silhouette_table=table)
+                           silhouette_scaling=scaling)
     scale = np.array([silhouette_scale(r_true[k], phase[k], ref) for k in range(len(phase))])
     along, across, dr = along_px / scale[:, 0], across_px / scale[:, 1], dr_raw / scale[:, 2]
     model_c = float(np.sqrt(np.mean(along**2 + across**2) / 2))
@@ -426,15 +428,15 @@ def calibrate(dry_run: bool = False, scaling: str = "geometry",
                              reference_phase=ref.reference_phase,
                              limb_blur_px=ref.limb_blur_px,
                              terminator_shift=ref.terminator_shift, silhouette_scaling=scaling,
-                             silhouette_table=table, feature_correlation=feature_corr)
-    lp = argparse.Namespace(summary=navigate_draws(scs, fe, fo))
-    out["calibration_nees_mean"] = float(lp.summary["nees_mean"])
-    out["calibration_nees_band"] = [float(x) for x in lp.summary["nees_band"]]
+                             feature_correlation=feature_corr)
+    nav = navigate_draws(scs, fe, fo)
+    out["calibration_nees_mean"] = nav["nees_mean"]
+    out["calibration_nees_band"] = nav["nees_band"]
     # ... over the pass (thirds: approach at low phase, CA, departure at high phase), where a
     # constant sigma that does not follow the geometry would show
     out["calibration_nees_thirds"] = [float(np.mean(t)) for t in np.array_split(
-        np.asarray(lp.summary["nees_per_frame"], float), 3)]
-    out["calibration_ca_error_pct_range_median"] = float(lp.summary["ca_error_pct_range_median"])
+        nav["nees_per_frame"], 3)]
+    out["calibration_ca_error_pct_range_median"] = nav["ca_error_pct_range_median"]
     # ... and with the offset in the measurement model, the residual sigmas on the states
     for label, res in (("in_sample", offset), ("cross_validated", offset["cross_validated"])):
         fo_o = dataclasses.replace(
@@ -464,7 +466,7 @@ def calibrate(dry_run: bool = False, scaling: str = "geometry",
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dry-run", action="store_true")
-    ap.add_argument("--scaling", choices=("table", "constant", "geometry"), default="geometry",
+    ap.add_argument("--scaling", choices=("constant", "geometry"), default="geometry",
                     help="the filter's silhouette_scaling the sigmas are calibrated for")
     ap.add_argument("--orientations", type=int, default=ORIENTATIONS,
                     help="orientations of the calibration fly-by pooled")

@@ -17,8 +17,6 @@ Example (YAML)::
 
 from __future__ import annotations
 
-import functools
-import json
 import math
 from typing import Annotated, Any, Literal
 
@@ -28,7 +26,6 @@ from pydantic import Field
 
 from starnav.config_base import StrictModel
 from starnav.constants import MOON_RADIUS
-from starnav.data import packaged_path
 from starnav.dem.limb import limb_topography_for
 from starnav.fields import NonNegativeFloat, PositiveFloat
 from starnav.navigation.christian_robinson import ChristianRobinsonOptions
@@ -260,13 +257,11 @@ class TrnFilterConfig(StrictModel):
     centroid_sun_share: Annotated[float, Field(ge=0, le=1)] = Field(
         0.962, description="share of the centroid model error's variance along the Sun's "
         "image direction [-] (calibrated; 0.5: isotropic)")
-    silhouette_scaling: Literal["table", "geometry", "constant"] = Field(
+    silhouette_scaling: Literal["geometry", "constant"] = Field(
         "geometry", description="how the silhouette model-error sigmas follow the geometry: "
         "geometry (centroid ~ apparent radius x sin(phase); radius fraction: limb blur and "
         "terminator shift, filter.silhouette_scale; relative to the reference below; chosen "
-        "by the calibration, tools/calibrate_flyby_model_error.py), table (the errors "
-        "measured per bin of phase on the calibration fly-by, centroid ~ apparent radius; "
-        "the packaged data/navigation/flyby_model_error.json) or constant")
+        "by the calibration, tools/calibrate_flyby_model_error.py) or constant")
     silhouette_reference_radius_px: PositiveFloat = Field(
         48.95, description="apparent radius at which the model-error sigmas were calibrated "
         "[px] (the calibration fly-by's CA)")
@@ -314,29 +309,12 @@ class TrnFilterConfig(StrictModel):
             terminator_shift=si.silhouette_terminator_shift,
             feature_correlation=si.feature_correlation,
             silhouette_offset=si.silhouette_offset,
-            centroid_offset_fraction=si.silhouette_centroid_offset_fraction,
-            silhouette_table=(packaged_silhouette_table() if si.silhouette_scaling == "table"
-                              else None))
+            centroid_offset_fraction=si.silhouette_centroid_offset_fraction)
 
     def initial_covariance(self) -> NDArray[np.float64]:
         """The diagonal initial covariance (6, 6) [m^2, m^2/s^2]."""
         si = self.to_si()
         return np.diag([si.initial_position_sigma**2] * 3 + [si.initial_velocity_sigma**2] * 3)
-
-
-@functools.lru_cache(maxsize=1)
-def packaged_silhouette_table() -> tuple[tuple[float, ...], ...]:
-    """The silhouette model errors per bin of phase of the packaged fly-by calibration
-    (``data/navigation/flyby_model_error.json``, ``silhouette_table``;
-    tools/calibrate_flyby_model_error.py): ``(phase [rad], along-Sun centroid error over the
-    apparent radius, across-Sun ditto, radius error fraction)``, the
-    :attr:`~starnav.navigation.trn.filter.TrnFilterOptions.silhouette_table` of
-    ``silhouette_scaling: table``."""
-    t = json.loads(packaged_path("navigation/flyby_model_error.json").read_text())[
-        "silhouette_table"]
-    return (tuple(math.radians(a) for a in t["phase_deg"]),
-            tuple(t["along_over_radius"]), tuple(t["across_over_radius"]),
-            tuple(t["radius_fraction"]))
 
 
 class TrnConfig(StrictModel):

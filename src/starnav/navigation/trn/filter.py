@@ -207,7 +207,7 @@ BIAS = slice(6, 9)
 
 
 #: Names of the silhouette model-error scalings (:func:`silhouette_scale`).
-SILHOUETTE_SCALINGS = ("table", "geometry", "constant")
+SILHOUETTE_SCALINGS = ("geometry", "constant")
 #: Phase below which the terminator-shift law is held at its value [rad]: near zero phase the
 #: terminator leaves the view and what remains (the limb's threshold) is not phase-driven.
 PHASE_FLOOR = math.radians(15.0)
@@ -244,27 +244,9 @@ def silhouette_scale(radius_px: float, phase: float, options: TrnFilterOptions) 
     (tools/calibrate_flyby_model_error.py).
 
     Phases below :data:`PHASE_FLOOR` are held at it.
-
-    ``silhouette_scaling = "table"``: the rms errors measured per bin of phase on the
-    calibration fly-by seen from many aspects (``options.silhouette_table``: phase [rad],
-    along-Sun and across-Sun centroid error over the apparent radius, radius error fraction;
-    linear between the bins' phases, held beyond them): the centroid's factors are
-    ``(rho / rho_ref) T(alpha) / T(alpha_ref)`` per axis, the radius's
-    ``T_r(alpha) / T_r(alpha_ref)``. No law's form is assumed (the calibration showed the
-    radius error *falling* with phase, 2.7 % at 20-35 deg to 1.2 % at 75-85 deg, where the
-    root sum square above rises, and the across-Sun error growing faster than the along-Sun
-    one; tools/calibrate_flyby_model_error.py).
     """
     if options.silhouette_scaling == "constant":
         return np.ones(3)
-    if options.silhouette_scaling == "table":
-        assert options.silhouette_table is not None  # __post_init__
-        ph, *cols = (np.asarray(c, float) for c in options.silhouette_table)
-        a, a0 = float(phase), float(options.reference_phase)
-        t = np.array([np.interp(a, ph, c) for c in cols])
-        t0 = np.array([np.interp(a0, ph, c) for c in cols])
-        rho = float(radius_px) / options.reference_radius_px
-        return t / t0 * np.array([rho, rho, 1.0])
     a = max(float(phase), PHASE_FLOOR)
     a0 = max(float(options.reference_phase), PHASE_FLOOR)
     rho, rho0 = float(radius_px), options.reference_radius_px
@@ -389,12 +371,7 @@ class TrnFilterOptions:
         the Sun's image direction [-]; the rest is across it (0.5: isotropic).
     silhouette_scaling : str
         How the model-error sigmas follow the geometry (:func:`silhouette_scale`):
-        ``"table"`` (measured per bin of phase, ``silhouette_table``), ``"geometry"`` (the
-        terminator-shift law) or ``"constant"`` (as calibrated).
-    silhouette_table : tuple of 4 tuples, optional
-        With ``"table"``: phases [rad] (increasing) and, at each, the rms along-Sun and
-        across-Sun centroid errors over the apparent radius [-] and the radius error fraction
-        [-] (the scenario's default: the packaged calibration's).
+        ``"geometry"`` (the terminator-shift law) or ``"constant"`` (as calibrated).
     reference_radius_px, reference_phase : float
         The geometry at which ``centroid_model_sigma_px`` and ``radius_model_fraction`` hold
         (the calibration fly-by's apparent radius [px] and Sun phase [rad] at CA).
@@ -435,18 +412,8 @@ class TrnFilterOptions:
     terminator_shift: float = math.radians(4.12)
     silhouette_offset: bool = False
     centroid_offset_fraction: float = 0.0374
-    silhouette_table: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:
-        if self.silhouette_scaling == "table":
-            t = self.silhouette_table
-            ok = (t is not None and len(t) == 4 and len({len(c) for c in t}) == 1
-                  and len(t[0]) >= 1 and bool(np.all(np.diff(np.asarray(t[0], float)) > 0))
-                  and all(math.isfinite(v) and v > 0 for c in t[1:] for v in c))
-            if not ok:
-                raise ConfigError("options.silhouette_table", t, "(phases [rad] increasing, "
-                                  "along, across, radius: positive), equal lengths, for "
-                                  "silhouette_scaling 'table'")
         checks = (("accel_psd", self.accel_psd >= 0, ">= 0"),
                   ("gate_probability", 0 < self.gate_probability < 1, "in (0, 1)"),
                   ("max_landmarks", self.max_landmarks >= 0, ">= 0"),
