@@ -36,21 +36,13 @@ from starnav.stars.attitude import (
 from starnav.stars.catalogue import hipparcos
 from starnav.stars.centroid import background, body_exclusions, find_stars, iwc, saturation_dn
 from starnav.stars.identify import identify_lost_in_space
+from starnav.stars.survey import random_pointing
 
 CAM = Camera.preset("aa-str")
 DET = DetectorConfig()
 RESP = sensor_response("aa-str")
 #: Background noise of a default 200 ms AA-STR frame [e-] (read 100 e-, dark shot, ADC).
 SIGMA_B_E = 108.0
-
-
-def _pointing(rng: np.random.Generator) -> np.ndarray:
-    z = rng.normal(size=3)
-    z /= np.linalg.norm(z)
-    R = look_rotation(np.array([0.0, 0.0, 1.0]), z)
-    roll = rng.uniform(0, 2 * math.pi)
-    c, s = math.cos(roll), math.sin(roll)
-    return R @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def _geom(R: np.ndarray, moon_dir: np.ndarray | None = None) -> FrameGeometry:
@@ -171,7 +163,7 @@ def test_lost_in_space_on_random_pointings_with_false_stars(n_pointings):
     cat = hipparcos()
     ok = wrong = matched = mismatched = 0
     for _ in range(n_pointings):
-        R = _pointing(rng)
+        R = random_pointing(rng)
         f = frame_stars(_geom(R), CAM, StarsConfig(enabled=True), RESP, exposure_time=0.2,
                         detector=DET, catalogue=cat).visible()
         keep = f.electrons > 1500
@@ -226,7 +218,7 @@ def test_rendered_frames_attitude_is_accurate_and_nees_consistent():
     rng = np.random.default_rng(5)
     nees = []
     for k in range(6):
-        R = _pointing(rng)
+        R = random_pointing(rng)
         f, e = _rendered(R, seed=k)
         sol = solve_attitude(e.dn, CAM, DET, epoch_jyear=f.epoch_jyear,
                              observer_velocity=f.observer_velocity_m_s)
@@ -245,7 +237,7 @@ def test_tracking_mode_from_a_propagated_prior():
     """Tracking: a prior 0.05 deg off the truth (a propagated attitude) gives the same
     stars and an attitude within 3 predicted sigmas per axis, without a lost-in-space search."""
     rng = np.random.default_rng(8)
-    R = _pointing(rng)
+    R = random_pointing(rng)
     f, e = _rendered(R, seed=11)
     off = np.array([1.0, -0.5, 0.3])
     off *= math.radians(0.05) / np.linalg.norm(off)
@@ -264,7 +256,7 @@ def test_moon_in_the_field_false_stars_are_not_matched():
     blooming on) in a star frame: candidates that are not catalogue stars are counted (the
     false-star rate), none of them is matched, and the attitude is right."""
     rng = np.random.default_rng(3)
-    R = _pointing(rng)
+    R = random_pointing(rng)
     moon_uv = np.array([300.0, 620.0])
     xy = CAM.pixel_to_normalized(moon_uv[None], undistort=False)[0]
     mdir = R @ (np.r_[xy, 1.0] / np.linalg.norm(np.r_[xy, 1.0]))
@@ -292,7 +284,7 @@ def test_moon_in_the_field_false_stars_are_not_matched():
 def test_too_few_stars_and_a_short_exposure_give_no_attitude():
     """A 0.015 ms frame has no detectable star: "no-attitude" saying so, not an exception;
     three stars only: "no-attitude" too."""
-    R = _pointing(np.random.default_rng(2))
+    R = random_pointing(np.random.default_rng(2))
     f, e = _rendered(R, seed=1, exposure=1.5e-5)
     sol = solve_attitude(e.dn, CAM, DET, epoch_jyear=f.epoch_jyear)
     assert not sol.ok and "detected" in sol.reason and sol.R_cam_to_inertial is None

@@ -33,6 +33,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -308,13 +309,12 @@ def comparison_markdown(result: dict[str, Any]) -> str:
 MC_BAND_PROBABILITY = 0.99
 
 
-def _nanmean(x: np.ndarray, axis: int | None = None) -> Any:
-    """``np.nanmean`` that gives NaN without a warning where every value is NaN (a case
-    without white fix covariances: the saturated frames' range-scale model)."""
-    x = np.asarray(x, float)
-    n = np.sum(np.isfinite(x), axis=axis)
-    s = np.nansum(x, axis=axis)
-    return np.where(n > 0, s / np.maximum(n, 1), np.nan)
+def _nanmean(x: Any, axis: int | None = None) -> Any:
+    """``np.nanmean``, NaN without a warning where every value is NaN (a case without white
+    fix covariances: the saturated frames' range-scale model)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmean(np.asarray(x, float), axis=axis)
 
 
 def _verdict(x: float, band: Sequence[float]) -> str:

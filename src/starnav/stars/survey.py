@@ -57,6 +57,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.camera import Camera
+from starnav.constants import MOON_RADIUS
 from starnav.detector import DetectorConfig, expose
 from starnav.geometry import FrameGeometry, look_rotation
 from starnav.spectra import SensorResponse, sensor_response
@@ -71,8 +72,6 @@ FloatArray = NDArray[np.float64]
 #: Electron radiance of the test Moon disc [e- s^-1 m^-2 sr^-1]: saturates the AA-STR at
 #: 200 ms by a large factor (a blob with blooming, halo and ghosts).
 MOON_LE = 1.0e19
-#: Radius of the reference Moon [m].
-MOON_RADIUS_M = 1737.4e3
 #: Distance of the Sun used for the frames' geometry [m] (its direction does not matter).
 SUN_POSITION = np.array([1.5e11, 0.0, 0.0])
 
@@ -253,7 +252,7 @@ def identification_survey(
             xy = cam.pixel_to_normalized(uv[None], undistort=False)[0]
             los = R @ (np.r_[xy, 1.0] / np.linalg.norm(np.r_[xy, 1.0]))
             geom = FrameGeometry(camera_position=-d * los, R_cam_to_inertial=R,
-                                 sun_position=SUN_POSITION, moon_radius=MOON_RADIUS_M)
+                                 sun_position=SUN_POSITION, moon_radius=MOON_RADIUS)
             r_px = cam.fx * math.tan(geom.apparent_radius)
             yy, xx = np.mgrid[:cam.height, :cam.width]
             le = np.where(np.hypot(xx - uv[0], yy - uv[1]) < r_px, MOON_LE, 0.0).astype(
