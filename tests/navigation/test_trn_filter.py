@@ -347,11 +347,12 @@ def test_config_is_read_in_si():
 BIAS_RUNS = 10
 
 
-def _biased_runs(truth, camera, body, options, seed=5, offset=None):
+def _biased_runs(truth, camera, body, options, seed=5, offset=None, mean=(0.0, 0.0, 0.0)):
     """BIAS_RUNS synthetic runs whose silhouette carries a model error shared by every frame
     of the run, as the rendered frames' (tools/calibrate_flyby_model_error.py): along the
     Sun's image direction N(0, sa), across it N(0, sx), the radius scale N(0, sr), with the
-    filter's default sigmas (the calibrated ones). Returns the NEES (runs, frames)."""
+    filter's default sigmas (the calibrated ones), plus ``mean`` (along, across [px], radius
+    fraction). Returns the NEES (runs, frames)."""
     o = TrnFilterOptions()
     sa = o.centroid_model_sigma_px * math.sqrt(2 * o.centroid_sun_share)
     sx = o.centroid_model_sigma_px * math.sqrt(2 * (1 - o.centroid_sun_share))
@@ -359,7 +360,7 @@ def _biased_runs(truth, camera, body, options, seed=5, offset=None):
     g = np.random.default_rng(seed)
     out = []
     for r in range(BIAS_RUNS):
-        ba, bx, br = g.standard_normal(3) * [sa, sx, o.radius_model_fraction]
+        ba, bx, br = g.standard_normal(3) * [sa, sx, o.radius_model_fraction] + mean
         meas = []
         for k, m in enumerate(run_measurements(truth, seed, r, SyntheticOptions(max_features=20))):
             R = truth.R_cam_to_inertial[k]
@@ -437,6 +438,71 @@ def test_silhouette_offset_in_the_prediction_removes_the_deterministic_error(tru
     off = _biased_runs(truth, camera, body, TrnFilterOptions(), offset=law)
     assert lo <= on.mean() <= hi, on.mean()
     assert off.mean() > hi, off.mean()
+
+
+#: The silhouette model error's mean measured on the rendered calibration (along the Sun,
+#: across it [px], radius fraction; tools/calibrate_flyby_model_error.py, 40 draws): 3.5 and
+#: 2 of the algorithm's default sigmas (0.42 px along, 1 %).
+SYSTEMATIC = (1.47, 0.035, 0.0198)
+
+
+def test_bias_mean_in_the_prediction_removes_a_systematic_error(truth, camera, body):
+    """Synthetic runs whose shared silhouette bias has a non-zero mean (SYSTEMATIC, filter
+    step 4d): with ``bias_mean`` set to it the mean NEES over BIAS_RUNS runs is inside the
+    two-sided 99 % band of chi2(6), [3.55, 9.20]; with a zero-mean prior and the same sigmas
+    the offset is an error the filter does not know it makes: above the band."""
+    lo, hi = chi2_band(6, BIAS_RUNS, 0.99)
+    known = _biased_runs(truth, camera, body, TrnFilterOptions(bias_mean=SYSTEMATIC),
+                         mean=SYSTEMATIC)
+    unknown = _biased_runs(truth, camera, body, TrnFilterOptions(), mean=SYSTEMATIC)
+    assert lo <= known.mean() <= hi, known.mean()
+    assert unknown.mean() > hi, unknown.mean()
+
+
+def test_divergence_reset_recovers_a_locked_out_run(truth, camera, body):
+    """Filter step 5a. The first two frames' silhouettes are wrong (centroid 20 px off,
+    radius 5 % large: a glitch) and claim their usual 0.3 px: the honest 1 km prior accepts
+    them and the estimate lands ~400 m off with a covariance that excludes the truth. Without
+    the rule the gate then rejects every later centroid (lock-out) and the position at CA is
+    off by more than 2 % of range; with ``reset_after = 3`` the filter re-opens once, in frame
+    4 (after frames 2, 3 and 4 rejected), uses every later centroid and ends at CA below 1 %
+    of range, inside its 3-sigma."""
+    meas = run_measurements(truth, 3, 0, SyntheticOptions(max_features=20))
+    for j in (0, 1):
+        m = meas[j]
+        meas[j] = replace(m, centroid_uv=m.centroid_uv + np.array([20.0, 0.0]),
+                          apparent_radius_px=1.05 * m.apparent_radius_px)
+    P0 = TrnFilterConfig().initial_covariance()
+    k = int(np.argmin(np.abs(EPOCHS)))
+    rng = np.linalg.norm(truth.states[k, :3])
+    stuck = run_filter(meas, camera, body, truth.states[0], P0, TrnFilterOptions(),
+                       sun_direction=truth.sun_direction)
+    reset = run_filter(meas, camera, body, truth.states[0], P0,
+                       TrnFilterOptions(reset_after=3), sun_direction=truth.sun_direction)
+    assert stuck.info["resets"] == [] and stuck.centroid_used[2:].sum() <= 3
+    assert np.linalg.norm(stuck.errors(truth.states)[k, :3]) > 2 * CA_FRACTION * rng
+    assert reset.info["resets"] == [4], reset.info["resets"]
+    assert reset.centroid_used[4:].all()
+    e = reset.errors(truth.states)[k]
+    assert np.linalg.norm(e[:3]) < CA_FRACTION * rng, e
+    assert np.all(np.abs(e) <= reset.sigma3()[k])
+    with pytest.raises(ConfigError, match="reset_after"):
+        TrnFilterOptions(reset_after=-1)
+    with pytest.raises(ConfigError, match="bias_mean"):
+        TrnFilterOptions(bias_mean=(0.0, 0.0, 0.7))
+
+
+def test_no_reset_on_consistent_runs(truth, camera, body):
+    """The divergence rule's false alarm: 20 consistent synthetic runs (the Monte Carlo of
+    ``test_monte_carlo_mean_nees_inside_its_chi2_band``'s settings) with ``reset_after = 3``
+    never reset."""
+    d = TrnFilterOptions()
+    c = TrnFilterConfig(feature_correlation=0.0, silhouette_scaling="constant",
+                        centroid_model_sigma_px=d.centroid_model_sigma_px,
+                        radius_model_fraction=d.radius_model_fraction, reset_after=3)
+    mc = flyby_monte_carlo(truth, camera, body, RUNS, c.initial_covariance(), seed=11,
+                           synthetic=SyntheticOptions(max_features=20), options=c.options())
+    assert mc.summary["resets"] == 0
 
 
 # ----------------------------------------------------------------------------- scaling law

@@ -208,9 +208,9 @@ class TrnFrontEndConfig(StrictModel):
         "along its track [px/rad] (the shading moves on the surface as the view turns)")
 
     correlation_factor: Annotated[float, Field(ge=1)] = Field(
-        1.0, description="factor on every feature's 1-sigma for its error's correlation "
-        "along a track (calibrated on rendered frames: tools/calibrate_flyby_model_error.py) "
-        "[-]")
+        3.0, description="factor on every feature's 1-sigma for its error's correlation "
+        "along a track (chosen on rendered frames by the pass's thirds: "
+        "tools/calibrate_flyby_model_error.py) [-]")
     max_track_turn_deg: PositiveFloat = Field(
         5.0, description="a track ends once the view has turned this much along it (bounds "
         "its drift; the point is found again under a new id) [deg]")
@@ -284,6 +284,15 @@ class TrnFilterConfig(StrictModel):
     silhouette_centroid_offset_fraction: Annotated[float, Field(gt=-0.5, lt=0.5)] = Field(
         0.0374, description="lit-centroid offset along the Sun's image direction over apparent "
         "radius x sin(phase) [-] (calibrated; used with silhouette_offset)")
+    silhouette_bias_mean: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="mean of the silhouette's model errors at the reference "
+        "geometry: centroid along and across the Sun's image direction [px], radius fraction "
+        "[-]; scaled with the geometry like the sigmas, which are then the scatter about it "
+        "(filter step 4d; calibrated)")
+    reset_after: Annotated[int, Field(ge=0)] = Field(
+        3, description="frames in a row with the silhouette's centroid or radius rejected by "
+        "the gate after which the filter re-opens its relative state (filter step 5a; 0: "
+        "never)")
     use_centroid: bool = Field(True, description="use the lit silhouette's centroid")
     use_radius: bool = Field(True, description="use the lit silhouette's apparent radius")
     initial_position_sigma_km: PositiveFloat = Field(
@@ -309,7 +318,9 @@ class TrnFilterConfig(StrictModel):
             terminator_shift=si.silhouette_terminator_shift,
             feature_correlation=si.feature_correlation,
             silhouette_offset=si.silhouette_offset,
-            centroid_offset_fraction=si.silhouette_centroid_offset_fraction)
+            centroid_offset_fraction=si.silhouette_centroid_offset_fraction,
+            bias_mean=tuple(float(v) for v in si.silhouette_bias_mean),
+            reset_after=si.reset_after)
 
     def initial_covariance(self) -> NDArray[np.float64]:
         """The diagonal initial covariance (6, 6) [m^2, m^2/s^2]."""

@@ -115,9 +115,33 @@ Technique (per frame)
    default: on the rendered sweep it is consistent at phase 40 deg but overconfident by one to
    two orders at phase 70 deg, where ``c`` is ~0.049, not 0.033 (docs/navigation.md, "the
    silhouette offset in the measurement model").
+4d. **The bias's mean** (``bias_mean``, the scenario's ``silhouette_bias_mean``): over the
+   calibration's draws of aspect and geometry the silhouette's model error has a part of the
+   same sign at every aspect: the rendered lit centroid lies Sun-ward of the lit-facet
+   model's and the rendered radius is larger (the detector's blur spreads the lit limb over
+   the segments' threshold), +1.47 px along the Sun and +1.98 % of the radius at the
+   reference geometry. With a zero-mean prior that offset is an error the filter does not
+   know it makes, and it shows as a NEES growing over the pass while the covariance shrinks.
+   The mean ``mu`` enters the prediction as a known offset scaled by the frame's geometry
+   factors ``s_k`` (step 4a), ``uv_c + E_b (s_k mu)_{1,2}`` and ``rho (1 + s_k,r mu_r +
+   b_r)``; the bias states then carry the scatter about it (their sigmas and correlation
+   time calibrated on the deviations from the mean, tools/calibrate_flyby_model_error.py).
 5. **Gate** each feature, the centroid and the radius on their own innovation,
    ``nu^T S^-1 nu < chi2.ppf(gate_probability, dof)``; a rejected feature's landmark is
    dropped and its track id ignored from then on (a tracker that jumped keeps the id).
+5a. **Divergence** (``reset_after``): an update that lands far off can leave the estimate
+   where the gate rejects the silhouette ever after (seen once in 8 draws at 1 km/s, phase
+   40 deg: the Sun grazing an end of the elongated body, 5 sigma off at the first update,
+   the silhouette then rejected in 20 of 21 frames). The silhouette is the measurement the
+   filter can least afford to lose (it alone fixes the range), and a consistent filter
+   rejects its centroid or its radius with probability below 2e-4 a frame. After
+   ``reset_after`` frames in a row with either rejected, the relative state is re-opened by the
+   initial covariance (``P_rv += P0``, the estimate kept), the bias states restart from
+   their prior, the landmarks are dropped (placed from the diverged position, they would
+   hold it there; their tracks are born again) and the frame is gated again. The frames are
+   recorded in ``FlybyRun.info["resets"]``. (Accepting the rejected silhouette instead, the
+   limb EKF's rule, made that run worse: NEES 283 -> 590; its covariance was still the
+   diverged one.)
 6. **Update** with every accepted measurement at once (Joseph form); the NIS of the stacked
    innovation (its dof = the number of scalars) is recorded.
 7. **New landmarks**: each new track's pixel ray, cast from the updated ``r`` under the updated
@@ -156,6 +180,8 @@ centroid_sun_share       0.962         share of the centroid's error along the S
 feature_correlation      0             features' error correlation within a frame (4b)
 silhouette_offset        False         predict the silhouette's deterministic offset (4c)
 centroid_offset_fraction 0.0374        ... the centroid's, over ``rho sin(alpha)``
+bias_mean                (0, 0, 0)     the silhouette model error's mean (4d; calibrated)
+reset_after              0             re-open after this many rejected silhouettes (5a)
 use_centroid, use_radius True          which silhouette measurements are used
 ======================== ============= =====================================================
 
@@ -389,6 +415,13 @@ class TrnFilterOptions:
         The lit centroid's offset along the Sun's image direction over ``rho sin(alpha)`` [-]
         (step 4c; calibrated). The radius's offset uses ``limb_blur_px`` and
         ``terminator_shift``.
+    bias_mean : (3,) tuple
+        Mean of the silhouette's model error at the reference geometry (step 4d): centroid
+        along and across the Sun's image direction [px], radius fraction [-]; the bias
+        sigmas are then the scatter about it.
+    reset_after : int
+        Frames in a row with the silhouette rejected after which the relative state is
+        re-opened (step 5a); 0: never.
     """
 
     accel_psd: float = 1e-8
@@ -412,8 +445,15 @@ class TrnFilterOptions:
     terminator_shift: float = math.radians(4.12)
     silhouette_offset: bool = False
     centroid_offset_fraction: float = 0.0374
+    bias_mean: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    reset_after: int = 0
 
     def __post_init__(self) -> None:
+        mean = np.asarray(self.bias_mean, float)
+        if mean.shape != (3,) or not np.all(np.isfinite(mean)) or abs(mean[2]) >= 0.5:
+            raise ConfigError("options.bias_mean", np.ravel(mean).tolist(),
+                              "3 finite values (centroid along and across the Sun [px], "
+                              "radius fraction with |value| < 0.5)")
         checks = (("accel_psd", self.accel_psd >= 0, ">= 0"),
                   ("gate_probability", 0 < self.gate_probability < 1, "in (0, 1)"),
                   ("max_landmarks", self.max_landmarks >= 0, ">= 0"),
@@ -433,6 +473,7 @@ class TrnFilterOptions:
                   ("limb_blur_px", self.limb_blur_px >= 0, ">= 0 [px]"),
                   ("feature_correlation", 0 <= self.feature_correlation < 1, "in [0, 1)"),
                   ("terminator_shift", self.terminator_shift >= 0, ">= 0 [rad]"),
+                  ("reset_after", self.reset_after >= 0, ">= 0 frames (0: never)"),
                   ("centroid_offset_fraction", math.isfinite(self.centroid_offset_fraction)
                    and abs(self.centroid_offset_fraction) < 0.5, "finite, |value| < 0.5 [-]"),
                   ("limb_blur_px + terminator_shift",
@@ -755,9 +796,12 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
     share = np.array([opt.centroid_sun_share, 1.0 - opt.centroid_sun_share])
     sig_b = (np.r_[opt.centroid_model_sigma_px * np.sqrt(2.0 * share),
                    opt.radius_model_fraction] if tau > 0 else np.zeros(3))
+    mu = np.asarray(opt.bias_mean, float)    # the bias's calibrated mean (step 4d)
     x = np.r_[x0, np.zeros(3)]
     P = np.zeros((CORE, CORE))
     P[:6, :6], P[BIAS, BIAS] = P0, np.diag(sig_b**2)
+    streak = 0                                # frames in a row whose silhouette was rejected
+    out.info["resets"] = []
     out.info["bias"] = np.zeros((K, 3))
     out.info["bias_sigma"] = np.zeros((K, 3))
     out.info["silhouette_scale"] = np.ones((K, 3))
@@ -866,7 +910,8 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
 
         def predict_all(rs: list[tuple[str, FloatArray, FloatArray, int, Any]],
                         xi: FloatArray, n: int = n, th: slice = th, R_m: FloatArray = R_m,
-                        R_bi: FloatArray = R_bi, s_k: FloatArray | None = s_k
+                        R_bi: FloatArray = R_bi, s_k: FloatArray | None = s_k,
+                        mu_k: FloatArray = mu * scale
                         ) -> tuple[list[FloatArray], list[FloatArray], list[bool]]:
             """Predicted measurement and Jacobian of every row at ``xi`` (features batched);
             ``False`` where a landmark is behind the camera."""
@@ -895,7 +940,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
                     fi += 1
                 elif kind == "centroid":
                     h, Hc, Htc = centroid_model(camera, xi[:3], par[0], R_m, xi[th])
-                    h = h + par[1] @ xi[6:8]
+                    h = h + par[1] @ (mu_k[:2] + xi[6:8])
                     if opt.silhouette_offset:   # 4c the deterministic offset
                         off = silhouette_offset(xi[:3], s_k, par[2], opt)
                         h = h + off.centroid_px * par[1][:, 0]
@@ -906,26 +951,41 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
                     if opt.silhouette_offset:
                         off = silhouette_offset(xi[:3], s_k, par[2], opt)
                         rho, Hrr = rho + off.radius_px, Hrr + off.radius_grad[None, :]
-                    h = np.array([rho * (1.0 + xi[8])])
-                    H[:, :3], H[0, 8] = Hrr * (1.0 + xi[8]), rho
+                    g = 1.0 + mu_k[2] + xi[8]
+                    h = np.array([rho * g])
+                    H[:, :3], H[0, 8] = Hrr * g, rho
                 hs.append(h)
                 Hs.append(H)
                 ok.append(good)
             return hs, Hs, ok
 
         # 5 gate
+        gated = gate_rows(rows, predict_all(rows, x), P, gate)
+        sil = [g for g in gated if g[0][0] != "feature"]
+        if sil:
+            streak = streak + 1 if not all(g[2] for g in sil) else 0
+        if opt.reset_after and streak >= opt.reset_after:
+            # 5a divergence: the silhouette rejected reset_after frames in a row; re-open
+            # the relative state, restart the bias states, drop the landmarks (they were
+            # placed from the diverged position) and gate again
+            idx = np.r_[np.arange(CORE), np.arange(n - 3, n)]
+            x, P = x[idx], P[np.ix_(idx, idx)]
+            ids, n, th = [], CORE + 3, slice(CORE, CORE + 3)
+            P[:6, :6] += P0
+            x[BIAS] = 0.0
+            P[BIAS, :] = 0.0
+            P[:, BIAS] = 0.0
+            P[BIAS, BIAS] = np.diag((sig_b * scale) ** 2)
+            rows = [rw for rw in rows if rw[0] != "feature"]
+            gated = gate_rows(rows, predict_all(rows, x, n, th), P, gate)
+            streak = 0
+            out.info["resets"].append(k)
         accepted = []
-        h_all, H_all, ok_all = predict_all(rows, x)
-        for row, h1, H1, ok1 in zip(rows, h_all, H_all, ok_all, strict=True):
-            kind, z, Rn, tid, _ = row
-            if not ok1:
-                continue
-            nu = z - h1
-            S = H1 @ P @ H1.T + Rn
-            d2 = float(nu @ np.linalg.solve(S, nu))
+        for row, d2, ok, dof in gated:
+            kind, tid = row[0], row[3]
             nis_kind[kind][k] += d2
-            dof_kind[kind][k] += nu.size
-            if d2 <= gate[nu.size]:
+            dof_kind[kind][k] += dof
+            if ok:
                 accepted.append(row)
                 out.centroid_used[k] |= kind == "centroid"
                 out.radius_used[k] |= kind == "radius"
@@ -939,7 +999,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             Rn = _block_diag([a[2] for a in accepted])
             xi = x.copy()
             for it in range(opt.iterations):
-                hl, Hl_, okl = predict_all(accepted, xi)
+                hl, Hl_, okl = predict_all(accepted, xi, n, th)
                 if not all(okl):
                     break
                 h = np.concatenate(hl)
@@ -979,8 +1039,13 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
                                         R_true.T @ (-r))
             Js, Gs, Ns, ls, born = [], [], [], [], []
             cands = new[:room]
-            births = landmark_births(camera, r, R_true, R_bi,
-                                     np.array([f.uv for f in cands]), body=placed)
+            try:
+                births = landmark_births(camera, r, R_true, R_bi,
+                                         np.array([f.uv for f in cands]), body=placed)
+            except GeometryError:
+                # the estimate is so far off that the body reaches behind the camera: no ray
+                # can be cast from it, and no landmark is born this frame
+                births = [None] * len(cands)
             for f, b in zip(cands, births, strict=True):
                 if b is None or b.cos_incidence < cos_max:
                     continue
@@ -1008,6 +1073,21 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
         out.info["bias_sigma"][k] = np.sqrt(np.diag(P)[BIAS])
         out.covariances[k] = P[:6, :6]
         out.landmarks[k] = len(ids)
+    return out
+
+
+def gate_rows(rows: list, predicted: tuple[list[FloatArray], list[FloatArray], list[bool]],
+              P: FloatArray, gate: dict[int, float]) -> list[tuple[Any, float, bool, int]]:
+    """Module step 5: ``(row, d2, accepted, dof)`` of every row whose prediction is valid,
+    ``d2 = nu^T S^-1 nu`` against the chi-square ``gate`` of its dof."""
+    out = []
+    for row, h1, H1, ok1 in zip(rows, *predicted, strict=True):
+        if not ok1:
+            continue
+        nu = row[1] - h1
+        S = H1 @ P @ H1.T + row[2]
+        d2 = float(nu @ np.linalg.solve(S, nu))
+        out.append((row, d2, d2 <= gate[nu.size], nu.size))
     return out
 
 

@@ -40,8 +40,9 @@ option                     default  effect
 ``sigma_detect_px``,       cal.     per-feature 1-sigma ``k hypot(detect, drift x turned)``
 ``drift_px_per_rad``,               [px], ``turned`` the camera rotation summed along the track
 ``correlation_factor`` k            [rad]; ``k`` covers the drift's correlation along a track
-                                    (the same error in consecutive frames); calibrated on
-                                    rendered frames (tools/calibrate_flyby_model_error.py)
+                                    (the same error in consecutive frames); 3, chosen on
+                                    rendered frames by the NEES over the pass's thirds
+                                    (tools/calibrate_flyby_model_error.py)
 ``max_track_turn``         cal.     a track ends (``aged``) once the view turned this much
                                     along it [rad]: bounds the drift; the point is found again
                                     under a new id

@@ -100,8 +100,9 @@ def summarise_runs(runs: Sequence[FlybyRun], metrics: Sequence[FlybyMetrics],
     """The Monte Carlo verdict of ``runs`` of one fly-by (module steps 3-4): the per-frame
     NEES averaged over the runs, its mean against the two-sided ``probability`` band of an
     ``R``-run mean of chi2(6), the NEES at CA, the CA position error over range (median,
-    max). ``truth``: the (K, 6) true states shared by every run, or one (K, 6) per run
-    (runs of dispersed fly-bys, same epochs); ``epochs`` (K,) [TDB s]."""
+    max), the filter's divergence resets summed over the runs. ``truth``: the (K, 6) true
+    states shared by every run, or one (K, 6) per run (runs of dispersed fly-bys, same
+    epochs); ``epochs`` (K,) [TDB s]."""
     X = np.asarray(truth, float)
     if X.ndim == 3:
         if X.shape[0] != len(runs):
@@ -122,6 +123,7 @@ def summarise_runs(runs: Sequence[FlybyRun], metrics: Sequence[FlybyMetrics],
         "nees_ca": float(per_frame[k]), "nees_ca_band": [lo, hi],
         "ca_error_pct_range_median": float(np.median(ca)),
         "ca_error_pct_range_max": float(np.max(ca)),
+        "resets": int(sum(len(res.info.get("resets", ())) for res in runs)),
         "nees_per_frame": per_frame.tolist()}
 
 

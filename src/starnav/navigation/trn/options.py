@@ -34,7 +34,7 @@ class FrontEndOptions:
     drift_px_per_rad: float = 3.75
     centroid_sigma_fraction: float = 0.000326
     radius_sigma_fraction: float = 0.000208
-    correlation_factor: float = 1.0
+    correlation_factor: float = 3.0
     max_track_turn: float = 0.08726646259971647  # 5 deg
 
     def __post_init__(self) -> None:
