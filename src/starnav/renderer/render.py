@@ -677,7 +677,6 @@ class MoonRenderer:
                 "mitsuba_version": info.mitsuba_version,
                 "drjit_version": info.drjit_version,
                 "spp": self.settings.spp,
-                "adaptive": _sample_summary(sample_counts, self.settings),
                 "seed": int(seed),
                 "crop_box_uvwh": None if box is None else list(box),
                 "units": {"L": "W m^-2 sr^-1", "Le": "e- s^-1 m^-2 sr^-1", "range": "m",
@@ -685,16 +684,16 @@ class MoonRenderer:
                           "phase": "rad"},
             },
         }
+        if sample_counts is not None:
+            # only adaptive frames carry the key: the metadata of the others is as pinned
+            meta["render"]["adaptive"] = _sample_summary(sample_counts, self.settings)
         return RadianceImage(L, Le, aovs, meta)
 
 
-def _sample_summary(counts: NDArray[np.int32] | None, settings: RenderSettings
-                    ) -> dict[str, Any] | None:
-    """The metadata of an adaptive frame's sample counts (``None``: ``spp`` in every pixel of
-    the crop window, the non-adaptive render, also when ``render.adaptive`` is asked for on
-    the scalar variant or with ``fused_loop`` off)."""
-    if counts is None:
-        return None
+def _sample_summary(counts: NDArray[np.int32], settings: RenderSettings) -> dict[str, Any]:
+    """The metadata ``render.adaptive`` of an adaptive frame's sample counts. A frame without
+    it has ``spp`` in every pixel of the crop window: the non-adaptive render, also when
+    ``render.adaptive`` is asked for on the scalar variant or with ``fused_loop`` off."""
     n_full = int(np.count_nonzero(counts == settings.spp))
     n_any = int(np.count_nonzero(counts))
     return {
