@@ -25,14 +25,16 @@ Mitsuba's exact sphere with Hapke) it prints, in the same run:
   frame; a non-adaptive frame's is 16 times the crop). Each Moon is rendered each way in the
   same run with the same renderer (scene, mesh and kernels: the ``first_s`` of an adaptive
   row is its first frame with the scene loaded, compiling or loading its own kernels);
-  ``--no-adaptive`` leaves the adaptive rows out, ``--interior-spp`` chooses them.
+  ``--no-adaptive`` leaves the adaptive rows out, ``--interior-spp`` chooses them. Under an
+  adaptive row, ``steps``: its centre pass (pixel-centre rays, AOVs, radiance proxy), the
+  sample map (NumPy) and each sample count's radiance pass (``spp_16``, ``spp_4``), medians.
 
 The Moon's place is offset by ``--place-seed`` (default: from the clock), so that the frames'
 crop windows are new to Dr.Jit's on-disk kernel cache, as in a new sequence. Blender Cycles,
 the paper's engine, is compared only where installed (``bpy``); it is not on this machine.
 
 Usage: .venv/bin/python benchmarks/render.py [--frames N] [--compare] [--rebuild] [--place-seed S]
-       [--shapes real,mesh,sphere] [--ranges-km 60000,9715] [--no-adaptive] [--interior-spp 4]
+       [--shapes real,mesh,sphere] [--ranges-km 60000,9715] [--no-adaptive] [--interior-spp 4,1]
 """
 
 from __future__ import annotations
@@ -172,6 +174,10 @@ def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float
                       * img.meta["render"]["crop_box_uvwh"][3]) / 1e6),
         "moon_px": int(img.mask.sum()),
         "timing": {k: round(v, 3) for k, v in r.last_timing.items()},
+        # the adaptive render's steps (medians of frames 2..N): centre pass, sample map, and
+        # each sample count's radiance pass
+        "adaptive_parts": {k: steady(k) for k in parts[-1]
+                           if k == "centre_s" or k == "map_s" or k.startswith("spp_")},
     }
 
 
@@ -254,6 +260,10 @@ def main() -> None:
                               f"{res['moon_px']:8d} {res['full_pct']:6.1f} "
                               f"{res['msamples']:8.2f}  "
                               f"{os.getloadavg()[0]:.1f} {res['variant']}", flush=True)
+                        if res["adaptive_parts"]:
+                            print("         steps (s): " + ", ".join(
+                                f"{k[:-2]} {v:.3f}" for k, v in res["adaptive_parts"].items()),
+                                flush=True)
     if args.miss_cost:
         miss_cost(args.frames, place)
 
