@@ -955,6 +955,36 @@ def adaptive_sample_counts(hit: NDArray[np.bool_], proxy: NDArray[np.float32],
     return counts
 
 
+_Z_ORDER: dict[tuple[int, int], NDArray[np.uint32]] = {}
+
+
+def _z_order(bw: int, bh: int) -> NDArray[np.uint32]:
+    """The pixel indices of a ``bw`` x ``bh`` crop along a Z-order (Morton) curve, cached for
+    the last crop size (a full-field sequence keeps its crop; 0.03 s for 1024 x 1024).
+
+    The adaptive render's pixel lists follow it instead of the rows: neighbouring pixels are
+    then neighbours in the wavefront in both directions, and their rays share more of the
+    BVH. Same-session A/B, interleaved, real Moon at full field, 6 frames each (2026-11-27,
+    load 2.4-3.1): the interior pass 0.488 -> 0.406 s at 1 spp and 1.008 -> 0.931 s at 4 spp
+    (medians, the on-the-fly sort included in both). The order of a list changes no pixel's
+    samples' distribution: each pixel keeps its count and its consecutive samples.
+    """
+    key = (bw, bh)
+    if key not in _Z_ORDER:
+        def spread(v: NDArray[np.uint64]) -> NDArray[np.uint64]:
+            v = v & np.uint64(0xFFFF)
+            for shift, mask in ((8, 0x00FF00FF), (4, 0x0F0F0F0F), (2, 0x33333333),
+                                (1, 0x55555555)):
+                v = (v | (v << np.uint64(shift))) & np.uint64(mask)
+            return v
+
+        i = np.arange(bw * bh, dtype=np.uint64)
+        key_z = spread(i % np.uint64(bw)) | (spread(i // np.uint64(bw)) << np.uint64(1))
+        _Z_ORDER.clear()
+        _Z_ORDER[key] = np.argsort(key_z, kind="stable").astype(np.uint32)
+    return _Z_ORDER[key]
+
+
 def _centre_radiance(scene, si, ray):
     """The radiance proxy of the adaptive render's sample map: the BSDF value (cosine
     included) towards the Sun of each pixel-centre hit ``si``, summed over the ray's fixed
@@ -999,7 +1029,8 @@ def _render_adaptive(scene, box: tuple[int, int, int, int], seed: int, spp: int,
        kernel instead of the crop's row-major order: each pixel's ``n`` samples are ``n``
        consecutive samples of the wavefront, ``n`` samples per wavefront (Mitsuba's
        stratified and multijitter samplers stratify each pixel's samples as in the full
-       render). The two passes use different sampler seeds (the interior's is the frame's
+       render), the list in Z-order (:func:`_z_order`). The two passes use different sampler
+       seeds (the interior's is the frame's
        seed plus the golden-ratio constant 0x9E3779B9): the same seed would give pixel ``j``
        of each list the same random stream. The seeds, the list's length and the crop enter
        as data (one compiled kernel per sample count serves every frame); each pass is its
@@ -1091,10 +1122,11 @@ def _render_adaptive(scene, box: tuple[int, int, int, int], seed: int, spp: int,
 
     # 3. one radiance pass per sample count
     img = np.zeros((bh * bw, 2), np.float32)
-    flat = counts.ravel()
+    order = _z_order(bw, bh)
+    counts_z = counts.ravel()[order]
     for k, n_spp in enumerate(counts_used):
         t0 = time.perf_counter()
-        pix = np.flatnonzero(flat == n_spp).astype(np.uint32)
+        pix = order[counts_z == n_spp]
         if pix.size == 0:
             continue
         sampler.set_sample_count(n_spp)
