@@ -157,6 +157,12 @@ def test_sample_map_of_a_rendered_sphere():
     assert "adaptive" not in full[0].meta["render"] and r.last_sample_counts is None
     assert all(np.all(f.L[c == 0] == 0) for f in full)
     assert np.count_nonzero(sum(f.L for f in full)[limb & (c == 8)] > 0) > 100
+    # interior_spp = spp: one pass, the map only says where the body's sphere is
+    r.settings = RenderSettings(spp=8, adaptive=True, interior_spp=8, variants=LLVM_FIRST)
+    same = r.render(static_geometry(cam, 1.0e8, math.radians(60.0), (3.0, -2.0)), seed=3)
+    assert np.array_equal(r.last_sample_counts, np.where(c > 0, 8, 0))
+    assert same.meta["render"]["adaptive"]["pixels_interior"] == 0
+    assert np.all(same.L[c == 0] == 0) and same.L.max() > 0
 
 
 # ----------------------------------------------------------------------------- unbiased
