@@ -880,7 +880,8 @@ def adaptive_sample_counts(hit: NDArray[np.bool_], proxy: NDArray[np.float32],
        all nine centre rays of a neighbourhood miss would be biased: a limb that clips a pixel's
        corner passes between the four centre rays around that corner.)
     2. ``hit`` disagrees within the pixel's 3 x 3 neighbourhood (the limb, occluding terrain's
-       silhouette, holes): **spp**.
+       silhouette, holes): **spp** (inside the sphere: a centre ray up to 1.4 px outside the
+       limb can belong to a pixel whose area misses the sphere, which step 1 leaves at 0).
     3. ``proxy``, the centre ray's radiance (the BSDF towards the Sun at fixed wavelengths, zero
        in cast shadow or off the surface), spreads over the 3 x 3 neighbourhood by more than
        ``spread`` of its largest value: ``max - min > spread * max``: **spp**. This takes in
