@@ -16,14 +16,25 @@ Mitsuba's exact sphere with Hapke) it prints, in the same run:
 * ``compiles``: kernels compiled or loaded from Dr.Jit's disk cache during the steady frames
   (``dr.kernel_history``): each new crop window did so with ``mi.render``;
 * ``floor_s``: casting the same number of camera rays over the same crop window
-  (``scene.ray_intersect`` on sensor rays, one kernel): the floor of any renderer.
+  (``scene.ray_intersect`` on sensor rays, one kernel): the floor of any renderer that casts
+  16 rays in every pixel;
+* ``spp``: ``16`` (every pixel of the crop), or ``a16/4`` and ``a16/1``: the adaptive render
+  (``render.adaptive``: 16 samples at the limb, the terminator, shadow and albedo edges, 4 or
+  1 in the flat interior, none outside the body's bounding sphere), with ``full%`` (its
+  pixels at 16 spp, of those with samples) and ``Msamples`` (radiance samples of the last
+  frame; a non-adaptive frame's is 16 times the crop). Each Moon is rendered each way in the
+  same run with the same renderer (scene, mesh and kernels: the ``first_s`` of an adaptive
+  row is its first frame with the scene loaded, compiling or loading its own kernels);
+  ``--no-adaptive`` leaves the adaptive rows out, ``--interior-spp`` chooses them. Under an
+  adaptive row, ``steps``: its centre pass (pixel-centre rays, AOVs, radiance proxy), the
+  sample map (NumPy) and each sample count's radiance pass (``spp_16``, ``spp_4``), medians.
 
 The Moon's place is offset by ``--place-seed`` (default: from the clock), so that the frames'
 crop windows are new to Dr.Jit's on-disk kernel cache, as in a new sequence. Blender Cycles,
 the paper's engine, is compared only where installed (``bpy``); it is not on this machine.
 
 Usage: .venv/bin/python benchmarks/render.py [--frames N] [--compare] [--rebuild] [--place-seed S]
-       [--shapes real,mesh,sphere] [--ranges-km 60000,9715]
+       [--shapes real,mesh,sphere] [--ranges-km 60000,9715] [--no-adaptive] [--interior-spp 4,1]
 """
 
 from __future__ import annotations
@@ -56,6 +67,8 @@ def make_renderer(shape: str, fused: bool, quantum_px: float | None = None) -> M
     # a renderer from before issue 18 has no fused loop: Mitsuba's loop is its only one
     if "fused_loop" in {f.name for f in dataclasses.fields(RenderSettings)}:
         extra["fused_loop"] = fused
+    if _HAS_ADAPTIVE:
+        extra["adaptive"] = False
     if shape == "real":
         sc: dict = {"render": {"spp": 16}}
         if quantum_px is not None:
@@ -67,6 +80,10 @@ def make_renderer(shape: str, fused: bool, quantum_px: float | None = None) -> M
     moon = MoonModel(shape=shape, mesh=mesh, model="hapke")
     return MoonRenderer(cam, sensor_response(), solar_spectrum(), moon,
                         RenderSettings(spp=16, **extra))
+
+
+_HAS_ADAPTIVE = "adaptive" in {f.name for f in dataclasses.fields(RenderSettings)}
+_RENDERERS: dict[tuple, MoonRenderer] = {}
 
 
 def geometry(cam: Camera, range_m: float, k: int, place: tuple[float, float]):
@@ -102,8 +119,17 @@ def ray_cast_floor(r: MoonRenderer, g, spp: int) -> float:
 
 
 def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float, float],
-        quantum_px: float | None = None) -> dict:
-    r = make_renderer(shape, fused, quantum_px)
+        quantum_px: float | None = None, interior_spp: int | None = None) -> dict:
+    """``interior_spp``: the adaptive render with that many samples in the interior (the
+    renderer of the same Moon and loop is reused: its scene, mesh and kernels)."""
+    key = (shape, fused, quantum_px)
+    if key not in _RENDERERS:
+        _RENDERERS.clear()  # one Moon's scene in memory at a time
+        _RENDERERS[key] = make_renderer(shape, fused, quantum_px)
+    r = _RENDERERS[key]
+    if _HAS_ADAPTIVE:
+        r.settings = dataclasses.replace(r.settings, adaptive=interior_spp is not None,
+                                         interior_spp=interior_spp or r.settings.interior_spp)
     cam = r.camera
     times, compiles, parts = [], 0, []
     for k in range(frames):
@@ -139,8 +165,19 @@ def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float
         "steady_s": statistics.median(times[1:]),
         "compiles": compiles,
         "floor_s": ray_cast_floor(r, g, 16) if hasattr(r, "scene") else float("nan"),
+        "spp": "16" if interior_spp is None else f"a16/{interior_spp}",
+        "full_pct": (100.0 * img.meta["render"]["adaptive"]["fraction_full"]
+                     if img.meta["render"].get("adaptive") else 100.0),
+        "msamples": ((img.meta["render"]["adaptive"]["samples"]
+                      if img.meta["render"].get("adaptive")
+                      else 16 * img.meta["render"]["crop_box_uvwh"][2]
+                      * img.meta["render"]["crop_box_uvwh"][3]) / 1e6),
         "moon_px": int(img.mask.sum()),
         "timing": {k: round(v, 3) for k, v in r.last_timing.items()},
+        # the adaptive render's steps (medians of frames 2..N): centre pass, sample map, and
+        # each sample count's radiance pass
+        "adaptive_parts": {k: steady(k) for k in parts[-1]
+                           if k == "centre_s" or k == "map_s" or k.startswith("spp_")},
     }
 
 
@@ -179,6 +216,11 @@ def main() -> None:
     ap.add_argument("--rebuild", action="store_true",
                     help="real Moon: also with cache_quantum_px = 0 (a mesh and a scene built "
                     "for every frame: the renderer before the sequence reuse)")
+    ap.add_argument("--no-adaptive", action="store_true",
+                    help="leave out the adaptive render (render.adaptive)")
+    ap.add_argument("--interior-spp", default="4,1",
+                    help="the adaptive render's samples per interior pixel, one row each "
+                    "(comma-separated)")
     ap.add_argument("--miss-cost", action="store_true",
                     help="also the cost of a sample missing the Moon (sphere, crop vs frame)")
     args = ap.parse_args()
@@ -192,9 +234,13 @@ def main() -> None:
     print("steady = median of frames 2..N; mesh/scene/radiance = its parts (medians); "
           "rebuilds = frames 2..N that built a Mitsuba scene; q = the real Moon's "
           "cache_quantum_px (-: the scenario default)")
-    print(f"{'shape':6s} {'loop':7s} {'q':>3s} {'triangles':>9s} {'range_km':>8s} "
+    print(f"{'shape':6s} {'loop':7s} {'q':>3s} {'spp':>6s} {'triangles':>9s} {'range_km':>8s} "
           f"{'first_s':>8s} {'steady_s':>8s} {'mesh_s':>7s} {'scene_s':>7s} {'rad_s':>7s} "
-          f"{'rebuilds':>8s} {'compiles':>8s} {'floor_s':>8s} {'moon_px':>8s}  load")
+          f"{'rebuilds':>8s} {'compiles':>8s} {'floor_s':>8s} {'moon_px':>8s} {'full%':>6s} "
+          f"{'Msamples':>8s}  load")
+    spps: tuple[int | None, ...] = (None,)
+    if _HAS_ADAPTIVE and not args.no_adaptive:
+        spps = (None, *(int(x) for x in args.interior_spp.split(",")))
     loops = (True, False) if args.compare else (True,)
     for range_km in args.ranges_km.split(","):
         range_m = float(range_km) * 1e3
@@ -202,14 +248,22 @@ def main() -> None:
             quanta = (None, 0.0) if (shape == "real" and args.rebuild) else (None,)
             for fused in loops:
                 for q in quanta:
-                    res = run(shape, range_m, args.frames, fused, place, q)
-                    print(f"{res['shape']:6s} {res['loop']:7s} {res['quantum']:>3s} "
-                          f"{str(res['triangles']):>9s} {res['range_km']:8.0f} "
-                          f"{res['first_s']:8.3f} {res['steady_s']:8.3f} "
-                          f"{res['steady_mesh_s']:7.3f} {res['steady_scene_s']:7.3f} "
-                          f"{res['steady_radiance_s']:7.3f} {res['rebuilds']:8d} "
-                          f"{res['compiles']:8d} {res['floor_s']:8.3f} {res['moon_px']:8d}  "
-                          f"{os.getloadavg()[0]:.1f} {res['variant']}", flush=True)
+                    for ispp in (spps if fused else (None,)):
+                        res = run(shape, range_m, args.frames, fused, place, q, ispp)
+                        print(f"{res['shape']:6s} {res['loop']:7s} {res['quantum']:>3s} "
+                              f"{res['spp']:>6s} {str(res['triangles']):>9s} "
+                              f"{res['range_km']:8.0f} "
+                              f"{res['first_s']:8.3f} {res['steady_s']:8.3f} "
+                              f"{res['steady_mesh_s']:7.3f} {res['steady_scene_s']:7.3f} "
+                              f"{res['steady_radiance_s']:7.3f} {res['rebuilds']:8d} "
+                              f"{res['compiles']:8d} {res['floor_s']:8.3f} "
+                              f"{res['moon_px']:8d} {res['full_pct']:6.1f} "
+                              f"{res['msamples']:8.2f}  "
+                              f"{os.getloadavg()[0]:.1f} {res['variant']}", flush=True)
+                        if res["adaptive_parts"]:
+                            print("         steps (s): " + ", ".join(
+                                f"{k[:-2]} {v:.3f}" for k, v in res["adaptive_parts"].items()),
+                                flush=True)
     if args.miss_cost:
         miss_cost(args.frames, place)
 

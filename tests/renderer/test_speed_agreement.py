@@ -17,10 +17,19 @@ false-alarm rate. A second check sums each image over the disc: the difference o
 over its standard error is a z-score; ``|z| > 5`` has a false-alarm rate of 6e-7 and detects a
 bias of ~0.2 % of the disc radiance. Background pixels (zero variance in both) must be exactly
 zero in both; the AOV channels must equal the pinned ones to float32 rounding.
+
+Each case runs twice: as the renderer renders by default (``SPP`` samples in every pixel) and
+with the adaptive samples per pixel (``render.adaptive``, ``ADAPTIVE_INTERIOR_SPP`` = 1 sample
+in the flat interior, ``SPP`` at the limb and the terminator): the same test against the same
+reference, each side with its own per-pixel noise. The adaptive render's interior pixels are
+means of one sample per seed, whose distribution over seeds is further from normal than a
+4-sample mean's; Welch's t stays within the bound (the count of ``|t|`` beyond the 7-dof
+critical value is the statistic, and with ``K = 8`` it is robust to that skew).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -38,6 +47,9 @@ from starnav.spectra import sensor_response, solar_spectrum
 REFERENCE = Path(__file__).parent / "data" / "render_reference.npz"
 K = 8
 SPP = 4
+#: Samples of an interior pixel in the adaptive renders (the fewest possible: the strongest
+#: test of the sample map and of the per-count passes).
+ADAPTIVE_INTERIOR_SPP = 1
 #: Seeds of the pinned (before) renders and of the fresh (after) ones: independent streams.
 SEEDS_BEFORE = tuple(range(500, 500 + K))
 SEEDS_AFTER = tuple(range(900, 900 + K))
@@ -91,16 +103,26 @@ PHASE_DEG = {"lambert": 30.0, "lommel_seeliger": 50.0, "lunar_lambert": 70.0, "h
 RANGE_M = 2.6e8
 
 
-def render_stats(case: str, seeds: tuple[int, ...]) -> dict[str, np.ndarray]:
+def render_stats(case: str, seeds: tuple[int, ...], adaptive: bool = False
+                 ) -> dict[str, np.ndarray]:
     """Per-pixel mean and standard deviation (ddof 1) of L and Le over ``seeds``, and (for
-    :data:`AOV_CASES`) the AOVs of the first render."""
+    :data:`AOV_CASES`) the AOVs of the first render; ``adaptive``: with the adaptive samples
+    per pixel (and the sample counts of the first render as ``counts``)."""
     cam = _camera()
     moon = _cases()[case]
     r = MoonRenderer(cam, sensor_response(), solar_spectrum(), moon,
-                     RenderSettings(spp=SPP, variants=("llvm_ad_spectral", "scalar_spectral")))
+                     RenderSettings(spp=SPP, variants=("llvm_ad_spectral", "scalar_spectral"),
+                                    adaptive=adaptive, interior_spp=ADAPTIVE_INTERIOR_SPP))
     g = static_geometry(cam, RANGE_M, math.radians(PHASE_DEG[case]), (1.5, -1.0))
-    imgs = [r.render(g, seed=s) for s in seeds]
+    imgs = []
+    counts = None
+    for s in seeds:
+        imgs.append(r.render(g, seed=s))
+        if counts is None:
+            counts = r.last_sample_counts
     out = {}
+    if counts is not None:
+        out["counts"] = counts
     for ch in ("L", "Le"):
         stack = np.stack([getattr(im, ch).astype(np.float64) for im in imgs])
         out[f"{ch}_mean"] = stack.mean(0)
@@ -127,9 +149,18 @@ def reference():
         return {k: z[k].astype(np.float64) for k in z.files}
 
 
+@pytest.mark.parametrize("adaptive", [False, True], ids=["spp", "adaptive"])
 @pytest.mark.parametrize("case", list(PHASE_DEG))
-def test_render_agrees_with_the_pinned_render_within_mc_noise(reference, case):
-    new = render_stats(case, SEEDS_AFTER)
+def test_render_agrees_with_the_pinned_render_within_mc_noise(reference, case, adaptive):
+    new = render_stats(case, SEEDS_AFTER, adaptive)
+    if adaptive:
+        counts = new.pop("counts", None)
+        if counts is None:  # no usable LLVM here: the scalar variant renders spp everywhere
+            pytest.skip("the adaptive render runs on the JIT variants only")
+        # both sample counts are in use: the test compares both kinds of pixel
+        lit = reference[f"{case}/L_mean"] > 0
+        assert np.count_nonzero(lit & (counts == ADAPTIVE_INTERIOR_SPP)) > 100, case
+        assert np.count_nonzero(lit & (counts == SPP)) > 100, case
     for ch in ("L", "Le"):
         m0, s0 = reference[f"{case}/{ch}_mean"], reference[f"{case}/{ch}_std"]
         m1, s1 = new[f"{ch}_mean"], new[f"{ch}_std"]
@@ -203,13 +234,16 @@ def test_fused_loop_traces_mitsubas_samples(shape, spp):
     assert np.max(np.abs(c.L - b.L)) / b.L.max() > 1e-3
 
 
-def test_a_new_crop_window_reuses_the_compiled_kernels():
+@pytest.mark.parametrize("adaptive", [False, True], ids=["spp", "adaptive"])
+def test_a_new_crop_window_reuses_the_compiled_kernels(adaptive):
     """Mitsuba bakes the film crop into its kernels; the fused loop passes it as data, so a
     frame whose Moon box moves and changes size runs the kernels compiled for the previous
-    frame (in-memory cache hits; no compilation, no disk-cache load)."""
+    frame (in-memory cache hits; no compilation, no disk-cache load). The adaptive render's
+    kernels (centre pass, one radiance pass per sample count) too, with other pixel lists."""
     import drjit as dr
 
     cam, fused, _ = _pair("sphere", 4)
+    fused.settings = dataclasses.replace(fused.settings, adaptive=adaptive, interior_spp=1)
     g1 = static_geometry(cam, 1.5e8, math.radians(50.0), (4.0, -3.0))
     g2 = static_geometry(cam, 1.4e8, math.radians(55.0), (-7.0, 5.0), roll=0.2)
     a = fused.render(g1, seed=1)
@@ -228,6 +262,9 @@ def test_a_new_crop_window_reuses_the_compiled_kernels():
     fresh = [(h["size"], h["operation_count"]) for h in jit
              if not h["cache_hit"] or h["cache_disk"]]
     assert not fresh, f"kernels compiled or loaded for the new crop window: {fresh}"
+    if adaptive:
+        assert a.meta["render"]["adaptive"]["pixels_interior"] > 0
+        assert len([h for h in jit if h["size"] > 1000]) >= 3  # centre, full, interior
 
 
 if __name__ == "__main__":

@@ -94,7 +94,8 @@ def renderer_from_scenario(sc: Scenario, camera: Camera | None = None) -> MoonRe
     r = sc.render
     settings = RenderSettings(spp=r.spp, crop=r.crop, crop_margin_px=r.crop_margin_px,
                               aovs=r.aovs, variants=tuple(r.variants), sampler=r.sampler,
-                              wavelength_step_nm=r.wavelength_step_nm)
+                              wavelength_step_nm=r.wavelength_step_nm,
+                              adaptive=r.adaptive, interior_spp=r.interior_spp)
     return MoonRenderer(camera, response, sun, moon, settings)
 
 
