@@ -33,7 +33,7 @@ Technique
    sphere (:func:`adaptive_sample_counts`, :func:`_render_adaptive`). Deterministic inputs
    only, so every pixel stays an unbiased mean of its pixel integral; the interior is noisier
    (1.5 % per pixel at 4 spp on the real Moon against 0.53 % at 16, shot noise 0.62 % at the
-   demo exposure), and a full-field frame of the real Moon takes 0.27-0.47x of the 16-spp
+   demo exposure), and a full-field frame of the real Moon takes 0.23-0.47x of the 16-spp
    frame's time (interior 1-4 spp; ``docs/performance.md``).
 
 Tuning knobs
