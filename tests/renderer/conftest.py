@@ -15,6 +15,23 @@ from starnav.spectra import sensor_response, solar_spectrum
 LLVM_FIRST = ("llvm_ad_spectral", "scalar_spectral")
 
 
+def require_jit(ran_jit: bool, what: str) -> None:
+    """Guard of a check that only a JIT variant can make (the fused loop, the adaptive
+    render, kernel caching); ``ran_jit``: whether the renderer took the JIT path. Where this
+    machine has no libLLVM >= 16 the renderer falls back to ``scalar_spectral`` as it must,
+    and the check is skipped (CI installs libllvm19, so it runs there); where it has one, a
+    fallback is itself a fault and fails."""
+    from starnav.renderer import backend
+
+    if ran_jit:
+        return
+    llvm = backend.find_llvm()
+    if llvm is not None:
+        pytest.fail(f"{what}: libLLVM {llvm.major} at {llvm.path}, but the renderer fell "
+                    "back to scalar_spectral")
+    pytest.skip(f"{what}: no libLLVM >= 16 on this machine (CI installs libllvm19)")
+
+
 def make_renderer(camera: Camera | None = None, spp: int = 16, variants=LLVM_FIRST, **moon):
     camera = camera or Camera.preset("aa-str")
     return MoonRenderer(camera, sensor_response(), solar_spectrum(), MoonModel(**moon),

@@ -39,17 +39,12 @@ from starnav.renderer.schema import DEFAULT_INTERIOR_SPP
 from starnav.simulate import renderer_from_scenario
 from starnav.spectra import sensor_response, solar_spectrum
 
-from .conftest import LLVM_FIRST
+from .conftest import LLVM_FIRST, require_jit
 
 K = 8
 ALPHA = 1e-3
 FALSE_ALARM = 1e-6
 Z_MAX = 5.0
-
-
-def _jit_or_skip(img) -> None:
-    if img.meta["render"]["variant"].startswith("scalar"):  # no usable LLVM here
-        pytest.skip("the adaptive render runs on the JIT variants only")
 
 
 # ----------------------------------------------------------------------------- the map itself
@@ -113,7 +108,7 @@ def test_sample_map_of_a_rendered_sphere():
                      MoonModel(model="lambert", albedo=0.12),
                      RenderSettings(spp=8, adaptive=True, interior_spp=2, variants=LLVM_FIRST))
     img = r.render(static_geometry(cam, 1.0e8, math.radians(60.0), (3.0, -2.0)), seed=3)
-    _jit_or_skip(img)
+    require_jit(not img.meta["render"]["variant"].startswith("scalar"), "the adaptive render")
     c = r.last_sample_counts
     hit = img.aovs["mask"] > 0
     inc = np.where(hit, img.aovs["incidence"], 0.0)
@@ -204,8 +199,7 @@ def real_moon_pair():
 
 def test_adaptive_render_of_the_real_moon_is_unbiased(real_moon_pair):
     (m0, s0, _), (m1, s1, counts) = real_moon_pair[False], real_moon_pair[True]
-    if counts is None:
-        pytest.skip("the adaptive render runs on the JIT variants only")
+    require_jit(counts is not None, "the adaptive render")
     full, interior = counts == 16, counts == DEFAULT_INTERIOR_SPP
     lit = m0 > 0
     assert np.count_nonzero(full & lit) > 1000 and np.count_nonzero(interior & lit) > 20000
@@ -235,8 +229,7 @@ def test_adaptive_render_of_the_real_moon_is_unbiased(real_moon_pair):
 def test_the_unbiasedness_check_detects_a_small_bias(real_moon_pair):
     """The same z-test rejects an interior 0.3 % too bright: the test can fail."""
     (m0, s0, _), (m1, s1, counts) = real_moon_pair[False], real_moon_pair[True]
-    if counts is None:
-        pytest.skip("the adaptive render runs on the JIT variants only")
+    require_jit(counts is not None, "the adaptive render")
     interior = counts == DEFAULT_INTERIOR_SPP
     assert _z(np.where(interior, m1 * 1.003, m1), s1, m0, s0, interior) > Z_MAX
 

@@ -44,6 +44,8 @@ from starnav.renderer.render import AlbedoMap, MoonModel, MoonRenderer, RenderSe
 from starnav.renderer.scene import icosphere_mesh
 from starnav.spectra import sensor_response, solar_spectrum
 
+from .conftest import require_jit
+
 REFERENCE = Path(__file__).parent / "data" / "render_reference.npz"
 K = 8
 SPP = 4
@@ -155,8 +157,7 @@ def test_render_agrees_with_the_pinned_render_within_mc_noise(reference, case, a
     new = render_stats(case, SEEDS_AFTER, adaptive)
     if adaptive:
         counts = new.pop("counts", None)
-        if counts is None:  # no usable LLVM here: the scalar variant renders spp everywhere
-            pytest.skip("the adaptive render runs on the JIT variants only")
+        require_jit(counts is not None, "the adaptive render")
         # both sample counts are in use: the test compares both kinds of pixel
         lit = reference[f"{case}/L_mean"] > 0
         assert np.count_nonzero(lit & (counts == ADAPTIVE_INTERIOR_SPP)) > 100, case
@@ -219,8 +220,7 @@ def test_fused_loop_traces_mitsubas_samples(shape, spp):
     cam, fused, ref = _pair(shape, spp)
     g = static_geometry(cam, 1.5e8, math.radians(50.0), (4.0, -3.0))
     a, b = fused.render(g, seed=11), ref.render(g, seed=11)
-    if a.meta["render"]["variant"].startswith("scalar"):  # no usable LLVM here
-        pytest.skip("the fused loop runs on the JIT variants only")
+    require_jit(not a.meta["render"]["variant"].startswith("scalar"), "the fused loop")
     for ch in ("L", "Le"):
         x, y = getattr(a, ch), getattr(b, ch)
         assert np.array_equal(x > 0, y > 0)
@@ -247,8 +247,7 @@ def test_a_new_crop_window_reuses_the_compiled_kernels(adaptive):
     g1 = static_geometry(cam, 1.5e8, math.radians(50.0), (4.0, -3.0))
     g2 = static_geometry(cam, 1.4e8, math.radians(55.0), (-7.0, 5.0), roll=0.2)
     a = fused.render(g1, seed=1)
-    if a.meta["render"]["variant"].startswith("scalar"):  # no usable LLVM here
-        pytest.skip("kernel caching is a JIT-variant property")
+    require_jit(not a.meta["render"]["variant"].startswith("scalar"), "kernel caching")
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     try:
         dr.kernel_history()  # clears it
