@@ -718,6 +718,88 @@ class AovFrame:
     body_fixed: bool = False
 
 
+class _CropRays:
+    """The rays of a crop ``box`` on the full-frame film, as the fused loops trace them
+    (:func:`_render_fused`, :func:`_render_adaptive`): the crop's origin and width and the
+    near-plane shift enter the kernels as opaque data (one compiled kernel per pass serves
+    every frame), film coordinates are the whole frame's (the film's crop stays the full
+    frame: Mitsuba's sensor folds the crop into literals of its sample-to-camera transform)."""
+
+    def __init__(self, scene, box: tuple[int, int, int, int], near_shift: float,
+                 boresight: NDArray[np.float64] | None) -> None:
+        import mitsuba as mi
+
+        self.sensor = scene.sensors()[0]
+        self.film = self.sensor.film()
+        # sets the film's channels (L, Le, weight) that prepare_sample writes, as mi.render
+        if self.film.prepare([]) != 3:
+            raise RuntimeError(f"specfilm has {self.film.prepare([])} channels, expected L, "
+                               "Le, W")
+        self.sampler = self.sensor.sampler()
+        self.scene = scene
+        u0, v0, bw, _ = box
+        i32 = _uniforms(mi.Int32, [bw, u0, v0])
+        axis = np.zeros(3) if boresight is None else np.asarray(boresight, float)
+        f32 = _uniforms(mi.Float, [near_shift, *axis.tolist()])
+        self._shift, self._axis = f32[0], mi.Vector3f(f32[1], f32[2], f32[3])
+        self._near_shift = near_shift
+        self._width, self._origin = i32[0], mi.Vector2i(i32[1], i32[2])
+        frame = self.film.size()
+        self._inv_size = mi.ScalarVector2f(1.0 / frame[0], 1.0 / frame[1])
+
+    def to_near_plane(self, ray):
+        """``ray`` started on the frame's near plane instead of the sensor's."""
+        import drjit as dr
+
+        if self._near_shift == 0.0:
+            return ray
+        t = self._shift / dr.dot(ray.d, self._axis)
+        ray.o = dr.fma(ray.d, t, ray.o)
+        ray.maxt = ray.maxt - t
+        return ray
+
+    def pixel(self, idx):
+        """Pixel (column, row) of the crop's pixel index ``idx``, in frame pixels."""
+        import mitsuba as mi
+
+        i = mi.Int32(idx)
+        row = i // self._width
+        return mi.Vector2f(mi.Vector2i(i - self._width * row, row) + self._origin)
+
+    def centre_rays(self, n_pixels: int):
+        """The pixel-centre rays of the crop's ``n_pixels`` pixels, from the sensor (not yet
+        on the near plane): Mitsuba's 1-spp non-jittered stratified sample is at +0.5."""
+        import drjit as dr
+        import mitsuba as mi
+
+        centre = self.pixel(dr.arange(mi.UInt32, n_pixels)) + 0.5
+        ray, _ = self.sensor.sample_ray(0.0, 0.5, centre * self._inv_size, mi.Point2f(0.5))
+        return ray
+
+    def radiance(self, pixel_of_sample, slot, n_slots: int) -> list:
+        """One radiance sample per entry of ``pixel_of_sample`` (crop pixel indices; the
+        sampler seeded for them), the film's ``L`` and ``Le`` channels summed per ``slot``
+        into ``n_slots`` accumulators (box filter, every sample of weight 1, accumulated in
+        the kernel as Mitsuba's image block does)."""
+        import drjit as dr
+        import mitsuba as mi
+
+        sample_pos = self.pixel(pixel_of_sample) + self.sampler.next_2d()
+        wavelength_sample = self.sampler.next_1d()
+        ray, ray_weight = self.sensor.sample_ray(
+            0.0, wavelength_sample, sample_pos * self._inv_size, mi.Point2f(0.5))
+        ray = self.to_near_plane(ray)
+        spec, valid = _direct_lighting(self.scene, self.sampler, mi.RayDifferential3f(ray))
+        channels = self.film.prepare_sample(ray_weight * spec, ray.wavelengths, 3, 1.0,
+                                            dr.select(valid, 1.0, 0.0), valid)
+        out = []
+        for c in channels[:2]:
+            acc = dr.zeros(mi.Float, n_slots)
+            dr.scatter_reduce(dr.ReduceOp.Add, acc, c, slot, mode=dr.ReduceMode.Local)
+            out.append(acc)
+        return out
+
+
 def _render_fused(scene, box: tuple[int, int, int, int], seed: int, spp: int,
                   aov_frame: AovFrame | None, near_shift: float = 0.0,
                   boresight: NDArray[np.float64] | None = None,
@@ -759,12 +841,8 @@ def _render_fused(scene, box: tuple[int, int, int, int], seed: int, spp: int,
         return _render_adaptive(scene, box, seed, spp, aov_frame, near_shift, boresight,
                                 adaptive, timing)
     u0, v0, bw, bh = box
-    sensor = scene.sensors()[0]
-    film = sensor.film()
-    # sets the film's channels (L, Le, weight) that prepare_sample writes, as mi.render does
-    if film.prepare([]) != 3:
-        raise RuntimeError(f"specfilm has {film.prepare([])} channels, expected L, Le, W")
-    sampler = sensor.sampler()
+    rays = _CropRays(scene, box, near_shift, boresight)
+    sampler = rays.sampler
     sampler.set_sample_count(spp)
     sampler.set_samples_per_wavefront(spp)
     n = bw * bh * spp
@@ -774,58 +852,14 @@ def _render_fused(scene, box: tuple[int, int, int, int], seed: int, spp: int,
     log_spp = spp.bit_length() - 1
     pow2 = (1 << log_spp) == spp
     u32 = _uniforms(mi.UInt32, [seed, log_spp if pow2 else spp])
-    i32 = _uniforms(mi.Int32, [bw, u0, v0])
-    axis = np.zeros(3) if boresight is None else np.asarray(boresight, float)
-    f32 = _uniforms(mi.Float, [near_shift, *axis.tolist()])
-    shift, axis_o = f32[0], mi.Vector3f(f32[1], f32[2], f32[3])
-
-    def to_near_plane(ray):
-        """``ray`` started on the frame's near plane instead of the sensor's."""
-        if near_shift == 0.0:
-            return ray
-        t = shift / dr.dot(ray.d, axis_o)
-        ray.o = dr.fma(ray.d, t, ray.o)
-        ray.maxt = ray.maxt - t
-        return ray
-
     sampler.seed(u32[0], n)
-    width = i32[0]
-    origin = mi.Vector2i(i32[1], i32[2])
-    # film coordinates over the whole frame (the film's crop stays the full frame: Mitsuba's
-    # sensor folds the crop into literals of its sample-to-camera transform)
-    frame = film.size()
-    inv_size = mi.ScalarVector2f(1.0 / frame[0], 1.0 / frame[1])
-
-    def pixel(idx):
-        """Pixel (column, row) of the crop's pixel index ``idx``, in frame pixels."""
-        i = mi.Int32(idx)
-        row = i // width
-        return mi.Vector2f(mi.Vector2i(i - width * row, row) + origin)
-
     idx = dr.arange(mi.UInt32, n)
     idx = (idx >> u32[1]) if pow2 else (idx // u32[1])
-    sample_pos = pixel(idx) + sampler.next_2d()
-    wavelength_sample = sampler.next_1d()
-    ray, ray_weight = sensor.sample_ray(
-        0.0, wavelength_sample, sample_pos * inv_size, mi.Point2f(0.5))
-    ray = to_near_plane(ray)
-    spec, valid = _direct_lighting(scene, sampler, mi.RayDifferential3f(ray))
-    channels = film.prepare_sample(ray_weight * spec, ray.wavelengths, 3, 1.0,
-                                   dr.select(valid, 1.0, 0.0), valid)
-    # box filter, every sample of weight 1: the developed pixel is the sum of its samples
-    # over spp, accumulated in the kernel (Mitsuba's image block does the same)
-    pix = mi.UInt32(idx)
-    out = []
-    for c in channels[:2]:
-        acc = dr.zeros(mi.Float, bw * bh)
-        dr.scatter_reduce(dr.ReduceOp.Add, acc, c, pix, mode=dr.ReduceMode.Local)
-        out.append(acc)
+    out = rays.radiance(idx, mi.UInt32(idx), bw * bh)
     names: list[str] = []
     if aov_frame is not None:
-        # the pixel-centre ray (Mitsuba's 1-spp non-jittered stratified sample is at +0.5)
-        centre = pixel(dr.arange(mi.UInt32, bw * bh)) + 0.5
-        cray, _ = sensor.sample_ray(0.0, 0.5, centre * inv_size, mi.Point2f(0.5))
-        si = scene.ray_intersect(to_near_plane(cray), mi.RayFlags.All, True)
+        si = scene.ray_intersect(rays.to_near_plane(rays.centre_rays(bw * bh)),
+                                 mi.RayFlags.All, True)
         channels = _aov_kernel(si, aov_frame)
         names = list(channels)
         out += list(channels.values())
@@ -1047,11 +1081,8 @@ def _render_adaptive(scene, box: tuple[int, int, int, int], seed: int, spp: int,
     import mitsuba as mi
 
     u0, v0, bw, bh = box
-    sensor = scene.sensors()[0]
-    film = sensor.film()
-    if film.prepare([]) != 3:
-        raise RuntimeError(f"specfilm has {film.prepare([])} channels, expected L, Le, W")
-    sampler = sensor.sampler()
+    rays = _CropRays(scene, box, near_shift, boresight)
+    sampler = rays.sampler
     interior_spp = int(plan.interior_spp)
     counts_used = (spp,) if interior_spp == spp else (spp, interior_spp)
     seeds = [seed, (seed + 0x9E3779B9) & 0xFFFFFFFF]
@@ -1060,35 +1091,13 @@ def _render_adaptive(scene, box: tuple[int, int, int, int], seed: int, spp: int,
         log_n = n.bit_length() - 1
         u32_vals += [seeds[k], log_n if (1 << log_n) == n else n]
     u32 = _uniforms(mi.UInt32, u32_vals)
-    i32 = _uniforms(mi.Int32, [bw, u0, v0])
-    axis = np.zeros(3) if boresight is None else np.asarray(boresight, float)
-    f32 = _uniforms(mi.Float, [near_shift, *axis.tolist()])
-    shift, axis_o = f32[0], mi.Vector3f(f32[1], f32[2], f32[3])
-    width = i32[0]
-    origin = mi.Vector2i(i32[1], i32[2])
-    frame = film.size()
-    inv_size = mi.ScalarVector2f(1.0 / frame[0], 1.0 / frame[1])
-
-    def to_near_plane(ray):
-        if near_shift == 0.0:
-            return ray
-        t = shift / dr.dot(ray.d, axis_o)
-        ray.o = dr.fma(ray.d, t, ray.o)
-        ray.maxt = ray.maxt - t
-        return ray
-
-    def pixel(idx):
-        i = mi.Int32(idx)
-        row = i // width
-        return mi.Vector2f(mi.Vector2i(i - width * row, row) + origin)
 
     # 1. the centre pass
     t0 = time.perf_counter()
-    centre = pixel(dr.arange(mi.UInt32, bw * bh)) + 0.5
-    cray, _ = sensor.sample_ray(0.0, 0.5, centre * inv_size, mi.Point2f(0.5))
+    cray = rays.centre_rays(bw * bh)
     cam = mi.Vector3f(cray.o)  # the camera: the sensor's ray origin before the near shift
     d = mi.Vector3f(cray.d)
-    cray = to_near_plane(cray)
+    cray = rays.to_near_plane(cray)
     si = scene.ray_intersect(cray, mi.RayFlags.All, True)
     proxy = _centre_radiance(scene, si, mi.RayDifferential3f(cray))
     hit = si.is_valid()
@@ -1139,19 +1148,7 @@ def _render_adaptive(scene, box: tuple[int, int, int, int], seed: int, spp: int,
         j = (j >> u32[2 * k + 1]) if (1 << (n_spp.bit_length() - 1)) == n_spp \
             else (j // u32[2 * k + 1])
         p = dr.gather(mi.UInt32, pix_d, j)
-        sample_pos = pixel(p) + sampler.next_2d()
-        wavelength_sample = sampler.next_1d()
-        ray, ray_weight = sensor.sample_ray(
-            0.0, wavelength_sample, sample_pos * inv_size, mi.Point2f(0.5))
-        ray = to_near_plane(ray)
-        spec, valid = _direct_lighting(scene, sampler, mi.RayDifferential3f(ray))
-        channels_g = film.prepare_sample(ray_weight * spec, ray.wavelengths, 3, 1.0,
-                                         dr.select(valid, 1.0, 0.0), valid)
-        acc = []
-        for c in channels_g[:2]:
-            a = dr.zeros(mi.Float, int(pix.size))
-            dr.scatter_reduce(dr.ReduceOp.Add, a, c, j, mode=dr.ReduceMode.Local)
-            acc.append(a)
+        acc = rays.radiance(p, j, int(pix.size))
         dr.eval(acc)
         for c in range(2):
             img[pix, c] = np.asarray(acc[c], dtype=np.float32) / np.float32(n_spp)
