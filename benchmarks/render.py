@@ -190,7 +190,8 @@ def miss_cost(frames: int, place: tuple[float, float]) -> None:
         cam = Camera.preset("aa-str")
         r = MoonRenderer(cam, sensor_response(), solar_spectrum(),
                          MoonModel(shape="sphere", model="hapke"),
-                         RenderSettings(spp=16, crop=crop))
+                         RenderSettings(spp=16, crop=crop,
+                                        **({"adaptive": False} if _HAS_ADAPTIVE else {})))
         ts = []
         for k in range(frames):
             img = r.render(geometry(cam, 6.0e7, k, place), seed=k)

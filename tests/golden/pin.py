@@ -106,6 +106,22 @@ Re-pinned (each time the only difference, explained):
   2.8-3.3e-5 at 7.7 ms, the final position errors 74.31 -> 74.03 km and 12.13 -> 11.85 km
   (3-sigma 255 km), NEES means 19.501 -> 19.509 and 15.074 -> 15.091. Images, dataset and
   counts unchanged.
+* 2026-11-27, the renderer's spectral sampling and adaptive samples per pixel (issue 18):
+  the wavelengths of each sample are drawn by the lit surface's electron spectrum
+  (``render.spectral_sampling: electrons``; the film carries Sun x colour, ``L`` is
+  ``kappa Le``) and the adaptive render is on by default (``interior_spp`` 2 in the flat
+  interior, 4 = ``spp`` at the limb and terminator here). Every radiance image is another
+  Monte Carlo realisation with less noise: the static frame's disc sum moves by -0.25 %
+  (4-spp limb noise on a ~12 px disc), the dataset frames' by +0.08 % and -0.30 %; DN with
+  them (``dn_max`` 1309 -> 1344 and 1296 -> 1276 at 0.015 ms). The AOVs are unchanged. The
+  0.015 ms limb points are less noisy (``limb_error_px.std`` 0.0428 -> 0.0293 px, bias
+  0.0254 -> 0.0287 px), the navigation downstream another realisation: final position
+  error 74.0 -> 15.3 km (3-sigma 255 km), NEES mean 19.5 -> 15.3; at 7.7 ms one limb point
+  fewer (32 -> 31), the filter unchanged. The renders agree with the renders before issue 18
+  within Monte Carlo noise (``tests/renderer/test_speed_agreement.py``, seven radiometric
+  cases) and ``L / Le`` is the frame's constant in every pixel
+  (``tests/renderer/test_spectral_sampling.py``); the frame metadata's ``render`` has a new
+  key ``spectral_sampling``, and ``adaptive`` (the sample counts' summary).
 """
 
 from __future__ import annotations

@@ -90,10 +90,14 @@ def test_tracks_follow_the_true_projections_of_their_surface_points(rendered):
     assert rms < RMS_GOAL_PX, rms
     assert later[:, 0].max() < 1.0
     assert np.mean(later[:, 0] > 3 * later[:, 1]) < 0.05
-    # track statistics: born in frame 0, none ended on this easy pass
+    # track statistics: most born in frame 0, none ended on this easy pass (a feature that
+    # rises above the detector's threshold later may be born then: one at frame 5 with the
+    # renderer's electron-spectrum sampling, none before it)
     c0 = steps[0].frame.counts
-    assert c0["born"] == len(tracks) and c0["tracked"] == 0
-    assert all(s.frame.counts["tracked"] >= 10 for s in steps[1:])
+    assert c0["tracked"] == 0 and c0["born"] >= len(tracks) - 2
+    ended = ("lost", "left", "limb", "outlier", "aged")
+    assert all(s.frame.counts[k] == 0 for s in steps for k in ended)
+    assert all(s.frame.counts["tracked"] >= c0["born"] for s in steps[1:])
 
 
 def test_windows_body_and_readout_law(rendered):

@@ -146,7 +146,7 @@ def test_sample_map_of_a_rendered_sphere():
         np.count_nonzero(c == 8) / np.count_nonzero(c))
     # the non-adaptive render says so; where the map gave no sample, its many samples (64 a
     # pixel over 8 seeds) all miss too
-    r.settings = RenderSettings(spp=8, variants=LLVM_FIRST)
+    r.settings = RenderSettings(spp=8, adaptive=False, variants=LLVM_FIRST)
     full = [r.render(static_geometry(cam, 1.0e8, math.radians(60.0), (3.0, -2.0)), seed=s)
             for s in range(8)]
     assert "adaptive" not in full[0].meta["render"] and r.last_sample_counts is None
@@ -220,10 +220,14 @@ def test_adaptive_render_of_the_real_moon_is_unbiased(real_moon_pair):
     none = counts == 0
     assert np.count_nonzero(none) > 1000
     assert np.all(m0[none] == 0) and np.all(m1[none] == 0)
-    # the adaptive render is noisier in the interior (fewer samples), as documented
+    # the adaptive render is noisier in the interior (fewer samples), as documented; with the
+    # wavelengths drawn by the electron spectrum (no spectral noise) what is left is the pixel
+    # footprint's terrain (this camera's pixels are 4x the AA-STR's), which the 16 strata
+    # resolve better than 1/sqrt(n): measured 0.072 % at 16 spp, 0.36 % at 4 and 0.84 % at the
+    # default 2 (before, with spectral noise: 2-3x apart, ~1.5 % at 4 spp)
     rel0 = np.median(s0[interior & lit] / m0[interior & lit])
     rel1 = np.median(s1[interior & lit] / m1[interior & lit])
-    assert 1.5 < rel1 / rel0 < 3.5, (rel0, rel1)
+    assert rel1 > 1.5 * rel0 and rel1 < 0.015, (rel0, rel1)
 
 
 def test_the_unbiasedness_check_detects_a_small_bias(real_moon_pair):
@@ -268,8 +272,12 @@ def test_bad_adaptive_settings_are_refused(kwargs, field, fragment):
 
 
 def test_interior_spp_above_spp_is_fine_while_adaptive_is_off():
-    """``interior_spp`` matters only with ``adaptive`` on: a low ``spp`` alone is accepted."""
-    assert RenderSettings(spp=2).interior_spp == DEFAULT_INTERIOR_SPP > 2
+    """``interior_spp`` matters only with ``adaptive`` on; unset, it is the default or ``spp``
+    if fewer, so a low ``spp`` alone is accepted with the adaptive render on (the default)."""
+    assert RenderSettings(spp=2, adaptive=False, interior_spp=4).interior_samples == 4
+    assert RenderSettings().adaptive is True
+    assert RenderSettings().interior_samples == DEFAULT_INTERIOR_SPP == 2
+    assert RenderSettings(spp=1).interior_samples == 1
 
 
 @pytest.mark.parametrize("render,fragment", [

@@ -206,7 +206,7 @@ def _pair(shape: str, spp: int):
     def one(fused: bool) -> MoonRenderer:
         return MoonRenderer(cam, sensor_response(), solar_spectrum(),
                             MoonModel(shape=shape, model="hapke", albedo=0.25, mesh=mesh),
-                            RenderSettings(spp=spp, fused_loop=fused,
+                            RenderSettings(spp=spp, fused_loop=fused, adaptive=False,
                                            variants=("llvm_ad_spectral", "scalar_spectral")))
     return cam, one(True), one(False)
 

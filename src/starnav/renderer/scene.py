@@ -228,12 +228,34 @@ class FilmChannels:
     scale_Le: float
 
 
-def film_channels(response: SensorResponse) -> FilmChannels:
-    """Responses of the ``L`` (unit box over the band) and ``Le`` (QE T lambda / hc) channels."""
+def film_channels(response: SensorResponse, colour: Spectrum | None = None) -> FilmChannels:
+    """The film's ``L`` and ``Le`` responses and the factors that scale its output back.
+
+    Without ``colour``: ``L`` is the unit box over the band and ``Le`` is ``QE T lambda / hc``;
+    the film draws the wavelengths by their (peak-normalised) sum and the emitter carries the
+    solar spectrum. Each sample's weight then carries the solar spectrum's structure and the
+    Moon's reddening: 2-3 % per sample, most of the noise of a lit interior pixel.
+
+    With ``colour`` (the Sun's irradiance times the surface's spectral shape, for a *separable*
+    surface whose reflectance is a grey factor of position and angles times one spectral shape,
+    as every plugin of :mod:`.bsdfs`): radiance is ``L_lambda(x) = colour(lambda) r(x)``, so
+    ``Le(x) = r(x) int colour QE T lambda / hc`` and ``L(x) = kappa Le(x)`` with the constant
+    ``kappa = int colour box / int colour QE T lambda / hc``. Both film channels then carry the
+    electron response times ``colour`` and ``L``'s scale carries ``kappa``: the film draws the
+    wavelengths exactly by the integrand's spectrum, every sample has the same spectral
+    weight, and the Monte Carlo noise is left to the pixel footprint. The emitter is flat
+    (:func:`flat_irradiance_in_band`) and the BSDF drops its spectral shape.
+    """
     box = response.box()
     epj = response.electrons_per_joule()
-    k = float(np.max(epj.values))
-    return FilmChannels(box, epj.scaled(1.0 / k), 1.0, k)
+    if colour is None:
+        k = float(np.max(epj.values))
+        return FilmChannels(box, epj.scaled(1.0 / k), 1.0, k)
+    weighted = product(epj, colour)
+    k = float(np.max(weighted.values))
+    kappa = product(box, colour).integral() / weighted.integral()
+    channel = weighted.scaled(1.0 / k)
+    return FilmChannels(channel, channel, k * kappa, k)
 
 
 def sun_irradiance_in_band(sun: Spectrum, response: SensorResponse, margin_nm: float = 2.0
@@ -242,3 +264,10 @@ def sun_irradiance_in_band(sun: Spectrum, response: SensorResponse, margin_nm: f
     lo, hi = response.band
     box = Spectrum(np.array([lo - margin_nm, hi + margin_nm]), np.ones(2))
     return product(sun, box)
+
+
+def flat_irradiance_in_band(response: SensorResponse, margin_nm: float = 2.0) -> Spectrum:
+    """A unit irradiance over the sensor band (plus a margin): the emitter when the solar
+    spectrum is carried by the film's responses (:func:`film_channels` with ``sun``)."""
+    lo, hi = response.band
+    return Spectrum(np.array([lo - margin_nm, hi + margin_nm]), np.ones(2))

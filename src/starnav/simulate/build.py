@@ -95,7 +95,8 @@ def renderer_from_scenario(sc: Scenario, camera: Camera | None = None) -> MoonRe
     settings = RenderSettings(spp=r.spp, crop=r.crop, crop_margin_px=r.crop_margin_px,
                               aovs=r.aovs, variants=tuple(r.variants), sampler=r.sampler,
                               wavelength_step_nm=r.wavelength_step_nm,
-                              adaptive=r.adaptive, interior_spp=r.interior_spp)
+                              adaptive=r.adaptive, interior_spp=r.interior_spp,
+                              spectral_sampling=r.spectral_sampling)
     return MoonRenderer(camera, response, sun, moon, settings)
 
 
