@@ -219,7 +219,7 @@ def main() -> None:
                     "for every frame: the renderer before the sequence reuse)")
     ap.add_argument("--no-adaptive", action="store_true",
                     help="leave out the adaptive render (render.adaptive)")
-    ap.add_argument("--interior-spp", default="4,1",
+    ap.add_argument("--interior-spp", default="2,4,1",
                     help="the adaptive render's samples per interior pixel, one row each "
                     "(comma-separated)")
     ap.add_argument("--miss-cost", action="store_true",
