@@ -18,7 +18,13 @@ over its standard error is a z-score; ``|z| > 5`` has a false-alarm rate of 6e-7
 bias of ~0.2 % of the disc radiance. Background pixels (zero variance in both) must be exactly
 zero in both; the AOV channels must equal the pinned ones to float32 rounding.
 
-Each case runs twice: as the renderer renders by default (``SPP`` samples in every pixel) and
+The current renders draw their wavelengths by the lit surface's electron spectrum
+(``render.spectral_sampling: electrons``, the default since 2026-11-27), the pinned ones by the
+sensor response: the test also checks that the two samplings integrate the same radiance (the
+``hapke_map_colour`` case carries the ROLO colour, the others a grey surface under the solar
+spectrum).
+
+Each case runs twice: with ``SPP`` samples in every pixel and
 with the adaptive samples per pixel (``render.adaptive``, ``ADAPTIVE_INTERIOR_SPP`` = 1 sample
 in the flat interior, ``SPP`` at the limb and the terminator): the same test against the same
 reference, each side with its own per-pixel noise. The adaptive render's interior pixels are
