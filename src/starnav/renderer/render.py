@@ -26,8 +26,8 @@ Technique
    (:func:`~starnav.renderer.scene.film_channels`). The emitter is then flat and the BSDF
    grey; the other way (``response``: wavelengths by the band box plus the electron response,
    the Sun in the emitter, the colour in the BSDF; the renderer before issue 18) leaves the
-   solar spectrum's lines and the Moon's reddening in each sample's weight: 2.2 % per-pixel
-   noise at 1 spp in the full-field real Moon's interior, against 0.82 % (``benchmarks/
+   solar spectrum's lines and the Moon's reddening in each sample's weight: 3.20 % per-pixel
+   noise at 1 spp in the full-field real Moon's interior, against 0.86 % (``benchmarks/
    render_noise.py``).
 5. Only the pixels the Moon can cover are traced: the film's crop window is the bounding box of
    the projected sphere of radius ``R + h_max`` plus a margin (DESIGN.md budget).
@@ -44,9 +44,9 @@ Technique
    bounding sphere (:func:`adaptive_sample_counts`, :func:`_render_adaptive`). Deterministic
    inputs only, so every pixel stays an unbiased mean of its pixel integral. With the
    wavelengths drawn by the electron spectrum (step 4) the interior's noise is the pixel
-   footprint's: 0.33 % per pixel at 2 spp on the full-field real Moon, below the 16-spp
-   render's 0.45 % before issue 18 (shot noise 0.62 % at the demo exposure); a full-field
-   frame takes ~0.35x of the 16-spp frame's time (``docs/performance.md``).
+   footprint's: 0.35 % per pixel at 2 spp on the full-field real Moon, below the 16-spp
+   render's 0.53 % before issue 18 (shot noise 0.62 % at the demo exposure); a full-field
+   frame of the real Moon takes 0.39x of the 16-spp frame's time (``docs/performance.md``).
 
 Tuning knobs
 ------------

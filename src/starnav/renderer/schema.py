@@ -21,7 +21,7 @@ from starnav.photometry import PHOTOMETRIC_MODELS, get_model, hapke_preset
 
 #: Samples per interior pixel of the adaptive render when ``render.interior_spp`` is unset (at
 #: most ``spp``): the fewest of 1, 2, 4 whose interior noise on the full-field real Moon is at
-#: most the 16-spp render's before issue 18 (0.45 %): 0.82 %, **0.33 %**, 0.13 % (wavelengths
+#: most the 16-spp render's before issue 18 (0.53 %): 0.86 %, **0.35 %**, 0.14 % (wavelengths
 #: drawn by the electron spectrum; :func:`starnav.renderer.render.adaptive_sample_counts`).
 DEFAULT_INTERIOR_SPP = 2
 
@@ -161,7 +161,7 @@ class RenderConfig(StrictModel):
         "interior_spp in the flat interior (JIT variants; off: spp everywhere)")
     interior_spp: Annotated[int, Field(ge=1)] | None = Field(
         None, description="samples per interior pixel of the adaptive render (<= spp; unset: "
-        f"{DEFAULT_INTERIOR_SPP} or spp if fewer, Monte Carlo noise 0.33 % per pixel on the "
+        f"{DEFAULT_INTERIOR_SPP} or spp if fewer, Monte Carlo noise 0.35 % per pixel on the "
         "real Moon at 2)")
     variants: tuple[str, ...] = Field(
         ("cuda_ad_spectral", "llvm_ad_spectral", "scalar_spectral"),
