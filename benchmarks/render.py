@@ -27,7 +27,9 @@ Mitsuba's exact sphere with Hapke) it prints, in the same run:
   row is its first frame with the scene loaded, compiling or loading its own kernels);
   ``--no-adaptive`` leaves the adaptive rows out, ``--interior-spp`` chooses them. Under an
   adaptive row, ``steps``: its centre pass (pixel-centre rays, AOVs, radiance proxy), the
-  sample map (NumPy) and each sample count's radiance pass (``spp_16``, ``spp_4``), medians.
+  sample map (NumPy) and each sample count's radiance pass (``spp_16``, ``spp_4``), medians,
+  and the floor of that frame's own camera rays (one per pixel centre plus one per sample of
+  its last frame, one kernel, no shadow ray and no shading).
 
 The Moon's place is offset by ``--place-seed`` (default: from the clock), so that the frames'
 crop windows are new to Dr.Jit's on-disk kernel cache, as in a new sequence. Blender Cycles,
@@ -118,6 +120,34 @@ def ray_cast_floor(r: MoonRenderer, g, spp: int) -> float:
     return best
 
 
+def ray_cast_floor_counts(r: MoonRenderer, box: tuple[int, int, int, int],
+                          counts: np.ndarray) -> float:
+    """Seconds to generate and intersect the camera rays of an adaptive frame: one through
+    each pixel centre of the crop ``box`` (its centre pass) and ``counts[v, u]`` jittered ones
+    through each pixel (its radiance samples), in one kernel; no shadow ray, no shading."""
+    u0, v0, bw, bh = box
+    scene = r.scene
+    sensor = scene.sensors()[0]
+    c = np.asarray(counts[v0:v0 + bh, u0:u0 + bw], np.int64).ravel() + 1
+    pix = np.repeat(np.arange(c.size, dtype=np.uint32), c)
+    n = int(pix.size)
+    best = math.inf
+    for _ in range(3):
+        idx = mi.UInt32(pix)
+        rng = mi.PCG32(n)
+        pos = mi.Vector2f(mi.Float(idx % bw + u0) + rng.next_float32(),
+                          mi.Float(idx // bw + v0) + rng.next_float32())
+        film = sensor.film().size()
+        ray, _ = sensor.sample_ray(0.0, 0.5, pos / mi.ScalarVector2f(film), mi.Point2f(0.5))
+        t0 = time.perf_counter()
+        si = scene.ray_intersect(ray)
+        hits = dr.count(si.is_valid())
+        dr.eval(hits)
+        dr.sync_thread()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
 def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float, float],
         quantum_px: float | None = None, interior_spp: int | None = None) -> dict:
     """``interior_spp``: the adaptive render with that many samples in the interior (the
@@ -165,6 +195,11 @@ def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float
         "steady_s": statistics.median(times[1:]),
         "compiles": compiles,
         "floor_s": ray_cast_floor(r, g, 16) if hasattr(r, "scene") else float("nan"),
+        # the adaptive frame's own camera rays (centre pass + its samples)
+        "floor_frame_s": (ray_cast_floor_counts(r, img.meta["render"]["crop_box_uvwh"],
+                                                r.last_sample_counts)
+                          if getattr(r, "last_sample_counts", None) is not None
+                          else float("nan")),
         "spp": "16" if interior_spp is None else f"a16/{interior_spp}",
         "full_pct": (100.0 * img.meta["render"]["adaptive"]["fraction_full"]
                      if img.meta["render"].get("adaptive") else 100.0),
@@ -263,8 +298,9 @@ def main() -> None:
                               f"{os.getloadavg()[0]:.1f} {res['variant']}", flush=True)
                         if res["adaptive_parts"]:
                             print("         steps (s): " + ", ".join(
-                                f"{k[:-2]} {v:.3f}" for k, v in res["adaptive_parts"].items()),
-                                flush=True)
+                                f"{k[:-2]} {v:.3f}" for k, v in res["adaptive_parts"].items())
+                                + f"; floor of its own camera rays (centre + samples, no "
+                                f"shadow ray) {res['floor_frame_s']:.3f}", flush=True)
     if args.miss_cost:
         miss_cost(args.frames, place)
 
