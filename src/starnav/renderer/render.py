@@ -556,7 +556,8 @@ class MoonRenderer:
         info = self._activate()
         key = (info.variant, mesh_key, self.moon.model, tuple(sorted(self.moon.params.items())),
                self.moon.albedo_key(), self.settings.spp, self.settings.sampler,
-               self.settings.wavelength_step_nm, self.settings.spectral_sampling)
+               self.settings.wavelength_step_nm, self.settings.spectral_sampling,
+               id(self.moon.spectral_shape))   # the film (electrons) or the BSDF carries it
         if self._scene is None or key != self._scene_key:
             t0 = time.perf_counter()
             self._scene = self._build_scene(mesh)
