@@ -21,6 +21,7 @@ Usage::
 
     DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM.so.19.1 python benchmarks/sweep.py \
         [--frames 12] [--runs 2] [--repeat 1] [--workers 1 2]
+    python benchmarks/sweep.py --contention   # the machine's own two-process slow-down
 """
 
 from __future__ import annotations
@@ -94,6 +95,36 @@ def one_sweep(workers: int, frames: int, runs: int, root: Path,
             "worker_peak_mb": sorted(v[1] for v in peaks.values())}
 
 
+_CONTENTION_WORK = {
+    # pure interpreter work: registers and L1 only
+    "python loop": "s = 0\nfor i in range(30_000_000):\n    s += i * i",
+    # NumPy on 8 MB float64 arrays (the size of a 1024 x 1024 frame), beyond each core's L2
+    "numpy 1024^2": ("import numpy as np\na = np.random.default_rng(0).random((1024, 1024))\n"
+                     "for _ in range(150):\n    b = np.sqrt(a * 1.0001 + 0.5) * a"),
+}
+
+
+def contention() -> None:
+    """Each kind of work alone and as two processes at once (the two vCPUs): how much a
+    second worker slows the first one's memory-bound NumPy work, whatever starnav does."""
+    import subprocess
+    import sys
+
+    def timed(code: str, n: int) -> list[float]:
+        wrapped = ("import time\nt0 = time.perf_counter()\n" + code
+                   + "\nprint(time.perf_counter() - t0)")
+        procs = [subprocess.Popen([sys.executable, "-c", wrapped], stdout=subprocess.PIPE,
+                                  text=True) for _ in range(n)]
+        return [float(p.communicate()[0]) for p in procs]
+
+    for name, code in _CONTENTION_WORK.items():
+        alone = timed(code, 1)[0]
+        pair = timed(code, 2)
+        print(f"contention, {name}: alone {alone:.2f} s, two at once "
+              f"{' / '.join(f'{t:.2f}' for t in pair)} s "
+              f"({100 * (max(pair) / alone - 1):+.0f} %)", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=12)
@@ -104,7 +135,12 @@ def main() -> None:
                     "thread pool size in every worker (default: its own, the CPU count)")
     ap.add_argument("--cold", action="store_true", help="also run every case with workers "
                     "that are not warmed by the preload starnav.batch.warm")
+    ap.add_argument("--contention", action="store_true", help="only the machine's own "
+                    "slow-down of two processes at once: a Python loop and NumPy on 8 MB arrays")
     a = ap.parse_args()
+    if a.contention:
+        contention()
+        return
     from starnav.batch import cluster
 
     preload = cluster.WORKER_PRELOAD
