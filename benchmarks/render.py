@@ -94,42 +94,13 @@ def geometry(cam: Camera, range_m: float, k: int, place: tuple[float, float]):
                            (place[0] + 5.0 * k, place[1] - 3.0 * k), roll=0.01 * k)
 
 
-def ray_cast_floor(r: MoonRenderer, g, spp: int) -> float:
-    """Seconds to generate and intersect ``spp`` camera rays per pixel of the frame's crop
-    window with the renderer's loaded scene (one kernel; the renderer's sensor pose)."""
-    cam = r.camera
-    box = moon_bounding_box(cam, g, r.moon.radius + r.moon.max_height, 4.0)
-    u0, v0, bw, bh = box
+def _cast_floor(r: MoonRenderer, box: tuple[int, int, int, int], pix: np.ndarray) -> float:
+    """Best of 3: seconds to generate and intersect one jittered camera ray through each crop
+    pixel listed in ``pix`` (indices into the ``box`` crop, repeated per ray) with the
+    renderer's loaded scene, one kernel, the renderer's sensor pose."""
+    u0, v0, bw, _ = box
     scene = r.scene
     sensor = scene.sensors()[0]
-    n = bw * bh * spp
-    best = math.inf
-    for _ in range(3):
-        idx = dr.arange(mi.UInt32, n) // spp
-        rng = mi.PCG32(n)
-        pos = mi.Vector2f(mi.Float(idx % bw + u0) + rng.next_float32(),
-                          mi.Float(idx // bw + v0) + rng.next_float32())
-        film = sensor.film().size()
-        ray, _ = sensor.sample_ray(0.0, 0.5, pos / mi.ScalarVector2f(film), mi.Point2f(0.5))
-        t0 = time.perf_counter()
-        si = scene.ray_intersect(ray)
-        hits = dr.count(si.is_valid())
-        dr.eval(hits)
-        dr.sync_thread()
-        best = min(best, time.perf_counter() - t0)
-    return best
-
-
-def ray_cast_floor_counts(r: MoonRenderer, box: tuple[int, int, int, int],
-                          counts: np.ndarray) -> float:
-    """Seconds to generate and intersect the camera rays of an adaptive frame: one through
-    each pixel centre of the crop ``box`` (its centre pass) and ``counts[v, u]`` jittered ones
-    through each pixel (its radiance samples), in one kernel; no shadow ray, no shading."""
-    u0, v0, bw, bh = box
-    scene = r.scene
-    sensor = scene.sensors()[0]
-    c = np.asarray(counts[v0:v0 + bh, u0:u0 + bw], np.int64).ravel() + 1
-    pix = np.repeat(np.arange(c.size, dtype=np.uint32), c)
     n = int(pix.size)
     best = math.inf
     for _ in range(3):
@@ -146,6 +117,23 @@ def ray_cast_floor_counts(r: MoonRenderer, box: tuple[int, int, int, int],
         dr.sync_thread()
         best = min(best, time.perf_counter() - t0)
     return best
+
+
+def ray_cast_floor(r: MoonRenderer, g, spp: int) -> float:
+    """Seconds to cast ``spp`` camera rays per pixel of the frame's crop window."""
+    box = moon_bounding_box(r.camera, g, r.moon.radius + r.moon.max_height, 4.0)
+    n_pix = box[2] * box[3]
+    return _cast_floor(r, box, np.repeat(np.arange(n_pix, dtype=np.uint32), spp))
+
+
+def ray_cast_floor_counts(r: MoonRenderer, box: tuple[int, int, int, int],
+                          counts: np.ndarray) -> float:
+    """Seconds to cast the camera rays of an adaptive frame: one through each pixel of the
+    crop ``box`` (its centre pass) plus ``counts[v, u]`` (its radiance samples); no shadow ray,
+    no shading."""
+    u0, v0, bw, bh = box
+    c = np.asarray(counts[v0:v0 + bh, u0:u0 + bw], np.int64).ravel() + 1
+    return _cast_floor(r, box, np.repeat(np.arange(c.size, dtype=np.uint32), c))
 
 
 def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float, float],
