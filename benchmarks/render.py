@@ -33,10 +33,14 @@ Mitsuba's exact sphere with Hapke) it prints, in the same run:
 
 The Moon's place is offset by ``--place-seed`` (default: from the clock), so that the frames'
 crop windows are new to Dr.Jit's on-disk kernel cache, as in a new sequence. Blender Cycles,
-the paper's engine, is compared only where installed (``bpy``); it is not on this machine.
+the paper's engine, renders the real Moon's frames (same mesh, poses, Sun, 16 spp, direct light,
+a Lambert surface; ``benchmarks/cycles_frame.py``) where a Python with ``bpy`` is given
+(``--cycles-python``; ``bpy`` pins ``numpy < 2``, so it has its own venv): its row ``cycles``
+and each row's steady time as a fraction of Cycles' follow the real Moon's rows.
 
 Usage: .venv/bin/python benchmarks/render.py [--frames N] [--compare] [--rebuild] [--place-seed S]
        [--shapes real,mesh,sphere] [--ranges-km 60000,9715] [--no-adaptive] [--interior-spp 4,1]
+       [--cycles-python /work/cycles-venv/bin/python]
 """
 
 from __future__ import annotations
@@ -48,6 +52,7 @@ import math
 import os
 import platform
 import statistics
+import sys
 import time
 
 import drjit as dr
@@ -149,15 +154,17 @@ def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float
         r.settings = dataclasses.replace(r.settings, adaptive=interior_spp is not None,
                                          interior_spp=interior_spp or r.settings.interior_spp)
     cam = r.camera
-    times, compiles, parts = [], 0, []
+    times, compiles, parts, geoms, crops = [], 0, [], [], []
     for k in range(frames):
         g = geometry(cam, range_m, k, place)
+        geoms.append(g)
         if k == 1:
             dr.set_flag(dr.JitFlag.KernelHistory, True)
             dr.kernel_history()
         t0 = time.perf_counter()
         img = r.render(g, seed=k)
         times.append(time.perf_counter() - t0)
+        crops.append(img.meta["render"]["crop_box_uvwh"])
         if k >= 1:
             parts.append(r.last_timing)
     compiles = sum(1 for h in dr.kernel_history()
@@ -201,7 +208,55 @@ def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float
         # each sample count's radiance pass
         "adaptive_parts": {k: steady(k) for k in parts[-1]
                            if k == "centre_s" or k == "map_s" or k.startswith("spp_")},
+        "geoms": geoms,
+        "crops": crops,
+        "mask": img.mask,
+        "renderer": r,
     }
+
+
+def cycles_scene(res: dict, path: str) -> None:
+    """Write what ``benchmarks/cycles_frame.py`` needs to render ``res``'s frames with Blender
+    Cycles: the last frame's view mesh (body-fixed, km), every frame's camera pose and Sun
+    direction in the Moon's body-fixed frame, the pinhole, and the last frame's Moon mask."""
+    from starnav.renderer.scene import principal_point_offsets, sensor_fov_deg
+
+    r: MoonRenderer = res["renderer"]
+    cam = r.camera
+    mesh, _ = r._mesh(res["geoms"][-1])
+    albedo = (r._vertex_albedo(mesh) * r.moon.albedo_scale
+              if mesh.albedo is not None or not np.isscalar(r.moon.albedo)
+              else np.full(len(mesh.vertices), float(r.moon.albedo) * r.moon.albedo_scale))
+    poses, positions, suns = [], [], []
+    for g in res["geoms"]:
+        R_moon = g.R_moon_to_inertial
+        poses.append(R_moon.T @ g.R_cam_to_inertial)
+        positions.append(R_moon.T @ g.camera_position / 1e3)
+        suns.append(R_moon.T @ g.sun_direction)  # the frame is Moon-centred
+    ox, oy = principal_point_offsets(cam)
+    # Blender's shift moves the frustum (units: the wider side); its y axis points up
+    np.savez(path, vertices_km=mesh.vertices / 1e3, faces=mesh.faces, normals=mesh.normals,
+             albedo=albedo, spp=16, width=cam.width, height=cam.height,
+             fov_x_rad=math.radians(sensor_fov_deg(cam)), shift_x=ox * cam.width
+             / max(cam.width, cam.height), shift_y=-oy * cam.height / max(cam.width, cam.height),
+             clip_start_km=0.1, clip_end_km=1e6, cam_R=np.array(poses),
+             cam_pos_km=np.array(positions), sun_dir=np.array(suns), mask=res["mask"],
+             crop_uvwh=np.array(res["crops"]))
+
+
+def run_cycles(python: str, res: dict) -> dict:
+    """Render ``res``'s frames with Blender Cycles under ``python`` (which has ``bpy``)."""
+    import json
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "scene.npz")
+        cycles_scene(res, path)
+        script = os.path.join(os.path.dirname(os.path.abspath(__file__)), "cycles_frame.py")
+        out = subprocess.run([python, script, path, "--threads", str(os.cpu_count())],
+                             capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def miss_cost(frames: int, place: tuple[float, float]) -> None:
@@ -245,6 +300,10 @@ def main() -> None:
     ap.add_argument("--interior-spp", default="2,4,1",
                     help="the adaptive render's samples per interior pixel, one row each "
                     "(comma-separated)")
+    ap.add_argument("--cycles-python", default=os.environ.get("STARNAV_CYCLES_PYTHON"),
+                    help="a Python with bpy (Blender as a module): render the real Moon's "
+                    "frames with Cycles too (benchmarks/cycles_frame.py; default: "
+                    "$STARNAV_CYCLES_PYTHON, or this Python if it has bpy)")
     ap.add_argument("--miss-cost", action="store_true",
                     help="also the cost of a sample missing the Moon (sphere, crop vs frame)")
     args = ap.parse_args()
@@ -253,8 +312,11 @@ def main() -> None:
     print(f"machine: {platform.node()} {platform.machine()} {os.cpu_count()} cpus, python "
           f"{platform.python_version()}, mitsuba {mi.__version__}, drjit {dr.__version__}, "
           f"load {os.getloadavg()[0]:.1f} (1 min), place seed {seed}")
-    print("Blender Cycles: " + ("installed (not run by this script)"
-                                if importlib.util.find_spec("bpy") else "not installed"))
+    cycles_python = args.cycles_python or (sys.executable if importlib.util.find_spec("bpy")
+                                           else None)
+    print("Blender Cycles: " + (f"run under {cycles_python} (benchmarks/cycles_frame.py)"
+                                if cycles_python else "not installed (no --cycles-python, "
+                                "no bpy in this Python)"))
     print("steady = median of frames 2..N; mesh/scene/radiance = its parts (medians); "
           "rebuilds = frames 2..N that built a Mitsuba scene; q = the real Moon's "
           "cache_quantum_px (-: the scenario default)")
@@ -270,6 +332,7 @@ def main() -> None:
         range_m = float(range_km) * 1e3
         for shape in args.shapes.split(","):
             quanta = (None, 0.0) if (shape == "real" and args.rebuild) else (None,)
+            rows: list[dict] = []
             for fused in loops:
                 for q in quanta:
                     for ispp in (spps if fused else (None,)):
@@ -284,11 +347,25 @@ def main() -> None:
                               f"{res['moon_px']:8d} {res['full_pct']:6.1f} "
                               f"{res['msamples']:8.2f}  "
                               f"{os.getloadavg()[0]:.1f} {res['variant']}", flush=True)
+                        rows.append(res)
                         if res["adaptive_parts"]:
                             print("         steps (s): " + ", ".join(
                                 f"{k[:-2]} {v:.3f}" for k, v in res["adaptive_parts"].items())
                                 + f"; floor of its own camera rays (centre + samples, no "
                                 f"shadow ray) {res['floor_frame_s']:.3f}", flush=True)
+            if cycles_python and shape == "real" and rows:
+                c = run_cycles(cycles_python, rows[0])
+                print(f"{'real':6s} {'cycles':7s} {'-':>3s} {'16':>6s} "
+                      f"{str(rows[0]['triangles']):>9s} {float(range_km):8.0f} "
+                      f"{c['first_s']:8.3f} {c['steady_s']:8.3f}  Blender {c['blender']} "
+                      f"Cycles, {c['threads']} threads, same frames and mesh (import "
+                      f"{c['import_s']:.1f} s, not counted), Moon pixels {c['moon_px']} "
+                      f"(IoU with starnav's mask {c['iou']:.4f}), load "
+                      f"{os.getloadavg()[0]:.1f}", flush=True)
+                print("         steady time as a fraction of Cycles': " + ", ".join(
+                    f"{res['loop']} {res['spp']} {res['steady_s'] / c['steady_s']:.3f} "
+                    f"({c['steady_s'] / res['steady_s']:.1f}x faster)" for res in rows),
+                    flush=True)
     if args.miss_cost:
         miss_cost(args.frames, place)
 

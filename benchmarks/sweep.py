@@ -55,6 +55,12 @@ def _worker_peak() -> tuple[int, float]:
     return os.getpid(), peak_rss_mb()
 
 
+def _cpu_s() -> float:
+    """CPU seconds (user + system) used so far by this process, all its threads."""
+    t = os.times()
+    return t.user + t.system
+
+
 def _set_drjit_threads(n: int) -> int:
     import drjit as dr  # the experiment only: the library leaves Dr.Jit's pool alone
 
@@ -77,11 +83,15 @@ def one_sweep(workers: int, frames: int, runs: int, root: Path,
     with open_runner(workers) as rn:
         if drjit_threads:
             rn.client.run(_set_drjit_threads, drjit_threads)
+        cpu0 = rn.client.run(_cpu_s)
+        me0 = _cpu_s()
         t1 = time.perf_counter()
         with get_task_stream(client=rn.client) as ts:
             res = run_sweep(p.scenario(), p.grid, out, runs=runs, runner=rn, figures=False,
                             overrides=[f"trajectory.frames={frames}"])
         t2 = time.perf_counter()
+        me1 = _cpu_s()
+        cpu1 = rn.client.run(_cpu_s)
         peaks = rn.client.run(_worker_peak)
     busy: dict[str, float] = defaultdict(float)
     for t in ts.data:
@@ -92,7 +102,12 @@ def one_sweep(workers: int, frames: int, runs: int, root: Path,
     shutil.rmtree(out, ignore_errors=True)
     return {"sweep_s": t2 - t1, "total_s": t2 - t0, "busy": dict(busy),
             "tasks": res.render_tasks + res.expose_tasks + res.filter_tasks,
-            "worker_peak_mb": sorted(v[1] for v in peaks.values())}
+            "worker_peak_mb": sorted(v[1] for v in peaks.values()),
+            # CPU seconds during the sweep: each worker process (tasks + its event loop,
+            # heartbeats, transfers), and this process (the client, the scheduler of a local
+            # cluster, the sweep's own bookkeeping)
+            "worker_cpu_s": sorted(cpu1[k] - cpu0[k] for k in cpu1),
+            "client_cpu_s": me1 - me0}
 
 
 _CONTENTION_WORK = {
@@ -166,6 +181,10 @@ def main() -> None:
                           f"start {r['total_s']:.1f} s), {r['tasks']} tasks; task time [s]: "
                           f"{busy}; worker peak RSS [MB]: {peaks}; load "
                           f"{os.getloadavg()[0]:.1f}", flush=True)
+                    wcpu = ", ".join(f"{c:.1f}" for c in
+                                     r["worker_cpu_s"])  # type: ignore[attr-defined]
+                    print(f"      CPU s during the sweep: workers {wcpu}; this process (client "
+                          f"+ scheduler) {r['client_cpu_s']:.1f}", flush=True)
         for kind in kinds:
             if (kind, 1) in times and (kind, 2) in times:
                 s1, s2 = min(times[kind, 1]), min(times[kind, 2])

@@ -184,6 +184,7 @@ def _fail(status: str, reason: str, hyp: int = 0) -> Identification:
     return Identification(status, reason, z, z, z, np.zeros((0, 3)), 0, 0.0, hyp)
 
 
+@lru_cache(maxsize=4096)
 def required_confirmations(n_det: int, n_cat: int, match_radius: float, field_radius: float,
                            n_hypotheses: int, alpha: float, min_confirmed: int
                            ) -> tuple[int, float]:
@@ -196,6 +197,37 @@ def required_confirmations(n_det: int, n_cat: int, match_radius: float, field_ra
     while n_hypotheses * poisson.sf(k - 1, lam) > alpha and k < 10_000:
         k += 1
     return k, lam
+
+
+def _candidate_triangles(aij: NDArray[np.int32], bij: NDArray[np.int32],
+                         aik: NDArray[np.int32], bik: NDArray[np.int32], dirs: FloatArray,
+                         ajk: float, tol_jk: float, sense: float
+                         ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """Catalogue triangles ``(si, sj, sk)`` for one detection triangle (module step 2): the
+    pairs ``(si, sj)`` of side ``ij`` and ``(si, sk)`` of side ``ik`` joined on the star of
+    ``i``, kept when ``sj != sk``, the third side is within ``tol_jk`` of the measured ``ajk``
+    and the sense (sign of ``si . (sj x sk)``) is that of the detections. Ordered by ``si``,
+    then by the order of ``sj`` in ``ij`` and of ``sk`` in ``ik``."""
+    oj = np.argsort(aij, kind="stable")
+    ok = np.argsort(aik, kind="stable")
+    sa_j, sa_k = aij[oj], aik[ok]
+    lo = np.searchsorted(sa_k, sa_j, "left")
+    cnt = np.searchsorted(sa_k, sa_j, "right") - lo
+    n = int(cnt.sum())
+    if n == 0:
+        z = np.zeros(0, np.int64)
+        return z, z, z
+    rep = np.repeat(np.arange(cnt.size), cnt)
+    start = np.cumsum(cnt) - cnt
+    kpos = np.repeat(lo - start, cnt) + np.arange(n)
+    si = sa_j[rep].astype(np.int64)
+    sj = bij[oj][rep].astype(np.int64)
+    sk = bik[ok][kpos].astype(np.int64)
+    dj, dk = dirs[sj], dirs[sk]
+    ang = np.arccos(np.minimum(1.0, np.einsum("ij,ij->i", dj, dk)))
+    keep = (sj != sk) & (np.abs(ang - ajk) <= tol_jk)
+    keep &= np.einsum("ij,ij->i", dirs[si], np.cross(dj, dk)) * sense > 0
+    return si[keep], sj[keep], sk[keep]
 
 
 def _svd3(b: FloatArray, r: FloatArray) -> FloatArray:
@@ -295,45 +327,32 @@ def identify_lost_in_space(b: FloatArray, sigma_rad: FloatArray,
         aik, bik = cand(i, k)
         if aij.size == 0 or aik.size == 0:
             continue
-        # join on the catalogue star of i
-        common = np.intersect1d(aij, aik)
-        if common.size == 0:
-            continue
         ajk_d = math.acos(min(1.0, max(-1.0, float(b[j] @ b[k]))))
         tol_jk = (opt.n_sigma * math.hypot(sigma_rad[j], sigma_rad[k]) + tol_cat
                   + 2.0 * beta * math.tan(0.5 * ajk_d))
         sense = float(b[i] @ np.cross(b[j], b[k]))
-        for si in common:
-            for sj in bij[aij == si]:
-                for sk in bik[aik == si]:
-                    if sj == sk:
-                        continue
-                    dj, dk, di = idx.directions[sj], idx.directions[sk], idx.directions[si]
-                    if abs(math.acos(min(1.0, float(dj @ dk))) - ajk_d) > tol_jk:
-                        continue
-                    if float(di @ np.cross(dj, dk)) * sense <= 0:
-                        continue
-                    hyp += 1
-                    A = _svd3(b[[i, j, k]], np.stack([di, dj, dk]))
-                    rows, d = _field(cat, A, epoch_jyear, field_radius, opt.verify_v_limit,
-                                     vel)
-                    if rows.size < 3:
-                        continue
-                    det, _ = _match(b, A, cKDTree(d), r_match)
-                    k_req, lam = required_confirmations(
-                        n - 3, int(rows.size), r_match, field_radius, opt.max_hypotheses,
-                        opt.false_match_probability, opt.min_confirmed)
-                    extra = int(np.setdiff1d(det, [i, j, k]).size)
-                    if extra >= k_req:
-                        A2, det2, crow, cdir, _ = _refine(b, sigma_rad, A, cat, epoch_jyear,
-                                                          field_radius, opt, r_match, vel)
-                        if not accepted:
-                            accepted.append((A2, det2, crow, cdir, k_req, lam))
-                        elif _angle(accepted[0][0], A2) > 10 * r_match:
-                            return _fail("ambiguous", "two different attitudes both verify",
-                                         hyp)
-                    if hyp >= opt.max_hypotheses:
-                        break
+        si_all, sj_all, sk_all = _candidate_triangles(aij, bij, aik, bik, idx.directions,
+                                                      ajk_d, tol_jk, sense)
+        for si, sj, sk in zip(si_all.tolist(), sj_all.tolist(), sk_all.tolist(), strict=True):
+            if hyp >= opt.max_hypotheses:
+                break
+            hyp += 1
+            A = _svd3(b[[i, j, k]], idx.directions[[si, sj, sk]])
+            rows, d = _field(cat, A, epoch_jyear, field_radius, opt.verify_v_limit, vel)
+            if rows.size < 3:
+                continue
+            det, _ = _match(b, A, cKDTree(d), r_match)
+            k_req, lam = required_confirmations(
+                n - 3, int(rows.size), r_match, field_radius, opt.max_hypotheses,
+                opt.false_match_probability, opt.min_confirmed)
+            extra = int(np.setdiff1d(det, [i, j, k]).size)
+            if extra >= k_req:
+                A2, det2, crow, cdir, _ = _refine(b, sigma_rad, A, cat, epoch_jyear,
+                                                  field_radius, opt, r_match, vel)
+                if not accepted:
+                    accepted.append((A2, det2, crow, cdir, k_req, lam))
+                elif _angle(accepted[0][0], A2) > 10 * r_match:
+                    return _fail("ambiguous", "two different attitudes both verify", hyp)
         if accepted:
             break
     if not accepted:
