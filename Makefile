@@ -6,7 +6,8 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.starnav-installed
 
-.PHONY: demo test test-slow bench lint llvm clean
+.PHONY: demo test test-slow bench bench-cycles lint llvm clean
+CYCLES_VENV ?= .venv-cycles
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,8 +31,15 @@ bench: llvm $(STAMP)
 	for b in render detector navigation scenes dem calibration dataset; do \
 	  echo "== benchmarks/$$b.py"; $(BIN)/python benchmarks/$$b.py || exit 1; done
 
+# the render benchmark with Blender Cycles (the paper's engine) on the same frames: bpy pins
+# numpy < 2 and Python 3.11, so it gets its own venv (a ~370 MB wheel from PyPI)
+bench-cycles: llvm $(STAMP)
+	test -x $(CYCLES_VENV)/bin/python || ($(PYTHON) -m venv $(CYCLES_VENV) && \
+	  $(CYCLES_VENV)/bin/python -m pip install -q bpy)
+	$(BIN)/python benchmarks/render.py --shapes real --cycles-python $(CYCLES_VENV)/bin/python
+
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks
 
 clean:
-	rm -rf $(VENV) out .pytest_cache
+	rm -rf $(VENV) $(CYCLES_VENV) out .pytest_cache

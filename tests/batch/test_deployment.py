@@ -60,14 +60,17 @@ class Deployment:
         return set(self.client.run(os.getpid).values())  # type: ignore[attr-defined]
 
     def warm(self) -> list[bool]:
-        """Per worker: its preload has loaded Mitsuba, the tasks and the solar spectrum
-        (before any task)."""
+        """Per worker: its preload has loaded Mitsuba, the tasks, the solar spectrum and the
+        lost-in-space pair table (before any task)."""
         return list(self.client.run(_is_warm).values())  # type: ignore[attr-defined]
 
 
 def _is_warm() -> bool:
+    from starnav.stars import identify
+
     return ({"mitsuba", "starnav.batch.tasks"} <= set(sys.modules)
-            and spectra._astm_g173.cache_info().currsize == 1)
+            and spectra._astm_g173.cache_info().currsize == 1
+            and identify._index.cache_info().currsize >= 1)
 
 
 def _env() -> dict[str, str]:

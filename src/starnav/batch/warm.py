@@ -4,8 +4,11 @@ task.
 A fresh worker process spends seconds before its first frame: importing starnav's chain
 (NumPy, SciPy, pydantic, the navigation and detector modules), loading Mitsuba and Dr.Jit and
 choosing the variant, and reading the solar spectrum (packaged since issue 18: reading it
-through ``colour`` took ~4 s on the 2-core development machine). :func:`warm` does these once
-per process;
+through ``colour`` took ~4 s on the 2-core development machine), then reading the packaged data
+every sweep of the default Moon and tracker needs (:func:`warm_data`: the limb topography of
+the LOLA DEM, the Hipparcos catalogue and its lost-in-space pair table; ~2 s a worker, which
+each worker of a sweep paid again in its first task). :func:`warm` does these once per
+process;
 the scenario-specific set-up (scene, renderer, kernels) stays in the per-process caches the
 tasks use (:func:`starnav.simulate.simulator_for`, :func:`starnav.dataset.writer.frame_maker`).
 
@@ -39,13 +42,53 @@ log = logging.getLogger(__name__)
 
 def warm() -> dict[str, Any]:
     """Load Mitsuba with the default variant preference and the default solar spectrum in this
-    process; what was chosen and how long it took [s]."""
+    process, and the packaged data every sweep of the default Moon and tracker reads (see
+    :func:`warm_data`); what was chosen and how long it took [s]."""
     t0 = time.perf_counter()
     info = backend.activate(backend.DEFAULT_VARIANTS)
     solar_spectrum_from_config(SunConfig())
+    data = warm_data()
     dt = time.perf_counter() - t0
-    log.info("worker warmed in %.1f s (variant %s)", dt, info.variant)
-    return {"variant": info.variant, "seconds": dt}
+    log.info("worker warmed in %.1f s (variant %s; data %s)", dt, info.variant, data)
+    return {"variant": info.variant, "seconds": dt, "data_s": data}
+
+
+def warm_data() -> dict[str, float]:
+    """Read into this process's caches what the first task of every worker would otherwise
+    read (issue 18: measured ~2 s a worker on the 2-core machine, paid again by each worker
+    of a sweep): the limb topography of the default DEM (the packaged LOLA LDEM_4, for the
+    navigation chain's limb-height prior, :func:`starnav.dem.limb.limb_topography_for`), the
+    Hipparcos catalogue and its lost-in-space pair table for the default camera in the year
+    of a trajectory's default first epoch (:func:`starnav.stars.identify.star_index`; the
+    demo's and the exposure study's frames). Scenarios with
+    another DEM, camera or year fill their own cache entries in their first task, as before.
+    Seconds per item; an item that fails is logged and left to the task (which reports it)."""
+    from starnav.config import build_camera, scenario_from_dict
+    from starnav.dem.limb import limb_topography_for
+    from starnav.scenes.ephemeris import parse_epoch
+    from starnav.scenes.schema import DEFAULT_EPOCH
+    from starnav.stars.catalogue import hipparcos, jyear_from_tdb
+    from starnav.stars.identify import IdentifyOptions, star_index
+
+    sc = scenario_from_dict({})
+    out: dict[str, float] = {}
+
+    def timed(name: str, fn: Any) -> None:
+        t = time.perf_counter()
+        try:
+            fn()
+        except Exception as err:  # noqa: BLE001 - warming is best effort; the task reports
+            log.warning("warming %s failed: %s", name, err)
+        out[name] = round(time.perf_counter() - t, 3)
+
+    timed("limb_topography", lambda: limb_topography_for(sc.moon.dem))
+    timed("hipparcos", hipparcos)
+    # the year of a trajectory's default first epoch: the demo's and the exposure study's
+    # frames (the stars are drawn at each frame's epoch, the pair table per year)
+    year = jyear_from_tdb(parse_epoch(DEFAULT_EPOCH))
+    timed("star_index", lambda: star_index(hipparcos(), IdentifyOptions().index_v_limit,
+                                           build_camera(sc.camera).fov_diagonal, year))
+    return out
 
 
 def dask_setup(worker: Any = None) -> None:
