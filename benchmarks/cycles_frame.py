@@ -98,11 +98,48 @@ def _set_matrix(obj: bpy.types.Object, R: np.ndarray, t: np.ndarray) -> None:
     obj.matrix_world = mathutils.Matrix([list(map(float, row)) for row in M])
 
 
+def _pixels(path: str, W: int, H: int) -> np.ndarray:
+    """The render result as an (H, W, 4) float32 RGBA array, rows top-down."""
+    bpy.data.images["Render Result"].save_render(filepath=path)
+    img = bpy.data.images.load(path)
+    px = np.empty(W * H * 4, np.float32)
+    img.pixels.foreach_get(px)
+    bpy.data.images.remove(img)
+    return px.reshape(H, W, 4)[::-1]  # Blender's rows run bottom-up
+
+
+def _interior_noise(first: np.ndarray, n: int, path: str, W: int, H: int) -> dict:
+    """The last frame rendered with seeds 1..n as well: per pixel, the std / mean of the
+    green channel over the ``n + 1`` renders (ddof 1); median over the lit interior (fully
+    covered pixels whose 3 x 3 neighbourhood is too, above 5 % of the median level), the
+    statistic of ``benchmarks/render_noise.py``."""
+    stack = [first[:, :, 1]]
+    sc = bpy.context.scene
+    sc.render.use_persistent_data = False  # a kept session keeps its seed
+    for seed in range(1, n + 1):
+        sc.cycles.seed = seed
+        bpy.ops.render.render(write_still=False)
+        stack.append(_pixels(f"{path}.{seed}.exr", W, H)[:, :, 1])
+    g = np.stack(stack)
+    full = first[:, :, 3] >= 0.999
+    inner = full.copy()
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            inner &= np.roll(np.roll(full, dv, 0), du, 1)
+    mean = g.mean(axis=0)
+    lit = inner & (mean > 0.05 * np.median(mean[inner & (mean > 0)]))
+    rel = g.std(axis=0, ddof=1)[lit] / mean[lit]
+    return {"seeds": n + 1, "pixels": int(lit.sum()), "median_rel_std": float(np.median(rel))}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("scene")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--alpha-out", help="save the last frame's alpha (.npy, rows top-down)")
+    ap.add_argument("--noise-seeds", type=int, default=4,
+                    help="render the last frame this many more times with other seeds and "
+                    "print its interior noise (0: no)")
     args = ap.parse_args()
     d = np.load(args.scene)
 
@@ -129,6 +166,10 @@ def main() -> None:
     sc.render.threads = args.threads
     sc.render.use_persistent_data = True
     sc.render.film_transparent = True
+    # the result read back as linear 32-bit floats (the default output is an 8-bit PNG)
+    sc.render.image_settings.file_format = "OPEN_EXR"
+    sc.render.image_settings.color_depth = "32"
+    sc.view_settings.view_transform = "Standard"
     W, H = int(d["width"]), int(d["height"])
     sc.render.resolution_x, sc.render.resolution_y = W, H
     sc.render.resolution_percentage = 100
@@ -180,19 +221,16 @@ def main() -> None:
            "frames_s": [round(t, 3) for t in times], "blender": bpy.app.version_string,
            "threads": args.threads}
     # the last frame's alpha: the Moon's pixels, to check the view is starnav's
-    viewer = bpy.data.images["Render Result"]
-    tmp = args.scene + ".exr"
-    viewer.save_render(filepath=tmp)
-    img = bpy.data.images.load(tmp)
-    px = np.empty(W * H * 4, np.float32)
-    img.pixels.foreach_get(px)
-    alpha = px.reshape(H, W, 4)[::-1, :, 3] > 0.5  # Blender's rows run bottom-up
+    px = _pixels(args.scene + ".exr", W, H)
+    alpha = px[:, :, 3] > 0.5
     out["moon_px"] = int(alpha.sum())
     if args.alpha_out:
         np.save(args.alpha_out, px.reshape(H, W, 4)[::-1])
     if "mask" in d:
         m = d["mask"].astype(bool)
         out["iou"] = float((alpha & m).sum() / max(1, (alpha | m).sum()))
+    if args.noise_seeds > 0:
+        out["noise"] = _interior_noise(px, args.noise_seeds, args.scene + ".exr", W, H)
     print(json.dumps(out), flush=True)
 
 

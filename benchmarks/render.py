@@ -33,10 +33,12 @@ Mitsuba's exact sphere with Hapke) it prints, in the same run:
 
 The Moon's place is offset by ``--place-seed`` (default: from the clock), so that the frames'
 crop windows are new to Dr.Jit's on-disk kernel cache, as in a new sequence. Blender Cycles,
-the paper's engine, renders the real Moon's frames (same mesh, poses, Sun, 16 spp, direct light,
-a Lambert surface; ``benchmarks/cycles_frame.py``) where a Python with ``bpy`` is given
-(``--cycles-python``; ``bpy`` pins ``numpy < 2``, so it has its own venv): its row ``cycles``
-and each row's steady time as a fraction of Cycles' follow the real Moon's rows.
+the paper's engine, renders the real Moon's frames (same mesh, poses, Sun and crop windows,
+direct light, a Lambert surface; ``benchmarks/cycles_frame.py``) where a Python with ``bpy`` is
+given (``--cycles-python``, ``make bench-cycles``; ``bpy`` pins ``numpy < 2``, so it has its own
+venv): a row ``cycles`` per sample count (``--cycles-spp``, default 16 and 2) with the IoU of its
+Moon mask with starnav's and its interior noise (the statistic of ``render_noise.py``), then
+each real-Moon row's steady time as a fraction of Cycles'.
 
 Usage: .venv/bin/python benchmarks/render.py [--frames N] [--compare] [--rebuild] [--place-seed S]
        [--shapes real,mesh,sphere] [--ranges-km 60000,9715] [--no-adaptive] [--interior-spp 4,1]
@@ -215,7 +217,7 @@ def run(shape: str, range_m: float, frames: int, fused: bool, place: tuple[float
     }
 
 
-def cycles_scene(res: dict, path: str) -> None:
+def cycles_scene(res: dict, path: str, spp: int = 16) -> None:
     """Write what ``benchmarks/cycles_frame.py`` needs to render ``res``'s frames with Blender
     Cycles: the last frame's view mesh (body-fixed, km), every frame's camera pose and Sun
     direction in the Moon's body-fixed frame, the pinhole, and the last frame's Moon mask."""
@@ -236,7 +238,7 @@ def cycles_scene(res: dict, path: str) -> None:
     ox, oy = principal_point_offsets(cam)
     # Blender's shift moves the frustum (units: the wider side); its y axis points up
     np.savez(path, vertices_km=mesh.vertices / 1e3, faces=mesh.faces, normals=mesh.normals,
-             albedo=albedo, spp=16, width=cam.width, height=cam.height,
+             albedo=albedo, spp=spp, width=cam.width, height=cam.height,
              fov_x_rad=math.radians(sensor_fov_deg(cam)), shift_x=ox * cam.width
              / max(cam.width, cam.height), shift_y=-oy * cam.height / max(cam.width, cam.height),
              clip_start_km=0.1, clip_end_km=1e6, cam_R=np.array(poses),
@@ -244,15 +246,16 @@ def cycles_scene(res: dict, path: str) -> None:
              crop_uvwh=np.array(res["crops"]))
 
 
-def run_cycles(python: str, res: dict) -> dict:
-    """Render ``res``'s frames with Blender Cycles under ``python`` (which has ``bpy``)."""
+def run_cycles(python: str, res: dict, spp: int = 16) -> dict:
+    """Render ``res``'s frames with Blender Cycles under ``python`` (which has ``bpy``),
+    ``spp`` samples a pixel."""
     import json
     import subprocess
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "scene.npz")
-        cycles_scene(res, path)
+        cycles_scene(res, path, spp)
         script = os.path.join(os.path.dirname(os.path.abspath(__file__)), "cycles_frame.py")
         out = subprocess.run([python, script, path, "--threads", str(os.cpu_count())],
                              capture_output=True, text=True, check=True)
@@ -304,6 +307,8 @@ def main() -> None:
                     help="a Python with bpy (Blender as a module): render the real Moon's "
                     "frames with Cycles too (benchmarks/cycles_frame.py; default: "
                     "$STARNAV_CYCLES_PYTHON, or this Python if it has bpy)")
+    ap.add_argument("--cycles-spp", default="16,2",
+                    help="Cycles' samples a pixel, one row each (comma-separated)")
     ap.add_argument("--miss-cost", action="store_true",
                     help="also the cost of a sample missing the Moon (sphere, crop vs frame)")
     args = ap.parse_args()
@@ -353,16 +358,20 @@ def main() -> None:
                                 f"{k[:-2]} {v:.3f}" for k, v in res["adaptive_parts"].items())
                                 + f"; floor of its own camera rays (centre + samples, no "
                                 f"shadow ray) {res['floor_frame_s']:.3f}", flush=True)
-            if cycles_python and shape == "real" and rows:
-                c = run_cycles(cycles_python, rows[0])
-                print(f"{'real':6s} {'cycles':7s} {'-':>3s} {'16':>6s} "
+            for c_spp in (args.cycles_spp.split(",") if cycles_python and shape == "real"
+                          and rows else ()):
+                c = run_cycles(cycles_python, rows[0], int(c_spp))
+                print(f"{'real':6s} {'cycles':7s} {'-':>3s} {c_spp:>6s} "
                       f"{str(rows[0]['triangles']):>9s} {float(range_km):8.0f} "
                       f"{c['first_s']:8.3f} {c['steady_s']:8.3f}  Blender {c['blender']} "
                       f"Cycles, {c['threads']} threads, same frames and mesh (import "
                       f"{c['import_s']:.1f} s, not counted), Moon pixels {c['moon_px']} "
-                      f"(IoU with starnav's mask {c['iou']:.4f}), load "
+                      f"(IoU with starnav's mask {c['iou']:.4f}), interior noise (median "
+                      f"std / mean over {c['noise']['seeds']} seeds, {c['noise']['pixels']} lit "
+                      f"interior pixels, as benchmarks/render_noise.py) "
+                      f"{100 * c['noise']['median_rel_std']:.2f} %, load "
                       f"{os.getloadavg()[0]:.1f}", flush=True)
-                print("         steady time as a fraction of Cycles': " + ", ".join(
+                print(f"         steady time as a fraction of Cycles' at {c_spp} spp: " + ", ".join(
                     f"{res['loop']} {res['spp']} {res['steady_s'] / c['steady_s']:.3f} "
                     f"({c['steady_s'] / res['steady_s']:.1f}x faster)" for res in rows),
                     flush=True)
