@@ -34,8 +34,14 @@ from typing import Any
 
 import starnav.batch.tasks  # noqa: F401  (the sweep tasks and everything they import)
 import starnav.dataset.writer  # noqa: F401  (the dataset task)
+from starnav.config import build_camera, scenario_from_dict
+from starnav.dem.limb import limb_topography_for
 from starnav.renderer import backend
+from starnav.scenes.ephemeris import parse_epoch
+from starnav.scenes.schema import DEFAULT_EPOCH
 from starnav.spectra import SunConfig, solar_spectrum_from_config
+from starnav.stars.catalogue import hipparcos, jyear_from_tdb
+from starnav.stars.identify import IdentifyOptions, star_index
 
 log = logging.getLogger(__name__)
 
@@ -63,13 +69,6 @@ def warm_data() -> dict[str, float]:
     demo's and the exposure study's frames). Scenarios with
     another DEM, camera or year fill their own cache entries in their first task, as before.
     Seconds per item; an item that fails is logged and left to the task (which reports it)."""
-    from starnav.config import build_camera, scenario_from_dict
-    from starnav.dem.limb import limb_topography_for
-    from starnav.scenes.ephemeris import parse_epoch
-    from starnav.scenes.schema import DEFAULT_EPOCH
-    from starnav.stars.catalogue import hipparcos, jyear_from_tdb
-    from starnav.stars.identify import IdentifyOptions, star_index
-
     sc = scenario_from_dict({})
     out: dict[str, float] = {}
 
