@@ -86,6 +86,7 @@ def one_sweep(workers: int, frames: int, runs: int, root: Path,
         cpu0 = rn.client.run(_cpu_s)
         me0 = _cpu_s()
         t1 = time.perf_counter()
+        w1 = time.time()  # the task stream's clock
         with get_task_stream(client=rn.client) as ts:
             res = run_sweep(p.scenario(), p.grid, out, runs=runs, runner=rn, figures=False,
                             overrides=[f"trajectory.frames={frames}"])
@@ -94,13 +95,24 @@ def one_sweep(workers: int, frames: int, runs: int, root: Path,
         cpu1 = rn.client.run(_cpu_s)
         peaks = rn.client.run(_worker_peak)
     busy: dict[str, float] = defaultdict(float)
+    spans: dict[str, list[float]] = defaultdict(list)  # per worker: first start, last stop
     for t in ts.data:
         kind = str(t["key"]).split("-", 1)[0]
         for s in t["startstops"]:
             if s["action"] == "compute":
                 busy[kind] += s["stop"] - s["start"]
+                w = str(t.get("worker", "?"))
+                spans[w] = ([min(spans[w][0], s["start"]), max(spans[w][1], s["stop"])]
+                            if spans[w] else [s["start"], s["stop"]])
     shutil.rmtree(out, ignore_errors=True)
     return {"sweep_s": t2 - t1, "total_s": t2 - t0, "busy": dict(busy),
+            # run_sweep's own clock stops at the last result: the rest is this process
+            # writing the table, the report and the series (no worker has work then)
+            "write_s": (t2 - t1) - float(res.elapsed_s),
+            # per worker: from the sweep's start to its first task, from its last task to
+            # the last result (idle at the ends)
+            "edges_s": sorted((a - w1, w1 + float(res.elapsed_s) - b)
+                              for a, b in spans.values()),
             "tasks": res.render_tasks + res.expose_tasks + res.filter_tasks,
             "worker_peak_mb": sorted(v[1] for v in peaks.values()),
             # CPU seconds during the sweep: each worker process (tasks + its event loop,
@@ -184,7 +196,11 @@ def main() -> None:
                     wcpu = ", ".join(f"{c:.1f}" for c in
                                      r["worker_cpu_s"])  # type: ignore[attr-defined]
                     print(f"      CPU s during the sweep: workers {wcpu}; this process (client "
-                          f"+ scheduler) {r['client_cpu_s']:.1f}", flush=True)
+                          f"+ scheduler) {r['client_cpu_s']:.1f}; after the last task, "
+                          f"writing the outputs: {r['write_s']:.2f} s; per worker, sweep "
+                          "start -> first task, last task -> last result [s]: " + ", ".join(
+                              f"{a:.2f} / {b:.2f}"
+                              for a, b in r["edges_s"]), flush=True)  # type: ignore[attr-defined]
         for kind in kinds:
             if (kind, 1) in times and (kind, 2) in times:
                 s1, s2 = min(times[kind, 1]), min(times[kind, 2])
