@@ -23,9 +23,11 @@ Printed (one JSON line): ``import_s`` (mesh into Blender, not a render cost), ``
 first frame: scene sync and BVH build), ``steady_s`` (median of frames 2..N, camera and Sun
 moving), ``frames_s``, and the last frame's Moon pixels (``moon_px``, alpha > 0.5) and their
 agreement with starnav's mask of the same frame (``iou``, given ``mask`` in the input): the
-check that both engines rendered the same view.
+check that both engines rendered the same view; ``noise``: the last frame rendered again with
+``--noise-seeds`` other seeds, the median per-pixel std / mean over its lit interior (the
+statistic of ``benchmarks/render_noise.py``), so that speed can be compared at equal noise.
 
-Usage: <python with bpy> benchmarks/cycles_frame.py SCENE.npz [--threads 2]
+Usage: <python with bpy> benchmarks/cycles_frame.py SCENE.npz [--threads 2] [--noise-seeds 4]
 """
 
 from __future__ import annotations
