@@ -166,13 +166,23 @@ def test_incomplete_dataset_is_refused_unless_asked(tmp_path):
     assert s.frames_made == 6 - on_disk and verify(out) == []
 
 
+def _profile_enabled() -> bool:
+    import dask
+
+    return bool(dask.config.get("distributed.worker.profile.enabled"))
+
+
 def test_one_and_two_workers_give_identical_datasets(tmp_path):
-    from starnav.batch.cluster import open_runner
+    from starnav.batch.cluster import local_worker_config, open_runner
 
     opts = DatasetOptions(exposures_s=(1.5e-5, 7.7e-3))
     generate(small_scenario(frames=6), tmp_path / "one", options=opts)
     with open_runner(workers=2) as runner:
         s = generate(small_scenario(frames=6), tmp_path / "two", options=opts, runner=runner)
+        # the local cluster's workers run without Dask's statistical profiler (issue 18:
+        # ~5 % of a sweep's CPU), unless the environment says otherwise
+        want = local_worker_config().get("distributed.worker.profile.enabled", True)
+        assert set(runner.client.run(_profile_enabled).values()) == {want}
     assert s.runner.startswith("local cluster")
     assert tree_bytes(tmp_path / "one") == tree_bytes(tmp_path / "two")
 

@@ -198,6 +198,27 @@ def default_workers() -> int:
     return max(1, os.cpu_count() or 1)
 
 
+#: Environment variable that, when set, leaves the workers' statistical profiler to Dask's
+#: own configuration (:func:`local_worker_config`).
+PROFILE_ENV = "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED"
+
+
+def local_worker_config() -> dict[str, Any]:
+    """Dask configuration of the workers of the local clusters :func:`open_runner` starts.
+
+    Dask's statistical profiler is off: every 10 ms it takes the GIL to walk the running
+    task's stack. It feeds only the dashboard's profile page, which these clusters do not
+    serve (``dashboard_address=None``). On the 2-core machine it cost the exposure study
+    ~5 % of its CPU time, and the two-worker sweep went from 1.70x to 1.77-1.84x faster
+    than the one-worker sweep (docs/performance.md, issue 18). Setting
+    ``DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED`` in the environment keeps Dask's own
+    choice. For workers started with ``dask worker``, set that variable to ``False`` in their
+    environment for the same saving (docs/sweep.md, "A real cluster")."""
+    if PROFILE_ENV in os.environ:
+        return {}
+    return {"distributed.worker.profile.enabled": False}
+
+
 @contextlib.contextmanager
 def open_runner(workers: int | None = None, scheduler: str | None = None, *,
                 connect_timeout_s: float = CONNECT_TIMEOUT_S) -> Iterator[TaskRunner]:
@@ -230,15 +251,18 @@ def open_runner(workers: int | None = None, scheduler: str | None = None, *,
     if n == 0:
         yield InProcessRunner()
         return
+    import dask
     from distributed import Client, LocalCluster
 
     quiet = contextlib.ExitStack()  # the scheduler runs here: keep its INFO lines out
     quiet.enter_context(quiet_logger("distributed", logging.WARNING))
     try:
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               host="127.0.0.1", dashboard_address=None,
-                               silence_logs=logging.ERROR,
-                               preload=[WORKER_PRELOAD] if WORKER_PRELOAD else [])
+        # the nannies hand this configuration to their worker processes
+        with dask.config.set(local_worker_config()):
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   host="127.0.0.1", dashboard_address=None,
+                                   silence_logs=logging.ERROR,
+                                   preload=[WORKER_PRELOAD] if WORKER_PRELOAD else [])
     except Exception as err:  # noqa: BLE001 - any start-up failure is reported the same way
         quiet.close()
         raise ClusterError(f"could not start a local Dask cluster of {n} workers: {err} (worker "
