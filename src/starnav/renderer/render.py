@@ -83,6 +83,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -394,32 +395,38 @@ class MoonRenderer:
         self._clip: dict[int, tuple[float, float]] = {}
         self._crop: dict[int, tuple[int, int, int, int]] = {}
         self._spectra: dict[Any, tuple[Spectrum, dict]] = {}
-        self._channels: dict[Any, Any] = {}
+        # spectra derived per spectral sampling, keyed by the identities of their inputs
+        # (kept alive next to each entry): the same objects every frame, so that
+        # _spectrum_dict formats each once
+        self._derived: dict[Any, tuple[Any, tuple]] = {}
+
+    def _memo(self, key: tuple, make: Callable[[], Any], inputs: tuple) -> Any:
+        full = (*key, *(id(x) for x in inputs))
+        if full not in self._derived:
+            self._derived[full] = (make(), inputs)
+        return self._derived[full][0]
 
     @property
     def channels(self) -> FilmChannels:
         """The film's two responses for the current ``settings.spectral_sampling``."""
-        mode = self.settings.spectral_sampling
         shape = self.moon.spectral_shape
-        # keyed by the spectra's identities, which the cached entry keeps alive
-        key = (mode, id(self.response), id(self.sun_1au), id(shape))
-        if key not in self._channels:
-            colour = None
-            if mode == "electrons":
-                colour = self.sun_1au if shape is None else product(self.sun_1au, shape)
-            self._channels[key] = (film_channels(self.response, colour),
-                                   (self.response, self.sun_1au, shape))
-        return self._channels[key][0]
+        if self.settings.spectral_sampling == "response":
+            return self._memo(("channels", "response"),
+                              lambda: film_channels(self.response), (self.response,))
+        return self._memo(
+            ("channels", "electrons"),
+            lambda: film_channels(self.response, self.sun_1au if shape is None
+                                  else product(self.sun_1au, shape)),
+            (self.response, self.sun_1au, shape))
 
     def _emitter_irradiance(self) -> Spectrum:
         """The Sun emitter's spectrum: flat when the film carries the solar spectrum."""
-        key = ("emitter", self.settings.spectral_sampling, id(self.response))
-        if key not in self._channels:
-            self._channels[key] = (
-                flat_irradiance_in_band(self.response)
-                if self.settings.spectral_sampling == "electrons"
-                else sun_irradiance_in_band(self.sun_1au, self.response))
-        return self._channels[key]
+        if self.settings.spectral_sampling == "electrons":
+            return self._memo(("emitter", "electrons"),
+                              lambda: flat_irradiance_in_band(self.response), (self.response,))
+        return self._memo(("emitter", "response"),
+                          lambda: sun_irradiance_in_band(self.sun_1au, self.response),
+                          (self.response, self.sun_1au))
 
     # .................................................................. backend / scene
     @property

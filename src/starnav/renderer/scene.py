@@ -258,16 +258,14 @@ def film_channels(response: SensorResponse, colour: Spectrum | None = None) -> F
     return FilmChannels(channel, channel, k * kappa, k)
 
 
+def flat_irradiance_in_band(response: SensorResponse, margin_nm: float = 2.0) -> Spectrum:
+    """A unit irradiance over the sensor band (plus a margin): the emitter when the film's
+    responses carry the solar spectrum (:func:`film_channels` with ``colour``)."""
+    lo, hi = response.band
+    return Spectrum(np.array([lo - margin_nm, hi + margin_nm]), np.ones(2))
+
+
 def sun_irradiance_in_band(sun: Spectrum, response: SensorResponse, margin_nm: float = 2.0
                            ) -> Spectrum:
     """The solar spectrum restricted to the sensor band (plus a margin) for the emitter."""
-    lo, hi = response.band
-    box = Spectrum(np.array([lo - margin_nm, hi + margin_nm]), np.ones(2))
-    return product(sun, box)
-
-
-def flat_irradiance_in_band(response: SensorResponse, margin_nm: float = 2.0) -> Spectrum:
-    """A unit irradiance over the sensor band (plus a margin): the emitter when the solar
-    spectrum is carried by the film's responses (:func:`film_channels` with ``sun``)."""
-    lo, hi = response.band
-    return Spectrum(np.array([lo - margin_nm, hi + margin_nm]), np.ones(2))
+    return product(sun, flat_irradiance_in_band(response, margin_nm))
