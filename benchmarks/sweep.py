@@ -128,12 +128,32 @@ _CONTENTION_WORK = {
     # NumPy on 8 MB float64 arrays (the size of a 1024 x 1024 frame), beyond each core's L2
     "numpy 1024^2": ("import numpy as np\na = np.random.default_rng(0).random((1024, 1024))\n"
                      "for _ in range(150):\n    b = np.sqrt(a * 1.0001 + 0.5) * a"),
+    # the expose tasks' own image work: star detection on a 1024 x 1024 DN frame (background
+    # medians, smoothing, labels, centroids) ...
+    "starnav find_stars": (
+        "import numpy as np\nfrom starnav.stars.centroid import find_stars\n"
+        "rng = np.random.default_rng(0)\n"
+        "dn = (rng.poisson(200.0, (1024, 1024)) + 100).astype(np.uint16)\n"
+        "for u, v in rng.uniform(20, 1000, (60, 2)).astype(int):\n"
+        "    dn[v - 2:v + 3, u - 2:u + 3] += 3000\n"
+        "for _ in range(40):\n"
+        "    find_stars(dn, gain_e_per_dn=1.0, saturation_dn=60000.0)"),
+    # ... and the detector chain on a frame with a saturated Moon disc (full frame, 200 ms)
+    "starnav expose": (
+        "import numpy as np\nfrom starnav.camera import Camera\n"
+        "from starnav.detector import DetectorConfig, expose\n"
+        "cam, det = Camera.preset('aa-str'), DetectorConfig()\n"
+        "yy, xx = np.mgrid[0:1024, 0:1024]\n"
+        "le = np.where((xx - 512)**2 + (yy - 512)**2 < 300**2, 3e13, 0.0).astype(np.float32)\n"
+        "for k in range(40):\n"
+        "    expose(le, cam, det, seed=k, frame_index=k, exposure_time=0.2)"),
 }
 
 
 def contention() -> None:
     """Each kind of work alone and as two processes at once (the two vCPUs): how much a
-    second worker slows the first one's memory-bound NumPy work, whatever starnav does."""
+    second process slows the first one: a Python loop, NumPy on frame-sized arrays, and the
+    expose tasks' star detection and detector chain."""
     import subprocess
     import sys
 
@@ -163,7 +183,8 @@ def main() -> None:
     ap.add_argument("--cold", action="store_true", help="also run every case with workers "
                     "that are not warmed by the preload starnav.batch.warm")
     ap.add_argument("--contention", action="store_true", help="only the machine's own "
-                    "slow-down of two processes at once: a Python loop and NumPy on 8 MB arrays")
+                    "slow-down of two processes at once: a Python loop, NumPy on 8 MB arrays, "
+                    "find_stars and the detector chain")
     a = ap.parse_args()
     if a.contention:
         contention()
