@@ -225,10 +225,10 @@ def cycles_scene(res: dict, path: str, spp: int = 16) -> None:
 
     r: MoonRenderer = res["renderer"]
     cam = r.camera
-    mesh, _ = r._mesh(res["geoms"][-1])
-    albedo = (r._vertex_albedo(mesh) * r.moon.albedo_scale
-              if mesh.albedo is not None or not np.isscalar(r.moon.albedo)
-              else np.full(len(mesh.vertices), float(r.moon.albedo) * r.moon.albedo_scale))
+    surf = r.surface(res["geoms"][-1])
+    if surf is None:
+        raise SystemExit("--cycles-python: the exact sphere has no triangle surface to export")
+    mesh, albedo = surf
     poses, positions, suns = [], [], []
     for g in res["geoms"]:
         R_moon = g.R_moon_to_inertial

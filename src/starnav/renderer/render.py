@@ -476,6 +476,30 @@ class MoonRenderer:
                             mi.Float(self._vertex_albedo(mesh).astype(np.float32)))
         return m
 
+    def surface(self, geom: FrameGeometry) -> tuple[MoonMesh, NDArray[np.float64]] | None:
+        """The triangle surface this renderer puts in frame ``geom``'s scene, to export it to
+        another engine (``benchmarks/render.py --cycles-python`` hands it to Blender Cycles).
+
+        Returns
+        -------
+        (mesh, albedo) or None
+            The body-fixed mesh [m] as rendered (for a ``mesh_provider`` the view mesh of this
+            frame) and the albedo parameter of the photometric model at each vertex, with
+            ``albedo_scale`` applied: the mesh's own albedo, the albedo map bilinearly
+            sampled at the vertices (the renderer interpolates these values over each
+            triangle), or the uniform albedo. ``None`` for ``shape: sphere`` (the exact
+            sphere is an analytic primitive, not triangles).
+        """
+        mesh, _ = self._mesh(geom)
+        if mesh is None:
+            return None
+        moon = self.moon
+        if mesh.albedo is not None or isinstance(moon.albedo, AlbedoMap):
+            albedo = self._vertex_albedo(mesh)
+        else:
+            albedo = np.full(len(mesh.vertices), float(moon.albedo))
+        return mesh, albedo * float(moon.albedo_scale)
+
     def _vertex_albedo(self, mesh: MoonMesh) -> NDArray[np.float64]:
         """The albedo parameter per vertex: the mesh's own, or the map's at the vertices."""
         if mesh.albedo is not None:
