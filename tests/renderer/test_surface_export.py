@@ -10,9 +10,11 @@ import numpy as np
 import pytest
 
 from starnav.camera import Camera
+from starnav.config import build_camera, scenario_from_dict
 from starnav.geometry import static_geometry
 from starnav.renderer.render import AlbedoMap
 from starnav.renderer.scene import icosphere_mesh
+from starnav.simulate import frame_geometries, renderer_from_scenario
 
 from .conftest import make_renderer
 
@@ -56,6 +58,14 @@ def _cast(origin, dirs, v, f):
     return t_best, face, bu, bv
 
 
+def _pixel_rays(cam: Camera, g, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel-centre rays ``uv`` (n, 2) of frame ``g`` in the Moon's body frame: the camera
+    centre and the unit directions (n, 3)."""
+    Rb = g.R_moon_to_inertial.T
+    dirs = cam.unproject(uv, undistort=False) @ (Rb @ g.R_cam_to_inertial).T
+    return Rb @ g.camera_position, dirs
+
+
 @pytest.fixture(scope="module")
 def exported():
     cam = Camera(width=96, height=96, focal_length=0.0507, pitch_x=4.4e-5, pitch_y=4.4e-5,
@@ -67,7 +77,10 @@ def exported():
     img = r.render(g, seed=3)
     surf = r.surface(g)
     assert surf is not None
-    return cam, g, img, surf
+    u, v = cam.pixel_grid()
+    cast = _cast(*_pixel_rays(cam, g, np.stack([u.ravel(), v.ravel()], -1)),
+                 surf[0].vertices, surf[0].faces)
+    return cam, g, img, surf, cast
 
 
 def test_sphere_has_no_triangle_surface(aa_str):
@@ -76,12 +89,7 @@ def test_sphere_has_no_triangle_surface(aa_str):
 
 
 def test_exported_triangles_are_the_rendered_surface(exported):
-    cam, g, img, (mesh, _) = exported
-    u, v = cam.pixel_grid()
-    uv = np.stack([u.ravel(), v.ravel()], -1)
-    Rb = g.R_moon_to_inertial.T
-    dirs = cam.unproject(uv, undistort=False) @ (Rb @ g.R_cam_to_inertial).T
-    t, _, _, _ = _cast(Rb @ g.camera_position, dirs, mesh.vertices, mesh.faces)
+    _, _, img, _, (t, _, _, _) = exported
     hit = np.isfinite(t)
     mask = img.mask.ravel()
     assert hit.sum() > 2000  # the disc is ~ 2 800 pixels
@@ -100,12 +108,7 @@ def test_exported_albedo_renders_the_lambert_closed_form(exported):
     terminator here, at random). So the per-pixel check is on the median (0.2 % measured;
     limit 0.5 %, where a misregistration of the map by one of its 2-degree cells gives
     ~3 %), and the disc sum, where that noise averages out (~0.02 %), must agree to 0.1 %."""
-    cam, g, img, (mesh, albedo) = exported
-    u, v = cam.pixel_grid()
-    uv = np.stack([u.ravel(), v.ravel()], -1)
-    Rb = g.R_moon_to_inertial.T
-    dirs = cam.unproject(uv, undistort=False) @ (Rb @ g.R_cam_to_inertial).T
-    t, face, bu, bv = _cast(Rb @ g.camera_position, dirs, mesh.vertices, mesh.faces)
+    cam, g, img, (mesh, albedo), (t, face, bu, bv) = exported
     # interior pixels: hit, and all eight neighbours hit too
     m = np.isfinite(t).reshape(cam.height, cam.width)
     inner = m.copy()
@@ -117,7 +120,7 @@ def test_exported_albedo_renders_the_lambert_closed_form(exported):
     a = np.einsum("rk,rk->r", w, albedo[f])
     n = np.einsum("rk,rkj->rj", w, mesh.normals[f])
     n /= np.linalg.norm(n, axis=1, keepdims=True)
-    cos_i = n @ (Rb @ g.sun_direction)
+    cos_i = n @ (g.R_moon_to_inertial.T @ g.sun_direction)
     sel = inner.ravel() & (cos_i > 0.2)
     assert sel.sum() > 1000
     ref = a[sel] * img.meta["sun"]["band_irradiance_w_m2"] * cos_i[sel] / math.pi
@@ -133,9 +136,6 @@ def test_real_moon_view_mesh_export_is_the_rendered_surface():
     the surface its pixel-centre rays hit. Each pixel's candidate triangles are found from the
     vertices' projections (a triangle can hold a pixel centre only inside its projected box),
     then cast against with the test's own ray caster."""
-    from starnav.config import build_camera, scenario_from_dict
-    from starnav.simulate import frame_geometries, renderer_from_scenario
-
     sc = scenario_from_dict({
         "camera": {"width": 96, "height": 96, "pixel_pitch_um": 44.0},
         "render": {"spp": 4},
@@ -149,9 +149,8 @@ def test_real_moon_view_mesh_export_is_the_rendered_surface():
     assert mesh.n_triangles > 5000 and albedo.shape == (len(mesh.vertices),)
     assert np.all(np.isfinite(albedo)) and 0.02 < np.median(albedo) < 0.5
 
-    Rb = g.R_moon_to_inertial.T
-    cam_b = Rb @ g.camera_position  # camera centre, body frame
-    R_cb = Rb @ g.R_cam_to_inertial  # camera -> body
+    R_cb = g.R_moon_to_inertial.T @ g.R_cam_to_inertial  # camera -> body
+    cam_b = g.R_moon_to_inertial.T @ g.camera_position  # camera centre, body frame
     p_cam = (mesh.vertices - cam_b) @ R_cb  # vertices in the camera frame
     assert np.all(p_cam[:, 2] > 0)
     uv = cam.project(p_cam, distort=False)[mesh.faces]  # (faces, 3, 2)
@@ -167,8 +166,8 @@ def test_real_moon_view_mesh_export_is_the_rendered_surface():
                     cand.setdefault((int(uu), int(vv)), []).append(int(f))
     t = np.full((cam.height, cam.width), np.inf)
     for (uu, vv), faces in cand.items():
-        d = cam.unproject(np.array([[uu, vv]], float), undistort=False) @ R_cb.T
-        t[vv, uu] = _cast(cam_b, d, mesh.vertices, mesh.faces[faces])[0][0]
+        o, d = _pixel_rays(cam, g, np.array([[uu, vv]], float))
+        t[vv, uu] = _cast(o, d, mesh.vertices, mesh.faces[faces])[0][0]
     hit = np.isfinite(t)
     assert 1500 < hit.sum() < cam.width * cam.height  # the disc, with its limb in the frame
     # float32 in Mitsuba against float64 here: a grazing ray at the limb may fall either way
