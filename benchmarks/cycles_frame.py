@@ -24,8 +24,10 @@ first frame: scene sync and BVH build), ``steady_s`` (median of frames 2..N, cam
 moving), ``frames_s``, and the last frame's Moon pixels (``moon_px``, alpha > 0.5) and their
 agreement with starnav's mask of the same frame (``iou``, given ``mask`` in the input): the
 check that both engines rendered the same view; ``noise``: the last frame rendered again with
-``--noise-seeds`` other seeds, the median per-pixel std / mean over its lit interior (the
-statistic of ``benchmarks/render_noise.py``), so that speed can be compared at equal noise.
+``--noise-seeds`` other seeds, the median per-pixel std / mean over its lit interior, so that
+speed can be compared at about equal noise (``benchmarks/render_noise.py`` measures starnav's
+the same way, but selects the interior from starnav's AOVs, on its own centred phase-30 frame:
+the two figures are alike, not identical).
 
 Usage: <python with bpy> benchmarks/cycles_frame.py SCENE.npz [--threads 2] [--noise-seeds 4]
 """
@@ -113,8 +115,8 @@ def _pixels(path: str, W: int, H: int) -> np.ndarray:
 def _interior_noise(first: np.ndarray, n: int, path: str, W: int, H: int) -> dict:
     """The last frame rendered with seeds 1..n as well: per pixel, the std / mean of the
     green channel over the ``n + 1`` renders (ddof 1); median over the lit interior (fully
-    covered pixels whose 3 x 3 neighbourhood is too, above 5 % of the median level), the
-    statistic of ``benchmarks/render_noise.py``."""
+    covered pixels whose 3 x 3 neighbourhood is too, above 5 % of the median level; Cycles
+    gives no incidence angle, which ``benchmarks/render_noise.py`` uses instead)."""
     stack = [first[:, :, 1]]
     sc = bpy.context.scene
     sc.render.use_persistent_data = False  # a kept session keeps its seed

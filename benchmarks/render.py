@@ -37,12 +37,13 @@ the paper's engine, renders the real Moon's frames (same mesh, poses, Sun and cr
 direct light, a Lambert surface; ``benchmarks/cycles_frame.py``) where a Python with ``bpy`` is
 given (``--cycles-python``, ``make bench-cycles``; ``bpy`` pins ``numpy < 2``, so it has its own
 venv): a row ``cycles`` per sample count (``--cycles-spp``, default 16 and 2) with the IoU of its
-Moon mask with starnav's and its interior noise (the statistic of ``render_noise.py``), then
+Moon mask with starnav's and its interior noise (measured like ``render_noise.py`` measures
+starnav's, with a mask Cycles can give), then
 each real-Moon row's steady time as a fraction of Cycles'.
 
 Usage: .venv/bin/python benchmarks/render.py [--frames N] [--compare] [--rebuild] [--place-seed S]
        [--shapes real,mesh,sphere] [--ranges-km 60000,9715] [--no-adaptive] [--interior-spp 4,1]
-       [--cycles-python /work/cycles-venv/bin/python]
+       [--cycles-python PYTHON_WITH_BPY] [--cycles-spp 16,2]
 """
 
 from __future__ import annotations
@@ -368,7 +369,7 @@ def main() -> None:
                       f"{c['import_s']:.1f} s, not counted), Moon pixels {c['moon_px']} "
                       f"(IoU with starnav's mask {c['iou']:.4f}), interior noise (median "
                       f"std / mean over {c['noise']['seeds']} seeds, {c['noise']['pixels']} lit "
-                      f"interior pixels, as benchmarks/render_noise.py) "
+                      f"interior pixels, like benchmarks/render_noise.py) "
                       f"{100 * c['noise']['median_rel_std']:.2f} %, load "
                       f"{os.getloadavg()[0]:.1f}", flush=True)
                 print(f"         steady time as a fraction of Cycles' at {c_spp} spp: " + ", ".join(
