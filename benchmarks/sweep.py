@@ -116,8 +116,8 @@ def one_sweep(workers: int, frames: int, runs: int, root: Path,
             "tasks": res.render_tasks + res.expose_tasks + res.filter_tasks,
             "worker_peak_mb": sorted(v[1] for v in peaks.values()),
             # CPU seconds during the sweep: each worker process (tasks + its event loop,
-            # heartbeats, transfers), and this process (the client, the scheduler of a local
-            # cluster, the sweep's own bookkeeping)
+            # heartbeats, transfers), and this process (the client, and a local cluster's
+            # scheduler and the workers' nannies, which it runs; the sweep's own bookkeeping)
             "worker_cpu_s": sorted(cpu1[k] - cpu0[k] for k in cpu1),
             "client_cpu_s": me1 - me0}
 
@@ -200,8 +200,8 @@ def main() -> None:
     kinds = ("warm", "cold") if a.cold else ("warm",)
     try:
         # The client's own first sweep imports what the sweep's bookkeeping and outputs need
-        # (pyarrow, scipy.stats, ...; 0.6-0.8 s). Untimed here, so that the first measured
-        # run (1 worker) does not pay it and favour the speed-up.
+        # (pyarrow, scipy.stats, ...; 0.6-0.7 s on 2026-11-27). Untimed here, so that the
+        # first measured run (1 worker) does not pay it and favour the speed-up.
         t = time.perf_counter()
         one_sweep(1, 2, 1, root)
         print(f"client warm-up (untimed: a 2-frame sweep on 1 worker): "
@@ -223,8 +223,8 @@ def main() -> None:
                           f"{os.getloadavg()[0]:.1f}", flush=True)
                     wcpu = ", ".join(f"{c:.1f}" for c in
                                      r["worker_cpu_s"])  # type: ignore[attr-defined]
-                    print(f"      CPU s during the sweep: workers {wcpu}; this process (client "
-                          f"+ scheduler) {r['client_cpu_s']:.1f}; after the last task, "
+                    print(f"      CPU s during the sweep: workers {wcpu}; this process (client, "
+                          f"scheduler, nannies) {r['client_cpu_s']:.1f}; after the last task, "
                           f"writing the outputs: {r['write_s']:.2f} s; per worker, sweep "
                           "start -> first task, last task -> last result [s]: " + ", ".join(
                               f"{a:.2f} / {b:.2f}"
