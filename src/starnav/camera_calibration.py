@@ -1,0 +1,255 @@
+"""A camera as a calibration estimated it: the file the bench writes and navigation reads.
+
+On a real project the flight software does not know the camera's focal length, principal point
+and distortion; it knows what the ground calibration (here the HIL bench emulation,
+:mod:`starnav.calibration`) estimated, with a covariance. This module is that contract: a small
+versioned JSON file, its reader and writer, and the operations both sides need (the calibrated
+:class:`~starnav.camera.Camera`, the 1-sigma of each parameter, a camera with some parameters
+moved, draws from the covariance).
+
+File layout (``format`` ``starnav-camera-calibration``, ``version`` 1)::
+
+    {"format": "starnav-camera-calibration", "version": 1,
+     "camera": {"name": "aa-str", "width": 1024, "height": 1024,
+                "pitch_x_m": 1.8e-05, "pitch_y_m": 1.8e-05, "f_number": 1.495575},
+     "parameters": ["focal_length_m", "cx_px", "cy_px", "k1", "k2"],
+     "estimate": [0.0507, 511.5, 511.5, 0.0, 0.0],
+     "covariance": [[...], ...],
+     "fixed": {"k3": 0.0, "p1": 0.0, "p2": 0.0},
+     "provenance": {...},
+     "radiometric": {...}}
+
+``parameters`` are estimated (their order is the covariance's); ``fixed`` holds the camera's
+other distortion coefficients, taken as exact. ``provenance`` says how the file was made (free
+form); ``radiometric`` is the radiometric calibration's section, owned by
+:mod:`starnav.calibration` and carried here untouched.
+
+Index
+-----
+:data:`PARAMETERS`            the estimable parameters, their unit and ``Camera`` field
+:class:`CameraCalibration`    estimate + covariance; ``camera``, ``sigma``, ``sample``
+:func:`with_parameters`       a camera with some parameters set (Jacobians, dispersions)
+:func:`read_calibration`, :func:`write_calibration`
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from starnav.atomic import atomic_write_text
+from starnav.camera import Camera
+from starnav.errors import ConfigError, DataFileError
+
+FloatArray = NDArray[np.float64]
+
+FORMAT = "starnav-camera-calibration"
+VERSION = 1
+
+#: Estimable parameters: file name -> (``Camera`` field, unit).
+PARAMETERS: dict[str, tuple[str, str]] = {
+    "focal_length_m": ("focal_length", "m"),
+    "cx_px": ("cx", "px"),
+    "cy_px": ("cy", "px"),
+    "k1": ("k1", "-"),
+    "k2": ("k2", "-"),
+    "k3": ("k3", "-"),
+    "p1": ("p1", "-"),
+    "p2": ("p2", "-"),
+}
+_DISTORTION = ("k1", "k2", "k3", "p1", "p2")
+
+
+def with_parameters(camera: Camera, values: dict[str, float]) -> Camera:
+    """``camera`` with the named :data:`PARAMETERS` set to ``values``."""
+    over: dict[str, float] = {}
+    for name, value in values.items():
+        if name not in PARAMETERS:
+            raise ConfigError("calibration parameter", name, f"one of {list(PARAMETERS)}")
+        over[PARAMETERS[name][0]] = float(value)
+    return replace(camera, **over)
+
+
+def parameter_values(camera: Camera, names: tuple[str, ...] | list[str]) -> FloatArray:
+    """The named :data:`PARAMETERS` of ``camera``, in that order."""
+    return np.array([float(getattr(camera, PARAMETERS[n][0])) for n in names])
+
+
+@dataclass(frozen=True)
+class CameraCalibration:
+    """A camera as estimated by a calibration, with the covariance of its parameters.
+
+    Parameters
+    ----------
+    camera : Camera
+        The calibrated camera (estimated parameters at their estimate, the others fixed).
+    parameters : tuple of str
+        The estimated parameters (:data:`PARAMETERS` names), in the covariance's order.
+    covariance : (n, n) array
+        Covariance of the estimate [units of :data:`PARAMETERS`].
+    provenance : dict
+        How it was made (method, bench, seed, software); free form, JSON-serialisable.
+    radiometric : dict or None
+        The radiometric calibration's section, carried untouched.
+    """
+
+    camera: Camera
+    parameters: tuple[str, ...]
+    covariance: FloatArray
+    provenance: dict[str, Any] = field(default_factory=dict)
+    radiometric: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        names = tuple(self.parameters)
+        object.__setattr__(self, "parameters", names)
+        unknown = [n for n in names if n not in PARAMETERS]
+        if unknown or len(set(names)) != len(names):
+            raise ConfigError("calibration.parameters", list(names),
+                              f"distinct names among {list(PARAMETERS)}")
+        cov = np.array(self.covariance, dtype=float)
+        n = len(names)
+        if cov.shape != (n, n):
+            raise ConfigError("calibration.covariance", f"shape {cov.shape}",
+                              f"a {n} x {n} matrix (one row per parameter)")
+        if not np.all(np.isfinite(cov)) or not np.allclose(cov, cov.T, rtol=1e-9,
+                                                           atol=1e-300):
+            raise ConfigError("calibration.covariance", "not finite and symmetric",
+                              "a finite symmetric matrix")
+        if n and np.min(np.linalg.eigvalsh(0.5 * (cov + cov.T))) < -1e-9 * max(
+                float(np.max(np.abs(np.diag(cov)))), 1e-300):
+            raise ConfigError("calibration.covariance", "an indefinite matrix",
+                              "a positive semi-definite matrix")
+        cov = 0.5 * (cov + cov.T)
+        cov.setflags(write=False)
+        object.__setattr__(self, "covariance", cov)
+
+    @property
+    def estimate(self) -> FloatArray:
+        """The estimated parameters' values, in :attr:`parameters` order."""
+        return parameter_values(self.camera, self.parameters)
+
+    def sigma(self, name: str) -> float:
+        """1-sigma of one parameter (0 for a parameter that is not estimated)."""
+        if name not in PARAMETERS:
+            raise ConfigError("calibration parameter", name, f"one of {list(PARAMETERS)}")
+        if name not in self.parameters:
+            return 0.0
+        i = self.parameters.index(name)
+        return math.sqrt(max(float(self.covariance[i, i]), 0.0))
+
+    def camera_with(self, deltas: FloatArray) -> Camera:
+        """The calibrated camera with its estimated parameters moved by ``deltas``."""
+        values = self.estimate + np.asarray(deltas, dtype=float)
+        return with_parameters(self.camera, dict(zip(self.parameters, values, strict=True)))
+
+    def sample(self, rng: np.random.Generator) -> Camera:
+        """A camera drawn from the estimate's Gaussian (the truth a calibration of this
+        covariance is consistent with)."""
+        if not self.parameters:
+            return self.camera
+        w, V = np.linalg.eigh(self.covariance)
+        d = V @ (np.sqrt(np.clip(w, 0.0, None)) * rng.standard_normal(len(w)))
+        return self.camera_with(d)
+
+    def matches(self, camera: Camera) -> bool:
+        """Whether ``camera`` has this calibration's detector (size and pitch)."""
+        c = self.camera
+        return (c.width, c.height) == (camera.width, camera.height) and math.isclose(
+            c.pitch_x, camera.pitch_x, rel_tol=1e-9) and math.isclose(
+            c.pitch_y, camera.pitch_y, rel_tol=1e-9)
+
+    # ------------------------------------------------------------------ file
+    def to_dict(self) -> dict[str, Any]:
+        c = self.camera
+        return {
+            "format": FORMAT,
+            "version": VERSION,
+            "camera": {"name": c.name, "width": c.width, "height": c.height,
+                       "pitch_x_m": c.pitch_x, "pitch_y_m": c.pitch_y,
+                       "f_number": c.f_number},
+            "parameters": list(self.parameters),
+            "estimate": [float(v) for v in self.estimate],
+            "covariance": [[float(v) for v in row] for row in self.covariance],
+            "fixed": {k: float(getattr(c, k)) for k in _DISTORTION
+                      if k not in self.parameters},
+            "provenance": self.provenance,
+            "radiometric": self.radiometric,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str = "calibration") -> CameraCalibration:
+        def need(key: str, kind: type | tuple[type, ...]) -> Any:
+            if key not in d:
+                raise ConfigError(f"{source}: {key}", "missing", f"a '{key}' entry")
+            if not isinstance(d[key], kind):
+                raise ConfigError(f"{source}: {key}", d[key], f"a {kind}")
+            return d[key]
+
+        if d.get("format") != FORMAT:
+            raise ConfigError(f"{source}: format", d.get("format"), repr(FORMAT))
+        if d.get("version") != VERSION:
+            raise ConfigError(f"{source}: version", d.get("version"),
+                              f"{VERSION} (this starnav reads version {VERSION})")
+        cam = need("camera", dict)
+        names = need("parameters", list)
+        est = need("estimate", list)
+        if len(est) != len(names):
+            raise ConfigError(f"{source}: estimate", f"{len(est)} values",
+                              f"one value per parameter ({len(names)})")
+        fixed = d.get("fixed") or {}
+        if not isinstance(fixed, dict) or any(k not in _DISTORTION for k in fixed):
+            raise ConfigError(f"{source}: fixed", fixed, f"a mapping of {list(_DISTORTION)}")
+        try:
+            base = Camera(width=int(cam["width"]), height=int(cam["height"]),
+                          focal_length=float(dict(zip(names, est, strict=True)).get(
+                              "focal_length_m", cam.get("focal_length_m", float("nan")))),
+                          pitch_x=float(cam["pitch_x_m"]), pitch_y=float(cam["pitch_y_m"]),
+                          f_number=float(cam["f_number"]), name=str(cam.get("name", "custom")),
+                          **{k: float(v) for k, v in fixed.items()})
+        except KeyError as err:
+            raise ConfigError(f"{source}: camera.{err.args[0]}", "missing",
+                              "width, height, pitch_x_m, pitch_y_m, f_number") from None
+        except (TypeError, ValueError) as err:
+            raise ConfigError(f"{source}: camera", cam, f"numbers ({err})") from None
+        for n, v in zip(names, est, strict=True):
+            if not isinstance(v, int | float) or not math.isfinite(float(v)):
+                raise ConfigError(f"{source}: estimate.{n}", v, "a finite number")
+        try:
+            camera = with_parameters(base, dict(zip(names, est, strict=True)))
+        except ConfigError as err:
+            raise ConfigError(f"{source}: parameters", names, err.expected) from None
+        return cls(camera=camera, parameters=tuple(names),
+                   covariance=np.asarray(need("covariance", list), dtype=float).reshape(
+                       len(names), len(names)) if names else np.zeros((0, 0)),
+                   provenance=dict(d.get("provenance") or {}),
+                   radiometric=d.get("radiometric"))
+
+
+def write_calibration(path: str | Path, cal: CameraCalibration) -> Path:
+    """Write ``cal`` to ``path`` (JSON, atomically)."""
+    return atomic_write_text(path, json.dumps(cal.to_dict(), indent=1) + "\n")
+
+
+def read_calibration(path: str | Path) -> CameraCalibration:
+    """Read a calibration file; a malformed one raises an error naming the entry."""
+    p = Path(path)
+    if not p.is_file():
+        raise DataFileError(f"{p}: no such calibration file")
+    try:
+        d = json.loads(p.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ConfigError(str(p), "unreadable", f"a JSON calibration file ({err})") from None
+    if not isinstance(d, dict):
+        raise ConfigError(str(p), type(d).__name__, "a JSON object")
+    try:
+        return CameraCalibration.from_dict(d, source=str(p))
+    except ValueError as err:
+        if isinstance(err, ConfigError):
+            raise
+        raise ConfigError(f"{p}: covariance", "malformed", f"an n x n matrix ({err})") from None
