@@ -173,6 +173,8 @@ def _profile_enabled() -> bool:
 
 
 def test_one_and_two_workers_give_identical_datasets(tmp_path):
+    """On one machine (the workers share its CPU, so Dr.Jit compiles the same kernels), 1 and
+    2 workers write byte-identical datasets."""
     from starnav.batch.cluster import local_worker_config, open_runner
 
     opts = DatasetOptions(exposures_s=(1.5e-5, 7.7e-3))

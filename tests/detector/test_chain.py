@@ -35,7 +35,8 @@ def test_fixed_pattern_frozen_per_sensor_temporal_noise_per_frame(cam64):
     # shot and read noise differ from frame to frame
     assert not np.array_equal(a.stages["shot_noise"], b.stages["shot_noise"])
     assert not np.array_equal(a.dn, b.dn)
-    # same dataset seed and frame -> bit-identical DN (seeded regression, exact on purpose)
+    # same dataset seed and frame -> bit-identical DN (seeded regression, exact on purpose:
+    # the chain is NumPy in double precision on a given radiance, the same on any CPU)
     again = expose(le, cam64, cfg, seed=5, frame_index=1, exposure_time=1e-3)
     assert np.array_equal(again.dn, b.dn)
     # another dataset seed: different noise and (no sensor_seed) a different sensor

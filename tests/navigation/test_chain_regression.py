@@ -9,7 +9,9 @@ whole chain with and without the windows, and one EKF step (300 s prediction and
 
 The limb scan, RANSAC, the fix and the filter are deterministic arithmetic on the same inputs:
 rewriting their loops as array operations may only change the rounding, so the pins are tight
-(points 1e-9 px, fixes and filter state 1e-9 relative, inlier sets equal). The chain with the
+(points 1e-9 px, fixes and filter state 1e-9 relative, inlier sets equal). The frames are
+synthetic (NumPy in double precision, no Dr.Jit render), so the pins hold on any CPU: rounding
+differences between NumPy's SIMD paths are ~1e-16 relative. The chain with the
 windows goes through the refinement, whose batched fit stops within 1e-4 px of its minimum: its
 fix is held to 1e-6 relative, as in ``test_refine_regression.py``.
 

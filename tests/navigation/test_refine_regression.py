@@ -1,14 +1,15 @@
 """The batched refinement (issue 18) reproduces the per-window fit it replaced.
 
-Seeded regression test (exact frames, pinned outputs): ``data/refine_pins.json`` holds the
-refined points, their sigmas and the fix of a few frames as the per-window Levenberg-Marquardt
-implementation (commit 7e3f772) gave them. The batched fit must agree to 1e-3 px in position,
-1 % in sigma and 1e-6 relative in the fix position: both minimise the same weighted cost, and
-the old fit stopped within 1e-4 px of its minimum, so anything beyond that is a different
-minimum, not rounding. Cases: the benchmark's 20 000 km frame (600 limb points, 16 windows,
-0.8 px Gaussian PSF) refined with the Gaussian model of fitted width, with a known width and
-noise, and with the detector-psf model, noise model and packaged calibration (the pipeline's
-configuration); a disc through the detector's own optics, well exposed and saturated
+Seeded regression test (exact frames, pinned outputs; the frames are synthetic, NumPy in double
+precision with no Dr.Jit render, so the pins hold on any CPU): ``data/refine_pins.json`` holds
+the refined points, their sigmas and the fix of a few frames as the per-window Levenberg-
+Marquardt implementation (commit 7e3f772) gave them. The batched fit must agree to 1e-3 px in
+position, 1 % in sigma and 1e-6 relative in the fix position: both minimise the same weighted
+cost, and the old fit stopped within 1e-4 px of its minimum, so anything beyond that is a
+different minimum, not rounding. Cases: the benchmark's 20 000 km frame (600 limb points, 16
+windows, 0.8 px Gaussian PSF) refined with the Gaussian model of fitted width, with a known
+width and noise, and with the detector-psf model, noise model and packaged calibration (the
+pipeline's configuration); a disc through the detector's own optics, well exposed and saturated
 (detector-psf, the saturated windows fitted without the ramp).
 
 Saturated windows (2026-11-26): the detector-psf model's step and ramp are now the exact

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from starnav.errors import BackendError
 from starnav.renderer import backend
 
 
@@ -59,3 +60,19 @@ def test_default_choice_uses_llvm_19_when_present():
     info = backend.activate(("llvm_ad_spectral", "scalar_spectral"))
     assert info.variant == "llvm_ad_spectral"
     assert info.llvm_major >= 16
+
+
+@pytest.mark.parametrize("text", ["znver3", "znver3;+avx2;8", "znver3;+avx2,+fma;6",
+                                  "znver3;+avx2,+fma;eight", ";+fma;8"])
+def test_a_malformed_llvm_target_is_refused_by_name(text):
+    from starnav.renderer.backend import TARGET_ENV, parse_target
+
+    with pytest.raises(BackendError, match=TARGET_ENV):
+        parse_target(text)
+
+
+def test_llvm_target_parses():
+    from starnav.renderer.backend import parse_target
+
+    assert parse_target("znver3;+avx2,+fma;8") == ("znver3", "+avx2,+fma", 8)
+    assert parse_target("generic;;4") == ("generic", None, 4)

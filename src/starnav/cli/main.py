@@ -76,6 +76,10 @@ def info() -> None:
         chosen = backend.activate()
         table.add_row("variant chosen", chosen.variant)
         table.add_row("LLVM used", chosen.llvm_path or "not used")
+        if chosen.llvm_target:
+            t = chosen.llvm_target
+            table.add_row("LLVM target", f"{t['cpu']}, {t['vector_width']} lanes, "
+                          f"{' '.join(t['simd'])}")
         for v, why in chosen.reasons.items():
             table.add_row(f"skipped {v}", why)
     except StarnavError as err:

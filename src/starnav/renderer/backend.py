@@ -10,6 +10,12 @@ scalar variant is used: slower, never a crash.
 
 The choice is logged and recorded (:func:`current`), and written into every image's metadata.
 
+Dr.Jit compiles its kernels for the host CPU (instruction set, vector width, fused
+multiply-adds), so the same render differs between CPUs in the last bits of float32.
+``STARNAV_LLVM_TARGET="cpu;features;width"`` (e.g. ``znver3;+avx2,+fma;8``) makes it compile
+for another target instead (Dr.Jit's ``jit_llvm_set_target``), so that one machine can
+reproduce another's rounding; :func:`llvm_target` reports the target in use.
+
 Example
 -------
 >>> from starnav.renderer import backend
@@ -36,6 +42,8 @@ log = logging.getLogger(__name__)
 #: Oldest libLLVM major version that Dr.Jit can use without aborting.
 MIN_LLVM_MAJOR = 16
 DEFAULT_VARIANTS = ("cuda_ad_spectral", "llvm_ad_spectral", "scalar_spectral")
+#: Environment variable naming the LLVM target Dr.Jit compiles for (module docstring).
+TARGET_ENV = "STARNAV_LLVM_TARGET"
 _LLVM_GLOBS = (
     "/usr/lib/x86_64-linux-gnu/libLLVM*.so*",
     "/lib/x86_64-linux-gnu/libLLVM*.so*",
@@ -59,6 +67,7 @@ class BackendInfo:
     variant: str
     llvm_path: str | None = None
     llvm_major: int | None = None
+    llvm_target: dict[str, object] | None = None
     mitsuba_version: str = ""
     drjit_version: str = ""
     tried: list[str] = field(default_factory=list)
@@ -131,6 +140,79 @@ def find_llvm() -> LLVMCandidate | None:
     return None
 
 
+def _drjit_core() -> ctypes.CDLL | None:
+    """Dr.Jit's core library (its C++ API is not exposed to Python); ``None`` if absent."""
+    import drjit as dr
+
+    for name in ("libdrjit-core.so", "libdrjit-core.dylib"):
+        path = Path(dr.__file__).with_name(name)
+        if path.exists():
+            return ctypes.CDLL(str(path))
+    return None
+
+
+def _symbol(lib: ctypes.CDLL, name: str, mangled: str) -> object | None:
+    for n in (mangled, name):
+        try:
+            return getattr(lib, n)
+        except AttributeError:
+            continue
+    return None
+
+
+def parse_target(text: str) -> tuple[str, str | None, int]:
+    """``"cpu;features;width"`` -> ``(cpu, features or None, width)``, checked."""
+    parts = text.split(";")
+    expected = ("'cpu;features;width' with a CPU name, LLVM features including +fma "
+                "(Dr.Jit emits fused multiply-adds) and a power-of-two vector width, "
+                "e.g. 'znver3;+avx2,+fma;8'")
+    if len(parts) != 3 or not parts[0].strip():
+        raise BackendError(f"{TARGET_ENV}={text!r}: expected {expected}")
+    cpu, features, width = (p.strip() for p in parts)
+    try:
+        w = int(width)
+    except ValueError:
+        raise BackendError(f"{TARGET_ENV}={text!r}: expected {expected}") from None
+    if w < 1 or w > 64 or w & (w - 1):
+        raise BackendError(f"{TARGET_ENV}={text!r}: width {w}: expected {expected}")
+    if features and "+fma" not in features.split(","):
+        raise BackendError(f"{TARGET_ENV}={text!r}: no +fma: expected {expected}")
+    return cpu, features or None, w
+
+
+def set_llvm_target(cpu: str, features: str | None, width: int) -> None:
+    """Make Dr.Jit compile every later LLVM kernel for ``cpu`` with ``features`` and
+    ``width`` lanes (after the llvm variant is active)."""
+    lib = _drjit_core()
+    fn = None if lib is None else _symbol(lib, "jit_llvm_set_target",
+                                          "_Z19jit_llvm_set_targetPKcS0_j")
+    if fn is None:
+        raise BackendError(f"{TARGET_ENV}: this Dr.Jit build does not expose "
+                           "jit_llvm_set_target")
+    fn.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32]
+    fn.restype = None
+    fn(cpu.encode(), None if features is None else features.encode(), width)
+
+
+def llvm_target() -> dict[str, object] | None:
+    """The CPU, features and vector width Dr.Jit's LLVM backend compiles for; ``None`` when
+    it cannot be asked."""
+    lib = _drjit_core()
+    if lib is None:
+        return None
+    cpu = _symbol(lib, "jit_llvm_target_cpu", "_Z19jit_llvm_target_cpuv")
+    feats = _symbol(lib, "jit_llvm_target_features", "_Z24jit_llvm_target_featuresv")
+    width = _symbol(lib, "jit_llvm_vector_width", "_Z21jit_llvm_vector_widthv")
+    if cpu is None or feats is None or width is None:
+        return None
+    cpu.restype = feats.restype = ctypes.c_char_p
+    width.restype = ctypes.c_uint32
+    raw = feats() or b""
+    enabled = sorted(f[1:] for f in raw.decode().split(",") if f.startswith("+"))
+    simd = [f for f in enabled if f in ("sse4.2", "avx", "avx2", "fma", "avx512f", "neon")]
+    return {"cpu": (cpu() or b"").decode(), "vector_width": int(width()), "simd": simd}
+
+
 def _cuda_available() -> bool:
     return ctypes.util.find_library("cuda") is not None or os.path.exists("/dev/nvidia0")
 
@@ -176,6 +258,10 @@ def activate(preference: tuple[str, ...] | list[str] = DEFAULT_VARIANTS) -> Back
         info.variant = variant
         if variant.startswith("llvm") and llvm is not None:
             info.llvm_path, info.llvm_major = llvm.path, llvm.major
+            forced = os.environ.get(TARGET_ENV)
+            if forced:
+                set_llvm_target(*parse_target(forced))
+            info.llvm_target = llvm_target()
         break
     if not info.variant:
         raise BackendError(f"no usable Mitsuba variant among {list(preference)}: {info.reasons}")

@@ -767,6 +767,7 @@ class MoonRenderer:
             "render": {
                 "variant": info.variant,
                 "llvm_path": info.llvm_path,
+                "llvm_target": info.llvm_target,
                 "mitsuba_version": info.mitsuba_version,
                 "drjit_version": info.drjit_version,
                 "spp": self.settings.spp,
