@@ -271,3 +271,31 @@ def test_scenario_units_are_converted_in_one_place():
                     and "# unit:" not in lines[node.lineno - 1]):
                 bad.append(f"{rel}:{node.lineno}: .{node.attr}")
     assert not bad, "read the SI view (to_si()) instead:\n" + "\n".join(bad)
+
+
+# ------------------------------------------------------------------ the code says what and why
+#: What narrates instead of describing: an issue number, a calendar date (an ISO date-time such
+#: as an epoch ``2027-03-01T00:00:00`` is data, not narration), a design file that is not in the
+#: repository.
+NARRATION = re.compile(r"\bissue \d+|\b20\d\d-\d\d-\d\d(?!T)|DESIGN\.md", re.IGNORECASE)
+
+
+def _narration(text: str) -> list[str]:
+    return [line.strip() for line in text.splitlines() if NARRATION.search(line)]
+
+
+def test_the_narration_check_catches_what_it_names():
+    """The check itself: each pattern is caught, epochs and plain numbers are not."""
+    assert _narration("made faster (issue 18)")
+    assert _narration("measured 2026-11-27 09:05 UTC")
+    assert _narration("conventions (DESIGN.md)")
+    assert not _narration('DEFAULT_EPOCH = "2027-03-01T00:00:00 TDB"')
+    assert not _narration("ISO 2000 and 2 issues with 18 frames")
+
+
+def test_src_does_not_narrate():
+    """No issue numbers, dates or references to files outside the repository in ``src/``:
+    history belongs in git, measurements in ``docs/performance.md`` and the benchmarks."""
+    found = {str(f.relative_to(SRC)): hits for f in sorted(SRC.rglob("*.py"))
+             if (hits := _narration(f.read_text()))}
+    assert not found, found

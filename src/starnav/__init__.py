@@ -1,6 +1,6 @@
 """starnav: a star tracker used as a navigation camera, from photons to navigation.
 
-Subpackages follow the data flow of ``DESIGN.md``: ``scenes`` -> ``dem`` -> ``renderer`` ->
+Subpackages follow the data flow: ``scenes`` -> ``dem`` -> ``renderer`` ->
 ``detector`` -> ``calibration`` -> ``dataset`` -> ``navigation`` -> ``batch``; ``cli`` sits on
 top. Importing :mod:`starnav` is cheap: nothing heavy (Mitsuba, Dask) is imported here.
 """

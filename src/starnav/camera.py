@@ -1,7 +1,7 @@
 """Pinhole camera with Brown-Conrady distortion, and its analytic Jacobians.
 
-Conventions (DESIGN.md)
------------------------
+Conventions
+-----------
 * Camera frame: +z along the boresight, +x to the right (increasing column ``u``), +y down
   (increasing row ``v``).
 * Pixel ``(u, v) = (0, 0)`` is the *centre* of the top-left pixel (OpenCV convention), so the
@@ -358,7 +358,7 @@ CAMERA_PRESETS: dict[str, Camera] = {
         name="aa-str",
     ),
     # SMART-1 AMIE, the 512 x 512 quadrant read through the NONE filter (NAIF ID -238110), from
-    # the instrument kernel data/amie/calib/SMART1_AMIE_V01.TI (v0.1, 2005-01-19):
+    # the instrument kernel data/amie/calib/SMART1_AMIE_V01.TI (version 0.1 of January 2005):
     #   INS-238110_FOCAL_LENGTH = 154.7 (mm)      INS-238110_F/RATIO = 10.0
     #   INS-238110_PIXEL_SIZE = (14, 14) (um)     INS-238110_PIXEL_SAMPLES/_LINES = 512
     #   INS-238110_CCD_CENTER = (256.5, 256.5): 1-based, counted from the quadrant's origin, i.e.

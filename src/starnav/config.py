@@ -1,8 +1,8 @@
 """Scenario configuration: YAML validated by frozen pydantic models.
 
 A scenario file has the sections ``camera``, ``detector``, ``moon``, ``sun``, ``trajectory``
-(or a static ``geometry``), ``pointing``, ``render``, ``navigation``, ``output`` and ``seed``
-(DESIGN.md). Every model is frozen and rejects unknown keys, so a typo is an error, not a
+(or a static ``geometry``), ``pointing``, ``render``, ``navigation``, ``output`` and ``seed``.
+Every model is frozen and rejects unknown keys, so a typo is an error, not a
 silently ignored setting. Unit suffixes (``_mm``, ``_um``, ``_km``, ``_deg``) appear only here,
 at the edge; :func:`build_camera` and friends convert to SI.
 

@@ -3,7 +3,7 @@
 ``SeedSequence(seed, spawn_key=(stage, frame, ...))`` is exactly the child that
 ``SeedSequence(seed).spawn`` would give at those indices, so every stream depends only on the
 scenario seed and its keys, never on how many workers there are or in which order frames are
-made (DESIGN.md, "Randomness"). Stage keys are fixed integers, listed here once.
+made. Stage keys are fixed integers, listed here once.
 
 The procedural Moon is the one world that is not drawn from the scenario seed: its terrain,
 albedo and sub-posting detail come from their own seeds (``moon.dem.procedural.seed``,

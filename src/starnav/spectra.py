@@ -115,7 +115,7 @@ def product(a: Spectrum, b: Spectrum, unit: str = "") -> Spectrum:
 # --------------------------------------------------------------------------- the Sun
 #: The ASTM G-173-03 extraterrestrial spectrum, package-relative: colour-science's
 #: ``SD_ASTMG173_ETR`` copied by ``tools/package_astm_g173.py`` (importing ``colour`` to read
-#: it took 4 s at every worker start, issue 18).
+#: it took seconds at every worker start).
 ASTM_G173_FILE = "sun/astm_g173_etr.csv"
 
 

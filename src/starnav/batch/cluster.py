@@ -208,10 +208,8 @@ def local_worker_config() -> dict[str, Any]:
 
     Dask's statistical profiler is off: every 10 ms it takes the GIL to walk the running
     task's stack. It feeds only the dashboard's profile page, which these clusters do not
-    serve (``dashboard_address=None``). On the 2-core machine, the exposure study on two
-    workers used 39.6-40.1 worker CPU-s with it and 36.9-37.8 without, and the speed-up over
-    one worker went from 1.70x to 1.79x (best of 2 and of 3 rounds; docs/performance.md,
-    issue 18). Setting
+    serve (``dashboard_address=None``); with it on, two workers do measurably more work than
+    one for the same tasks (``benchmarks/sweep.py``, docs/performance.md). Setting
     ``DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED`` in the environment keeps Dask's own
     choice. For workers started with ``dask worker``, set that variable to ``False`` in their
     environment for the same saving (docs/sweep.md, "A real cluster")."""

@@ -289,7 +289,7 @@ FLYBY: dict[str, Any] = {
 
 def flyby_header() -> str:
     """The comment block of the fly-by preset."""
-    return ("# preset: asteroid fly-by terrain-relative navigation (issue 16)\n"
+    return ("# preset: asteroid fly-by terrain-relative navigation\n"
             "# Itokawa (radar shape model, Hapke S-type) passed at 5 km and 0.5 km/s, Sun phase\n"
             "# 60 deg at closest approach, a 256 x 256 px tracker reading segments then up to 16\n"
             "# windows, 41 frames 0.2 s apart about CA. Run it end to end (render once, then the\n"

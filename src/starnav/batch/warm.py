@@ -3,8 +3,8 @@ task.
 
 A fresh worker process spends seconds before its first frame: importing starnav's chain
 (NumPy, SciPy, pydantic, the navigation and detector modules), loading Mitsuba and Dr.Jit and
-choosing the variant, and reading the solar spectrum (packaged since issue 18: reading it
-through ``colour`` took ~4 s on the 2-core development machine), then reading the packaged data
+choosing the variant, and reading the solar spectrum (packaged: reading it through
+``colour`` takes seconds), then reading the packaged data
 every sweep of the default Moon and tracker needs (:func:`warm_data`: the limb topography of
 the LOLA DEM, the Hipparcos catalogue and its lost-in-space pair table; ~2 s a worker, which
 each worker of a sweep paid again in its first task). :func:`warm` does these once per
@@ -61,9 +61,9 @@ def warm() -> dict[str, Any]:
 
 def warm_data() -> dict[str, float]:
     """Read into this process's caches what the first task of every worker would otherwise
-    read (issue 18: measured ~2 s a worker on the 2-core machine, paid again by each worker
-    of a sweep): the limb topography of the default DEM (the packaged LOLA LDEM_4, for the
-    navigation chain's limb-height prior, :func:`starnav.dem.limb.limb_topography_for`), the
+    read, paid again by each worker of a sweep (``benchmarks/sweep.py``): the limb topography
+    of the default DEM (the packaged LOLA LDEM_4, for the navigation chain's limb-height
+    prior, :func:`starnav.dem.limb.limb_topography_for`), the
     Hipparcos catalogue and its lost-in-space pair table for the default camera in the year
     of a trajectory's default first epoch (:func:`starnav.stars.identify.star_index`; the
     demo's and the exposure study's frames). Scenarios with

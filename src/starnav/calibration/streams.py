@@ -1,4 +1,4 @@
-"""Random streams of the bench emulation (DESIGN.md "Randomness").
+"""Random streams of the bench emulation.
 
 Every stochastic step takes a ``numpy.random.Generator``; the defaults come from here:
 ``SeedSequence(bench.seed, spawn_key=(STAGE_HIL, purpose))``, so a bench run is reproducible and

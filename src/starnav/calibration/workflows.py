@@ -258,7 +258,7 @@ def run_stimulate(cfg: BenchConfig, dataset: str | Path, sink: FrameSink,
                   progress: Callable[[int, int], None] | None = None) -> HilReport:
     """Screen stimuli for every rendered frame of a directory, and the predicted acquisitions.
 
-    The dataset format of issue 8 does not exist yet: ``dataset`` is a directory of RadianceImage
+    ``dataset`` is a directory of RadianceImage
     EXRs as written by ``starnav render`` (``*.exr``, sorted by name). One factor k serves the
     whole sequence (the brightest frame decides), so the bench exposure is constant.
 

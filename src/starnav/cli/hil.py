@@ -6,7 +6,7 @@ resolved bench next to them. ``BENCH`` is a bench YAML file, or ``default`` for 
 TinyV3RSE bench.
 
 ``hil stimulate`` takes a directory of RadianceImage EXRs as written by ``starnav render``
-(the dataset format of issue 8 does not exist yet).
+(one factor k for the whole directory).
 """
 
 from __future__ import annotations

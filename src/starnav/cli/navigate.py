@@ -32,7 +32,7 @@ def _open_dataset(path: Path, exposure_time: float | None = None):
     if not path.exists():
         raise DataFileError(f"dataset {str(path)!r} does not exist")
     try:
-        from starnav.dataset import open as open_dataset  # issue 8
+        from starnav.dataset import open as open_dataset
     except (ImportError, AttributeError):
         raise DataFileError(
             "starnav.dataset.open() is not available in this version; the navigation chain "

@@ -22,7 +22,7 @@ A dataset is a directory that any OpenEXR, PNG and JSON tool can read (docs/data
             readout.json               acquisitions, seeds, charge ledger, timing law, plan
 
 Every value is in SI units (names carry them: ``_m``, ``_m_s``, ``_s``, ``_rad``, ``_px``,
-``_dn``). Pixels follow the camera convention of DESIGN.md: ``(u, v) = (column, row)``,
+``_dn``). Pixels follow the camera convention (:mod:`starnav.camera`): ``(u, v) = (column, row)``,
 ``(0, 0)`` the centre of the top-left pixel. Attitude matrices map camera to inertial
 (ICRF/J2000 axes) vectors; quaternions are scalar-last ``(x, y, z, w)``.
 

@@ -6,7 +6,7 @@ results), then iterate ``as_completed`` to collect results as they finish. The i
 :class:`InProcessRunner` here runs each task when ``as_completed`` reaches it, in submission
 order; :mod:`starnav.batch.cluster` provides the Dask implementation (local cluster or an
 existing scheduler). Results never depend on the runner: every task is a pure function of its
-arguments and seeds (DESIGN.md, "Randomness").
+arguments and seeds.
 """
 
 from __future__ import annotations

@@ -51,7 +51,7 @@ Every effect can be switched off (``enabled: false`` in its section); with
 :attr:`Exposure.stages`. Effects are looked up by name in :data:`EFFECTS`; an unknown name raises
 :class:`~starnav.errors.UnknownNameError` listing the known ones.
 
-Randomness follows DESIGN.md: fixed-pattern maps come from the sensor seed, temporal noise from
+Randomness: fixed-pattern maps come from the sensor seed, temporal noise from
 ``(seed, frame_index, effect)`` (:mod:`starnav.detector.seeding`), so frames can be made in any
 order, by any number of workers, with identical DN.
 

@@ -28,8 +28,8 @@ finds almost nothing in it, so Huffman coding alone (``Z_HUFFMAN_ONLY``) gives t
 sky of a radiance quick look) is coded with run-length matches (``Z_RLE``: 2 ms, 9 kB,
 where Huffman alone would give 137 kB); docs/performance.md. OpenCV's ``cv2.imencode`` takes
 the same zlib strategies but applies libpng's row filters and writes no text chunks: 30 vs
-15 ms for a noisy 1024 x 1024 16-bit frame, 7 vs 2 ms for a black-sky 8-bit one (measured
-2026-11-27, both decoded back to the same pixels). Any PNG reader decodes it
+15 ms for a noisy 1024 x 1024 16-bit frame, 7 vs 2 ms for a black-sky 8-bit one (both
+decoded back to the same pixels). Any PNG reader decodes it
 (PNG 1.2, ISO/IEC 15948); the pixels are those of the array, the file's bytes are
 deterministic for one zlib build.
 """

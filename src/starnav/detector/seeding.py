@@ -2,8 +2,8 @@
 
 Technique
 ---------
-DESIGN.md ("Randomness") asks that fixed-pattern maps be frozen per sensor, temporal noise change
-per frame, and a dataset be bit-identical for one seed whatever the number of workers or the
+Fixed-pattern maps must be frozen per sensor, temporal noise change
+per frame, and a dataset must be bit-identical for one seed whatever the number of workers or the
 order in which frames are made. ``SeedSequence.spawn`` hands out children in call order, so
 instead of calling it we build each child directly by its *spawn key*:
 ``SeedSequence(entropy, spawn_key=(k1, k2, ...))`` is exactly the child that a chain of

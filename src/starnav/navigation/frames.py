@@ -1,6 +1,6 @@
 """What the navigation chain reads per frame and per dataset: two small protocols.
 
-A dataset reader (``starnav.dataset``, issue 8) or a user's own loader only has to provide
+A dataset reader (``starnav.dataset``) or a user's own loader only has to provide
 objects of these shapes; nothing else of a dataset is used by :mod:`starnav.navigation`.
 
 :class:`NavFrame` - one frame, as seen on board plus its truth:

@@ -78,7 +78,7 @@ Technique
    noise-weighted fit only sets the weights and stops at 1e-2 px (the weights change by
    < 1e-3; not for saturated windows, whose weights are more sensitive). On the benchmark
    frames: 8 evaluations of at most 16 windows per frame at 20 000 km and 6 at 60 000 km,
-   against 11 and 9 before these changes and ~27 of all 16 windows in the per-window fit;
+   against ~27 of all 16 windows in a per-window fit;
    the points agree with the per-window fit to 1e-4 px and their sigmas to 1e-3
    (``tests/navigation/test_refine_regression.py``; saturated windows to 0.06 of their
    sigma, whose pinned fit stopped on the kinks of its rough cost). Tried and left out:

@@ -45,7 +45,7 @@ from starnav.navigation.metrics import ErrorSummary, consistency_fraction
 from starnav.navigation.pipeline import STAGES, FilterResult, NavigationRun, monte_carlo, navigate
 from starnav.navigation.schema import NavigationConfig
 
-#: The tracker's processing budgets (seed paper, PIL; DESIGN.md budgets).
+#: The tracker's processing budgets (the seed paper's processor-in-the-loop figures).
 BUDGET_MS = 5.0
 TRACKER_MEMORY_KB = 900.0
 
@@ -233,7 +233,7 @@ def budget_warning(summary: dict[str, Any]) -> str | None:
     if med is None or not med > budget:
         return None
     return (f"warning: the chain's median CPU time {med:.3g} ms exceeds the tracker's "
-            f"{budget:g} ms budget (this machine, Python; see resources.png)")
+            f"{budget:g} ms budget (Python on the machine that ran it; see resources.png)")
 
 
 def _f(x: Any, spec: str) -> str:

@@ -25,12 +25,12 @@ Technique
    spectral weight and ``L`` is the frame's constant ``kappa`` times ``Le``
    (:func:`~starnav.renderer.scene.film_channels`). The emitter is then flat and the BSDF
    grey; the other way (``response``: wavelengths by the band box plus the electron response,
-   the Sun in the emitter, the colour in the BSDF; the renderer before issue 18) leaves the
+   the Sun in the emitter, the colour in the BSDF) leaves the
    solar spectrum's lines and the Moon's reddening in each sample's weight: 3.20 % per-pixel
    noise at 1 spp in the full-field real Moon's interior, against 0.86 % (``benchmarks/
-   render_noise.py``).
+   render_noise.py``, docs/performance.md).
 5. Only the pixels the Moon can cover are traced: the film's crop window is the bounding box of
-   the projected sphere of radius ``R + h_max`` plus a margin (DESIGN.md budget).
+   the projected sphere of radius ``R + h_max`` plus a margin.
 6. One non-jittered ray through each pixel centre gives the surface point and normal, from
    which range, lat/lon and the incidence, emission and phase angles are computed (float32).
 7. On the JIT variants the frame is traced by :func:`_render_fused`, Mitsuba's wavefront loop
@@ -44,9 +44,9 @@ Technique
    bounding sphere (:func:`adaptive_sample_counts`, :func:`_render_adaptive`). Deterministic
    inputs only, so every pixel stays an unbiased mean of its pixel integral. With the
    wavelengths drawn by the electron spectrum (step 4) the interior's noise is the pixel
-   footprint's: 0.35 % per pixel at 2 spp on the full-field real Moon, below the 16-spp
-   render's 0.53 % before issue 18 (shot noise 0.62 % at the demo exposure); a full-field
-   frame of the real Moon takes 0.39x of the 16-spp frame's time (``docs/performance.md``).
+   footprint's, below that of a 16-spp render with the wavelengths drawn by the sensor
+   response and below the shot noise at the demo exposure (noise and time:
+   ``benchmarks/render_noise.py``, ``benchmarks/render.py``, ``docs/performance.md``).
 
 Tuning knobs
 ------------
@@ -250,7 +250,7 @@ SAMPLERS = ("multijitter", "stratified", "independent", "ldsampler")
 #: electrons the lit surface gives (Sun x surface colour x QE T lambda / hc: no spectral
 #: noise; :func:`~starnav.renderer.scene.film_channels`); or ``response``, by the sensor's
 #: band box plus its electron response (the emitter carries the solar spectrum, the BSDF the
-#: colour: the renderer before issue 18, the reference the other is tested against).
+#: colour: the reference the other is tested against).
 SPECTRAL_SAMPLINGS = ("electrons", "response")
 
 #: Relative spread of the pixel-centre radiance proxy over a pixel's 3 x 3 neighbourhood,
@@ -1023,8 +1023,7 @@ def adaptive_sample_counts(hit: NDArray[np.bool_], proxy: NDArray[np.float32],
        pixel footprint's terrain and grows with the spread. The real Moon at full field is not
        flat at the pixel scale (LDEM_4 terrain, LROC albedo). Per-pixel std over 8 seeds / mean
        of ``Le``, median per bin of the spread (``benchmarks/render_noise.py``: real Moon
-       filling the field, 9 715 km, phase 30 deg, lit interior with incidence < 80 deg;
-       2026-11-27 09:05 UTC):
+       filling the field, 9 715 km, phase 30 deg, lit interior with incidence < 80 deg):
 
        ============== ======== ======== ======== ======== ======== ======== ========
        spread         < 0.05   0.05-0.1 0.1-0.15 0.15-0.2 0.2-0.3  0.3-0.5  0.5-0.8
@@ -1043,15 +1042,15 @@ def adaptive_sample_counts(hit: NDArray[np.bool_], proxy: NDArray[np.float32],
 
     The noise this leaves in the interior (same frame, median over its 755 879 lit interior
     pixels): **0.86 %** at 1 spp, **0.35 %** at 2, **0.14 %** at 4, 0.03 % at 16; with the
-    wavelengths drawn by the sensor response (the renderer before issue 18) 3.20 %, 2.15 %,
+    wavelengths drawn by the sensor response (``spectral_sampling: response``) 3.20 %, 2.15 %,
     1.49 % and **0.53 %**. At the demo exposure (15 us) the median lit pixel collects 26 300
     e-, whose shot noise is 0.62 %; the detector's PRNU is 2 % rms. The default
     ``interior_spp`` (:data:`~starnav.renderer.schema.DEFAULT_INTERIOR_SPP`, 2) is the fewest
-    of 1, 2, 4 whose median is at most the 16-spp render's before issue 18 (0.53 %; rule set
-    before the 2-spp number was measured): the adaptive render is the default. Pixels just
-    under the threshold are the noisiest (1.30 % at 2 spp for a spread of 0.2-0.3, 3.9 % of
-    the interior, against 0.55 % at 16 spp before): ``interior_spp: 4`` keeps every bin at
-    or below 0.51 %.
+    of 1, 2, 4 whose median is at most the 16-spp render's with ``response`` sampling
+    (0.53 %): the adaptive render is the default. Pixels just under the threshold are the
+    noisiest (1.30 % at 2 spp for a spread of 0.2-0.3, 3.9 % of the interior, against 0.55 %
+    at 16 spp with ``response`` sampling): ``interior_spp: 4`` keeps every bin at or below
+    0.51 %.
 
     Parameters
     ----------
@@ -1093,10 +1092,8 @@ def _z_order(bw: int, bh: int) -> NDArray[np.uint32]:
 
     The adaptive render's pixel lists follow it instead of the rows: neighbouring pixels are
     then neighbours in the wavefront in both directions, and their rays share more of the
-    BVH. Same-session A/B, interleaved, real Moon at full field, 6 frames each (2026-11-27,
-    load 2.4-3.1): the interior pass 0.488 -> 0.406 s at 1 spp and 1.008 -> 0.931 s at 4 spp
-    (medians, the on-the-fly sort included in both). The order of a list changes no pixel's
-    samples' distribution: each pixel keeps its count and its consecutive samples.
+    BVH, which makes the interior pass faster than in row order. The order of a list changes
+    no pixel's samples' distribution: each pixel keeps its count and its consecutive samples.
     """
     key = (bw, bh)
     if key not in _Z_ORDER:
@@ -1143,7 +1140,7 @@ def _render_adaptive(scene, box: tuple[int, int, int, int], seed: int, spp: int,
                      timing: dict[str, float] | None = None
                      ) -> tuple[NDArray[np.float32], dict[str, NDArray[np.float32]] | None,
                                 NDArray[np.int32]]:
-    """:func:`_render_fused` with samples where the signal needs them (issue 18).
+    """:func:`_render_fused` with samples where the signal needs them.
 
     Technique
     ---------

@@ -21,8 +21,8 @@ from starnav.photometry import PHOTOMETRIC_MODELS, get_model, hapke_preset
 
 #: Samples per interior pixel of the adaptive render when ``render.interior_spp`` is unset (at
 #: most ``spp``): the fewest of 1, 2, 4 whose interior noise on the full-field real Moon is at
-#: most the 16-spp render's before issue 18 (0.53 %): 0.86 %, **0.35 %**, 0.14 % (wavelengths
-#: drawn by the electron spectrum; :func:`starnav.renderer.render.adaptive_sample_counts`).
+#: most that of a 16-spp render with the wavelengths drawn by the sensor response (the table
+#: in :func:`starnav.renderer.render.adaptive_sample_counts`).
 DEFAULT_INTERIOR_SPP = 2
 
 

@@ -1,7 +1,7 @@
 r"""Point-mass dynamics about the Earth-Moon barycentre, RK4 propagation and the STM.
 
-This is the force model of the truth trajectory *and* of the navigation filter (DESIGN.md:
-"EKF (EMB J2000, RK4+STM)"), so both integrate the same equations.
+This is the force model of the truth trajectory *and* of the navigation filter (an EKF in
+EMB J2000 axes with RK4 and the STM), so both integrate the same equations.
 
 Equations of motion
 -------------------

@@ -18,7 +18,7 @@ Technique
    Euler angles (phi, theta, psi) integrated with the orbits, a 3-1-3 sequence:
    ``R_icrf_to_pa = R3(psi) R1(theta) R3(phi)`` (passive rotations). This is the dynamically
    meaningful frame and the one DE421 provides directly; it is the frame starnav calls
-   "Moon body-fixed" (DESIGN.md). Lunar maps (LOLA) are published in the Mean-Earth/polar-axis
+   "Moon body-fixed". Lunar maps (LOLA) are published in the Mean-Earth/polar-axis
    (ME) frame, which differs from PA by a constant rotation of (67.92", 78.56", 0.30") about
    (z, y, x) for DE421 (Williams et al. 2008, *DE421 Lunar Orbit, Physical Librations, and
    Surface Coordinates*, JPL IOM 335-JW,DB,WF-20080314-001): ~0.9 km on the surface.

@@ -41,7 +41,7 @@ step                300 s     RK4 step of shooting and arc (docs/facts.md s4: mm
 tol_position        1e-3 m    defect tolerance on positions
 tol_velocity        1e-9 m/s  defect tolerance on velocities
 max_iter            40        Newton iterations
-range_min/max       35/90 Mm  allowed Moon range along the arc (issue 4)
+range_min/max       35/90 Mm  allowed Moon range along the arc
 ==================  ========  ============================================================
 
 Sampling: :meth:`Trajectory.sample` interpolates the node states with cubic Hermite splines

@@ -1,8 +1,8 @@
 """Lost-in-space identification over the sky: random pointings, rendered and solved.
 
-Issue 17 asks that at least 99 % of random pointings over the sky be solved correctly at
-200 ms with the default noise and none wrongly (a wrong attitude is worse than none), and that
-the false-star rate with the Moon in the field be reported. This module measures both on
+A star tracker must solve at least 99 % of random pointings over the sky correctly at
+200 ms with the default noise and none wrongly (a wrong attitude is worse than none), and its
+false-star rate with the Moon in the field must be known. This module measures both on
 *rendered* frames, through the same path as the tracker's star acquisitions.
 
 Technique

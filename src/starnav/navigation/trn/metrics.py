@@ -359,7 +359,7 @@ def plot_frame_overlay(image: ArrayLike, measurement: FlybyMeasurement,
 MCU_BUDGET_S = 0.650
 MCU_MEMORY_BYTES = 900 * 1024
 #: Desktop -> MCU time factor [-]: 650 ms / 5 ms = 130, the ratio of the paper's MCU time for
-#: the limb chain to the project's desktop budget for the same chain (DESIGN.md "Budgets");
+#: the limb chain to the project's desktop budget for the same chain;
 #: an assumption (a ~100-200 MHz space MCU without vector units against one desktop core
 #: with SIMD numpy is 100-200x), to be replaced by a processor-in-the-loop measurement.
 DESKTOP_TO_MCU = 130.0

@@ -44,7 +44,8 @@ Technique
    default of trajectory scenarios) differs by ~0.9 km on the surface. The labels agree: their
    ``SUB_SOLAR_LATITUDE`` / ``_LONGITUDE`` are reproduced to <= 0.008 deg in ME, while PA is
    off by 0.01-0.02 deg.
-5. **Refinement.** The label pointing can be wrong (~1.8 deg for 2004-05-04).
+5. **Refinement.** The label pointing can be wrong (~1.8 deg for frame
+   AMI_EE3_040504_00013_00020).
    :func:`refine_attitude` applies the smallest rotation (2 degrees of freedom, about the axis
    normal to both directions) that moves the label-predicted Moon-centre direction onto the one
    measured on the image (limb fit), keeping the roll of the label.

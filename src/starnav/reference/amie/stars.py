@@ -45,7 +45,7 @@ from starnav.stars.schema import StarsConfig
 #: Vega's Hipparcos number.
 VEGA_HIP = 91262
 #: Median simulated / real disc signal of the four REGULAR AMIE Moon frames with the Vega QE
-#: (0.918, 0.944, 0.976, 0.966: docs/real-images.md, ``starnav real amie``, 2026-11-24):
+#: (0.918, 0.944, 0.976, 0.966: docs/real-images.md, ``starnav real amie``):
 #: the Moon (ROLO) says the QE is 0.212 / 0.955 = 0.222.
 MOON_SIGNAL_RATIO = 0.955
 

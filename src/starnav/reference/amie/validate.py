@@ -17,11 +17,12 @@ Technique
    ``threshold_sigma`` times the dark sky's noise (and a fraction of the peak), pixel-level
    limb points on the lit side, RANSAC, 16 windows planned along the limb and refined (PSF-aware
    edge fit), then a Christian-Robinson fix: the Moon-centre direction and range.
-4. **Attitude refinement.** The label pointing is off by up to ~1 deg (2004-05-04): the smallest
-   rotation that moves the label-predicted Moon-centre direction onto the measured one (roll
-   kept from the label) is applied. Nothing else is adjusted per frame.
+4. **Attitude refinement.** The label pointing is off by up to ~1 deg (frame
+   AMI_EE3_040504_00013_00020): the smallest rotation that moves the label-predicted
+   Moon-centre direction onto the measured one (roll kept from the label) is applied.
+   Nothing else is adjusted per frame.
 5. **Simulation.** Render (Mitsuba, spectral, the AMIE response) the default real Moon (LOLA
-   terrain, LROC albedo, ROLO-calibrated Hapke; as calibrated in issue 11, no per-frame tuning)
+   terrain, LROC albedo, ROLO-calibrated Hapke, no per-frame tuning)
    with the refined attitude, expose it with the AMIE detector
    (:mod:`starnav.reference.amie.presets`).
 6. **Comparison.** Disc-integrated signal simulated / real; per-pixel agreement inside the disc
@@ -503,7 +504,7 @@ def write_results(out: Path, results: list[AmieFrameResult], lin: dict[str, floa
 
 
 # ----------------------------------------------------------------------------- report
-#: Criteria of the validation (issue 12); the report states each frame's verdict against them.
+#: Criteria of the validation; the report states each frame's verdict against them.
 CRITERIA = {
     "limb_rms_px": 1.0,          # rendered vs real limb, rms after attitude refinement
     "signal_ratio_tol": 0.10,    # disc-integrated simulated / real (goal 0.05)

@@ -17,8 +17,8 @@ simulation (:mod:`starnav.reference.amie.validate`).
    ``amie`` camera's pupil, f / N) and the measured NONE-filter curve ``T`` (transmission,
    :data:`starnav.spectra.AMIE_RESPONSE_TABLE`), for the label's exposure and gain.
 3. **Efficiency.** The flat quantum efficiency that makes 2 equal 1:
-   ``QE = measured / predicted(QE = 1)``. 2004-03-26 is before all the Moon frames; Vega is
-   not variable at the 1 % level in this band.
+   ``QE = measured / predicted(QE = 1)``. The Vega frame (AMI_EE3_040326_00034_00200) is
+   older than all the Moon frames; Vega is not variable at the 1 % level in this band.
 4. **PSF core.** A pixel-integrated circular Gaussian fitted to the star within ``psf_fit_px``
    (centre, flux, sigma, sky); the wings beyond ~4 px are below the sky noise (0.5 DN) and are
    not modelled.
