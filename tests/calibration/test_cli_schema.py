@@ -127,9 +127,13 @@ def test_hil_geometric_then_stimulate(app, tmp_path):
     assert scr.shape == (2160, 3840) and scr.dtype == np.uint8 and 0 < scr.max() <= 16
     assert iio.imread(out / "predicted" / "frame_000001_dn.png").dtype == np.uint16
     # wrong camera size and empty directory: clear errors
-    r = runner.invoke(app, ["hil", "stimulate", "default", str(ds), "--out", str(out)])
+    r = runner.invoke(app, ["hil", "stimulate", "default", str(ds), "--out", str(out),
+                            "--overwrite"])
     assert r.exit_code == 2 and "256 x 256" in one_line(r.output)
-    r = runner.invoke(app, ["hil", "stimulate", "default", str(tmp_path), "--out", str(out)])
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    r = runner.invoke(app, ["hil", "stimulate", "default", str(empty), "--out", str(out),
+                            "--overwrite"])
     assert r.exit_code == 2 and "EXR" in one_line(r.output)
 
 

@@ -97,5 +97,5 @@ def test_cli_dem_mesh_writes_the_frame_mesh(tmp_path):
     assert 1725 < r_km.min() and r_km.max() < 1750  # body-fixed metres around the Moon
     assert (tmp_path / "o" / "scenario.resolved.yaml").is_file()
     bad = CliRunner().invoke(_app(), ["dem", "mesh", str(path), "--out", str(out),
-                                      "--set", "moon.dem.source=/nonexistent.tif"])
+                                      "--overwrite", "--set", "moon.dem.source=/nonexistent.tif"])
     assert bad.exit_code == 2 and "does not exist" in " ".join(bad.output.split())

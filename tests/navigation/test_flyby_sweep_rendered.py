@@ -100,11 +100,13 @@ def test_cli_navigate_sweep(tmp_path):
     got = list(csv.DictReader(open(out / "sweep.csv", newline="")))
     assert len(got) == 1 and float(got[0]["v_inf_km_s"]) == 0.6
     assert not (out / "sweep.png").exists()
-    bad = CliRunner().invoke(app, ["navigate", str(sc), "--out", str(out), "--sweep",
-                                   "spin=1"], env=env)
+    bad = CliRunner().invoke(app, ["navigate", str(sc), "--out", str(out), "--overwrite",
+                                   "--sweep", "spin=1"], env=env)
     assert bad.exit_code == 2 and len(bad.output.strip().splitlines()) == 1
-    ds = CliRunner().invoke(app, ["navigate", str(tmp_path), "--out", str(out), "--sweep",
-                                  "v_inf_km_s=1"], env=env)
+    notyaml = tmp_path / "frames"
+    notyaml.mkdir()
+    ds = CliRunner().invoke(app, ["navigate", str(notyaml), "--out", str(out), "--overwrite",
+                                  "--sweep", "v_inf_km_s=1"], env=env)
     assert ds.exit_code == 2 and "--sweep" in ds.output
 
 

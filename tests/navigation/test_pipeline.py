@@ -197,7 +197,8 @@ def test_cli_navigate(cam, sequence, tmp_path, monkeypatch):
     monkeypatch.setattr(report, "navigate_dataset",
                         lambda *a, **kw: orig(*a, dynamics=dyn, **kw))
     out = tmp_path / "out"
-    res = runner.invoke(app, ["navigate", str(tmp_path), "--out", str(out), "--no-plots"])
+    res = runner.invoke(app, ["navigate", str(tmp_path / "ds"), "--out", str(out),
+                              "--no-plots"])
     assert res.exit_code == 0, res.output
     assert "frames 6, fixes 6" in res.output
     m = json.loads((out / "metrics.json").read_text())

@@ -172,8 +172,8 @@ def test_cli_trajectory_writes_oem_plot_and_config(tmp_path):
     png = out.with_suffix(".png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
     assert (out.parent / "scenario.resolved.yaml").is_file()
-    bad = CliRunner().invoke(app, ["trajectory", str(scen), "--out", str(out), "--set",
-                                   "trajectory.epoch=2250-01-01T00:00:00 TDB"])
+    bad = CliRunner().invoke(app, ["trajectory", str(scen), "--out", str(out), "--overwrite",
+                                   "--set", "trajectory.epoch=2250-01-01T00:00:00 TDB"])
     assert bad.exit_code == 2 and "outside the DE421 span" in bad.output
 
 

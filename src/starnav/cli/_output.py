@@ -1,4 +1,5 @@
-"""The CLI's consoles and its one error printer (every command's errors look alike).
+"""The CLI's consoles, its one error printer (every command's errors look alike) and its one
+overwrite rule (:func:`check_output`, called by every command that writes, before any work).
 
 Errors are printed on one line whatever the terminal width (``soft_wrap``): a message names a
 field, a value and what was expected, and a test or a user grepping for it must find it whole.
@@ -6,9 +7,15 @@ field, a value and what was expected, and a test or a user grepping for it must 
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
 import typer
 from rich.console import Console
 from rich.markup import escape
+
+from starnav.errors import DataFileError
 
 console = Console()
 err_console = Console(stderr=True, soft_wrap=True)
@@ -95,3 +102,62 @@ def format_quantity(key: str, value: object) -> str:
         text = f"{value:+.3g}" if "bias" in key else f"{value:.3g}"
     unit = unit.replace("% range", "% of range")
     return f"{text} {unit}".strip()
+
+
+def _inside(path: Path, root: Path) -> bool:
+    """Whether ``path`` is ``root`` or lies under it (both resolved, symbolic links followed)."""
+    return path == root or root in path.parents
+
+
+def check_output(path: Path, *, directory: bool, overwrite: bool = False,
+                 inputs: Iterable[Path | None] = (), option: str = "--out",
+                 flag: str = "--overwrite", side_files: Iterable[Path] = (),
+                 ours: Callable[[Path], bool] | None = None,
+                 action: str = "write into it") -> None:
+    """The overwrite rule of every command that writes, checked before any work.
+
+    1. Never write into an input: ``path`` (and each of ``side_files``, the files written next
+       to it, e.g. the resolved scenario) may not be an input file, nor be or lie inside an
+       input directory, whatever ``overwrite`` says.
+    2. A file output (``directory`` false) that exists is refused unless ``overwrite``; a
+       directory there is refused always.
+    3. A directory output that exists is refused if it is a file, or if it holds anything
+       unless ``overwrite`` (``flag`` names the option that allows it: ``--resume`` for a
+       dataset) or ``ours(path)`` says it holds this command's own earlier output, which
+       the command continues (``demo``).
+
+    Nothing is created or changed. Raises :class:`~starnav.errors.DataFileError` naming the
+    option, the path and what was expected (the CLI: one ``error:`` line, exit status 2).
+    """
+    target = Path(os.path.abspath(path))
+    real = target.resolve()
+    ins = [Path(i) for i in inputs if i is not None and str(i) not in ("", "default")]
+    for out in [path, *side_files]:
+        r = Path(os.path.abspath(out)).resolve()
+        for i in ins:
+            ri = Path(os.path.abspath(i)).resolve()
+            if r == ri or (ri.is_dir() and _inside(r, ri)):
+                what = "is" if r == ri else "lies inside"
+                name = option if out == path else f"{option} (its side file {str(out)!r})"
+                raise DataFileError(
+                    f"{name} {str(out)!r} {what} the input {str(i)!r}: a command never writes "
+                    f"into its input (even with {flag}); choose another {option}")
+    if not target.exists() and not target.is_symlink():
+        return
+    if directory:
+        if not real.is_dir():
+            raise DataFileError(f"{option} {str(path)!r} exists and is not a directory: "
+                                f"expected a new or empty directory; choose another {option}")
+        entries = sorted(p.name for p in real.iterdir())
+        if entries and not overwrite and not (ours is not None and ours(real)):
+            shown = ", ".join(entries[:3]) + (" ..." if len(entries) > 3 else "")
+            raise DataFileError(
+                f"{option} {str(path)!r} is not empty ({len(entries)} entries: {shown}): "
+                f"expected a new or empty directory; use {flag} to {action}, or choose "
+                f"another {option}")
+        return
+    if real.is_dir():
+        raise DataFileError(f"{option} {str(path)!r} is a directory: expected a file name")
+    if not overwrite:
+        raise DataFileError(f"{option} {str(path)!r} exists: expected a new file; use {flag} "
+                            f"to replace it, or choose another {option}")

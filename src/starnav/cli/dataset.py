@@ -139,6 +139,8 @@ def register(app: typer.Typer) -> None:
 
         console = Console()
         state = {"n": 0, "done": 0}
+        from starnav.cli._output import check_output
+
         try:
             scheduler = resolve_scheduler(scheduler, scheduler_file)
             sc = load_scenario(scenario, tuple(set_ or ()))
@@ -146,6 +148,9 @@ def register(app: typer.Typer) -> None:
             exps = None if exposures is None else parse_times(exposures, "--exposures")
             opts = DatasetOptions(exposures_s=exps, windows=windows, radiance=not no_radiance,
                                   exposure_overrides=parse_exposure_sets(exposure_set or ()))
+            check_output(out, directory=True, overwrite=resume, flag="--resume",
+                         inputs=[scenario, scheduler_file],
+                         action="continue the dataset it holds")
             bar = frames_progress()
             task = bar.add_task("frames", total=None, rate="", start=False)
             first: dict[str, float] = {}

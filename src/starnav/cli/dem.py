@@ -71,15 +71,22 @@ def mesh(
     = Path("mesh.ply"),
     overrides: Annotated[list[str] | None, typer.Option("--set", help="override a key: a.b=v")]
     = None,
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="replace an existing file")]
+    = False,
 ) -> None:
     """Write the view-adapted mesh a frame of SCENARIO would use (Moon body-fixed, metres)."""
+    from starnav.cli._output import check_output
     from starnav.config import load_scenario, write_resolved
-    from starnav.dem.mesh import save_mesh
+    from starnav.dem.mesh import check_mesh_path, save_mesh
     from starnav.errors import StarnavError
     from starnav.simulate import frame_mesh
 
     try:
+        check_mesh_path(out)
         sc = load_scenario(scenario, overrides or [])
+        check_output(out, directory=False, overwrite=overwrite,
+                     inputs=[scenario, Path(sc.moon.dem.source)],
+                     side_files=[out.parent / "scenario.resolved.yaml"])
         m = frame_mesh(sc)
         save_mesh(m, out)
         write_resolved(sc, out.parent)

@@ -32,10 +32,14 @@ def register(app: typer.Typer) -> None:
         set_: Annotated[list[str] | None, typer.Option(
             "--set", help="override a scenario key, e.g. detector.saturation.full_well_e=8e4")
         ] = None,
+        overwrite: Annotated[bool, typer.Option(
+            "--overwrite", help="write into a non-empty OUT (its files of the same names are "
+            "replaced)")] = False,
     ) -> None:
         """Expose the AA-STR detector to RADIANCE and write dn.png (data: 12-bit DN in a 16-bit
         PNG), dn_quicklook.png (the picture: 8-bit, stretched, annotated), segments.npz,
         windows.npz, readout.json and scenario.resolved.yaml into OUT."""
+        from starnav.cli._output import check_output
         from starnav.config import build_camera, load_scenario, write_resolved
         from starnav.detector import expose, write_exposure
         from starnav.errors import StarnavError
@@ -48,6 +52,7 @@ def register(app: typer.Typer) -> None:
                 t = parse_time(exposure, "--exposure")
                 overrides.append(f"detector.exposure_time_s={t!r}")
             sc = load_scenario(scenario, overrides)
+            check_output(out, directory=True, overwrite=overwrite, inputs=[radiance, scenario])
             camera = build_camera(sc.camera)
             img = read_exr(radiance)
             frame = expose(img, camera, sc.detector, seed=sc.seed, frame_index=frame_index)

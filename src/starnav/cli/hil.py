@@ -25,6 +25,8 @@ hil_app = typer.Typer(add_completion=False, no_args_is_help=True,
 
 BenchArg = Annotated[str, typer.Argument(help="bench YAML file, or 'default' (TinyV3RSE)")]
 SetOpt = Annotated[list[str] | None, typer.Option("--set", help="override a key: a.b=value")]
+OverwriteOpt = Annotated[bool, typer.Option(
+    "--overwrite", help="write into a non-empty OUT (its files of the same names are replaced)")]
 CalOpt = Annotated[Path | None, typer.Option(
     "--calibration", help="geometric_calibration.json from `hil geometric` (default: run the "
     "emulated dot calibration first)")]
@@ -32,6 +34,15 @@ CalOpt = Annotated[Path | None, typer.Option(
 
 def _fail(err: Exception) -> None:
     fail(err)
+
+
+def _check_out(out: Path | None, overwrite: bool, *inputs: Any) -> None:
+    """The CLI's overwrite rule for OUT (:func:`starnav.cli._output.check_output`)."""
+    from starnav.cli._output import check_output
+
+    if out is not None:
+        check_output(out, directory=True, overwrite=overwrite, inputs=[Path(i) if isinstance(
+            i, str) else i for i in inputs])
 
 
 def _load(bench: str, overrides: list[str] | None):
@@ -74,6 +85,7 @@ def check(
     out: Annotated[Path | None, typer.Option("--out", help="write check.json and the "
                                              "coverage figure here")] = None,
     set_: SetOpt = None,
+    overwrite: OverwriteOpt = False,
 ) -> None:
     """Optical-stimulator condition (paper eq. 2) with the stated and the derived FoV, and how
     much of the detector the screen covers."""
@@ -81,6 +93,7 @@ def check(
     from starnav.errors import StarnavError
 
     try:
+        _check_out(out, overwrite, bench)
         cfg = _load(bench, set_)
         rep = run_check(cfg)
         if out is not None:
@@ -104,6 +117,7 @@ def geometric(
     no_moon: Annotated[bool, typer.Option("--no-moon", help="skip the displayed-Moon check "
                                           "(no rendering)")] = False,
     set_: SetOpt = None,
+    overwrite: OverwriteOpt = False,
 ) -> None:
     """Dot-pattern geometric calibration: residual PDF/CDF, pre-warped Moon placement, and the
     calibration polynomials (geometric_calibration.json)."""
@@ -111,6 +125,7 @@ def geometric(
     from starnav.errors import StarnavError
 
     try:
+        _check_out(out, overwrite, bench)
         cfg = _load(bench, set_)
         rep = run_geometric(cfg, moon=not no_moon)
         _write_report(rep, cfg, out, "geometric")
@@ -137,6 +152,7 @@ def radiometric(
     = Path("out/hil/radiometric"),
     calibration: CalOpt = None,
     set_: SetOpt = None,
+    overwrite: OverwriteOpt = False,
 ) -> None:
     """Radiometric calibration: count <-> Moon flux, validated stimulus, albedo-exposure scaling
     (KS test) and the end-to-end 0.015 ms case."""
@@ -144,6 +160,7 @@ def radiometric(
     from starnav.errors import StarnavError
 
     try:
+        _check_out(out, overwrite, bench, calibration)
         cfg = _load(bench, set_)
         rep = run_radiometric(cfg, calibration)
         _write_report(rep, cfg, out, "radiometric")
@@ -174,6 +191,7 @@ def stimulate(
     out: Annotated[Path, typer.Option("--out", help="output directory")] = Path("out/hil/stimuli"),
     calibration: CalOpt = None,
     set_: SetOpt = None,
+    overwrite: OverwriteOpt = False,
 ) -> None:
     """Screen images (counts, PNG) for every rendered frame, with the predicted bench
     acquisition and the in-orbit exposure (16-bit DN PNG)."""
@@ -183,6 +201,7 @@ def stimulate(
     from starnav.errors import StarnavError
 
     try:
+        _check_out(out, overwrite, bench, dataset, calibration)
         cfg = _load(bench, set_)
         sink = png_frame_sink(out, cfg.screen.bit_depth)
 

@@ -125,16 +125,17 @@ def init(
     out: Annotated[Path, typer.Argument(help="scenario file to write")] = Path("scenario.yaml"),
     preset: Annotated[str, typer.Option(help=f"scenario preset: {', '.join(INIT_PRESETS)}")]
     = "default",
-    force: Annotated[bool, typer.Option(help="overwrite an existing file")] = False,
+    overwrite: Annotated[bool, typer.Option("--overwrite", "--force",
+                                            help="replace an existing file")] = False,
 ) -> None:
     """Write a commented example scenario (every key at its value for the preset, with its
     description, unit and allowed values from the schema above it)."""
     from starnav.atomic import atomic_write_text
+    from starnav.cli._output import check_output
     from starnav.config import Scenario
     from starnav.config_base import commented_yaml
 
-    if out.exists() and not force:
-        _fail(StarnavError(f"{out} exists; use --force to overwrite"))
+    check_output(out, directory=False, overwrite=overwrite, option="OUT")
     try:
         make = INIT_PRESETS.get(preset)
     except StarnavError as err:  # UnknownNameError: lists the known presets
@@ -187,11 +188,16 @@ def render(
     ] = False,
 ) -> None:
     """Render the scenario's frames to OpenEXR (channels L, Le and the AOVs)."""
+    from starnav.cli._output import check_output
     from starnav.config import write_resolved
     from starnav.simulate import frame_geometries, render_to_directory
+    from starnav.simulate.outdir import previous_render
 
     sc = _load(scenario, set_)
     out = out if out is not None else sc.output.directory / "render"
+    # an earlier render in OUT: refused (or replaced) by render_to_directory, which names it
+    check_output(out, directory=True, overwrite=overwrite, inputs=[scenario],
+                 ours=lambda d: bool(previous_render(d)))
     try:
         n = len(frame_geometries(sc))
         with progress_bar() as bar:
@@ -209,15 +215,32 @@ def render(
                                                              else ""))
 
 
+#: What ``starnav demo`` writes into its output directory (a re-run continues it).
+DEMO_ENTRIES = frozenset({"dataset", "navigation", "figures", "report.md",
+                          "scenario.resolved.yaml"})
+
+
+def _is_demo_output(out: Path) -> bool:
+    """Whether ``out`` holds an earlier ``starnav demo`` and nothing else."""
+    return (out / "dataset" / "manifest.json").is_file() and \
+        {p.name for p in out.iterdir()} <= DEMO_ENTRIES
+
+
 @app.command()
 def demo(
     out: Annotated[Path, typer.Option("--out", help="output directory")] = Path("out/demo"),
     set_: SetOpt = None,
+    overwrite: Annotated[bool, typer.Option(
+        "--overwrite", help="write into a non-empty OUT that holds something else (its files "
+        "of the same names are replaced); an earlier demo in OUT is continued without it")
+    ] = False,
 ) -> None:
     """The main job on built-in defaults: a short LUMIO-arc dataset at the paper's well-exposed
     and saturated exposures, navigation on it, and the report with its figures."""
     from starnav.batch import main_job
+    from starnav.cli._output import check_output
 
+    check_output(out, directory=True, overwrite=overwrite, ours=_is_demo_output)
     try:
         with progress_bar() as bar:
             task = bar.add_task("demo", total=None)

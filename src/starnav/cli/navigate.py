@@ -149,14 +149,19 @@ def register(app: typer.Typer) -> None:
             "--sweep", help="fly-by scenario only: AXIS=V1,V2 (repeat), AXIS v_inf_km_s, "
             "closest_approach_km or phase_at_ca_deg; the closed loop at every point of the "
             "grid, --runs runs each; sweep.csv, sweep.md, sweep.png")] = None,
+        overwrite: Annotated[bool, typer.Option(
+            "--overwrite", help="write into a non-empty OUT (its files of the same names are "
+            "replaced)")] = False,
     ) -> None:
         """Run limb -> RANSAC -> Christian-Robinson -> EKF over DATASET; write CSV, JSON, PNG.
         DATASET may also be a fly-by scenario YAML: the fly-by closed loop (render once, then
         per run the front end and the estimator), metrics.json, figures, report.md."""
+        from starnav.cli._output import check_output
         from starnav.config import load_scenario
         from starnav.errors import StarnavError
         from starnav.navigation.report import budget_warning, navigate_dataset
 
+        check_output(out, directory=True, overwrite=overwrite, inputs=[dataset, config])
         if dataset.is_file() and dataset.suffix.lower() in (".yaml", ".yml"):
             _navigate_flyby(dataset, out, runs, set_, seed, no_plots, sweep)
             return

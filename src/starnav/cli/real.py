@@ -10,7 +10,7 @@ from typing import Annotated
 
 import typer
 
-from starnav.cli._output import console, fail
+from starnav.cli._output import check_output, console, fail
 
 real_app = typer.Typer(add_completion=False, no_args_is_help=True,
                        help="Real images: compare starnav with real frames of the Moon.")
@@ -23,6 +23,9 @@ def amie(
     = None,
     out: Annotated[Path, typer.Option("--out", help="output directory")] = Path("out/amie"),
     spp: Annotated[int, typer.Option("--spp", min=1, help="render samples per pixel")] = 16,
+    overwrite: Annotated[bool, typer.Option(
+        "--overwrite", help="write into a non-empty OUT (its files of the same names are "
+        "replaced)")] = False,
 ) -> None:
     """Rebuild each frame's view from its label, render and expose it with the AMIE camera on the
     real Moon, compare (signal, pixels, limb), navigate on the real frame; write report.md,
@@ -31,6 +34,7 @@ def amie(
     from starnav.reference.amie.validate import AmieOptions, run_amie_validation
 
     try:
+        check_output(out, directory=True, overwrite=overwrite, inputs=list(frames or ()))
         summary = run_amie_validation(frames or None, out, AmieOptions(spp=spp))
     except StarnavError as err:
         fail(err)

@@ -24,13 +24,18 @@ def register(app: typer.Typer) -> None:
                                             help="camera frusta along the arc")] = 8,
         set_: Annotated[list[str] | None, typer.Option(
             "--set", help="override a scenario key: a.b=value")] = None,
+        overwrite: Annotated[bool, typer.Option(
+            "--overwrite", help="replace an existing PNG")] = False,
     ) -> None:
         """Draw the scenario in 3-D (offscreen) into a PNG."""
+        from starnav.cli._output import check_output
         from starnav.config import load_scenario, write_resolved
         from starnav.errors import StarnavError
         from starnav.show import render_scene
 
         try:
+            check_output(out, directory=False, overwrite=overwrite, inputs=[scenario],
+                         side_files=[out.parent / f"{out.stem}.resolved.yaml"])
             sc = load_scenario(scenario, tuple(set_ or ()))
             p = render_scene(sc, out, frusta=frusta)
             write_resolved(sc, out.parent, name=f"{out.stem}.resolved.yaml")

@@ -60,12 +60,14 @@ def register(app: typer.Typer) -> None:
         from starnav.batch.flyby_sweep import is_flyby
         from starnav.batch.presets import get_preset
         from starnav.batch.sweep import summarize_points
-        from starnav.cli._output import console, print_table
+        from starnav.cli._output import check_output, console, print_table
         from starnav.cli.dataset import frames_progress
         from starnav.config import load_scenario, scenario_from_dict
         from starnav.errors import StarnavError
 
         try:
+            check_output(out, directory=True, overwrite=overwrite,
+                         inputs=[scenario, scheduler_file])
             scheduler = resolve_scheduler(scheduler, scheduler_file)
             p = get_preset(preset) if preset else None
             if scenario is None and p is not None:

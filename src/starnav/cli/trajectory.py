@@ -11,7 +11,7 @@ from typing import Annotated
 
 import typer
 
-from starnav.cli._output import console, fail
+from starnav.cli._output import check_output, console, fail
 from starnav.errors import StarnavError
 
 
@@ -31,6 +31,8 @@ def register(app: typer.Typer) -> None:
             "--cadence-s", help="OEM sample spacing [s] (default: trajectory.cadence_s)")] = None,
         set_: Annotated[list[str] | None, typer.Option(
             "--set", help="override a key: a.b=value")] = None,
+        overwrite: Annotated[bool, typer.Option(
+            "--overwrite", help="replace an existing OEM or PNG")] = False,
     ) -> None:
         """Build the trajectory (LUMIO-like halo in the ephemeris model, or an OEM) and write
         it as a CCSDS OEM file with a PNG plot (Moon range, phase angle, rotating-frame path)."""
@@ -44,6 +46,13 @@ def register(app: typer.Typer) -> None:
         try:
             sc = load_scenario(scenario, set_ or [])
             cfg = sc.trajectory or TrajectoryConfig()
+            png = plot if plot is not None else out.with_suffix(".png")
+            resolved = (out.parent if str(out.parent) else Path(".")) / "scenario.resolved.yaml"
+            inputs = [scenario, cfg.oem_path if cfg.source == "oem" else None]
+            check_output(out, directory=False, overwrite=overwrite, inputs=inputs,
+                         side_files=[resolved])
+            check_output(png, directory=False, overwrite=overwrite, inputs=[*inputs, out],
+                         option="--plot")
             cadence = cfg.cadence_s if cadence_s is None else cadence_s
             if not cadence > 0:
                 raise StarnavError(f"--cadence-s = {cadence!r}: expected a cadence > 0 s")
@@ -52,7 +61,6 @@ def register(app: typer.Typer) -> None:
             sampled = traj.resample(cadence)
             write_oem(out, sampled, comments=[f"starnav trajectory, source={cfg.source}",
                                               "states EMB-centred, ICRF axes, TDB"])
-            png = plot if plot is not None else out.with_suffix(".png")
             # the plot and the summary describe what the OEM holds: its first to its last
             # epoch (the arc built may run past the last whole cadence step)
             shown = (traj.clipped(sampled.t_start, sampled.t_end)

@@ -643,15 +643,28 @@ def _build(dem: DemGrid, albedo: AlbedoGrid | None, view: _View, opts: MeshOptio
     return mesh
 
 
+#: The mesh file types :func:`save_mesh` writes, by suffix (none: PLY).
+MESH_FORMATS = (".ply", ".obj", ".glb", ".stl", ".off")
+
+
+def check_mesh_path(path: Any) -> str:
+    """The file type of the mesh file ``path`` (its suffix without the dot, ``ply`` when it
+    has none); a suffix :func:`save_mesh` cannot write is a :class:`ConfigError`."""
+    suffix = Path(path).suffix.lower()
+    if suffix and suffix not in MESH_FORMATS:
+        raise ConfigError("--out", str(path), "a mesh file ending in " + ", ".join(MESH_FORMATS))
+    return suffix.lstrip(".") or "ply"
+
+
 def save_mesh(mesh: trimesh.Trimesh, path: Any) -> Any:
     """Write a mesh (PLY with normals and the vertex attributes as float properties) through a
     temporary file and a rename. PLY stores float32 coordinates (~0.1 m at the lunar radius)."""
     p = Path(path)
-    suffix = p.suffix.lstrip(".") or "ply"
+    suffix = check_mesh_path(p)
     with atomic_path(p, suffix=f".{suffix}") as tmp:
         mesh.export(str(tmp), file_type=suffix)
     return p
 
 
-__all__ = ["MESH_CACHE", "MeshCache", "MeshOptions", "field_cone", "pixel_angle",
-           "save_mesh", "view_mesh"]
+__all__ = ["MESH_CACHE", "MESH_FORMATS", "MeshCache", "MeshOptions", "check_mesh_path",
+           "field_cone", "pixel_angle", "save_mesh", "view_mesh"]
