@@ -446,3 +446,106 @@ def test_packaged_frames():
     assert {packaged_frame(k).stem[8:20] for k in FRAMES} == set(FRAMES)
     with pytest.raises(UnknownNameError, match="AMI_EE3_041111_00070_00018.IMG"):
         packaged_frame("041111_00071")
+
+
+# --------------------------------------------------------------------------- PDS3 value forms
+LABEL_BYTES = 1024 * 20        # RECORD_BYTES x LABEL_RECORDS in every packaged label
+
+
+def _relabel(blob: bytes, subs: dict[str, str]) -> bytes:
+    """The packaged file with label lines rewritten (``KEYWORD -> 'KEYWORD = value'``), the
+    label padded back to its records: a small label written by the test on the real image."""
+    text = blob[:LABEL_BYTES].decode("ascii")
+    end = re.search(r"(?m)^END\s*$", text).end()
+    head = text[:end]
+    for key, line in subs.items():
+        pat = re.compile(rf"(?m)^{re.escape(key)}\s*=.*$")
+        assert pat.search(head), key
+        head = pat.sub(lambda m, line=line: line, head, count=1)
+    out = head.encode("ascii")
+    assert len(out) <= LABEL_BYTES
+    return out + b" " * (LABEL_BYTES - len(out)) + blob[LABEL_BYTES:]
+
+
+#: One label keyword written in each value form PDS3 allows, and what the reader must make of it
+#: (the original 041111_00070 values: RA corners 226.26 231.11 230.88 226.35, exposure 18 ms,
+#: distance 81 789.4 km, start 2004-11-11T23:30:21.877 = day 316).
+VALUE_FORMS = {
+    "units on the sequence": ({"RETICLE_POINT_RA":
+                               "RETICLE_POINT_RA = (226.26, 231.11, 230.88, 226.35) <DEG>"},
+                              "reticle_radec_deg", [226.26, 231.11, 230.88, 226.35]),
+    "units on each element": ({"RETICLE_POINT_RA": "RETICLE_POINT_RA = (226.26 <DEG>, "
+                               "231.11 <deg>, 230.88 <DEGREES>, 226.35 <DEG>)"},
+                              "reticle_radec_deg", [226.26, 231.11, 230.88, 226.35]),
+    "quoted elements": ({"RETICLE_POINT_RA":
+                         'RETICLE_POINT_RA = ("226.26", "231.11", "230.88", "226.35")'},
+                        "reticle_radec_deg", [226.26, 231.11, 230.88, 226.35]),
+    "radians on a sequence": ({"SC_TARGET_POSITION_VECTOR":
+                               "SC_TARGET_POSITION_VECTOR = (-30566300.0, -34731600.0, "
+                               "-67445700.0) <M>"},
+                              "sc_to_moon_m", [-30566.3e3, -34731.6e3, -67445.7e3]),
+    "seconds on a scalar": ({"EXPOSURE_DURATION": "EXPOSURE_DURATION = 0.018 <S>"},
+                            "exposure_s", 0.018),
+    "a quoted number with no units": ({"EXPOSURE_DURATION": 'EXPOSURE_DURATION = "18"'},
+                                      "exposure_s", 0.018),
+    "a one-element set": ({"GAIN_NUMBER": "GAIN_NUMBER = {280 <E/DN>}"}, "gain_e_per_dn", 280.0),
+    "a one-element sequence": ({"TARGET_CENTER_DISTANCE": "TARGET_CENTER_DISTANCE = (81789.4)"},
+                               "target_center_distance_m", 81789.4e3),
+    "an unquoted symbol": ({"FILTER_NAME": "FILTER_NAME = NONE"}, "filter_name", "NONE"),
+    "a set of one symbol": ({"IMAGE_OBSERVATION_TYPE": "IMAGE_OBSERVATION_TYPE = {REGULAR}"},
+                            "observation_type", "REGULAR"),
+    "a quoted time": ({"START_TIME": 'START_TIME = "2004-11-11T23:30:21.877Z"'},
+                      "start_time_utc", "2004-11-11T23:30:21.877"),
+    "a day-of-year time": ({"START_TIME": "START_TIME = 2004-316T23:30:21.877"},
+                           "start_time_utc", "2004-11-11T23:30:21.877"),
+    "a quoted day-of-year time": ({"START_TIME": 'START_TIME = "2004-316T23:30:21.877"'},
+                                  "start_time_utc", "2004-11-11T23:30:21.877"),
+}
+
+
+@pytest.mark.parametrize("form", list(VALUE_FORMS))
+def test_label_value_forms_read(tmp_path, blob, form):
+    subs, attr, want = VALUE_FORMS[form]
+    frame = read_amie(_write(tmp_path, "forms.IMG", _relabel(blob, subs)))
+    got = getattr(frame, attr)
+    if attr == "reticle_radec_deg":
+        got = got[:, 0]
+    if isinstance(want, str):
+        assert got == want
+    else:
+        np.testing.assert_allclose(got, want, rtol=EXACT_RTOL)
+
+
+def test_label_forms_leave_the_frame_unchanged(tmp_path, blob):
+    """Units, quotes and sets change nothing but the text: the same frame comes out."""
+    subs = {k: v for form in ("units on the sequence", "a quoted time", "an unquoted symbol")
+            for k, v in VALUE_FORMS[form][0].items()}
+    a = read_amie(packaged_frame("041111_00070"))
+    b = read_amie(_write(tmp_path, "forms.IMG", _relabel(blob, subs)))
+    np.testing.assert_array_equal(a.dn, b.dn)
+    np.testing.assert_array_equal(a.reticle_radec_rad, b.reticle_radec_rad)
+    assert a.start_time == b.start_time and a.filter_name == b.filter_name
+
+
+#: Malformed values: each must give one line naming the keyword.
+MALFORMED = {
+    "unclosed sequence": ("RETICLE_POINT_RA", "RETICLE_POINT_RA = (226.26, 231.11, 230.88"),
+    "unclosed units": ("EXPOSURE_DURATION", "EXPOSURE_DURATION = 18 <MS"),
+    "empty element": ("RETICLE_POINT_DECLINATION",
+                      "RETICLE_POINT_DECLINATION = (-56.87, , -54.19, -54.22)"),
+    "text for a number": ("EXPOSURE_DURATION", "EXPOSURE_DURATION = eighteen <MS>"),
+    "wrong units": ("TARGET_CENTER_DISTANCE", "TARGET_CENTER_DISTANCE = 81789.4 <DEG>"),
+    "three corners": ("RETICLE_POINT_RA", "RETICLE_POINT_RA = (226.26, 231.11, 230.88) <DEG>"),
+    "an unordered set": ("RETICLE_POINT_RA", "RETICLE_POINT_RA = {226.26, 231.11, 230.88, 226.35}"),
+    "not a time": ("START_TIME", 'START_TIME = "yesterday"'),
+}
+
+
+@pytest.mark.parametrize("case", list(MALFORMED))
+def test_malformed_label_value_names_the_keyword(tmp_path, blob, case):
+    key, line = MALFORMED[case]
+    p = _write(tmp_path, "bad.IMG", _relabel(blob, {key: line}))
+    with pytest.raises(DataFileError) as err:
+        read_amie(p)
+    msg = str(err.value)
+    assert "\n" not in msg and "bad.IMG" in msg and key in msg

@@ -254,6 +254,8 @@ class AmieFrame:
         ``PRODUCT_ID``.
     target_name : str
         ``TARGET_NAME`` (``MOON``, ``STAR``).
+    observation_type : str
+        ``IMAGE_OBSERVATION_TYPE`` (``REGULAR``, ``CALIBRATION``; empty if absent).
     label : mapping
         The parsed PDS3 label (a :class:`pvl.PVLModule`): every raw value, with its units.
     image_offset : int
@@ -294,6 +296,7 @@ class AmieFrame:
     path: Path
     product_id: str
     target_name: str
+    observation_type: str
     label: Mapping[str, Any]
     image_offset: int
     dn: NDArray[np.int32]
@@ -323,17 +326,62 @@ def _missing(path: Path, key: str, what: str = "") -> DataFileError:
     return DataFileError(f"{path}: {key} missing from the PDS3 label{what}")
 
 
-def _number(value: Any, key: str, path: Path, unit: str | None) -> float:
-    """A label number in its expected ``unit`` (None: no unit expected)."""
-    units = None
-    if hasattr(value, "units") and hasattr(value, "value"):      # pvl Quantity
-        units, value = str(value.units).strip().upper(), value.value
+# Units a label value may carry for each unit the reader expects: name -> factor to the
+# expected unit (PDS3 units are case-insensitive; a value without units is in the expected one).
+_UNIT_FACTORS: Mapping[str, Mapping[str, float]] = MappingProxyType({
+    "MS": {"MS": 1.0, "MSEC": 1.0, "MILLISECOND": 1.0, "MILLISECONDS": 1.0,
+           "S": 1e3, "SEC": 1e3, "SECOND": 1e3, "SECONDS": 1e3},
+    "KM": {"KM": 1.0, "KILOMETER": 1.0, "KILOMETERS": 1.0, "KILOMETRE": 1.0,
+           "KILOMETRES": 1.0, "M": 1e-3, "METER": 1e-3, "METERS": 1e-3, "METRE": 1e-3,
+           "METRES": 1e-3},
+    "DEG": {"DEG": 1.0, "DEGREE": 1.0, "DEGREES": 1.0,
+            "RAD": 180.0 / math.pi, "RADIAN": 180.0 / math.pi, "RADIANS": 180.0 / math.pi},
+    "K": {"K": 1.0, "KELVIN": 1.0, "DEGK": 1.0},
+    "E/DN": {"E/DN": 1.0, "E-/DN": 1.0, "ELECTRONS/DN": 1.0, "ELECTRON/DN": 1.0},
+})
+_NULLS = ("N/A", "UNK", "NULL", "UNKNOWN")
+
+
+def _split_units(value: Any) -> tuple[Any, str | None]:
+    """``(value, units)`` of a pvl ``Quantity`` (units upper-case, spaces removed), else
+    ``(value, None)``."""
+    if hasattr(value, "units") and hasattr(value, "value"):
+        return value.value, re.sub(r"\s+", "", str(value.units)).upper()
+    return value, None
+
+
+def _single(value: Any) -> Any:
+    """A one-element sequence or set stands for its element (PDS3 allows ``(x)`` and ``{x}``)."""
+    while isinstance(value, (list, tuple, set, frozenset)) and len(value) == 1:
+        value = next(iter(value))
+    return value
+
+
+def _number(value: Any, key: str, path: Path, unit: str | None,
+            units: str | None = None) -> float:
+    """A label number in the expected ``unit`` (None: a pure number), from any PDS3 form: bare,
+    with units, quoted, a one-element sequence or set; units it carries are converted."""
+    expected = f" <{unit}>" if unit else ""
+    value = _single(value)
+    value, own = _split_units(value)
+    value = _single(value)
+    units = own or units
+    if isinstance(value, str):
+        try:
+            value = float(value.strip())
+        except ValueError:
+            raise DataFileError(f"{path}: {key} = {value!r}: expected a number{expected}"
+                                ) from None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise DataFileError(f"{path}: {key} = {value!r}: expected a number"
-                            + (f" <{unit}>" if unit else ""))
-    if units is not None and units != unit:
+        raise DataFileError(f"{path}: {key} = {value!r}: expected a number{expected}")
+    if units is None:
+        return float(value)
+    if unit is None:
+        raise DataFileError(f"{path}: {key} in <{units}>: expected a pure number")
+    factor = _UNIT_FACTORS.get(unit, {unit: 1.0}).get(units)
+    if factor is None:
         raise DataFileError(f"{path}: {key} in <{units}>: expected <{unit}>")
-    return float(value)
+    return float(value) * factor
 
 
 def _quantity(label: Mapping[str, Any], key: str, path: Path, unit: str, *,
@@ -343,27 +391,60 @@ def _quantity(label: Mapping[str, Any], key: str, path: Path, unit: str, *,
         if optional:
             return None
         raise _missing(path, key)
-    if isinstance(value, str) and value.strip().upper() in ("N/A", "UNK", "NULL"):
+    if isinstance(_single(value), str) and _single(value).strip().upper() in _NULLS:
         if optional:
             return None
         raise DataFileError(f"{path}: {key} = {value!r}: expected a number <{unit}>")
     return _number(value, key, path, unit)
 
 
-def _vector(label: Mapping[str, Any], key: str, path: Path, n: int) -> FloatArray:
+def _vector(label: Mapping[str, Any], key: str, path: Path, n: int,
+            unit: str | None = None) -> FloatArray:
+    """An ordered sequence of ``n`` numbers in ``unit``: units on the sequence (pvl gives a
+    ``Quantity`` whose value is the list) or on each element, quoted or bare elements."""
     value = label.get(key)
     if value is None:
         raise _missing(path, key)
+    value, units = _split_units(value)
+    if isinstance(value, (set, frozenset)) and n > 1:
+        raise DataFileError(f"{path}: {key} = {value!r}: a set is unordered: expected a "
+                            f"sequence of {n} numbers (x1, ..., x{n})")
     if not isinstance(value, (list, tuple)) or len(value) != n:
-        raise DataFileError(f"{path}: {key} = {value!r}: expected {n} numbers")
-    return np.array([_number(v, key, path, None) for v in value], dtype=float)
+        raise DataFileError(f"{path}: {key} = {value!r}: expected a sequence of {n} numbers")
+    return np.array([_number(v, key, path, unit, units) for v in value], dtype=float)
 
 
 def _text(label: Mapping[str, Any], key: str, path: Path) -> str:
+    """A text value: quoted or unquoted (a symbol), or a one-element sequence or set of one."""
     value = label.get(key)
     if value is None:
         raise _missing(path, key)
+    value = _single(value)
+    if not isinstance(value, (str, int, float)) or isinstance(value, bool):
+        raise DataFileError(f"{path}: {key} = {value!r}: expected a text value")
     return str(value).strip()
+
+
+def _time(label: Mapping[str, Any], key: str, path: Path) -> datetime:
+    """A PDS3 time, unquoted (pvl gives a ``datetime``) or quoted text: calendar
+    ``YYYY-MM-DDThh:mm:ss[.fff][Z]`` or day-of-year ``YYYY-DDDThh:mm:ss[.fff][Z]``."""
+    value = label.get(key)
+    if value is None:
+        raise _missing(path, key)
+    value = _single(value)
+    if isinstance(value, datetime):
+        return value
+    text = str(value).strip().rstrip("Zz")
+    try:
+        if re.fullmatch(r"\d{4}-\d{3}(T.*)?", text):
+            day, _, clock = text.partition("T")
+            clock = clock or "00:00:00"
+            fmt = "%Y-%jT%H:%M:%S.%f" if "." in clock else "%Y-%jT%H:%M:%S"
+            return datetime.strptime(f"{day}T{clock}", fmt)
+        return datetime.fromisoformat(text)
+    except ValueError:
+        raise DataFileError(f"{path}: {key} = {value!r}: expected a PDS3 UTC time "
+                            "(YYYY-MM-DDThh:mm:ss.fff or YYYY-DDDThh:mm:ss.fff)") from None
 
 
 def _count(label: Mapping[str, Any], key: str, path: Path, where: str = "") -> int:
@@ -376,6 +457,74 @@ def _count(label: Mapping[str, Any], key: str, path: Path, where: str = "") -> i
     if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
         raise DataFileError(f"{path}: {where}{key} = {value!r}: expected a positive integer")
     return value
+
+
+_STATEMENT_RE = re.compile(r"(?m)^[ \t]*(\^?[A-Za-z][A-Za-z0-9_:]*)[ \t]*=")
+
+
+def _parse_error(text: str, err: ValueError) -> str:
+    """One line naming the keyword whose value pvl could not read: the last statement that
+    starts before the position of the error (pvl reports where it stopped, which may be the
+    start of the next statement)."""
+    pos = getattr(err, "pos", None)
+    key, line = None, None
+    if isinstance(pos, int):
+        for m in _STATEMENT_RE.finditer(text, 0, max(pos, 0)):
+            if m.start(1) < pos:
+                key, line = m.group(1), text.count("\n", 0, m.start(1)) + 1
+    what = " ".join(str(getattr(err, "msg", "") or err).split())
+    if len(what) > 120:
+        what = what[:117] + "..."
+    if key is None:
+        return f"the PDS3 label does not parse: {what}"
+    return (f"the PDS3 label does not parse: the value of {key} (line {line}) is not a PDS3 "
+            f"value ({what})")
+
+
+def _check_units(block: Mapping[str, Any], path: Path, where: str = "") -> None:
+    """Refuse units that swallowed statements: pvl reads an unclosed ``<`` up to the next
+    ``>``, lines later, so a units text holding ``=`` or a line break is a malformed value."""
+    for key, value in block.items():
+        if isinstance(value, Mapping):
+            _check_units(value, path, f"{where}{key}.")
+            continue
+        items = value if isinstance(value, (list, tuple, set, frozenset)) else [value]
+        for v in [value, *items]:
+            units = getattr(v, "units", None)
+            if units is not None and ("=" in str(units) or "\n" in str(units)):
+                first = str(units).split("\n", 1)[0].strip()
+                raise DataFileError(f"{path}: {where}{key}: units <{first} are not closed by "
+                                    "'>' on their line: expected e.g. '18 <MS>'")
+
+
+def _keys(block: Mapping[str, Any]) -> set[str]:
+    out = set()
+    for key, value in block.items():
+        out.add(str(key).upper())
+        if isinstance(value, Mapping):
+            out |= _keys(value)
+    return out
+
+
+def _check_complete(label: Mapping[str, Any], text: str, path: Path) -> None:
+    """Refuse a label pvl stopped reading early: a malformed value (e.g. ``18 <MS`` without
+    its ``>``) can make it drop every statement after it without an error. Every statement
+    of the text (outside quoted strings) must be in the parsed label; the one before the first
+    dropped statement is named."""
+    known = _keys(label) | {"OBJECT", "END_OBJECT", "GROUP", "END_GROUP"}
+    previous = None
+    for m in _STATEMENT_RE.finditer(text):
+        if text.count('"', 0, m.start(1)) % 2:
+            continue                                  # inside a quoted string
+        key = m.group(1).upper()
+        if key not in known:
+            if previous is None:
+                raise DataFileError(f"{path}: the PDS3 label does not parse at {key}")
+            line = text.count("\n", 0, previous.start(1)) + 1
+            raise DataFileError(
+                f"{path}: the PDS3 label does not parse: the value of {previous.group(1)} "
+                f"(line {line}) is not a PDS3 value (the statements after it were not read)")
+        previous = m
 
 
 def _parse_label(path: Path, blob: bytes) -> tuple[Mapping[str, Any], int]:
@@ -392,9 +541,16 @@ def _parse_label(path: Path, blob: bytes) -> tuple[Mapping[str, Any], int]:
         raise DataFileError(f"{path}: PDS3 label without an END statement in its first "
                             f"{MAX_LABEL_BYTES} bytes")
     try:
-        label = pvl.loads(blob[:end.end()].decode("ascii"))
-    except (UnicodeDecodeError, ValueError) as err:     # pvl's errors are ValueErrors
-        raise DataFileError(f"{path}: the PDS3 label does not parse: {err}") from err
+        text = blob[:end.end()].decode("ascii")
+    except UnicodeDecodeError as err:
+        raise DataFileError(f"{path}: the PDS3 label is not ASCII (byte {err.start})"
+                            ) from None
+    try:
+        label = pvl.loads(text)
+    except ValueError as err:     # pvl's lexer and parser errors are ValueErrors
+        raise DataFileError(f"{path}: {_parse_error(text, err)}") from None
+    _check_units(label, path)
+    _check_complete(label, text, path)
     label_bytes = _count(label, "RECORD_BYTES", path) * _count(label, "LABEL_RECORDS", path)
     if end.end() > label_bytes:
         raise DataFileError(f"{path}: the PDS3 label ends at byte {end.end()}, beyond "
@@ -499,17 +655,7 @@ def read_amie(path: str | Path) -> AmieFrame:
         raise _missing(path, "IMAGE object")
     dn = _decode_image(blob, offset, image, path)
 
-    start = label.get("START_TIME")
-    if start is None:
-        raise _missing(path, "START_TIME")
-    if isinstance(start, datetime):
-        start_dt = start
-    else:
-        try:
-            start_dt = datetime.fromisoformat(str(start).strip().rstrip("Z"))
-        except ValueError as err:
-            raise DataFileError(f"{path}: START_TIME = {start!r}: expected an ISO 8601 UTC "
-                                "time") from err
+    start_dt = _time(label, "START_TIME", path)
     if start_dt.tzinfo is None:
         start_dt = start_dt.replace(tzinfo=UTC)
     spec = "milliseconds" if start_dt.microsecond % 1000 == 0 else "microseconds"
@@ -519,8 +665,8 @@ def read_amie(path: str | Path) -> AmieFrame:
     ra = _quantity(label, "RIGHT_ASCENSION", path, "DEG")
     dec = _quantity(label, "DECLINATION", path, "DEG")
     boresight_deg = np.array([ra, dec], dtype=float)
-    reticle_deg = np.stack([_vector(label, "RETICLE_POINT_RA", path, 4),
-                            _vector(label, "RETICLE_POINT_DECLINATION", path, 4)], axis=1)
+    reticle_deg = np.stack([_vector(label, "RETICLE_POINT_RA", path, 4, "DEG"),
+                            _vector(label, "RETICLE_POINT_DECLINATION", path, 4, "DEG")], axis=1)
     phase = _quantity(label, "PHASE_ANGLE", path, "DEG", optional=True)
 
     marker_ok = all(dn[r, c] == DN_MAX for r, c in MARKER_PIXELS)
@@ -537,7 +683,9 @@ def read_amie(path: str | Path) -> AmieFrame:
     return AmieFrame(
         path=path,
         product_id=_text(label, "PRODUCT_ID", path),
-        target_name=str(label.get("TARGET_NAME", "")).strip(),
+        target_name=_text(label, "TARGET_NAME", path) if "TARGET_NAME" in label else "",
+        observation_type=(_text(label, "IMAGE_OBSERVATION_TYPE", path)
+                          if "IMAGE_OBSERVATION_TYPE" in label else ""),
         label=label,
         image_offset=offset,
         dn=_readonly(dn),
@@ -549,7 +697,7 @@ def read_amie(path: str | Path) -> AmieFrame:
         gain_e_per_dn=float(_quantity(label, "GAIN_NUMBER", path, "E/DN")),
         filter_name=filter_name,
         focal_plane_temperature_k=float(_quantity(label, "FOCAL_PLANE_TEMPERATURE", path, "K")),
-        sc_to_moon_m=_readonly(_vector(label, "SC_TARGET_POSITION_VECTOR", path, 3) * 1e3),
+        sc_to_moon_m=_readonly(_vector(label, "SC_TARGET_POSITION_VECTOR", path, 3, "KM") * 1e3),
         target_center_distance_m=float(_quantity(label, "TARGET_CENTER_DISTANCE", path, "KM"))
         * 1e3,
         phase_angle_rad=None if phase is None else phase * deg,
