@@ -106,6 +106,12 @@ def test_hil_geometric_then_stimulate(app, tmp_path):
     assert s["geometric"]["holdout"]["rms_arcsec"] < 5.0
     for f in ("residuals_pdf_cdf.png", "dot_displacements.png", "geometric_calibration.json"):
         assert (geo / f).exists()
+    # the camera as the bench estimated it, in the file navigation reads
+    from starnav.camera_calibration import read_calibration
+
+    cam_cal = read_calibration(geo / "camera_calibration.json")
+    assert cam_cal.camera.width == 256 and cam_cal.sigma("focal_length_m") > 0
+    assert s["camera"]["parameters"] == list(cam_cal.parameters)
     # a dataset as `starnav render` writes it: RadianceImage EXRs
     cam = small_camera(256)
     ds = tmp_path / "ds"

@@ -12,6 +12,8 @@ procedures end to end in software:
 * :mod:`~starnav.calibration.bench` -- geometry, emulated acquisition, pluggable detector,
   :func:`check_bench`;
 * :mod:`~starnav.calibration.geometric` -- dot-pattern calibration, pre-warping;
+* :mod:`~starnav.calibration.intrinsics` -- the camera's focal length, principal point and
+  distortion with their covariance (the file navigation reads);
 * :mod:`~starnav.calibration.radiometric` -- count <-> Moon flux, calibrated stimuli and their
   validation;
 * :mod:`~starnav.calibration.scaling` -- albedo-exposure scaling, KS equivalence, end to end;
@@ -40,6 +42,8 @@ _EXPORTS = {
     "GeometricCalibrationResult": "geometric", "NominalMapping": "geometric",
     "TrueMapping": "geometric", "prewarp": "geometric", "stimulus_counts": "geometric",
     "CalibrationError": "geometric",
+    "estimate_camera": "intrinsics", "calibrate_camera": "intrinsics",
+    "IntrinsicsResult": "intrinsics", "as_built_camera": "bench",
     "moon_flux": "radiometric", "count_flux_mapping": "radiometric",
     "compare_stimulus": "radiometric",
     "plan_scaling": "scaling", "albedo_exposure_experiment": "scaling",

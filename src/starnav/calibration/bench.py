@@ -57,7 +57,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any, Protocol
 
@@ -136,6 +136,9 @@ class BenchGeometry:
         Screen roll and tilt (screen plane -> collimator frame).
     R_cam : (3, 3) array
         Collimator frame -> camera frame.
+    focal_length_design, k1_design : float, optional
+        The collimator's design focal length [m] and distortion [-] when the as-built ones
+        above differ (:meth:`nominal`, :meth:`design`).
     """
 
     camera: Camera
@@ -148,6 +151,8 @@ class BenchGeometry:
     defocus: float = 0.0
     R_screen: FloatArray = field(default_factory=lambda: np.eye(3))
     R_cam: FloatArray = field(default_factory=lambda: np.eye(3))
+    focal_length_design: float | None = None
+    k1_design: float | None = None
 
     @classmethod
     def from_config(cls, cfg: BenchConfig, camera: Camera) -> BenchGeometry:
@@ -157,14 +162,25 @@ class BenchGeometry:
             @ _rz(r(m.screen_roll_deg))
         R_cam = _rz(r(m.camera_roll_deg)) @ _ry(r(m.camera_tilt_deg[1])) \
             @ _rx(r(m.camera_tilt_deg[0]))
-        return cls(camera, cfg.collimator.focal_length_mm * 1e-3, cfg.screen.pitch_mm * 1e-3,
-                   (cfg.screen.height_px, cfg.screen.width_px), cfg.collimator.distortion_k1,
+        f_design = cfg.collimator.focal_length_mm * 1e-3
+        return cls(camera, f_design * (1.0 + m.collimator_focal_length_error),
+                   cfg.screen.pitch_mm * 1e-3, (cfg.screen.height_px, cfg.screen.width_px),
+                   cfg.collimator.distortion_k1 + m.collimator_k1_error,
                    cfg.collimator.distortion_k2, np.asarray(m.screen_shift_mm, float) * 1e-3,
-                   m.screen_defocus_mm * 1e-3, R_screen, R_cam)
+                   m.screen_defocus_mm * 1e-3, R_screen, R_cam, f_design,
+                   cfg.collimator.distortion_k1)
 
     def nominal(self) -> BenchGeometry:
-        """The same bench as designed: no distortion, no misalignment."""
-        return BenchGeometry(self.camera, self.focal_length, self.pitch, self.shape)
+        """The same bench as designed, without distortion: the design focal length, no
+        misalignment."""
+        f = self.focal_length if self.focal_length_design is None else self.focal_length_design
+        return BenchGeometry(self.camera, f, self.pitch, self.shape)
+
+    def design(self) -> BenchGeometry:
+        """The bench as designed, with the collimator's design distortion: what a calibration
+        may assume."""
+        k1 = self.k1 if self.k1_design is None else self.k1_design
+        return replace(self.nominal(), k1=k1, k2=self.k2)
 
     # ............................................................ screen coordinates
     @property
@@ -477,6 +493,16 @@ class Acquisition:
     frame_index: int
 
 
+def as_built_camera(config: BenchConfig) -> Camera:
+    """The scenario's camera with the bench's as-built departures (``misalignment.camera_*``):
+    the camera the emulated bench really has, which a calibration must estimate."""
+    cam = build_camera(config.scenario.camera)
+    m = config.misalignment
+    dx, dy = m.camera_principal_point_offset_px
+    return replace(cam, focal_length=cam.focal_length * (1.0 + m.camera_focal_length_error),
+                   cx=cam.cx + dx, cy=cam.cy + dy, k1=cam.k1 + m.camera_k1_error)
+
+
 class Bench:
     """An emulated bench: its geometry, screen radiometry, collimator and camera.
 
@@ -484,7 +510,7 @@ class Bench:
     ----------
     config : BenchConfig
     camera : Camera, optional
-        Default: the camera of ``config.scenario``.
+        Default: the camera of ``config.scenario`` as built (:func:`as_built_camera`).
     response : SensorResponse, optional
         Default: the sensor response of ``config.scenario``.
     """
@@ -492,7 +518,7 @@ class Bench:
     def __init__(self, config: BenchConfig, camera: Camera | None = None,
                  response: SensorResponse | None = None) -> None:
         self.config = config
-        self.camera = camera if camera is not None else build_camera(config.scenario.camera)
+        self.camera = camera if camera is not None else as_built_camera(config)
         self.response = (response if response is not None
                          else sensor_response_from_config(config.scenario.sensor_response))
         self.geometry = BenchGeometry.from_config(config, self.camera)
@@ -816,5 +842,5 @@ def angle_between(a: ArrayLike, b: ArrayLike) -> FloatArray:
 
 
 __all__ = ["Acquisition", "Bench", "BenchCheck", "BenchGeometry", "ChainDetector",
-           "DetectorFrame", "DetectorStage", "IdealDetector", "angle_between", "check_bench",
-           "field_varying_blur", "splat"]
+           "DetectorFrame", "DetectorStage", "IdealDetector", "angle_between",
+           "as_built_camera", "check_bench", "field_varying_blur", "splat"]

@@ -258,6 +258,19 @@ class MisalignmentConfig(StrictModel):
         "collimator axis [deg]")
     camera_roll_deg: FiniteFloat = Field(0.0, description="camera rotation about its boresight "
                                          "[deg]")
+    collimator_focal_length_error: Annotated[float, Field(gt=-0.1, lt=0.1)] = Field(
+        0.0, description="as-built collimator focal length / design value - 1 [-] (the "
+        "calibration knows the design value to geometric.collimator_focal_length_sigma)")
+    collimator_k1_error: Annotated[float, Field(gt=-1.0, lt=1.0)] = Field(
+        0.0, description="as-built collimator radial distortion - collimator.distortion_k1 [-] "
+        "(known to geometric.collimator_k1_sigma)")
+    camera_focal_length_error: Annotated[float, Field(gt=-0.1, lt=0.1)] = Field(
+        0.0, description="the camera's true focal length / its datasheet value - 1 [-] (what "
+        "the camera calibration estimates)")
+    camera_principal_point_offset_px: tuple[FiniteFloat, FiniteFloat] = Field(
+        (0.0, 0.0), description="the camera's true principal point - its datasheet value [px]")
+    camera_k1_error: Annotated[float, Field(gt=-1.0, lt=1.0)] = Field(
+        0.0, description="the camera's true k1 - its datasheet value [-]")
 
     @field_validator("screen_tilt_deg", "camera_tilt_deg")
     @classmethod
@@ -303,6 +316,25 @@ class GeometricCalibrationConfig(StrictModel):
         10.0, description="detection threshold above the dark-subtracted background [noise "
         "sigma]")
     subtract_dark_frame: bool = Field(True, description="acquire a black screen and subtract it")
+    mount_tilt_sigma_deg: PositiveFloat = Field(
+        0.1, description="camera intrinsics: 1-sigma tilt of the camera on its bench mount "
+        "about x and y [deg] (prior that separates a tilt from a principal-point shift)")
+    collimator_focal_length_sigma: PositiveFloat = Field(
+        1e-3, description="camera intrinsics: 1-sigma relative knowledge of the collimator's "
+        "focal length [-] (a measured one; an unmeasured achromat's datasheet tolerance is "
+        "+-1 %); a consider parameter of the camera's focal length")
+    collimator_k1_sigma: PositiveFloat = Field(
+        0.01, description="camera intrinsics: 1-sigma knowledge of the collimator's radial "
+        "distortion coefficient [-]; a consider parameter of the camera's k1")
+    screen_shift_sigma_mm: PositiveFloat = Field(
+        0.3, description="camera intrinsics: 1-sigma in-plane placement of the screen on the "
+        "collimator axis [mm] (consider parameter)")
+    screen_tilt_sigma_deg: PositiveFloat = Field(
+        0.5, description="camera intrinsics: 1-sigma screen tilt about x and y [deg] "
+        "(consider parameter)")
+    screen_defocus_sigma_mm: PositiveFloat = Field(
+        0.05, description="camera intrinsics: 1-sigma screen distance from the collimator's "
+        "focal plane [mm] (consider parameter)")
 
 
 class RadiometricConfig(StrictModel):

@@ -37,6 +37,7 @@ from starnav.calibration.geometric import (
     ScreenMapping,
     calibrate_geometry,
 )
+from starnav.calibration.intrinsics import calibrate_camera
 from starnav.calibration.radiometric import compare_stimulus, count_flux_mapping, moon_flux
 from starnav.calibration.scaling import (
     albedo_exposure_experiment,
@@ -120,7 +121,8 @@ def run_geometric(cfg: BenchConfig, *, moon: bool = True,
     """
     bench = Bench(cfg)
     res = calibrate_geometry(bench)
-    summary: dict[str, Any] = {"geometric": res.summary()}
+    intr = calibrate_camera(bench, res.calibration_dots)
+    summary: dict[str, Any] = {"geometric": res.summary(), "camera": intr.summary()}
     figs = {"residuals_pdf_cdf": plots.residual_pdf_cdf(res),
             "dot_displacements": plots.dot_displacements(res)}
     if moon:
@@ -135,7 +137,9 @@ def run_geometric(cfg: BenchConfig, *, moon: bool = True,
             "goal_px": 0.5, "calibrated": cal.metrics(), "uncalibrated": unc.metrics()}
         figs["moon_placement"] = plots.moon_placement(cal, unc)
     summary["bench"] = bench_to_dict(cfg)
-    return HilReport(summary, figs, {"geometric_calibration.json": res.calibration.to_json()})
+    return HilReport(summary, figs, {"geometric_calibration.json": res.calibration.to_json(),
+                                     "camera_calibration.json": _json(
+                                         intr.calibration.to_dict())})
 
 
 def load_calibration(path: str | Path, bench: Bench) -> GeometricCalibration:

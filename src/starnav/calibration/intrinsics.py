@@ -1,0 +1,285 @@
+"""The camera's focal length, principal point and distortion estimated on the bench, with
+their covariance: the calibration product navigation reads.
+
+The dot-pattern acquisition of :mod:`starnav.calibration.geometric` gives, for every matched
+dot, the screen pixel it was drawn at and the detector pixel its centroid was seen at. Through
+the collimator *as designed* (its nominal focal length, no distortion, screen centred and
+square to the axis) each screen pixel is a known direction; the camera model maps directions
+to pixels. Fitting one to the other estimates the camera.
+
+Technique
+---------
+1. **Model.** ``uv = camera(theta).project(R(omega) d(s))``: ``d(s)`` the collimated direction
+   of screen pixel ``s`` through the nominal collimator
+   (:meth:`~starnav.calibration.bench.BenchGeometry.beam_tangent` of the nominal geometry),
+   ``R(omega)`` the camera's unknown mounting rotation on the bench (rotation vector),
+   ``theta`` the camera parameters (:data:`ESTIMATED`: focal length, principal point, radial
+   ``k1, k2`` and tangential ``p1, p2``).
+2. **Prior on the mount.** A tilt of the camera about its x or y axis moves the image almost
+   like a principal-point shift (they differ only by the ``1 + tan^2`` growth over the
+   field), so the two are separated by a prior: the mount's tilts are zero with the
+   mechanical tolerance ``mount_tilt_sigma_rad`` (pseudo-observations). The roll is free.
+3. **Fit.** Levenberg-Marquardt (:func:`scipy.optimize.least_squares`) on the pixel residuals,
+   from the nominal camera. The centroid noise is estimated from the residuals
+   (``s^2 = sum r^2 / (2 N - p)``).
+4. **Covariance.** ``P = (J^T W J)^-1`` with the Jacobian by central differences at the
+   solution, the residual rows weighted by ``1 / s^2`` and the prior rows by their tolerance.
+5. **Consider parameters.** What the bench does not know about itself and the fit cannot
+   estimate (:data:`CONSIDER`): the collimator's focal length (a scale error ``epsilon`` is
+   exactly a camera focal-length error ``f epsilon``: only ``f_cam / f_coll`` is observable),
+   its radial distortion (absorbed by the camera's ``k1``), and the screen's shift, tilt and
+   defocus (a shift is a pointing offset, which the tilt prior splits between the mount and
+   the principal point; a tilt is a keystone). Their tolerances enter as
+   ``P_c = S C S^T``, ``S = -(J^T W J)^-1 J^T W dr/dc`` the sensitivity of the estimate to
+   each (Tapley, Schutz & Born 2004, *Statistical Orbit Determination*, ch. 6.3), added to
+   ``P``. They are *not* estimated: the bench cannot tell them from the camera.
+
+The mounting rotation is a nuisance parameter: it is estimated and its uncertainty is part of
+``P`` but it is not written (the flight camera's alignment is the star tracker's own attitude).
+
+Index
+-----
+:data:`ESTIMATED`              the camera parameters estimated
+:data:`CONSIDER`               the bench's own parameters taken with their tolerance
+:class:`IntrinsicsResult`      estimate, covariance split (noise, consider), residuals
+:func:`estimate_camera`        the fit of steps 1-5 on one dot acquisition
+:func:`calibrate_camera`       the dot acquisition on an emulated bench, then the fit
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from starnav.calibration.bench import Bench, BenchGeometry
+from starnav.calibration.geometric import DotAcquisition
+from starnav.camera import Camera
+from starnav.camera_calibration import (
+    CameraCalibration,
+    parameter_values,
+    with_parameters,
+)
+from starnav.errors import ConfigError
+
+FloatArray = NDArray[np.float64]
+
+#: Camera parameters the bench estimates, in the order of the covariance.
+ESTIMATED = ("focal_length_m", "cx_px", "cy_px", "k1", "k2", "p1", "p2")
+#: Parameter scales used to condition the fit and the finite differences.
+_SCALE = {"focal_length_m": 1e-4, "cx_px": 1.0, "cy_px": 1.0, "k1": 1e-3, "k2": 1e-3,
+          "p1": 1e-4, "p2": 1e-4}
+_ROT_SCALE = 1e-4  # [rad]
+
+
+@dataclass(frozen=True)
+class IntrinsicsResult:
+    """The bench's estimate of the camera.
+
+    Attributes
+    ----------
+    calibration : CameraCalibration
+        Estimate and full covariance (noise + consider), ready for
+        :func:`~starnav.camera_calibration.write_calibration`.
+    covariance_noise, covariance_consider : (p, p) arrays
+        The two parts of the covariance (same order as ``calibration.parameters``).
+    mount_rotation_rad : (3,) array
+        Estimated mounting rotation vector (nuisance).
+    residual_px : (N, 2) array
+        Post-fit residuals of the dots.
+    centroid_sigma_px : float
+        Centroid noise estimated from the residuals.
+    """
+
+    calibration: CameraCalibration
+    covariance_noise: FloatArray
+    covariance_consider: FloatArray
+    mount_rotation_rad: FloatArray
+    residual_px: FloatArray
+    centroid_sigma_px: float
+
+    def summary(self) -> dict[str, Any]:
+        cal = self.calibration
+        return {
+            "parameters": list(cal.parameters),
+            "estimate": [float(x) for x in cal.estimate],
+            "sigma": [cal.sigma(p) for p in cal.parameters],
+            "sigma_noise_only": [float(math.sqrt(self.covariance_noise[i, i]))
+                                 for i in range(len(cal.parameters))],
+            "mount_rotation_arcsec": [float(x) * 180 / math.pi * 3600
+                                      for x in self.mount_rotation_rad],
+            "dots": int(len(self.residual_px)),
+            "residual_rms_px": float(np.sqrt(np.mean(np.square(self.residual_px)))),
+            "centroid_sigma_px": self.centroid_sigma_px,
+        }
+
+
+def _directions(geometry: BenchGeometry, screen_px: FloatArray) -> FloatArray:
+    t, _ = geometry.beam_tangent(screen_px)
+    v = np.concatenate([t, np.ones(t.shape[:-1] + (1,))], -1)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+#: What the bench does not know about itself (consider parameters, step 5): name -> unit.
+CONSIDER = {
+    "collimator_focal_length": "relative",
+    "collimator_k1": "-",
+    "screen_shift_x": "m", "screen_shift_y": "m",
+    "screen_tilt_x": "rad", "screen_tilt_y": "rad",
+    "screen_defocus": "m",
+}
+
+
+def _perturbed(geometry: BenchGeometry, name: str, delta: float) -> BenchGeometry:
+    """``geometry`` with one :data:`CONSIDER` parameter moved by ``delta``."""
+    g = geometry
+    if name == "collimator_focal_length":
+        return replace(g, focal_length=g.focal_length * (1.0 + delta))
+    if name == "collimator_k1":
+        return replace(g, k1=g.k1 + delta)
+    if name in ("screen_shift_x", "screen_shift_y"):
+        return replace(g, shift=np.asarray(g.shift, float)
+                       + delta * np.eye(2)[int(name.endswith("_y"))])
+    if name in ("screen_tilt_x", "screen_tilt_y"):
+        axis = np.eye(3)[1 if name.endswith("_y") else 0]
+        return replace(g, R_screen=Rotation.from_rotvec(delta * axis).as_matrix() @ g.R_screen)
+    if name == "screen_defocus":
+        return replace(g, defocus=g.defocus + delta)
+    raise ConfigError("consider parameter", name, f"one of {list(CONSIDER)}")
+
+
+def estimate_camera(nominal: Camera, geometry: BenchGeometry, screen_px: FloatArray,
+                    observed_px: FloatArray, *, mount_tilt_sigma_rad: float,
+                    consider: dict[str, float],
+                    provenance: dict[str, Any] | None = None) -> IntrinsicsResult:
+    """Estimate the camera from matched dots (module essay, steps 1-5).
+
+    Parameters
+    ----------
+    nominal : Camera
+        The camera as designed (datasheet): the start of the fit and everything not
+        estimated (size, pitch, f-number, ``k3``).
+    geometry : BenchGeometry
+        The bench *as designed* (:meth:`BenchGeometry.nominal`): the fit knows no more.
+    screen_px, observed_px : (N, 2) arrays
+        Where each dot was drawn [screen px] and where its centroid was seen [detector px].
+    mount_tilt_sigma_rad : float
+        Mechanical tolerance of the camera's tilts on the bench (prior, step 2) [rad].
+    consider : dict
+        1-sigma knowledge of the bench's own parameters, :data:`CONSIDER` name -> sigma in
+        its unit (step 5); a parameter left out is taken as exact.
+    provenance : dict, optional
+        Added to the calibration file's provenance.
+
+    Raises
+    ------
+    ConfigError
+        Too few dots for the parameters, or a tolerance that is not a finite value > 0.
+    """
+    s = np.asarray(screen_px, float).reshape(-1, 2)
+    uv = np.asarray(observed_px, float).reshape(-1, 2)
+    if s.shape != uv.shape:
+        raise ConfigError("observed_px", uv.shape, f"one pixel per drawn dot ({s.shape})")
+    for name, val in (("mount_tilt_sigma_rad", mount_tilt_sigma_rad), *consider.items()):
+        if not (math.isfinite(val) and val > 0):
+            raise ConfigError(name, val, "a finite tolerance > 0")
+        if name != "mount_tilt_sigma_rad" and name not in CONSIDER:
+            raise ConfigError("consider parameter", name, f"one of {list(CONSIDER)}")
+    n_par = len(ESTIMATED) + 3
+    if 2 * len(s) < n_par + 10:
+        raise ConfigError("dots", len(s), f"at least {(n_par + 10 + 1) // 2} matched dots to "
+                          f"estimate {len(ESTIMATED)} camera parameters and the mount")
+    scale = np.array([_SCALE[p] for p in ESTIMATED] + [_ROT_SCALE] * 3)
+    x0 = np.concatenate([parameter_values(nominal, ESTIMATED), np.zeros(3)])
+    d_nom = _directions(geometry, s)
+
+    def model(x: FloatArray, d: FloatArray) -> FloatArray:
+        cam = with_parameters(nominal, dict(zip(ESTIMATED, x[:len(ESTIMATED)], strict=True)))
+        R = Rotation.from_rotvec(x[len(ESTIMATED):]).as_matrix()
+        return cam.project(d @ R.T)
+
+    def residual(z: FloatArray, d: FloatArray, sigma_px: float) -> FloatArray:
+        x = x0 + z * scale
+        r = ((model(x, d) - uv) / sigma_px).ravel()
+        prior = x[len(ESTIMATED):len(ESTIMATED) + 2] / mount_tilt_sigma_rad
+        return np.concatenate([r, prior])
+
+    fit = least_squares(residual, np.zeros(n_par), args=(d_nom, 1.0), method="lm",
+                        x_scale=1.0, xtol=1e-12, ftol=1e-12)
+    res_px = (model(x0 + fit.x * scale, d_nom) - uv)
+    sigma_px = float(np.sqrt(np.sum(res_px ** 2) / max(2 * len(s) - n_par, 1)))
+    sigma_px = max(sigma_px, 1e-6)
+    # refit with the prior weighted against the measured centroid noise
+    fit = least_squares(residual, fit.x, args=(d_nom, sigma_px), method="lm", x_scale=1.0,
+                        xtol=1e-12, ftol=1e-12)
+    z = fit.x
+
+    def jac(fun: Any, z: FloatArray, h: float = 1e-3) -> FloatArray:
+        cols = []
+        for k in range(len(z)):
+            e = np.zeros_like(z)
+            e[k] = h
+            cols.append((fun(z + e) - fun(z - e)) / (2 * h))
+        return np.stack(cols, -1)
+
+    J = jac(lambda q: residual(q, d_nom, sigma_px), z)          # whitened, scaled
+    info = J.T @ J
+    cov_z = np.linalg.inv(info)
+    # consider parameters: collimator focal length (relative) and radial distortion
+    sens = [np.zeros(n_par)]
+    for name, sig in consider.items():
+        h = 1e-3 * sig
+        dr = (residual(z, _directions(_perturbed(geometry, name, h), s), sigma_px)
+              - residual(z, _directions(_perturbed(geometry, name, -h), s), sigma_px)) / 2e-3
+        sens.append(-cov_z @ J.T @ dr)                            # dz per 1-sigma
+    S = np.stack(sens, -1)
+    cov_c_z = S @ S.T
+    D = np.diag(scale)
+    k = len(ESTIMATED)
+    cov_noise = (D @ (0.5 * (cov_z + cov_z.T)) @ D)[:k, :k]
+    cov_consider = (D @ cov_c_z @ D)[:k, :k]
+    x = x0 + z * scale
+    cam = with_parameters(nominal, dict(zip(ESTIMATED, x[:k], strict=True)))
+    prov = {"method": "bench dot pattern, camera model fitted through the nominal collimator",
+            "dots": int(len(s)), "centroid_sigma_px": sigma_px,
+            "mount_tilt_sigma_rad": mount_tilt_sigma_rad,
+            "consider_sigma": dict(consider),
+            **(provenance or {})}
+    cov = cov_noise + cov_consider
+    cal = CameraCalibration(cam, ESTIMATED, 0.5 * (cov + cov.T), prov)
+    res = np.asarray(model(x, d_nom) - uv)
+    return IntrinsicsResult(cal, cov_noise, cov_consider, x[k:], res, sigma_px)
+
+
+def calibrate_camera(bench: Bench, dots: DotAcquisition | None = None) -> IntrinsicsResult:
+    """The camera calibration of an emulated bench: its dot acquisition
+    (:func:`~starnav.calibration.geometric.calibrate_geometry`, or ``dots`` already acquired),
+    fitted through the bench *as designed* from the scenario's datasheet camera, with the
+    tolerances of ``bench.config.geometric``."""
+    from starnav.calibration.geometric import calibrate_geometry
+    from starnav.config import build_camera
+
+    if dots is None:
+        dots = calibrate_geometry(bench, validate=False).calibration_dots
+    g = bench.config.geometric
+    f = dots.found
+    return estimate_camera(
+        build_camera(bench.config.scenario.camera), bench.geometry.design(),
+        dots.screen_px[f], dots.observed_px[f],
+        mount_tilt_sigma_rad=math.radians(g.mount_tilt_sigma_deg),
+        consider={"collimator_focal_length": g.collimator_focal_length_sigma,
+                  "collimator_k1": g.collimator_k1_sigma,
+                  "screen_shift_x": g.screen_shift_sigma_mm * 1e-3,
+                  "screen_shift_y": g.screen_shift_sigma_mm * 1e-3,
+                  "screen_tilt_x": math.radians(g.screen_tilt_sigma_deg),
+                  "screen_tilt_y": math.radians(g.screen_tilt_sigma_deg),
+                  "screen_defocus": g.screen_defocus_sigma_mm * 1e-3},
+        provenance={"bench_seed": bench.config.seed})
+
+
+__all__ = ["CONSIDER", "ESTIMATED", "IntrinsicsResult", "calibrate_camera", "estimate_camera"]
