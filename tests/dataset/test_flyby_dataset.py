@@ -63,7 +63,8 @@ def test_the_dataset_is_marked_fly_by_and_holds_radiance_and_truth_only(made):
     assert man["flyby"]["epoch_ca_tdb_s"] == sim.scene.flyby.epoch_ca
     assert len(man["frames"]) == 3
     for e in man["frames"]:
-        assert sorted(e["files"]) == ["radiance.exr", "radiance_quicklook.png", "truth.json"]
+        assert sorted(e["files"]) == ["files.json", "radiance.exr", "radiance_quicklook.png",
+                                      "truth.json"]
         truth = json.loads((ds / e["directory"] / "truth.json").read_text())
         rel = sim.scene.relative_states[e["index"]]
         np.testing.assert_array_equal(truth["flyby"]["relative_position_m"], rel[:3])
@@ -91,7 +92,7 @@ def test_the_dataset_verifies(made):
     _, _, ds, _ = made
     res = invoke("dataset", "verify", str(ds))
     assert res.exit_code == 0, res.output
-    assert "complete, 3 of 3 frames, 9 files verified" in " ".join(res.output.split())
+    assert "complete, 3 of 3 frames, 12 files verified" in " ".join(res.output.split())
 
 
 def test_navigate_dataset_equals_navigate_scenario(made):

@@ -59,7 +59,7 @@ from starnav.scenes.ephemeris import format_epoch
 
 #: Name and version of the format (bump the version on any incompatible change).
 SCHEMA = "starnav-dataset"
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 MANIFEST = "manifest.json"
 RESOLVED = "scenario.resolved.yaml"
@@ -76,6 +76,10 @@ RADIANCE_QUICKLOOK = "radiance_quicklook.png"
 SEGMENTS = "segments.json"
 WINDOWS = "windows.json"
 READOUT = "readout.json"
+#: The frame's own record of its other files (relative path -> ``bytes``, ``sha256``), written
+#: last into the frame before it is renamed into place: what a frame left on disk by a crash
+#: (not yet in the manifest) is checked against before a resume adopts it.
+FRAME_FILES = "files.json"
 
 #: Prefix of temporary frame directories (removed on resume; never listed as frames).
 TMP_PREFIX = ".tmp-"
@@ -182,6 +186,59 @@ def sha256_file(path: str | os.PathLike[str]) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def file_record(root: Path) -> dict[str, dict[str, Any]]:
+    """Size and SHA-256 of every file under ``root`` except its :data:`FRAME_FILES` (relative
+    POSIX path -> ``{"bytes", "sha256"}``, sorted)."""
+    return {p.relative_to(root).as_posix(): {"bytes": p.stat().st_size,
+                                             "sha256": sha256_file(p)}
+            for p in sorted(root.rglob("*"))
+            if p.is_file() and p.relative_to(root).as_posix() != FRAME_FILES}
+
+
+def frame_problems(d: Path, files: Mapping[str, Mapping[str, Any]] | None = None,
+                   exposures: Sequence[str] = (), radiance: bool | None = None) -> list[str]:
+    """What is wrong with the frame directory ``d`` (empty: whole and as written).
+
+    ``files`` is what the frame should hold (its manifest entry's files); by default the
+    frame's own record (:data:`FRAME_FILES`), which must then exist and be valid JSON. Checked:
+    the file names (none missing, none extra), each file's size and recomputed SHA-256, that
+    the JSON files parse, and, when given, that the frame has its expected parts (every
+    exposure directory with its DN frame, readout and windows; the radiance when stored).
+    """
+    problems: list[str] = []
+    if files is None:
+        rec = d / FRAME_FILES
+        try:
+            files = json.loads(rec.read_text(encoding="utf-8"))["files"]
+            if not isinstance(files, dict):
+                raise TypeError("files is not a mapping")
+        except FileNotFoundError:
+            return [f"{FRAME_FILES} (its record of its files) is missing"]
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            return [f"{FRAME_FILES} is unreadable ({type(err).__name__}: {err})"]
+    else:
+        files = {k: v for k, v in files.items() if k != FRAME_FILES}
+    on_disk = {p.relative_to(d).as_posix() for p in d.rglob("*") if p.is_file()}
+    on_disk.discard(FRAME_FILES)
+    need = [TRUTH] + ([RADIANCE] if radiance else []) + [
+        f"{e}/{n}" for e in exposures for n in (DN, READOUT, WINDOWS)]
+    problems += [f"{n} is missing" for n in need if n not in files and n not in on_disk]
+    problems += [f"{n} is missing" for n in sorted(set(files) - on_disk)]
+    problems += [f"{n} is not in its record" for n in sorted(on_disk - set(files))]
+    for n in sorted(set(files) & on_disk):
+        p, meta = d / n, files[n]
+        if p.stat().st_size != meta.get("bytes"):
+            problems.append(f"{n} has {p.stat().st_size} bytes, its record {meta.get('bytes')}")
+        elif sha256_file(p) != meta.get("sha256"):
+            problems.append(f"{n} differs from its record (SHA-256)")
+        elif p.suffix == ".json":
+            try:
+                json.loads(p.read_text(encoding="utf-8"))
+            except (ValueError, UnicodeDecodeError) as err:
+                problems.append(f"{n} is not valid JSON ({err})")
+    return problems
 
 
 # ----------------------------------------------------------------------------- segments

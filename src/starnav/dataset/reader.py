@@ -320,7 +320,8 @@ def verify_manifest(root: Path, man: dict[str, Any]) -> list[str]:
 
     Reported: frames the manifest expects but does not list (an incomplete dataset: which
     ones, and how to finish it), listed frames whose directory or files are missing, differ
-    in size or SHA-256, or hold unlisted files; temporary files and frame directories left by
+    in size or SHA-256, or hold unlisted files, or whose manifest entry differs from the
+    frame's own record of its files (``files.json``); temporary files and frame directories left by
     an interrupted write; frame directories a complete manifest does not list.
     """
     problems: list[str] = []
@@ -352,6 +353,21 @@ def verify_manifest(root: Path, man: dict[str, Any]) -> list[str]:
                 problems.append(f"frame {e['index']}: file {rel} is missing")
             elif p.stat().st_size != meta["bytes"] or F.sha256_file(p) != meta["sha256"]:
                 problems.append(f"frame {e['index']}: file {rel} differs from the manifest")
+        if F.FRAME_FILES in e["files"] and (d / F.FRAME_FILES).is_file():
+            # the frame's own record, written with it (the files were checked against the
+            # manifest above): a manifest entry rebuilt from a frame damaged before it was
+            # listed differs from it
+            try:
+                rec = F.read_json(d / F.FRAME_FILES)["files"]
+            except (DataFileError, KeyError, TypeError):
+                rec = None
+            listed_files = {k: v for k, v in e["files"].items() if k != F.FRAME_FILES}
+            if rec != listed_files:
+                names = sorted(k for k in set(rec or {}) | set(listed_files)
+                               if (rec or {}).get(k) != listed_files.get(k))
+                problems.append(f"frame {e['index']}: the manifest's files differ from the "
+                                f"frame's own record ({F.FRAME_FILES}): "
+                                f"{', '.join(names) or 'unreadable record'}")
     for name in (F.MANIFEST, F.RESOLVED):
         for p in root.glob(f".{name}.*"):
             problems.append(f"temporary file {p.name} left by an interrupted write (resume to "

@@ -34,8 +34,10 @@ Technique
    (:mod:`starnav.atomic`): a dataset survives a power loss as it survives ``kill -9``.
 5. **Resume.** ``resume=True`` checks that the manifest's head equals the new one (same
    scenario, options, software), deletes temporary directories left by a crash, keeps every
-   finished frame (the manifest's entry, or one rebuilt from the files for a frame renamed
-   after the last manifest write) and makes the missing ones. Since every frame is a pure
+   finished frame whose files are whole (a listed frame: names, sizes and SHA-256 as its
+   manifest entry says; a frame renamed after the last manifest write: as the record it
+   carries, ``files.json``, says, its entry then rebuilt from the files), removes the others
+   and makes them, and the missing ones, again. Since every frame is a pure
    function of the scenario and its index, the result is byte-identical to an uninterrupted
    run.
 
@@ -322,6 +324,7 @@ def dataset_head(scenario: Scenario, options: DatasetOptions, n_frames: int) -> 
         "exposures": exposures,
         "frames_expected": int(n_frames),
         "layout": {"frames": f"{F.FRAMES_DIR}/NNNNNN", "truth": F.TRUTH,
+                   "frame_files": F.FRAME_FILES,
                    "radiance": F.RADIANCE if opts.radiance else None,
                    "radiance_quicklook": F.RADIANCE_QUICKLOOK if opts.radiance else None,
                    "per_exposure": [F.DN, F.DN_QUICKLOOK, F.SEGMENTS, F.WINDOWS, F.READOUT]},
@@ -538,6 +541,7 @@ class FrameMaker:
                     write_dn_png(F.uint16_image(stars[t]), d / F.STAR_DN)
                 F.write_json(d / F.READOUT, {**acq.summary(),
                                              "overrides": list(self.options.overrides_for(t))})
+            F.write_json(tmp / F.FRAME_FILES, {"files": F.file_record(tmp)})  # last
             os.chmod(tmp, 0o777 & ~_umask())
             sync_directory(tmp)  # its entries (the exposure directories) reach the disk
             os.rename(tmp, final)
@@ -710,10 +714,15 @@ def _remove_temporaries(out: Path, index: int) -> None:
         shutil.rmtree(p, ignore_errors=True)
 
 
-def _scan(out: Path, listed: dict[int, dict[str, Any]], n: int) -> dict[int, dict[str, Any]]:
-    """Remove temporary frame directories; keep listed frames found on disk and rebuild the
-    entries of finished frames the manifest does not list yet."""
+def _scan(out: Path, listed: dict[int, dict[str, Any]], n: int,
+          opts: DatasetOptions) -> dict[int, dict[str, Any]]:
+    """Remove temporary frame directories; keep the frames found whole on disk (a listed one:
+    its files as its manifest entry says; one the manifest does not list yet: as its own
+    record says, :func:`starnav.dataset.format.frame_problems`, its entry rebuilt from its
+    files) and remove the others, which are then made again."""
     frames = out / F.FRAMES_DIR
+    parts = {"exposures": [F.exposure_dirname(t) for t in opts.exposures_s or ()],
+             "radiance": opts.radiance}
     entries: dict[int, dict[str, Any]] = {}
     if not frames.is_dir():
         return entries
@@ -727,6 +736,14 @@ def _scan(out: Path, listed: dict[int, dict[str, Any]], n: int) -> dict[int, dic
         i = int(p.name)
         if i >= n:
             raise DataFileError(f"{str(p)!r}: frame {i} is outside the scenario's {n} frames")
+        bad = F.frame_problems(p, listed[i]["files"] if i in listed else None, **parts)
+        if bad:
+            log.warning("frame %d is damaged (%s): making it again", i, "; ".join(bad))
+            aside = p.with_name(f"{F.TMP_PREFIX}{p.name}-damaged")
+            shutil.rmtree(aside, ignore_errors=True)
+            os.rename(p, aside)  # out of the frames before it goes: a crash leaves a temporary
+            shutil.rmtree(aside, ignore_errors=True)
+            continue
         entries[i] = listed[i] if i in listed else frame_entry(out, i)
     return entries
 
@@ -786,7 +803,7 @@ def generate(scenario: Scenario, out: str | os.PathLike[str], *,
         if fresh:
             F.write_json(out / F.MANIFEST, manifest(head, {}, False))
         write_resolved(scenario, out)
-        entries = _scan(out, listed, n)
+        entries = _scan(out, listed, n, opts)
         done0 = len(entries)
         if progress:
             progress(done0, n)
