@@ -137,3 +137,57 @@ def test_all_five_moon_frames_against_the_criteria(tmp_path):
     report = (tmp_path / "amie" / "report.md").read_text()
     assert "CALIBRATION sequence" in report and "2.0" in report
     assert abs(out["linearity"]["relative_error"]) < 0.02
+
+
+# --------------------------------------------------------------------------- a run of many
+IMAGE_OFFSET = 36865 - 1         # ^IMAGE = 36865 <BYTES> in every packaged label
+
+
+def _moon_moved_right(name: str, shift_px: int, out):
+    """A packaged frame with its image moved ``shift_px`` columns to the right, the columns
+    that come in filled with the frame's own dark sky (columns 300-511, cyclically), the label
+    unchanged: the Moon is cut by the right edge and the label's pointing is off by the shift
+    (``shift_px`` x 90 urad), the case of a frame whose pointing missed the Moon."""
+    import numpy as np
+
+    blob = packaged_frame(name).read_bytes()
+    stored = np.frombuffer(blob, "<u2", count=512 * 512, offset=IMAGE_OFFSET).reshape(512, 512)
+    new = np.empty_like(stored)
+    new[:, shift_px:] = stored[:, :512 - shift_px]
+    new[:, :shift_px] = stored[:, 300 + np.arange(shift_px) % 212]
+    new[511, 510:] = stored[511, 510:]                  # the marker pixels stay
+    out.write_bytes(blob[:IMAGE_OFFSET] + new.astype("<u2").tobytes()
+                    + blob[IMAGE_OFFSET + new.nbytes:])
+    return out
+
+
+def test_one_frame_never_aborts_a_run_of_many(tmp_path):
+    """Three frames in one run: 041028 (compared, fix), 040819 at phase 105 deg with the
+    chain's thin-crescent limit set to 100 deg (no fix: still compared on its limb points),
+    and 041028 moved 270 px right (the disc's centre 14 px beyond the edge, a sliver in the
+    image, the label pointing 1.4 deg off): cannot be compared, with the reason and no
+    numbers. The run completes and report.md and results.json say what happened to each."""
+    from starnav.reference.amie.validate import AmieOptions, run_amie_validation
+
+    cut = _moon_moved_right("041028_00269", 270, tmp_path / "AMI_CUT.IMG")
+    paths = [packaged_frame("041028_00269"), packaged_frame("040819_00208"), cut]
+    out = run_amie_validation(paths, tmp_path / "o", AmieOptions(spp=1, max_phase_deg=100.0))
+    ok, crescent, edge = out["frames"]
+    assert (ok.comparison, ok.navigation) == ("compared", "fix")
+    assert math.isfinite(ok.nav_range_error_pct) and ok.limb_diff_rms_px < 1.0
+    assert (crescent.comparison, crescent.navigation) == ("compared", "no fix")
+    assert "thin-crescent" in crescent.navigation_reason
+    assert crescent.limb_diff_rms_px < 1.0 and abs(crescent.signal_ratio - 1.0) < 0.15
+    assert math.isnan(crescent.nav_range_error_pct)
+    assert edge.comparison == "cannot be compared" and "limb" in edge.comparison_reason
+    assert math.isnan(edge.signal_ratio) and math.isnan(edge.limb_diff_rms_px)
+
+    doc = json.loads((tmp_path / "o" / "results.json").read_text())
+    by_name = {f["name"]: f for f in doc["frames"]}
+    assert by_name["AMI_CUT"]["comparison"] == "cannot be compared"
+    assert by_name["AMI_CUT"]["signal_ratio"] is None          # no numbers, valid JSON
+    assert by_name["AMI_EE3_040819_00208_00030"]["navigation"] == "no fix"
+    report = (tmp_path / "o" / "report.md").read_text()
+    assert "**AMI_CUT**" in report and "cannot be compared" in report
+    assert "| AMI_CUT |" not in report                         # no row of numbers
+    assert not (tmp_path / "o" / "figures" / "AMI_CUT.png").exists()

@@ -42,7 +42,25 @@ option                default effect
 ``window_px``         11      side of a refinement window [px]
 ``interior_erode_px`` 4       pixels eroded from the disc for the per-pixel comparison
 ``seed``              1       RANSAC and detector noise
+``max_phase_deg``     145     the chain's thin-crescent limit (no fix beyond it)
+``edge_margin_px``    3       limb points this close to the border or an invalid pixel
+                              are the disc's cut, not its limb
+``min_limb_points``   30      fewer limb points in the valid area: cannot be compared
+``max_fit_rms_px``    1.5     limb fit (label radius) rms above it: not converged
+``min_disc_inside``   0.5     smaller fraction of the disc in the valid area: cannot be
+                              compared
 ===================== ======= ========================================================
+
+What happens to each frame
+--------------------------
+One frame never aborts a run of many (a file that does not read is refused before any work):
+
+* **compared**, with a fix or **no fix**: a frame on which the chain gives no fix (a crescent
+  beyond its phase limit, RANSAC or the fix failing) is still compared (signal, pixels, limb),
+  its attitude refined on the chain's pixel-level limb points;
+* **cannot be compared**, with the reason and no numbers: no limb on the frame, too little
+  limb in the valid area, an attitude refinement that does not converge, or a Moon mostly
+  outside the valid area (:func:`limb_in_valid_area`).
 """
 
 from __future__ import annotations
@@ -102,18 +120,40 @@ class AmieOptions:
     interior_erode_px: int = 4
     threshold_peak_fraction: float = 0.1
     seed: int = 1
+    max_phase_deg: float = math.degrees(LimbScanOptions().max_phase_rad)
+    edge_margin_px: int = 3
+    min_limb_points: int = 30
+    min_disc_inside: float = 0.5
+    max_fit_rms_px: float = 1.5
+
+
+#: What happened to a frame: compared with the simulation or not, and a navigation fix or not.
+COMPARED, NOT_COMPARED = "compared", "cannot be compared"
+FIX, NO_FIX, NOT_SCORED = "fix", "no fix", "not scored"
+
+
+class NoLimbError(StarnavError):
+    """The real frame holds no limb the chain can find (no Moon above the threshold)."""
 
 
 @dataclass
 class LimbSolution:
-    """The navigation chain's result on one image."""
+    """The navigation chain's result on one image: its limb points always, its fix (centre
+    direction and range) when it gives one (``status == "ok"``)."""
 
     uv: FloatArray
     sigma_px: FloatArray
-    centre_camera: FloatArray
+    centre_camera: FloatArray | None
     range_m: float
     centre_px: FloatArray
     radius_px: float
+    status: str = "ok"
+    message: str = ""
+    pixel_uv: FloatArray | None = None
+
+    @property
+    def has_fix(self) -> bool:
+        return self.status == "ok"
 
 
 @dataclass
@@ -144,6 +184,10 @@ class AmieFrameResult:
     edge_radius_ratio_sim: float = math.nan
     focal_scale_other_epochs: float = math.nan
     nav_range_error_flight_cal_pct: float = math.nan
+    comparison: str = COMPARED
+    comparison_reason: str = ""
+    navigation: str = FIX
+    navigation_reason: str = ""
     notes: list[str] = field(default_factory=list)
 
 
@@ -173,12 +217,18 @@ def _solve_limb(dn: NDArray[np.integer], camera: Camera, R_cam_to_inertial: Floa
     the consensus limb (:func:`~starnav.navigation.refine.plan_windows`) and cut from the
     image -> subpixel refinement and the Christian-Robinson fix.
 
+    A frame on which the chain gives no fix (a crescent thinner than its phase limit, RANSAC or
+    the fix failing) still returns its limb points, for the comparison: the chain's
+    pixel-level points (for a thin crescent, found with the phase limit lifted), with
+    ``status`` and ``message`` saying why there is no fix.
+
     Raises
     ------
     StarnavError
-        The chain gives no fix (its status and message).
+        No limb points at all (no Moon above the threshold).
     """
-    chain = ChainOptions(limb=LimbScanOptions(min_run_length_px=2, max_points=2000),
+    chain = ChainOptions(limb=LimbScanOptions(min_run_length_px=2, max_points=2000,
+                                              max_phase_rad=math.radians(options.max_phase_deg)),
                          refine=RefineOptions(size_px=options.window_px,
                                               saturation_dn=float(saturation_dn),
                                               min_contrast_dn=5.0))
@@ -187,27 +237,57 @@ def _solve_limb(dn: NDArray[np.integer], camera: Camera, R_cam_to_inertial: Floa
                   segments=extract_segments(np.asarray(dn), [int(threshold_dn)]))
     rng = np.random.default_rng(options.seed)
     first = process_frame(frame, camera, options=replace(chain, use_windows=False), rng=rng)
-    if first.limb is None or first.inliers is None:
-        raise StarnavError(f"no limb on the frame: {first.status}: {first.message}")
+    if first.limb is None:
+        status, message = first.status, first.message
+        if status != "thin-crescent":
+            raise StarnavError(f"no limb on the frame: {status}: {message}")
+        # the points only, for the comparison: the fix stays withheld
+        relaxed = replace(chain, use_windows=False,
+                          limb=replace(chain.limb, max_phase_rad=math.pi))
+        first = process_frame(frame, camera, options=relaxed,
+                              rng=np.random.default_rng(options.seed))
+        if first.limb is None:
+            raise StarnavError(f"no limb on the frame: {first.status}: {first.message}")
+        return _no_fix(first, status, message)
+    if first.inliers is None:
+        return _no_fix(first, first.status, first.message)
     plan = plan_windows(first.limb.uv[first.inliers], first.limb.centre_px, shape=dn.shape,
                         options=chain.refine)
     m = process_frame(replace(frame, windows=tuple(cut_windows(dn, plan))), camera,
                       options=chain, rng=np.random.default_rng(options.seed))
     if not m.usable:
-        raise StarnavError(f"no fix on the frame: {m.status}: {m.message}")
+        return _no_fix(first, m.status, m.message)
     pts = m.refined if m.refined is not None else m.limb
     uv = m.points_used
     sigma = pts.sigma_px if m.refined is not None else m.limb.sigma_px[m.inliers]
     return LimbSolution(uv, sigma, m.fix.centre_camera, m.fix.range_m,
-                        np.asarray(first.limb.centre_px, float), float(first.limb.radius_px))
+                        np.asarray(first.limb.centre_px, float), float(first.limb.radius_px),
+                        pixel_uv=np.asarray(first.limb.uv, float)[first.inliers])
+
+
+def _no_fix(m: Any, status: str, message: str) -> LimbSolution:
+    """The pixel-level limb of a chain run without a fix (RANSAC's inliers when it gave them)."""
+    keep = m.inliers if m.inliers is not None else np.ones(len(m.limb.uv), bool)
+    return LimbSolution(np.asarray(m.limb.uv, float)[keep],
+                        np.asarray(m.limb.sigma_px, float)[keep], None, math.nan,
+                        np.asarray(m.limb.centre_px, float), float(m.limb.radius_px),
+                        status, message, np.asarray(m.limb.uv, float)[keep])
 
 
 def centre_direction_known_range(uv: FloatArray, camera: Camera, apparent_radius_rad: float,
                                  start: FloatArray) -> FloatArray:
+    """Unit direction [camera frame] to the centre of a sphere whose limb passes through
+    ``uv`` [px] (:func:`fit_centre_known_range` without its diagnostics)."""
+    return fit_centre_known_range(uv, camera, apparent_radius_rad, start)[0]
+
+
+def fit_centre_known_range(uv: FloatArray, camera: Camera, apparent_radius_rad: float,
+                           start: FloatArray) -> tuple[FloatArray, float, bool]:
     """Unit direction [camera frame] to the centre of a sphere whose limb passes through the
     points ``uv`` [px], its angular radius known from the range (the label's): least squares on
     ``angle(c, ray_i) - rho`` over the 2 degrees of freedom of ``c``. Unlike a free fit, it stays
-    well posed on a short arc (a disc cut by the image border)."""
+    well posed on a short arc (a disc cut by the image border). Returns the direction, the
+    rms of the angular residuals [px] and whether the solver converged."""
     from scipy.optimize import least_squares
 
     rays = camera.unproject(np.asarray(uv, float))
@@ -226,7 +306,82 @@ def centre_direction_known_range(uv: FloatArray, camera: Camera, apparent_radius
 
     sol = least_squares(resid, np.zeros(2), loss="soft_l1",
                         f_scale=2.0 * camera.ifov)
-    return direction(sol.x)
+    rms_px = float(np.sqrt(np.mean(resid(sol.x) ** 2)) / camera.ifov)
+    return direction(sol.x), rms_px, bool(sol.success)
+
+
+def limb_in_valid_area(limb: LimbSolution, valid: NDArray[np.bool_], camera: Camera,
+                       apparent_radius_rad: float, options: AmieOptions
+                       ) -> tuple[FloatArray, str]:
+    """Whether a frame can be compared: its limb is enough of a limb, and the attitude fitted on
+    it converged. Returns the Moon-centre direction [camera frame] and ``""``, or a reason.
+
+    * limb points within ``edge_margin_px`` of the image border or of an invalid pixel are the
+      cut of the disc, not its limb, and are dropped; fewer than ``min_limb_points`` left is
+      too little limb;
+    * the centre fitted on them with the label's angular radius
+      (:func:`fit_centre_known_range`) must converge with an rms below ``max_fit_rms_px``;
+    * at least ``min_disc_inside`` of the disc it places must lie in the valid area (a Moon
+      mostly outside the image gives a registration and a signal of its sliver only).
+    """
+    inside = ndimage.binary_erosion(np.asarray(valid, bool), iterations=options.edge_margin_px,
+                                    border_value=0) if options.edge_margin_px else valid
+    H, W = inside.shape
+
+    def in_area(uv: FloatArray) -> NDArray[np.bool_]:
+        iu = np.clip(np.round(uv[:, 0]).astype(int), 0, W - 1)
+        iv = np.clip(np.round(uv[:, 1]).astype(int), 0, H - 1)
+        return inside[iv, iu]
+
+    pixel_uv = np.asarray(limb.pixel_uv if limb.pixel_uv is not None else limb.uv, float)
+    n = int(in_area(pixel_uv).sum())
+    if n < options.min_limb_points:
+        return np.full(3, np.nan), (
+            f"too little limb in the valid area: only {n} of the {len(pixel_uv)} pixel-level "
+            f"limb points lie more than {options.edge_margin_px} px from the image edge and "
+            f"the invalid pixels (at least {options.min_limb_points} needed)")
+    # the fit: the chain's points (refined when it refined them) in the valid area
+    uv = np.asarray(limb.uv, float)
+    keep = in_area(uv)
+    if keep.sum() < 5:
+        uv, keep = pixel_uv, in_area(pixel_uv)
+    start = (limb.centre_camera if limb.centre_camera is not None
+             else camera.unproject(limb.centre_px[None, :])[0])
+    direction, rms_px, ok = fit_centre_known_range(uv[keep], camera, apparent_radius_rad,
+                                                    start)
+    if not ok or not rms_px <= options.max_fit_rms_px:
+        return direction, (
+            f"the attitude refinement did not converge: the limb fit with the label's radius "
+            f"leaves {rms_px:.1f} px rms (at most {options.max_fit_rms_px:g} px)")
+    centre = camera.project(direction[None, :])[0]
+    r_px = math.tan(apparent_radius_rad) * camera.fx
+    vv, uu = np.mgrid[0:H, 0:W]
+    disc_in = np.count_nonzero(((uu - centre[0]) ** 2 + (vv - centre[1]) ** 2 <= r_px**2)
+                               & np.asarray(valid, bool))
+    frac = disc_in / (math.pi * r_px**2)
+    if frac < options.min_disc_inside:
+        return direction, (
+            f"the Moon is mostly outside the valid image area: {100 * frac:.0f} % of its disc "
+            f"(centre at ({centre[0]:.0f}, {centre[1]:.0f}) px, radius {r_px:.0f} px) inside, "
+            f"at least {100 * options.min_disc_inside:.0f} % needed")
+    return direction, ""
+
+
+def not_compared(frame: Any, reason: str, fix: RealLimbFix | None = None) -> AmieFrameResult:
+    """The result of a frame that cannot be compared: the reason, and no numbers."""
+    nan = math.nan
+    return AmieFrameResult(
+        name=Path(frame.path).stem, exposure_ms=frame.exposure_s * 1e3, phase_deg=nan,
+        label_range_km=frame.target_center_distance_m / 1e3, moon_radius_px=nan,
+        attitude_correction_deg=nan, real_signal_e_s=nan, sim_signal_e_s=nan, signal_ratio=nan,
+        pixel_ratio_median=nan, pixel_ratio_mad=nan, pixel_correlation=nan, limb_points=0,
+        limb_diff_mean_px=nan, limb_diff_rms_px=nan, nav_range_km=nan,
+        nav_range_error_pct=nan, nav_range_error_sim_pct=nan, rolo_extrapolated=False,
+        observation_type=frame.observation_type, comparison=NOT_COMPARED,
+        comparison_reason=reason, navigation=NOT_SCORED,
+        navigation_reason=("no limb" if fix is None else
+                           "the chain's fix stands on the cut of the disc" if fix.limb.has_fix
+                           else f"{fix.limb.status}: {fix.limb.message}"))
 
 
 def _registration_shift(a: FloatArray, b: FloatArray) -> tuple[float, float]:
@@ -283,8 +438,11 @@ def _real_setup(path: str | Path, opt: AmieOptions):
     peak = float(np.percentile(real_dn, 99.9))
     thr = max(3, int(math.ceil(opt.threshold_sigma * noise_dn)),
               int(math.ceil(opt.threshold_peak_fraction * peak)))
-    real_limb = _solve_limb(real_dn, camera, R0, np.asarray(g0.sun_direction, float), thr, 1023,
-                            opt)
+    try:
+        real_limb = _solve_limb(real_dn, camera, R0, np.asarray(g0.sun_direction, float), thr,
+                                1023, opt)
+    except StarnavError as err:
+        raise NoLimbError(str(err)) from None
     label_range = float(np.linalg.norm(sc_to_moon))
     fix = RealLimbFix(name=Path(path).stem, epoch_tdb=epoch, label_range_m=label_range,
                       threshold_dn=thr, limb=real_limb,
@@ -320,7 +478,8 @@ def edge_circle_radius(image: FloatArray, centre_px: FloatArray, angles: FloatAr
 
 
 def focal_scale_cross_validation(fixes: list[RealLimbFix]) -> dict[str, dict[str, float]]:
-    """The in-flight plate scale, calibrated on *other* epochs and scored on each frame.
+    """The in-flight plate scale, calibrated on *other* epochs and scored on each frame
+    (frames without a fix take no part and get NaN).
 
     For each frame, the focal-length factor ``label range / measured range`` is averaged per
     day (the 041111 pair, 20 s apart, is one epoch) and then over the days other than the
@@ -333,6 +492,7 @@ def focal_scale_cross_validation(fixes: list[RealLimbFix]) -> dict[str, dict[str
         return int(f.epoch_tdb // 86400.0)
 
     out: dict[str, dict[str, float]] = {}
+    fixes = [f for f in fixes if math.isfinite(f.limb.range_m)]
     for f in fixes:
         by_day: dict[int, list[float]] = {}
         for g in fixes:
@@ -363,17 +523,25 @@ def analyse_frame(path: str | Path, options: AmieOptions | None = None
     """
     opt = options or AmieOptions()
     notes: list[str] = []
-    (frame, cal, sc, camera, epoch, sc_to_moon, R0, g0, real_e, real_dn,
-     fix) = _real_setup(path, opt)
+    frame = read_amie(path)
+    try:
+        (frame, cal, sc, camera, epoch, sc_to_moon, R0, g0, real_e, real_dn,
+         fix) = _real_setup(path, opt)
+    except NoLimbError as err:
+        return not_compared(frame, str(err)), None
     real_limb, thr, sat = fix.limb, fix.threshold_dn, 1023
     sun_dir = np.asarray(g0.sun_direction, float)
+    if not real_limb.has_fix:
+        notes.append(f"no fix on the real frame: {real_limb.status}: {real_limb.message}")
 
     # 4. attitude refinement: predicted -> measured Moon-centre direction (the limb fitted with
-    # the angular radius the label's range gives)
+    # the angular radius the label's range gives), on the limb points inside the valid area
     predicted = g0.moon_centre_camera()
     label_range = fix.label_range_m
     rho = math.asin(g0.moon_radius / label_range)
-    real_dir = centre_direction_known_range(real_limb.uv, camera, rho, real_limb.centre_camera)
+    real_dir, reason = limb_in_valid_area(real_limb, cal.valid, camera, rho, opt)
+    if reason:
+        return not_compared(frame, reason, fix), None
     R = refine_attitude(R0, real_dir, predicted / np.linalg.norm(predicted))
     geom = frame_geometry(epoch, sc_to_moon, R)
 
@@ -391,6 +559,8 @@ def analyse_frame(path: str | Path, options: AmieOptions | None = None
     sim_e, sim_dn = simulate(geom)
     try:
         first = _solve_limb(sim_dn, camera, R, sun_dir, thr, sat, opt)
+        if first.centre_camera is None:
+            first.centre_camera = camera.unproject(first.centre_px[None, :])[0]
         sim_dir = centre_direction_known_range(first.uv, camera, rho, first.centre_camera)
         R = refine_attitude(R, real_dir, sim_dir)
         geom = frame_geometry(epoch, sc_to_moon, R)
@@ -444,6 +614,8 @@ def analyse_frame(path: str | Path, options: AmieOptions | None = None
     try:
         sim_limb = _solve_limb(sim_dn, camera, R, sun_dir, thr, sat, opt)
         nav_sim = 100.0 * (sim_limb.range_m - label_range) / label_range
+        if not sim_limb.has_fix:
+            notes.append(f"no fix on the simulated frame: {sim_limb.status}")
     except StarnavError as err:
         sim_limb, nav_sim = None, math.nan
         notes.append(f"no limb on the simulated frame: {err}")
@@ -473,8 +645,11 @@ def analyse_frame(path: str | Path, options: AmieOptions | None = None
         limb_diff_rms_px=limb_rms, nav_range_km=real_limb.range_m / 1e3,
         nav_range_error_pct=nav_err, nav_range_error_sim_pct=nav_sim,
         rolo_extrapolated=extrap, edge_radius_ratio_real=ratio_real,
-        observation_type=str(frame.label.get("IMAGE_OBSERVATION_TYPE", "")),
-        edge_radius_ratio_sim=ratio_sim, notes=notes)
+        observation_type=frame.observation_type,
+        edge_radius_ratio_sim=ratio_sim,
+        navigation=FIX if real_limb.has_fix else NO_FIX,
+        navigation_reason="" if real_limb.has_fix else
+        f"{real_limb.status}: {real_limb.message}", notes=notes)
     images = {"real_e_s": real_e / frame.exposure_s, "sim_e_s": sim_reg / frame.exposure_s,
               "region": region, "real_limb": real_limb, "sim_limb": sim_limb,
               "sun_dir_image": None, "shift_px": (du, dv), "fix": fix}
@@ -496,11 +671,28 @@ def linearity(short: str | Path, long: str | Path) -> dict[str, float]:
             "relative_error": (sb / sa) / (t_b / t_a) - 1.0, "pixels": int(region.sum())}
 
 
+def _json_safe(x: Any) -> Any:
+    """NaN and infinities as null (JSON has neither), numpy scalars as Python numbers."""
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
 def write_results(out: Path, results: list[AmieFrameResult], lin: dict[str, float] | None
                   ) -> Path:
-    """``results.json`` (atomic)."""
+    """``results.json`` (atomic): every frame with what happened to it (``comparison`` and
+    ``navigation`` with their reasons); numbers a frame does not have are null."""
     doc = {"frames": [asdict(r) for r in results], "linearity": lin}
-    return atomic_write_text(out / "results.json", json.dumps(doc, indent=1, default=float))
+    return atomic_write_text(out / "results.json",
+                             json.dumps(_json_safe(doc), indent=1, allow_nan=False))
 
 
 # ----------------------------------------------------------------------------- report
@@ -588,27 +780,39 @@ def write_report(out: Path, results: list[AmieFrameResult],
              "edge radius / predicted: real, sim | nav range error: nominal f; "
              "f from other epochs [%] |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in results:
+    compared = [r for r in results if r.comparison == COMPARED]
+    for r in compared:
         lines.append(
             f"| {r.name} | {r.exposure_ms:g} | {r.phase_deg:.1f} | {r.label_range_km:,.0f} | "
             f"{r.moon_radius_px:.1f} | {r.attitude_correction_deg:.3f} | {r.signal_ratio:.3f} | "
             f"{r.pixel_ratio_median:.3f}, {r.pixel_ratio_mad:.3f} | "
             f"{r.limb_diff_mean_px:+.2f} / {r.limb_diff_rms_px:.2f} | "
             f"{r.edge_radius_ratio_real:.4f}, {r.edge_radius_ratio_sim:.4f} | "
-            f"{r.nav_range_error_pct:+.2f}; {r.nav_range_error_flight_cal_pct:+.2f} |")
+            + (f"{r.nav_range_error_pct:+.2f}; {r.nav_range_error_flight_cal_pct:+.2f} |"
+               if r.navigation == FIX else "no fix |"))
+    lines += ["", "## What happened to each frame", ""]
+    for r in results:
+        what = (f"compared; navigation: {r.navigation}"
+                + (f" ({r.navigation_reason})" if r.navigation_reason else "")
+                if r.comparison == COMPARED else
+                f"**cannot be compared**: {r.comparison_reason}; navigation: {r.navigation}"
+                + (f" ({r.navigation_reason})" if r.navigation_reason else ""))
+        lines.append(f"- **{r.name}** ({r.observation_type or 'no type'}, "
+                     f"{r.exposure_ms:g} ms): {what}")
     lines += ["", "## Verdicts", "",
               f"Criteria: limb rms <= {c['limb_rms_px']} px; signal within "
               f"{100 * c['signal_ratio_tol']:.0f} % (goal 5 %); navigation range within "
               f"{c['nav_range_pct']} % (goal 0.3 %) with the focal length calibrated on the "
               "other epochs; linearity within "
               f"{100 * c['linearity_tol']:.0f} %.", ""]
-    for r in results:
+    for r in compared:
+        nav = (f"navigation {_verdict(abs(r.nav_range_error_flight_cal_pct) <= c['nav_range_pct'])}"
+               if r.navigation == FIX else "navigation: no fix")
         v = [f"limb {_verdict(r.limb_diff_rms_px <= c['limb_rms_px'])}",
-             f"signal {_verdict(abs(r.signal_ratio - 1) <= c['signal_ratio_tol'])}",
-             f"navigation {_verdict(abs(r.nav_range_error_flight_cal_pct) <= c['nav_range_pct'])}"]
+             f"signal {_verdict(abs(r.signal_ratio - 1) <= c['signal_ratio_tol'])}", nav]
         lines.append(f"- **{r.name}**: " + ", ".join(v) + "".join(
             f"; note: {n}" for n in r.notes))
-    good = [r for r in results if math.isfinite(r.signal_ratio)
+    good = [r for r in compared if math.isfinite(r.signal_ratio)
             and not any(n.startswith("label geometry inconsistent") for n in r.notes)]
     if len(good) >= 2:
         ratios = np.array([r.signal_ratio for r in good])
@@ -659,7 +863,7 @@ def write_report(out: Path, results: list[AmieFrameResult],
                   f"{lin['exposure_ratio']:.4f}: {100 * lin['relative_error']:+.2f} % "
                   f"({_verdict(abs(lin['relative_error']) <= c['linearity_tol'])})."]
     lines += ["", "## Figures", ""]
-    for r in results:
+    for r in compared:
         lines.append(f"![{r.name}](figures/{r.name}.png)")
     return atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
 
@@ -681,22 +885,28 @@ def run_amie_validation(paths: list[str | Path] | None, out_dir: str | Path,
     paths = [Path(p) for p in paths]
     frames = [read_amie(p) for p in paths]   # every file is read (and refused) before work
     results, fixes = [], []
-    for p in paths:
-        res, images = analyse_frame(p, options)
-        frame_figure(res, images, out / "figures" / f"{res.name}.png")
+    for p, frame in zip(paths, frames, strict=True):
+        # one frame never aborts the run: what cannot be compared says why and the run goes on
+        try:
+            res, images = analyse_frame(p, options)
+        except StarnavError as err:
+            res, images = not_compared(frame, f"the comparison failed: {err}"), None
         results.append(res)
-        fixes.append(images["fix"])
+        if images is not None:
+            frame_figure(res, images, out / "figures" / f"{res.name}.png")
+            fixes.append(images["fix"])
+        log.info("%s: %s, %s", res.name, res.comparison, res.navigation)
     # the in-flight plate scale, leave-one-epoch-out (frames whose label geometry is
     # inconsistent with the image take no part)
-    usable = [f for f, r in zip(fixes, results, strict=True)
-              if not any(n.startswith("label geometry inconsistent") for n in r.notes)]
+    by_name = {r.name: r for r in results}
+    inconsistent = "label geometry inconsistent"
+    usable = [f for f in fixes
+              if not any(n.startswith(inconsistent) for n in by_name[f.name].notes)]
     cv = focal_scale_cross_validation(usable)
     for r in results:
         if r.name in cv:
             r.focal_scale_other_epochs = cv[r.name]["scale"]
             r.nav_range_error_flight_cal_pct = cv[r.name]["error_pct"]
-        log.info("%s: signal %.3f, limb rms %.2f px, range %+.3f %%", res.name,
-                 res.signal_ratio, res.limb_diff_rms_px, res.nav_range_error_pct)
     pair = sorted((p for p, f in zip(paths, frames, strict=True) if "041111" in p.name),
                   key=lambda p: read_amie(p).exposure_s)
     lin = linearity(pair[0], pair[-1]) if len(pair) >= 2 else None
