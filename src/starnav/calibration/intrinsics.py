@@ -58,13 +58,14 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from starnav.calibration.bench import Bench, BenchGeometry
-from starnav.calibration.geometric import DotAcquisition
+from starnav.calibration.geometric import DotAcquisition, calibrate_geometry
 from starnav.camera import Camera
 from starnav.camera_calibration import (
     CameraCalibration,
     parameter_values,
     with_parameters,
 )
+from starnav.config import build_camera
 from starnav.errors import ConfigError
 
 FloatArray = NDArray[np.float64]
@@ -261,9 +262,6 @@ def calibrate_camera(bench: Bench, dots: DotAcquisition | None = None) -> Intrin
     (:func:`~starnav.calibration.geometric.calibrate_geometry`, or ``dots`` already acquired),
     fitted through the bench *as designed* from the scenario's datasheet camera, with the
     tolerances of ``bench.config.geometric``."""
-    from starnav.calibration.geometric import calibrate_geometry
-    from starnav.config import build_camera
-
     if dots is None:
         dots = calibrate_geometry(bench, validate=False).calibration_dots
     g = bench.config.geometric
