@@ -35,7 +35,7 @@ from typing import Any
 
 from starnav.config import scenario_from_dict
 from starnav.dataset import format as F
-from starnav.dataset.reader import read_manifest
+from starnav.dataset.reader import check_layout, checked_file, read_manifest
 from starnav.errors import ConfigError, DataFileError
 from starnav.geometry import FrameGeometry
 from starnav.radiance import RadianceImage, read_exr
@@ -89,6 +89,7 @@ def read_flyby(path: str | os.PathLike[str], overrides: Sequence[str] = ()
                           "'none' for a fly-by dataset: its frames are one fly-by; a "
                           "dispersed Monte Carlo renders each run's own (navigate the "
                           "scenario YAML)")
+    check_layout(root, man)
     sim = Simulator(sc)
     if len(man["frames"]) != len(sim):
         raise DataFileError(f"dataset {str(root)!r}: {len(man['frames'])} frames, its scenario "
@@ -96,16 +97,14 @@ def read_flyby(path: str | os.PathLike[str], overrides: Sequence[str] = ()
     renders = []
     for e in man["frames"]:
         d = root / e["directory"]
-        geom = F.geometry_of_truth(F.read_json(d / F.TRUTH))
+        geom = F.geometry_of_truth(F.read_json(checked_file(d, e, F.TRUTH)), d / F.TRUTH)
         want = float(sim.scene.epochs[int(e["index"])])
         if int(geom.index) != int(e["index"]) or float(geom.epoch_tdb) != want:
             raise DataFileError(f"{str(d / F.TRUTH)!r}: frame {geom.index} at epoch "
                                 f"{geom.epoch_tdb!r} TDB s, the scenario's frame {e['index']} "
                                 f"is at {want!r}")
-        p = d / F.RADIANCE
-        if not p.is_file():
-            raise DataFileError(f"{str(p)!r} does not exist: a fly-by dataset needs every "
-                                "frame's radiance")
+        p = checked_file(d, e, F.RADIANCE, missing="a fly-by dataset needs every frame's "
+                         "radiance")
         renders.append((geom, read_exr(p)))
     return sim, renders
 

@@ -364,8 +364,40 @@ def truth_to_dict(geom: Any, camera: Any, limb_points: int = 360) -> dict[str, A
     return out
 
 
-def geometry_of_truth(d: Mapping[str, Any]) -> Any:
-    """The :class:`~starnav.geometry.FrameGeometry` stored in a ``truth.json``."""
+def json_value(d: Mapping[str, Any], key: str, path: str | os.PathLike[str],
+               shape: tuple[int, ...] | None = None) -> Any:
+    """``d[k1][k2]...`` for the dotted ``key`` of the JSON file ``path``; with ``shape``, as
+    a finite float array of that shape. A missing key or a value of another form is a
+    :class:`DataFileError` naming the file and the key (never a bare ``KeyError``)."""
+    v: Any = d
+    for k in key.split("."):
+        if not isinstance(v, Mapping) or k not in v:
+            raise DataFileError(f"{str(path)!r}: key {key!r} is missing (a malformed or "
+                                "foreign file)")
+        v = v[k]
+    if shape is None:
+        return v
+    try:
+        a = np.asarray(v, float)
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.shape != shape or not np.isfinite(a).all():
+        raise DataFileError(f"{str(path)!r}: key {key!r} = {str(v)[:60]}: expected finite "
+                            f"numbers of shape {shape}")
+    return a
+
+
+#: The keys of a ``truth.json``'s ``geometry`` and their shapes (None: a scalar).
+_GEOMETRY_KEYS = {"camera_position_m": (3,), "R_cam_to_inertial": (3, 3),
+                  "sun_position_m": (3,), "R_moon_to_inertial": (3, 3), "epoch_tdb_s": (),
+                  "camera_velocity_m_s": (3,), "moon_radius_m": (), "index": ()}
+
+
+def geometry_of_truth(d: Mapping[str, Any], path: str | os.PathLike[str] = TRUTH) -> Any:
+    """The :class:`~starnav.geometry.FrameGeometry` stored in a ``truth.json`` (``path``
+    names the file in the error a missing or malformed key raises)."""
+    for k, shape in _GEOMETRY_KEYS.items():
+        json_value(d, f"geometry.{k}", path, shape)
     return geometry_from_dict(dict(d["geometry"]))
 
 

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from starnav.cache import BoundedCache
 from starnav.config import scenario_from_dict
 from starnav.dataset import format as F
 from starnav.detector.io import read_dn_png
@@ -44,6 +45,44 @@ from starnav.radiance import read_exr
 log = logging.getLogger(__name__)
 
 FloatArray = NDArray[np.float64]
+
+#: Files already checked against their manifest entry, by (path, size, mtime, SHA-256): a file
+#: read again (a Monte Carlo run re-reading a frame's radiance) is hashed once.
+_CHECKED: BoundedCache[tuple[str, int, int, str], bool] = BoundedCache(4096, policy="fifo")
+
+
+def checked_file(frame_dir: Path, entry: dict[str, Any], rel: str, *,
+                 optional: bool = False, missing: str = "") -> Path | None:
+    """The path of the frame's file ``rel`` once it matches its manifest ``entry``.
+
+    A file the manifest lists must be there with its size and SHA-256; a file it does not
+    list must be absent (then None when ``optional``, e.g. the segments of a frame whose
+    segments readout sent nothing). Anything else is a :class:`DataFileError` naming the file:
+    a dataset changed after it was made is refused, not read as something else (a deleted
+    ``windows.json`` is not "no windows"). ``missing`` says why a required file is needed.
+    """
+    p = Path(frame_dir) / rel
+    meta = (entry.get("files") or {}).get(rel)
+    verify_hint = "; `starnav dataset verify` lists every such file"
+    if meta is None:
+        if p.is_file():
+            raise DataFileError(f"{str(p)!r} is not in the dataset's manifest: added after the "
+                                f"dataset was made{verify_hint}")
+        if optional:
+            return None
+        raise DataFileError(f"{str(p)!r} does not exist and the manifest does not list it"
+                            + (f": {missing}" if missing else ""))
+    if not p.is_file():
+        raise DataFileError(f"{str(p)!r} is missing (the manifest lists it, {meta['bytes']} "
+                            f"bytes){verify_hint}")
+    st = p.stat()
+    key = (str(p), st.st_size, st.st_mtime_ns, str(meta["sha256"]))
+    if key not in _CHECKED:
+        if st.st_size != meta["bytes"] or F.sha256_file(p) != meta["sha256"]:
+            raise DataFileError(f"{str(p)!r} differs from the dataset's manifest (size or "
+                                f"SHA-256): changed after the dataset was made{verify_hint}")
+        _CHECKED.put(key, True)
+    return p
 
 
 class DatasetFrame:
@@ -71,86 +110,108 @@ class DatasetFrame:
         return f"DatasetFrame(index={self.index}, exposure_dir={self.exposure_dir.name!r})"
 
     # ------------------------------------------------------------------ raw documents
+    def _file(self, rel: str, optional: bool = False, missing: str = "") -> Path | None:
+        """The frame's file ``rel`` (relative to its directory) once it matches the manifest
+        (:func:`checked_file`)."""
+        return checked_file(self.directory, self.entry, rel, optional=optional,
+                            missing=missing)
+
+    def _exposure_file(self, name: str, optional: bool = False) -> Path | None:
+        return self._file(f"{self.exposure_dir.name}/{name}", optional)
+
+    def _truth(self, key: str, shape: tuple[int, ...] | None = None) -> Any:
+        """The value at the dotted ``key`` of ``truth.json`` (a missing or malformed key: an
+        error naming the file and the key)."""
+        return F.json_value(self.truth_dict, key, self.directory / F.TRUTH, shape)
+
     @functools.cached_property
     def truth_dict(self) -> dict[str, Any]:
         """``truth.json`` as a dict."""
-        return F.read_json(self.directory / F.TRUTH)
+        return F.read_json(self._file(F.TRUTH))
 
     @functools.cached_property
     def readout(self) -> dict[str, Any]:
         """``readout.json`` of the selected exposure."""
-        return F.read_json(self.exposure_dir / F.READOUT)
+        return F.read_json(self._exposure_file(F.READOUT))
 
     # ------------------------------------------------------------------ NavFrame
     @functools.cached_property
     def truth(self) -> Any:
         """True pose: :class:`~starnav.geometry.FrameGeometry` (Moon-centred, SI)."""
-        return F.geometry_of_truth(self.truth_dict)
+        return F.geometry_of_truth(self.truth_dict, self.directory / F.TRUTH)
 
     @property
     def R_cam_to_inertial_measured(self) -> FloatArray:
         """On-board attitude, camera -> J2000 (true attitude if none was stored)."""
-        a = self.truth_dict["attitude"]
-        m = a.get("R_cam_to_inertial_measured")
-        return np.asarray(m if m is not None else a["R_cam_to_inertial_true"], float)
+        a = self._truth("attitude")
+        key = ("attitude.R_cam_to_inertial_measured"
+               if isinstance(a, dict) and a.get("R_cam_to_inertial_measured") is not None
+               else "attitude.R_cam_to_inertial_true")
+        return self._truth(key, (3, 3))
 
     @property
     def sun_direction_inertial(self) -> FloatArray:
         """Unit vector from the Moon to the Sun, J2000."""
-        return np.asarray(self.truth_dict["sun"]["direction_from_moon"], float)
+        return self._truth("sun.direction_from_moon", (3,))
 
     @property
     def R_moon_to_inertial(self) -> FloatArray:
         """Moon body-fixed -> J2000."""
-        return np.asarray(self.truth_dict["moon"]["R_moon_to_inertial"], float)
+        return self._truth("moon.R_moon_to_inertial", (3, 3))
 
     @functools.cached_property
     def segments(self) -> Any:
-        """:class:`~starnav.detector.products.Segments` of acquisition 0 (None if absent)."""
-        p = self.exposure_dir / F.SEGMENTS
-        if not p.is_file():
+        """:class:`~starnav.detector.products.Segments` of acquisition 0 (None if the frame
+        has none: the manifest does not list its file)."""
+        p = self._exposure_file(F.SEGMENTS, optional=True)
+        if p is None:
             return None
         return F.segments_from_dict(F.read_json(p))
 
     @functools.cached_property
     def windows(self) -> tuple[Any, ...]:
         """Windows (:class:`~starnav.detector.products.Window`) read along the limb."""
-        p = self.exposure_dir / F.WINDOWS
-        if not p.is_file():
+        p = self._exposure_file(F.WINDOWS, optional=True)
+        if p is None:
             return ()
         return F.windows_from_dict(F.read_json(p))
 
     # ------------------------------------------------------------------ images
     def dn(self) -> NDArray[np.uint16]:
         """Full DN frame of acquisition 0 [DN] (16-bit PNG)."""
-        return read_dn_png(self.exposure_dir / F.DN)
+        return read_dn_png(self._exposure_file(F.DN))
 
     def star_dn(self) -> NDArray[np.uint16] | None:
         """The star acquisition's DN frame [DN] (``stars_dn.png``: a scheduled star frame of a
         ``navigation.attitude.source: stars`` dataset), None when the frame has none."""
-        p = self.exposure_dir / F.STAR_DN
-        return read_dn_png(p) if p.is_file() else None
+        p = self._exposure_file(F.STAR_DN, optional=True)
+        return read_dn_png(p) if p is not None else None
 
     def radiance(self) -> Any:
         """:class:`~starnav.radiance.RadianceImage` (``radiance.exr``)."""
-        p = self.directory / F.RADIANCE
-        if not p.is_file():
-            raise DataFileError(f"{str(p)!r} does not exist (dataset made without radiance)")
-        return read_exr(p)
+        return read_exr(self._file(F.RADIANCE, missing="the dataset was made without "
+                                   "radiance (--no-radiance)"))
 
     @property
     def true_limb_px(self) -> FloatArray:
         """True limb points ``(n, 2)`` [px] (with the lens distortion)."""
-        return np.asarray(self.truth_dict["limb"]["points_px"], float).reshape(-1, 2)
+        pts = self._truth("limb.points_px")
+        try:
+            a = np.asarray(pts, float).reshape(-1, 2)
+        except (TypeError, ValueError):
+            a = None
+        if a is None or not np.isfinite(a).all():
+            raise DataFileError(f"{str(self.directory / F.TRUTH)!r}: key 'limb.points_px': "
+                                "expected finite (u, v) pairs")
+        return a
 
     @property
     def emb_state(self) -> FloatArray | None:
         """Spacecraft state relative to the Earth-Moon barycentre, J2000 ``(6,)`` [m, m/s]."""
-        s = self.truth_dict.get("spacecraft_emb")
-        if s is None:
+        if self._truth("spacecraft_emb") is None:
             return None
-        return np.concatenate([np.asarray(s["position_m"], float),
-                               np.asarray(s["velocity_m_s"], float)])
+        return np.concatenate([self._truth("spacecraft_emb.position_m", (3,)),
+                               self._truth("spacecraft_emb.velocity_m_s", (3,))])
 
 
 class Dataset:
@@ -277,7 +338,8 @@ def open(path: str | os.PathLike[str], exposure: float | None = None, *,  # noqa
     Raises
     ------
     DataFileError
-        Not a dataset, unreadable, or incomplete (unless ``allow_incomplete``).
+        Not a dataset, unreadable, incomplete (unless ``allow_incomplete``), or a listed
+        frame's files not those of the manifest (:func:`check_layout`).
     ConfigError
         ``exposure`` not in the dataset.
     """
@@ -294,7 +356,33 @@ def open(path: str | os.PathLike[str], exposure: float | None = None, *,  # noqa
             "windows depend on the previous frame's tracks); it is navigated only by the "
             "fly-by closed loop, `starnav navigate DATASET` (starnav.dataset.flyby), not by "
             "the limb chain")
+    check_layout(root, man)
     return Dataset(root, man, _pick_exposure(man, exposure))
+
+
+def check_layout(root: Path, man: dict[str, Any]) -> None:
+    """Raise a :class:`DataFileError` naming the first file of a listed frame that is missing,
+    unlisted or of another size than the manifest says (a cheap check, no hashing: the files
+    read are hashed when read, :func:`checked_file`; :func:`verify` hashes them all)."""
+    hint = "; `starnav dataset verify` lists every such file"
+    for e in man["frames"]:
+        d = root / e["directory"]
+        if not d.is_dir():
+            raise DataFileError(f"{str(d)!r} is missing (the manifest lists frame "
+                                f"{e['index']}){hint}")
+        files = e.get("files") or {}
+        on_disk = {p.relative_to(d).as_posix(): p for p in d.rglob("*") if p.is_file()}
+        for rel in sorted(set(files) - set(on_disk)):
+            raise DataFileError(f"{str(d / rel)!r} is missing (the manifest lists it, "
+                                f"{files[rel]['bytes']} bytes){hint}")
+        for rel in sorted(set(on_disk) - set(files)):
+            raise DataFileError(f"{str(d / rel)!r} is not in the dataset's manifest: added "
+                                f"after the dataset was made{hint}")
+        for rel, meta in sorted(files.items()):
+            size = on_disk[rel].stat().st_size
+            if size != meta["bytes"]:
+                raise DataFileError(f"{str(d / rel)!r} differs from the dataset's manifest "
+                                    f"({size} bytes, listed with {meta['bytes']}){hint}")
 
 
 def verify(path: str | os.PathLike[str]) -> list[str]:
