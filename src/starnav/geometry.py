@@ -65,6 +65,9 @@ class FrameGeometry:
     camera_state_emb : (6,) array or None
         Spacecraft position and velocity relative to the Earth-Moon barycentre, J2000 axes
         [m, m/s]: the navigation filter's truth (``None`` for static frames).
+    earth_position : (3,) array or None
+        Earth centre relative to the Moon centre [m] (the ephemeris'; ``None`` for static
+        frames): what casts the Earth's shadow (:mod:`starnav.eclipse`).
     """
 
     camera_position: FloatArray
@@ -77,8 +80,14 @@ class FrameGeometry:
     moon_radius: float = MOON_RADIUS
     index: int = 0
     camera_state_emb: FloatArray | None = None
+    earth_position: FloatArray | None = None
 
     def __post_init__(self) -> None:
+        if self.earth_position is not None:
+            e = np.asarray(self.earth_position, dtype=float)
+            if e.shape != (3,) or not np.all(np.isfinite(e)):
+                raise GeometryError(f"earth_position must be a finite 3-vector, got {e!r}")
+            object.__setattr__(self, "earth_position", e)
         if self.camera_state_emb is not None:
             st = np.asarray(self.camera_state_emb, dtype=float)
             if st.shape != (6,) or not np.all(np.isfinite(st)):
@@ -347,6 +356,8 @@ def geometry_to_dict(g: FrameGeometry) -> dict:
         d["R_cam_to_inertial_measured"] = g.R_cam_to_inertial_measured.tolist()
     if g.camera_state_emb is not None:
         d["camera_state_emb_m_m_s"] = g.camera_state_emb.tolist()
+    if g.earth_position is not None:
+        d["earth_position_m"] = g.earth_position.tolist()
     return d
 
 
@@ -354,6 +365,7 @@ def geometry_from_dict(d: dict) -> FrameGeometry:
     """Inverse of :func:`geometry_to_dict`."""
     meas = d.get("R_cam_to_inertial_measured")
     emb = d.get("camera_state_emb_m_m_s")
+    earth = d.get("earth_position_m")
     return FrameGeometry(
         camera_position=np.array(d["camera_position_m"]),
         R_cam_to_inertial=np.array(d["R_cam_to_inertial"]),
@@ -365,4 +377,5 @@ def geometry_from_dict(d: dict) -> FrameGeometry:
         moon_radius=float(d["moon_radius_m"]),
         index=int(d["index"]),
         camera_state_emb=None if emb is None else np.array(emb),
+        earth_position=None if earth is None else np.array(earth),
     )

@@ -191,3 +191,14 @@ def test_one_frame_never_aborts_a_run_of_many(tmp_path):
     assert "**AMI_CUT**" in report and "cannot be compared" in report
     assert "| AMI_CUT |" not in report                         # no row of numbers
     assert not (tmp_path / "o" / "figures" / "AMI_CUT.png").exists()
+
+
+def test_a_single_frame_gets_a_calibrated_range(results):
+    """One frame alone (no other epoch: the leave-one-epoch-out focal length is NaN) gets its
+    range with the shipped in-flight focal length, within 2 x its stated 1-sigma of the
+    label's (measured: 040819 +0.14 %, 041028 -0.38 %; nominal -1.23 %, -1.75 %)."""
+    for r in results.values():
+        assert math.isnan(r.focal_scale_other_epochs)
+        assert math.isfinite(r.nav_range_calibrated_km)
+        assert abs(r.nav_range_error_calibrated_pct) <= 2.0 * r.nav_range_sigma_calibrated_pct, r
+        assert r.nav_range_error_pct < -1.0 < r.nav_range_error_calibrated_pct

@@ -43,8 +43,9 @@ def amie(
         if r.comparison != "compared":
             console.print(f"{r.name}: {r.comparison}: {r.comparison_reason}", soft_wrap=True)
             continue
-        nav = (f"range error {r.nav_range_error_pct:+.2f} % (focal length from the other "
-               f"epochs: {r.nav_range_error_flight_cal_pct:+.2f} %)" if r.navigation == "fix"
+        nav = (f"range error {r.nav_range_error_pct:+.2f} % with the nominal focal length, "
+               f"{r.nav_range_error_calibrated_pct:+.2f} +- {r.nav_range_sigma_calibrated_pct:.2f} "
+               f"% with the calibrated one" if r.navigation == "fix"
                else f"no fix ({r.navigation_reason})")
         console.print(f"{r.name}: signal sim/real {r.signal_ratio:.3f}, limb rms "
                       f"{r.limb_diff_rms_px:.2f} px, {nav}", soft_wrap=True)

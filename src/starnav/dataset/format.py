@@ -53,6 +53,7 @@ from numpy.typing import NDArray
 from starnav.atomic import atomic_write_text
 from starnav.camera import Camera
 from starnav.detector.products import Segments, Window
+from starnav.eclipse import disc_mean_sunlit_fraction
 from starnav.errors import ConfigError, DataFileError
 from starnav.geometry import geometry_from_dict, geometry_to_dict, quat_xyzw_from_matrix
 from starnav.scenes.ephemeris import format_epoch
@@ -358,6 +359,14 @@ def truth_to_dict(geom: Any, camera: Any, limb_points: int = 360) -> dict[str, A
             "description": "true limb of the reference sphere seen from the true pose, "
                            "projected with the lens distortion [px]; points behind the camera "
                            "are omitted",
+        },
+        "eclipse": None if g.earth_position is None else {
+            "disc_mean_sunlit_fraction": disc_mean_sunlit_fraction(
+                g.camera_position, g.moon_radius, g.sun_position, g.earth_position),
+            "description": "fraction of the solar disc the Earth does not hide, averaged over "
+                           "the visible disc (uniform in projected area; uniform solar disc, "
+                           "the Earth's radius + 1/85): 1 outside the penumbra, 0 in the "
+                           "umbra; null for frames without an Earth (static, fly-by)",
         },
         "geometry": geometry_to_dict(g),
     }

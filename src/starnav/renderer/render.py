@@ -93,6 +93,7 @@ from numpy.typing import NDArray
 
 from starnav.camera import Camera
 from starnav.constants import AU, MOON_RADIUS
+from starnav.eclipse import could_be_eclipsed, disc_mean_sunlit_fraction, sunlit_fraction
 from starnav.errors import ConfigError, DataFileError
 from starnav.geometry import FrameGeometry, geometry_to_dict
 from starnav.photometry import get_model, validity_warning
@@ -274,8 +275,15 @@ class RenderSettings:
     adaptive: bool = True
     interior_spp: int | None = None
     spectral_sampling: str = "electrons"
+    earth_shadow: bool = True
+    sun_limb_darkening: float = 0.0
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.earth_shadow, bool)):
+            raise ConfigError("render.earth_shadow", self.earth_shadow, "true or false")
+        if not 0.0 <= self.sun_limb_darkening <= 1.0:
+            raise ConfigError("render.sun_limb_darkening", self.sun_limb_darkening,
+                              "a coefficient in [0, 1]")
         if self.spectral_sampling not in SPECTRAL_SAMPLINGS:
             raise ConfigError("render.spectral_sampling", self.spectral_sampling,
                               f"one of {SPECTRAL_SAMPLINGS}")
@@ -632,6 +640,7 @@ class MoonRenderer:
         Le = np.zeros((H, W), np.float32)
         aovs: dict[str, NDArray[np.float32]] = {}
         sample_counts: NDArray[np.int32] | None = None
+        eclipse_meta: dict[str, Any] | None = None
         box = moon_bounding_box(cam, geom, self.moon.radius + self.moon.max_height,
                                 self.settings.crop_margin_px)
         if box is not None and not self.settings.crop:
@@ -727,6 +736,13 @@ class MoonRenderer:
             img = img.astype(np.float64)
             L[v0:v0 + bh, u0:u0 + bw] = img[:, :, 0] * ch.scale_L * sun_scale
             Le[v0:v0 + bh, u0:u0 + bw] = img[:, :, 1] * ch.scale_Le * sun_scale
+            # the Earth's shadow: only a frame that can be in it is touched (outside, the
+            # render is bit for bit the one without the model)
+            eclipse = self._earth_shadow(geom, box)
+            if eclipse is not None:
+                factor, eclipse_meta = eclipse
+                L[v0:v0 + bh, u0:u0 + bw] *= factor
+                Le[v0:v0 + bh, u0:u0 + bw] *= factor
             if raw is not None:
                 t0 = time.perf_counter()
                 aovs = _aov_channels(raw, geom, box, (H, W),
@@ -782,7 +798,58 @@ class MoonRenderer:
         if sample_counts is not None:
             # only adaptive frames carry the key: the metadata of the others is as pinned
             meta["render"]["adaptive"] = _sample_summary(sample_counts, self.settings)
+        if eclipse_meta is not None:
+            # only frames the Earth's shadow can reach carry the key
+            meta["eclipse"] = eclipse_meta
         return RadianceImage(L, Le, aovs, meta)
+
+    def _earth_shadow(self, geom: FrameGeometry, box: tuple[int, int, int, int]
+                      ) -> tuple[NDArray[np.float32], dict[str, Any]] | None:
+        """Per-pixel sunlit fraction of the crop window (:mod:`starnav.eclipse`), or None when
+        the body is wholly outside the Earth's penumbra (or the frame has no Earth, or the
+        model is off).
+
+        The radiance of a single distant Sun is proportional to the irradiance, so the
+        shadow is a factor on the rendered radiance: the fraction of the solar disc seen from
+        the surface point under each pixel centre (the reference sphere's near intersection
+        of the pixel-centre ray, or the tangent point of a ray that passes beside it: limb
+        pixels). The fraction changes over thousands of km (the penumbra's width at the Moon
+        is about 1.1 deg x 384 000 km), a pixel's footprint is tens of km: constant over a
+        pixel to well below the Monte Carlo noise. Cast shadows and the terrain are the
+        render's; the fraction is taken on the sphere (10 km of relief move it by < 0.3 %).
+        """
+        if not self.settings.earth_shadow or geom.earth_position is None:
+            return None
+        radius = self.moon.radius + self.moon.max_height
+        if not could_be_eclipsed(radius, geom.sun_position, geom.earth_position):
+            return None
+        cam = self.camera
+        u0, v0, bw, bh = box
+        uu, vv = np.meshgrid(np.arange(u0, u0 + bw, dtype=float),
+                             np.arange(v0, v0 + bh, dtype=float))
+        rays = cam.unproject(np.stack([uu.ravel(), vv.ravel()], axis=1))
+        d = rays @ np.asarray(geom.R_cam_to_inertial, float).T
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        o = np.asarray(geom.camera_position, float)
+        R = float(self.moon.radius)
+        b = d @ o
+        disc = b * b - (o @ o - R * R)
+        t = np.where(disc >= 0.0, -b - np.sqrt(np.maximum(disc, 0.0)), -b)
+        p = o[None, :] + t[:, None] * d
+        p *= (R / np.linalg.norm(p, axis=1))[:, None]
+        u = self.settings.sun_limb_darkening
+        frac = sunlit_fraction(p, geom.sun_position, geom.earth_position, u)
+        factor = frac.reshape(bh, bw).astype(np.float32)
+        mean = disc_mean_sunlit_fraction(geom.camera_position, R, geom.sun_position,
+                                         geom.earth_position, u)
+        if mean < 1.0:
+            log.warning("frame %d is in the Earth's shadow: %.4f of the sunlight on its visible "
+                        "disc on average (min %.4f)", geom.index, mean, float(frac.min()))
+        meta = {"disc_mean_sunlit_fraction": mean, "min_sunlit_fraction": float(frac.min()),
+                "sun_limb_darkening": u,
+                "model": "solar disc occulted by the Earth (radius + 1/85), no refracted "
+                         "light in the umbra"}
+        return factor, meta
 
 
 def _sample_summary(counts: NDArray[np.int32], settings: RenderSettings) -> dict[str, Any]:

@@ -16,7 +16,7 @@ from pydantic import Field, field_validator, model_validator
 
 from starnav.config_base import StrictModel
 from starnav.dem.schema import DemConfig
-from starnav.fields import NonNegativeFloat, PositiveFloat
+from starnav.fields import NonNegativeFloat, PositiveFloat, UnitInterval
 from starnav.photometry import PHOTOMETRIC_MODELS, get_model, hapke_preset
 
 #: Samples per interior pixel of the adaptive render when ``render.interior_spp`` is unset (at
@@ -181,6 +181,14 @@ class RenderConfig(StrictModel):
         "the electrons the lit surface gives (Sun x surface colour x QE T lambda / hc: no "
         "spectral noise) or by the sensor's response alone (the solar spectrum in the weights: "
         "the reference the first is tested against)")
+    earth_shadow: bool = Field(
+        True, description="the Earth's shadow: each surface point's solar irradiance times the "
+        "fraction of the solar disc the Earth does not hide (penumbra and umbra, from the "
+        "ephemeris; frames without an Earth position, static and fly-by, are never shadowed; "
+        "the umbra's refracted light is not modelled)")
+    sun_limb_darkening: UnitInterval = Field(
+        0.0, description="linear limb-darkening coefficient u of the solar disc in the Earth's "
+        "shadow, I(mu) = 1 - u (1 - mu) (0: uniform disc; about 0.6 in the visible)")
 
     @model_validator(mode="after")
     def _interior_below_spp(self) -> RenderConfig:

@@ -162,6 +162,8 @@ class Scene:
         cfg = trajectory
         self.static = cfg is None and arc is None
         self.flyby: Flyby | None = None
+        # the Earth, for its shadow: from the ephemeris (none for static and fly-by frames)
+        self._earth: FloatArray | None = None
         if self.static:
             self.trajectory = None
             self.epochs = np.zeros(1)
@@ -180,6 +182,7 @@ class Scene:
         self._states = self.trajectory.sample(self.epochs)
         self._moon = self.ephemeris.state("moon", self.epochs, center="emb")
         self._sun = self.ephemeris.state("sun", self.epochs, center="emb")
+        self._earth = self.ephemeris.state("earth", self.epochs, center="emb")
         self._R_moon = (orientation(self.epochs) if orientation is not None else
                         self.ephemeris.moon_orientation(self.epochs, frame=cfg.moon_frame))
         # between the arc's nodes too: no frame is taken from inside the target
@@ -274,7 +277,9 @@ class Scene:
             R_moon_to_inertial=self._R_moon[i], epoch_tdb=float(self.epochs[i]),
             camera_velocity=rel[3:], R_cam_to_inertial_measured=p.R_measured,
             moon_radius=self.moon_radius, index=i,
-            camera_state_emb=None if self._states is None else self._states[i])
+            camera_state_emb=None if self._states is None else self._states[i],
+            earth_position=(None if self._earth is None
+                            else self._earth[i, :3] - self._moon[i, :3]))
 
     def geometries(self, indices: list[int] | range | None = None) -> list[FrameGeometry]:
         """Geometries of ``indices`` (default all frames)."""

@@ -96,7 +96,9 @@ def renderer_from_scenario(sc: Scenario, camera: Camera | None = None) -> MoonRe
                               aovs=r.aovs, variants=tuple(r.variants), sampler=r.sampler,
                               wavelength_step_nm=r.wavelength_step_nm,
                               adaptive=r.adaptive, interior_spp=r.interior_spp,
-                              spectral_sampling=r.spectral_sampling)
+                              spectral_sampling=r.spectral_sampling,
+                              earth_shadow=r.earth_shadow,
+                              sun_limb_darkening=r.sun_limb_darkening)
     return MoonRenderer(camera, response, sun, moon, settings)
 
 

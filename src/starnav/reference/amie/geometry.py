@@ -414,8 +414,8 @@ def frame_geometry(
     Returns
     -------
     FrameGeometry
-        Camera at ``-sc_to_moon`` and the Sun (DE421, geometric) relative to the Moon centre,
-        J2000/ICRF axes [m]; ``R_moon_to_inertial`` from the DE421 librations.
+        Camera at ``-sc_to_moon`` and the Sun and the Earth (DE421, geometric) relative to the
+        Moon centre, J2000/ICRF axes [m]; ``R_moon_to_inertial`` from the DE421 librations.
     """
     eph = ephemeris or Ephemeris.default()
     t = float(epoch_tdb)
@@ -427,6 +427,7 @@ def frame_geometry(
     vel = np.zeros(3) if sc_to_moon_velocity_m_s is None \
         else -np.asarray(sc_to_moon_velocity_m_s, float).reshape(-1)
     sun = np.asarray(eph.state("sun", t, center="moon"), float)[:3]
+    earth = np.asarray(eph.state("earth", t, center="moon"), float)[:3]
     R_moon = np.asarray(eph.moon_orientation(t, frame=moon_frame), float)
     return FrameGeometry(
         camera_position=-v,
@@ -437,6 +438,7 @@ def frame_geometry(
         camera_velocity=vel,
         moon_radius=float(moon_radius),
         index=int(index),
+        earth_position=earth,
     )
 
 

@@ -4,6 +4,11 @@
 quantity                    value                            source / trust
 =========================== ================================ ======================================
 focal length, f-number      154.7 mm, f/10                   instrument kernel SMART1_AMIE_V01.TI
+in-flight focal length      nominal x the plate scale        calibrated on the packaged Moon
+                            (amie/plate_scale.json)          frames (plate_scale.py); the
+                                                             navigation ranges are given with
+                                                             both, the simulation renders with
+                                                             the nominal one
 pixels                      14 um, NONE quadrant 512 x 512   instrument kernel; data README
 spectral response           measured NONE-filter curve       calib/amie_spectral_response_none.csv
                             (transmission) x QE 0.212        (ABRAM AMIE validation); QE measured
@@ -30,9 +35,26 @@ stray light, ghosts, smear                                   flat-corrected and 
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
+from starnav.camera import CAMERA_PRESETS
+from starnav.data import packaged_path
 from starnav.reference.amie.vega import load_calibration
+
+#: The instrument kernel's focal length [m] (the ``amie`` camera preset).
+AMIE_NOMINAL_FOCAL_LENGTH_M = CAMERA_PRESETS["amie"].focal_length
+#: The in-flight plate scale (``starnav/data/amie/plate_scale.json``, written by
+#: ``tools/calibrate_amie_plate_scale.py``; :mod:`starnav.reference.amie.plate_scale`).
+PLATE_SCALE_FILE = "amie/plate_scale.json"
+
+
+def amie_plate_scale() -> dict[str, Any]:
+    """The packaged in-flight plate scale: ``focal_scale`` (calibrated / nominal focal
+    length), its standard error ``focal_scale_sigma``, a frame's predictive range 1-sigma
+    ``frame_range_sigma_fraction``, ``focal_length_m``, the per-frame and per-epoch values
+    and the ``method``."""
+    return json.loads(packaged_path(PLATE_SCALE_FILE).read_text())
 
 #: Diffraction-limited Gaussian sigma [px]: 0.42 lambda N / pitch at 800 nm, f/10, 14 um (the
 #: floor; the measured core is about twice as wide).
@@ -76,11 +98,17 @@ def amie_detector(exposure_s: float) -> dict[str, Any]:
     }
 
 
-def amie_scenario(exposure_s: float, spp: int = 16) -> dict[str, Any]:
+def amie_scenario(exposure_s: float, spp: int = 16, *,
+                  calibrated_focal_length: bool = False) -> dict[str, Any]:
     """A scenario dict for an AMIE frame: the ``amie`` camera and response, the AMIE detector,
-    the default (real, ROLO-calibrated) Moon. The geometry is given per frame."""
+    the default (real, ROLO-calibrated) Moon. The geometry is given per frame.
+    ``calibrated_focal_length``: the in-flight focal length (:func:`amie_plate_scale`) instead
+    of the instrument kernel's."""
+    camera: dict[str, Any] = {"preset": "amie"}
+    if calibrated_focal_length:
+        camera["focal_length_mm"] = amie_plate_scale()["focal_length_m"] * 1e3
     return {
-        "camera": {"preset": "amie"},
+        "camera": camera,
         "sensor_response": {"preset": "amie"},
         "detector": amie_detector(exposure_s),
         "render": {"spp": int(spp)},

@@ -83,6 +83,7 @@ from starnav.config import build_camera, scenario_from_dict
 from starnav.detector.chain import expose
 from starnav.detector.readout import extract_segments
 from starnav.detector.schema import DetectorConfig
+from starnav.eclipse import disc_mean_sunlit_fraction
 from starnav.errors import StarnavError
 from starnav.navigation.frames import Frame
 from starnav.navigation.limb import LimbScanOptions
@@ -100,7 +101,7 @@ from starnav.reference.amie.geometry import (
     frame_geometry,
     refine_attitude,
 )
-from starnav.reference.amie.presets import AMIE_GAIN_E_PER_DN, amie_scenario
+from starnav.reference.amie.presets import AMIE_GAIN_E_PER_DN, amie_plate_scale, amie_scenario
 from starnav.reference.rolo import rolo_geometry
 from starnav.simulate import renderer_from_scenario
 from starnav.spectra import amie_quantum_efficiency
@@ -184,6 +185,10 @@ class AmieFrameResult:
     edge_radius_ratio_sim: float = math.nan
     focal_scale_other_epochs: float = math.nan
     nav_range_error_flight_cal_pct: float = math.nan
+    nav_range_calibrated_km: float = math.nan
+    nav_range_error_calibrated_pct: float = math.nan
+    nav_range_sigma_calibrated_pct: float = math.nan
+    sunlit_fraction: float = 1.0
     comparison: str = COMPARED
     comparison_reason: str = ""
     navigation: str = FIX
@@ -620,8 +625,11 @@ def analyse_frame(path: str | Path, options: AmieOptions | None = None
         sim_limb, nav_sim = None, math.nan
         notes.append(f"no limb on the simulated frame: {err}")
 
-    # 6d. navigation on the real frame: range against the label
+    # 6d. navigation on the real frame: range against the label, with the nominal focal length
+    # and the in-flight one (the packaged plate scale; the fixed range scales with f)
     nav_err = fix.range_error_pct
+    plate = amie_plate_scale()
+    scale = float(plate["focal_scale"])
     if abs(nav_err) > 5.0 and math.isfinite(nav_sim) and abs(nav_sim) < 1.0:
         pred_px = math.asin(g0.moon_radius / label_range) / camera.ifov
         notes.append(
@@ -630,6 +638,11 @@ def analyse_frame(path: str | Path, options: AmieOptions | None = None
             f"measured, {pred_px:.1f} px predicted), while the same chain on the simulated frame "
             f"is within {abs(nav_sim):.2f} %: the frame's spacecraft position (and its pointing) "
             "are off, so its comparison is not a test of the model")
+    sunlit = (1.0 if geom.earth_position is None else disc_mean_sunlit_fraction(
+        geom.camera_position, geom.moon_radius, geom.sun_position, geom.earth_position))
+    if sunlit < 1.0:
+        notes.append(f"in the Earth's shadow: {sunlit:.4f} of the sunlight on the visible disc "
+                     "(DE421; the simulation includes it, the umbra's refracted light not)")
     rg = rolo_geometry(geom)
     extrap = not (math.radians(1.55) <= rg.phase <= math.radians(97.0))
     if extrap:
@@ -646,7 +659,11 @@ def analyse_frame(path: str | Path, options: AmieOptions | None = None
         nav_range_error_pct=nav_err, nav_range_error_sim_pct=nav_sim,
         rolo_extrapolated=extrap, edge_radius_ratio_real=ratio_real,
         observation_type=frame.observation_type,
-        edge_radius_ratio_sim=ratio_sim,
+        edge_radius_ratio_sim=ratio_sim, sunlit_fraction=sunlit,
+        nav_range_calibrated_km=fix.limb.range_m * scale / 1e3,
+        nav_range_error_calibrated_pct=100.0 * (fix.limb.range_m * scale - label_range)
+        / label_range,
+        nav_range_sigma_calibrated_pct=100.0 * plate["frame_range_sigma_fraction"],
         navigation=FIX if real_limb.has_fix else NO_FIX,
         navigation_reason="" if real_limb.has_fix else
         f"{real_limb.status}: {real_limb.message}", notes=notes)
@@ -777,8 +794,8 @@ def write_report(out: Path, results: list[AmieFrameResult],
              "(docs/real-images.md).", "",
              "| frame | exp [ms] | phase [deg] | range [km] | R [px] | attitude fix [deg] | "
              "signal sim/real | pixel ratio (median, MAD) | limb sim-real mean / rms [px] | "
-             "edge radius / predicted: real, sim | nav range error: nominal f; "
-             "f from other epochs [%] |",
+             "edge radius / predicted: real, sim | nav range error [%]: nominal f; "
+             "calibrated f (1-sigma); f from the other epochs |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     compared = [r for r in results if r.comparison == COMPARED]
     for r in compared:
@@ -788,7 +805,9 @@ def write_report(out: Path, results: list[AmieFrameResult],
             f"{r.pixel_ratio_median:.3f}, {r.pixel_ratio_mad:.3f} | "
             f"{r.limb_diff_mean_px:+.2f} / {r.limb_diff_rms_px:.2f} | "
             f"{r.edge_radius_ratio_real:.4f}, {r.edge_radius_ratio_sim:.4f} | "
-            + (f"{r.nav_range_error_pct:+.2f}; {r.nav_range_error_flight_cal_pct:+.2f} |"
+            + (f"{r.nav_range_error_pct:+.2f}; {r.nav_range_error_calibrated_pct:+.2f} "
+               f"({r.nav_range_sigma_calibrated_pct:.2f}); "
+               f"{r.nav_range_error_flight_cal_pct:+.2f} |"
                if r.navigation == FIX else "no fix |"))
     lines += ["", "## What happened to each frame", ""]
     for r in results:
@@ -832,10 +851,15 @@ def write_report(out: Path, results: list[AmieFrameResult],
         for r in far:
             why = ("the only Moon frame of an in-flight CALIBRATION sequence (its label's "
                    "IMAGE_OBSERVATION_TYPE; the others are REGULAR). Its geometry checks (limb, "
-                   "range) and its exposure matches the clock counts; in the pixels the "
-                   "simulation does not saturate the ratio is 2.0, as if the gain were twice "
-                   "the label's 280 e-/DN in that sequence. Documented limitation, "
-                   "docs/real-images.md" if r.observation_type == "CALIBRATION"
+                   "range); in the pixels the simulation does not saturate the ratio is 2.0. "
+                   "The label gives no reason: the same gain (280 e-/DN), instrument mode, "
+                   "compression and quality as the others, and its stop clock count is the "
+                   "start plus the commanded exposure (as in every label: no independent "
+                   "check of the 20 ms). A gain change for the calibration sequence is not "
+                   "supported: the Vega frame of the same clock partition, also CALIBRATION, "
+                   "gives the QE that the REGULAR frames confirm within 5 %. Unexplained, "
+                   "documented, not corrected: docs/real-images.md" if r.observation_type ==
+                   "CALIBRATION"
                    else "not explained by the model (docs/real-images.md)")
             lines.append(f"- **{r.name}** is {r.signal_ratio / common:.2f} x the common factor "
                          f"(phase {r.phase_deg:.1f} deg): {why}.")
@@ -857,6 +881,20 @@ def write_report(out: Path, results: list[AmieFrameResult],
                   f"{max(r.focal_scale_other_epochs for r in cal):.4f}) gives range errors "
                   f"{min(r.nav_range_error_flight_cal_pct for r in cal):+.2f} to "
                   f"{max(r.nav_range_error_flight_cal_pct for r in cal):+.2f} %."]
+    fixed = [r for r in compared if r.navigation == FIX]
+    if fixed:
+        plate = amie_plate_scale()
+        lines += ["", "## Range with the in-flight focal length", "",
+                  f"The `amie` preset's plate scale (f = {plate['focal_length_m'] * 1e3:.2f} "
+                  f"+- {plate['focal_length_sigma_m'] * 1e3:.2f} mm, nominal "
+                  f"{plate['nominal_focal_length_m'] * 1e3:.1f} mm; calibrated once on the "
+                  "packaged frames, docs/real-images.md) gives range errors "
+                  f"{min(r.nav_range_error_calibrated_pct for r in fixed):+.2f} to "
+                  f"{max(r.nav_range_error_calibrated_pct for r in fixed):+.2f} % "
+                  f"(a frame's 1-sigma: {100 * plate['frame_range_sigma_fraction']:.2f} %); "
+                  "with the nominal one "
+                  f"{min(r.nav_range_error_pct for r in fixed):+.2f} to "
+                  f"{max(r.nav_range_error_pct for r in fixed):+.2f} %."]
     if lin is not None:
         lines += ["", "## Linearity (041111 pair, 18 and 40 ms, 20 s apart)", "",
                   f"Signal ratio {lin['signal_ratio']:.4f} for an exposure ratio "
