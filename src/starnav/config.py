@@ -45,7 +45,7 @@ from starnav.renderer.schema import (
     PhotometryConfig,
     RenderConfig,
 )
-from starnav.scenes.schema import PointingConfig, TrajectoryConfig
+from starnav.scenes.schema import PointingConfig, SpacecraftConfig, TrajectoryConfig
 from starnav.spectra import SensorResponseConfig, SunConfig
 from starnav.stars.schema import StarsConfig
 
@@ -85,6 +85,10 @@ class Scenario(StrictModel):
     trajectory: TrajectoryConfig | None = Field(
         None, description="the observer's arc and the frame epochs along it; null: the one static "
         "frame of the geometry section")
+    spacecraft: SpacecraftConfig = Field(
+        default_factory=SpacecraftConfig, description="the spacecraft as the truth dynamics "
+        "see it: mass, area and reflectivity for the solar radiation pressure "
+        "(trajectory.forces.srp)")
     pointing: PointingConfig = Field(
         default_factory=PointingConfig, description="the camera's Moon-pointing attitude and its "
         "on-board knowledge error")
@@ -170,6 +174,7 @@ EXAMPLE_HEADER = """\
 
 __all__ = ["AlbedoMapConfig", "CameraConfig", "DetectorConfig", "MoonConfig", "NavigationConfig",
            "OutputConfig", "PhotometryConfig", "PointingConfig", "RenderConfig", "Scenario",
-           "SensorResponseConfig", "StaticGeometryConfig", "SunConfig", "TrajectoryConfig",
+           "SensorResponseConfig", "SpacecraftConfig", "StaticGeometryConfig", "SunConfig",
+           "TrajectoryConfig",
            "apply_overrides", "build_camera", "camera_from_config", "load_scenario",
            "scenario_from_dict", "scenario_to_dict", "write_resolved"]

@@ -29,7 +29,7 @@ def test_main_job_makes_dataset_navigation_and_report(tmp_path):
     assert s["frames"] == 4 and calls[-1] == (9, 9) and calls[0][0] == 0
     # the consistency over Monte Carlo runs, next to the accuracy
     assert "Can the 3-sigma bounds be trusted? (2 Monte Carlo runs)" in text
-    assert "over 2 runs: mean NEES" in text
+    assert "over 2 runs: time-averaged NEES" in text
     for e in ("exposure_0.015ms", "exposure_7.7ms"):
         assert (tmp_path / "demo" / "navigation" / e / "montecarlo" / "metrics.json").is_file()
     assert s["0.015 ms: filter (2 runs)"] in ("consistent", "overconfident", "pessimistic")

@@ -21,7 +21,8 @@ def runs3(small_dataset):
 
 def test_runs_are_reproducible_independent_realisations(small_dataset, runs3):
     """The same runs twice are identical (seeded streams); the runs differ from each other;
-    the band is chi2.ppf([0.005, 0.995], 6 R) / R for R = 3 runs."""
+    the time-averaged band is chi2.ppf([0.005, 0.995], 6 n) / n for n = R K / tau effective
+    samples (tau in [1, K]); each epoch's band is that of a 3-run mean."""
     from starnav.batch.montecarlo import navigate_runs
     from starnav.dataset import open as open_dataset
 
@@ -30,7 +31,18 @@ def test_runs_are_reproducible_independent_realisations(small_dataset, runs3):
     assert m["nees_per_step"] == again["nees_per_step"]
     per_run = [r["nees_mean"] for r in runs3["result"].rows]
     assert len(set(per_run)) == 3
-    assert m["nees_band"] == pytest.approx(list(chi2.ppf([0.005, 0.995], 18) / 3))
+    st = m["nees"]
+    K = len(m["nees_per_step"])
+    n = st["effective_samples"]
+    assert 1.0 <= st["autocorrelation_time"] <= K
+    assert n == pytest.approx(3 * K / st["autocorrelation_time"])
+    assert m["nees_band"] == pytest.approx(list(chi2.ppf([0.005, 0.995], 6 * n) / n))
+    lo, hi = chi2.ppf([0.025, 0.975], 18) / 3
+    inside = np.mean([lo <= v <= hi for v in m["nees_per_step"]])
+    assert m["nees_steps_in_band"] == pytest.approx(inside)
+    for key in ("nees_position", "nees_velocity"):
+        assert m[key]["dof"] == 3 and m[key]["verdict"] in (
+            "consistent", "overconfident", "pessimistic")
     assert m["verdict"] == ("consistent" if m["nees_band"][0] <= m["nees_mean"]
                             <= m["nees_band"][1] else
                             "overconfident" if m["nees_mean"] > m["nees_band"][1]
@@ -48,7 +60,7 @@ def test_cli_navigate_runs_writes_the_verdict_and_figures(small_dataset, tmp_pat
     r = CliRunner().invoke(app, ["navigate", str(small_dataset), "--out", str(out),
                                  "--runs", "3", "--exposure", "15us"])
     assert r.exit_code == 0, r.output
-    assert "over 3 runs: mean NEES" in r.output
+    assert "over 3 runs: time-averaged NEES" in r.output
     report = (out / "report.md").read_text()
     assert report.splitlines()[2].startswith(("**Consistent**", "**Overconfident**",
                                               "**Pessimistic**"))

@@ -341,26 +341,38 @@ def test_filter_with_tuned_bias_states_is_consistent_at_7_7_ms(demo_arc):
 
 
 def test_sweep_report_states_consistency_per_point():
-    """The sweep report's consistency section: the band of a 4-run mean of a 6-state NEES is
-    chi2.ppf([0.005, 0.995], 24) / 4, and each point gets its verdict."""
-    from scipy.stats import chi2
-
+    """The sweep report's consistency section: per point, the verdict of
+    consistency_metrics (time-averaged NEES against its autocorrelation-corrected band) with
+    that band, the position and velocity NEES and the epochs inside the per-epoch band; a
+    consistent point (NEES chi2(6)), an overconfident (x 4) and a pessimistic one (x 0.2)."""
+    from starnav.batch.consistency import consistency_metrics
     from starnav.batch.report import consistency_section
+    from starnav.batch.tasks import PointResult
 
-    rows = ([{"point": 0, "nees_mean": x} for x in (5.0, 6.0, 7.0, 6.0)]
-            + [{"point": 1, "nees_mean": x} for x in (20.0, 30.0, 25.0, 22.0)]
-            + [{"point": 2, "nees_mean": x} for x in (1.0, 1.5, 1.2, 0.9)])
+    rng = np.random.default_rng(2)
+    R, K = 4, 12
+    cons = {}
+    for i, scale in enumerate((1.0, 4.0, 0.2)):
+        e = rng.standard_normal((R, K, 6))
+        res = PointResult(
+            point=i, rows=[{"final_position_error_pct_range": 0.1}] * R,
+            epochs=np.arange(K, dtype=float), errors=e * math.sqrt(scale),
+            sigma3=np.full((R, K, 6), 3.0), limb_errors_px=np.empty(0, np.float32),
+            nees=scale * np.sum(e * e, axis=2),
+            nees_position=scale * np.sum(e[..., :3] ** 2, axis=2),
+            nees_velocity=scale * np.sum(e[..., 3:] ** 2, axis=2))
+        cons[i] = consistency_metrics(res)
+    assert [c["verdict"] for c in cons.values()] == ["consistent", "overconfident",
+                                                     "pessimistic"]
     summ = [{"point": i, "label": f"p{i}", "exposure_time_s": t}
             for i, t in enumerate((1.5e-5, 7.7e-3, 1.8e-4))]
-    text = "\n".join(consistency_section(rows, summ, 4))
-    lo, hi = chi2.ppf([0.005, 0.995], 24) / 4
-    assert f"{lo:.2f}-{hi:.2f}" in text
-    assert "| 0 | p0 | 0.015 | 6.00 | consistent |" in text
-    assert "| 1 | p1 | 7.7 | 24.25 | overconfident |" in text
-    assert "| 2 | p2 | 0.18 | 1.15 | pessimistic |" in text
+    text = "\n".join(consistency_section(summ, R, cons))
+    lo, hi = cons[1]["nees_band"]
+    assert (f"| 1 | p1 | 7.7 | {cons[1]['nees_mean']:.2f} | {lo:.2f}-{hi:.2f} | "
+            f"{cons[1]['nees_position']['mean']:.2f} | ") in text
+    assert "| 0 | p0 | 0.015 |" in text and "consistent |" in text
     assert "Not consistent at 0.18 ms (pessimistic), 7.7 ms (overconfident)" in text
-    assert "no consistency verdict" in "\n".join(consistency_section(rows, summ, 1))
-
+    assert "no consistency verdict" in "\n".join(consistency_section(summ, 1, {}))
 
 
 def test_model_error_calibration_recovers_known_terms():

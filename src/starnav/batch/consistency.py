@@ -3,12 +3,14 @@
 A consistent filter's normalised estimation error squared ``NEES = e^T P^-1 e`` over its 6
 position-velocity states is chi-square with 6 degrees of freedom; averaged over ``N``
 independent runs it lies in ``chi2.ppf([a/2, 1 - a/2], 6 N) / N`` with probability ``1 - a``
-(Bar-Shalom, Li & Kirubarajan 2001, s. 5.4.2). The runs must differ in what the filter does not
-know: here each run re-exposes every rendered frame with its own detector noise (shot, read,
-the acquisition's seed; the fixed pattern stays the sensor's), re-runs the whole chain
-(segments, windows, refinement, fix) and starts the filter from its own initial error drawn
-from ``P0``: the same machinery as ``starnav sweep --runs`` (:mod:`starnav.batch.tasks`),
-in process.
+at each epoch (Bar-Shalom, Li & Kirubarajan 2001, s. 5.4.2); its mean over the epochs as
+well lies in a band whose degrees of freedom follow from the NEES series' autocorrelation
+(:func:`starnav.navigation.metrics.anees_statistics`). The runs must differ in what the
+filter does not know: here each run re-exposes every rendered frame with its own detector
+noise (shot, read, the acquisition's seed; the fixed pattern stays the sensor's), re-runs the
+whole chain (segments, windows, refinement, fix) and starts the filter from its own initial
+error drawn from ``P0``: the same machinery as ``starnav sweep --runs``
+(:mod:`starnav.batch.tasks`), in process.
 
 :func:`noise_monte_carlo` renders once and exposes ``runs`` times; :func:`filter_consistency`
 runs the filter of every run for one navigation setting (so that filter settings can be
@@ -41,6 +43,7 @@ from starnav.batch.tasks import (
 )
 from starnav.config import scenario_from_dict, scenario_to_dict
 from starnav.errors import ConfigError
+from starnav.navigation.metrics import anees_statistics
 from starnav.seeding import STAGE_TERRAIN, generator
 from starnav.simulate import scene_from_scenario
 
@@ -122,41 +125,41 @@ SATURATED = (1.8e-4, ("detector.readout.segments.thresholds_dn=[2048]",))
 
 def consistency_metrics(res: PointResult, probability: float = 0.99) -> dict[str, Any]:
     """Whether a filter's covariance is true, over ``R`` Monte Carlo runs (``res`` from
-    :func:`~starnav.batch.tasks.filter_task`):
+    :func:`~starnav.batch.tasks.filter_task`), by
+    :func:`~starnav.navigation.metrics.anees_statistics`:
 
-    * ``nees_mean``: NEES of the 6 position-velocity states, averaged over runs and steps,
-      against the two-sided ``probability`` band of an ``R``-run mean (``chi2(6 R) / R``),
-      and the verdict (``consistent``, ``overconfident`` above, ``pessimistic`` below);
-    * ``nees_steps_in_band``: fraction of steps whose run-averaged NEES lies in the 95 % band
-      of an ``R``-run mean;
-    * ``nis_mean`` and its band likewise (3 dof, steps with a fix);
+    * ``nees``, ``nees_position``, ``nees_velocity``, ``nis``: the statistics of the 6-state
+      NEES, of its position and velocity 3-dof blocks and of the NIS (3 dof, steps with a
+      fix): per-epoch ANEES against the 95 % band of an ``R``-run mean and the fraction of
+      epochs inside it; time-averaged ANEES against the two-sided ``probability`` band of its
+      effective number of samples (the NEES series' measured autocorrelation);
+    * the 6-state numbers also flat, as before: ``nees_mean``, ``nees_band`` (the corrected
+      band), ``verdict`` (``consistent``, ``overconfident`` above, ``pessimistic`` below),
+      ``nees_steps_in_band``, ``nees_per_step``; ``nis_mean``, ``nis_band``, ``nis_fixes``,
+      ``nis_per_step``;
     * ``within_3sigma``: fraction of all (run, step, component) errors inside the filter's
       3-sigma bounds, per component and overall (a consistent Gaussian filter: 99.73 %);
     * final position error in % of range (median and 90th percentile over runs).
     """
-    from scipy.stats import chi2
-
     R = len(res.rows)
     out: dict[str, Any] = {"runs": R, "probability": probability}
     if res.nees is None or res.errors is None or res.sigma3 is None:
         out["verdict"] = "no truth"
         return out
-    nees_step = np.nanmean(res.nees, axis=0)
-    lo, hi = chi2.ppf([(1 - probability) / 2, (1 + probability) / 2], 6 * R) / R
-    l95, h95 = chi2.ppf([0.025, 0.975], 6 * R) / R
-    m = float(np.nanmean(nees_step))
-    out.update({"nees_mean": m, "nees_band": [float(lo), float(hi)],
-                "consistent": bool(lo <= m <= hi),
-                "verdict": ("consistent" if lo <= m <= hi
-                            else "overconfident" if m > hi else "pessimistic"),
-                "nees_steps_in_band": float(np.mean((nees_step >= l95) & (nees_step <= h95))),
-                "nees_per_step": nees_step.tolist()})
+    st = anees_statistics(res.nees, 6, probability)
+    out.update({"nees_mean": st["mean"], "nees_band": st["band"],
+                "consistent": st["verdict"] == "consistent", "verdict": st["verdict"],
+                "nees_steps_in_band": st["epochs_in_band"], "nees_per_step": st["per_epoch"],
+                "nees": _compact(st)})
+    for name, values in (("nees_position", res.nees_position),
+                         ("nees_velocity", res.nees_velocity)):
+        if values is not None:
+            out[name] = _compact(anees_statistics(values, 3, probability))
     if res.nis is not None and np.any(np.isfinite(res.nis)):
-        nis = np.asarray(res.nis, float)
-        n_fix = int(np.isfinite(nis).sum())
-        nl, nh = chi2.ppf([(1 - probability) / 2, (1 + probability) / 2], 3 * n_fix) / n_fix
-        out.update({"nis_mean": float(np.nanmean(nis)), "nis_band": [float(nl), float(nh)],
-                    "nis_fixes": n_fix, "nis_per_step": np.nanmean(nis, axis=0).tolist()})
+        nis = anees_statistics(res.nis, 3, probability)
+        out.update({"nis_mean": nis["mean"], "nis_band": nis["band"],
+                    "nis_fixes": int(np.isfinite(res.nis).sum()),
+                    "nis_per_step": nis["per_epoch"], "nis": _compact(nis)})
     inside = np.abs(res.errors) <= res.sigma3
     out["within_3sigma"] = {"position": float(inside[..., :3].mean()),
                             "velocity": float(inside[..., 3:].mean()),
@@ -165,6 +168,12 @@ def consistency_metrics(res: PointResult, probability: float = 0.99) -> dict[str
     out["final_position_error_pct_range"] = {
         "median": float(np.nanmedian(pos)), "p90": float(np.nanpercentile(pos, 90))}
     return out
+
+
+def _compact(st: dict[str, Any]) -> dict[str, Any]:
+    """:func:`~starnav.navigation.metrics.anees_statistics` without its per-epoch lists
+    (``nees_per_step`` and ``nis_per_step`` carry them)."""
+    return {k: v for k, v in st.items() if k not in ("per_epoch", "per_epoch_band")}
 
 
 def filter_consistency(mc: NoiseMonteCarlo, config: dict[str, Any] | None = None,

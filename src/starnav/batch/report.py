@@ -14,8 +14,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from starnav.atomic import atomic_write_text
 from starnav.batch.presets import PAPER_CITATION, PAPER_MIL_SATURATED, paper_case
 from starnav.batch.tasks import TIMED_STAGES
@@ -128,42 +126,44 @@ def paper_comparison(summary: Sequence[dict[str, Any]]) -> list[str]:
     return out
 
 
-def consistency_section(rows: Sequence[dict[str, Any]], summary: Sequence[dict[str, Any]],
-                        runs: int, probability: float = 0.99) -> list[str]:
-    """Markdown lines: per point, the filter's NEES averaged over the Monte Carlo runs (each run
-    its own detector noise, attitude knowledge error and initial error) against the two-sided
-    ``probability`` chi-square band of a ``runs``-run mean of a 6-state NEES, the verdict, and
-    the shortest exposure at which the filter stops being consistent."""
-    from scipy.stats import chi2
-
+def consistency_section(summary: Sequence[dict[str, Any]], runs: int,
+                        consistency: dict[int, dict[str, Any]]) -> list[str]:
+    """Markdown lines: per point, the filter's consistency over the Monte Carlo runs (each run
+    its own detector noise, attitude knowledge error and initial error) as
+    :func:`~starnav.batch.consistency.consistency_metrics` judges it (``consistency``, by
+    point): the time-averaged NEES (6 states) against its band corrected for the NEES
+    series' autocorrelation, the position and velocity NEES, the fraction of epochs whose
+    run-averaged NEES is inside its 95 % band; the verdict, and the exposures at which the
+    filter is not consistent."""
     if runs < 2:
         return ["## Consistency", "",
                 "One run per point: no consistency verdict (give `--runs` >= 2).", ""]
-    lo, hi = chi2.ppf([(1 - probability) / 2, (1 + probability) / 2], 6 * runs) / runs
     L = ["## Consistency (are the 3-sigma bounds true?)", "",
-         f"Mean NEES (6 states) over the {runs} runs, against the two-sided "
-         f"{100 * probability:.0f} % band of a {runs}-run mean, {lo:.2f}-{hi:.2f} "
-         "(consistent: inside; above: the filter is overconfident). The runs sample detector "
-         "noise, attitude knowledge error and initial error; the terrain in view along the "
-         "arc is the same in every run, so the verdict is conditional on it "
-         "(docs/navigation.md, \"Consistency needs the terrain sampled\").", "",
-         "| point | scenario | exposure [ms] | mean NEES | verdict |", "|---|---|---|---|---|"]
+         f"Over the {runs} runs: the NEES (6 states) averaged over runs and epochs against its "
+         "two-sided 99 % band, whose degrees of freedom are those of the runs times the "
+         "epochs divided by the NEES series' integrated autocorrelation time (consistent: "
+         "inside; above: the filter is overconfident); position and velocity NEES (3 dof "
+         "each); the fraction of epochs whose run-averaged NEES is inside the 95 % band of "
+         f"a {runs}-run mean (consistent: 95 %). The runs sample detector noise, attitude "
+         "knowledge error and initial error; the terrain in view along the arc is the same in "
+         "every run, so the verdict is conditional on it (docs/navigation.md, \"Consistency "
+         "needs the terrain sampled\").", "",
+         "| point | scenario | exposure [ms] | NEES | band | position NEES | velocity NEES | "
+         "epochs in 95 % band | verdict |", "|---|---|---|---|---|---|---|---|---|"]
     bad = []
     for s in summary:
-        v = np.array([r["nees_mean"] for r in rows if r["point"] == s["point"]
-                      and r.get("nees_mean") is not None], float)
-        v = v[np.isfinite(v)]
-        if v.size == 0:
-            L.append(f"| {s['point']} | {s['label']} | "
-                     f"{_g(s['exposure_time_s'], '.4g', 1e3)} | - | no filter |")
+        m = consistency.get(int(s["point"]), {})
+        head = (f"| {s['point']} | {s['label']} | {_g(s['exposure_time_s'], '.4g', 1e3)} | ")
+        if "nees_mean" not in m:
+            L.append(head + "- | - | - | - | - | no filter |")
             continue
-        m = float(v.mean())
-        verdict = "consistent" if lo <= m <= hi else ("overconfident" if m > hi
-                                                      else "pessimistic")
-        if verdict != "consistent":
-            bad.append((float(s["exposure_time_s"]), verdict))
-        L.append(f"| {s['point']} | {s['label']} | {_g(s['exposure_time_s'], '.4g', 1e3)} | "
-                 f"{m:.2f} | {verdict} |")
+        if m["verdict"] != "consistent":
+            bad.append((float(s["exposure_time_s"]), m["verdict"]))
+        lo, hi = m["nees_band"]
+        L.append(head + f"{m['nees_mean']:.2f} | {lo:.2f}-{hi:.2f} | "
+                 f"{_g(m.get('nees_position', {}).get('mean'), '.2f')} | "
+                 f"{_g(m.get('nees_velocity', {}).get('mean'), '.2f')} | "
+                 f"{_g(m['nees_steps_in_band'], '.0f', 100)} % | {m['verdict']} |")
     if bad:
         L += ["", "**Not consistent at " + ", ".join(
             f"{t * 1e3:.4g} ms ({v})" for t, v in sorted(bad)) + "**."]
@@ -214,8 +214,10 @@ def write_report(path: str | os.PathLike[str], *, base: Scenario, axes: Sequence
                  points: Sequence[GridPoint], rows: Sequence[dict[str, Any]], runs: int,
                  n_frames: dict[str, int], groups: dict[str, list[GridPoint]], runner: str,
                  elapsed: float, counts: dict[str, int], figures: dict[str, str],
-                 title: str | None = None) -> Path:
-    """Write ``report.md`` (module docstring)."""
+                 title: str | None = None,
+                 consistency: dict[int, dict[str, Any]] | None = None) -> Path:
+    """Write ``report.md`` (module docstring); ``consistency``: per point,
+    :func:`~starnav.batch.consistency.consistency_metrics` of its runs."""
     from starnav.batch.sweep import summarize_points  # lazy: cycle with starnav.batch.sweep
 
     summary = summarize_points(rows)
@@ -248,7 +250,7 @@ def write_report(path: str | os.PathLike[str], *, base: Scenario, axes: Sequence
     L += ["", "Every run's row is in `results.parquet` / `results.csv` (columns and units: "
           "docs/sweep.md and `sweep.json`).", ""]
     L += attitude_section(rows, summary)
-    L += consistency_section(rows, summary, runs)
+    L += consistency_section(summary, runs, consistency or {})
     L += paper_comparison(summary)
     if figures:
         L += ["## Figures", ""]

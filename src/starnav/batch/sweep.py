@@ -58,6 +58,7 @@ from starnav import __version__
 from starnav.atomic import atomic_write_text
 from starnav.batch import figures as FIG
 from starnav.batch.cluster import open_runner
+from starnav.batch.consistency import consistency_metrics
 from starnav.batch.grid import GridAxis, GridPoint, expand, parse_grid, render_config, render_groups
 from starnav.batch.report import write_report
 from starnav.batch.table import column_names, columns_of, write_table
@@ -374,6 +375,8 @@ def _write_outputs(tmp: Path, out: Path, base: Scenario, axes: Sequence[GridAxis
             FIG.plot_error_vs_time(res.epochs, res.errors, res.sigma3, tmp / name, p.label)
             fig_paths[f"error_vs_time_{p.index:03d}"] = name
     paths.update(fig_paths)
+    consistency = ({p.index: consistency_metrics(results[p.index]) for p in points}
+                   if runs >= 2 else {})
     info = {
         "starnav": __version__,
         "grid": [{"key": a.key, "values": list(a.values)} for a in axes],
@@ -390,14 +393,22 @@ def _write_outputs(tmp: Path, out: Path, base: Scenario, axes: Sequence[GridAxis
                      "description": c.description}
                     for c in columns_of("attitude_source" in columns)],
         "files": paths,
+        "consistency": {str(k): {key: v.get(key) for key in CONSISTENCY_KEYS if key in v}
+                        for k, v in consistency.items()},
     }
     F.write_json(tmp / MARKER, info)
     paths["sweep"] = MARKER
     write_report(tmp / "report.md", base=base, axes=axes, points=points, rows=rows,
                  runs=runs, n_frames=n_frames, groups=groups, runner=runner, elapsed=elapsed,
-                 counts=counts, figures=fig_paths, title=title)
+                 counts=counts, figures=fig_paths, title=title, consistency=consistency)
     paths["report"] = "report.md"
     return paths
+
+
+#: What ``sweep.json`` keeps of each point's consistency (the per-step lists stay out).
+CONSISTENCY_KEYS = ("runs", "probability", "verdict", "nees_mean", "nees_band",
+                    "nees_steps_in_band", "nees", "nees_position", "nees_velocity", "nis",
+                    "within_3sigma", "final_position_error_pct_range")
 
 
 def summarize_points(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -78,6 +78,10 @@ COLUMNS: tuple[Column, ...] = (
        "the last frame"),
     _C("nees_mean", "float", "-", "mean over frames of the 6-state NEES (consistent filter: "
        "~6)"),
+    _C("nees_position_mean", "float", "-", "mean over frames of the position NEES (its 3x3 "
+       "covariance; consistent filter: ~3)"),
+    _C("nees_velocity_mean", "float", "-", "mean over frames of the velocity NEES (consistent "
+       "filter: ~3)"),
 ) + tuple(
     _C(f"time_{s}_s", "float", "s", f"median over frames of the wall time of the {s} stage"
        + {"render": " (shared by the render group: not divided among its points)",

@@ -279,6 +279,8 @@ class PointResult:
     nees, nis : (R, K) arrays or None
         NEES of the 6 position-velocity states and NIS of each fix (NaN without one), per
         run and step.
+    nees_position, nees_velocity : (R, K) arrays or None
+        NEES of the position and of the velocity alone (3 dof each), per run and step.
     """
 
     point: int
@@ -289,6 +291,8 @@ class PointResult:
     limb_errors_px: NDArray[np.float32]
     nees: FloatArray | None = None
     nis: FloatArray | None = None
+    nees_position: FloatArray | None = None
+    nees_velocity: FloatArray | None = None
 
 
 # ============================================================================ caches
@@ -522,6 +526,7 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
     L0 = np.linalg.cholesky(P0)
     rows: list[dict[str, Any]] = []
     errs_all, s3_all, limb_all, nees_all, nis_all = [], [], [], [], []
+    nees_p_all, nees_v_all = [], []
     for r in range(int(runs)):
         fr_r = [fr[r] for fr in frames]
         limb = np.concatenate([f.limb_errors_px for f in fr_r]) if fr_r else np.empty(0)
@@ -542,7 +547,8 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
             ("accepted", "final_position_error_m", "final_velocity_error_m_s",
              "final_position_error_pct_range", "final_velocity_error_pct_speed",
              "rms_position_error_m", "rms_velocity_error_m_s", "final_position_3sigma_m",
-             "final_velocity_3sigma_m_s", "nees_mean"), math.nan)
+             "final_velocity_3sigma_m_s", "nees_mean", "nees_position_mean",
+             "nees_velocity_mean"), math.nan)
         ekf_times: list[float] = []
         if has_truth and dyn is not None and truth is not None and K:
             meas = [FrameMeasurement(f.index, f.epoch_tdb, f.status, position=f.position,
@@ -557,6 +563,8 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
             s3_all.append(res.sigma3())
             nees_all.append(res.nees(truth))
             nis_all.append(res.nis)
+            nees_p_all.append(res.nees_position(truth))
+            nees_v_all.append(res.nees_velocity(truth))
             ekf_times = [float(t) for t in res.timings_s]
             nm = NavMetrics.of(res, truth, fr_r[-1].range_m)
             nav_cols.update({k: getattr(nm, k) for k in nav_cols})
@@ -573,4 +581,6 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
         sigma3=np.array(s3_all) if s3_all else None,
         limb_errors_px=np.concatenate(limb_all) if limb_all else np.empty(0, np.float32),
         nees=np.array(nees_all) if nees_all else None,
-        nis=np.array(nis_all) if nis_all else None)
+        nis=np.array(nis_all) if nis_all else None,
+        nees_position=np.array(nees_p_all) if nees_p_all else None,
+        nees_velocity=np.array(nees_v_all) if nees_v_all else None)

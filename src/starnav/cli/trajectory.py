@@ -57,7 +57,7 @@ def register(app: typer.Typer) -> None:
             if not cadence > 0:
                 raise StarnavError(f"--cadence-s = {cadence!r}: expected a cadence > 0 s")
             with console.status("building the trajectory (halo, multiple shooting)"):
-                traj = build_trajectory(cfg)
+                traj = build_trajectory(cfg, spacecraft=sc.spacecraft)
             sampled = traj.resample(cadence)
             write_oem(out, sampled, comments=[f"starnav trajectory, source={cfg.source}",
                                               "states EMB-centred, ICRF axes, TDB"])

@@ -14,11 +14,27 @@ Technique
 3. **NEES** ``e^T P^-1 e`` over the 6 position-velocity states and **NIS**
    ``nu^T S^-1 nu`` of every processed fix; a consistent filter has NEES ~ chi2(6) and NIS ~
    chi2(3). :func:`chi2_band` gives the two-sided band for the mean of ``runs`` samples.
+4. **Monte Carlo consistency** (:func:`anees_statistics`) of ``R`` runs x ``K`` epochs of a
+   chi-square statistic with ``n`` dof (the 6-state NEES, its position and velocity 3-dof
+   blocks, the NIS): the *per-epoch ANEES* (mean over the runs at one epoch) against the
+   two-sided band ``chi2.ppf([a/2, 1 - a/2], n R) / R`` (exact for independent runs) and the
+   fraction of epochs inside it; the *time-averaged ANEES* (mean over runs and epochs) against
+   a band whose degrees of freedom are those of ``R K_eff`` independent samples, ``K_eff =
+   K / tau``, with ``tau`` the integrated autocorrelation time of the series
+   (:func:`integrated_autocorrelation_time`). The band of ``R K`` independent samples is too
+   narrow for a filter whose NEES is correlated from epoch to epoch, that of ``R`` too wide.
+   The scaled chi-square ``chi2(n R K_eff) / (R K_eff)`` has the mean ``n`` and the variance
+   ``2 n tau / (R K)`` of the time average (the moment match of Satterthwaite 1946).
 
 Reference
 ---------
 Y. Bar-Shalom, X. R. Li and T. Kirubarajan, "Estimation with applications to tracking and
 navigation", Wiley (2001), sections 5.4 (NEES, NIS) and 5.4.2 (the chi-square bands).
+A. D. Sokal, "Monte Carlo methods in statistical mechanics: foundations and new algorithms",
+in Functional Integration, Plenum (1997), pp. 131-192, section 3 (integrated autocorrelation
+time, its automatic window ``M >= c tau(M)``).
+F. E. Satterthwaite, "An approximate distribution of estimates of variance components",
+Biometrics Bulletin 2 (1946), 110-114.
 """
 
 from __future__ import annotations
@@ -50,6 +66,10 @@ class FilterResultLike(Protocol):
     def sigma3(self) -> FloatArray: ...
 
     def nees(self, truth: ArrayLike) -> FloatArray: ...
+
+    def nees_position(self, truth: ArrayLike) -> FloatArray: ...
+
+    def nees_velocity(self, truth: ArrayLike) -> FloatArray: ...
 
 
 #: Newton steps when projecting a point onto the true limb conic.
@@ -163,6 +183,141 @@ def consistency_fraction(values: ArrayLike, dof: int, runs: int = 1,
     return float(np.mean((v >= lo) & (v <= hi)))
 
 
+#: Sokal's window constant: the autocorrelation sum stops at the first lag ``M`` with
+#: ``M >= c tau(M)`` (c = 5 suits correlations that decay roughly exponentially; Sokal 1997).
+AUTOCORRELATION_WINDOW_C = 5.0
+
+
+def autocorrelation(values: ArrayLike) -> FloatArray:
+    """Autocorrelation ``rho_k`` (``k = 0 .. K-1``) of ``R`` runs x ``K`` epochs of a
+    statistic, pooled over the runs.
+
+    Each epoch is centred on its own mean over the runs, so a trend common to the runs (a
+    transient at the start of an arc) is not read as correlation; the centring scales every
+    lag's covariance by the same ``1 - 1/R``, which cancels in the ratio. A single run is
+    centred on its time mean instead. Non-finite entries (a NIS without a fix) are left out
+    of the sums."""
+    x = np.asarray(values, float)
+    if x.ndim == 1:
+        x = x[None, :]
+    ok = np.isfinite(x)
+    n = ok.sum(axis=0)
+    if x.shape[0] == 1:
+        mean = np.full(x.shape[1], float(x[ok].mean()) if ok.any() else 0.0)
+    else:
+        mean = np.where(n > 0, np.where(ok, x, 0.0).sum(axis=0) / np.maximum(n, 1), 0.0)
+    d = np.where(ok, x - mean, 0.0)
+    K = x.shape[1]
+    c = np.empty(K)
+    for k in range(K):
+        pairs = (ok[:, : K - k] & ok[:, k:]).sum()
+        c[k] = np.sum(d[:, : K - k] * d[:, k:]) / pairs if pairs else np.nan
+    if not (np.isfinite(c[0]) and c[0] > 0):
+        return np.full(K, np.nan)
+    return c / c[0]
+
+
+def integrated_autocorrelation_time(values: ArrayLike,
+                                    window_c: float = AUTOCORRELATION_WINDOW_C
+                                    ) -> tuple[float, int]:
+    """Integrated autocorrelation time ``tau`` of the time mean of ``R`` runs x ``K`` epochs,
+    and the window ``M`` it was summed to (Sokal 1997, s. 3).
+
+    ``tau = 1 + 2 sum_{k=1..M} (1 - k/K) rho_k`` (:func:`autocorrelation`; the ``1 - k/K``
+    weights make ``tau`` the exact variance ratio of a ``K``-sample mean when ``rho`` is
+    known), with ``M`` the first lag where ``M >= window_c tau(M)`` (or ``K - 1``). ``tau`` is
+    kept in ``[1, K]``: the mean of ``K`` epochs is worth between one and ``K`` independent
+    epochs (a negative correlation is not trusted to do better than independence)."""
+    rho = autocorrelation(values)
+    K = rho.size
+    if K < 2 or not np.isfinite(rho[0]):
+        return 1.0, 0
+    tau, M = 1.0, 0
+    for k in range(1, K):
+        r = rho[k] if np.isfinite(rho[k]) else 0.0
+        tau += 2.0 * (1.0 - k / K) * r
+        M = k
+        if k >= window_c * tau:
+            break
+    return float(min(max(tau, 1.0), K)), M
+
+
+def _verdict(m: float, band: tuple[float, float]) -> str:
+    if not math.isfinite(m):
+        return "no data"
+    return "consistent" if band[0] <= m <= band[1] else (
+        "overconfident" if m > band[1] else "pessimistic")
+
+
+def anees_statistics(values: ArrayLike, dof: int, probability: float = 0.99,
+                     epoch_probability: float = 0.95) -> dict[str, object]:
+    """Consistency of ``R`` runs x ``K`` epochs of a chi2(``dof``) statistic (module step 4).
+
+    Parameters
+    ----------
+    values : (R, K) array
+        NEES (or NIS) per run and epoch; non-finite entries (no fix) are left out.
+    dof : int
+        Degrees of freedom of one sample (6 for the state NEES, 3 for a block or the NIS).
+    probability : float
+        Two-sided probability of the time-averaged band.
+    epoch_probability : float
+        Two-sided probability of the per-epoch band.
+
+    Returns
+    -------
+    dict
+        ``runs``, ``epochs``, ``dof``; ``per_epoch`` (the ANEES of each epoch, mean over its
+        finite runs), ``per_epoch_band`` (``[lo, hi]`` of each epoch, from its number of
+        finite runs), ``epochs_in_band`` (fraction of epochs with a value inside their band;
+        a consistent filter: ``epoch_probability``), ``epochs_above`` and ``epochs_below``
+        (fractions outside, above and below); ``mean`` (time-averaged ANEES, pooled over
+        every finite sample), ``autocorrelation_time`` and ``window`` (``tau``, ``M`` of
+        :func:`integrated_autocorrelation_time`), ``effective_samples`` (``N / tau``, ``N``
+        the finite samples), ``band`` (time-averaged band with those degrees of freedom),
+        ``band_independent`` (the too-narrow band of ``N`` independent samples),
+        ``verdict`` (``consistent`` inside ``band``, ``overconfident`` above,
+        ``pessimistic`` below).
+    """
+    from scipy.stats import chi2
+
+    x = np.asarray(values, float)
+    if x.ndim == 1:
+        x = x[None, :]
+    R, K = x.shape
+    ok = np.isfinite(x)
+    n_t = ok.sum(axis=0)
+    has = n_t > 0
+    per_epoch = np.full(K, np.nan)
+    per_epoch[has] = np.where(ok, x, 0.0).sum(axis=0)[has] / n_t[has]
+    a = (1.0 - epoch_probability) / 2.0
+    lo_t = np.full(K, np.nan)
+    hi_t = np.full(K, np.nan)
+    lo_t[has] = chi2.ppf(a, dof * n_t[has]) / n_t[has]
+    hi_t[has] = chi2.ppf(1.0 - a, dof * n_t[has]) / n_t[has]
+    N = int(ok.sum())
+    out: dict[str, object] = {"runs": R, "epochs": K, "dof": int(dof),
+                              "probability": probability,
+                              "epoch_probability": epoch_probability,
+                              "per_epoch": per_epoch.tolist(),
+                              "per_epoch_band": np.column_stack([lo_t, hi_t]).tolist()}
+    if N == 0:
+        out.update(mean=math.nan, verdict="no data")
+        return out
+    v, lo_h, hi_h = per_epoch[has], lo_t[has], hi_t[has]
+    out.update(epochs_in_band=float(np.mean((v >= lo_h) & (v <= hi_h))),
+               epochs_above=float(np.mean(v > hi_h)), epochs_below=float(np.mean(v < lo_h)))
+    m = float(x[ok].mean())
+    tau, M = integrated_autocorrelation_time(x)
+    n_eff = N / tau
+    b = (1.0 - probability) / 2.0
+    band = (float(chi2.ppf(b, dof * n_eff) / n_eff), float(chi2.ppf(1.0 - b, dof * n_eff) / n_eff))
+    naive = (float(chi2.ppf(b, dof * N) / N), float(chi2.ppf(1.0 - b, dof * N) / N))
+    out.update(mean=m, autocorrelation_time=tau, window=M, effective_samples=float(n_eff),
+               band=list(band), band_independent=list(naive), verdict=_verdict(m, band))
+    return out
+
+
 def _vec(x: ArrayLike) -> tuple[float, ...]:
     return tuple(float(v) for v in np.asarray(x, float))
 
@@ -189,6 +344,10 @@ class NavMetrics:
         Norm of the per-axis 3-sigma bounds at the last frame.
     nees_mean : float
         Mean over frames of the 6-state NEES (consistent: ~6).
+    nees_position_mean, nees_velocity_mean : float
+        Mean over frames of the NEES of the position alone and of the velocity alone (their
+        marginal covariances; consistent: ~3 each). A 6-state NEES near 6 can hide a position
+        that is overconfident behind a velocity that is mostly prior.
     nees_fraction_in_95, nis_fraction_in_95 : float
         Fraction of frames whose NEES (6 dof) / fixes whose NIS (3 dof) is inside the
         single-sample 95 % chi-square band.
@@ -212,6 +371,8 @@ class NavMetrics:
     final_position_3sigma_m: float = math.nan
     final_velocity_3sigma_m_s: float = math.nan
     nees_mean: float = math.nan
+    nees_position_mean: float = math.nan
+    nees_velocity_mean: float = math.nan
     nees_fraction_in_95: float = math.nan
     nis_mean: float = math.nan
     nis_fraction_in_95: float = math.nan
@@ -225,7 +386,8 @@ class NavMetrics:
     SCALARS = ("fixes", "accepted", "final_position_error_m", "final_velocity_error_m_s",
                "final_position_error_pct_range", "final_velocity_error_pct_speed",
                "rms_position_error_m", "rms_velocity_error_m_s", "final_position_3sigma_m",
-               "final_velocity_3sigma_m_s", "nees_mean", "nees_fraction_in_95", "nis_mean",
+               "final_velocity_3sigma_m_s", "nees_mean", "nees_position_mean",
+               "nees_velocity_mean", "nees_fraction_in_95", "nis_mean",
                "nis_fraction_in_95")
 
     @classmethod
@@ -261,6 +423,8 @@ class NavMetrics:
             final_position_3sigma_m=float(np.linalg.norm(s3[-1, :3])),
             final_velocity_3sigma_m_s=float(np.linalg.norm(s3[-1, 3:])),
             nees_mean=float(np.mean(ne)), nees_fraction_in_95=consistency_fraction(ne, 6),
+            nees_position_mean=float(np.mean(result.nees_position(truth))),
+            nees_velocity_mean=float(np.mean(result.nees_velocity(truth))),
             final_position_error_xyz_m=_vec(e[-1, :3]),
             final_velocity_error_xyz_m_s=_vec(e[-1, 3:]),
             final_position_3sigma_xyz_m=_vec(s3[-1, :3]),

@@ -384,6 +384,14 @@ class FilterResult:
         """NEES of the 6 position-velocity states ``(K,)`` [-]."""
         return np.asarray(nees(self.errors(truth), self.covariances[:, :6, :6]))
 
+    def nees_position(self, truth: ArrayLike) -> FloatArray:
+        """NEES of the position alone ``(K,)`` (its marginal 3x3 covariance; chi2(3)) [-]."""
+        return np.asarray(nees(self.errors(truth)[:, :3], self.covariances[:, :3, :3]))
+
+    def nees_velocity(self, truth: ArrayLike) -> FloatArray:
+        """NEES of the velocity alone ``(K,)`` (its marginal 3x3 covariance; chi2(3)) [-]."""
+        return np.asarray(nees(self.errors(truth)[:, 3:6], self.covariances[:, 3:6, 3:6]))
+
 
 def run_filter(
     measurements: Sequence[FrameMeasurement],

@@ -41,7 +41,7 @@ from starnav.errors import ConfigError
 from starnav.navigation import plots as P
 from starnav.navigation.dynamics import MoonEphemeris, PointMassDynamics
 from starnav.navigation.frames import NavDataset
-from starnav.navigation.metrics import ErrorSummary, consistency_fraction
+from starnav.navigation.metrics import ErrorSummary, anees_statistics
 from starnav.navigation.pipeline import STAGES, FilterResult, NavigationRun, monte_carlo, navigate
 from starnav.navigation.schema import NavigationConfig
 
@@ -67,14 +67,14 @@ def summarize(run: NavigationRun, mc: Sequence[FilterResult] = ()) -> dict[str, 
     le = np.concatenate(run.limb_errors) if run.limb_errors else np.empty(0)
     out["limb_error_px"] = ErrorSummary.of(le).as_dict()
     if run.truth is not None and mc:
-        # pooled: every step of every run against the single-sample band (the band of the
-        # run average is too narrow for time-correlated NEES; see docs/navigation.md)
-        nees_mc = np.array([r.nees(run.truth) for r in mc])
+        # per-epoch ANEES over the runs and the time average with its band corrected for the
+        # NEES series' autocorrelation (metrics.anees_statistics; docs/navigation.md)
         fin = np.array([np.linalg.norm(r.errors(run.truth)[-1, :3]) for r in mc])
         out["monte_carlo"] = {
             "runs": len(mc),
-            "nees_mean": float(np.mean(nees_mc)),
-            "nees_fraction_in_95": _finite(consistency_fraction(nees_mc.ravel(), 6)),
+            **{name: _statistics(np.array([getattr(r, name)(run.truth) for r in mc]), dof)
+               for name, dof in (("nees", 6), ("nees_position", 3), ("nees_velocity", 3))},
+            "nis": _statistics(np.array([r.nis for r in mc]), 3),
             "final_position_error_rms_m": float(np.sqrt(np.mean(fin**2))),
         }
     st = run.stage_times_s * 1e3
@@ -90,6 +90,15 @@ def summarize(run: NavigationRun, mc: Sequence[FilterResult] = ()) -> dict[str, 
                             "peak_median": float(np.median(run.peak_memory_bytes) / 1024.0),
                             "tracker_budget": TRACKER_MEMORY_KB}
     return out
+
+
+def _statistics(values: np.ndarray, dof: int) -> dict[str, Any]:
+    """:func:`~starnav.navigation.metrics.anees_statistics` of ``(runs, epochs)`` values,
+    JSON-safe and without the per-epoch bands."""
+    st = anees_statistics(values, dof)
+    st.pop("per_epoch_band", None)
+    return {k: (_finite(v) if isinstance(v, float) else
+                [_finite(x) for x in v] if isinstance(v, list) else v) for k, v in st.items()}
 
 
 def estimates_csv(run: NavigationRun) -> str:

@@ -164,8 +164,14 @@ class FilterConfig(StrictModel):
     bias_sigma_km: NonNegativeFloat = Field(0.0, description="additive bias 1-sigma [km]")
     range_scale_sigma: NonNegativeFloat = Field(0.0, description="range-scale bias 1-sigma [-]")
     bias_tau_days: PositiveFloat = Field(1.0, description="bias correlation time [days]")
+    dynamics: Literal["earth-moon-sun"] = Field(
+        "earth-moon-sun", description="the filter's force model: Earth, Moon and Sun point "
+        "masses from DE421 (starnav.scenes.dynamics), whatever trajectory.forces adds to the "
+        "truth")
     accel_psd_m2_s3: NonNegativeFloat = Field(
-        0.0, description="white acceleration noise density [m^2/s^3]")
+        2.4e-9, description="white acceleration noise density [m^2/s^3]: what the filter's "
+        "model leaves out (planets, SRP of a 12U CubeSat, J2 at the halo: rms 1.7e-7 m/s^2, "
+        "starnav.scenes.forces.unmodelled_acceleration_psd; 0: perfect dynamics knowledge)")
     gate_probability: Annotated[float, Field(gt=0, lt=1)] | None = Field(
         0.9999, description="chi-square gate on the NIS; null disables")
     max_consecutive_rejections: Annotated[int, Field(ge=1)] = Field(

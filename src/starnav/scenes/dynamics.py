@@ -1,7 +1,8 @@
 r"""Point-mass dynamics about the Earth-Moon barycentre, RK4 propagation and the STM.
 
-This is the force model of the truth trajectory *and* of the navigation filter (an EKF in
-EMB J2000 axes with RK4 and the STM), so both integrate the same equations.
+This is the force model of the navigation filter (an EKF in EMB J2000 axes with RK4 and the
+STM) and, unless ``trajectory.forces`` adds planets, solar radiation pressure or J2
+(:mod:`starnav.scenes.forces`), of the truth trajectory.
 
 Equations of motion
 -------------------
@@ -29,8 +30,9 @@ barycentre). Expanding ``a_B`` about the Sun's position, the first-order terms c
 ``a_B = GM_S r_S / |r_S|^3 + O(3 GM_S f (1 - f) d_EM^2 / |r_S|^4)``: the Sun's indirect term of
 docs/facts.md s4, ``-GM_S r_S/|r_S|^3``, plus a tidal correction below 1.5e-9 m/s^2 (a few km
 over a month). ``emb_indirect="barycentric"`` (default) uses the exact mass-weighted form above;
-``"sun-at-emb"`` uses the docs/facts.md approximation. Planets are left out: their tidal
-acceleration across the Earth-Moon system is below 1e-12 m/s^2.
+``"sun-at-emb"`` uses the docs/facts.md approximation. Planets, solar radiation pressure and
+J2 are left out of this model (the filter's); the truth may add them
+(:mod:`starnav.scenes.forces`: Venus's tide alone reaches ~5e-9 m/s^2).
 
 Jacobian (for the STM)::
 

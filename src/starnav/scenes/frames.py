@@ -48,9 +48,16 @@ from starnav.scenes.cr3bp import LU
 from starnav.scenes.dynamics import PointMassModel
 from starnav.scenes.ephemeris import Ephemeris, parse_epoch
 from starnav.scenes.flyby import Flyby, flyby_from_config
+from starnav.scenes.forces import SrpParameters, TruthForceModel
 from starnav.scenes.oem import check_outside_moon, read_oem, tdb_to_iso
 from starnav.scenes.pointing import frame_generators, pointing_from_config, rotation_from_vector
-from starnav.scenes.schema import DEFAULT_EPOCH, FlybyConfig, PointingConfig, TrajectoryConfig
+from starnav.scenes.schema import (
+    DEFAULT_EPOCH,
+    FlybyConfig,
+    PointingConfig,
+    SpacecraftConfig,
+    TrajectoryConfig,
+)
 from starnav.scenes.trajectory import ShootingOptions, Trajectory, ephemeris_halo_arc
 
 if TYPE_CHECKING:
@@ -64,8 +71,21 @@ log = logging.getLogger(__name__)
 _ARC_MEMO: BoundedCache[tuple, Trajectory] = BoundedCache(8, policy="fifo")
 
 
+def truth_force_model(cfg: TrajectoryConfig, ephemeris: Ephemeris,
+                      spacecraft: SpacecraftConfig | None = None) -> PointMassModel:
+    """The truth arc's force model: the filter's point masses, plus what
+    ``cfg.forces`` switches on (:class:`~starnav.scenes.forces.TruthForceModel`)."""
+    f = cfg.forces
+    if not (f.planets or f.srp or f.j2):
+        return PointMassModel(ephemeris)
+    sc = spacecraft if spacecraft is not None else SpacecraftConfig()
+    srp = SrpParameters(sc.area_m2, sc.mass_kg, sc.reflectivity) if f.srp else None
+    return TruthForceModel(ephemeris, planets=f.planets, srp=srp, eclipses=f.eclipses, j2=f.j2)
+
+
 def build_trajectory(cfg: TrajectoryConfig, ephemeris: Ephemeris | None = None,
-                     cache_dir: str | Path | None = None) -> Trajectory:
+                     cache_dir: str | Path | None = None,
+                     spacecraft: SpacecraftConfig | None = None) -> Trajectory:
     """The trajectory a ``trajectory`` section describes (SI, EMB-centred J2000, TDB).
 
     Parameters
@@ -76,6 +96,8 @@ def build_trajectory(cfg: TrajectoryConfig, ephemeris: Ephemeris | None = None,
     cache_dir : path, optional
         Keep the halo arc on disk there (it takes about a second to build; also memoised in
         this process).
+    spacecraft : SpacecraftConfig, optional
+        Mass, area and reflectivity for ``cfg.forces.srp`` (default its defaults).
 
     Raises
     ------
@@ -100,11 +122,12 @@ def build_trajectory(cfg: TrajectoryConfig, ephemeris: Ephemeris | None = None,
         return used
 
     t0 = parse_epoch(cfg.epoch or DEFAULT_EPOCH, "trajectory.epoch")
-    model = PointMassModel(eph)
+    model = truth_force_model(cfg, eph, spacecraft)
     si = cfg.to_si()
     options = ShootingOptions(segment=si.shooting_segment, step=si.step,
                               range_min=si.range_min, range_max=si.range_max)
-    memo_key = (eph.directory, t0, si.duration, si.halo_z0, si.halo_phase, options)
+    memo_key = (eph.directory, t0, si.duration, si.halo_z0, si.halo_phase, options,
+                repr(sorted(model.key().items())))
     return _ARC_MEMO.get_or_make(memo_key, lambda: ephemeris_halo_arc(
         model, t0, si.duration, z0=si.halo_z0 / LU,
         phase=cfg.halo_phase_deg / 360.0, options=options,  # unit: turns, exact
@@ -143,6 +166,8 @@ class Scene:
         in ``trajectory.moon_frame`` axes.
     gm : float
         The target body's gravitational parameter [m^3 s^-2] (a hyperbolic fly-by).
+    spacecraft : SpacecraftConfig, optional
+        Forwarded to :func:`build_trajectory` (the solar radiation pressure of the truth).
     """
 
     def __init__(self, camera: Camera, pointing: PointingConfig, *,
@@ -152,7 +177,7 @@ class Scene:
                  ephemeris: Ephemeris | None = None, arc: Trajectory | None = None,
                  cache_dir: str | Path | None = None,
                  orientation: Callable[[FloatArray], FloatArray] | None = None,
-                 gm: float = 0.0) -> None:
+                 gm: float = 0.0, spacecraft: SpacecraftConfig | None = None) -> None:
         self.camera = camera
         self.pointing = pointing
         self.static_config = static if static is not None else StaticGeometryConfig()
@@ -173,7 +198,7 @@ class Scene:
         if cfg.source == "flyby" and arc is None:
             self._init_flyby(cfg, orientation, gm)
             return
-        self.trajectory = arc or build_trajectory(cfg, self.ephemeris, cache_dir)
+        self.trajectory = arc or build_trajectory(cfg, self.ephemeris, cache_dir, spacecraft)
         start = self.trajectory.t_start + cfg.frame_offset_s
         if start > self.trajectory.t_end:
             raise ConfigError("trajectory.frame_offset_s", cfg.frame_offset_s,

@@ -1,4 +1,5 @@
-"""Scenario sections ``trajectory`` and ``pointing`` (owned by :mod:`starnav.scenes`).
+"""Scenario sections ``trajectory``, ``spacecraft`` and ``pointing`` (owned by
+:mod:`starnav.scenes`).
 
 Units are in the key names (``_km``, ``_deg``, ``_s``, ``_days``, ``_arcsec``, ``_px``) and are
 converted to SI by :mod:`starnav.scenes.frames`. Epochs are ISO strings with an explicit time
@@ -63,6 +64,34 @@ class FlybyConfig(StrictModel):
         return self
 
 
+class SpacecraftConfig(StrictModel):
+    """The spacecraft as the truth dynamics see it (cannonball solar radiation pressure,
+    :mod:`starnav.scenes.forces`). Defaults: a 12U CubeSat like LUMIO with its two deployed
+    solar wings (assumptions of that order, not a datasheet): ~22 kg, ~0.6 m^2 facing the Sun,
+    reflectivity coefficient 1.3 (mostly absorbing cells)."""
+
+    mass_kg: PositiveFloat = Field(22.0, description="spacecraft mass [kg]")
+    area_m2: PositiveFloat = Field(0.6, description="area facing the Sun [m^2]")
+    reflectivity: Annotated[float, Field(ge=1.0, le=2.0)] = Field(
+        1.3, description="SRP reflectivity coefficient C_r: 1 absorbing, 2 a face-on mirror [-]")
+
+
+class TruthForcesConfig(StrictModel):
+    """What the truth arc feels beyond the filter's Earth, Moon and Sun point masses
+    (:class:`starnav.scenes.forces.TruthForceModel`); each a switch. The navigation filter
+    keeps its own reduced model (``navigation.filter.dynamics``)."""
+
+    planets: tuple[Literal["mercury", "venus", "mars", "jupiter", "saturn", "uranus",
+                           "neptune"], ...] = Field(
+        (), description="DE421 planet barycentres added as point masses (e.g. [venus, mars, "
+        "jupiter, saturn]); empty: none")
+    srp: bool = Field(False, description="cannonball solar radiation pressure of the "
+                      "spacecraft section")
+    eclipses: bool = Field(True, description="Earth and Moon shadows (conical, with "
+                           "penumbra) on the solar radiation pressure")
+    j2: bool = Field(False, description="Earth and Moon J2")
+
+
 class TrajectoryConfig(StrictModel):
     """Observer trajectory and the frame epochs along it.
 
@@ -98,6 +127,9 @@ class TrajectoryConfig(StrictModel):
     oem_path: Path | None = Field(None, description="CCSDS OEM file for source=oem")
     moon_frame: Literal["PA", "ME"] = Field(
         "PA", description="Moon body-fixed frame: DE421 principal axes or mean-Earth/polar")
+    forces: TruthForcesConfig = Field(
+        default_factory=TruthForcesConfig, description="truth forces beyond the filter's "
+        "point masses (halo arcs): planets, solar radiation pressure, eclipses, J2")
     flyby: FlybyConfig | None = Field(
         None, description="the fly-by for source=flyby (None: its defaults)")
 

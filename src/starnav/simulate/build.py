@@ -120,7 +120,7 @@ def scene_from_scenario(sc: Scenario, ephemeris: Ephemeris | None = None, *,
                  moon_radius=body.reference_radius_m, seed=sc.seed, ephemeris=eph,
                  arc=arc, cache_dir=cache_dir,
                  orientation=lambda t: body.orientation(t, eph),
-                 gm=body.gm)
+                 gm=body.gm, spacecraft=sc.spacecraft)
 
 
 def frame_geometries(sc: Scenario, ephemeris: Ephemeris | None = None) -> list[FrameGeometry]:
