@@ -21,7 +21,8 @@ Technique
    mechanical tolerance ``mount_tilt_sigma_rad`` (pseudo-observations). The roll is free.
 3. **Fit.** Levenberg-Marquardt (:func:`scipy.optimize.least_squares`) on the pixel residuals,
    from the nominal camera. The centroid noise is estimated from the residuals
-   (``s^2 = sum r^2 / (2 N - p)``).
+   (``s^2 = sum r^2 / (2 N - p)``), alternating with the fit (the prior's weight depends on
+   it) until it changes by less than 1 %.
 4. **Covariance.** ``P = (J^T W J)^-1`` with the Jacobian by central differences at the
    solution, the residual rows weighted by ``1 / s^2`` and the prior rows by their tolerance.
 5. **Consider parameters.** What the bench does not know about itself and the fit cannot
@@ -210,15 +211,19 @@ def estimate_camera(nominal: Camera, geometry: BenchGeometry, screen_px: FloatAr
         prior = x[len(ESTIMATED):len(ESTIMATED) + 2] / mount_tilt_sigma_rad
         return np.concatenate([r, prior])
 
-    fit = least_squares(residual, np.zeros(n_par), args=(d_nom, 1.0), method="lm",
-                        x_scale=1.0, xtol=1e-12, ftol=1e-12)
-    res_px = (model(x0 + fit.x * scale, d_nom) - uv)
-    sigma_px = float(np.sqrt(np.sum(res_px ** 2) / max(2 * len(s) - n_par, 1)))
-    sigma_px = max(sigma_px, 1e-6)
-    # refit with the prior weighted against the measured centroid noise
-    fit = least_squares(residual, fit.x, args=(d_nom, sigma_px), method="lm", x_scale=1.0,
-                        xtol=1e-12, ftol=1e-12)
-    z = fit.x
+    # the prior is weighed against the centroid noise, which the residuals measure: alternate
+    # the two until the noise estimate settles
+    z, sigma_px = np.zeros(n_par), 1.0
+    for _ in range(4):
+        fit = least_squares(residual, z, args=(d_nom, sigma_px), method="lm", x_scale=1.0,
+                            xtol=1e-12, ftol=1e-12)
+        z = fit.x
+        res_px = model(x0 + z * scale, d_nom) - uv
+        new = max(float(np.sqrt(np.sum(res_px ** 2) / max(2 * len(s) - n_par, 1))), 1e-6)
+        done = abs(new / sigma_px - 1) < 0.01
+        sigma_px = new
+        if done:
+            break
 
     def jac(fun: Any, z: FloatArray, h: float = 1e-3) -> FloatArray:
         cols = []
