@@ -124,7 +124,8 @@ def intrinsics(n: int) -> None:
                           for i, name in enumerate(names)},
            "focal_length_rms_error_rel": float(np.sqrt(np.mean(
                (err[:, 0] / bench.camera.focal_length) ** 2))),
-           "mean_nees": float(np.mean(nees)), "nees_dof": k,
+           "mean_nees": float(np.mean(nees)), "median_nees": float(np.median(nees)),
+           "nees_per_bench": [round(x, 2) for x in nees], "nees_dof": k,
            "mean_nees_95_band": [float(lo), float(hi)]}
     print(json.dumps(out, indent=1))
 
