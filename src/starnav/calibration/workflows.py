@@ -144,8 +144,8 @@ def load_calibration(path: str | Path, bench: Bench) -> GeometricCalibration:
     if not p.is_file():
         raise DataFileError(f"geometric calibration {str(p)!r} does not exist")
     try:
-        d = json.loads(p.read_text())
-    except json.JSONDecodeError as err:
+        d = json.loads(p.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise ConfigError("geometric calibration file", str(p), f"valid JSON ({err})") from None
     return GeometricCalibration.from_dict(d, bench.camera)
 
