@@ -148,13 +148,18 @@ class TrajectoryConfig(StrictModel):
             raise ValueError("range_min_km must be below range_max_km")
         if self.shooting_segment_s < self.step_s:
             raise ValueError("shooting_segment_s must be at least step_s")
-        span = self.duration_days * DAY_S
-        for key, step in (("step_s", self.step_s), ("cadence_s", self.cadence_s)):
+        if self.source == "flyby":   # the fly-by's own span; no RK4 arc
+            fb = self.flyby or FlybyConfig()
+            steps, span, arc = [("cadence_s", self.cadence_s)], fb.end_s - fb.start_s, "fly-by"
+        else:
+            steps = [("step_s", self.step_s), ("cadence_s", self.cadence_s)]
+            span, arc = self.duration_days * DAY_S, f"{self.duration_days:g}-day arc"
+        for key, step in steps:
             if span / step > MAX_ARC_SAMPLES:
                 raise ValueError(
-                    f"{key} >= {span / MAX_ARC_SAMPLES:.3g} s over the {self.duration_days:g}-day"
-                    f" arc ({key} = {step!r} gives {span / step:.3g} samples; at most "
-                    f"{MAX_ARC_SAMPLES:.0e}, {STATE_BYTES} bytes each)")
+                    f"{key} >= {span / MAX_ARC_SAMPLES:.3g} s over the {arc} ({key} = {step!r} "
+                    f"gives {span / step:.3g} samples; at most {MAX_ARC_SAMPLES:.0e}, "
+                    f"{STATE_BYTES} bytes each)")
         return self
 
 
