@@ -45,7 +45,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from pydantic.fields import FieldInfo
 
 from starnav.constants import AU, DAY, DEG
-from starnav.errors import ConfigError, DataFileError
+from starnav.errors import ConfigError, not_a_file_error
 
 #: A rejected mapping is shown by at most this many of its keys.
 _SHOWN_KEYS = 6
@@ -199,13 +199,8 @@ def read_yaml_file(path: Path, what: str) -> Any:
     :class:`~starnav.errors.DataFileError` saying what it is).
     """
     p = Path(path)
-    if not p.exists():
-        raise DataFileError(f"{what} {str(p)!r} does not exist")
-    if p.is_dir():
-        raise DataFileError(f"{what} {str(p)!r} is a directory: expected a YAML file")
     if not p.is_file():
-        raise DataFileError(f"{what} {str(p)!r} is not a regular file (a device or a pipe): "
-                            "expected a YAML file")
+        raise not_a_file_error(p, what)
     size = p.stat().st_size
     if size > MAX_CONFIG_BYTES:
         raise ConfigError(what, f"{size} bytes", f"a configuration file of at most "

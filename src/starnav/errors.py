@@ -7,6 +7,7 @@ name the offending field, the value received and what was expected.
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 
@@ -30,6 +31,19 @@ class GeometryError(StarnavError, ValueError):
 
 class DataFileError(StarnavError, FileNotFoundError):
     """A data file is missing or unreadable."""
+
+
+def not_a_file_error(path: Any, what: str) -> DataFileError:
+    """The error for an input ``path`` that is not a regular file, saying what it is instead:
+    missing, a directory, or a device or pipe (``/dev/null``). ``what`` names the input
+    (``"OEM file"``)."""
+    p = os.fspath(path)
+    if os.path.isdir(p):
+        return DataFileError(f"{what} {p!r} is a directory: expected a file")
+    if os.path.exists(p):
+        return DataFileError(f"{what} {p!r} is not a regular file (a device or a pipe): "
+                             "expected a file")
+    return DataFileError(f"{what} {p!r} does not exist")
 
 
 class BackendError(StarnavError, RuntimeError):

@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.atomic import atomic_path
-from starnav.errors import DataFileError
+from starnav.errors import DataFileError, not_a_file_error
 
 Float32Array = NDArray[np.float32]
 
@@ -110,7 +110,7 @@ def read_exr(path: str | os.PathLike[str]) -> RadianceImage:
 
     p = Path(path)
     if not p.is_file():
-        raise DataFileError(f"radiance image {str(p)!r} does not exist")
+        raise not_a_file_error(p, "radiance image")
     try:
         with OpenEXR.File(str(p), separate_channels=True) as f:
             chans = {k: np.asarray(v.pixels, dtype=np.float32) for k, v in f.channels().items()}

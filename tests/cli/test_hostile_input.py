@@ -72,6 +72,14 @@ COMMAND_CASES = {
     "port 99999": (["dataset", "SC", "--out", "OUT", "--scheduler", "tcp://127.0.0.1:99999"],
                    "port"),
     "a mesh type nobody writes": (["dem", "mesh", "SC", "--out", "OUT/mesh.xyz"], "--out"),
+    "a geometry axis on a trajectory": (["sweep", "SC", "--out", "OUT", "--grid",
+                                         "geometry.range_km=1,2", "--workers", "0"],
+                                        "geometry.range_km"),
+    "a radiance image that is a device": (["expose", "FILE:/dev/null", "--out", "OUT"],
+                                          "not a regular file"),
+    "an OEM that is a directory": (["trajectory", "SC", "--out", "OUT/t.oem", "--set",
+                                    "trajectory.source=oem", "--set",
+                                    "trajectory.oem_path=FILE:adir"], "is a directory"),
 }
 
 
@@ -98,8 +106,9 @@ def _files(tmp: Path) -> dict[str, str]:
 def _args(args: list[str], tmp: Path, names: dict[str, str]) -> list[str]:
     out = []
     for a in args:
-        if a.startswith("FILE:"):
-            a = a[5:] if a[5:].startswith("/") else str(tmp / a[5:])
+        if "FILE:" in a:
+            pre, _, f = a.partition("FILE:")
+            a = pre + (f if f.startswith("/") else str(tmp / f))
         head, _, rest = a.partition("/")
         out.append(names[head] + (f"/{rest}" if rest else "") if head in names else a)
     return out

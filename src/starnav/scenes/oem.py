@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 
 from starnav.atomic import atomic_write_bytes
 from starnav.constants import DAY, MOON_RADIUS
-from starnav.errors import DataFileError, GeometryError, StarnavError
+from starnav.errors import GeometryError, StarnavError, not_a_file_error
 from starnav.scenes.ephemeris import J2000_JD, Ephemeris
 from starnav.scenes.trajectory import Trajectory
 
@@ -358,7 +358,7 @@ def read_oem(path: str | os.PathLike[str], ephemeris: Ephemeris | None = None) -
     """
     p = Path(path)
     if not p.is_file():
-        raise DataFileError(f"OEM file {str(p)!r} does not exist")
+        raise not_a_file_error(p, "OEM file")
     try:
         text = p.read_text(encoding="ascii", errors="strict")
     except (OSError, UnicodeDecodeError) as err:
