@@ -27,6 +27,7 @@ The file is plain OpenEXR: any EXR reader gives the channels; ``json.loads`` of 
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 from dataclasses import dataclass, field
@@ -100,7 +101,11 @@ def write_exr(img: RadianceImage, path: str | os.PathLike[str]) -> Path:
         META_ATTRIBUTE: json.dumps(img.meta, sort_keys=True),
     }
     with atomic_path(p, suffix=".exr") as tmp, OpenEXR.File(header, channels) as f:
-        f.write(str(tmp))
+        try:
+            f.write(str(tmp))
+        except RuntimeError as err:  # OpenEXR reports a failed write (a full disk) so
+            code = errno.ENOSPC if "space" in str(err).lower() else errno.EIO
+            raise OSError(code, f"writing the EXR failed ({err})", str(p)) from None
     return p
 
 

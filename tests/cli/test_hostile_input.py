@@ -180,3 +180,31 @@ def test_an_empty_or_truncated_trajectory_cache_is_rebuilt_not_fatal(tmp_path, c
     assert _load_npz(p) is None  # the builder then makes the arc again and replaces the file
     with pytest.raises(DataFileError, match="unreadable"):
         load_cached_arc(p)
+
+
+def test_render_on_a_full_disk_is_one_line_and_leaves_no_directory(app, tmp_path,
+                                                                   monkeypatch):
+    """OpenEXR reports a write that finds the disk full as a RuntimeError: one line naming the
+    frame and the hint, and the output directory the render created is gone again."""
+    import OpenEXR
+
+    class FullDisk:
+        def __init__(self, *args, **kwargs) -> None:
+            pass
+
+        def __enter__(self) -> FullDisk:
+            return self
+
+        def __exit__(self, *exc) -> None:
+            return None
+
+        def write(self, path: str) -> None:
+            raise RuntimeError(f"Cannot write image file \"{path}\". No space left on device")
+
+    names = _files(tmp_path)
+    monkeypatch.setattr(OpenEXR, "File", FullDisk)
+    r = CliRunner().invoke(app, ["render", names["SC"], "--out", names["OUT"], "--set",
+                                 "trajectory.frames=1"], env={"COLUMNS": "50"})
+    _check(r, "frame_000000.exr")
+    assert "disk is full" in r.output
+    assert not Path(names["OUT"]).exists()
