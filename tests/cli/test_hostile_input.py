@@ -16,6 +16,8 @@ from tests.dataset.conftest import write_small_yaml
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 
 FLYBY = ["--set", "trajectory.source=flyby", "--set", "trajectory.frames=2"]
+OEM = ["--set", "trajectory.source=oem", "--set", "trajectory.frames=4", "--set",
+       "trajectory.cadence_s=3600", "--set", "trajectory.duration_days=0.15"]
 
 #: Scenario cases: ``--set`` items (or a file name of ``_files``) -> what the error names.
 SCENARIO_CASES = {
@@ -77,10 +79,27 @@ COMMAND_CASES = {
                                         "geometry.range_km"),
     "a radiance image that is a device": (["expose", "FILE:/dev/null", "--out", "OUT"],
                                           "not a regular file"),
+    "an OEM with a state that jumped": (["validate", "SC", *OEM, "--set",
+                                         "trajectory.oem_path=FILE:jump.oem"],
+                                        "2025-01-01T02:00:00"),
     "an OEM that is a directory": (["trajectory", "SC", "--out", "OUT/t.oem", "--set",
                                     "trajectory.source=oem", "--set",
                                     "trajectory.oem_path=FILE:adir"], "is a directory"),
 }
+
+
+def straight_oem(jump: bool) -> str:
+    """A Moon-centred OEM: 60 000 km from the Moon, 1 km/s along y, a state an hour; with
+    ``jump`` the third state is on the Moon's far side (still outside it)."""
+    lines = ["CCSDS_OEM_VERS = 2.0", "CREATION_DATE = 2025-01-01T00:00:00",
+             "ORIGINATOR = starnav tests", "", "META_START", "OBJECT_NAME = SC",
+             "OBJECT_ID = 1", "CENTER_NAME = MOON", "REF_FRAME = ICRF", "TIME_SYSTEM = TDB",
+             "START_TIME = 2025-01-01T00:00:00", "STOP_TIME = 2025-01-01T04:00:00",
+             "META_STOP"]
+    for k in range(5):
+        x, y = (-60000.0, 0.0) if jump and k == 2 else (60000.0, 3600.0 * k)
+        lines.append(f"2025-01-01T{k:02d}:00:00 {x} {y} 0.0 0.0 1.0 0.0")
+    return "\n".join(lines) + "\n"
 
 
 @pytest.fixture(scope="module")
@@ -98,6 +117,8 @@ def _files(tmp: Path) -> dict[str, str]:
     (tmp / "latin.yaml").write_bytes(b"seed: 3\n# caf\xe9\n")
     (tmp / "big.yaml").write_text("seed: 3\n" + "# padding\n" * 220_000)
     (tmp / "adir").mkdir()
+    (tmp / "jump.oem").write_text(straight_oem(jump=True))
+    (tmp / "straight.oem").write_text(straight_oem(jump=False))
     write_exr(RadianceImage(L=np.ones((16, 16), np.float32), Le=np.ones((16, 16), np.float32)),
               tmp / "in.exr")
     return {"SC": str(write_small_yaml(tmp / "sc.yaml", frames=2)), "OUT": str(tmp / "out")}
@@ -208,3 +229,11 @@ def test_render_on_a_full_disk_is_one_line_and_leaves_no_directory(app, tmp_path
     _check(r, "frame_000000.exr")
     assert "disk is full" in r.output
     assert not Path(names["OUT"]).exists()
+
+
+def test_a_continuous_oem_passes_the_jump_check(app, tmp_path):
+    """The control of the jump case: the same OEM without the jump validates."""
+    names = _files(tmp_path)
+    r = CliRunner().invoke(app, ["validate", names["SC"], *OEM, "--set",
+                                 f"trajectory.oem_path={tmp_path / 'straight.oem'}"])
+    assert r.exit_code == 0, r.output
