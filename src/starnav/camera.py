@@ -42,7 +42,7 @@ from pydantic import Field
 
 from starnav.config_base import StrictModel
 from starnav.errors import ConfigError, GeometryError, UnknownNameError
-from starnav.fields import PositiveFloat
+from starnav.fields import PositiveCount, PositiveFloat
 
 FloatArray = NDArray[np.float64]
 
@@ -425,9 +425,9 @@ class CameraConfig(StrictModel):
         "telescope flown: JWST's is 131.4 m); null: the preset's")
     pixel_pitch_um: PositiveFloat | None = Field(
         None, description="pixel pitch [um]; null: the preset's")
-    width: Annotated[int, Field(ge=1, le=MAX_DETECTOR_PX, strict=True)] | None = Field(
+    width: Annotated[PositiveCount, Field(le=MAX_DETECTOR_PX)] | None = Field(
         None, description="detector columns [px]; null: the preset's")
-    height: Annotated[int, Field(ge=1, le=MAX_DETECTOR_PX, strict=True)] | None = Field(
+    height: Annotated[PositiveCount, Field(le=MAX_DETECTOR_PX)] | None = Field(
         None, description="detector rows [px]; null: the preset's")
     f_number: PositiveFloat | None = Field(
         None, description="f-number N = f / D [-]; null: the preset's")
