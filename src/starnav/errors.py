@@ -15,6 +15,18 @@ class StarnavError(Exception):
     """Root of every error raised on purpose by starnav."""
 
 
+#: Longest value an error message quotes [characters]: a long list is cut, not echoed whole.
+MAX_SHOWN_VALUE = 200
+
+
+def shown_value(value: Any) -> str:
+    """``repr(value)``, cut to :data:`MAX_SHOWN_VALUE` characters with its full length said."""
+    text = repr(value)
+    if len(text) <= MAX_SHOWN_VALUE:
+        return text
+    return f"{text[:MAX_SHOWN_VALUE]}... ({len(text)} characters)"
+
+
 class ConfigError(StarnavError, ValueError):
     """Invalid configuration or argument: names the field, the value and what was expected."""
 
@@ -22,7 +34,7 @@ class ConfigError(StarnavError, ValueError):
         self.field = field
         self.value = value
         self.expected = expected
-        super().__init__(f"{field} = {value!r}: expected {expected}")
+        super().__init__(f"{field} = {shown_value(value)}: expected {expected}")
 
 
 class GeometryError(StarnavError, ValueError):

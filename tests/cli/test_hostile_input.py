@@ -54,6 +54,9 @@ SCENARIO_CASES = {
     "fly-by at the speed of light": (FLYBY + ["--set", "trajectory.flyby.v_inf_km_s=3e5"],
                                      "v_inf_km_s"),
     "star epoch -1e9 years": (["--set", "stars.epoch_jyear=-1e9"], "stars.epoch_jyear"),
+    "a 20000-value list (not echoed whole)": (
+        ["--set", "camera.distortion=[" + ",".join(["0.5"] * 20000) + "]"],
+        "camera.distortion"),
 }
 
 #: Other commands: arguments -> what the error names.
