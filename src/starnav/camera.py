@@ -42,13 +42,19 @@ from pydantic import Field
 
 from starnav.config_base import StrictModel
 from starnav.errors import ConfigError, GeometryError, UnknownNameError
-from starnav.fields import PositiveFloat
+from starnav.fields import PositiveCount, PositiveFloat
 
 FloatArray = NDArray[np.float64]
 
 #: Iterations and tolerance [normalised units] of the fixed-point undistortion.
 UNDISTORT_MAX_ITER = 50
 UNDISTORT_TOL = 1e-14
+
+
+#: Largest lens distortion accepted, as a fraction of a detector corner's distance from the
+#: principal point: beyond it the Brown-Conrady polynomial no longer describes a real lens
+#: (its inverse, used to place the stars and the limb, stops converging).
+MAX_CORNER_DISTORTION = 0.5
 
 
 @dataclass(frozen=True)
@@ -111,6 +117,31 @@ class Camera:
             object.__setattr__(self, "cx", (self.width - 1) / 2.0)
         if self.cy is None:
             object.__setattr__(self, "cy", (self.height - 1) / 2.0)
+        cx, cy = float(self.cx), float(self.cy)  # type: ignore[arg-type]
+        if not (-0.5 <= cx <= self.width - 0.5 and -0.5 <= cy <= self.height - 0.5):
+            raise ConfigError("camera.principal_point_px", (cx, cy), "a point on the detector: "
+                              f"u in -0.5..{self.width - 0.5}, v in -0.5..{self.height - 0.5} px "
+                              "(where the optical axis meets it)")
+        shift = self.corner_distortion()
+        if not (math.isfinite(shift) and shift <= MAX_CORNER_DISTORTION):
+            raise ConfigError("camera.distortion", (self.k1, self.k2, self.k3, self.p1, self.p2),
+                              "Brown-Conrady coefficients that move the detector corner by at "
+                              f"most {MAX_CORNER_DISTORTION:.0%} of its distance from the "
+                              f"principal point (these: {shift:.3g} times it; a star tracker's "
+                              "lens stays well under 1 %)")
+
+    def corner_distortion(self) -> float:
+        """The Brown-Conrady displacement at the detector corner farthest from the principal
+        point, as a fraction of that corner's distance from it: ``|k1 r^2 + k2 r^4 + k3 r^6|
+        + 2 (|p1| + |p2|) r`` (an upper bound of the tangential term), ``r`` the corner's
+        normalized radius [-]."""
+        fx = self.focal_length / self.pitch_x
+        fy = self.focal_length / self.pitch_y
+        x = max(abs(-0.5 - float(self.cx)), abs(self.width - 0.5 - float(self.cx))) / fx
+        y = max(abs(-0.5 - float(self.cy)), abs(self.height - 0.5 - float(self.cy))) / fy
+        r2 = x * x + y * y
+        radial = abs(self.k1 * r2 + self.k2 * r2**2 + self.k3 * r2**3)
+        return radial + 2.0 * (abs(self.p1) + abs(self.p2)) * math.sqrt(r2)
 
     # ------------------------------------------------------------------ presets
     @classmethod
@@ -379,18 +410,24 @@ CAMERA_PRESETS: dict[str, Camera] = {
 
 
 # --------------------------------------------------------------------------- schema
+#: Largest detector side [px]: the largest CMOS sensors made are ~15 000 px on a side; one
+#: frame's radiance and its AOVs at this size already take gigabytes.
+MAX_DETECTOR_PX = 16384
+
+
 class CameraConfig(StrictModel):
     """Camera optics and detector geometry. ``None`` keeps the preset's value."""
 
     preset: str = Field("aa-str", description="named camera whose values the keys below "
                         f"override: {', '.join(CAMERA_PRESETS)}")
-    focal_length_mm: PositiveFloat | None = Field(
-        None, description="effective focal length [mm]; null: the preset's")
+    focal_length_mm: Annotated[float, Field(gt=0, le=2e5)] | None = Field(
+        None, description="effective focal length [mm], at most 200 m (longer than any "
+        "telescope flown: JWST's is 131.4 m); null: the preset's")
     pixel_pitch_um: PositiveFloat | None = Field(
         None, description="pixel pitch [um]; null: the preset's")
-    width: Annotated[int, Field(ge=1)] | None = Field(
+    width: Annotated[PositiveCount, Field(le=MAX_DETECTOR_PX)] | None = Field(
         None, description="detector columns [px]; null: the preset's")
-    height: Annotated[int, Field(ge=1)] | None = Field(
+    height: Annotated[PositiveCount, Field(le=MAX_DETECTOR_PX)] | None = Field(
         None, description="detector rows [px]; null: the preset's")
     f_number: PositiveFloat | None = Field(
         None, description="f-number N = f / D [-]; null: the preset's")

@@ -34,9 +34,10 @@ from starnav.config_base import (
     apply_overrides,
     format_validation_error,
     parse_override,
+    read_yaml_file,
 )
 from starnav.detector.schema import DetectorConfig
-from starnav.errors import ConfigError, DataFileError
+from starnav.errors import ConfigError
 from starnav.geometry import StaticGeometryConfig
 from starnav.navigation.schema import NavigationConfig
 from starnav.renderer.schema import (
@@ -142,13 +143,7 @@ def load_scenario(path: str | os.PathLike[str] | None,
     """Read and validate a YAML scenario; ``None`` gives the built-in defaults."""
     if path is None:
         return scenario_from_dict({}, overrides)
-    p = Path(path)
-    if not p.is_file():
-        raise DataFileError(f"scenario file {str(p)!r} does not exist")
-    try:
-        data = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as err:
-        raise ConfigError("scenario file", str(p), f"valid YAML ({err})") from None
+    data = read_yaml_file(Path(path), "scenario file")
     sc = scenario_from_dict(data or {}, overrides)
     return sc
 

@@ -36,6 +36,7 @@ import textwrap
 import types
 import typing
 from collections.abc import Iterable, Mapping, MutableMapping, Sequence
+from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 import annotated_types
@@ -44,7 +45,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from pydantic.fields import FieldInfo
 
 from starnav.constants import AU, DAY, DEG
-from starnav.errors import ConfigError
+from starnav.errors import ConfigError, not_a_file_error
 
 #: A rejected mapping is shown by at most this many of its keys.
 _SHOWN_KEYS = 6
@@ -124,7 +125,8 @@ def _to_si(value: Any, conv: tuple[float, float] | None) -> Any:
 class StrictModel(BaseModel):
     """Base of every configuration model: frozen, unknown keys rejected."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid", validate_default=True)
+    model_config = ConfigDict(frozen=True, extra="forbid", validate_default=True,
+                              allow_inf_nan=False)  # no configured quantity is infinite
 
     #: SI-view names for keys whose plain name is taken by another key (``roll`` the mode,
     #: ``roll_deg`` the angle -> ``roll_angle``).
@@ -175,8 +177,46 @@ def parse_override(item: str) -> tuple[list[str], Any]:
     key, raw = item.split("=", 1)
     if not key.strip():
         raise ConfigError("--set", item, "KEY.PATH=VALUE with a non-empty key")
-    value = yaml.safe_load(raw) if raw.strip() else None
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else None
+    except (yaml.YAMLError, ValueError) as err:  # ValueError: a YAML date that is none
+        mark = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise ConfigError("--set", item, f"KEY=VALUE with a valid YAML value ({mark})") from None
     return key.strip().split("."), value
+
+
+#: Largest configuration file read [bytes]: a scenario or bench file is a few kB (its bulk data,
+#: DEMs, shape models, OEMs, are files it names), and the pure-Python YAML parser takes seconds
+#: per hundred kB, so a larger file is refused before it is parsed.
+MAX_CONFIG_BYTES = 1 << 20
+
+
+def read_yaml_file(path: Path, what: str) -> Any:
+    """The YAML mapping of the configuration file ``path`` (``what``: ``scenario file``, ...).
+
+    A file larger than :data:`MAX_CONFIG_BYTES`, not UTF-8 or not valid YAML is a
+    :class:`~starnav.errors.ConfigError` naming the file (a directory or a device: a
+    :class:`~starnav.errors.DataFileError` saying what it is).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise not_a_file_error(p, what)
+    size = p.stat().st_size
+    if size > MAX_CONFIG_BYTES:
+        raise ConfigError(what, f"{size} bytes", f"a configuration file of at most "
+                          f"{MAX_CONFIG_BYTES} bytes ({str(p)!r} is {size / MAX_CONFIG_BYTES:.3g} "
+                          "times that): put bulk data in the files the scenario names")
+    try:
+        text = p.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = p.read_bytes()[: err.start].count(b"\n") + 1
+        raise ConfigError(what, str(p), f"UTF-8 text (byte 0x{err.object[err.start]:02x} on "
+                          f"line {line} is not UTF-8: save the file as UTF-8)") from None
+    try:
+        return yaml.safe_load(text)
+    except (yaml.YAMLError, ValueError) as err:  # ValueError: a YAML date that is none
+        msg = " ".join(str(err).split())
+        raise ConfigError(what, str(p), f"valid YAML ({msg})") from None
 
 
 def apply_overrides(data: dict[str, Any], overrides: Iterable[str]) -> dict[str, Any]:

@@ -7,11 +7,24 @@ name the offending field, the value received and what was expected.
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 
 class StarnavError(Exception):
     """Root of every error raised on purpose by starnav."""
+
+
+#: Longest value an error message quotes [characters]: a long list is cut, not echoed whole.
+MAX_SHOWN_VALUE = 200
+
+
+def shown_value(value: Any) -> str:
+    """``repr(value)``, cut to :data:`MAX_SHOWN_VALUE` characters with its full length said."""
+    text = repr(value)
+    if len(text) <= MAX_SHOWN_VALUE:
+        return text
+    return f"{text[:MAX_SHOWN_VALUE]}... ({len(text)} characters)"
 
 
 class ConfigError(StarnavError, ValueError):
@@ -21,7 +34,7 @@ class ConfigError(StarnavError, ValueError):
         self.field = field
         self.value = value
         self.expected = expected
-        super().__init__(f"{field} = {value!r}: expected {expected}")
+        super().__init__(f"{field} = {shown_value(value)}: expected {expected}")
 
 
 class GeometryError(StarnavError, ValueError):
@@ -30,6 +43,19 @@ class GeometryError(StarnavError, ValueError):
 
 class DataFileError(StarnavError, FileNotFoundError):
     """A data file is missing or unreadable."""
+
+
+def not_a_file_error(path: Any, what: str) -> DataFileError:
+    """The error for an input ``path`` that is not a regular file, saying what it is instead:
+    missing, a directory, or a device or pipe (``/dev/null``). ``what`` names the input
+    (``"OEM file"``)."""
+    p = os.fspath(path)
+    if os.path.isdir(p):
+        return DataFileError(f"{what} {p!r} is a directory: expected a file")
+    if os.path.exists(p):
+        return DataFileError(f"{what} {p!r} is not a regular file (a device or a pipe): "
+                             "expected a file")
+    return DataFileError(f"{what} {p!r} does not exist")
 
 
 class BackendError(StarnavError, RuntimeError):

@@ -19,14 +19,17 @@ type                     accepts         used for
                                          headroom: a zero would divide or empty a signal)
 =======================  ==============  ====================================================
 
+:data:`PositiveCount` is an ``int >= 1`` that refuses a boolean (pydantic would read ``true``
+as 1: a detector of one pixel, one sample per pixel).
+
 Units are in the field names (``_km``, ``_deg``, ``_s``), never in the types.
 """
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
-from pydantic import Field
+from pydantic import BeforeValidator, Field
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -34,5 +37,14 @@ FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 UnitInterval = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
 PositiveFraction = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]
 
-__all__ = ["FiniteFloat", "NonNegativeFloat", "PositiveFloat", "PositiveFraction",
-           "UnitInterval"]
+
+def _not_bool(v: Any) -> Any:
+    if isinstance(v, bool):
+        raise ValueError(f"a whole number, not the boolean {str(v).lower()}")
+    return v
+
+
+PositiveCount = Annotated[int, BeforeValidator(_not_bool), Field(ge=1)]
+
+__all__ = ["FiniteFloat", "NonNegativeFloat", "PositiveCount", "PositiveFloat",
+           "PositiveFraction", "UnitInterval"]

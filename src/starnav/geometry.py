@@ -29,7 +29,6 @@ from starnav.camera import Camera
 from starnav.config_base import StrictModel
 from starnav.constants import AU, MOON_RADIUS
 from starnav.errors import GeometryError
-from starnav.fields import PositiveFloat
 
 FloatArray = NDArray[np.float64]
 
@@ -299,7 +298,9 @@ def static_geometry(
 class StaticGeometryConfig(StrictModel):
     """One frame without a trajectory: observer range, phase angle and the Moon's place."""
 
-    range_km: PositiveFloat = Field(60_000.0, description="camera to Moon-centre distance [km]")
+    range_km: Annotated[float, Field(gt=0, le=1.5e8)] = Field(
+        60_000.0, description="camera to Moon-centre distance [km], at most 1.5e8 km (1 AU: "
+        "no Moon-imaging spacecraft is farther)")
     phase_angle_deg: Annotated[float, Field(ge=0, le=180)] = Field(
         30.0, description="Sun-Moon-observer angle [deg]"
     )
@@ -315,7 +316,9 @@ class StaticGeometryConfig(StrictModel):
         0.0, description="selenographic latitude of the point below the camera [deg]")
     sub_observer_lon_deg: float = Field(
         0.0, description="selenographic longitude of the point below the camera [deg]")
-    sun_distance_au: PositiveFloat = Field(1.0, description="Sun-Moon distance [AU]")
+    sun_distance_au: Annotated[float, Field(ge=0.98, le=1.02)] = Field(
+        1.0, description="Sun-Moon distance [AU]: 0.98 to 1.02 (the Earth's perihelion "
+        "0.9833 AU and aphelion 1.0167 AU, plus or minus the Moon's 0.0027 AU)")
 
 
 def static_geometry_from_config(camera: Camera, cfg: StaticGeometryConfig,

@@ -27,6 +27,7 @@ The file is plain OpenEXR: any EXR reader gives the channels; ``json.loads`` of 
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 from dataclasses import dataclass, field
@@ -37,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.atomic import atomic_path
-from starnav.errors import DataFileError
+from starnav.errors import DataFileError, not_a_file_error
 
 Float32Array = NDArray[np.float32]
 
@@ -100,7 +101,11 @@ def write_exr(img: RadianceImage, path: str | os.PathLike[str]) -> Path:
         META_ATTRIBUTE: json.dumps(img.meta, sort_keys=True),
     }
     with atomic_path(p, suffix=".exr") as tmp, OpenEXR.File(header, channels) as f:
-        f.write(str(tmp))
+        try:
+            f.write(str(tmp))
+        except RuntimeError as err:  # OpenEXR reports a failed write (a full disk) so
+            code = errno.ENOSPC if "space" in str(err).lower() else errno.EIO
+            raise OSError(code, f"writing the EXR failed ({err})", str(p)) from None
     return p
 
 
@@ -110,7 +115,7 @@ def read_exr(path: str | os.PathLike[str]) -> RadianceImage:
 
     p = Path(path)
     if not p.is_file():
-        raise DataFileError(f"radiance image {str(p)!r} does not exist")
+        raise not_a_file_error(p, "radiance image")
     try:
         with OpenEXR.File(str(p), separate_channels=True) as f:
             chans = {k: np.asarray(v.pixels, dtype=np.float32) for k, v in f.channels().items()}

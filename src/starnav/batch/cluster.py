@@ -98,9 +98,13 @@ def quiet_logger(name: str, level: int = logging.ERROR) -> Iterator[None]:
 def check_address(address: str) -> str:
     """Validate a scheduler address (``tcp://host:port``)."""
     a = str(address).strip()
-    if not _ADDRESS_RE.match(a):
+    m = _ADDRESS_RE.match(a)
+    if not m:
         raise ConfigError("--scheduler", address, "a Dask scheduler address such as "
                           "tcp://10.0.0.5:8786")
+    if m.group(2) and not 1 <= int(m.group(2)[1:]) <= 65535:
+        raise ConfigError("--scheduler", address, "a TCP port from 1 to 65535 (Dask's "
+                          "default: 8786)")
     return a
 
 
@@ -198,6 +202,23 @@ def default_workers() -> int:
     return max(1, os.cpu_count() or 1)
 
 
+#: Local worker processes allowed per CPU: the tasks are CPU-bound, so more processes than this
+#: only add memory (each holds its own renderer and scene) and start-up time, no throughput.
+WORKERS_PER_CPU = 4
+
+
+def check_workers(workers: int) -> int:
+    """``workers`` if this machine can run that many local worker processes, else a
+    :class:`ConfigError` with the bound (:data:`WORKERS_PER_CPU` per CPU)."""
+    cpus = max(1, os.cpu_count() or 1)
+    cap = WORKERS_PER_CPU * cpus
+    if isinstance(workers, bool) or not 0 <= int(workers) <= cap:
+        raise ConfigError("--workers", workers, f"0 (this process) to {cap} processes "
+                          f"({WORKERS_PER_CPU} per CPU of this machine's {cpus}: the tasks are "
+                          "CPU-bound, more processes only add memory and start-up time)")
+    return int(workers)
+
+
 #: Environment variable that, when set, leaves the workers' statistical profiler to Dask's
 #: own configuration (:func:`local_worker_config`).
 PROFILE_ENV = "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED"
@@ -244,9 +265,7 @@ def open_runner(workers: int | None = None, scheduler: str | None = None, *,
         finally:
             client.close()
         return
-    n = default_workers() if workers is None else int(workers)
-    if n < 0:
-        raise ConfigError("--workers", workers, "0 (this process) or a number of processes")
+    n = default_workers() if workers is None else check_workers(workers)
     if n == 0:
         yield InProcessRunner()
         return

@@ -283,6 +283,12 @@ def expand(base: Scenario | dict[str, Any], axes: Sequence[GridAxis],
     for a in axes:
         for k in a.keys:
             check_key(k, known)
+            if k.startswith("geometry.") and base_dict.get("trajectory") is not None:
+                # a trajectory's frames take their geometry from the arc, not this section
+                raise ConfigError("--grid", k, "a key the scenario reads: with a trajectory "
+                                  "the frames' range and phase come from the arc (sweep "
+                                  "trajectory.* keys, or set trajectory=null for a static "
+                                  "geometry)")
     points = []
     for idx, combo in enumerate(itertools.product(*[a.values for a in axes])):
         values: dict[str, Any] = {}

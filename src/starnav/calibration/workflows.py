@@ -46,7 +46,7 @@ from starnav.calibration.scaling import (
     plan_scaling,
 )
 from starnav.calibration.schema import BenchConfig, bench_to_dict
-from starnav.errors import ConfigError, DataFileError
+from starnav.errors import ConfigError, DataFileError, not_a_file_error
 from starnav.radiance import RadianceImage, read_exr
 from starnav.simulate import frame_geometries, renderer_from_scenario
 
@@ -146,10 +146,10 @@ def load_calibration(path: str | Path, bench: Bench) -> GeometricCalibration:
     """Read a ``geometric_calibration.json`` written by ``hil geometric``."""
     p = Path(path)
     if not p.is_file():
-        raise DataFileError(f"geometric calibration {str(p)!r} does not exist")
+        raise not_a_file_error(p, "geometric calibration")
     try:
-        d = json.loads(p.read_text())
-    except json.JSONDecodeError as err:
+        d = json.loads(p.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise ConfigError("geometric calibration file", str(p), f"valid JSON ({err})") from None
     return GeometricCalibration.from_dict(d, bench.camera)
 

@@ -33,15 +33,16 @@ def fail(err: Exception | str) -> None:
     raise typer.Exit(code=2)
 
 
-def os_error_message(err: OSError) -> str:
-    """One line for a failed read or write: the path, what the system said, and the hint."""
+def os_error_message(err: OSError, resumable: bool = False) -> str:
+    """One line for a failed read or write: the path, what the system said, and the hint
+    (``resumable``: the command keeps its work and continues it with ``--resume``)."""
     import errno as _errno
 
     name = _errno.errorcode.get(err.errno or 0, "")
     path = err.filename if err.filename is not None else "<path>"
     extra = f" -> {err.filename2}" if getattr(err, "filename2", None) else ""
-    hint = {"ENOSPC": "the disk is full: free some space, then run again (a dataset: "
-            "with --resume, which keeps the frames already made)",
+    hint = {"ENOSPC": "the disk is full: free some space, then run again"
+            + (" with --resume, which keeps the frames already made" if resumable else ""),
             "EACCES": "choose a writable place",
             "EPERM": "choose a writable place", "EROFS": "choose a writable place",
             "ENOTDIR": "a path component is a file, not a directory",

@@ -68,7 +68,7 @@ class DefaultMakeGroup(TyperGroup):
 def register(app: typer.Typer) -> None:
     """Add the ``dataset`` group (``make``, the default, and ``verify``) to ``app``."""
     group = typer.Typer(cls=DefaultMakeGroup, no_args_is_help=False, help=(
-        "Navigation datasets: `starnav dataset [make] SCENARIO --out DIR` makes one (make is "
+        "Navigation datasets: `starnav dataset \\[make] SCENARIO --out DIR` makes one (make is "
         "the default command), `starnav dataset verify DIR` checks one."))
     app.add_typer(group, name="dataset")
 
@@ -176,6 +176,10 @@ def register(app: typer.Typer) -> None:
         except StarnavError as err:
             typer.echo(f"error: {err}", err=True)
             raise typer.Exit(code=2) from None
+        except OSError as err:  # a full disk: the frames made stay, --resume continues
+            from starnav.cli._output import fail, os_error_message
+
+            fail(os_error_message(err, resumable=True))
         except KeyboardInterrupt:
             typer.echo(f"interrupted: {state['done']} of {state['n']} frames are in {out}; "
                        "continue with --resume", err=True)

@@ -284,9 +284,21 @@ def _guarded(callback: Callable[..., Any]) -> Callable[..., Any]:
     return run
 
 
+def unwrapped_help(doc: str) -> str:
+    """A docstring as help text: its lines joined into paragraphs (a blank line between
+    paragraphs is kept), so that the help is wrapped to the terminal, not cut where the source
+    line ended."""
+    import inspect
+
+    paragraphs = inspect.cleandoc(doc).split("\n\n")
+    return "\n\n".join(" ".join(p.split()) for p in paragraphs if p.strip())
+
+
 def _guard_all(t: typer.Typer) -> None:
     for cmd in t.registered_commands:
         if cmd.callback is not None:
+            if cmd.help is None and cmd.callback.__doc__:
+                cmd.help = unwrapped_help(cmd.callback.__doc__)
             cmd.callback = _guarded(cmd.callback)
     for group in t.registered_groups:
         if group.typer_instance is not None:

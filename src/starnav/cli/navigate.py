@@ -94,13 +94,22 @@ def _navigate_flyby(path: Path, out: Path, runs: int | None, set_: list[str] | N
 
 def _echo_flyby(m: dict, out: Path) -> None:
     """The fly-by closed loop's summary lines."""
-    typer.echo(f"position error at CA {m['ca_position_error_m']:.1f} m "
-               f"({m['ca_position_error_pct_range']:.3g} % of {m['ca_range_m'] / 1e3:.2f} km), "
-               f"feature error rms {m['feature_error_rms_px']:.2f} px")
+    def num(v: object, fmt: str, scale: float = 1.0) -> str:
+        """``v`` formatted, ``-`` when absent (None: e.g. no feature tracked) or not finite."""
+        return format(float(v) * scale, fmt) if isinstance(v, int | float) and \
+            float(v) == float(v) and abs(float(v)) != float("inf") else "-"
+
+    rms = m.get("feature_error_rms_px")
+    typer.echo(f"position error at CA {num(m.get('ca_position_error_m'), '.1f')} m "
+               f"({num(m.get('ca_position_error_pct_range'), '.3g')} % of "
+               f"{num(m.get('ca_range_m'), '.2f', 1e-3)} km), "
+               + (f"feature error rms {num(rms, '.2f')} px" if num(rms, ".2f") != "-"
+                  else "no feature tracked"))
     if "monte_carlo" in m:
         mc = m["monte_carlo"]
-        typer.echo(f"{mc['runs']} runs: mean NEES {mc['nees_mean']:.2f}, band "
-                   f"[{mc['nees_band'][0]:.2f}, {mc['nees_band'][1]:.2f}]: {mc['verdict']}")
+        band = mc.get("nees_band") or (None, None)
+        typer.echo(f"{mc['runs']} runs: mean NEES {num(mc.get('nees_mean'), '.2f')}, band "
+                   f"[{num(band[0], '.2f')}, {num(band[1], '.2f')}]: {mc['verdict']}")
     typer.echo(f"outputs in {out}")
 
 

@@ -40,7 +40,7 @@ def register(app: typer.Typer) -> None:
         from starnav.scenes import build_trajectory, plot_trajectory, trajectory_summary
         from starnav.scenes.ephemeris import format_epoch
         from starnav.scenes.oem import write_oem
-        from starnav.scenes.schema import TrajectoryConfig
+        from starnav.scenes.schema import DAY_S, MAX_ARC_SAMPLES, TrajectoryConfig
         from starnav.timeaxis import format_duration
 
         try:
@@ -54,8 +54,14 @@ def register(app: typer.Typer) -> None:
             check_output(png, directory=False, overwrite=overwrite, inputs=[*inputs, out],
                          option="--plot")
             cadence = cfg.cadence_s if cadence_s is None else cadence_s
-            if not cadence > 0:
-                raise StarnavError(f"--cadence-s = {cadence!r}: expected a cadence > 0 s")
+            if not 0 < cadence < float("inf"):
+                raise StarnavError(f"--cadence-s = {cadence!r}: expected a finite cadence > 0 s")
+            span = cfg.duration_days * DAY_S
+            if span / cadence > MAX_ARC_SAMPLES:
+                raise StarnavError(f"--cadence-s = {cadence!r}: expected at least "
+                                   f"{span / MAX_ARC_SAMPLES:.3g} s over the "
+                                   f"{cfg.duration_days:g}-day arc ({span / cadence:.3g} "
+                                   f"states; at most {MAX_ARC_SAMPLES:.0e})")
             with console.status("building the trajectory (halo, multiple shooting)"):
                 traj = build_trajectory(cfg, spacecraft=sc.spacecraft)
             sampled = traj.resample(cadence)

@@ -58,7 +58,7 @@ from starnav.atomic import atomic_path
 from starnav.constants import MOON_RADIUS
 from starnav.dem.grid import AlbedoGrid, DemGrid, EquirectangularGrid, area_resample_blocks
 from starnav.dem.schema import AlbedoConfig, DemConfig
-from starnav.errors import ConfigError, DataFileError
+from starnav.errors import ConfigError, DataFileError, not_a_file_error
 from starnav.registry import Registry
 
 logger = logging.getLogger(__name__)
@@ -168,7 +168,7 @@ def _open_raster(path: Path, driver: str | None = None) -> Any:
     from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 
     if not path.is_file():
-        raise DataFileError(f"DEM/albedo file {str(path)!r} does not exist")
+        raise not_a_file_error(path, "DEM/albedo file")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
@@ -540,7 +540,7 @@ def _geotiff_reader(p: Path, cfg: DemConfig, svs: bool = False) -> DemGrid:
 
 def _npy_reader(p: Path, cfg: DemConfig) -> DemGrid:
     if not p.is_file():
-        raise DataFileError(f"DEM file {str(p)!r} does not exist")
+        raise not_a_file_error(p, "DEM file")
     try:
         a = np.load(p, mmap_mode="r", allow_pickle=False)
     except ValueError as err:
@@ -600,7 +600,7 @@ def read_albedo(path: str | os.PathLike[str], cfg: AlbedoConfig | None = None) -
     fallback = _extent_rad(cfg.extent_deg)
     if fmt == "npy":
         if not p.is_file():
-            raise DataFileError(f"albedo file {str(p)!r} does not exist")
+            raise not_a_file_error(p, "albedo file")
         a = np.load(p, allow_pickle=False)
         if a.ndim == 2:
             a = a[None]

@@ -49,7 +49,7 @@ from numpy.typing import NDArray
 
 from starnav.atomic import atomic_path, atomic_write_bytes
 from starnav.detector.products import Segments, Window
-from starnav.errors import ConfigError, DataFileError
+from starnav.errors import ConfigError, not_a_file_error
 
 #: zlib level of the PNGs written here and by :mod:`starnav.quicklook`. With the run-length
 #: strategy (:data:`PNG_ZLIB_STRATEGY`) zlib's levels 1-9 give the same stream; 0 would store
@@ -143,7 +143,7 @@ def read_dn_png(path: str | os.PathLike[str]) -> NDArray[np.uint16]:
 
     p = Path(path)
     if not p.is_file():
-        raise DataFileError(f"DN image {str(p)!r} does not exist")
+        raise not_a_file_error(p, "DN image")
     return np.asarray(iio.imread(p), dtype=np.uint16)
 
 
@@ -156,7 +156,7 @@ def read_segments(path: str | os.PathLike[str]) -> Segments:
     """Read segments written by :func:`write_segments`."""
     p = Path(path)
     if not p.is_file():
-        raise DataFileError(f"segments file {str(p)!r} does not exist")
+        raise not_a_file_error(p, "segments file")
     with np.load(p) as d:
         return Segments.from_arrays(dict(d))
 
@@ -174,7 +174,7 @@ def read_windows(path: str | os.PathLike[str]) -> tuple[Window, ...]:
     """Read windows written by :func:`write_windows`."""
     p = Path(path)
     if not p.is_file():
-        raise DataFileError(f"windows file {str(p)!r} does not exist")
+        raise not_a_file_error(p, "windows file")
     with np.load(p) as d:
         corners = d["corners"]
         return tuple(Window(int(r), int(c), np.asarray(d[f"dn_{k}"], np.uint16))

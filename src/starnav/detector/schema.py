@@ -219,8 +219,10 @@ class DarkCurrentConfig(StrictModel):
     dsnu_fraction: UnitInterval = Field(
         0.013, description="dark-signal non-uniformity rms, relative to the mean [-] "
         "(ABRAM 1.3 %, docs/facts.md s1)")
-    temperature_c: FiniteFloat = Field(20.0, description="detector temperature [degC]")
-    reference_temperature_c: FiniteFloat = Field(
+    temperature_c: Annotated[float, Field(ge=-273.15, le=150)] = Field(
+        20.0, description="detector temperature [degC], from absolute zero to 150 (above any "
+        "silicon detector's rating)")
+    reference_temperature_c: Annotated[float, Field(ge=-273.15, le=150)] = Field(
         20.0, description="temperature of rate_e_per_s [degC] (assumption: ABRAM gives none)")
     doubling_temperature_k: PositiveFloat = Field(
         7.0, description="temperature rise that doubles the dark current [K] (assumption, "
@@ -452,8 +454,9 @@ class DebugConfig(StrictModel):
 class DetectorConfig(StrictModel):
     """Detector chain settings. Units in the key names; SI inside."""
 
-    exposure_time_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] = Field(
-        1.5e-5, description="integration time [s] (the paper's well-exposed case: 15 us)"
+    exposure_time_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] = Field(
+        1.5e-5, description="integration time [s] (the paper's well-exposed case: 15 us), at "
+        "most an hour (the lit Moon saturates the detector in milliseconds)"
     )
     order: Literal["physical", "paper"] = Field(
         "physical", description="stage order (starnav.detector.chain.CHAIN_ORDERS): physical "

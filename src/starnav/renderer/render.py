@@ -94,7 +94,7 @@ from numpy.typing import NDArray
 from starnav.camera import Camera
 from starnav.constants import AU, MOON_RADIUS
 from starnav.eclipse import could_be_eclipsed, disc_mean_sunlit_fraction, sunlit_fraction
-from starnav.errors import ConfigError, DataFileError
+from starnav.errors import ConfigError, not_a_file_error
 from starnav.geometry import FrameGeometry, geometry_to_dict
 from starnav.photometry import get_model, validity_warning
 from starnav.radiance import AOV_CHANNELS, BODY_FIXED_AOV_CHANNELS, RadianceImage
@@ -153,7 +153,7 @@ def load_albedo_map(path: str | Path, scale: float = 1.0) -> AlbedoMap:
     """
     p = Path(path)
     if not p.is_file():
-        raise DataFileError(f"moon.albedo.path = {str(p)!r}: file does not exist")
+        raise not_a_file_error(p, "moon.albedo.path")
     if p.suffix.lower() == ".npy":
         arr = np.load(p)
     else:

@@ -186,11 +186,23 @@ def principal_point_offsets(camera: Camera) -> tuple[float, float]:
             -(camera.cy - (camera.height - 1) / 2.0) / camera.height)
 
 
-def check_camera_for_render(camera: Camera) -> None:
-    """The renderer's pinhole needs square pixels (distortion is applied by the detector)."""
+#: Most samples one render pass traces: Mitsuba traces a frame's width x height x spp samples
+#: as one wavefront, and a Dr.Jit array holds at most 2^32 entries.
+MAX_WAVEFRONT = 1 << 32
+
+
+def check_camera_for_render(camera: Camera, spp: int | None = None) -> None:
+    """The renderer's pinhole needs square pixels (distortion is applied by the detector);
+    with ``spp``, the frame's samples must fit one wavefront (:data:`MAX_WAVEFRONT`)."""
     if abs(camera.pitch_x - camera.pitch_y) > 1e-12 * camera.pitch_x:
         raise ConfigError("camera.pixel_pitch", (camera.pitch_x, camera.pitch_y),
                           "square pixels for rendering")
+    if spp is not None and camera.width * camera.height * spp > MAX_WAVEFRONT:
+        most = MAX_WAVEFRONT // (camera.width * camera.height)
+        raise ConfigError("render.spp", spp, f"at most {most} samples per pixel on a "
+                          f"{camera.width} x {camera.height} px frame ({spp} would trace "
+                          f"{camera.width * camera.height * spp:.3g} samples in one pass; a "
+                          f"pass holds at most 2^32 = {MAX_WAVEFRONT:.3g})")
 
 
 def regular_spectrum_dict(sp: Spectrum, step_nm: float = 1.0) -> dict:

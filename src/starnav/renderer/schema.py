@@ -16,7 +16,7 @@ from pydantic import Field, field_validator, model_validator
 
 from starnav.config_base import StrictModel
 from starnav.dem.schema import DemConfig
-from starnav.fields import NonNegativeFloat, PositiveFloat, UnitInterval
+from starnav.fields import NonNegativeFloat, PositiveCount, PositiveFloat, UnitInterval
 from starnav.photometry import PHOTOMETRIC_MODELS, get_model, hapke_preset
 
 #: Samples per interior pixel of the adaptive render when ``render.interior_spp`` is unset (at
@@ -155,7 +155,7 @@ class RenderConfig(StrictModel):
     everywhere).
     """
 
-    spp: Annotated[int, Field(ge=1)] = Field(16, description="samples per pixel")
+    spp: PositiveCount = Field(16, description="samples per pixel")
     adaptive: bool = Field(
         True, description="adaptive samples per pixel: spp at the limb, terminator and edges, "
         "interior_spp in the flat interior (JIT variants; off: spp everywhere)")

@@ -138,11 +138,14 @@ def parse_epoch(text: str | float, field: str = "epoch") -> float:
 
     scale = m.group("scale").lower()
     scale = "utc" if scale == "z" else scale
+    from erfa import ErfaError
+
     try:
         t = Time(m.group("iso").replace(" ", "T"), format="isot", scale=scale)
-    except ValueError as err:
-        raise ConfigError(field, text, f"a valid calendar date ({err})") from None
-    tdb = t.tdb
+        tdb = t.tdb
+    except (ValueError, ErfaError) as err:
+        why = str(err).splitlines()[-1].removeprefix("ErfaError: ")
+        raise ConfigError(field, text, f"a valid calendar date ({why})") from None
     return float(((tdb.jd1 - J2000_JD) + tdb.jd2) * DAY)
 
 

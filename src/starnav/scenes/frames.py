@@ -49,7 +49,7 @@ from starnav.scenes.dynamics import PointMassModel
 from starnav.scenes.ephemeris import Ephemeris, parse_epoch
 from starnav.scenes.flyby import Flyby, flyby_from_config
 from starnav.scenes.forces import SrpParameters, TruthForceModel
-from starnav.scenes.oem import check_outside_moon, read_oem, tdb_to_iso
+from starnav.scenes.oem import check_continuous, check_outside_moon, read_oem, tdb_to_iso
 from starnav.scenes.pointing import frame_generators, pointing_from_config, rotation_from_vector
 from starnav.scenes.schema import (
     DEFAULT_EPOCH,
@@ -119,6 +119,7 @@ def build_trajectory(cfg: TrajectoryConfig, ephemeris: Ephemeris | None = None,
         ts = np.concatenate([[t0], traj.times[inside], [t1]])
         used = Trajectory(ts, traj.sample(ts), traj.object_name, dict(traj.meta))
         check_outside_moon(used, f"OEM file {str(cfg.oem_path)!r}", eph)
+        check_continuous(used, f"OEM file {str(cfg.oem_path)!r}")
         return used
 
     t0 = parse_epoch(cfg.epoch or DEFAULT_EPOCH, "trajectory.epoch")

@@ -36,8 +36,10 @@ class FlybyConfig(StrictModel):
     from ``start_s`` to ``end_s`` relative to CA (at most ``trajectory.frames``).
     """
 
-    v_inf_km_s: PositiveFloat = Field(5.0, description="relative speed; the hyperbolic excess "
-                                      "speed for dynamics=hyperbolic [km/s]")
+    v_inf_km_s: Annotated[float, Field(gt=0, le=100)] = Field(
+        5.0, description="relative speed; the hyperbolic excess speed for dynamics=hyperbolic "
+        "[km/s], at most 100 (a head-on encounter of two bodies at the Sun's escape speed at "
+        "1 AU, 42.1 km/s each, is 84 km/s)")
     closest_approach_km: PositiveFloat = Field(20.0, description="CA distance from the body "
                                                "centre [km]")
     phase_at_ca_deg: Annotated[float, Field(ge=0, le=180)] = Field(
@@ -52,7 +54,9 @@ class FlybyConfig(StrictModel):
                                 "projected J2000 pole (B-plane angle) [deg]")
     start_s: float = Field(-600.0, description="first frame relative to CA [s]")
     end_s: float = Field(600.0, description="last frame relative to CA [s]")
-    sun_distance_au: PositiveFloat = Field(1.0, description="body-Sun distance [AU]")
+    sun_distance_au: Annotated[float, Field(ge=0.05, le=100)] = Field(
+        1.0, description="body-Sun distance [AU]: 0.05 (inside Mercury's perihelion, 0.31) "
+        "to 100 (beyond Eris' aphelion, 97.5)")
     dynamics: Literal["straight", "hyperbolic"] = Field(
         "straight", description="straight line (gravity neglected: micro-radian deflection or "
         "less for km-sized bodies) or the Kepler hyperbola of the body's GM")
@@ -62,6 +66,14 @@ class FlybyConfig(StrictModel):
         if self.end_s < self.start_s:
             raise ValueError("end_s must not be before start_s")
         return self
+
+
+#: Most samples of an arc (RK4 steps, frame or OEM epochs): 10^7 states of 6 float64 take
+#: 0.5 GB, and the ephemeris model costs microseconds per step; a finer grid is a typo.
+MAX_ARC_SAMPLES = 10_000_000
+#: Bytes of one stored state (6 float64) and of one day [s], for the bound's message.
+STATE_BYTES = 48
+DAY_S = 86_400.0
 
 
 class SpacecraftConfig(StrictModel):
@@ -168,6 +180,18 @@ class TrajectoryConfig(StrictModel):
             raise ValueError("range_min_km must be below range_max_km")
         if self.shooting_segment_s < self.step_s:
             raise ValueError("shooting_segment_s must be at least step_s")
+        if self.source == "flyby":   # the fly-by's own span; no RK4 arc
+            fb = self.flyby or FlybyConfig()
+            steps, span, arc = [("cadence_s", self.cadence_s)], fb.end_s - fb.start_s, "fly-by"
+        else:
+            steps = [("step_s", self.step_s), ("cadence_s", self.cadence_s)]
+            span, arc = self.duration_days * DAY_S, f"{self.duration_days:g}-day arc"
+        for key, step in steps:
+            if span / step > MAX_ARC_SAMPLES:
+                raise ValueError(
+                    f"{key} >= {span / MAX_ARC_SAMPLES:.3g} s over the {arc} ({key} = {step!r} "
+                    f"gives {span / step:.3g} samples; at most {MAX_ARC_SAMPLES:.0e}, "
+                    f"{STATE_BYTES} bytes each)")
         return self
 
 

@@ -62,6 +62,7 @@ import logging
 import math
 import os
 import time
+import zipfile
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -458,7 +459,8 @@ def _load_npz(path: Path) -> Trajectory | None:
         with np.load(path, allow_pickle=False) as z:
             return Trajectory(z["times"], z["states"], str(z["object_name"]),
                               json.loads(str(z["meta"])))
-    except (OSError, ValueError, KeyError) as err:
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as err:
+        # an empty or truncated file (a full disk, a killed write): rebuilt and replaced
         log.warning("ignoring unreadable trajectory cache %s (%s)", path, err)
         return None
 

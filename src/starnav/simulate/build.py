@@ -87,7 +87,7 @@ def renderer_from_scenario(sc: Scenario, camera: Camera | None = None) -> MoonRe
     """A :class:`MoonRenderer` configured by ``sc`` (validates camera, spectra, Moon);
     ``camera`` the scenario's camera when already built."""
     camera = camera_from_config(sc.camera) if camera is None else camera
-    check_camera_for_render(camera)
+    check_camera_for_render(camera, sc.render.spp)
     response = sensor_response_from_config(sc.sensor_response)
     sun = solar_spectrum_from_config(sc.sun, distance=AU)
     moon = body_from_scenario(sc).render_model()

@@ -27,7 +27,7 @@ def check_scenario(sc: Scenario) -> dict[str, Any]:
     """Everything ``render`` would check before its first frame (module docstring); returns the
     derived quantities (SI, names carry the units)."""
     camera = camera_from_config(sc.camera)
-    check_camera_for_render(camera)
+    check_camera_for_render(camera, sc.render.spp)
     response = sensor_response_from_config(sc.sensor_response)
     sun = solar_spectrum_from_config(sc.sun, distance=AU)
     band = band_integrals(sun, response)

@@ -177,12 +177,18 @@ def render_to_directory(sc: Scenario, out: str | Path,
     sim.scene.geometries()  # every frame's pointing, before anything is written
     sim.renderer  # noqa: B018  (build and validate before the first frame)
     check_render_directory(out, overwrite)
+    created = not out.exists()
     paths = []
-    for k in range(len(sim)):
-        geom, img = sim.render(k)
-        paths.append(write_exr(img, out / f"frame_{geom.index:06d}.exr"))
-        write_radiance_quicklook(img, out / quicklook_name(geom.index), index=geom.index)
-        if progress is not None:
-            progress(k + 1, len(sim))
-        log.info("frame %d: L max %.4g W m^-2 sr^-1", geom.index, float(img.L.max()))
+    try:
+        for k in range(len(sim)):
+            geom, img = sim.render(k)
+            paths.append(write_exr(img, out / f"frame_{geom.index:06d}.exr"))
+            write_radiance_quicklook(img, out / quicklook_name(geom.index), index=geom.index)
+            if progress is not None:
+                progress(k + 1, len(sim))
+            log.info("frame %d: L max %.4g W m^-2 sr^-1", geom.index, float(img.L.max()))
+    except BaseException:
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # a failed first frame leaves nothing behind, not an empty directory
+        raise
     return paths

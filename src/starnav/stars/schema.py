@@ -22,9 +22,10 @@ class StarsConfig(StrictModel):
     margin_px: Annotated[float, Field(ge=0.0, le=100.0)] = Field(
         8.0, description="stars up to this far outside the frame are drawn too, so their PSF "
         "wings enter it [px]")
-    epoch_jyear: float | None = Field(
-        None, description="epoch of the star positions (proper motion) [Julian year]; null: "
-        "each frame's own epoch (J2000.0 for a static frame)")
+    epoch_jyear: Annotated[float, Field(ge=1000, le=3000)] | None = Field(
+        None, description="epoch of the star positions (proper motion) [Julian year], 1000 to "
+        "3000 (the catalogue's linear proper motion from J1991.25 holds for centuries, not "
+        "millennia); null: each frame's own epoch (J2000.0 for a static frame)")
     aberration: bool = Field(
         True, description="draw the stars at their apparent directions, aberrated by the "
         "camera's barycentric velocity (DE421 Earth-Moon barycentre + Moon + spacecraft; up to "
