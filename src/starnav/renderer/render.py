@@ -47,6 +47,11 @@ Technique
    footprint's: 0.35 % per pixel at 2 spp on the full-field real Moon, below the 16-spp
    render's 0.53 % before issue 18 (shot noise 0.62 % at the demo exposure); a full-field
    frame of the real Moon takes 0.39x of the 16-spp frame's time (``docs/performance.md``).
+9. The Earth's shadow (:mod:`starnav.eclipse`): where the body can be in the Earth's penumbra
+   (the frame's ``earth_position``), the radiance of each pixel is multiplied by the fraction
+   of the solar disc the Earth leaves visible from the surface point under the pixel centre
+   (radiance is linear in the irradiance of one distant Sun); elsewhere the frame is not
+   touched (:meth:`MoonRenderer._earth_shadow`).
 
 Tuning knobs
 ------------
@@ -68,6 +73,9 @@ knob                default effect
                             unset: 2, or ``spp`` if fewer)
 ``spectral_``       electr- wavelengths drawn by the lit surface's electron spectrum (step 4)
 ``sampling``        ons     or by the sensor response (``response``)
+``earth_shadow``    True    the Earth's shadow (step 9)
+``sun_limb_``       0       the Sun's linear limb darkening in the shadow (0: uniform disc)
+``darkening``
 =================== ======= ===============================================================
 
 Example
