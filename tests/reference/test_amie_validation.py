@@ -202,3 +202,43 @@ def test_a_single_frame_gets_a_calibrated_range(results):
         assert math.isfinite(r.nav_range_calibrated_km)
         assert abs(r.nav_range_error_calibrated_pct) <= 2.0 * r.nav_range_sigma_calibrated_pct, r
         assert r.nav_range_error_pct < -1.0 < r.nav_range_error_calibrated_pct
+
+
+def _circle_limb(centre, radius_px, from_deg, to_deg, n=300):
+    import numpy as np
+
+    from starnav.reference.amie.validate import LimbSolution
+
+    t = np.radians(np.linspace(from_deg, to_deg, n))
+    uv = np.c_[centre[0] + radius_px * np.cos(t), centre[1] + radius_px * np.sin(t)]
+    return LimbSolution(uv, np.full(n, 0.3), None, math.nan, np.asarray(centre, float),
+                        radius_px, "fix-failed", "synthetic", uv)
+
+
+@pytest.mark.parametrize("case", ["inside", "mostly outside", "sliver", "not a circle"])
+def test_when_a_frame_can_be_compared(case):
+    """The comparability rule on synthetic limbs (no image): a disc inside the field passes;
+    a disc whose centre lies 18 px beyond the right edge (31 % of it inside) is 'mostly
+    outside' although 140 deg of its limb are visible; a quarter of a limb around a centre
+    beyond the corner, most of it outside the image, is too little limb; points on a circle
+    twice the label's radius do not converge."""
+    import numpy as np
+
+    from starnav.camera import Camera
+    from starnav.reference.amie.validate import AmieOptions, limb_in_valid_area
+
+    cam = Camera.preset("amie")
+    valid = np.ones((512, 512), bool)
+    rho = math.atan(60.0 / cam.fx)                   # the label's radius: 60 px
+    limb = {"inside": _circle_limb((256, 256), 60.0, 0, 180),
+            "mostly outside": _circle_limb((530, 256), 60.0, 0, 360),
+            "sliver": _circle_limb((540, 540), 60.0, 180, 270, n=40),
+            "not a circle": _circle_limb((256, 256), 120.0, 0, 180)}[case]
+    direction, reason = limb_in_valid_area(limb, valid, cam, rho, AmieOptions())
+    if case == "inside":
+        assert reason == ""
+        np.testing.assert_allclose(cam.project(direction[None, :])[0], (256, 256), atol=0.5)
+    else:
+        key = {"mostly outside": "mostly outside", "sliver": "too little limb",
+               "not a circle": "did not converge"}[case]
+        assert key in reason, reason
