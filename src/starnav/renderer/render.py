@@ -821,10 +821,11 @@ class MoonRenderer:
         shadow is a factor on the rendered radiance: the fraction of the solar disc seen from
         the surface point under each pixel centre (the reference sphere's near intersection
         of the pixel-centre ray, or the tangent point of a ray that passes beside it: limb
-        pixels). The fraction changes over thousands of km (the penumbra's width at the Moon
-        is about 1.1 deg x 384 000 km), a pixel's footprint is tens of km: constant over a
-        pixel to well below the Monte Carlo noise. Cast shadows and the terrain are the
-        render's; the fraction is taken on the sphere (10 km of relief move it by < 0.3 %).
+        pixels). The fraction changes over thousands of km (from the umbra's edge to the
+        penumbra's it goes from 0 to 1 over the Sun's apparent diameter, 0.53 deg x 384 000 km
+        ~ 3 600 km at the Moon), a pixel's footprint is tens of km: constant over a pixel to
+        well below the Monte Carlo noise. Cast shadows and the terrain are the render's; the
+        fraction is taken on the sphere (10 km of relief move it by < 0.3 %).
         """
         if not self.settings.earth_shadow or geom.earth_position is None:
             return None
