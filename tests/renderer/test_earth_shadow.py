@@ -190,3 +190,18 @@ def test_sunlit_fraction_at_the_2004_may_4_eclipse():
     assert f("2004-05-04T20:30:00") == 0.0
     assert 0.0 < f("2004-05-04T22:00:00") < 1.0
     assert f("2004-05-04T23:30:00") == 1.0
+
+
+def test_dataset_truth_carries_the_eclipse_fraction():
+    """truth.json's ``eclipse.disc_mean_sunlit_fraction``: 0 in the umbra, 1 outside, the
+    visible disc's mean in the penumbra; null for a frame without an Earth."""
+    from starnav.dataset.format import truth_to_dict
+
+    cam = Camera.preset("aa-str", width=128, height=128)
+    got = {k: truth_to_dict(_geometry(v), cam, limb_points=8)["eclipse"]
+           for k, v in OFFSETS.items()}
+    assert got["umbra"]["disc_mean_sunlit_fraction"] == 0.0
+    assert got["outside"]["disc_mean_sunlit_fraction"] == 1.0
+    assert 0.5 < got["penumbra"]["disc_mean_sunlit_fraction"] < 0.95
+    assert truth_to_dict(_geometry(None), cam, limb_points=8)["eclipse"] is None
+    assert "earth_position_m" in truth_to_dict(_geometry(0.0), cam, limb_points=8)["geometry"]

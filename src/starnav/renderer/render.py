@@ -47,6 +47,11 @@ Technique
    footprint's, below that of a 16-spp render with the wavelengths drawn by the sensor
    response and below the shot noise at the demo exposure (noise and time:
    ``benchmarks/render_noise.py``, ``benchmarks/render.py``, ``docs/performance.md``).
+9. The Earth's shadow (:mod:`starnav.eclipse`): where the body can be in the Earth's penumbra
+   (the frame's ``earth_position``), the radiance of each pixel is multiplied by the fraction
+   of the solar disc the Earth leaves visible from the surface point under the pixel centre
+   (radiance is linear in the irradiance of one distant Sun); elsewhere the frame is not
+   touched (:meth:`MoonRenderer._earth_shadow`).
 
 Tuning knobs
 ------------
@@ -68,6 +73,9 @@ knob                default effect
                             unset: 2, or ``spp`` if fewer)
 ``spectral_``       electr- wavelengths drawn by the lit surface's electron spectrum (step 4)
 ``sampling``        ons     or by the sensor response (``response``)
+``earth_shadow``    True    the Earth's shadow (step 9)
+``sun_limb_``       0       the Sun's linear limb darkening in the shadow (0: uniform disc)
+``darkening``
 =================== ======= ===============================================================
 
 Example
@@ -813,10 +821,11 @@ class MoonRenderer:
         shadow is a factor on the rendered radiance: the fraction of the solar disc seen from
         the surface point under each pixel centre (the reference sphere's near intersection
         of the pixel-centre ray, or the tangent point of a ray that passes beside it: limb
-        pixels). The fraction changes over thousands of km (the penumbra's width at the Moon
-        is about 1.1 deg x 384 000 km), a pixel's footprint is tens of km: constant over a
-        pixel to well below the Monte Carlo noise. Cast shadows and the terrain are the
-        render's; the fraction is taken on the sphere (10 km of relief move it by < 0.3 %).
+        pixels). The fraction changes over thousands of km (from the umbra's edge to the
+        penumbra's it goes from 0 to 1 over the Sun's apparent diameter, 0.53 deg x 384 000 km
+        ~ 3 600 km at the Moon), a pixel's footprint is tens of km: constant over a pixel to
+        well below the Monte Carlo noise. Cast shadows and the terrain are the render's; the
+        fraction is taken on the sphere (10 km of relief move it by < 0.3 %).
         """
         if not self.settings.earth_shadow or geom.earth_position is None:
             return None

@@ -385,8 +385,8 @@ def not_compared(frame: Any, reason: str, fix: RealLimbFix | None = None) -> Ami
         observation_type=frame.observation_type, comparison=NOT_COMPARED,
         comparison_reason=reason, navigation=NOT_SCORED,
         navigation_reason=("no limb" if fix is None else
-                           "the chain's fix stands on the cut of the disc" if fix.limb.has_fix
-                           else f"{fix.limb.status}: {fix.limb.message}"))
+                           "a fix on a frame that cannot be compared is not scored"
+                           if fix.limb.has_fix else f"{fix.limb.status}: {fix.limb.message}"))
 
 
 def _registration_shift(a: FloatArray, b: FloatArray) -> tuple[float, float]:
@@ -529,6 +529,8 @@ def analyse_frame(path: str | Path, options: AmieOptions | None = None
     opt = options or AmieOptions()
     notes: list[str] = []
     frame = read_amie(path)
+    if frame.target_name.upper() != "MOON":
+        return not_compared(frame, f"TARGET_NAME = {frame.target_name!r}: not a Moon frame"), None
     try:
         (frame, cal, sc, camera, epoch, sc_to_moon, R0, g0, real_e, real_dn,
          fix) = _real_setup(path, opt)
@@ -860,6 +862,9 @@ def write_report(out: Path, results: list[AmieFrameResult],
                    "gives the QE that the REGULAR frames confirm within 5 %. Unexplained, "
                    "documented, not corrected: docs/real-images.md" if r.observation_type ==
                    "CALIBRATION"
+                   else f"in the Earth's penumbra (sunlit fraction {r.sunlit_fraction:.3f} on "
+                   "the visible disc): the comparison carries the shadow model's error "
+                   "(docs/real-images.md)" if r.sunlit_fraction < 1.0
                    else "not explained by the model (docs/real-images.md)")
             lines.append(f"- **{r.name}** is {r.signal_ratio / common:.2f} x the common factor "
                          f"(phase {r.phase_deg:.1f} deg): {why}.")
