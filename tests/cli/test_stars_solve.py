@@ -40,11 +40,14 @@ def error_lines(r) -> list[str]:
 @pytest.fixture(scope="module")
 def solved(app, tmp_path_factory):
     """Both real frames and, between them, a file that is not an image."""
+    cache = pytest.MonkeyPatch()
+    cache.setenv("STARNAV_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
     out = tmp_path_factory.mktemp("solve") / "out"
     bad = out.parent / "notes.tiff"
     bad.write_text("this is not an image")
     r = run(app, [IMAGES[0], bad, IMAGES[1], "--out", out, "--epoch", "2019-07-29T20:47:26",
                   *CAMERA])
+    cache.undo()
     return r, out, bad
 
 

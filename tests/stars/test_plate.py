@@ -48,7 +48,7 @@ def solutions():
     for r in REF:
         img = read_star_image(DATA / r["image"])
         out[r["image"]] = solve_plate(img.data, nominal(), epoch_jyear=EPOCH, catalogue=cat,
-                                      saturation_dn=img.saturation_dn)
+                                      saturation_dn=img.saturation_dn, index_cache=False)
     return out
 
 
@@ -87,7 +87,7 @@ def test_residuals_are_those_of_the_reported_model(solutions):
 def test_focal_length_off_by_a_few_percent_is_refined(solutions):
     ref = REF[1]
     img = read_star_image(DATA / ref["image"])
-    sol = solve_plate(img.data, nominal(1.03), epoch_jyear=EPOCH)
+    sol = solve_plate(img.data, nominal(1.03), epoch_jyear=EPOCH, index_cache=False)
     assert sol.ok, sol.reason
     good = solutions[ref["image"]]
     assert abs(sol.camera.focal_length / good.camera.focal_length - 1.0) < 1e-4
@@ -100,7 +100,7 @@ def test_focal_length_off_by_20_percent_fails_clearly():
     the test fast; the slow test below runs the defaults)."""
     img = read_star_image(DATA / REF[1]["image"])
     sol = solve_plate(img.data, nominal(1.2), epoch_jyear=EPOCH,
-                      options=PlateOptions(n_brightest=7))
+                      options=PlateOptions(n_brightest=7), index_cache=False)
     assert not sol.ok and sol.R_cam_to_inertial is None
     assert "focal length searched within +-5 %" in sol.reason
 
@@ -110,14 +110,14 @@ def test_focal_length_off_by_20_percent_fails_clearly():
 def test_focal_length_off_by_20_percent_fails_clearly_defaults(scale):
     for r in REF:
         img = read_star_image(DATA / r["image"])
-        sol = solve_plate(img.data, nominal(scale), epoch_jyear=EPOCH)
+        sol = solve_plate(img.data, nominal(scale), epoch_jyear=EPOCH, index_cache=False)
         assert not sol.ok and sol.R_cam_to_inertial is None
 
 
 def test_blank_frame_has_too_few_stars():
     rng = np.random.default_rng(1)
     frame = rng.normal(1000, 10, (768, 1024)).astype(np.uint16)
-    sol = solve_plate(frame, nominal(), epoch_jyear=EPOCH)
+    sol = solve_plate(frame, nominal(), epoch_jyear=EPOCH, index_cache=False)
     assert sol.status == "too-few-stars"
     assert sol.reason.startswith(f"{len(sol.centroids)} star candidates detected")
 
@@ -177,3 +177,33 @@ def test_images_read_and_refuse(tmp_path):
     assert f.epoch_jyear == pytest.approx(2000 + (2458694.366273 - 2451545.0) / 365.25,
                                           abs=1e-5)
     assert np.array_equal(f.data, img.data[:200, :300])
+
+
+def test_pattern_index_is_built_once_per_field_and_cached_on_disk(tmp_path, monkeypatch, caplog):
+    from starnav.stars import plate
+
+    cat = hipparcos()
+    monkeypatch.setattr(plate, "_INDEXES", plate.BoundedCache(4))
+    args = (cat, 5.0, math.radians(10.0), EPOCH)
+    a = plate.pattern_index(*args, cache_dir=tmp_path)
+    files = list(tmp_path.glob("star_index_*.npz"))
+    assert len(files) == 1
+    assert plate.pattern_index(*args, cache_dir=tmp_path) is a  # memory: not per frame
+    # a new process (empty memory) reads the file instead of building
+    monkeypatch.setattr(plate, "_INDEXES", plate.BoundedCache(4))
+    built = []
+    real = plate._index.__wrapped__
+    monkeypatch.setattr(plate, "_index", type("F", (), {"__wrapped__": staticmethod(
+        lambda *x: built.append(1) or real(*x))}))
+    b = plate.pattern_index(*args, cache_dir=tmp_path)
+    assert not built and b is not a
+    for f in ("directions", "rows", "pair_a", "pair_b", "angle"):
+        np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+    # another field is another index; a damaged file is rebuilt
+    plate.pattern_index(cat, 5.0, math.radians(12.0), EPOCH, cache_dir=tmp_path)
+    assert len(list(tmp_path.glob("star_index_*.npz"))) == 2
+    files[0].write_bytes(b"damaged")
+    monkeypatch.setattr(plate, "_INDEXES", plate.BoundedCache(4))
+    c = plate.pattern_index(*args, cache_dir=tmp_path)
+    assert built and "ignoring unreadable star index cache" in caplog.text
+    np.testing.assert_array_equal(c.angle, a.angle)

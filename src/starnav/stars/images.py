@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.errors import DataFileError
+from starnav.stars.catalogue import jyear_from_tdb
 
 #: File suffixes read as FITS.
 FITS_SUFFIXES = (".fits", ".fit", ".fts", ".fits.gz")
@@ -108,8 +109,6 @@ def _truth_epoch(path: Path) -> tuple[float | None, str]:
     truth = path.parent.parent / "truth.json"
     if path.name not in ("dn.png", "stars_dn.png") or not truth.is_file():
         return None, ""
-    from starnav.stars.catalogue import jyear_from_tdb
-
     try:
         epoch_tdb = json.loads(truth.read_text())["epoch_tdb_s"]
         return jyear_from_tdb(float(epoch_tdb)), "dataset truth.json"

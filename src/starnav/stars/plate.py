@@ -59,10 +59,15 @@ argument); Brown-Conrady distortion as in :mod:`starnav.camera`.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import io
 import itertools
+import json
+import logging
 import math
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -71,16 +76,24 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 from scipy.stats import poisson
 
+from starnav.atomic import atomic_write_bytes
+from starnav.cache import BoundedCache
 from starnav.camera import Camera
 from starnav.errors import ConfigError
+from starnav.scenes.trajectory import default_cache_dir
 from starnav.stars.catalogue import StarCatalogue, hipparcos
 from starnav.stars.centroid import CentroidOptions, Centroids, find_stars
-from starnav.stars.identify import StarIndex, star_index
+from starnav.stars.identify import StarIndex, _index
 
 FloatArray = NDArray[np.float64]
+log = logging.getLogger(__name__)
 
 #: One arcsecond [rad].
 ARCSEC = math.pi / (180.0 * 3600.0)
+#: Version of the on-disk pattern index (bump when its content changes).
+INDEX_FORMAT = 1
+#: Pattern indexes kept in memory (one per camera field, catalogue and epoch year).
+_INDEXES: BoundedCache[tuple, StarIndex] = BoundedCache(4)
 
 
 @dataclass(frozen=True)
@@ -397,6 +410,64 @@ def _required(n_det: int, n_cat: int, omega_match: float, omega_field: float,
     return max(k, 3), lam
 
 
+# --------------------------------------------------------------------------- index
+def index_cache_dir() -> Path:
+    """``STARNAV_CACHE_DIR``, else ``$XDG_CACHE_HOME/starnav``, else ``~/.cache/starnav``
+    (the trajectory cache's place; every file there may be deleted at any time)."""
+    return default_cache_dir()
+
+
+def _catalogue_fingerprint(cat: StarCatalogue) -> str:
+    h = hashlib.sha256()
+    for a in (cat.hip, cat.v, cat.ra, cat.dec, cat.pm_ra_cosdec, cat.pm_dec):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()[:16]
+
+
+def pattern_index(cat: StarCatalogue, v_limit: float, max_separation_rad: float,
+                  epoch_jyear: float, cache_dir: Path | bool | None = None) -> StarIndex:
+    """The pair table of the stars brighter than ``v_limit`` up to ``max_separation_rad``,
+    built once per camera field (and catalogue, epoch year): kept in memory and, unless
+    ``cache_dir`` is False, as ``.npz`` in :func:`index_cache_dir` (or ``cache_dir``), where it
+    is read back in ~1/30 of its build time. An unreadable cache file is rebuilt."""
+    v = round(float(v_limit), 3)
+    sep = round(float(max_separation_rad), 4)
+    year = float(round(epoch_jyear))
+    mem_key = (id(cat), len(cat), v, sep, year)
+    hit = _INDEXES.get(mem_key)
+    if hit is not None:
+        return hit
+    path = None
+    if cache_dir is not False:
+        base = index_cache_dir() if cache_dir is None or cache_dir is True else Path(cache_dir)
+        key = hashlib.sha256(json.dumps(
+            [INDEX_FORMAT, _catalogue_fingerprint(cat), v, sep, year]).encode()).hexdigest()
+        path = base / f"star_index_{key[:20]}.npz"
+    idx = _load_index(path) if path is not None and path.is_file() else None
+    if idx is None:
+        idx = _index.__wrapped__(id(cat), v, sep, year, cat)
+        if path is not None:
+            try:
+                buf = io.BytesIO()
+                np.savez(buf, directions=idx.directions, rows=idx.rows, pair_a=idx.pair_a,
+                         pair_b=idx.pair_b, angle=idx.angle)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                atomic_write_bytes(path, buf.getvalue())
+            except OSError as err:  # a cache that cannot be written is no error
+                log.warning("star index not cached at %s (%s)", path, err)
+    _INDEXES.put(mem_key, idx)
+    return idx
+
+
+def _load_index(path: Path) -> StarIndex | None:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return StarIndex(z["directions"], z["rows"], z["pair_a"], z["pair_b"], z["angle"])
+    except (OSError, ValueError, KeyError, EOFError) as err:
+        log.warning("ignoring unreadable star index cache %s (%s)", path, err)
+        return None
+
+
 # --------------------------------------------------------------------------- step 3
 def _scaled_triangles(idx: StarIndex, b: FloatArray, i: int, j: int, k: int, tol: FloatArray,
                       t: float) -> tuple[NDArray[np.int64], ...]:
@@ -507,7 +578,8 @@ def _refine(uv: FloatArray, A: FloatArray, scale: float, camera: Camera, cat: St
 # --------------------------------------------------------------------------- solver
 def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
                 saturation_dn: float | None = None, catalogue: StarCatalogue | None = None,
-                options: PlateOptions | None = None) -> PlateSolution:
+                options: PlateOptions | None = None,
+                index_cache: Path | bool | None = None) -> PlateSolution:
     """Lost-in-space plate solution of one frame (module steps 1-6).
 
     Parameters
@@ -524,6 +596,8 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
     catalogue : StarCatalogue, optional
         Default Hipparcos.
     options : PlateOptions, optional
+    index_cache : path or bool, optional
+        Where the pattern index is cached on disk (:func:`pattern_index`); False: memory only.
 
     Returns
     -------
@@ -562,8 +636,9 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
     xy = _normalized(cents.uv, camera)
     b = _vectors(xy)
     sig = np.sqrt(0.5 * (cents.sigma_px**2).sum(axis=1) + opt.floor_px**2) / camera.fx
-    idx = star_index(cat, settings.index_v_limit, camera.fov_diagonal * (1 + opt.focal_tolerance),
-                     epoch_jyear)
+    idx = pattern_index(cat, settings.index_v_limit,
+                        camera.fov_diagonal * (1 + opt.focal_tolerance), epoch_jyear,
+                        cache_dir=index_cache)
     idx_tree = cKDTree(idx.directions)
     m = min(n, opt.n_brightest)
     t = opt.focal_tolerance

@@ -19,6 +19,7 @@ touched.
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import re
@@ -34,6 +35,7 @@ from starnav.camera import Camera, CameraConfig, camera_from_config
 from starnav.config_base import apply_overrides, format_validation_error
 from starnav.errors import ConfigError, DataFileError, StarnavError
 from starnav.stars.catalogue import StarCatalogue, hipparcos
+from starnav.stars.centroid import background
 from starnav.stars.images import StarImage, read_star_image
 from starnav.stars.plate import ARCSEC, PlateOptions, PlateSolution, solve_plate
 
@@ -177,8 +179,6 @@ def write_overlay(path: Path, image: StarImage, result: dict[str, Any]) -> None:
     """The overlay picture of one solved or unsolved frame (module docstring)."""
     from PIL import Image, ImageDraw
 
-    from starnav.stars.centroid import background
-
     a = np.asarray(image.data, float)
     bkg, noise = background(a, 32)
     sub = a - bkg  # the sky's gradient and the vignetting removed: stars on a flat floor
@@ -255,8 +255,6 @@ def solve_images(paths: list[Path], out: Path, *, camera: CameraConfig,
     DataFileError
         ``out`` refused (before any image is read).
     """
-    from starnav.dataset.format import dumps
-
     if not paths:
         raise ConfigError("IMAGE", [], "at least one image file")
     old = check_output(out, overwrite)
@@ -305,9 +303,23 @@ def solve_images(paths: list[Path], out: Path, *, camera: CameraConfig,
         if r.overlay is not None and r.image is not None:
             write_overlay(out / r.overlay, r.image, row)
     doc = {"camera": camera.model_dump(mode="json"), "images": rows}
-    atomic_write_text(out / RESULTS, dumps(doc))
+    atomic_write_text(out / RESULTS, json.dumps(_plain(doc), indent=1, sort_keys=True,
+                                                allow_nan=False) + "\n")
     atomic_write_text(out / REPORT, _report(rows))
     return {"results": rows, "results_path": out / RESULTS, "report": out / REPORT}
+
+
+def _plain(x: Any) -> Any:
+    """JSON-ready: numpy scalars to Python, NaN and infinities to null."""
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
 
 
 def solution_camera(base: Camera, row: dict[str, Any]) -> Camera:
