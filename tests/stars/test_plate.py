@@ -207,3 +207,24 @@ def test_pattern_index_is_built_once_per_field_and_cached_on_disk(tmp_path, monk
     c = plate.pattern_index(*args, cache_dir=tmp_path)
     assert built and "ignoring unreadable star index cache" in caplog.text
     np.testing.assert_array_equal(c.angle, a.angle)
+
+
+@pytest.mark.slow
+def test_amie_vega_frame_is_handled():
+    """The real SMART-1 AMIE frame with Vega (2.65 deg field, 200 ms): AMIE sees stars to V ~2
+    there and Vega is alone; the frame's row ramp leaves faint false detections. No attitude is
+    reported; the reason counts the detections and the confirmations that were missing."""
+    from astropy.time import Time
+
+    from starnav.reference.amie.frame import packaged_frame, read_amie
+    from starnav.reference.amie.vega import VEGA_FRAME
+
+    f = read_amie(packaged_frame(VEGA_FRAME))
+    dn = np.where(f.valid, f.dn, int(np.median(f.dn[f.valid])))
+    sol = solve_plate(dn, Camera.preset("amie"), epoch_jyear=Time(f.start_time).jyear,
+                      saturation_dn=1023, index_cache=False)
+    assert not sol.ok and sol.R_cam_to_inertial is None
+    assert f"of {len(sol.centroids)} detections verified" in sol.reason
+    assert "other detections of" in sol.reason
+    # Vega is the brightest detection, near the centre where the AMIE photometry finds it
+    assert np.hypot(*(sol.centroids.uv[0] - [255.6, 258.0])) < 0.5

@@ -14,8 +14,9 @@ Technique
 2. **Settings from the camera** (:func:`plate_settings`). The field's solid angle ``Omega``
    (rectangular pyramid ``4 asin(sin a sin b)``, half-angles ``a``, ``b``) fixes the pattern
    index depth: every catalogue star brighter than the ``V`` at which the whole sky holds
-   ``stars_per_field 4 pi / Omega`` stars (read off the catalogue itself), pairs up to the field
-   diagonal. Pixel scale ``1 / f_x`` sets the tolerances: pair angles
+   ``stars_per_field 4 pi / Omega`` stars (read off the catalogue itself; at most
+   ``index_v_max``, the catalogue's completeness), pairs up to the field diagonal. Pixel
+   scale ``1 / f_x`` sets the tolerances: pair angles
    ``n_sigma sqrt(2) sigma + catalogue allowance``, with ``sigma`` the centroid sigma and a floor
    of ``floor_px`` pixels; verification radius ``match_px`` pixels. Verification uses as many
    catalogue stars as there are detections (the brightest in the hypothesised field): the
@@ -106,6 +107,9 @@ class PlateOptions:
         Relative focal-length uncertainty searched (step 3) [-].
     stars_per_field : float
         Mean number of index stars in the field, over the sky (step 2).
+    index_v_max : float
+        Faintest index star [mag] whatever the field (Hipparcos is complete to V ~ 8-9: a
+        narrow field gets fewer stars rather than a patchy index).
     n_brightest : int
         Detections forming triangles (fewer when fewer are detected).
     n_sigma : float
@@ -134,6 +138,7 @@ class PlateOptions:
 
     focal_tolerance: float = 0.05
     stars_per_field: float = 25.0
+    index_v_max: float = 9.0
     n_brightest: int = 15
     n_sigma: float = 5.0
     floor_px: float = 0.3
@@ -196,7 +201,7 @@ def plate_settings(camera: Camera, catalogue: StarCatalogue,
     omega = field_solid_angle(camera)
     n_sky = int(min(len(catalogue) - 1, opt.stars_per_field * 4.0 * math.pi / omega))
     v_sorted = np.sort(catalogue.v)
-    v_lim = round(float(v_sorted[n_sky]), 2)
+    v_lim = round(min(float(v_sorted[n_sky]), opt.index_v_max), 2)
     pix = 1.0 / camera.fx
     return PlateSettings(omega, v_lim, pix, opt.match_px * pix,
                          opt.n_sigma * math.sqrt(2.0) * opt.floor_px * pix
@@ -646,6 +651,7 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
     r_edge = 0.5 * camera.fov_diagonal
     n_screen = opt.screen_stars
     hyp = 0
+    best = (-1, 0)  # most confirmations any candidate reached, and the number it needed
     accepted: list[tuple] = []
     k_req, lam = 0, 0.0
     for i, j, k in _triangle_order(m):
@@ -713,6 +719,8 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
                                    settings.field_solid_angle_sr, opt.max_hypotheses,
                                    opt.false_match_probability)
             extra = int(np.setdiff1d(det, used).size)
+            if extra > best[0]:
+                best = (extra, k_req)
             if extra < k_req:
                 continue
             ref = _refine(cents.uv, A, sc, camera, cat, epoch_jyear, opt, n, r_px)
@@ -731,8 +739,10 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
     if not accepted:
         return fail("unidentified",
                     f"no triangle of the {m} brightest of {n} detections verified ({hyp} "
-                    f"candidates tried; focal length searched within +-{100 * t:.0f} %, "
-                    f"index V <= {settings.index_v_limit:.2f})", hypotheses=hyp)
+                    f"candidates tried, the best confirmed by "
+                    f"{max(best[0], 0)} other detections of {best[1]} needed; focal length "
+                    f"searched within +-{100 * t:.0f} %, index V <= "
+                    f"{settings.index_v_limit:.2f})", hypotheses=hyp)
     (cam, R, det, crow, res, cov, fit_k1), k_req, lam, _ = accepted[0]
     if det.size < opt.min_stars:
         return fail("unidentified", f"{det.size} stars matched after refinement, "
