@@ -23,6 +23,15 @@ per-frame times (drawing + exposing, solving).
 own terrain; 13 frames of the demo's arc at 1024 px, 8 spp, both demo exposures); prints the
 table and writes the JSON next to the working directory (``attitude_monte_carlo.json``).
 
+``--real``: the real night-sky frames of ``tests/data/stars`` (the tetra3 test set, another
+camera: 35 mm, 6.9 um pixels) plate-solved with only that camera described
+(:func:`starnav.stars.plate.solve_plate`, index warm: built or read once before timing), beside
+cedar-solve on the same images in the same run (run from the throwaway venv
+``/tmp/venv-cedar`` by subprocess, its own extraction and database; skipped with a message
+when that venv is missing; ``--cedar-python PATH`` to use another). Per image: solved or not,
+matched stars, residual rms, extraction and solve times (median of ``--repeat`` runs, default
+5), and the boresight and FOV differences between the two.
+
 ``--navigation``: the per-frame cost of the attitude schedule on the demo's arc (5 frames,
 1024 px, 8 spp, star acquisitions at 200 ms every 2nd frame, both demo exposures): the star
 acquisition (stars drawn + exposed), the solves (lost in space, tracking, the navigation
@@ -194,6 +203,89 @@ def monte_carlo(runs: int = 20) -> None:
         json.dump(res, fh, indent=1)
 
 
+CEDAR_SCRIPT = r"""
+import json, sys, time, statistics
+from PIL import Image
+import tetra3
+t3 = tetra3.Tetra3("default_database")
+out = []
+for path in sys.argv[2:]:
+    img = Image.open(path)
+    runs = []
+    for _ in range(int(sys.argv[1])):
+        t0 = time.perf_counter()
+        sol = t3.solve_from_image(img, fov_estimate=11.4, fov_max_error=1.14,
+                                  distortion=(-0.2, 0.1))
+        runs.append((time.perf_counter() - t0, sol))
+    wall = statistics.median(r[0] for r in runs)
+    sol = runs[-1][1]
+    out.append({"image": path, "solved": sol.get("RA") is not None, "wall_s": wall,
+                "extract_s": statistics.median(r[1]["T_extract"] for r in runs) / 1e3,
+                "solve_s": statistics.median(r[1]["T_solve"] for r in runs) / 1e3,
+                "ra": sol.get("RA"), "dec": sol.get("Dec"), "fov": sol.get("FOV"),
+                "matches": sol.get("Matches"), "rmse": sol.get("RMSE")})
+print(json.dumps(out))
+"""
+
+
+def real(repeat: int = 5, cedar_python: str = "/tmp/venv-cedar/bin/python") -> None:
+    import os
+    import subprocess
+    from pathlib import Path
+
+    from starnav.camera import Camera
+    from starnav.stars.catalogue import hipparcos
+    from starnav.stars.images import read_star_image
+    from starnav.stars.plate import solve_plate
+
+    data = Path(__file__).resolve().parents[1] / "tests" / "data" / "stars"
+    paths = sorted(data.glob("*.tiff"))
+    cam = Camera(width=1024, height=768, focal_length=35e-3, pitch_x=6.9e-6, pitch_y=6.9e-6,
+                 f_number=1.9)
+    cat = hipparcos()
+    t0 = time.perf_counter()
+    first = read_star_image(paths[0])
+    solve_plate(first.data, cam, epoch_jyear=2019.58, catalogue=cat)  # index built or read
+    t_first = time.perf_counter() - t0
+    ours = []
+    for p in paths:
+        img = read_star_image(p)
+        runs = [solve_plate(img.data, cam, epoch_jyear=2019.58, catalogue=cat,
+                            saturation_dn=img.saturation_dn) for _ in range(repeat)]
+        s = runs[-1]
+        ours.append({"image": p.name, "solved": s.ok, "matched": s.n_matched,
+                     "rms_arcsec": round(s.rms_arcsec, 2),
+                     "extract_s": round(statistics.median(r.time_extract_s for r in runs), 4),
+                     "solve_s": round(statistics.median(r.time_solve_s for r in runs), 4),
+                     "total_s": round(statistics.median(r.time_extract_s + r.time_solve_s
+                                                        for r in runs), 4),
+                     "ra_dec_roll_deg": [round(x, 5) for x in s.ra_dec_roll_deg] if s.ok
+                     else None, "fov_x_deg": round(s.fov_x_deg, 5) if s.ok else None})
+    cedar: list | str
+    if not os.path.exists(cedar_python):
+        cedar = (f"cedar-solve skipped: {cedar_python} missing (python3 -m venv /tmp/venv-cedar "
+                 "&& /tmp/venv-cedar/bin/pip install cedar-solve)")
+    else:
+        r = subprocess.run([cedar_python, "-c", CEDAR_SCRIPT, str(repeat),
+                            *map(str, paths)], capture_output=True, text=True, check=False)
+        cedar = json.loads(r.stdout) if r.returncode == 0 else f"cedar-solve failed: {r.stderr}"
+    for o, c in zip(ours, cedar if isinstance(cedar, list) else [None] * len(ours),
+                    strict=True):
+        if c and c["solved"] and o["solved"]:
+            ra, dec = (math.radians(x) for x in o["ra_dec_roll_deg"][:2])
+            rc, dc = math.radians(c["ra"]), math.radians(c["dec"])
+            u = np.array([math.cos(dec) * math.cos(ra), math.cos(dec) * math.sin(ra),
+                          math.sin(dec)])
+            v = np.array([math.cos(dc) * math.cos(rc), math.cos(dc) * math.sin(rc),
+                          math.sin(dc)])
+            o["boresight_vs_cedar_arcsec"] = round(
+                math.degrees(math.acos(min(1.0, float(u @ v)))) * 3600, 2)
+            o["fov_vs_cedar_pct"] = round(100 * (o["fov_x_deg"] / c["fov"] - 1), 4)
+    print(json.dumps({"first_solve_with_index_s": round(t_first, 3), "repeat": repeat,
+                      "starnav": ours, "cedar_solve": cedar,
+                      "load_average": os.getloadavg()}, indent=1))
+
+
 if __name__ == "__main__":
     import sys
 
@@ -201,7 +293,11 @@ if __name__ == "__main__":
         i = sys.argv.index(flag)
         return int(sys.argv[i + 1]) if len(sys.argv) > i + 1 else default
 
-    if "--navigation" in sys.argv:
+    if "--real" in sys.argv:
+        real(_arg("--repeat", 5) if "--repeat" in sys.argv else 5,
+             sys.argv[sys.argv.index("--cedar-python") + 1] if "--cedar-python" in sys.argv
+             else "/tmp/venv-cedar/bin/python")
+    elif "--navigation" in sys.argv:
         navigation()
     elif "--survey" in sys.argv:
         survey(_arg("--survey", 1000))

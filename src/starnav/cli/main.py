@@ -259,7 +259,7 @@ def _register_parts() -> None:
     import importlib
 
     for name in ("trajectory", "dem", "expose", "dataset", "navigate", "sweep", "hil", "show",
-                 "real"):
+                 "real", "stars"):
         importlib.import_module(f"starnav.cli.{name}").register(app)
 
 

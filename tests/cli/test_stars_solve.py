@@ -1,0 +1,158 @@
+"""``starnav stars solve`` on the real frames of tests/data/stars (the tetra3 test set) with only
+the camera described, its outputs and its bad-input contract (exit 2, one ``error:`` line, the
+other images still solved)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "stars"
+REF = {r["image"]: r for r in
+       json.loads((DATA / "reference_cedar.json").read_text())["images"]}
+IMAGES = [DATA / name for name in REF]
+CAMERA = ["--set", "camera.focal_length_mm=35", "--set", "camera.pixel_pitch_um=6.9"]
+
+
+@pytest.fixture(scope="module")
+def app():
+    from starnav.cli.main import app as main_app
+
+    return main_app
+
+
+def run(app, args):
+    return CliRunner().invoke(app, ["stars", "solve", *[str(a) for a in args]],
+                              env={"COLUMNS": "50"})
+
+
+def error_lines(r) -> list[str]:
+    assert "Traceback" not in r.output
+    return [ln for ln in r.output.splitlines() if ln.startswith("error:")]
+
+
+@pytest.fixture(scope="module")
+def solved(app, tmp_path_factory):
+    """Both real frames and, between them, a file that is not an image."""
+    cache = pytest.MonkeyPatch()
+    cache.setenv("STARNAV_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
+    out = tmp_path_factory.mktemp("solve") / "out"
+    bad = out.parent / "notes.tiff"
+    bad.write_text("this is not an image")
+    r = run(app, [IMAGES[0], bad, IMAGES[1], "--out", out, "--epoch", "2019-07-29T20:47:26",
+                  *CAMERA])
+    cache.undo()
+    return r, out, bad
+
+
+def unit(ra_deg, dec_deg):
+    ra, dec = math.radians(ra_deg), math.radians(dec_deg)
+    return np.array([math.cos(dec) * math.cos(ra), math.cos(dec) * math.sin(ra), math.sin(dec)])
+
+
+def test_real_frames_solve_and_one_bad_file_does_not_stop_them(solved):
+    r, out, bad = solved
+    assert r.exit_code == 2
+    lines = error_lines(r)
+    assert len(lines) == 1 and str(bad) in lines[0] and "not an image" in lines[0]
+    doc = json.loads((out / "results.json").read_text())
+    rows = {Path(x["image"]).name: x for x in doc["images"]}
+    assert rows["notes.tiff"]["status"] == "error"
+    for name, ref in REF.items():
+        x = rows[name]
+        assert x["status"] == "ok", x["reason"]
+        sep = math.acos(min(1.0, float(unit(x["ra_deg"], x["dec_deg"])
+                                       @ unit(ref["ra_deg"], ref["dec_deg"]))))
+        assert math.degrees(sep) * 3600 < 30.0
+        assert abs(x["fov_x_deg"] / ref["fov_x_deg"] - 1) < 0.002
+        assert x["epoch_source"] == "command line"
+        assert abs(x["epoch_jyear"] - 2019.5739) < 1e-3
+        q = np.array(x["quaternion_xyzw"])
+        assert abs(np.linalg.norm(q) - 1) < 1e-9
+        assert len(x["matched"]) == x["n_matched"] >= ref["matches"]
+        assert (out / x["overlay"]).is_file()
+    report = (out / "report.md").read_text()
+    assert "notes.tiff" in report and report.count("| ok |") == 2
+
+
+def test_overlay_stars_lie_on_the_detections(solved):
+    """The circles are drawn at the catalogue stars projected through the reported camera
+    (recomputed here from results.json alone: pinhole + k1) and lie on the detections."""
+    _, out, _ = solved
+    doc = json.loads((out / "results.json").read_text())
+    for x in doc["images"]:
+        if x["status"] != "ok":
+            continue
+        R = np.array(x["R_cam_to_inertial"])
+        fx = x["focal_length_mm"] * 1e-3 / 6.9e-6
+        from starnav.stars.catalogue import hipparcos
+
+        cat = hipparcos()
+        rows = [cat.index_of(m["hip"]) for m in x["matched"]]
+        c = cat.directions(x["epoch_jyear"], rows) @ R
+        xy = c[:, :2] / c[:, 2:]
+        r2 = (xy**2).sum(axis=1, keepdims=True)
+        uv = fx * xy * (1 + x["k1"] * r2) + np.array([511.5, 383.5])
+        drawn = np.array([m["drawn_uv_px"] for m in x["matched"]])
+        np.testing.assert_allclose(drawn, uv, atol=1e-3)
+        det = np.array([m["detection_uv_px"] for m in x["matched"]])
+        d = np.hypot(*(drawn - det).T)
+        assert np.median(d) < 0.3
+        assert np.mean(d < 0.5) >= 0.9
+        # every detection listed as matched is one of the frame's detections
+        dets = np.array(x["detections_uv_px"])
+        assert np.all(np.min(np.hypot(*(det[:, None] - dets[None]).transpose(2, 0, 1)),
+                             axis=1) < 1e-3)
+        im = Image.open(out / x["overlay"])
+        assert im.size == (1024, 768) and im.mode == "RGB"
+
+
+def test_output_directory_convention(app, solved, tmp_path):
+    _, out, _ = solved
+    # a non-empty directory is refused before any work
+    r = run(app, [IMAGES[1], "--out", out, *CAMERA])
+    lines = error_lines(r)
+    assert r.exit_code == 2 and "is not empty" in lines[0] and "--overwrite" in lines[0]
+    # with --overwrite an earlier solve is replaced; a foreign file stays
+    d = tmp_path / "o"
+    d.mkdir()
+    (d / "notes.txt").write_text("mine")
+    (d / "overlay_old.png").write_bytes(b"x")
+    blank = tmp_path / "blank.png"
+    Image.fromarray(np.full((64, 64), 20, np.uint8)).save(blank)
+    r = run(app, [blank, "--out", d, "--overwrite", *CAMERA])
+    assert r.exit_code == 2
+    assert (d / "notes.txt").read_text() == "mine"
+    assert not (d / "overlay_old.png").exists()
+    assert (d / "results.json").is_file()
+
+
+def test_no_stars_is_a_one_line_error(app, tmp_path):
+    blank = tmp_path / "blank.png"
+    Image.fromarray(np.full((96, 128), 20, np.uint8)).save(blank)
+    r = run(app, [blank, "--out", tmp_path / "o", *CAMERA])
+    lines = error_lines(r)
+    assert r.exit_code == 2 and len(lines) == 1
+    assert str(blank) in lines[0] and "no stars: 0 star candidates detected" in lines[0]
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    (["--camera", "nosuch"], "nosuch"),
+    (["--set", "camera.focal_length_mm=-3"], "camera.focal_length_mm"),
+    (["--set", "stars.enabled=true"], "camera.KEY=VALUE"),
+    (["--epoch", "yesterday"], "--epoch"),
+    (["--set", "camera.width=640"], "camera.width/height"),
+])
+def test_bad_options_are_one_line_errors(app, tmp_path, args, needle):
+    out = tmp_path / "o"
+    r = run(app, [IMAGES[0], "--out", out, *args])
+    lines = error_lines(r)
+    assert r.exit_code == 2 and lines and needle in lines[0], r.output
+    if needle != "camera.width/height":  # refused before any image is read: nothing written
+        assert not out.exists()
