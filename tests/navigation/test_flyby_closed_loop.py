@@ -171,15 +171,16 @@ def test_monte_carlo_over_orientations_nees_inside_its_band(dispersed_loop):
     """The consistency verdict of issue 16: 20 runs, each its own fly-by orientation (the
     silhouette's model error, a function of the aspect, drawn afresh per run, as the band
     assumes; module essay of starnav.simulate.flyby), detector noise, attitude and initial
-    error: mean NEES of the 6 states over frames and runs inside the two-sided 99 % band of a
-    20-run mean of chi2(6), [4.19, 8.18] (false alarm 1 %). Measured 6.26 (2026-11-27, the
-    calibration over 40 orientations and geometries with the track correlation 3 and the
-    divergence rule; 7.66 without them)."""
+    error: mean NEES of the 6 states over frames and runs inside its two-sided 99 % band of
+    R K / tau effective samples (false alarm 1 %; inside the 20-run band [4.19, 8.18]).
+    Measured 6.26 (2026-11-27, the calibration over 40 orientations and geometries with the
+    track correlation 3 and the divergence rule; 7.66 without them)."""
     loop = dispersed_loop
     lo, hi = chi2_band(6, SLOW_RUNS, PROBABILITY)
     assert loop.summary["dispersion"] == "orientation"
-    assert loop.summary["nees_band"] == pytest.approx([lo, hi])
-    assert lo <= loop.summary["nees_mean"] <= hi, loop.summary["nees_mean"]
+    blo, bhi = loop.summary["nees_band"]  # effective samples: inside the 20-run band
+    assert lo <= blo and bhi <= hi
+    assert blo <= loop.summary["nees_mean"] <= bhi, loop.summary["nees_mean"]
 
 
 def test_monte_carlo_over_orientations_nees_does_not_grow_over_the_pass(dispersed_loop):
