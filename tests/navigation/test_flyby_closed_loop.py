@@ -214,12 +214,18 @@ def second_geometry(frames: int):
     return scenario_from_dict(d)
 
 
+@pytest.mark.xfail(strict=True, reason=(
+    "overconfident under the effective-sample band: mean NEES 8.32 above its 99 % band's top "
+    "7.20 (8 runs x 21 frames over the NEES autocorrelation time); it passed only the band of "
+    "an 8-run mean, [3.31, 9.62], that the fly-by model errors were calibrated against "
+    "(tools/calibrate_flyby_model_error.py): the calibration needs redoing"))
 def test_consistent_at_a_second_geometry():
-    """Reduced: 21 frames, 8 runs over orientations, mean NEES inside the two-sided 99 % band
-    of an 8-run mean of chi2(6) (false alarm 1 %), CA error < 2 % of range in 7 of 8 runs.
-    Measured 8.21 (band [3.31, 9.62]), CA 0.11 - 0.90 %; run 4 (its first update 5 sigma
-    off, the silhouette then rejected) is re-opened by the divergence rule at frame 3 (its
-    NEES 41.9, 283 without the rule)."""
+    """Reduced: 21 frames, 8 runs over orientations, mean NEES inside its two-sided 99 % band
+    of effective samples (false alarm 1 %), CA error < 2 % of range in 7 of 8 runs.
+    Measured 8.21 against the band of an 8-run mean [3.31, 9.62], CA 0.11 - 0.90 %; run 4 (its
+    first update 5 sigma off, the silhouette then rejected) is re-opened by the divergence
+    rule at frame 3 (its NEES 41.9, 283 without the rule). Under the effective-sample band
+    [.., 7.20]: 8.32, overconfident (2026-11-28)."""
     loop = flyby_closed_loop(Simulator(dispersed(second_geometry(21))), 8,
                              probability=PROBABILITY)
     assert loop.summary["resets"] >= 1
