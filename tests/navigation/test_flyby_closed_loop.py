@@ -171,15 +171,16 @@ def test_monte_carlo_over_orientations_nees_inside_its_band(dispersed_loop):
     """The consistency verdict of issue 16: 20 runs, each its own fly-by orientation (the
     silhouette's model error, a function of the aspect, drawn afresh per run, as the band
     assumes; module essay of starnav.simulate.flyby), detector noise, attitude and initial
-    error: mean NEES of the 6 states over frames and runs inside the two-sided 99 % band of a
-    20-run mean of chi2(6), [4.19, 8.18] (false alarm 1 %). Measured 6.26 (2026-11-27, the
-    calibration over 40 orientations and geometries with the track correlation 3 and the
-    divergence rule; 7.66 without them)."""
+    error: mean NEES of the 6 states over frames and runs inside its two-sided 99 % band of
+    R K / tau effective samples (false alarm 1 %; inside the 20-run band [4.19, 8.18]).
+    Measured 6.26 (2026-11-27, the calibration over 40 orientations and geometries with the
+    track correlation 3 and the divergence rule; 7.66 without them)."""
     loop = dispersed_loop
     lo, hi = chi2_band(6, SLOW_RUNS, PROBABILITY)
     assert loop.summary["dispersion"] == "orientation"
-    assert loop.summary["nees_band"] == pytest.approx([lo, hi])
-    assert lo <= loop.summary["nees_mean"] <= hi, loop.summary["nees_mean"]
+    blo, bhi = loop.summary["nees_band"]  # effective samples: inside the 20-run band
+    assert lo <= blo and bhi <= hi
+    assert blo <= loop.summary["nees_mean"] <= bhi, loop.summary["nees_mean"]
 
 
 def test_monte_carlo_over_orientations_nees_does_not_grow_over_the_pass(dispersed_loop):
@@ -213,12 +214,18 @@ def second_geometry(frames: int):
     return scenario_from_dict(d)
 
 
+@pytest.mark.xfail(strict=True, reason=(
+    "overconfident under the effective-sample band: mean NEES 8.32 above its 99 % band's top "
+    "7.20 (8 runs x 21 frames over the NEES autocorrelation time); it passed only the band of "
+    "an 8-run mean, [3.31, 9.62], that the fly-by model errors were calibrated against "
+    "(tools/calibrate_flyby_model_error.py): the calibration needs redoing"))
 def test_consistent_at_a_second_geometry():
-    """Reduced: 21 frames, 8 runs over orientations, mean NEES inside the two-sided 99 % band
-    of an 8-run mean of chi2(6) (false alarm 1 %), CA error < 2 % of range in 7 of 8 runs.
-    Measured 8.21 (band [3.31, 9.62]), CA 0.11 - 0.90 %; run 4 (its first update 5 sigma
-    off, the silhouette then rejected) is re-opened by the divergence rule at frame 3 (its
-    NEES 41.9, 283 without the rule)."""
+    """Reduced: 21 frames, 8 runs over orientations, mean NEES inside its two-sided 99 % band
+    of effective samples (false alarm 1 %), CA error < 2 % of range in 7 of 8 runs.
+    Measured 8.21 against the band of an 8-run mean [3.31, 9.62], CA 0.11 - 0.90 %; run 4 (its
+    first update 5 sigma off, the silhouette then rejected) is re-opened by the divergence
+    rule at frame 3 (its NEES 41.9, 283 without the rule). Under the effective-sample band
+    [.., 7.20]: 8.32, overconfident (2026-11-28)."""
     loop = flyby_closed_loop(Simulator(dispersed(second_geometry(21))), 8,
                              probability=PROBABILITY)
     assert loop.summary["resets"] >= 1

@@ -39,7 +39,7 @@ def rows():
 
 def test_one_row_per_point_with_its_own_closed_loop(rows):
     """Axes not given keep the base's value; each row is the closed loop of its point's
-    scenario (the same seeded runs as a direct call); NEES band of a 2-run mean."""
+    scenario (the same seeded runs as a direct call); NEES band of 2 runs' effective samples."""
     assert [(r["v_inf_km_s"], r["closest_approach_km"], r["phase_at_ca_deg"]) for r in rows] \
         == [(0.5, 5.0, p) for p in PHASES]
     direct = flyby_closed_loop(Simulator(tiny_flyby(PHASES[1])), 2)
@@ -51,7 +51,8 @@ def test_one_row_per_point_with_its_own_closed_loop(rows):
     lo, hi = chi2_band(6, 2, 0.99)
     for r in rows:
         assert r["ca_range_m"] == pytest.approx(5e3, rel=1e-9)
-        assert (r["nees_band_lo"], r["nees_band_hi"]) == pytest.approx((lo, hi))
+        # the band of R K / tau effective samples: inside that of a 2-run mean
+        assert lo <= r["nees_band_lo"] <= r["nees_band_hi"] <= hi
         assert r["median_mean_tracks_per_frame"] > 0
     # a different phase is a different lit silhouette: different errors
     assert rows[0]["ca_error_pct_range_median"] != rows[1]["ca_error_pct_range_median"]

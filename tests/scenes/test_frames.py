@@ -77,7 +77,8 @@ def test_frame_geometry_truth_products(scene):
 def test_scenario_functions(arc, monkeypatch):
     from starnav.scenes import frames as frames_mod
 
-    monkeypatch.setattr(frames_mod, "build_trajectory", lambda cfg, eph=None, cache=None: arc)
+    monkeypatch.setattr(frames_mod, "build_trajectory",
+                        lambda cfg, eph=None, cache=None, spacecraft=None: arc)
     sc = scenario_from_dict({"trajectory": {"frames": 3}})
     epochs, states = frame_states(sc)
     assert epochs.shape == (3,) and states.shape == (3, 6)

@@ -51,6 +51,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from starnav.camera import Camera
+from starnav.camera_calibration import CameraCalibration
 from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry
 from starnav.navigation.christian_robinson import (
@@ -98,6 +99,11 @@ class ChainOptions:
         Refine with the frame's windows when it has some.
     refine_outlier_px : float
         Refined points whose residual to a first fix exceeds this are dropped [px].
+    calibration : CameraCalibration, optional
+        The camera as a calibration estimated it: the chain navigates with its camera
+        (whatever camera the caller passes) and adds its covariance to each fix as consider
+        parameters, ``J C J^T`` (:func:`camera_consider_covariance`). None: the caller's
+        camera, known exactly.
     """
 
     limb: LimbScanOptions = field(default_factory=LimbScanOptions)
@@ -106,6 +112,7 @@ class ChainOptions:
     fix: ChristianRobinsonOptions = field(default_factory=ChristianRobinsonOptions)
     use_windows: bool = True
     refine_outlier_px: float = 0.5
+    calibration: CameraCalibration | None = None
 
     def __post_init__(self) -> None:
         if not self.refine_outlier_px > 0:
@@ -217,6 +224,8 @@ def process_frame(
         reason there is none. Never raises for bad frame content.
     """
     opt = options or ChainOptions()
+    if opt.calibration is not None:
+        camera = opt.calibration.camera
     rng = rng if rng is not None else np.random.default_rng(int(frame.index))
     tm: dict[str, float] = {}
     R_ci = np.asarray(frame.R_cam_to_inertial_measured, float)
@@ -311,9 +320,42 @@ def process_frame(
     else:
         cov = fix.covariance_inertial(R_ci, opt.fix.attitude_sigma_rad,
                                       opt.fix.radius_sigma_fraction)
+    if opt.calibration is not None and opt.calibration.parameters:
+        used = refined.uv if refined is not None else limb.uv[inl]
+        cov = cov + camera_consider_covariance(opt.calibration, used, pos, R_ci, R_body_to_cam,
+                                               opt.fix)
     tm["fix"] = time.perf_counter() - t
     return FrameMeasurement(int(frame.index), float(frame.epoch_tdb), "ok", "", limb, inl,
                             refined, fix, pos, cov, tm, G, noise, white)
+
+
+def camera_consider_covariance(calibration: CameraCalibration, uv: FloatArray,
+                               position: FloatArray, R_ci: FloatArray,
+                               R_body_to_cam: FloatArray | None,
+                               options: ChristianRobinsonOptions) -> FloatArray:
+    """The fix's covariance from the camera calibration's, ``J C J^T`` [m^2, J2000], with
+    ``J = d position / d theta`` of the calibrated parameters ``theta``.
+
+    The parameters are *considered*, not estimated: a limb fix cannot tell a focal-length
+    error from a range error (both scale the disc), nor the principal point from a pointing
+    error, so states for them would stay at their prior while costing the tracker a larger
+    filter; their uncertainty still belongs in the fix's. ``J`` is a one-sided difference of
+    the fix re-solved from the same points with each parameter moved by its 1-sigma (the fix
+    is linear in them at that size). Within one frame this is exact to first order; across
+    frames the calibration error is one constant, which a per-fix term treats as independent
+    (the filter's range-scale and limb-common bias states are what carry a common error over
+    time)."""
+    J = np.zeros((3, len(calibration.parameters)))
+    for i, name in enumerate(calibration.parameters):
+        h = calibration.sigma(name)
+        if h <= 0:
+            continue
+        d = np.zeros(len(calibration.parameters))
+        d[i] = h
+        moved = christian_robinson(uv, calibration.camera_with(d), R_body_to_cam=R_body_to_cam,
+                                   options=options)
+        J[:, i] = (moved.position_inertial(R_ci) - position) / h
+    return J @ np.asarray(calibration.covariance, float) @ J.T
 
 
 def _common_jacobian(fix: LimbFix, refined: LimbPoints, camera: Camera, R_ci: FloatArray,

@@ -18,15 +18,19 @@ Example (YAML)::
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
+from starnav.camera import camera_from_config
+from starnav.camera_calibration import CameraCalibration, read_calibration
 from starnav.config_base import StrictModel
 from starnav.constants import MOON_RADIUS
 from starnav.dem.limb import limb_topography_for
+from starnav.errors import ConfigError
 from starnav.fields import NonNegativeFloat, PositiveFloat
 from starnav.navigation.christian_robinson import ChristianRobinsonOptions
 from starnav.navigation.ekf import EkfOptions
@@ -370,6 +374,11 @@ class NavigationConfig(StrictModel):
     trn: TrnConfig = Field(
         default_factory=TrnConfig, description="asteroid fly-by terrain-relative navigation "
         "from windows (front end and estimator)")
+    camera_calibration: Path | None = Field(
+        None, description="a camera calibration file (starnav.camera_calibration, e.g. from "
+        "the HIL bench): the chain navigates with its camera, the truth still renders with "
+        "the camera section's, and each fix's covariance gains the calibration's as consider "
+        "parameters; null: the camera section's camera, known exactly")
     runs: Annotated[int, Field(ge=1)] = Field(
         1, description="Monte Carlo runs of `starnav navigate` (>= 2: each over its own "
         "detector noise, attitude knowledge error and initial error, with the consistency "
@@ -450,7 +459,23 @@ class NavigationConfig(StrictModel):
                 radius_sigma_fraction=radius_fraction),
             use_windows=Rf.enabled,
             refine_outlier_px=Rf.outlier_px,
+            calibration=self.calibration(scenario),
         )
+
+    def calibration(self, scenario: Any | None = None) -> CameraCalibration | None:
+        """The camera calibration file of ``camera_calibration`` (None without one); with
+        ``scenario``, checked against its camera's detector (size and pixel pitch)."""
+        if self.camera_calibration is None:
+            return None
+        cal = read_calibration(self.camera_calibration)
+        if scenario is not None:
+            cam = camera_from_config(scenario.camera)
+            if not cal.matches(cam):
+                raise ConfigError("navigation.camera_calibration",
+                                  str(self.camera_calibration),
+                                  f"a calibration of the scenario's {cam.width} x "
+                                  f"{cam.height} px detector with its pixel pitch")
+        return cal
 
     def ekf_options(self) -> EkfOptions:
         """The SI :class:`~starnav.navigation.ekf.EkfOptions` of this section."""

@@ -681,8 +681,9 @@ def flyby_rendered_sweep(base: Scenario, axes: dict[str, Sequence[float]], runs:
 
     Returns one row per point (the last axis varying fastest): the grid values,
     ``ca_range_m``, ``ca_error_pct_range_median`` / ``_max`` over the runs, ``nees_mean``
-    with ``nees_band_lo`` / ``_hi`` (two-sided ``probability`` band of a ``runs``-run mean of
-    chi2(6)) and ``verdict`` (runs >= 2; else run 0's mean NEES and no band), the medians
+    with ``nees_band_lo`` / ``_hi`` (two-sided ``probability`` band of the runs' and frames'
+    effective samples, :func:`starnav.navigation.metrics.anees_statistics`) and ``verdict``
+    (runs >= 2; else run 0's mean NEES and no band), the medians
     over runs of ``mean_tracks_per_frame``, ``mean_track_length_frames``,
     ``feature_error_rms_px``, and the per-frame wall time of the tracker's stages
     (``detector_s_per_frame``, ``front_end_s_per_frame``, ``filter_s_per_frame``).

@@ -405,7 +405,8 @@ def write_report(path: str | os.PathLike[str], metrics: FlybyMetrics,
         lines += ["", f"## Monte Carlo ({monte_carlo['runs']} runs)", "",
                   f"Mean NEES {monte_carlo['nees_mean']:.2f}, two-sided "
                   f"{100 * monte_carlo['probability']:g} % band "
-                  f"[{monte_carlo['nees_band'][0]:.2f}, {monte_carlo['nees_band'][1]:.2f}]: "
+                  f"[{monte_carlo['nees_band'][0]:.2f}, {monte_carlo['nees_band'][1]:.2f}] "
+                  "(runs x frames over the NEES autocorrelation time as its samples): "
                   f"**{monte_carlo['verdict']}**; NEES at CA {monte_carlo['nees_ca']:.2f}; "
                   f"position error at CA: median {monte_carlo['ca_error_pct_range_median']:.3f} %"
                   f", max {monte_carlo['ca_error_pct_range_max']:.3f} % of range."]

@@ -10,10 +10,12 @@ Technique
    whatever the number of runs.
 3. Consistency (Bar-Shalom et al. 2001, 5.4.2; the limb case's
    :func:`starnav.batch.consistency.consistency_metrics`): the NEES of the 6 states averaged
-   over the ``R`` runs is, for a consistent filter, ``chi2(6 R) / R`` at each frame. The test
-   statistic is its mean over the frames, judged against the two-sided ``probability`` band
-   of an ``R``-run mean (conservative over frames: averaging correlated frames narrows the
-   spread less than ``chi2(6 R K)`` would), and the NEES at CA alone (exact band).
+   over the ``R`` runs is, for a consistent filter, ``chi2(6 R) / R`` at each frame (the
+   fraction of frames inside its 95 % band is reported). The verdict is its mean over the
+   frames against the two-sided ``probability`` band of ``R K / tau`` effective samples, ``tau``
+   the NEES series' integrated autocorrelation time
+   (:func:`~starnav.navigation.metrics.anees_statistics`); the NEES at CA alone has the exact
+   band of an ``R``-run mean.
 4. Accuracy: the position error at CA over the range, per run (median, max).
 
 :func:`flyby_sweep` runs this over a grid of v_inf, CA distance and Sun phase.
@@ -31,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from starnav.camera import Camera
 from starnav.errors import ConfigError
-from starnav.navigation.metrics import chi2_band
+from starnav.navigation.metrics import anees_statistics, chi2_band
 from starnav.navigation.trn.filter import FlybyRun, ShapeBodyLike, TrnFilterOptions, run_filter
 from starnav.navigation.trn.metrics import FlybyMetrics, closest_approach_index
 from starnav.navigation.trn.synthetic import (
@@ -98,8 +100,8 @@ def summarise_runs(runs: Sequence[FlybyRun], metrics: Sequence[FlybyMetrics],
                    truth: ArrayLike | Sequence[ArrayLike], epochs: ArrayLike, epoch_ca: float,
                    probability: float = 0.99) -> dict[str, Any]:
     """The Monte Carlo verdict of ``runs`` of one fly-by (module steps 3-4): the per-frame
-    NEES averaged over the runs, its mean against the two-sided ``probability`` band of an
-    ``R``-run mean of chi2(6), the NEES at CA, the CA position error over range (median,
+    NEES averaged over the runs, its mean against the two-sided ``probability`` band of its
+    effective samples (module step 3), the NEES at CA, the CA position error over range (median,
     max), the filter's divergence resets summed over the runs. ``truth``: the (K, 6) true
     states shared by every run, or one (K, 6) per run (runs of dispersed fly-bys, same
     epochs); ``epochs`` (K,) [TDB s]."""
@@ -110,17 +112,19 @@ def summarise_runs(runs: Sequence[FlybyRun], metrics: Sequence[FlybyMetrics],
         nees = np.array([res.nees(x) for res, x in zip(runs, X, strict=True)])
     else:
         nees = np.array([res.nees(X) for res in runs])
-    per_frame = nees.mean(axis=0)
+    st = anees_statistics(nees, 6, probability)
+    per_frame = np.asarray(st["per_epoch"], float)
     R = len(runs)
-    lo, hi = chi2_band(6, R, probability)
-    m = float(per_frame.mean())
+    ca_band = chi2_band(6, R, probability)
     k = closest_approach_index(epochs, epoch_ca)
     ca = np.array([x.ca_position_error_pct_range for x in metrics])
     return {
-        "runs": R, "probability": probability, "nees_mean": m, "nees_band": [lo, hi],
-        "verdict": ("consistent" if lo <= m <= hi else
-                    "overconfident" if m > hi else "pessimistic"),
-        "nees_ca": float(per_frame[k]), "nees_ca_band": [lo, hi],
+        "runs": R, "probability": probability, "nees_mean": st["mean"],
+        "nees_band": st["band"], "verdict": st["verdict"],
+        "nees_band_independent": st["band_independent"],
+        "nees_autocorrelation_time": st["autocorrelation_time"],
+        "nees_frames_in_band": st["epochs_in_band"],
+        "nees_ca": float(per_frame[k]), "nees_ca_band": list(ca_band),
         "ca_error_pct_range_median": float(np.median(ca)),
         "ca_error_pct_range_max": float(np.max(ca)),
         "resets": int(sum(len(res.info.get("resets", ())) for res in runs)),

@@ -1,0 +1,94 @@
+"""Navigation with the camera a calibration file describes, not the simulator's: the file is
+read through navigation.camera_calibration, a 1 % focal-length error between the truth's
+camera and the calibrated one shows in the fix as a 1 % range scale, and the calibration's
+covariance enters the fix's as consider parameters (range 1-sigma ~ range x sigma_f / f)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from starnav.camera import Camera
+from starnav.camera_calibration import CameraCalibration, with_parameters, write_calibration
+from starnav.errors import ConfigError
+from starnav.geometry import static_geometry
+from starnav.navigation.pipeline import ChainOptions, process_frame
+from starnav.navigation.schema import NavigationConfig
+from starnav.navigation.synthetic import synthetic_frame
+
+RANGE = 6.0e7
+SIGMA_F = 0.005  # relative 1-sigma of the calibrated focal length
+
+
+@pytest.fixture(scope="module")
+def truth_camera() -> Camera:
+    return Camera.preset("aa-str")
+
+
+@pytest.fixture(scope="module")
+def frame(truth_camera):
+    g = static_geometry(truth_camera, RANGE, math.radians(30.0))
+    return synthetic_frame(truth_camera, g, windows=False, peak_dn=3000.0,
+                           rng=np.random.default_rng(4)), g
+
+
+@pytest.fixture
+def calibration_file(tmp_path, truth_camera):
+    f = truth_camera.focal_length
+    cal = CameraCalibration(
+        camera=with_parameters(truth_camera, {"focal_length_m": 1.01 * f}),
+        parameters=("focal_length_m", "cx_px", "cy_px"),
+        covariance=np.diag([(SIGMA_F * f) ** 2, 0.3**2, 0.3**2]),
+        provenance={"method": "test: the truth's focal length + 1 %"})
+    return write_calibration(tmp_path / "camera_calibration.json", cal)
+
+
+def test_navigation_reads_the_calibration_file(calibration_file, truth_camera):
+    nav = NavigationConfig.model_validate({"camera_calibration": str(calibration_file)})
+    chain = nav.chain_options()
+    assert chain.calibration is not None
+    assert chain.calibration.camera.focal_length == pytest.approx(
+        1.01 * truth_camera.focal_length, rel=1e-12)
+    assert NavigationConfig().chain_options().calibration is None
+
+
+def test_one_percent_focal_error_is_a_one_percent_range_scale(calibration_file, frame,
+                                                             truth_camera):
+    """Pixel-level fixes of the same frame: with the calibrated camera the range is 1.01
+    times the one with the true camera (the disc's angular size scales as 1/f), to 0.05 %;
+    the direction is unchanged to 1e-5 rad."""
+    fr, g = frame
+    chain = NavigationConfig.model_validate(
+        {"camera_calibration": str(calibration_file),
+         "refine": {"enabled": False}}).chain_options()
+    known = process_frame(fr, truth_camera, options=ChainOptions(
+        limb=chain.limb, ransac=chain.ransac, fix=chain.fix, use_windows=False),
+        rng=np.random.default_rng(1))
+    calib = process_frame(fr, truth_camera, options=chain, rng=np.random.default_rng(1))
+    assert known.status == "ok" and calib.status == "ok"
+    r0, r1 = np.linalg.norm(known.position), np.linalg.norm(calib.position)
+    assert r0 == pytest.approx(RANGE, rel=1e-2)  # pixel-level points: ~0.6 % bias
+    assert r1 / r0 == pytest.approx(1.01, abs=5e-4)
+    cos = float(known.position @ calib.position) / (r0 * r1)
+    assert math.acos(min(cos, 1.0)) < 1e-5
+    # the consider term: along the line of sight the fix's variance gains (range sigma_f)^2
+    u = calib.position / r1
+    extra = float(u @ (calib.covariance - known.covariance) @ u)
+    assert math.sqrt(extra) == pytest.approx(r1 * SIGMA_F, rel=0.1)
+
+
+def test_a_calibration_of_another_detector_is_refused(tmp_path, truth_camera):
+    other = Camera.preset("aa-str", width=512, height=512)
+    cal = CameraCalibration(camera=other, parameters=("focal_length_m",),
+                            covariance=np.array([[1e-10]]))
+    p = write_calibration(tmp_path / "other.json", cal)
+
+    class _Sc:
+        from starnav.camera import CameraConfig
+        camera = CameraConfig()
+
+    nav = NavigationConfig.model_validate({"camera_calibration": str(p)})
+    with pytest.raises(ConfigError, match="navigation.camera_calibration"):
+        nav.calibration(_Sc())
