@@ -130,3 +130,36 @@ def test_calibration_file_round_trip_and_refusals(result, tmp_path):
         estimate_camera(back.camera, None, np.zeros((3, 2)), np.zeros((3, 2)),
                         mount_tilt_sigma_rad=1e-3, consider={})
     assert set(CONSIDER) >= {"collimator_focal_length", "screen_shift_x"}
+
+
+def test_navigation_navigates_with_the_bench_calibration(bench, result, tmp_path):
+    """The bench feeds the flight software: the file the bench wrote is read by navigation;
+    a fix made with it differs from one made with the true camera by the calibration's
+    focal-length error (a range scale within 3 of its sigmas), and its covariance along the
+    line of sight gains the calibration's focal-length variance."""
+    from starnav.geometry import static_geometry
+    from starnav.navigation.pipeline import ChainOptions, process_frame
+    from starnav.navigation.schema import NavigationConfig
+    from starnav.navigation.synthetic import synthetic_frame
+
+    p = write_calibration(tmp_path / "camera_calibration.json", result.calibration)
+    truth = bench.camera
+    g = static_geometry(truth, 6.0e7, math.radians(30.0))
+    fr = synthetic_frame(truth, g, windows=False, peak_dn=3000.0,
+                         rng=np.random.default_rng(4))
+    chain = NavigationConfig.model_validate(
+        {"camera_calibration": str(p), "refine": {"enabled": False}}).chain_options()
+    known = process_frame(fr, truth, options=ChainOptions(
+        limb=chain.limb, ransac=chain.ransac, fix=chain.fix, use_windows=False),
+        rng=np.random.default_rng(1))
+    calib = process_frame(fr, truth, options=chain, rng=np.random.default_rng(1))
+    assert known.status == "ok" and calib.status == "ok"
+    cal = result.calibration
+    f_ratio = cal.camera.focal_length / truth.focal_length
+    sig_rel = cal.sigma("focal_length_m") / cal.camera.focal_length
+    r0, r1 = np.linalg.norm(known.position), np.linalg.norm(calib.position)
+    assert r1 / r0 == pytest.approx(f_ratio, abs=2e-4)
+    assert abs(r1 / r0 - 1) < 3 * sig_rel
+    u = calib.position / r1
+    extra = float(u @ (calib.covariance - known.covariance) @ u)
+    assert math.sqrt(extra) == pytest.approx(r1 * sig_rel, rel=0.15)
