@@ -853,7 +853,8 @@ def write_report(out: Path, results: list[AmieFrameResult],
         for r in far:
             why = ("the only Moon frame of an in-flight CALIBRATION sequence (its label's "
                    "IMAGE_OBSERVATION_TYPE; the others are REGULAR). Its geometry checks (limb, "
-                   "range), and the ratio is as large in the pixels the simulation does not saturate. "
+                   "range), and the ratio is as large in the pixels the simulation does not "
+                   "saturate. "
                    "The label gives no reason: the same gain (280 e-/DN), instrument mode, "
                    "compression and quality as the others, and its stop clock count is the "
                    "start plus the commanded exposure (as in every label: no independent "
