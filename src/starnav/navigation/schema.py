@@ -343,6 +343,11 @@ class TrnConfig(StrictModel):
         "states stand for is then sampled, not one draw shared by all runs)")
 
 
+#: Most Monte Carlo runs: at 10^4 runs the NEES band of the consistency test is already within
+#: +-2 % of its mean (chi-square, 6 x 10^4 degrees of freedom), and each run repeats the chain.
+MAX_RUNS = 10_000
+
+
 class NavigationConfig(StrictModel):
     """Navigation chain settings (see :mod:`starnav.navigation`)."""
 
@@ -364,10 +369,10 @@ class NavigationConfig(StrictModel):
     trn: TrnConfig = Field(
         default_factory=TrnConfig, description="asteroid fly-by terrain-relative navigation "
         "from windows (front end and estimator)")
-    runs: Annotated[int, Field(ge=1)] = Field(
+    runs: Annotated[int, Field(ge=1, le=MAX_RUNS)] = Field(
         1, description="Monte Carlo runs of `starnav navigate` (>= 2: each over its own "
         "detector noise, attitude knowledge error and initial error, with the consistency "
-        "verdict)")
+        f"verdict), at most {MAX_RUNS}")
 
     # ---------------------------------------------------------------- conversions
     def chain_options(self, moon_radius_m: float | None = None, *,
