@@ -125,3 +125,20 @@ def test_overwrite_allows_a_file_and_a_foreign_directory(app, tmp_path):
     assert r.exit_code == 0, r.output
     assert (foreign / "report.md").read_text() == "a sweep's report"
     assert (foreign / "frame_000000.exr").is_file()
+
+
+def test_demo_continues_its_own_earlier_run_and_refuses_anything_else(tmp_path):
+    """``starnav demo`` re-run into its output continues it (the dataset is resumed); a
+    directory holding anything besides a demo's outputs is foreign."""
+    from starnav.cli._output import check_output
+    from starnav.cli.main import _is_demo_output
+    from starnav.errors import DataFileError
+
+    demo = tmp_path / "demo"
+    (demo / "dataset").mkdir(parents=True)
+    (demo / "dataset" / "manifest.json").write_text("{}")
+    (demo / "report.md").write_text("# demo")
+    check_output(demo, directory=True, ours=_is_demo_output)   # its own: accepted
+    (demo / "notes.txt").write_text("the user's")
+    with pytest.raises(DataFileError, match="not empty"):
+        check_output(demo, directory=True, ours=_is_demo_output)

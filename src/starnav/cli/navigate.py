@@ -171,6 +171,8 @@ def register(app: typer.Typer) -> None:
         from starnav.navigation.report import budget_warning, navigate_dataset
 
         check_output(out, directory=True, overwrite=overwrite, inputs=[dataset, config])
+        if runs is not None:  # checked by the schema's navigation.runs (its bound)
+            set_ = [*(set_ or ()), f"navigation.runs={runs}"]
         if dataset.is_file() and dataset.suffix.lower() in (".yaml", ".yml"):
             _navigate_flyby(dataset, out, runs, set_, seed, no_plots, sweep)
             return

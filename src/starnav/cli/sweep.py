@@ -70,6 +70,8 @@ def register(app: typer.Typer) -> None:
                          inputs=[scenario, scheduler_file])
             scheduler = resolve_scheduler(scheduler, scheduler_file)
             p = get_preset(preset) if preset else None
+            if runs is not None:  # checked by the schema's navigation.runs (its bound)
+                set_ = [*(set_ or ()), f"navigation.runs={runs}"]
             if scenario is None and p is not None:
                 sc = scenario_from_dict(p.scenario(), tuple(set_ or ()))
             else:

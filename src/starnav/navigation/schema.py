@@ -353,6 +353,11 @@ class TrnConfig(StrictModel):
         "states stand for is then sampled, not one draw shared by all runs)")
 
 
+#: Most Monte Carlo runs: at 10^4 runs the NEES band of the consistency test is already within
+#: +-2 % of its mean (chi-square, 6 x 10^4 degrees of freedom), and each run repeats the chain.
+MAX_RUNS = 10_000
+
+
 class NavigationConfig(StrictModel):
     """Navigation chain settings (see :mod:`starnav.navigation`)."""
 
@@ -379,10 +384,10 @@ class NavigationConfig(StrictModel):
         "the HIL bench): the chain navigates with its camera, the truth still renders with "
         "the camera section's, and each fix's covariance gains the calibration's as consider "
         "parameters; null: the camera section's camera, known exactly")
-    runs: Annotated[int, Field(ge=1)] = Field(
+    runs: Annotated[int, Field(ge=1, le=MAX_RUNS)] = Field(
         1, description="Monte Carlo runs of `starnav navigate` (>= 2: each over its own "
         "detector noise, attitude knowledge error and initial error, with the consistency "
-        "verdict)")
+        f"verdict), at most {MAX_RUNS}")
 
     # ---------------------------------------------------------------- conversions
     def chain_options(self, moon_radius_m: float | None = None, *,
