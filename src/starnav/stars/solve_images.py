@@ -23,7 +23,7 @@ import json
 import logging
 import math
 import re
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -320,11 +320,6 @@ def _plain(x: Any) -> Any:
     if isinstance(x, float) and not math.isfinite(x):
         return None
     return x
-
-
-def solution_camera(base: Camera, row: dict[str, Any]) -> Camera:
-    """The refined camera a result row describes (focal length and ``k1``)."""
-    return replace(base, focal_length=row["focal_length_mm"] * 1e-3, k1=row["k1"])
 
 
 __all__ = ["ARCSEC", "camera_config", "check_output", "parse_epoch", "solve_images"]
