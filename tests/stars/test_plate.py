@@ -250,3 +250,16 @@ def test_batched_centroids_equal_the_per_star_iteration():
         if one[5]:
             np.testing.assert_allclose([m[k] for m in many[:5]], one[:5], rtol=1e-9, atol=1e-9)
     assert not many[5][-2:].any()
+
+
+def test_dataset_dn_frame_takes_its_epoch_from_truth(tmp_path):
+    from PIL import Image
+
+    frame = tmp_path / "frames" / "000000"
+    (frame / "exposure_200ms").mkdir(parents=True)
+    (frame / "truth.json").write_text(json.dumps({"epoch_tdb_s": 365.25 * 86400.0 * 25.5}))
+    dn = (np.arange(64 * 48, dtype=np.uint16).reshape(48, 64) * 7) % 4096
+    Image.fromarray(dn).save(frame / "exposure_200ms" / "stars_dn.png")
+    img = read_star_image(frame / "exposure_200ms" / "stars_dn.png")
+    assert img.epoch_jyear == pytest.approx(2025.5) and img.epoch_source == "dataset truth.json"
+    assert np.array_equal(img.data, dn) and img.saturation_dn == 65535
