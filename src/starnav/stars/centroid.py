@@ -363,10 +363,21 @@ def find_stars(dn: ArrayLike, *, gain_e_per_dn: float, saturation_dn: float,
         wts = np.maximum(sub[yy, xx], 0.0)
         k = int(np.argmax(sub[yy, xx]))
         pv, pu = int(yy[k]), int(xx[k])
-        if wts.sum() > 0 and area >= 3:
-            mu_u, mu_v = np.average(xx, weights=wts), np.average(yy, weights=wts)
-            cov = np.cov(np.vstack([xx - mu_u, yy - mu_v]), aweights=wts + 1e-12)
-            if math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0)) > opt.max_sigma_px:
+        sw = float(wts.sum())
+        if sw > 0 and area >= 3:
+            # second moments: np.cov's weighted, unbiased form written out (its cost, not its
+            # value, was the loop's largest), the larger eigenvalue of the 2 x 2 in closed form
+            du = xx - float((wts * xx).sum()) / sw
+            dv = yy - float((wts * yy).sum()) / sw
+            wp = wts + 1e-12
+            s0 = float(wp.sum())
+            du = du - float((wp * du).sum()) / s0
+            dv = dv - float((wp * dv).sum()) / s0
+            fact = s0 - float((wp * wp).sum()) / s0
+            cuu, cvv = float((wp * du * du).sum()) / fact, float((wp * dv * dv).sum()) / fact
+            cuv = float((wp * du * dv).sum()) / fact
+            big = 0.5 * (cuu + cvv) + math.sqrt(0.25 * (cuu - cvv) ** 2 + cuv * cuv)
+            if math.sqrt(max(big, 0.0)) > opt.max_sigma_px:
                 rej["extended"] += 1
                 continue
         if any(math.hypot(pu - x.u, pv - x.v) <= x.radius for x in exclusions):
