@@ -365,8 +365,8 @@ def find_stars(dn: ArrayLike, *, gain_e_per_dn: float, saturation_dn: float,
         pv, pu = int(yy[k]), int(xx[k])
         sw = float(wts.sum())
         if sw > 0 and area >= 3:
-            # second moments: np.cov's weighted, unbiased form written out (its cost, not its
-            # value, was the loop's largest), the larger eigenvalue of the 2 x 2 in closed form
+            # second moments: np.cov's weighted, unbiased form written out (without its
+            # per-call overhead), the larger eigenvalue of the 2 x 2 in closed form
             du = xx - float((wts * xx).sum()) / sw
             dv = yy - float((wts * yy).sum()) / sw
             wp = wts + 1e-12
