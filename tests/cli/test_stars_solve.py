@@ -156,3 +156,19 @@ def test_bad_options_are_one_line_errors(app, tmp_path, args, needle):
     assert r.exit_code == 2 and lines and needle in lines[0], r.output
     if needle != "camera.width/height":  # refused before any image is read: nothing written
         assert not out.exists()
+
+
+@pytest.mark.slow
+def test_amie_vega_frame_from_the_command_line(app, tmp_path, monkeypatch):
+    """The raw SMART-1 AMIE Vega frame (.IMG) with the amie preset: read, no attitude, the
+    reason with its counts, exit 1 (read but not identified)."""
+    from starnav.reference.amie.frame import packaged_frame
+    from starnav.reference.amie.vega import VEGA_FRAME
+
+    monkeypatch.setenv("STARNAV_CACHE_DIR", str(tmp_path / "cache"))
+    r = run(app, [packaged_frame(VEGA_FRAME), "--camera", "amie", "--out", tmp_path / "o"])
+    assert r.exit_code == 1 and "not solved (unidentified)" in r.output
+    row = json.loads((tmp_path / "o" / "results.json").read_text())["images"][0]
+    assert row["epoch_source"] == "PDS label START_TIME"
+    assert abs(row["epoch_jyear"] - 2004.23) < 0.01
+    assert f"of {row['n_detections']} detections verified" in row["reason"]

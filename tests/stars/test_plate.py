@@ -228,3 +228,38 @@ def test_amie_vega_frame_is_handled():
     assert "other detections of" in sol.reason
     # Vega is the brightest detection, near the centre where the AMIE photometry finds it
     assert np.hypot(*(sol.centroids.uv[0] - [255.6, 258.0])) < 0.5
+
+
+def test_batched_centroids_equal_the_per_star_iteration():
+    """Regression check: :func:`iwc_many` is :func:`iwc` vectorised (same fixed point, sigma,
+    flux and failures), on real frame blobs and at the frame's edge."""
+    from starnav.stars.centroid import background, iwc, iwc_many
+
+    a = read_star_image(DATA / REF[1]["image"]).data.astype(float)
+    bkg, noise = background(a, 32)
+    img = a - bkg
+    rng = np.random.default_rng(3)
+    peaks = np.argwhere(img > 20 * np.median(noise))[:200]
+    starts = np.vstack([peaks[:, ::-1] + rng.uniform(-1, 1, (len(peaks), 2)),
+                        [[2.0, 300.0], [1020.0, 5.0]]])  # two leave the frame: failures
+    var_b = rng.uniform(1, 50, len(starts))
+    many = iwc_many(img, starts[:, 0], starts[:, 1], 1.5, var_b)
+    for k, (u0, v0) in enumerate(starts):
+        one = iwc(img, u0, v0, 1.5, var_b[k])
+        assert bool(many[5][k]) == one[5]
+        if one[5]:
+            np.testing.assert_allclose([m[k] for m in many[:5]], one[:5], rtol=1e-9, atol=1e-9)
+    assert not many[5][-2:].any()
+
+
+def test_dataset_dn_frame_takes_its_epoch_from_truth(tmp_path):
+    from PIL import Image
+
+    frame = tmp_path / "frames" / "000000"
+    (frame / "exposure_200ms").mkdir(parents=True)
+    (frame / "truth.json").write_text(json.dumps({"epoch_tdb_s": 365.25 * 86400.0 * 25.5}))
+    dn = (np.arange(64 * 48, dtype=np.uint16).reshape(48, 64) * 7) % 4096
+    Image.fromarray(dn).save(frame / "exposure_200ms" / "stars_dn.png")
+    img = read_star_image(frame / "exposure_200ms" / "stars_dn.png")
+    assert img.epoch_jyear == pytest.approx(2025.5) and img.epoch_source == "dataset truth.json"
+    assert np.array_equal(img.data, dn) and img.saturation_dn == 65535

@@ -19,7 +19,8 @@ stars_app = typer.Typer(add_completion=False, no_args_is_help=True,
 @stars_app.command("solve")
 def solve(
     images: Annotated[list[Path], typer.Argument(
-        help="image files: 16/8-bit TIFF or PNG, FITS, starnav DN frames (dn.png)")],
+        help="image files: 16/8-bit TIFF or PNG, FITS, starnav DN frames (dn.png), raw "
+        "SMART-1 AMIE .IMG")],
     out: Annotated[Path, typer.Option("--out", help="output directory")] = Path("out/stars"),
     camera: Annotated[str | None, typer.Option(
         "--camera", help="camera preset the --set camera.* keys override (default aa-str); "
@@ -44,7 +45,7 @@ def solve(
         cfg = camera_config(camera, set_ or [])
         ep = parse_epoch(epoch)
         summary = solve_images(list(images), out, camera=cfg, epoch_jyear=ep,
-                               overwrite=overwrite)
+                               overwrite=overwrite, reader=_read)
     except StarnavError as err:
         fail(err)
         return
@@ -70,6 +71,17 @@ def solve(
         raise typer.Exit(code=2)
     if unsolved:
         raise typer.Exit(code=1)
+
+
+def _read(path: Path):
+    """Any star image; a raw SMART-1 AMIE ``.IMG`` through its PDS reader."""
+    from starnav.stars.images import read_star_image
+
+    if path.suffix.lower() == ".img":
+        from starnav.reference.amie.stars import amie_star_image
+
+        return amie_star_image(path)
+    return read_star_image(path)
 
 
 def register(app: typer.Typer) -> None:

@@ -434,7 +434,7 @@ def pattern_index(cat: StarCatalogue, v_limit: float, max_separation_rad: float,
     """The pair table of the stars brighter than ``v_limit`` up to ``max_separation_rad``,
     built once per camera field (and catalogue, epoch year): kept in memory and, unless
     ``cache_dir`` is False, as ``.npz`` in :func:`index_cache_dir` (or ``cache_dir``), where it
-    is read back in ~1/30 of its build time. An unreadable cache file is rebuilt."""
+    is read back instead of rebuilt. An unreadable cache file is rebuilt."""
     v = round(float(v_limit), 3)
     sep = round(float(max_separation_rad), 4)
     year = float(round(epoch_jyear))

@@ -23,7 +23,8 @@ import json
 import logging
 import math
 import re
-from dataclasses import dataclass, replace
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -244,8 +245,12 @@ def _report(rows: list[dict[str, Any]]) -> str:
 def solve_images(paths: list[Path], out: Path, *, camera: CameraConfig,
                  epoch_jyear: float | None = None, overwrite: bool = False,
                  options: PlateOptions | None = None,
-                 catalogue: StarCatalogue | None = None) -> dict[str, Any]:
+                 catalogue: StarCatalogue | None = None,
+                 reader: Callable[[Path], StarImage] = read_star_image) -> dict[str, Any]:
     """Solve every image of ``paths`` and write the outputs (module docstring).
+
+    ``reader`` reads one file (default :func:`~starnav.stars.images.read_star_image`; the
+    command line adds raw AMIE ``.IMG`` frames).
 
     Returns ``{"results": [per-image dicts], "results_path", "report"}``; an image that cannot
     be read, has no stars or does not fit the camera is recorded with ``status "error"``.
@@ -263,7 +268,7 @@ def solve_images(paths: list[Path], out: Path, *, camera: CameraConfig,
     for p in paths:
         r = ImageResult(Path(p), None)
         try:
-            img = read_star_image(p)
+            img = reader(Path(p))
             r.image = img
             cam = camera_for_image(camera, img.data.shape)
             if epoch_jyear is not None:
@@ -320,11 +325,6 @@ def _plain(x: Any) -> Any:
     if isinstance(x, float) and not math.isfinite(x):
         return None
     return x
-
-
-def solution_camera(base: Camera, row: dict[str, Any]) -> Camera:
-    """The refined camera a result row describes (focal length and ``k1``)."""
-    return replace(base, focal_length=row["focal_length_mm"] * 1e-3, k1=row["k1"])
 
 
 __all__ = ["ARCSEC", "camera_config", "check_output", "parse_epoch", "solve_images"]

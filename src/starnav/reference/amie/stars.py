@@ -24,6 +24,7 @@ Technique
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -40,6 +41,7 @@ from starnav.spectra import (
 )
 from starnav.stars.catalogue import hipparcos
 from starnav.stars.field import frame_stars
+from starnav.stars.images import StarImage
 from starnav.stars.schema import StarsConfig
 
 #: Vega's Hipparcos number.
@@ -114,3 +116,15 @@ def vega_check(seed: int = 0) -> VegaCheck:
                      sim_electrons_e=float(field.electrons[vega][0]),
                      vega_v_mag=float(field.v[vega][0]),
                      quantum_efficiency=amie_quantum_efficiency())
+
+
+def amie_star_image(path) -> StarImage:
+    """A raw AMIE ``.IMG`` as a star image for :mod:`starnav.stars.plate` (``starnav stars
+    solve``): the 10-bit DN (saturation 1023) with the invalid pixels (marker, dark band) set
+    to the valid pixels' median, the epoch from the label's ``START_TIME`` (UTC)."""
+    from astropy.time import Time
+
+    f = read_amie(path)
+    fill = int(np.median(f.dn[f.valid]))
+    return StarImage(Path(path), np.where(f.valid, f.dn, fill), 1023.0,
+                     float(Time(f.start_time).jyear), "PDS label START_TIME")
