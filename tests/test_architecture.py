@@ -299,3 +299,11 @@ def test_src_does_not_narrate():
     found = {str(f.relative_to(SRC)): hits for f in sorted(SRC.rglob("*.py"))
              if (hits := _narration(f.read_text()))}
     assert not found, found
+
+
+def test_float_array_is_declared_once():
+    """One array alias for the package (``starnav.typing``), not one per module."""
+    pattern = re.compile(r"^FloatArray\s*=", re.M)
+    where = sorted(str(f.relative_to(SRC)) for f in SRC.rglob("*.py")
+                   if pattern.search(f.read_text()))
+    assert where == ["typing.py"], where

@@ -37,14 +37,13 @@ from dataclasses import dataclass, replace
 from typing import Annotated, Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from pydantic import Field
 
 from starnav.config_base import StrictModel
 from starnav.errors import ConfigError, GeometryError, UnknownNameError
 from starnav.fields import PositiveCount, PositiveFloat
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: Iterations and tolerance [normalised units] of the fixed-point undistortion.
 UNDISTORT_MAX_ITER = 50

@@ -41,13 +41,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from starnav.atomic import atomic_write_text
 from starnav.camera import Camera
 from starnav.errors import ConfigError, DataFileError
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 FORMAT = "starnav-camera-calibration"
 VERSION = 1

@@ -46,12 +46,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.constants import SUN_RADIUS
 from starnav.errors import ConfigError
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: Mean radius of the Earth [m] (IUGG; Moritz 2000, Geodetic Reference System 1980).
 EARTH_MEAN_RADIUS = 6_371_008.8

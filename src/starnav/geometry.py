@@ -22,15 +22,14 @@ from dataclasses import dataclass, field
 from typing import Annotated
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from pydantic import Field
 
 from starnav.camera import Camera
 from starnav.config_base import StrictModel
 from starnav.constants import AU, MOON_RADIUS
 from starnav.errors import GeometryError
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 
 def _unit(v: FloatArray) -> FloatArray:

@@ -72,13 +72,12 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.errors import ConfigError
 from starnav.lunar_calibration import lunar_calibration
 from starnav.registry import Registry
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: Default Hapke parameters for the Moon (Sato et al. 2014, as used by ABRAM).
 HAPKE_LUNAR_DEFAULTS: dict[str, float] = {

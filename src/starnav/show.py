@@ -56,19 +56,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.atomic import atomic_path
 from starnav.errors import ConfigError, StarnavError
 from starnav.renderer.scene import icosphere_mesh
 from starnav.simulate import scene_from_scenario
+from starnav.typing import FloatArray
 
 if TYPE_CHECKING:
     from starnav.config import Scenario
 
 log = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
 
 #: How long one offscreen probe may take [s].
 PROBE_TIMEOUT_S = 90.0

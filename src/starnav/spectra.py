@@ -37,7 +37,6 @@ from functools import lru_cache
 from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
 from pydantic import Field
 
 from starnav.config_base import StrictModel
@@ -45,8 +44,7 @@ from starnav.constants import AU, PLANCK_H, SPEED_OF_LIGHT, SUN_RADIUS, SUN_TEFF
 from starnav.data import packaged_path
 from starnav.errors import ConfigError, UnknownNameError
 from starnav.fields import PositiveFloat
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: Half-width [nm] of the vertical steps used to tabulate piecewise-constant band tables.
 STEP_HALF_WIDTH_NM = 1e-3

@@ -70,8 +70,7 @@ from starnav.simulate.attitude import (
 )
 from starnav.simulate.build import chain_options
 from starnav.stars.attitude import ARCSEC, error_rotation
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: Timed stages, in order, each a column ``time_<stage>_s`` of the table.
 TIMED_STAGES: tuple[str, ...] = ("render", "detector", "plan", "limb", "ransac", "refine",

@@ -19,15 +19,14 @@ from abc import ABC, abstractmethod
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.constants import DAY
 from starnav.geometry import frame_rotation_x, frame_rotation_z
 from starnav.photometry import albedo_parameter
 from starnav.renderer.render import MoonModel
 from starnav.renderer.scene import MoonMesh
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 
 def iau_orientation(epochs_tdb: ArrayLike, pole_ra: float, pole_dec: float, w0: float,

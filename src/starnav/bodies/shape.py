@@ -44,8 +44,8 @@ from numpy.typing import NDArray
 from starnav.data import packaged_path
 from starnav.errors import ConfigError, DataFileError
 from starnav.registry import Registry
+from starnav.typing import FloatArray
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 #: Kilometres (the unit of every shape-model file) in metres.

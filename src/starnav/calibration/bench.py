@@ -80,10 +80,9 @@ from starnav.config import build_camera
 from starnav.detector import DetectorConfig, expose
 from starnav.errors import ConfigError
 from starnav.spectra import SensorResponse, sensor_response_from_config
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
 
 #: Newton iterations and tolerance [screen px] of the camera-pixel -> screen-pixel inverse.
 INVERSE_MAX_ITER = 20

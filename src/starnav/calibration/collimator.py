@@ -55,12 +55,11 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.calibration.schema import CollimatorConfig
 from starnav.constants import ARCSEC
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 
 # --------------------------------------------------------------------------- eq. 2

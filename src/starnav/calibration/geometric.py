@@ -85,10 +85,9 @@ from starnav.calibration.streams import bench_rng
 from starnav.camera import Camera
 from starnav.constants import ARCSEC
 from starnav.errors import ConfigError, StarnavError
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
 
 #: Frame indices (temporal-noise streams) of the geometric calibration acquisitions.
 FRAME_PREVIEW, FRAME_DARK, FRAME_DOTS, FRAME_VALIDATION = 99, 100, 101, 102

@@ -54,7 +54,6 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
@@ -68,8 +67,7 @@ from starnav.camera_calibration import (
 )
 from starnav.config import build_camera
 from starnav.errors import ConfigError
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: Camera parameters the bench estimates, in the order of the covariance.
 ESTIMATED = ("focal_length_m", "cx_px", "cy_px", "k1", "k2", "p1", "p2")

@@ -72,10 +72,9 @@ from starnav.calibration.streams import bench_rng
 from starnav.camera import Camera
 from starnav.errors import ConfigError
 from starnav.radiance import RadianceImage
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
 
 #: A pixel counts as saturated at this share of the full well [-].
 SATURATION_FRACTION = 0.999

@@ -62,7 +62,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy import stats
 
 from starnav.calibration.bench import Bench, DetectorStage
@@ -73,10 +73,9 @@ from starnav.calibration.streams import bench_rng
 from starnav.detector import min_exposure
 from starnav.errors import ConfigError
 from starnav.radiance import RadianceImage
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
 
 #: Frame indices of the scaling experiments.
 FRAME_KS = 300

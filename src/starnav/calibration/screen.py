@@ -56,10 +56,10 @@ from numpy.typing import ArrayLike, NDArray
 from starnav.calibration.schema import CollimatorConfig, ScreenConfig
 from starnav.errors import ConfigError
 from starnav.spectra import SensorResponse, Spectrum, product
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
 QUANTIZATION_METHODS = ("nearest", "dither")
 
 

@@ -41,10 +41,9 @@ from starnav.dataset import format as F
 from starnav.detector.io import read_dn_png
 from starnav.errors import ConfigError, DataFileError
 from starnav.radiance import read_exr
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
 
 #: Files already checked against their manifest entry, by (path, size, mtime, SHA-256): a file
 #: read again (a Monte Carlo run re-reading a frame's radiance) is hashed once.

@@ -93,10 +93,9 @@ from starnav.dem.grid import HALF_PI, DemGrid, EquirectangularGrid
 from starnav.dem.procedural import gradient_noise_3d
 from starnav.dem.schema import DetailConfig
 from starnav.seeding import WORLD_DETAIL, seed_u64
+from starnav.typing import FloatArray
 
 logger = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
 
 #: RMS of the tangent-plane Laplacian of :func:`gradient_noise_3d` (stencil 1/2 lattice unit),
 #: measured on 400 000 random points and planes (``tests/dem/test_detail.py`` re-measures it).

@@ -46,10 +46,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from starnav.constants import MOON_RADIUS
 from starnav.errors import ConfigError
+from starnav.typing import FloatArray
 
 logger = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
 
 #: Largest |height| accepted above/below the reference sphere [m]. The Moon's relief spans
 #: about -9.1 to +10.8 km (LOLA); 100 km catches radii or kilometres passed as metres.

@@ -90,6 +90,7 @@ from starnav.cache import BoundedCache
 from starnav.camera import Camera
 from starnav.dem.grid import AlbedoGrid, DemGrid, EquirectangularGrid
 from starnav.errors import ConfigError, GeometryError
+from starnav.typing import FloatArray
 
 if TYPE_CHECKING:
     import trimesh
@@ -99,7 +100,6 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 #: Samples of the ring-density integral along theta.

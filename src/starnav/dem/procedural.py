@@ -78,10 +78,9 @@ from starnav.constants import MOON_RADIUS
 from starnav.dem.grid import HALF_PI, AlbedoGrid, DemGrid
 from starnav.dem.schema import ProceduralDemConfig
 from starnav.seeding import WORLD_BASINS, WORLD_CRATERS, WORLD_FRACTAL, generator, seed_u64
+from starnav.typing import FloatArray
 
 logger = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
 
 #: Smallest diameter octave edge [m]; octaves are ``CRATER_OCTAVE_BASE * 2^k``.
 CRATER_OCTAVE_BASE = 500.0

@@ -61,13 +61,13 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.camera import Camera
 from starnav.constants import MOON_RADIUS
 from starnav.errors import ConfigError, StarnavError
+from starnav.typing import FloatArray
 
-FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
 
 

@@ -24,11 +24,10 @@ from __future__ import annotations
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.scenes.dynamics import PointMassModel, propagate
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 
 @runtime_checkable

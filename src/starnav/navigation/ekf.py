@@ -83,15 +83,15 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.special import chdtri
 
 from starnav.constants import DAY
 from starnav.errors import ConfigError
 from starnav.navigation.dynamics import Dynamics, MoonEphemeris
 from starnav.registry import Registry
+from starnav.typing import FloatArray
 
-FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
 
 #: Number of bias states of each bias model.

@@ -32,14 +32,10 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
-import numpy as np
-from numpy.typing import NDArray
-
 from starnav.camera import Camera
 from starnav.detector.products import Segments, Window
 from starnav.geometry import FrameGeometry
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 
 @runtime_checkable

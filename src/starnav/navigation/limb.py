@@ -81,8 +81,8 @@ from numpy.typing import ArrayLike, NDArray
 from starnav.camera import Camera
 from starnav.detector.products import Segments
 from starnav.errors import ConfigError, StarnavError
+from starnav.typing import FloatArray
 
-FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
 
 #: Default cap on the number of limb points, as on the AA-STR processor (seed paper, PIL).

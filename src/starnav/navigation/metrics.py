@@ -49,8 +49,8 @@ from numpy.typing import ArrayLike, NDArray
 from starnav.camera import Camera
 from starnav.geometry import FrameGeometry
 from starnav.navigation.christian_robinson import limb_conic_pixels, shape_transform
+from starnav.typing import FloatArray
 
-FloatArray = NDArray[np.float64]
 
 class FilterResultLike(Protocol):
     """What :class:`NavMetrics` reads of a filter run

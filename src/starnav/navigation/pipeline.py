@@ -79,8 +79,8 @@ from starnav.navigation.ransac import RansacError, RansacOptions, ransac_limb
 from starnav.navigation.refine import RefineOptions, refine_limb
 from starnav.navigation.refine import warm_up as refine_warm_up
 from starnav.seeding import STAGE_NAVIGATION, generator
+from starnav.typing import FloatArray
 
-FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
 
 #: Stages timed by :func:`process_frame` and :func:`navigate`, in order.

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.atomic import atomic_path
 from starnav.camera import Camera
@@ -37,11 +37,10 @@ from starnav.navigation.metrics import ErrorSummary, chi2_band, error_pdf
 from starnav.navigation.pipeline import FrameMeasurement
 from starnav.quicklook import asinh_stretch, quicklook_levels
 from starnav.timeaxis import elapsed_axis
+from starnav.typing import FloatArray
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
-
-FloatArray = NDArray[np.float64]
 
 
 def _figure(nrows: int = 1, ncols: int = 1, size: tuple[float, float] = (7.0, 4.0)):

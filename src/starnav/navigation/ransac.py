@@ -75,8 +75,8 @@ from starnav.navigation.christian_robinson import (
 )
 from starnav.navigation.limb import fit_circle_kasa
 from starnav.registry import Registry
+from starnav.typing import FloatArray
 
-FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
 
 

@@ -159,8 +159,8 @@ from starnav.detector.products import MAX_WINDOWS, Window
 from starnav.errors import ConfigError
 from starnav.navigation.limb import LimbNotFoundError, LimbPoints
 from starnav.registry import Registry
+from starnav.typing import FloatArray
 
-FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
 
 #: Variance of a unit pixel's box response projected on any direction [px^2].

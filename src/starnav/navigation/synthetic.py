@@ -55,8 +55,8 @@ from starnav.navigation.limb import (
 )
 from starnav.navigation.refine import RefineOptions, cut_windows, plan_windows
 from starnav.registry import Registry
+from starnav.typing import FloatArray
 
-FloatArray = NDArray[np.float64]
 
 def _lambert(mu0: FloatArray, nrm: FloatArray, ray: FloatArray) -> FloatArray:
     return np.maximum(mu0, 0.0)

@@ -95,16 +95,15 @@ from importlib.resources import files
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.constants import AU, MOON_RADIUS
 from starnav.errors import ConfigError, DataFileError
 from starnav.spectra import SensorResponse, Spectrum, band_integrals, product, solar_spectrum
+from starnav.typing import FloatArray
 
 if TYPE_CHECKING:
     from starnav.geometry import FrameGeometry
-
-FloatArray = NDArray[np.float64]
 
 logger = logging.getLogger(__name__)
 

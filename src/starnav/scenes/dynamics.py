@@ -78,12 +78,11 @@ import math
 from typing import Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.errors import ConfigError
 from starnav.scenes.ephemeris import Ephemeris
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
 

@@ -57,13 +57,12 @@ import re
 from typing import Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.constants import ARCSEC, DAY
 from starnav.errors import ConfigError, DataFileError, StarnavError
 from starnav.geometry import frame_rotation_x, frame_rotation_y, frame_rotation_z
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
 

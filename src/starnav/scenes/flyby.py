@@ -63,13 +63,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.constants import AU
 from starnav.errors import ConfigError
 from starnav.scenes.schema import FlybyConfig
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: Newton iterations of the hyperbolic Kepler equation (quadratic convergence from the
 #: asinh start: 30 is far more than any double needs).

@@ -64,14 +64,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.constants import MOON_RADIUS
 from starnav.errors import ConfigError
 from starnav.scenes.dynamics import PointMassModel, _norm3
 from starnav.scenes.ephemeris import Ephemeris
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: Speed of light [m/s] (exact, SI).
 SPEED_OF_LIGHT = 299_792_458.0

@@ -38,7 +38,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
 
 from starnav.cache import BoundedCache
 from starnav.constants import DAY, MOON_RADIUS
@@ -59,11 +58,10 @@ from starnav.scenes.schema import (
     TrajectoryConfig,
 )
 from starnav.scenes.trajectory import ShootingOptions, Trajectory, ephemeris_halo_arc
+from starnav.typing import FloatArray
 
 if TYPE_CHECKING:
     from starnav.camera import Camera
-
-FloatArray = NDArray[np.float64]
 
 log = logging.getLogger(__name__)
 

@@ -31,15 +31,13 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
 from starnav.atomic import atomic_write_bytes
 from starnav.constants import DAY, MOON_RADIUS
 from starnav.errors import GeometryError, StarnavError, not_a_file_error
 from starnav.scenes.ephemeris import J2000_JD, Ephemeris
 from starnav.scenes.trajectory import Trajectory
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
 

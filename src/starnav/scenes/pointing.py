@@ -47,15 +47,14 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.camera import Camera
 from starnav.constants import MOON_RADIUS
 from starnav.errors import ConfigError, GeometryError
 from starnav.geometry import FrameGeometry, look_rotation
 from starnav.seeding import STAGE_POINTING, generator
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
 

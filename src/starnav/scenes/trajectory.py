@@ -69,7 +69,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.atomic import atomic_write_bytes
 from starnav.constants import DAY
@@ -77,8 +77,7 @@ from starnav.errors import ConfigError, DataFileError
 from starnav.scenes.cr3bp import LU, REFERENCE_HALO, TU, ConvergenceError, HaloOrbit, l2_halo
 from starnav.scenes.dynamics import PointMassModel, rk4_grid
 from starnav.scenes.ephemeris import Ephemeris
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
 

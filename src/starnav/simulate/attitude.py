@@ -76,13 +76,12 @@ from starnav.stars.attitude import ARCSEC, AttitudeSolution, error_rotation, sol
 from starnav.stars.catalogue import hipparcos, jyear_from_tdb
 from starnav.stars.centroid import body_exclusions
 from starnav.stars.gyro import GyroErrors, GyroModel, propagate
+from starnav.typing import FloatArray
 
 if TYPE_CHECKING:
     from starnav.geometry import FrameGeometry
     from starnav.radiance import RadianceImage
     from starnav.simulate.frames import Simulator
-
-FloatArray = NDArray[np.float64]
 
 #: Acquisition number of the star acquisition (0: segments, 1: windows; never change).
 STAR_ACQUISITION = 2

@@ -108,10 +108,9 @@ from starnav.seeding import STAGE_NAVIGATION, generator
 from starnav.simulate.build import body_from_scenario
 from starnav.simulate.frames import Simulator
 from starnav.simulate.trn import FlybyStep, flyby_exposures, track_flyby
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
 
 #: Last key of a run's initial-error stream ``(seed, STAGE_NAVIGATION, run, 0, 17)`` (never
 #: change; 16 is the front end's RANSAC, :data:`starnav.simulate.trn.TRN_STREAM`).

@@ -56,14 +56,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.constants import SPEED_OF_LIGHT
 from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry
 from starnav.scenes.ephemeris import Ephemeris
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: Largest barycentric speed a star tracker in the Earth-Moon system reaches [m/s]
 #: (Earth's orbit 30.3 km/s at perihelion + a few km/s of its own): the cone margin of queries.

@@ -34,7 +34,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
 from starnav.camera import Camera
@@ -48,8 +48,7 @@ from starnav.stars.identify import (
     identify_lost_in_space,
     identify_tracking,
 )
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: One arcsecond [rad].
 ARCSEC = math.pi / (180.0 * 3600.0)

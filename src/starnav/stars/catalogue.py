@@ -48,8 +48,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from starnav.errors import ConfigError, DataFileError
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: Epoch of the Hipparcos positions [Julian year, TT].
 HIPPARCOS_EPOCH_JYEAR = 1991.25

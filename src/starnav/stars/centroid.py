@@ -63,8 +63,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
 from starnav.errors import ConfigError
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: 1.4826 MAD is the standard deviation of a Gaussian.
 MAD_TO_SIGMA = 1.4826

@@ -47,8 +47,7 @@ from starnav.stars.aberration import observer_velocity as observer_velocity_of
 from starnav.stars.catalogue import StarCatalogue, hipparcos, jyear_from_tdb
 from starnav.stars.radiometry import electron_rates
 from starnav.stars.schema import StarsConfig
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 
 @dataclass(frozen=True)

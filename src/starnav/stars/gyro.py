@@ -33,12 +33,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
 from starnav.errors import ConfigError
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 
 @dataclass(frozen=True)

@@ -72,8 +72,7 @@ from starnav.constants import SPEED_OF_LIGHT
 from starnav.errors import ConfigError
 from starnav.stars.aberration import ABERRATION_MARGIN, apparent_directions
 from starnav.stars.catalogue import StarCatalogue, hipparcos
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: One arcsecond [rad].
 ARCSEC = math.pi / (180.0 * 3600.0)

@@ -85,8 +85,8 @@ from starnav.scenes.trajectory import default_cache_dir
 from starnav.stars.catalogue import StarCatalogue, hipparcos
 from starnav.stars.centroid import CentroidOptions, Centroids, find_stars
 from starnav.stars.identify import StarIndex, _index
+from starnav.typing import FloatArray
 
-FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
 
 #: One arcsecond [rad].

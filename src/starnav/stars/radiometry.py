@@ -37,13 +37,12 @@ import math
 from functools import lru_cache
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.constants import PLANCK_H, SPEED_OF_LIGHT
 from starnav.errors import ConfigError
 from starnav.spectra import SensorResponse, Spectrum, band_integrals, planck_spectral_radiance
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: Flux density of a V = 0 star [W m^-2 nm^-1] (module step 3).
 V_ZERO_POINT_W_M2_NM = 3.61e-11

@@ -54,7 +54,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from starnav.camera import Camera
 from starnav.constants import MOON_RADIUS
@@ -66,8 +65,7 @@ from starnav.stars.catalogue import StarCatalogue, hipparcos
 from starnav.stars.centroid import body_exclusions
 from starnav.stars.field import frame_stars
 from starnav.stars.schema import StarsConfig
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: Electron radiance of the test Moon disc [e- s^-1 m^-2 sr^-1]: saturates the AA-STR at
 #: 200 ms by a large factor (a blob with blooming, halo and ghosts).

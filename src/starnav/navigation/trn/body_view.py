@@ -36,8 +36,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from starnav.camera import Camera
 from starnav.errors import GeometryError
+from starnav.typing import FloatArray
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 #: Barycentric slack of a hit on a facet edge [-] (a ray through a shared edge hits both).

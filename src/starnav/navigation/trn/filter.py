@@ -217,8 +217,7 @@ from starnav.camera import Camera
 from starnav.errors import ConfigError, GeometryError
 from starnav.navigation.trn.body_view import BodyInCamera, lit_silhouette, raycast
 from starnav.navigation.trn.measurements import FlybyMeasurement
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: Longest prediction sub-step [s] (the gravity-gradient transition is first order in it).
 MAX_STEP = 10.0

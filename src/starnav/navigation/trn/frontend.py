@@ -86,10 +86,9 @@ from starnav.navigation.trn.windows import (
     analyse_segments,
     plan_windows,
 )
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
 
 #: Front-end stages timed per frame (benchmarks/flyby.py).
 STAGES = ("segments", "plan", "detect", "track", "reject")

@@ -39,8 +39,7 @@ from starnav.navigation.metrics import chi2_band, consistency_fraction
 from starnav.navigation.trn.body_view import BodyInCamera, LitSilhouette, lit_silhouette
 from starnav.navigation.trn.filter import FlybyRun, ShapeBodyLike
 from starnav.navigation.trn.measurements import FlybyMeasurement
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 
 def track_lengths(measurements: Sequence[FlybyMeasurement]) -> NDArray[np.int64]:

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.camera import Camera
 from starnav.errors import ConfigError
@@ -45,8 +45,7 @@ from starnav.navigation.trn.synthetic import (
 )
 from starnav.scenes.flyby import flyby_from_config
 from starnav.scenes.schema import FlybyConfig
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 
 @dataclass

@@ -53,8 +53,7 @@ from starnav.navigation.trn.measurements import (
 )
 from starnav.scenes.flyby import Flyby
 from starnav.seeding import STAGE_FLYBY_SYNTHETIC, generator
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: Stream keys under ``STAGE_FLYBY_SYNTHETIC`` (never renumber).
 STREAM_MEASUREMENTS = 0

@@ -23,8 +23,7 @@ from numpy.typing import NDArray
 from starnav.camera import Camera
 from starnav.geometry import FrameGeometry
 from starnav.navigation.trn.measurements import FeatureTruth, FlybyMeasurement
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: AOV channels of the body-fixed surface point [m].
 BODY_AOVS = ("x_body", "y_body", "z_body")

@@ -66,8 +66,8 @@ from numpy.typing import NDArray
 
 from starnav.detector.products import MAX_WINDOWS, Segments, Window
 from starnav.errors import ConfigError, StarnavError
+from starnav.typing import FloatArray
 
-FloatArray = NDArray[np.float64]
 WindowRect = tuple[int, int, int, int]
 
 

@@ -174,6 +174,7 @@ from numpy.typing import NDArray
 from starnav.data import packaged_path
 from starnav.errors import ConfigError, DataFileError, UnknownNameError
 from starnav.registry import Registry
+from starnav.typing import FloatArray
 
 __all__ = [
     "AMIE_FRAMES",
@@ -192,7 +193,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 

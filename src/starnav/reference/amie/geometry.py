@@ -86,17 +86,16 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from starnav.camera import Camera
 from starnav.constants import MOON_RADIUS
 from starnav.errors import ConfigError, GeometryError
 from starnav.geometry import FrameGeometry
 from starnav.scenes.ephemeris import Ephemeris, parse_epoch
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
 
 #: Orderings of the label's reticle corners: ``ordering[i]`` is the detector corner (index into
 #: :func:`detector_corners`: 0 upper-left, 1 upper-right, 2 lower-right, 3 lower-left) that

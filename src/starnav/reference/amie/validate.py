@@ -105,10 +105,9 @@ from starnav.reference.amie.presets import AMIE_GAIN_E_PER_DN, amie_plate_scale,
 from starnav.reference.rolo import rolo_geometry
 from starnav.simulate import renderer_from_scenario
 from starnav.spectra import amie_quantum_efficiency
+from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

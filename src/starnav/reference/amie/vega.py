@@ -46,8 +46,7 @@ from starnav.data import packaged_path
 from starnav.errors import StarnavError
 from starnav.reference.amie.frame import calibrate, packaged_frame, read_amie
 from starnav.spectra import AMIE_RESPONSE_SCALE, AMIE_RESPONSE_TABLE
-
-FloatArray = NDArray[np.float64]
+from starnav.typing import FloatArray
 
 #: The stellar frame of the data set (Vega, 200 ms).
 VEGA_FRAME = "040326_00034"
