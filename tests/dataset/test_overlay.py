@@ -62,8 +62,8 @@ def test_drawn_limbs_lie_on_the_conic(small_dataset):
 def test_budget_warning_when_the_median_exceeds_the_budget():
     s = {"timing_ms": {"chain_cpu_median": 7.25, "budget": 5.0}}
     assert budget_warning(s) == ("warning: the chain's median CPU time 7.25 ms exceeds the "
-                                 "tracker's 5 ms budget (this machine, Python; see "
-                                 "resources.png)")
+                                 "tracker's 5 ms budget (Python on the machine that ran "
+                                 "it; see resources.png)")
     assert budget_warning({"timing_ms": {"chain_cpu_median": 4.9, "budget": 5.0}}) is None
 
 
