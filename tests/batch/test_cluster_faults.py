@@ -69,6 +69,7 @@ def _kill_own_process() -> None:
     os.kill(os.getpid(), signal.SIGKILL)
 
 
+@pytest.mark.slow
 def test_a_task_that_kills_every_worker_is_a_clear_error():
     """Dask gives up on a task after ``allowed-failures`` + 1 dead workers (set to 0 here: the
     first death); the runner says which task and why, as a ClusterError (one ``error:`` line

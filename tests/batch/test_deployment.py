@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import psutil
+import pytest
 import yaml
 from typer.testing import CliRunner
 
@@ -246,6 +247,7 @@ def _tree(root: Path) -> dict[str, bytes]:
 
 
 # ------------------------------------------------------------------ test
+@pytest.mark.slow
 def test_sweep_and_dataset_on_a_deployed_cluster_survive_a_killed_worker(tmp_path):
     """One deployment, two runs, one worker process killed in each; outputs equal to
     ``--workers 0`` (the sweep's table without its wall-clock columns, the dataset byte for

@@ -172,6 +172,7 @@ def _profile_enabled() -> bool:
     return bool(dask.config.get("distributed.worker.profile.enabled"))
 
 
+@pytest.mark.slow
 def test_one_and_two_workers_give_identical_datasets(tmp_path):
     """On one machine (the workers share its CPU, so Dr.Jit compiles the same kernels), 1 and
     2 workers write byte-identical datasets."""

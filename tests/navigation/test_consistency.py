@@ -301,6 +301,7 @@ def _consistency(cfg, per_run, overrides: list[str]):
     return filter_consistency(noise_monte_carlo(c, RUNS, per_run=per_run))
 
 
+@pytest.mark.slow
 def test_filter_is_consistent_on_a_smooth_moon_over_noise_runs():
     """Issue 13 (CI): 8 rendered, exposed frames at 0.015 ms of a smooth (terrain-free) Moon;
     20 Monte Carlo runs over detector noise, attitude knowledge error and initial error, each

@@ -427,6 +427,7 @@ def test_silhouette_offset_closed_forms_and_gradients(truth):
         TrnFilterOptions(centroid_offset_fraction=0.7)
 
 
+@pytest.mark.slow
 def test_silhouette_offset_in_the_prediction_removes_the_deterministic_error(truth, camera,
                                                                            body):
     """Synthetic runs whose silhouette carries the step-4c offset law (centroid ``0.033 rho
@@ -450,6 +451,7 @@ def test_silhouette_offset_in_the_prediction_removes_the_deterministic_error(tru
 SYSTEMATIC = (1.47, 0.035, 0.0198)
 
 
+@pytest.mark.slow
 def test_bias_mean_in_the_prediction_removes_a_systematic_error(truth, camera, body):
     """Synthetic runs whose shared silhouette bias has a non-zero mean (SYSTEMATIC, filter
     step 4d): with ``bias_mean`` set to it the mean NEES over BIAS_RUNS runs is inside the
@@ -496,6 +498,7 @@ def test_divergence_reset_recovers_a_locked_out_run(truth, camera, body):
         TrnFilterOptions(bias_mean=(0.0, 0.0, 0.7))
 
 
+@pytest.mark.slow
 def test_no_reset_on_consistent_runs(truth, camera, body):
     """The divergence rule's false alarm: 20 consistent synthetic runs (the Monte Carlo of
     ``test_monte_carlo_mean_nees_inside_its_chi2_band``'s settings) with ``reset_after = 3``
