@@ -208,13 +208,13 @@ WORKERS_PER_CPU = 4
 
 
 def check_workers(workers: int) -> int:
-    """``workers`` if this machine can run that many local worker processes, else a
+    """``workers`` if the host can run that many local worker processes, else a
     :class:`ConfigError` with the bound (:data:`WORKERS_PER_CPU` per CPU)."""
     cpus = max(1, os.cpu_count() or 1)
     cap = WORKERS_PER_CPU * cpus
     if isinstance(workers, bool) or not 0 <= int(workers) <= cap:
         raise ConfigError("--workers", workers, f"0 (this process) to {cap} processes "
-                          f"({WORKERS_PER_CPU} per CPU of this machine's {cpus}: the tasks are "
+                          f"({WORKERS_PER_CPU} per CPU, {cpus} CPUs here: the tasks are "
                           "CPU-bound, more processes only add memory and start-up time)")
     return int(workers)
 
