@@ -25,6 +25,7 @@ class _Spew(socketserver.BaseRequestHandler):
 
 
 @pytest.mark.parametrize("kind", ["http", "spew"])
+@pytest.mark.slow
 def test_a_service_that_is_not_dask_fails_fast_and_clearly(kind):
     import distributed  # noqa: F401  (its import time is not the connection's)
 

@@ -68,6 +68,7 @@ def test_main_job_needs_a_trajectory(tmp_path):
         main_job(scenario_from_dict({}), tmp_path / "x")
 
 
+@pytest.mark.slow
 def test_show_draws_the_scene(tmp_path):
     import imageio.v3 as iio
 

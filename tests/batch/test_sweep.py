@@ -76,6 +76,7 @@ def test_two_workers_give_the_same_table(reference, tmp_path):
     assert deterministic(res.rows) == deterministic(reference.rows)
 
 
+@pytest.mark.slow
 def test_a_worker_that_dies_mid_sweep(reference, tmp_path):
     from distributed import Client, LocalCluster
 
@@ -98,6 +99,7 @@ def test_a_worker_that_dies_mid_sweep(reference, tmp_path):
     assert deterministic(res.rows) == deterministic(reference.rows)
 
 
+@pytest.mark.slow
 def test_exposure_study_preset_on_a_reduced_camera(tmp_path):
     p = get_preset("exposure-study")
     res = run_sweep(p.scenario(), p.grid, tmp_path / "study", runs=1, workers=0,

@@ -93,6 +93,7 @@ def test_field_varying_blur_conserves_flux_and_point_centroids():
                                ndimage.gaussian_filter(img, 1.3, mode="constant"), atol=1e-12)
 
 
+@pytest.mark.slow
 def test_uniform_screen_gives_its_radiance_at_the_camera(paper_bench):
     # radiance is conserved through the collimator: a uniform screen is a uniform scene.
     # Without the spot the footprints tile to O(roll^2) (0.6 deg in total: 1.1e-4); the

@@ -147,6 +147,7 @@ def _arm_worker_death(marker: str) -> None:
     w.write_dn_png = dying_write
 
 
+@pytest.mark.slow
 def test_a_worker_killed_mid_frame_leaves_no_temporary_and_verifies(tmp_path):
     """The worker writing frame 3 is killed (SIGKILL) with the frame half written in its
     temporary directory; the nanny restarts it, the scheduler re-runs the frame elsewhere.

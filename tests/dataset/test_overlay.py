@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from starnav.constants import MOON_RADIUS
@@ -19,6 +20,7 @@ from starnav.navigation.report import budget_warning, navigate_dataset
 POLYLINE_TOL_PX = 0.1
 
 
+@pytest.mark.slow
 def test_overlay_figures_exist_and_the_report_links_them(small_dataset, tmp_path):
     ds = open_dataset(small_dataset, exposure=1.5e-5)
     s = navigate_dataset(ds, tmp_path / "nav", runs=1, measure_memory=False, plots=True)

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from starnav.dataset import format as F
 from starnav.dataset import verify
@@ -65,6 +66,7 @@ def _check_whole(out: Path) -> None:
     assert problems == []
 
 
+@pytest.mark.slow
 def test_kill_minus_nine_then_resume_is_byte_identical(tmp_path):
     yml = write_small_yaml(tmp_path / "s.yaml", frames=FRAMES)
     ref = tmp_path / "ref"

@@ -182,6 +182,7 @@ def test_nees_check_detects_an_overconfident_filter():
     assert consistency_fraction(nees.ravel(), 6) < NEES_MIN_FRACTION
 
 
+@pytest.mark.slow
 def test_range_scale_bias_state_absorbs_a_scale_error():
     """Fixes scaled by (1 + 2e-3) (a ~0.15 px outward limb bias at 60 000 km): with a
     range-scale Gauss-Markov state the filter stays consistent and estimates the scale; without
@@ -337,6 +338,7 @@ def test_limb_common_states_keep_their_steady_state_covariance():
         EkfOptions(bias_model="limb-common")
 
 
+@pytest.mark.slow
 def test_limb_common_states_make_correlated_fix_errors_consistent():
     """Fixes whose error is G beta + white, beta a Gauss-Markov process of covariance C and
     time constant tau (a slowly varying limb error, frame to frame): with the limb-common

@@ -139,6 +139,7 @@ def test_errors_in_the_flyby_frame_are_the_j2000_errors_turned():
         assert s3[k, 4] == pytest.approx(3.0 * math.sqrt(A[1] @ P[k, 3:, 3:] @ A[1]))
 
 
+@pytest.mark.slow
 def test_cli_navigate_a_dispersed_flyby(tmp_path):
     """``starnav navigate FLYBY.yaml --runs 2 --set navigation.trn.dispersion=orientation``:
     metrics.json records the dispersion and each run's draw, the report says what the band

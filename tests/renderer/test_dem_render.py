@@ -39,6 +39,7 @@ def test_zero_height_dem_renders_the_sphere_limb(aa_str, offset):
     assert np.sum(dem.L * om) / np.sum(sph.L * om) == pytest.approx(1.0, abs=2e-3)
 
 
+@pytest.mark.slow
 def test_scenario_with_procedural_dem_renders_terrain():
     sc = scenario_from_dict({
         "camera": {"width": 160, "height": 160},

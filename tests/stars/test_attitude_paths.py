@@ -122,6 +122,7 @@ def test_sweep_with_star_attitude_beats_the_assumed_roll_at_77ms(stars_scenario,
     assert "| stars |" in res.paths["report"].read_text()
 
 
+@pytest.mark.slow
 def test_exposure_study_reports_the_attitude_side(tmp_path):
     """The exposure study's grid at 0.015 ms and 200 ms (2 frames, 1024 px, 2 spp): at
     0.015 ms fewer than the 4 candidates a solve needs (noise peaks at most), none

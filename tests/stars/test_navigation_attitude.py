@@ -271,6 +271,7 @@ def short_monte_carlo():
                                 attitude={"schedule_every": 2})
 
 
+@pytest.mark.slow
 def test_attitude_monte_carlo_is_not_overconfident_on_a_short_arc(short_monte_carlo):
     """The Monte Carlo verdict's fast version (the slow test below is the verdict): the
     assumed and the solved attitude at both exposures not overconfident (measured 7.10,
