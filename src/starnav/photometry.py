@@ -1,25 +1,14 @@
 """Lunar photometric models in NumPy: the reference the renderer's Mitsuba plugins are tested
 against, and the closed forms used by calibration and analysis.
 
-Each model gives the *radiance factor per unit irradiance*
-
-    r(i, e, g) = L / E        [sr^-1]
-
-the radiance ``L`` leaving a surface element lit by a collimated irradiance ``E`` (measured
-normal to the beam) at incidence ``i``, seen at emission ``e``, with phase angle ``g`` between
-the directions to the Sun and to the observer (never ``i + e`` in general). The BRDF is
-``r / cos(i)``. Angles in radians; ``mu0 = cos i``, ``mu = cos e``.
-
-=================== ======================================================== ================
-name                r(i, e, g)                                               albedo meaning
-=================== ======================================================== ================
-``lambert``         rho mu0 / pi                                             normal albedo rho
-``lommel_seeliger`` w / (4 pi) mu0 / (mu0 + mu)                              single-scattering w
-``lunar_lambert``   A / pi [2 L(g) mu0 / (mu0 + mu) + (1 - L(g)) mu0],       A (Lambert-
-                    L(g) = 1 - 0.019 g + 2.42e-4 g^2 - 1.46e-6 g^3, g in deg  equivalent)
-``hapke``           Hapke (2012) IMSA with shadow-hiding and coherent-        single-scattering w
-                    backscatter opposition and Hapke (1984) roughness
-=================== ======================================================== ================
+Each model gives the radiance factor per unit irradiance ``r(i, e, g) = L / E`` [sr^-1] at
+incidence ``i``, emission ``e`` and phase ``g`` (radians; the BRDF is ``r / cos i``): Lambert,
+Lommel-Seeliger, lunar-Lambert (McEwen 1991) and Hapke (2012) with opposition surges and
+roughness (:data:`PHOTOMETRIC_MODELS`). Users give one physical albedo, the normal albedo
+``A_n = pi r(0, 0, 0)``, from which each model derives its own parameter
+(:func:`model_albedo_parameter`), so every model has the same head-on brightness.
+:func:`validity_warning` reports phases outside a model's fit. The formulas and the albedo
+table: docs/renderer.md and docs/methods.md, "starnav.photometry".
 
 References
 ----------
@@ -31,37 +20,17 @@ References
   opposition effect and anisotropic scattering, Icarus 157, 523-534 (H-function approximation).
 * Hapke, B. (2012), Theory of Reflectance and Emittance Spectroscopy, 2nd ed., CUP.
 * Sato, H. et al. (2014), Resolved Hapke parameter maps of the Moon, JGR Planets 119,
-  doi:10.1002/2013JE004580 (lunar defaults b = 0.25, c = 0.30, B_S0 = 2.2, h_S = 0.07,
-  B_C0 = 0, h_C = 1, mean slope 23.66 deg).
+  doi:10.1002/2013JE004580 (lunar defaults).
 
-One physical albedo
--------------------
-Users give the Moon's **normal albedo** ``A_n`` (the reflectance of a surface element seen and lit
-head-on, ``A_n = pi r(0, 0, 0)``: Hapke 2012, section 10.D), as a number or a map. Each model
-derives its own parameter from it (:func:`model_albedo_parameter`, inverse
-:func:`normal_albedo`):
-
-=================== ============================================ ============================
-model               normal albedo of its parameter               parameter from ``A_n``
-=================== ============================================ ============================
-``lambert``         ``A_n = rho``                                ``rho = A_n``
-``lommel_seeliger`` ``A_n = w / 8``  (``r(0,0,0) = w / (8 pi)``)  ``w = 8 A_n``
-``lunar_lambert``   ``A_n = A``      (``L(0) = 1``)              ``A = A_n``
-``hapke``           ``pi r_Hapke(0, 0, 0; w, params)``, which    ``w`` by monotone inversion
-                    includes the opposition surges               (an error if ``w > 1``)
-=================== ============================================ ============================
-
-So the same ``moon.albedo: 0.12`` gives every model the same head-on brightness; their phase
-laws then differ (which is what they are for).
-
-Validity
---------
-The lunar-Lambert polynomial L(g) is fitted up to about 100 deg (McEwen 1991) and turns negative
-at 103.9 deg. Beyond its zero it is clamped at L = 0 (pure Lambert, the physical limit of the
-mixture of a Lommel-Seeliger and a Lambert term with non-negative weights), and
-:func:`validity_warning` says so. The ROLO-calibrated Hapke parameters
-(:data:`HAPKE_ROLO_CALIBRATED`) are fitted over the ROLO model's range (1.55-97 deg): beyond it
-they are an extrapolation of a physical model, which :func:`validity_warning` also reports.
+Index
+-----
+:func:`reflectance`, :func:`get_model`, :class:`PhotometricModel`; :func:`lambert`,
+:func:`lommel_seeliger`, :func:`lunar_lambert`, :func:`lunar_lambert_L`, :func:`hapke` (with
+:func:`hapke_h`, :func:`double_henyey_greenstein`, :func:`shadow_hiding`,
+:func:`coherent_backscatter`, :func:`hapke_roughness`), :func:`hapke_preset`;
+:func:`normal_albedo`, :func:`model_albedo_parameter`, :func:`albedo_parameter`,
+:func:`validity_warning`; :func:`lambert_sphere_phase_integral`,
+:func:`lambert_sphere_irradiance`, :func:`sphere_irradiance_quadrature`.
 """
 
 from __future__ import annotations

@@ -1,62 +1,37 @@
 """Geometric calibration of the bench: dot pattern, centroids, calibration polynomials,
 pre-warping, residuals.
 
+Each step in full: docs/methods.md, "starnav.calibration.geometric".
+
 Technique
 ---------
-1. **Desired dots.** A regular grid of dots in the *camera image* (``dot_grid``, ``dot_margin_px``
-   from the edges); each desired pixel is turned into a line of sight with the camera model
-   (:meth:`~starnav.camera.Camera.unproject`, so the camera's own distortion is not part of the
-   bench calibration) and expressed as the tangent ``t = (x/z, y/z)``.
-2. **Display.** Uncalibrated, a dot for ``t`` is drawn where the *nominal* bench would put it:
-   at ``f_coll t`` on the screen. Dots are Gaussians *in radiance* of ``dot_sigma_screen_px``,
-   placed at sub-pixel positions (anti-aliased), so their radiance centroid is known exactly.
-3. **Acquisition** with the emulated bench (auto exposure from a PSF-free preview), minus a
-   dark frame (black screen, same exposure): offset, dark current, DSNU and hot pixels cancel.
-4. **Centroiding**: threshold at ``detection_threshold_sigma`` x the robust noise, connected
-   components, then an intensity-weighted centroid in a ``2 h + 1`` window re-centred three
-   times (weights not clipped, so background noise does not bias it).
-5. **Matching** of observed to displayed dots: a vote over all pairwise offsets gives the
-   global shift (a finite grid makes the true shift the only one matching every dot), then
-   mutual nearest neighbours, an affine fit and a second, tighter matching.
-6. **Fit**: two bivariate polynomials of total degree ``polynomial_order`` by linear least
-   squares on normalised coordinates: ``P`` from observed line-of-sight tangent to screen
-   tangent (where to draw to be seen along ``t``: pre-warping of points) and ``Q`` from screen
-   to observed tangent (which direction a screen pixel is seen in: pre-warping of images).
-   A random ``holdout_fraction`` of the dots is kept out of a first fit; their angular error
-   (``Q`` prediction vs observation) is the residual on dots *not used in the fit*. The final
-   polynomials use every dot.
-7. **Closed-loop validation** (the paper's Fig. 12): a second grid of desired dots, between the
-   calibration dots, is drawn at ``P(t)``, acquired and centroided; the residual is the angle
-   between the desired and the obtained lines of sight. The uncalibrated residual is that of
-   step 2.
-8. **Pre-warping an image** (:func:`prewarp`): every screen pixel takes the value of the pinhole
-   image at the pixel ``Q`` says it is seen at (bilinear), so an extended object (the Moon)
-   lands where it was rendered.
+1. Desired dots: a grid in the camera image turned into line-of-sight tangents with the camera
+   model (its own distortion is not part of the bench calibration).
+2. Display: Gaussian dots in radiance where the nominal bench would put them.
+3. Acquisition minus a dark frame.
+4. Centroiding: threshold, components, re-centred intensity-weighted centroids.
+5. Matching observed to displayed dots (offset vote, mutual nearest neighbours, affine).
+6. Fit: polynomials ``P`` (camera tangent -> screen) and ``Q`` (screen -> camera tangent) by
+   least squares; the residual on held-out dots.
+7. Closed-loop validation on a second grid drawn at ``P(t)`` (the paper's Fig. 12).
+8. Pre-warping an image (:func:`prewarp`) through ``Q``.
 
-Tuning knobs
-------------
-============================== ======= ==================================================
-knob                           default effect
-============================== ======= ==================================================
-``polynomial_order``           4       degree of P and Q; 4 absorbs distortion, keystone
-                                       and camera tilt to < 1 arcsec on the default bench
-``dot_grid``                   17 x 17 dots of the fit (``validation_grid`` for the check)
-``dot_sigma_screen_px``        1.5     dot size; larger = less quantisation bias, more flux
-``holdout_fraction``           0.25    dots kept out of the fit for the residual
-``centroid_half_window_px``    7       centroid window; must hold the PSF (corner sigma ~3 px)
-``detection_threshold_sigma``  10      detection threshold in noise sigma
-``subtract_dark_frame``        true    acquire a black frame and subtract it
-============================== ======= ==================================================
+The knobs are :class:`~starnav.calibration.schema.GeometricCalibrationConfig`.
 
-Example
--------
->>> from starnav.calibration import Bench, BenchConfig, calibrate_geometry
->>> bench = Bench(BenchConfig())
->>> res = calibrate_geometry(bench)                                   # doctest: +SKIP
->>> res.holdout_rms_arcsec, res.closed_loop_rms_arcsec                # doctest: +SKIP
+References
+----------
+Seed paper, "Geometric Calibration" and Figs. 12-13 (polynomial fitted to displayed dots,
+< 30 arcsec); the paper's refs. 7 and 19 for the method.
 
-Reference: seed paper, "Geometric Calibration" and Figs. 12-13 (polynomial fitted to displayed
-dots, < 30 arcsec); the paper's refs. 7 and 19 for the method.
+Index
+-----
+:func:`calibrate_geometry`, :class:`GeometricCalibrationResult`,
+:class:`GeometricCalibration`, :class:`Polynomial2D`, :func:`exponents`; mappings
+:class:`ScreenMapping`, :class:`NominalMapping`, :class:`TrueMapping`; dots :func:`dot_grid`,
+:func:`fit_dot_grid`, :func:`acquire_dots`, :class:`DotAcquisition`, :func:`auto_dot_exposure`,
+:func:`detect_dots`, :func:`intensity_centroid`, :func:`match_points`; :func:`prewarp`,
+:func:`stimulus_counts`; :func:`pixel_to_tangent`, :func:`tangent_to_pixel`,
+:func:`tangent_to_los`, :func:`angular_residual_arcsec`; :class:`CalibrationError`.
 """
 
 from __future__ import annotations

@@ -1,57 +1,28 @@
 """Albedo-exposure scaling: choosing k, and showing that scaled acquisitions are equivalent.
 
+Only the product of albedo and exposure matters to a pixel's charge, so the bench displays the
+Moon rendered with ``rho / k`` and acquires it with ``k t`` (no screen reaches the Moon's flux,
+and the AA-STR cannot read a full frame under 200 ms). Each step in full: docs/methods.md,
+"starnav.calibration.scaling".
+
 Technique
 ---------
-1. **Why.** The charge of a pixel is ``N = t A Omega Le`` and the rendered ``Le`` is
-   proportional to the albedo ``rho``: only the product ``rho t`` matters. No screen reaches the
-   Moon's flux (the representative one is ~19x too dim for rho = 0.12 at 30 deg phase), and the
-   AA-STR cannot expose a full frame for less than 200 ms (paper eq. 1), so the scene is
-   rendered with ``rho / k`` and acquired with ``k t`` (after Jovian-moon benches, the paper's
-   ref. 15).
-2. **Choosing k** (:func:`plan_scaling`): ``k >= k_screen = peak Le / (headroom Le_white)`` so
-   the stimulus fits the screen, and ``k >= k_readout = t_min / t_render`` so the bench
-   exposure allows the readout (``t_min`` from the readout law: 200 ms for a full frame). The
-   paper's case, 0.015 ms rendered and a full-frame readout: ``k = 200 / 0.015 = 13 333``.
-   The plan also reports the stimulus's peak count and the relative radiance step there
-   (~gamma / n): at k = 13 333 the representative screen peaks at count 13 (the paper: 13), a
-   ~20 % step, which dithering (or an ND filter) hides.
-3. **Equivalence test** (:func:`albedo_exposure_experiment`, the paper's Fig. 18): the same
-   rendered Moon is displayed with ``rho / k_i`` and acquired with ``k_i t`` for several
-   ``k_i``, plus a control sample whose product is off by ``control_product_factor``. The DN of
-   the disc (dark-subtracted) of each acquisition is compared with the first one by the
-   two-sample Kolmogorov-Smirnov test. **False-alarm rate**: each test rejects a true
-   equivalence with probability <= ``ks_alpha`` (0.01): the two samples share the same mean
-   image with independent noise, which is a stratified version of the i.i.d. null, and DN ties
-   make the asymptotic p-value conservative, so the actual rate is below alpha (measured over
-   seeds by the test suite); over ``m`` scaled cases the family-wise rate is <= ``m alpha``.
-4. **End to end** (:func:`end_to_end`, the paper's Fig. 19): a frame rendered at the true albedo
-   and exposed 0.015 ms in orbit, against its stimulus rendered with ``rho / k`` and acquired
-   with ``k`` x 0.015 ms on the bench (geometric and radiometric calibration included):
-   disc-electron ratio, KS test on the disc, centroid offset.
+1. :func:`plan_scaling`: ``k`` large enough for the screen and for the readout law.
+2. :func:`albedo_exposure_experiment` (the paper's Fig. 18): two-sample Kolmogorov-Smirnov
+   tests of scaled acquisitions against the first, each rejecting a true equivalence with
+   probability <= ``ks_alpha``; a control sample off by ``control_product_factor``.
+3. :func:`end_to_end` (the paper's Fig. 19): a frame exposed in orbit against its scaled bench
+   acquisition.
 
-Tuning knobs
-------------
-=========================== =========== =================================================
-knob                        default     effect
-=========================== =========== =================================================
-``render_exposure_ms``      0.015       the in-orbit exposure that is emulated
-``bench_exposure_ms``       null        fixes k; null = shortest readout-compatible
-``readout``                 full_frame  which readout the bench exposure must allow
-``ks_k_multiples``          1, 2, 4     k_i / k_screen of the equivalence test
-``control_product_factor``  1.25        how far the control sample breaks the product
-``ks_alpha``                0.01        false-alarm rate of each KS test
-=========================== =========== =================================================
+References
+----------
+Seed paper, "Scaling between exposure time and albedo" (Figs. 18-19).
 
-Example
--------
->>> from starnav.calibration.scaling import plan_scaling
->>> from starnav.calibration import Bench, BenchConfig
->>> bench = Bench(BenchConfig())
->>> p = plan_scaling(2.72e19, 1.5e-5, bench.radiometry, bench_min_exposure_s=0.2)
->>> round(p.k), p.peak_count
-(13333, 13)
-
-Reference: seed paper, "Scaling between exposure time and albedo" (Figs. 18-19).
+Index
+-----
+:func:`plan_scaling`, :class:`ScalingPlan`, :func:`bench_min_exposure`,
+:func:`albedo_exposure_experiment`, :class:`KsExperiment`, :class:`KsCase`, :func:`ks_test`,
+:func:`end_to_end`, :class:`EndToEnd`.
 """
 
 from __future__ import annotations

@@ -3,67 +3,27 @@ resumable, byte-identical for one seed whatever the number of workers or interru
 
 Technique
 ---------
-1. **Validate first.** The scenario, the exposure list, the windows mode and the output
-   directory are checked, the frame list is built (trajectory, pointing) and the rendering
-   backend chosen before anything is written.
-2. **Head of the manifest.** ``manifest.json`` is written with everything that does not depend
-   on the frames (schema version, software versions and Mitsuba variant, the fully resolved
-   scenario, options, camera intrinsics, the Sun's band irradiance at 1 AU, seeds, readout-law
-   feasibility of each exposure, the expected frame count), ``"complete": false`` and an empty
-   frame list; ``scenario.resolved.yaml`` next to it.
-3. **One frame = one task** (:func:`make_frame`): render (seed
-   ``seed_u32(seed, STAGE_RENDER, index)``), then for each exposure the emulated acquisitions
-   of :mod:`starnav.simulate.acquire` (both made by :class:`starnav.simulate.Simulator`);
-   every file goes into a temporary directory ``frames/.tmp-NNNNNN-*`` which is renamed to
-   ``frames/NNNNNN`` only when whole. A directory rename is atomic: a frame is on disk whole
-   or not at all. In this process (no Dask) :data:`FRAME_THREADS` frames are made at once,
-   each whole in its own thread, taken in index order (:meth:`FrameMaker.making_ahead`:
-   Dr.Jit's kernels, NumPy's large operations, the noise draws, zlib, OpenEXR and the disk
-   release the GIL); the frames are computed at the same time and write their files one
-   after another in index order, so they land in order, as in a serial run. A frame's bytes
-   depend only on its index (its random streams are its own, the renders run one at a time),
-   so they are those of the serial order.
-4. **Manifest last.** As frames land, the manifest is rewritten atomically (at most every
-   ``manifest_interval_s``, and at the end) with the finished frames sorted by index, each with
-   its files' sizes and SHA-256. When a frame lands, the temporary directories an earlier
-   attempt at it left (a Dask worker killed mid-frame: the scheduler re-ran the frame
-   elsewhere) are removed. The last write sets ``"complete": true`` only if the whole dataset
-   then verifies (:func:`starnav.dataset.reader.verify_manifest`: every frame, every file's
-   size and SHA-256, no temporary left); otherwise it stays ``false`` and the problems are
-   raised. Every file and every directory a rename lands in is fsynced
-   (:mod:`starnav.atomic`): a dataset survives a power loss as it survives ``kill -9``.
-5. **Resume.** ``resume=True`` checks that the manifest's head equals the new one (same
-   scenario, options, software), deletes temporary directories left by a crash, keeps every
-   finished frame whose files are whole (a listed frame: names, sizes and SHA-256 as its
-   manifest entry says; a frame renamed after the last manifest write: as the record it
-   carries, ``files.json``, says, its entry then rebuilt from the files), removes the others
-   and makes them, and the missing ones, again. Since every frame is a pure
-   function of the scenario and its index, the result is byte-identical to an uninterrupted
-   run.
+1. Validate the scenario, exposures, windows mode and output directory before writing.
+2. Write the manifest's head (everything frame-independent, ``"complete": false``) and
+   ``scenario.resolved.yaml``.
+3. One frame = one task (:func:`make_frame`): render and expose into a temporary directory,
+   renamed whole (a frame is on disk whole or not at all); in-process, :data:`FRAME_THREADS`
+   frames at once, landing in index order.
+4. Rewrite the manifest atomically as frames land; the last write sets ``"complete": true``
+   only if the whole dataset verifies. Files and directories are fsynced (:mod:`starnav.atomic`).
+5. Resume: same head required; whole frames kept, the others made again: byte-identical to an
+   uninterrupted run.
 
-A lock file (``.lock``, ``flock``) stops two processes from writing one dataset; the kernel
-releases it when a process dies, so a killed run can be resumed at once.
+A lock file (:data:`LOCK`, ``flock``) stops two processes from writing one dataset. A fly-by
+scenario stores per frame the radiance with its AOVs and its truth, no exposures (its windows
+follow the tracks of each Monte Carlo run): docs/dataset.md.
 
-Fly-by datasets
----------------
-A fly-by scenario (:func:`starnav.simulate.flyby.is_flyby_scenario`) places each frame's
-windows from the previous frame's tracks, per Monte Carlo run: no fixed window pixels can be
-stored. Its dataset stores per frame the radiance (with the AOVs: hit mask, body-fixed
-coordinates) and ``truth.json`` with a ``flyby`` block (relative position and velocity, Sun
-direction), no exposure directory; the head gains ``target_kind: "flyby"`` and ``flyby``
-(CA epoch, Sun direction), its options are ``exposures_s=()``, ``windows="closed-loop"``
-(limb options are refused). A limb dataset's head and files are unchanged.
-``starnav navigate DATASET`` re-exposes the windows through the fly-by closed loop
-(:mod:`starnav.dataset.flyby`).
-
-Example
--------
->>> from starnav.config import load_scenario
->>> from starnav.dataset import DatasetOptions, generate
->>> sc = load_scenario("scenario.yaml")                                    # doctest: +SKIP
->>> opts = DatasetOptions(exposures_s=(1.5e-5, 7.7e-3))
->>> s = generate(sc, "out/ds", options=opts)                               # doctest: +SKIP
->>> s.frames, s.frames_per_s                                              # doctest: +SKIP
+Index
+-----
+:func:`generate`, :class:`DatasetOptions`, :class:`DatasetSummary`, :class:`FrameMaker`,
+:func:`frame_maker`, :func:`make_frame`, :func:`dataset_head`, :func:`manifest`,
+:func:`frame_entry`, :func:`camera_to_manifest`, :func:`check_output_dir`,
+:class:`DatasetLockedError`.
 """
 
 from __future__ import annotations

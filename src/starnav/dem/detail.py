@@ -1,81 +1,35 @@
 """Sub-posting detail: DEM terrain refined with fractal relief where the mesh is finer than it.
 
-LOLA's LDEM_4 has a 7.58 km posting; closer than ~20 000 km a 355 urad pixel of the AA-STR
-camera is finer than that, and a mesh of the bare DEM shows flat bilinear facets where the real
-Moon has relief at every scale. :func:`sub_posting_detail` measures how rough the DEM is at its
-posting and continues that roughness below the posting with the procedural Moon's machinery
-(hashed lattice noise on the 3-D unit vector), octave by octave, as far as the pixel footprint
-asks. :func:`starnav.dem.mesh.view_mesh` adds it to the vertices whose spacing is finer than
-the DEM cell, and only to those.
+A mesh of the bare DEM (LDEM_4: 7.58 km posting) shows flat bilinear facets where the real Moon
+has relief at every scale. :func:`sub_posting_detail` measures how rough the DEM is at its
+posting and continues that roughness below it, octave by octave, as far as the pixel footprint
+asks; :func:`starnav.dem.mesh.view_mesh` adds it only to vertices finer than a DEM cell. Each
+step in full: docs/methods.md, "starnav.dem.detail".
 
 Technique
 ---------
-1. **Roughness at the posting.** The structure function ``S(r)``, the RMS height difference
-   at lag ``r``, of the DEM's bilinear surface (the surface the mesh shows) along meridians, at
-   random points: ``S_c = S(c)`` at the posting ``c`` (the cell along a meridian) and
-   ``S(r) / S_c`` for ``r < c`` (about ``r / c``: the bilinear facets). With ``amplitude:
-   regional`` the RMS difference of neighbouring cells is also measured per window of
-   ``roughness_window_km`` and scaled to ``S_c`` by the global ratio, so smooth maria get
-   little detail and rough highlands more (LDEM_4: 20 m to 820 m between the 1st and 99th
-   percentile of 100 km windows; 434 m globally).
-2. **Hurst exponent** ``H``: configured (default 0.9, the order of the exponents Rosenburg et
-   al. 2011, JGR 116, E02001, measured from LOLA profiles at baselines of 17 m to 2.7 km, the
-   range the detail covers; the procedural Moon uses it too) or ``measured``: the slope of
-   ``log S`` against ``log r`` at 1, 2 and 4 cells. The measured value describes 7-30 km
-   baselines of LDEM_4 (0.57, crater-dominated relief, and smoothed by the binning of the
-   grid), not the sub-kilometre relief the detail adds, hence not the default.
-3. **Octaves** of wavelength ``lambda_k = c / 2^k`` down to ``min_wavelength_km``. Each is
-   band-limited noise ``f_k(u)`` of unit RMS on the unit vector ``u`` (view-independent,
-   seamless, no polar pinching, deterministic per seed): Perlin gradient noise
-   (:func:`starnav.dem.procedural.gradient_noise_3d`, lattice ``lambda_k / sqrt 2`` so that the
-   dominant period is ``lambda_k``) minus its mean at four tetrahedral offsets projected on the
-   tangent plane (a discrete surface Laplacian). Noise on a 3-D lattice cut by a surface leaks
-   power to long wavelengths along the surface (the cut samples the lattice at varying depth):
-   averaged over a square one wavelength wide, value noise and gradient noise keep ~50 % of
-   their RMS, 30 % and 25 % over two wavelengths; the tangent-plane Laplacian brings that to
-   19 %, 8 % and 3 % over one, two and four wavelengths. Averaged over the DEM's cells the
-   detail thus keeps ~15 % of its RMS (a wave one cell long cannot average out): the DEM's
-   own scale is left alone.
-4. **Amplitudes** ``sigma_k = beta S_c (lambda_k / c)^H``: ``beta`` is the least-squares
-   solution of ``S_bilinear^2(r) + sum_k sigma_k^2 D(r / lambda_k) = S_c^2 (r / c)^(2H)`` at
-   ``r = c/2 ... c/64`` (``D``: the structure function of one unit octave,
-   :data:`OCTAVE_STRUCTURE`). The refined surface thus continues the DEM's measured power law
-   below its posting (within 3.5 % from c/2 to c/16, ``tests/dem/test_detail.py``); at the
-   posting ``S^2`` only grows by twice the detail's variance (+1 % in S for H = 0.9).
-   Each octave's RMS slope (``7.26 sigma_k / lambda_k``) is capped at
-   ``tan(max_rms_slope) / sqrt(N)`` for ``N`` octaves, so that the detail's RMS slope stays
-   below ``max_rms_slope_deg`` whatever ``H``.
-5. **Per vertex**, with vertex spacing ``e`` [m]: octave weight ``w_k = smoothstep(log2(
-   lambda_k / e))`` (0 for ``lambda_k <= e``, 1 for ``lambda_k >= 2 e``: the finest octave fades
-   in as the footprint shrinks, so meshes of consecutive frames do not pop), detail ``= sum_k
-   w_k sigma_k(u) f_k(u)`` clipped at :data:`DETAIL_CLIP_SIGMA` times its RMS, so that
-   ``|detail| <= max_detail_m`` (used to widen the mesh's cap). ``e >= c`` gets no detail: a
-   mesh whose footprint is coarser than the posting is bit-identical to one without detail.
+1. Roughness at the posting: the structure function ``S(r)`` of the DEM's bilinear surface
+   (per window with ``amplitude: regional``).
+2. Hurst exponent ``H``: configured (default 0.9, Rosenburg et al. 2011) or measured.
+3. Octaves of wavelength ``c / 2^k``: band-limited gradient noise on the unit vector minus its
+   tangent-plane Laplacian stencil (little power leaks to the DEM's own scale).
+4. Amplitudes ``beta S_c (lambda_k / c)^H``, ``beta`` by least squares so that the refined
+   surface continues the DEM's power law; each octave's RMS slope capped.
+5. Per vertex: octaves faded in by the vertex spacing, clipped at
+   :data:`DETAIL_CLIP_SIGMA` RMS; no detail where the spacing is coarser than the posting.
 
-Tuning (:class:`~starnav.dem.schema.DetailConfig`)
---------------------------------------------------
-=======================  ==========================================================
-knob                     effect
-=======================  ==========================================================
-``enabled``              off: meshes of the DEM alone
-``hurst_exponent``       higher: smoother below the posting, less detail
-``amplitude``            ``regional`` (per window) or ``global`` DEM roughness
-``roughness_window_km``  size of the regional windows
-``seed``                 another, statistically identical, detail
-``min_wavelength_km``    shortest octave (cost: one octave per halving)
-``max_rms_slope_deg``    slope guard (bites only for low ``H``)
-=======================  ==========================================================
+The knobs are :class:`~starnav.dem.schema.DetailConfig`.
 
-Example
--------
->>> import numpy as np
->>> from starnav.dem.grid import DemGrid
->>> from starnav.dem.detail import sub_posting_detail
->>> yy, xx = np.mgrid[0:180, 0:360]
->>> dem = DemGrid((300.0 * np.sin(0.7 * xx) * np.cos(0.45 * yy)).astype(np.float32))
->>> d = sub_posting_detail(dem)
->>> d.heights(np.array([[1.0, 0.0, 0.0]]), np.array([50_000.0]))   # coarser than the cell
-array([0.])
+References
+----------
+M. A. Rosenburg et al., "Global surface slopes and roughness of the Moon from the Lunar
+Orbiter Laser Altimeter", J. Geophys. Res. 116 (2011) E02001.
+
+Index
+-----
+:func:`sub_posting_detail`, :class:`SubPostingDetail`, :func:`band_noise`,
+:func:`bilinear_structure`, :func:`measured_hurst`, :func:`roughness_map`, :func:`fit_beta`,
+:func:`octave_structure`, :func:`smoothstep`.
 """
 
 from __future__ import annotations

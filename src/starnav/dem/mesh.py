@@ -1,76 +1,29 @@
 """View-adapted lunar meshes: only what the camera can see, as finely as it can resolve it.
 
-A global DEM mesh fine enough for close range would have billions of triangles; one coarse
-enough for memory would show facets on the limb. :func:`view_mesh` builds, for one camera
-position, a mesh of the visible cap only, with triangle edges of about one pixel where it
-matters.
+:func:`view_mesh` builds, for one camera position, a mesh of the visible cap only, with
+triangle edges of about one pixel where it matters; a global mesh that fine would have billions
+of triangles. Each step in full: docs/methods.md, "starnav.dem.mesh".
 
 Technique
 ---------
-1. **Cap.** Seen from distance ``d`` of the Moon centre, the reference sphere's horizon is at
-   angle ``theta_h = acos(R / d)`` from the sub-camera point. Terrain above the sphere can show
-   past it: nothing can hide behind a ball of radius ``R_lo = R + h_min`` (the lowest terrain),
-   so a point at the highest radius ``R_hi = R + h_max`` is possibly visible only within
-   ``theta_cap = acos(R_lo / d) + acos(R_lo / R_hi)``. The cap ``theta <= theta_cap`` therefore
-   contains every point that can be seen (it is conservative: a zero-height DEM gives exactly
-   ``theta_h``).
-2. **Rings.** Vertices lie on rings of constant ``theta`` around the sub-camera point. Along a
-   ring the surface is seen side-on (the ring's tangent is perpendicular to the line of sight),
-   so ring ``i`` gets ``n_i = 2 pi R sin(theta_i) / (e a D_i)`` vertices: one per ``e`` pixels,
-   with ``a`` the pixel angle and ``D_i`` the camera range of the ring. Radially the image
-   position moves at ``dalpha/dtheta = R (d cos(theta) - R) / D^2``, which vanishes at the limb:
-   the ring step is ``e a / |dalpha/dtheta|`` (one pixel in the image) but never more than
-   ``max_foreshortening`` pixel footprints on the ground, so grazing terrain is still sampled.
-   Rings are placed by inverting the cumulative density ``int dtheta / step``, with one ring
-   exactly on the horizon ``theta_h``: a zero-height DEM's silhouette is then made of vertices
-   on the true limb, and its error is the chord sagitta (~ e^2 / (8 r_px) px).
-3. **Frustum.** Given the camera attitude, each ring keeps only the arc inside the cone that
-   bounds the field of view (plus ``frustum_margin_px`` and the terrain's parallax); the arc
-   is solved in closed form per ring (the range is constant along a ring). When the ball of
-   the highest terrain lies inside the field cone the culling would keep every ring whole:
-   the attitude is then dropped (the same mesh, and a key that a pointing change keeps).
-4. **Stitching.** Consecutive rings (or arcs) are joined by merging their vertices by azimuth
-   (the classic strip triangulation between two polylines), outward-facing.
-5. **Heights and albedo** are sampled bilinearly at each vertex from the DEM's mip level whose
-   cells are no larger than the local vertex spacing (no aliasing of fine DEMs by distant,
-   sparse vertices). Normals are area-weighted averages of the face normals.
-   With a :class:`~starnav.dem.detail.SubPostingDetail`, vertices spaced more finely than a
-   DEM cell also get fractal relief below the posting (:mod:`starnav.dem.detail`; the cap and
-   frustum margins include its bound ``max_detail_m``, and the normals are those of the
-   refined surface); a view whose spacing is nowhere finer than the posting is unchanged.
-6. **Cache.** Meshes are kept per (DEM, albedo, resolution level, cap, frustum) key in an LRU.
-   With ``cache_quantum_px > 0`` the key is quantised (sub-camera direction to that many
-   nadir pixels but at most :data:`MAX_CELL_ANGLE`, range to 1/8 octave) and the mesh is made
-   conservative for the whole cell of the key (cap widened, spacing from the nearest range):
-   consecutive frames reuse it.
+1. Cap: every point that can be seen lies within ``acos(R_lo / d) + acos(R_lo / R_hi)`` of
+   the sub-camera point.
+2. Rings of constant angle around the sub-camera point, one vertex per ``edge_px`` pixels along
+   and across them (capped by ``max_foreshortening`` at the limb), one ring on the horizon.
+3. Frustum: each ring keeps the arc inside the field cone (closed form).
+4. Stitching: strip triangulation between consecutive rings.
+5. Heights and albedo from the DEM's mip level matching the vertex spacing, plus the
+   sub-posting detail (:mod:`starnav.dem.detail`).
+6. Cache: meshes kept in an LRU per quantised view key (:data:`MESH_CACHE`).
 
-Tuning (:class:`MeshOptions`)
------------------------------
-======================  =========================================================================
-knob                    effect
-======================  =========================================================================
-``edge_px``             projected edge length [px]; triangles ~ 2 x disc area / edge_px^2
-``max_foreshortening``  radial edge cap where seen grazing, in pixel footprints (limb sampling)
-``terrain_margin``      extend the cap for terrain above the horizon (off: sphere horizon only)
-``frustum_margin_px``   margin around the field of view [px] when an attitude is given
-``max_vertices``        memory guard: edges are coarsened (warning) above it
-``cache_size``          meshes kept; ``cache_quantum_px``: reuse across nearby positions
-======================  =========================================================================
+Output: a :class:`trimesh.Trimesh` in Moon body-fixed coordinates [m] with vertex normals and
+the vertex attributes ``lat``, ``lon`` [rad], ``height`` [m] and optionally ``albedo``. Cached
+meshes are shared: treat them as read-only. The knobs are :class:`MeshOptions`.
 
-Output: a :class:`trimesh.Trimesh` in Moon **body-fixed** coordinates [m], with
-``vertex_normals`` and ``vertex_attributes`` ``lat``, ``lon`` (rad, lon in ``[-pi, pi)``),
-``height`` [m] and, if an albedo grid is given, ``albedo`` (float32), and ``metadata['starnav']``
-(cap angles, level, key). Cached meshes are shared: treat them as read-only (``copy()`` first).
-
-Example
--------
->>> import numpy as np
->>> from starnav.camera import Camera
->>> from starnav.dem.grid import DemGrid
->>> from starnav.dem.mesh import view_mesh
->>> m = view_mesh(DemGrid.zeros(1.0), Camera.preset("aa-str"), np.array([6.0e7, 0.0, 0.0]))
->>> sorted(m.vertex_attributes)
-['height', 'lat', 'lon']
+Index
+-----
+:func:`view_mesh`, :class:`MeshOptions`, :data:`MESH_CACHE`, :func:`pixel_angle`,
+:func:`field_cone`, :func:`save_mesh`, :func:`check_mesh_path`, :data:`MESH_FORMATS`.
 """
 
 from __future__ import annotations
@@ -114,7 +67,7 @@ MAX_CELL_ANGLE = math.radians(1.0)
 
 @dataclass(frozen=True)
 class MeshOptions:
-    """Knobs of :func:`view_mesh` (see the module table).
+    """Knobs of :func:`view_mesh`.
 
     Parameters
     ----------

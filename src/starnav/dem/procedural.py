@@ -1,66 +1,37 @@
 """The procedural Moon: cratered terrain, fractal roughness and a maria/highlands albedo map.
 
-When no DEM is given, starnav makes a Moon that has the statistics that matter to a navigation
-camera: craters of realistic shape and number that break the limb and cast shadows, relief at
-every scale, and dark maria on bright highlands. It is seeded and deterministic, and the same
-seed gives the same world at any resolution (a finer grid adds smaller craters and shorter
-roughness wavelengths; the large features are identical).
+When no DEM is given, starnav makes a seeded Moon with the statistics that matter to a
+navigation camera; the same seed gives the same world at any resolution (a finer grid adds
+smaller craters and shorter wavelengths). The laws and their sources in full: docs/methods.md,
+"starnav.dem.procedural".
 
 Technique
 ---------
-1. **Crater catalogue.** Diameters follow a truncated power-law *cumulative* size-frequency
-   distribution ``N(>=D) = N1 * D^-b`` (D in km, N1 per km^2); ``b = 2`` is the classic
-   equilibrium/highland slope (Melosh 1989, ch. 10; Neukum, Ivanov & Hartmann 2001 for the
-   chronology that gives N1 = 0.03 km^-2 for ~3.9 Gyr highlands and 0.005 km^-2 for ~3.5 Gyr
-   maria). Craters are drawn per diameter octave (0.5 km * 2^k), each octave from its own
-   ``SeedSequence`` stream (:mod:`starnav.seeding`, under the world's seed), at uniform
-   positions on the sphere, so a coarser grid just omits the octaves below its smallest crater.
-2. **Morphology** (Pike 1977, "Size-dependence in the shape of fresh impact craters on the
-   Moon", in *Impact and Explosion Cratering*, 489-509; Melosh 1989, *Impact Cratering*, ch. 8
-   and 10): rim-crest-to-floor depth ``d = 0.196 D^1.010`` km for simple craters (used as
-   ``d = 0.196 D``: the exponent is 1 within its error; ``simple_depth_ratio``),
-   ``d = 1.044 D^0.301`` km for complex craters above the ~15 km transition (Pike 1977; Melosh
-   gives 15-20 km), rim height ``h = 0.036 D^1.014`` (simple) and ``0.236 D^0.399`` km (complex),
-   complex floor diameter ``Df = 0.187 D^1.249`` km. Simple craters are parabolic bowls; complex
-   craters have a flat floor, a parabolic wall and a central peak (height 0.3 d, Gaussian of
-   width 0.05 D, base ~0.2 D: an engineering choice, not a fit). Outside the rim the ejecta
-   blanket thins as ``h (r/R)^-3`` (McGetchin, Settle & Head 1973, EPSL 20, 226; Melosh 1989,
-   ch. 6), tapered to zero between 2.5 and 4 crater radii. A new crater replaces the older
-   terrain inside its rim by its own profile around the local mean level (keeping a little of
-   the old relief near the wall) and adds its ejecta outside.
-3. **Maria.** A smooth field of Gaussian "basins" biased to the near side plus long-wavelength
-   noise, thresholded so that ``mare_fraction`` of the surface is mare. Craters older than the
-   maria (a fraction ``1 - N1_mare / N1_highland`` of them) are stamped first, then the mare
-   plains are flooded to ``-mare_depth`` (ghosts of 10 % of the old relief survive), then the
-   younger craters are stamped everywhere. So the mare crater density is ``N1_mare``.
-4. **Roughness.** Multi-scale (fractal) relief: octaves of 3-D value noise evaluated on the
-   sphere (seamless, no polar pinching), wavelength ``lambda_k = lambda_max / 2^k`` down to 4 grid
-   cells, RMS ``sigma_ref (lambda_k / lambda_ref)^H`` (default H = 0.9, of the order of the
-   Hurst exponents Rosenburg et al. 2011, JGR 116, E02001, report for the lunar highlands);
-   halved on the maria. The default amplitudes are a visual choice, not a fit.
-5. **Albedo.** Highland and mare albedos blended by the mare mask, a multiplicative texture, and
-   bright ejecta around the youngest 2 % of the craters.
+1. Crater catalogue: truncated power-law cumulative size-frequency distribution, drawn per
+   diameter octave from its own seeded stream.
+2. Morphology: Pike (1977) depth, rim and floor laws; parabolic simple craters, complex ones
+   with a flat floor and central peak; ejecta thinning as ``(r/R)^-3``.
+3. Maria: near-side basins plus noise, thresholded to ``mare_fraction``; older craters stamped,
+   plains flooded, younger craters stamped.
+4. Roughness: octaves of 3-D value noise on the sphere, RMS ``~ lambda^H``.
+5. Albedo: highlands and maria blended by the mare mask, a texture, bright young ejecta.
 
-Tuning
-------
-================================  ==========================================================
-knob (``ProceduralDemConfig``)    effect
-================================  ==========================================================
-``pixels_per_degree``             grid resolution; memory ``4 * 64800 * ppd^2`` bytes a grid
-``crater_density_1km_km2``        how cratered the highlands are (N(>=1 km) per km^2)
-``sfd_slope``                     more small craters for larger b
-``transition_diameter_km``        simple/complex boundary
-``roughness_rms_m``, ``hurst``    relief between craters
-``mare_fraction``                 area of dark plains
-================================  ==========================================================
+The knobs are :class:`~starnav.dem.schema.ProceduralDemConfig`.
 
-Example
--------
->>> from starnav.dem.schema import ProceduralDemConfig
->>> from starnav.dem.procedural import procedural_moon
->>> moon = procedural_moon(ProceduralDemConfig(pixels_per_degree=1.0))
->>> moon.dem.shape, moon.albedo.shape
-((180, 360), (180, 360))
+References
+----------
+R. J. Pike, "Size-dependence in the shape of fresh impact craters on the Moon", in *Impact and
+Explosion Cratering* (1977) 489-509. H. J. Melosh, *Impact Cratering* (1989), ch. 6, 8, 10.
+G. Neukum, B. A. Ivanov and W. K. Hartmann, Space Sci. Rev. 96 (2001) 55-86.
+T. R. McGetchin, M. Settle and J. W. Head, EPSL 20 (1973) 226.
+M. A. Rosenburg et al., J. Geophys. Res. 116 (2011) E02001.
+
+Index
+-----
+:func:`procedural_moon`, :class:`ProceduralMoon`; :func:`crater_catalogue`,
+:class:`CraterCatalogue`, :class:`CraterMorphology`, :func:`stamp_craters`,
+:func:`sample_power_law`, :func:`power_law_slope_mle`; :func:`value_noise_3d`,
+:func:`gradient_noise_3d`, :func:`fractal_field`, :func:`mare_mask`.
 """
 
 from __future__ import annotations

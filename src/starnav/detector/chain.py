@@ -1,78 +1,26 @@
 """The detector chain: radiance image -> electrons -> DN -> star-tracker readout products.
 
-Technique
----------
-Each effect is a pure array function (in :mod:`~starnav.detector.optics`,
+Each effect is a pure array function (:mod:`~starnav.detector.optics`,
 :mod:`~starnav.detector.charge`, :mod:`~starnav.detector.blooming`,
 :mod:`~starnav.detector.smear`, :mod:`~starnav.detector.crosstalk`,
 :mod:`~starnav.detector.readout`) with explicit parameters and, when random, an explicit
-``numpy.random.Generator``. This module wraps each in a thin adapter (:class:`Effect`) that
-reads its settings from :class:`~starnav.detector.schema.DetectorConfig`, and runs the adapters
-in a fixed order (Pyxel's stages photons -> charge -> pixel -> signal -> image):
+generator; this module wraps each in a thin adapter (:class:`Effect`, registry
+:data:`EFFECTS`) that reads its settings from :class:`~starnav.detector.schema.DetectorConfig`,
+and runs them in a fixed order of Pyxel's stages (photons -> charge -> pixel -> signal ->
+image; :data:`CHAIN_ORDERS`: ``physical`` by default, the seed paper's order as ``paper``).
+The order and why each effect stands where it does: docs/detector.md, "Stage order".
 
-=== ===================== ======== =========================================================
-#   effect                stage    why here
-=== ===================== ======== =========================================================
-1   photoelectrons        photons  ``N = t A Omega Le [cos^4]``: mean photo-electrons
-2   aberration_psf        photons  PSF varies with the *true* field angle: pinhole frame
-2b  point sources         photons  stars (``point_sources=``): the same field-varying PSF
-                                   integrated over the pixels at their sub-pixel positions,
-                                   added right after step 2 (with or without it), so that
-                                   distortion, smear, halo, ghosts, noise and blooming act on
-                                   them as on the rendered light
-3   distortion            photons  lens mapping onto the detector grid; before anything that
-                                   belongs to the detector (PRNU, full well)
-4   rolling_shutter       photons  motion during integration acts on the focal-plane image
-5   stray_light           photons  halo and ghosts are measured on the real detector, so in
-6   ghosts                photons  detector coordinates (and the halo then needs no resample)
-7   transfer_smear        photons  photo-charge collected during a CCD frame transfer
-8   prnu                  charge   per-pixel response, multiplies the mean
-9   dark_current          charge   DSNU, hot pixels, temperature; adds to the mean
-10  shot_noise            charge   Poisson on photo + dark charge, before the well fills
-11  saturation            pixel    full well, blooming (drain / column / isotropic)
-12  ipc                   signal   capacitive coupling at the sense nodes (conserving)
-13  electrical_crosstalk  signal   row/column offsets from very bright pixels
-14  nonlinearity          signal   charge-to-voltage compression
-15  read_noise            signal   Gaussian, per frame
-16  adc                   image    gain, offset, rounding, clipping to 12 bit
-17  readout               image    segments / windows / full frame and the timing law
-=== ===================== ======== =========================================================
+Fixed-pattern maps come from the sensor seed, temporal noise from ``(seed, frame_index,
+effect)`` (:mod:`starnav.detector.seeding`): frames can be made in any order by any number of
+workers with identical DN. Everything before the first temporal-noise effect
+(:data:`TEMPORAL_EFFECTS`) is deterministic and can be kept (:class:`MeanCharge`) for a second
+acquisition of the same radiance.
 
-The seed paper orders its pipeline "PSF (aberrations, defocus; then stray light and ghosts) ->
-saturation -> distortion -> noises (shot, PRNU, DSNU, readout)". That order is available as
-``order: paper`` (:data:`CHAIN_ORDERS`), to reproduce its images. The physical order is the
-default because (a) shot noise and PRNU are properties of charge generation and must act
-before the well fills (with noise after saturation a saturated pixel reads above full well),
-and (b) distortion is a property of the lens: resampling after saturation blurs the clipped
-plateau and multiplies it by the area ratio, which can push it over the full well.
-
-Every effect can be switched off (``enabled: false`` in its section); with
-``debug.keep_stages`` (or ``keep_stages=True``) a copy of the frame after every effect is kept in
-:attr:`Exposure.stages`. Effects are looked up by name in :data:`EFFECTS`; an unknown name raises
-:class:`~starnav.errors.UnknownNameError` listing the known ones.
-
-Randomness: fixed-pattern maps come from the sensor seed, temporal noise from
-``(seed, frame_index, effect)`` (:mod:`starnav.detector.seeding`), so frames can be made in any
-order, by any number of workers, with identical DN.
-
-Everything before the chain's first temporal-noise effect (:data:`TEMPORAL_EFFECTS`; in both
-orders the optics, smear, PRNU and dark current) is a deterministic function of the radiance,
-the exposure time, the stars and the sensor. A second acquisition of the same radiance (the
-dataset's windows acquisition: same exposure, its own noise) can start from the first one's
-frame at that point instead of recomputing it: ``expose(..., keep_mean_charge=True)`` keeps it
-as :attr:`Exposure.mean_charge` (a :class:`MeanCharge`), ``expose(..., mean_charge=...)``
-starts from it, with the very same arrays and charge ledger as a full run (tested).
-
-Example
--------
->>> import numpy as np
->>> from starnav.camera import Camera
->>> from starnav.detector import DetectorConfig, expose
->>> cam = Camera.preset("aa-str", width=64, height=64)
->>> le = np.full((64, 64), 1e15, np.float32)
->>> frame = expose(le, cam, DetectorConfig(), seed=1, frame_index=0)
->>> frame.dn.dtype, frame.dn.shape
-(dtype('uint16'), (64, 64))
+Index
+-----
+:func:`expose`, :class:`Exposure`, :class:`MeanCharge`, :func:`add_point_sources`,
+:class:`Effect`, :class:`ChainContext`, :func:`get_effect`, :func:`chain_order`,
+:func:`first_temporal`, :data:`STAGES`.
 """
 
 from __future__ import annotations
@@ -594,7 +542,7 @@ def expose(radiance: RadianceImage | NDArray[Any], camera: Camera,
         Keep a copy of the frame after every effect; default ``config.debug.keep_stages``.
     point_sources : PointSources, optional
         Stars (pinhole positions [px], rates [e-/s]), added after the aberration PSF's place
-        in the chain (step 2b of the module table); ``None``: the frame is exactly as without.
+        in the chain (step 2b of docs/detector.md, "Stage order"); ``None``: the frame is exactly as without.
     keep_mean_charge : bool
         Keep the frame before the first temporal-noise effect as
         :attr:`Exposure.mean_charge` (module essay), for another acquisition of the same

@@ -1,74 +1,34 @@
 """Photon collection: radiometry, field-varying aberration PSF, distortion, stray light, ghosts.
 
+Each step in full (accuracy of the resampling, the halo's coarse grid): docs/methods.md,
+"starnav.detector.optics".
+
 Technique
 ---------
-1. **Radiometry.** The mean number of photo-electrons of a pixel is
-   ``N = t_exp * A_pupil * Omega_pix * Le`` (docs/facts.md s2) with ``Le`` the electron radiance
-   [e- s^-1 m^-2 sr^-1] of the :class:`~starnav.radiance.RadianceImage` and
-   ``A_pupil Omega_pix`` the on-axis etendue of :class:`~starnav.camera.Camera`. Off axis the
-   pinhole collects ``cos^4(theta)`` less (pixel solid angle ``cos^3``, pupil foreshortening
-   ``cos``); the factor is optional (``relative_illumination``).
-2. **Aberration and defocus PSF.** The AA-STR optics is deliberately defocused and aberrated.
-   The PSF at normalised field radius ``rho`` is a pillbox of radius ``R(rho)`` (geometric
-   defocus) convolved with an elliptical Gaussian of widths ``sigma_r(rho)`` along the radial
-   direction and ``sigma_t(rho)`` across it (astigmatism / field curvature); every parameter
-   grows as ``p0 + (p1 - p0) rho^2``. Each PSF is integrated over the pixel by sampling it
-   ``oversample`` times per pixel and summing, then normalised to 1.
-   The PSF is computed at the nodes of a regular grid; between nodes the PSF *of a source
-   pixel* is the bilinear (tent-weighted) blend of the four nearest node PSFs. Because the blend
-   is done on the source side, ``out = sum_k P_k * (w_k I)``, every source pixel's PSF sums to
-   one and the convolution conserves charge inside the array. Each ``w_k I`` is non-zero only
-   on the node's tent support intersected with the part of the frame that holds signal, so
-   each FFT is sized on that region; kernel spectra are cached per node and FFT shape.
-3. **Distortion.** The renderer produces an undistorted pinhole image. For each detector pixel
-   the Brown-Conrady model is inverted (:meth:`Camera.undistort`, cached per camera) to find
-   where it looks in the pinhole image; the image is sampled there bilinearly and multiplied by
-   the pixel-area ratio ``1 / det(d x_d / d x_u)``. Positions are exact; flux is conserved up
-   to ``O(delta^2)`` with ``delta`` the local scale change (point sampling of the bilinear
-   interpolant at a spacing ``1 + delta`` weights source pixels by ``1 + O(delta^2)``): 4e-3
-   for a 2 px blob where ``delta = 7 %``, below 1e-4 for ``delta <= 1 %``. (An exactly
-   conserving integral-image scheme was tried and dropped: it shifts sheared pre-images by
-   up to 0.8 px.)
-4. **Stray light.** A Harvey-type halo ``K(r) = (1 + (r/r0)^2)^(s/2)``, ``r <= r_max``,
-   carries the total integrated scatter ``TIS`` of the light: ``out = (1 - TIS) I + TIS K_n * I``
-   with ``K_n`` normalised to unit sum. ``K`` is split at ``core_radius``: the steep core
-   ``K - K(r_c)`` is convolved at full resolution; the flat-topped remainder ``min(K, K(r_c))``
-   is convolved on a grid ``binning`` times coarser (block sums, so flux is exact) and brought
-   back by replicating each block and smoothing with a ``binning + 1`` box (unit sum, reflecting
-   edges: conserving). A 1024 px halo thus costs a 128 x 128 convolution.
-5. **Ghosts.** Each ghost is the image mapped by ``x -> c + m (x - c) + o`` (principal point
-   ``c``), resampled with the ``1/m^2`` flux factor, blurred by a defocus disc and weighted; the
-   direct image keeps ``1 - sum(weights)``. Ghosts are faint and blurred, so they are made on
-   the coarse grid of the halo.
+1. Radiometry: ``N = t_exp A_pupil Omega_pix Le``, optionally times ``cos^4`` off axis.
+2. Aberration and defocus PSF: a pillbox convolved with an elliptical Gaussian, growing with
+   the field radius, computed at grid nodes and blended bilinearly on the source side (each
+   source pixel's PSF sums to one).
+3. Distortion: the pinhole image sampled through the inverse Brown-Conrady map, times the
+   pixel-area ratio.
+4. Stray light: a Harvey halo carrying the total integrated scatter; its flat part convolved on
+   a coarse grid.
+5. Ghosts: mapped, blurred and weighted copies of the image, on the halo's coarse grid.
 
-Tuning
-------
-====================================== ==================== ==================================
-knob                                   default              effect
-====================================== ==================== ==================================
-``aberration.defocus_radius_px``       1.0 (1.3 at corner)  width of the flat-topped star image
-``aberration.sigma_*_px``              0.5 -> 1.4 / 0.9     blur and its radial elongation
-``aberration.grid_nodes``              5 x 5                field sampling of the PSF
-``stray_light.total_integrated_scatter`` 0.005              halo energy
-``stray_light.harvey_slope``           -2                   how far the halo reaches
-``ghosts.ghosts``                      one, w = 5e-4, m=-1  ghost copies
-====================================== ==================== ==================================
+References
+----------
+Harvey, J. E. (1976), *Light-scattering characteristics of optical surfaces*, PhD thesis, Univ.
+Arizona. Brown, D. C. (1966), *Decentering distortion of lenses*, Photogramm. Eng. 32(3).
+Conrady, A. E. (1919), MNRAS 79, 384.
 
-Example
--------
->>> import numpy as np
->>> from starnav.camera import Camera
->>> from starnav.detector.schema import AberrationPsfConfig
->>> from starnav.detector.optics import psf_grid, apply_psf_grid
->>> cam = Camera.preset("aa-str", width=64, height=64)
->>> img = np.zeros((64, 64), np.float32); img[32, 32] = 1000.0
->>> out, lost = apply_psf_grid(img, psf_grid(cam, AberrationPsfConfig()))
->>> round(float(out.sum()), 1)
-1000.0
-
-References: Harvey, J. E. (1976), *Light-scattering characteristics of optical surfaces*, PhD
-thesis, Univ. Arizona; Brown, D. C. (1966), *Decentering distortion of lenses*, Photogramm. Eng.
-32(3); Conrady, A. E. (1919), MNRAS 79, 384.
+Index
+-----
+:func:`photoelectrons`, :func:`relative_illumination_map`; :func:`psf_grid`, :class:`PsfGrid`,
+:func:`apply_psf_grid`, :func:`aberration_kernel`, :func:`line_spread_function`;
+:class:`PointSources`, :func:`point_source_image`, :func:`point_source_kernel`;
+:func:`distort`, :func:`distortion_map`, :class:`DistortionMap`; :func:`stray_light`,
+:func:`halo_kernels`, :func:`ghost_images`, :func:`block_sum`, :func:`block_expand`,
+:func:`disc_kernel`, :func:`disc_coverage`.
 """
 
 from __future__ import annotations

@@ -2,78 +2,36 @@
 
 The STAR Nav filter estimates the spacecraft's position and velocity about the Earth-Moon
 barycentre in J2000 from the Christian-Robinson fixes, with Gauss-Markov states that absorb a
-slowly varying bias of the image processing (saturation moves every limb point outwards).
+slowly varying bias of the image processing. Each step and the bias models in full:
+docs/methods.md, "starnav.navigation.ekf".
 
 Technique
 ---------
-1. **State.** ``x = (r, v, b)``: EMB-centred J2000 position [m] and velocity [m/s], plus the
-   bias states of the chosen ``bias_model``:
+1. State ``(r, v, b)``, ``b`` the states of the ``bias_model`` (:data:`BIAS_MODELS`: none,
+   additive, range-scale, range-scale+additive, limb-common).
+2. Prediction: state and STM from :class:`~starnav.navigation.dynamics.Dynamics`; each bias a
+   first-order Gauss-Markov process, exactly discretised; white-acceleration process noise.
+3. Measurement: a fix (camera relative to the Moon, inertial [m]) with its covariance; analytic
+   Jacobian.
+4. Gate on the NIS (chi-square, 3 dof); after ``max_consecutive_rejections`` the next fix is
+   forced in.
+5. Update in Joseph form.
+6. A frame without a usable limb only propagates.
 
-   * ``none``: no bias state;
-   * ``additive``: ``b`` (3) [m], the fix reads ``r - r_M + b``;
-   * ``range-scale``: ``k`` (1) [-], the fix reads ``(1 + k)(r - r_M)`` (a limb bias of
-     ``beta`` px on a disc of ``R_px`` gives ``k ~ -beta / R_px``, docs/facts.md section 4);
-   * ``range-scale+additive``: ``k`` and ``b`` (4), the fix reads ``(1 + k)(r - r_M) + b``.
-     Saturation moves the lit limb outwards (a range scale) *and* unevenly along the arc
-     (more where the limb is brightest), which shifts the fitted centre sideways: on the
-     saturated 7.7 ms demo arc the filter is consistent only with both (mean NEES 3.3 with
-     ``range_scale_sigma`` 0.05 and ``bias_sigma_km`` 50, against 309 with the scale alone);
-   * ``limb-common``: ``beta`` (3) [-], the errors all refined limb points of a frame share
-     (the disc's apparent radius, a shift of the limb towards the Sun in the image and one
-     across it, in units of the disc radius; :class:`~starnav.navigation.refine.
-     ModelErrorCalibration`), with their calibrated covariance ``C`` as the steady state:
-     the fix reads ``r - r_M + G beta`` with ``G`` the fix's own sensitivity to them
-     (supplied with each fix), and its covariance ``R`` is then the fix's without that part.
-     The terrain of the limb in view changes slowly, so these errors are correlated from
-     frame to frame; only their correlation time is a free knob.
+The knobs are :class:`EkfOptions`.
 
-2. **Prediction.** The 6-state and its STM ``Phi`` come from the dynamics
-   (:class:`~starnav.navigation.dynamics.Dynamics`: RK4 with the variational equations of the
-   Earth-Moon-Sun point-mass model). Each bias is a first-order Gauss-Markov process with the
-   exact discretisation ``b_k+1 = exp(-dt/tau) b_k + w``,
-   ``Var(w) = sigma^2 (1 - exp(-2 dt/tau))``. White acceleration noise of spectral density
-   ``q`` adds ``Q = q [[dt^3/3 I, dt^2/2 I], [dt^2/2 I, dt I]]``.
-   ``P = F P F^T + Q`` with ``F = blockdiag(Phi, exp(-dt/tau) I)``.
-3. **Measurement.** A fix ``z`` (camera relative to the Moon, inertial [m]) with covariance
-   ``R``; ``h(x)`` as in step 1 with the Moon's state ``r_M(t)`` from the ephemeris, ``H`` its
-   analytic Jacobian.
-4. **Gate.** Innovation ``nu = z - h(x)``, ``S = H P H^T + R``, ``NIS = nu^T S^-1 nu``; the fix
-   is rejected when ``NIS > chi2_3^-1(gate_probability)``. After
-   ``max_consecutive_rejections`` rejections in a row the next fix is accepted regardless (with
-   a warning), so a filter that has lost its way can recover.
-5. **Update.** ``K = P H^T S^-1``, ``x += K nu``, and the Joseph form
-   ``P = (I - K H) P (I - K H)^T + K R K^T`` (symmetric and positive for any gain).
-6. **No fix.** A frame without a usable limb only propagates.
-
-Tuning
-------
-==============================  =======  ====================================================
-option                          default  effect
-==============================  =======  ====================================================
-``bias_model``                  none     ``none``, ``additive``, ``range-scale`` or
-                                         ``range-scale+additive``
-``bias_sigma_m``                0        steady-state 1-sigma of each additive bias [m]
-``range_scale_sigma``           0        steady-state 1-sigma of the range-scale bias [-]
-``common_covariance``           None     steady-state covariance of ``limb-common`` [-]
-``bias_tau_s``                  86400    correlation time of the biases [s]
-``accel_psd_m2_s3``             0        white acceleration noise density [m^2/s^3]
-``gate_probability``            0.9999   chi-square gate on the NIS; None disables the gate
-``max_consecutive_rejections``  5        then the next fix is forced in
-==============================  =======  ====================================================
-
-Example
--------
->>> from starnav.navigation.ekf import NavigationEkf, EkfOptions
->>> ekf = NavigationEkf(dyn, dyn, t0, x0, P0, options=EkfOptions())    # doctest: +SKIP
->>> ekf.predict(t1); info = ekf.update(z, R)                              # doctest: +SKIP
-
-Reference
----------
+References
+----------
 Seed paper (STAR Nav), step 5 of the pixel-accuracy algorithm and its reference 3 (LUMIO
 navigation). R. G. Brown and P. Y. C. Hwang, "Introduction to random signals and applied Kalman
-filtering", 4th ed., Wiley (2012): section 4.2 (Gauss-Markov discretisation), 4.7 (Joseph
-form). B. D. Tapley, B. E. Schutz and G. H. Born, "Statistical orbit determination", Elsevier
-(2004), section 4.7 (EKF with the STM).
+filtering", 4th ed., Wiley (2012): 4.2 (Gauss-Markov discretisation), 4.7 (Joseph form).
+B. D. Tapley, B. E. Schutz and G. H. Born, "Statistical orbit determination", Elsevier (2004),
+4.7 (EKF with the STM).
+
+Index
+-----
+:class:`NavigationEkf`, :class:`EkfOptions`, :class:`UpdateInfo`, :func:`measurement_model`,
+:func:`gauss_markov_discrete`, :func:`white_acceleration_q`.
 """
 
 from __future__ import annotations

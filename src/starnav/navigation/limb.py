@@ -1,71 +1,37 @@
 """Pixel-accuracy limb points from star-tracker segments (the STAR Nav algorithm 2).
 
 The star tracker's *full image compressed* readout sends runs of consecutive above-threshold
-pixels ("segments", :class:`~starnav.detector.products.Segments`). The pixel-accuracy limb
-detector of the STAR Nav study turns them into limb points without ever rebuilding the image.
+pixels ("segments", :class:`~starnav.detector.products.Segments`); this module turns them into
+limb points without rebuilding the image. Each step in full: docs/methods.md,
+"starnav.navigation.limb".
 
 Technique
 ---------
-1. **Moon in the image.** The centroid of every segment pixel is a first guess of where the Moon
-   is (the lit part pulls it towards the Sun; it is only used to place the next step).
-2. **Sun direction in the image.** The Sun vector (inertial) is rotated into the camera frame
-   with the *measured* attitude and mapped into the image plane by the projection Jacobian at
-   the Moon's line of sight: ``d = dpi/dX (x_moon) @ s_cam``, so the image direction from the
-   Moon towards the Sun is exact for a pinhole even off-axis (:func:`sun_direction_in_image`).
-3. **Scans.** Four scans of the runs, one per image direction: the right end of the last run of
-   every row (looking at +u), the left end of the first run (-u), the bottom end of the lowest
-   run covering every column (+v) and the top end of the highest one (-v). Column ends are
-   a range-max (range-min) update over the runs, done as a sparse table in reverse (each run
-   written as two power-of-two blocks, pushed down level by level): no pixel is expanded and
-   no run is a Python step.
-4. **Four sectors.** The image is split into four sectors by the two diagonals through the disc
-   centre ``c``: a scan's end point is kept only in its own sector (``+u`` ends where
-   ``du >= |dv|``, and so on), so every point is found by a scan within 45 deg of the limb
-   normal and, in each sector, the end that faces outwards is the limb, not the terminator.
-   ``c`` comes from a circle (Kasa 1976, one 3-MAD trim) fitted to the ends of the two scans
-   facing the Sun, then once more from the points kept, and the selection is redone.
-5. **Lit side.** A point is kept only if its outward direction ``n = (p - c)/|p - c|`` faces the
-   Sun: ``n . d >= min_sun_cos``. The unlit limb and any terminator point in a sector are
-   thereby rejected; the cusps (where the lit limb fades out) are trimmed by the margin.
-6. **Border.** Run ends on the detector border are where the *image* stops, not the Moon: they
-   are dropped.
-7. **Cap.** The surviving points are ordered by angle about ``c`` and, if there are more than
-   ``max_points`` (600 on the AA-STR processor), thinned to evenly spaced ones.
+1. First guess of the Moon: the centroid of the segment pixels.
+2. The Sun's direction in the image at the Moon, from the measured attitude and the projection
+   Jacobian (:func:`sun_direction_in_image`).
+3. Four scans of the runs (+u, -u, +v, -v ends), no pixel expanded.
+4. Four sectors split by the diagonals through a Kasa circle's centre: each scan keeps its own
+   sector's ends.
+5. Lit side: a point is kept if its outward normal faces the Sun (``min_sun_cos``).
+6. Run ends on the detector border are dropped.
+7. Points ordered by angle and thinned to ``max_points``.
 
-A limb point is the centre of the lit-side end pixel: pixel accuracy, with a quantisation error
-of ``1/sqrt(12)`` px along the scan plus the bias of the threshold (a dimmer threshold moves the
-points outwards, saturation and blooming move them much further: the paper's 5-10 px).
+A limb point is the centre of the lit-side end pixel: pixel accuracy, plus the threshold's
+bias. The knobs are :class:`LimbScanOptions`.
 
-Tuning
-------
-============================  ========  ===================================================
-option                        default   effect
-============================  ========  ===================================================
-``max_points``                600       cap on the number of limb points (tracker memory)
-``min_level``                 0         ignore runs extracted below this threshold level
-``min_run_length_px``         1         ignore shorter runs (isolated hot pixels, stars)
-``min_sun_cos``               0.1       lit-side margin: ``cos`` of the largest angle between
-                                        the limb normal and the Sun direction in the image
-``drop_border_px``            1         drop points within this many pixels of the border
-``point_sigma_px``            0.5       1-sigma uncertainty assigned to each point [px]
-``point_offset_px``           0.0       every point is moved this far inwards along the
-                                        limb normal [px] (calibrates the threshold bias)
-``min_points``                3         fewer surviving points raise :class:`LimbNotFoundError`
-============================  ========  ===================================================
-
-Example
--------
->>> from starnav.navigation.limb import limb_points_from_segments
->>> pts = limb_points_from_segments(segments, sun_dir_image)      # doctest: +SKIP
->>> pts.uv.shape                                                   # doctest: +SKIP
-(412, 2)
-
-Reference
----------
+References
+----------
 Seed paper (STAR Nav, "What if star trackers were navigation cameras?"), section "The
 pixel-accuracy limb-based navigation algorithm", steps 1-2, and its reference 5 (figure 6).
 I. Kasa, "A circle fitting procedure and its error analysis", IEEE Trans. Instrum. Meas. 25
 (1976) 8-14.
+
+Index
+-----
+:func:`limb_points_from_segments`, :class:`LimbPoints`, :class:`LimbScanOptions`,
+:class:`LimbNotFoundError`, :func:`segments_centroid`, :func:`sun_direction_in_image`,
+:func:`phase_angle_from_image`, :func:`fit_circle_kasa`.
 """
 
 from __future__ import annotations

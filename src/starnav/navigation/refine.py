@@ -1,139 +1,39 @@
 """Subpixel limb refinement from readout windows, with a PSF-aware edge model (algorithm 1).
 
-The pixel-accuracy limb (:mod:`starnav.navigation.limb`) is good to about a pixel. The STAR Nav
-subpixel algorithm then reads up to 16 *windows* of DN values along that limb and refines the
-limb position inside each of them. Here each window is fitted with a physical model of a blurred
-limb, so the result is unbiased for any PSF width the model is told or can fit.
+The pixel-accuracy limb (:mod:`starnav.navigation.limb`) is good to about a pixel; up to 16
+*windows* of DN values along it are then read and each is fitted with a physical model of a
+blurred limb, so that the edge is unbiased for the PSF the model is told or fits. Each step in
+full: docs/methods.md, "starnav.navigation.refine".
 
 Technique
 ---------
-1. **Plan.** :func:`plan_windows` places ``n_windows`` (<= 16) square windows of ``size_px``
-   evenly along the lit arc of the pixel-level limb (points ordered by angle), each centred on a
-   limb point and clipped to the detector.
-2. **Local geometry.** A coarse circle ``(c, R)`` (RANSAC) gives, for every pixel centre ``p``
-   of a window, its radius ``rho = |p - c|`` and its arc coordinate ``t = R (phi - phi_w)``
-   about the window's reference angle ``phi_w``. The edge inside the window is
-   ``rho_e(t) = R + delta + tau t`` (an offset and a tilt), so a pixel's signed distance outside
-   the edge is ``d = rho - rho_e(t)``; the curvature comes from the circle, and the ellipse's
-   different curvature changes ``rho_e`` by < 0.01 px over a window.
-3. **Edge model.** Across the limb of a sphere the scene radiance, as a function of the
-   distance ``x`` inside the limb, is ``f(x) = H(x) [A + G1 x + Gh sqrt(x)]`` to first order in
-   the emission angle (``cos e = sqrt(2x/R)``; exact for a Lambert sphere to ``O((x/R)^1.5)``;
-   ``H`` the step). It is blurred by a Gaussian PSF of ``sigma`` (the pixel's box adds 1/12 px^2
-   to the variance), which gives the closed-form basis ``sigma^nu F_nu(x/sigma)`` with
-   ``F_nu(t) = int_0^inf y^nu phi(t - y) dy`` (``F_0 = Phi``, ``F_1 = t Phi + phi``;
-   ``F_1/2`` from the parabolic cylinder function ``D_-3/2``, tabulated once). The model of a
-   pixel is ``I = Bg + A F_0 + G1 sigma F_1 + Gh sigma^(1/2) F_1/2``.
+1. **Plan** ``n_windows`` square windows evenly along the lit arc (:func:`plan_windows`).
+2. **Local geometry**: a coarse circle gives each pixel its signed distance outside an edge
+   with an offset ``delta`` and a tilt ``tau``.
+3. **Edge model**: a sphere's limb profile ``H(x) [A + G1 x + Gh sqrt(x)]`` blurred by a
+   Gaussian (closed-form basis ``sigma^nu F_nu``); 3b with the detector's own blur, its line
+   spread function across the limb (:class:`EdgeSpread`), which also keeps saturated windows.
+4. **Fit**: Levenberg-Marquardt on the nonlinear parameters with the amplitudes solved
+   linearly, all windows batched; weighted by the pixels' noise (:class:`PixelNoise`).
+5. **Point and uncertainty**: one limb point per window, its sigma from the fit combined with
+   the calibrated model errors (:class:`ModelErrorCalibration`); what all points share goes to
+   ``LimbPoints.common_covariance_px2``.
 
-   **3b. The detector's own blur** (``detector-psf``, the default when the frames' detector is
-   known, :class:`EdgeSpread`). A star tracker is defocused on purpose: its PSF is a disc
-   convolved with an elliptical Gaussian that grows across the field
-   (:mod:`starnav.detector.optics`), whose tails are not a Gaussian's. The window's edge is
-   then blurred by the detector's line spread function across the limb normal at that field
-   position (:func:`starnav.detector.optics.line_spread_function`: the tent blend of the node
-   PSFs, the pixel apertures, the inter-pixel capacitance), tabulated once per field cell and
-   direction, and the model is a blurred step and ramp, ``I = Bg + A b0(d') + G1 b1(d')``
-   (plus the step's tangential gradient), ``b0 = int_{s>d} lsf``, ``b1 = int_{s>d} (s - d)
-   lsf``, at ``d' = d + var_t / (2 R)``: a disc's blurred edge is a straight edge's moved
-   inwards by the blur's variance along the edge over twice the radius (to first order;
-   -0.03 px on a 20 px disc blurred by 1 px without it). Between the table's samples (0.02
-   px) ``lsf`` is interpolated linearly and ``b0``, ``b1`` are its exact integrals
-   (quadratic within a step, :func:`_table_values`): the model is smooth in the edge's
-   position and ``-lsf``, ``-b0`` are its derivatives. (Interpolated linearly, ``b0`` had a
-   kink at every sample: with a saturated window's step 5x the full scale its cost was rough
-   at the 1e-3 px level, its minimum 2e-3 px from the Gauss-Newton stationary point.)
-   With the blur known the edge's position is no longer traded against its width, and a
-   **saturated** window (its inside clipped at the full well) keeps its edge: its
-   unsaturated tail is the known blur of an unknown step, fitted with ``A`` alone (the inside
-   profile ``G1`` is not seen). Measured on rendered frames at 0.18 ms: bias +0.01 px against
-   -1.9 +- 2.9 px with a fitted Gaussian. Windows whose step exceeds ``max_overexposure`` times
-   the headroom to saturation are dropped (there blooming shapes the edge: the 7.7 ms case).
-4. **Fit.** Gauss-Newton with Levenberg damping on ``(delta, tau, sigma, Bg, A, G1, Gh)`` with
-   the analytic Jacobian (``dF_nu/dt = nu F_(nu-1)``); ``sigma`` is held at
-   ``sqrt(psf_sigma_px^2 + 1/12)`` when the PSF is known, and absent with the detector's
-   blur. Saturated pixels are left out. With the pixels' noise known (:class:`PixelNoise`:
-   read, shot, PRNU, quantisation from the detector settings) the fit is repeated with weights
-   ``1 / var(I)`` at the first fit's prediction.
+The knobs are :class:`RefineOptions`.
 
-   **All windows at once.** The 16 fits are one batched fit: the windows' pixels are
-   ``(K, M)`` arrays, each window keeps its own parameters, damping and convergence, and
-   only the windows still iterating are evaluated. The amplitudes enter linearly, so each
-   evaluation solves for them and reduces the Gauss-Newton system to the nonlinear
-   parameters (the Schur complement of the amplitudes' normal equations, whose inverse's
-   ``delta`` entry is the full inverse's): the Levenberg-Marquardt steps are 2 x 2 (3 x 3
-   with a fitted ``sigma``) solves. With the ``detector-psf`` model one Gram matrix per
-   window does it all (:class:`_TableModel`): the weighted basis rows, the data and the
-   step's derivative rows ``lsf w {1, t, t^2}`` are the rows ``Y`` of one array, ``G = Y
-   Y^T`` gives the amplitudes, the cost and the reduced normal equations; the 16 windows'
-   tables are laid end to end (cached per set of tables) and read with one gather. Each
-   window stops when its next step would move its edge by < 1e-4 px anywhere in it (the
-   step is taken without evaluating it), or when a rejected step (the cost rose) puts the
-   minimum along it that close (the parabola through the cost, its slope and the trial's
-   cost; a step shorter than 2e-4 px always does). Gauss-Newton converges linearly here,
-   ~5x per step and ~2x on saturated windows (the model's blur is not the scene's: the
-   residuals times the blur's curvature, which it leaves out, are large), so each accepted
-   step shorter than 0.2 px measures the cost's curvature along it (the change of the
-   gradient) against Gauss-Newton's, and the next step is divided by their ratio (clipped
-   to 0.5-2): a secant correction at no cost. The first, unweighted pass of a
-   noise-weighted fit only sets the weights and stops at 1e-2 px (the weights change by
-   < 1e-3; not for saturated windows, whose weights are more sensitive). On the benchmark
-   frames: 8 evaluations of at most 16 windows per frame at 20 000 km and 6 at 60 000 km,
-   against ~27 of all 16 windows in a per-window fit;
-   the points agree with the per-window fit to 1e-4 px and their sigmas to 1e-3
-   (``tests/navigation/test_refine_regression.py``; saturated windows to 0.06 of their
-   sigma, whose pinned fit stopped on the kinks of its rough cost). Tried and left out:
-   Newton terms for the offset and tilt (quadratic convergence, but the extra basis rows
-   cost what the saved iterations gain); an unweighted first pass stopped at 2e-2 px (one
-   evaluation of one window less, the sigmas 0.6 % off).
-5. **Point and uncertainty.** Each window gives one refined limb point
-   ``c + (R + delta) (cos phi_w, sin phi_w)``. Its sigma is the fit's ``sqrt((J^T W J)^-1)``
-   (inflated by the reduced chi-square where above 1; ``s^2 (J^T J)^-1`` without a noise
-   model) combined with the model errors: the edge model's own error and a saturated
-   window's extra (per bin of phase angle), and the terrain's limb-height spread over the
-   window's arc (:mod:`starnav.dem.limb`, times a scale), calibrated by Monte Carlo on
-   rendered calibration arcs (:class:`ModelErrorCalibration`,
-   ``tools/calibrate_refine_model_error.py``). What all points of a frame share (the disc's
-   apparent radius, a pull of the limb towards the Sun) goes into
-   ``LimbPoints.common_covariance_px2`` for the fix, not into the points' sigma. Windows
-   whose fit does not converge, puts the edge outside the window, or finds no contrast are
-   dropped.
+References
+----------
+Seed paper (STAR Nav), the subpixel-accuracy limb algorithm (its reference 5).
+J. A. Christian, "Accurate planetary limb localization for image-based spacecraft navigation",
+J. Spacecr. Rockets 54 (2017) 708-730, doi:10.2514/1.A33692 (PSF-aware edge models).
+Abramowitz & Stegun 19.5.3 / DLMF 12.5.1 (parabolic cylinder integral).
 
-Tuning
-------
-=====================  =================  ===================================================
-option                 default            effect
-=====================  =================  ===================================================
-``n_windows``          16                 windows planned along the lit limb (AA-STR: <= 16)
-``size_px``            11                 side of each square window [px]
-``edge_model``         ``blurred-limb``   ``detector-psf`` (the detector's blur; needs
-                                          ``spread``), ``blurred-limb`` (Gaussian: step +
-                                          ramp + sqrt onset) or ``blurred-step``
-``spread``             None               :class:`EdgeSpread` of the frames' detector
-``noise``              None               :class:`PixelNoise`: weighted fit
-``max_overexposure``   20                 saturated windows brighter than this many times
-                                          the headroom are dropped
-``model_error_table``  None               :class:`ModelErrorCalibration` (per phase)
-``psf_sigma_px``       None               Gaussian PSF sigma [px]; None: fitted per window
-``sigma0_px``          1.0                starting sigma when fitted [px]
-``saturation_dn``      4095               pixels at or above are ignored [DN]
-``max_iterations``     30                 Gauss-Newton iterations per window
-``min_sigma_px``       0.02               floor of the reported uncertainty [px] (model
-                                          error on analytic discs: ~0.015 px rms)
-``min_contrast_dn``    10                 minimum step amplitude A [DN]
-=====================  =================  ===================================================
-
-Example
--------
->>> from starnav.navigation.refine import plan_windows, refine_limb
->>> plan = plan_windows(limb.uv, limb.centre_px, shape=(1024, 1024))   # doctest: +SKIP
->>> fine = refine_limb(windows, limb.centre_px, limb.radius_px)         # doctest: +SKIP
-
-Reference
----------
-Seed paper (STAR Nav), the subpixel-accuracy limb algorithm (its reference 5). The blurred-edge
-fit follows the PSF-aware edge models of J. A. Christian, "Accurate planetary limb localization
-for image-based spacecraft navigation", J. Spacecr. Rockets 54 (2017) 708-730,
-doi:10.2514/1.A33692. Parabolic cylinder integral: Abramowitz & Stegun 19.5.3 / DLMF 12.5.1.
+Index
+-----
+:func:`plan_windows`, :class:`WindowRequest`, :func:`cut_windows`; :func:`refine_limb`,
+:func:`fit_edge_window`, :class:`EdgeFit`, :func:`edge_profile`, :func:`f_nu`;
+:class:`RefineOptions`, :class:`PixelNoise`, :class:`EdgeSpread`, :class:`EdgeTables`,
+:class:`ModelErrorCalibration`, :func:`packaged_model_error`, :func:`warm_up`.
 """
 
 from __future__ import annotations

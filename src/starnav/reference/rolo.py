@@ -1,87 +1,26 @@
 """The ROLO lunar disc-reflectance model (Kieffer & Stone 2005, model 311g): the real Moon's
 brightness, as a reference for everything starnav renders.
 
-The model
----------
-The USGS RObotic Lunar Observatory (ROLO) imaged the Moon for eight years from Flagstaff in 32
-bands from 350 to 2384 nm. Kieffer & Stone (2005) fitted the Moon's **disc-equivalent
-reflectance** ``A_k`` (the reflectance of a flat Lambert disc of the Moon's apparent size that
-would give the same irradiance) in each band ``k`` with one empirical function of the phase angle
-``g``, the selenographic longitude of the Sun ``Phi`` and the selenographic latitude ``theta`` and
-longitude ``phi`` of the observer (their Eq. 10, coefficients in their Table 4)::
+ROLO fits the Moon's disc-equivalent reflectance ``A_k`` in 32 bands (350-2384 nm) as one
+empirical function of the phase angle, the Sun's selenographic longitude ``Phi`` and the
+observer's libration (Eq. 10, Table 4); the irradiance at an observer follows by Eq. 8, with
+the per-band Apollo factor (``apollo=True``) of the published irradiances. The API is SI
+(radians, metres; wavelengths in nm, linear in ``A`` between band centres); ``Phi > 0`` for
+the waxing Moon. The fit covers ``1.55 < g < 97 deg`` seen from Earth: outside it the result is
+flagged ``extrapolated`` and a warning is logged. The formula, the sign of ``Phi`` and the
+validity in full: docs/methods.md, "starnav.reference.rolo".
 
-    ln A_k = sum_{i=0..3} a_ik g^i + sum_{j=1..3} b_jk Phi^(2j-1)
-             + c1 theta + c2 phi + c3 Phi theta + c4 Phi phi
-             + d1k exp(-g'/p1) + d2k exp(-g'/p2) + d3k cos((g' - p3)/p4)
-
-1. the cubic in ``g`` [rad] is the photometric phase function of the whole disc;
-2. the odd polynomial in ``Phi`` [rad] carries the waxing/waning asymmetry (the maria are not
-   spread evenly over the near side);
-3. the ``c`` terms are the (small, linear) effect of libration, ``theta`` and ``phi`` in
-   **degrees**, ``c3, c4`` coupling it with ``Phi`` [rad];
-4. the ``d`` terms, with ``g' = g`` in **degrees** (``p1..p4`` in degrees too), model the
-   opposition surge and a residual slow oscillation.
-
-The irradiance of the Moon at an observer follows (Kieffer & Stone 2005, Eq. 8)::
-
-    I_k = A_k Omega_M E_k / pi * (1 AU / D_sun)^2 * (384 400 km / D_obs)^2
-
-with ``Omega_M = 6.4177e-5 sr`` the solid angle of the Moon (radius 1737.4 km) at 384 400 km,
-``E_k`` the solar spectral irradiance at 1 AU, ``D_sun`` the Sun-Moon and ``D_obs`` the
-observer-Moon distance (both to the Moon centre). Published ROLO irradiances are ``A_k`` times a
-per-band **Apollo factor** (a correction of the absolute scale against the Apollo 16 soil and
-breccia spectra, ``apollo=True`` here); the model proper is ``apollo=False``.
-
-Units and conventions
----------------------
-* The API is SI: angles in **radians**, distances in **metres**, wavelengths in nm (the spectra
-  of :mod:`starnav.spectra` are tabulated in nm). The degree/radian mixture of the formula is
-  handled inside.
-* ``g`` is the (unsigned) Sun-Moon-observer angle, 0..pi.
-* Longitudes are **east-positive** selenographic (IAU: east is towards Mare Crisium), latitudes
-  north-positive; returned longitudes lie in ``[-pi, pi)``.
-* **Sign of Phi.** ``Phi`` is the longitude of the subsolar point. The *waxing* Moon seen from
-  Earth (new -> first quarter -> full, the Moon in the evening sky, east of the Sun) has
-  ``Phi > 0``; the waning Moon ``Phi < 0``. Reasoning: a waxing Moon stands east of the Sun in
-  Earth's sky, so the Sun lights its limb that faces sky-west; the limb on the sky-west side of
-  the disc is the selenographic *east* limb (Mare Crisium), so the subsolar point lies east of
-  the sub-Earth point (``Phi = +g`` for an observer at (0, 0): +90 deg at first quarter, 0 at
-  full, -90 deg at last quarter). The terminator then in view is the lunar *morning* (sunrise)
-  terminator at longitude ``Phi - 90 deg`` (the Sun's selenographic colongitude is
-  ``90 deg - Phi``, as in the almanacs). Check in the coefficients: ``b1 > 0`` in every band, so
-  the model's waxing Moon is brighter than its waning Moon at the same phase (6-16 % at 60 deg):
-  the waning Moon lights the mare-rich western near side (Oceanus Procellarum), the known
-  asymmetry.
-* Wavelength interpolation between the 32 band centres is **linear in A** (as the tables of
-  :mod:`starnav.spectra` are); outside the table (350-2383.6 nm) is an error, not an
-  extrapolation.
-
-Validity
---------
-The fit covers ``1.55 < g < 97 deg`` and views from Earth only, i.e. the near side with the
-libration of the Earth's orbit (``|theta| < ~7 deg``, ``|phi| < ~8 deg``). Outside the phase
-range, or with the sub-observer point off the near side (more than 90 deg from the mean sub-Earth
-point (0, 0)), the result is an **extrapolation**: a warning is logged
-(``logging.getLogger(__name__)``) and :class:`RoloIrradiance` carries ``extrapolated=True``.
-Views between the Earth's libration and 90 deg use the linear libration terms well beyond the
-data that fitted them; they are not flagged, but are less certain. The irradiance formula treats
-the Moon as a point source: for an observer close to the Moon (``R/D_obs`` not small) the
-visible part of the sphere and the phase angle across it differ from the Earth's view.
-Kieffer & Stone report an average fit residual below 1 %; the absolute scale (founded on Vega and
-the Apollo samples) is less certain: LIME reads 3-5 % above ROLO.
-
-Example
--------
->>> import math
->>> from starnav.reference.rolo import rolo_reflectance
->>> a = rolo_reflectance(math.radians(2.0), 0.0, wavelength_nm=544.0)
->>> round(float(a), 4)        # data README, sanity value
-0.127
-
-Reference
----------
+References
+----------
 Kieffer, H. H. & Stone, T. C. (2005), The spectral irradiance of the Moon, AJ 129, 2887-2901,
 doi:10.1086/430185 (Eqs. 8 and 10, Table 4: model 311g).
+
+Index
+-----
+:func:`rolo_reflectance`, :func:`rolo_spectrum`, :func:`rolo_irradiance`,
+:class:`RoloIrradiance`, :func:`rolo_geometry`, :class:`RoloGeometry`,
+:func:`rolo_irradiance_for_frame`, :func:`rolo_extrapolation`, :func:`rolo_coefficients`,
+:class:`RoloCoefficients`.
 """
 
 from __future__ import annotations

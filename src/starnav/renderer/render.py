@@ -1,89 +1,32 @@
 """Radiometric spectral rendering of the Moon with Mitsuba 3.
 
+The scene is built once in the Moon's body-fixed frame; a frame changes only the sensor pose
+and the Sun direction. Each step in full: docs/methods.md, "starnav.renderer.render".
+
 Technique
 ---------
-1. The scene is built in the **Moon body-fixed frame** (km): the Moon never moves, so one
-   loaded scene (and its acceleration structure and compiled kernels) serves every frame of a
-   sequence; only the sensor pose and the Sun direction change, through ``mi.traverse``. A
-   view-adapted mesh (``mesh_provider``) keeps the scene as long as the provider returns the
-   same mesh (the real Moon's: one per view cell, :mod:`starnav.renderer.dem_hook`).
-2. The Sun is a ``directional`` emitter whose irradiance is the tabulated solar spectrum at
-   1 AU [W m^-2 nm^-1] (never a bare number, which Mitsuba would turn into D65). The output is
-   scaled by ``(1 AU / d_sun)^2`` afterwards (exact: radiance is linear in irradiance).
-3. The surface is one of starnav's photometric plugins (:mod:`.bsdfs`); the ``direct``
-   integrator with one emitter sample per camera sample gives the single-scattering radiance
-   ``L = r(i, e, g) E`` with cast shadows; on the JIT variants :func:`_direct_lighting` runs
-   it with the shadow ray cast only where the BSDF is non-zero.
-4. The ``specfilm`` integrates each sample's spectral radiance against two responses in the
-   same pass: a unit box over the sensor band gives the band radiance ``L`` [W m^-2 sr^-1], and
-   ``QE T lambda / (h c)`` gives the electron radiance ``Le`` [e- s^-1 m^-2 sr^-1]. Both
-   responses are normalised to a peak of 1 for the film's wavelength sampling and scaled back.
-   By default (``spectral_sampling: electrons``) the film draws the wavelengths by the
-   spectrum of the electrons the lit surface gives, Sun x surface colour x ``QE T lambda /
-   (h c)``: every starnav surface is a grey factor of position and angles times one spectral
-   shape, so that product is the integrand's whole spectral part, each sample carries the same
-   spectral weight and ``L`` is the frame's constant ``kappa`` times ``Le``
-   (:func:`~starnav.renderer.scene.film_channels`). The emitter is then flat and the BSDF
-   grey; the other way (``response``: wavelengths by the band box plus the electron response,
-   the Sun in the emitter, the colour in the BSDF) leaves the
-   solar spectrum's lines and the Moon's reddening in each sample's weight: 3.20 % per-pixel
-   noise at 1 spp in the full-field real Moon's interior, against 0.86 % (``benchmarks/
-   render_noise.py``, docs/performance.md).
-5. Only the pixels the Moon can cover are traced: the film's crop window is the bounding box of
-   the projected sphere of radius ``R + h_max`` plus a margin.
-6. One non-jittered ray through each pixel centre gives the surface point and normal, from
-   which range, lat/lon and the incidence, emission and phase angles are computed (float32).
-7. On the JIT variants the frame is traced by :func:`_render_fused`, Mitsuba's wavefront loop
-   with the crop window, seed and near plane passed as data instead of kernel literals (one
-   compiled kernel serves every frame of a sequence) and the AOVs of step 6 in the same
-   evaluation; the scalar variant uses ``mi.render`` and the ``aov`` integrator.
-8. With ``adaptive`` (JIT variants, the default) the pixel-centre rays of step 6 are cast
-   first and decide each pixel's sample count: ``spp`` at the limb and wherever the centre
-   rays' radiance changes by more than 30 % over the 3 x 3 neighbourhood (terminator, cast
-   shadows, albedo edges), ``interior_spp`` (2) in the flat interior, none outside the body's
-   bounding sphere (:func:`adaptive_sample_counts`, :func:`_render_adaptive`). Deterministic
-   inputs only, so every pixel stays an unbiased mean of its pixel integral. With the
-   wavelengths drawn by the electron spectrum (step 4) the interior's noise is the pixel
-   footprint's, below that of a 16-spp render with the wavelengths drawn by the sensor
-   response and below the shot noise at the demo exposure (noise and time:
-   ``benchmarks/render_noise.py``, ``benchmarks/render.py``, ``docs/performance.md``).
-9. The Earth's shadow (:mod:`starnav.eclipse`): where the body can be in the Earth's penumbra
-   (the frame's ``earth_position``), the radiance of each pixel is multiplied by the fraction
-   of the solar disc the Earth leaves visible from the surface point under the pixel centre
-   (radiance is linear in the irradiance of one distant Sun); elsewhere the frame is not
-   touched (:meth:`MoonRenderer._earth_shadow`).
+1. One loaded scene serves every frame of a sequence (``mi.traverse`` moves sensor and Sun).
+2. The Sun is a ``directional`` emitter of the tabulated solar spectrum at 1 AU, scaled by
+   ``(1 AU / d_sun)^2`` afterwards.
+3. The surface is a starnav photometric plugin (:mod:`.bsdfs`); the ``direct`` integrator
+   gives the single-scattering radiance with cast shadows.
+4. The ``specfilm`` integrates the band radiance ``L`` and the electron radiance ``Le`` in one
+   pass; by default the wavelengths are drawn by the lit surface's electron spectrum.
+5. Only the Moon's projected bounding box is traced (crop window).
+6. One ray through each pixel centre gives the geometric channels (AOVs).
+7. On the JIT variants one compiled wavefront loop serves every frame (:func:`_render_fused`).
+8. ``adaptive``: the pixel-centre rays decide each pixel's sample count
+   (:func:`adaptive_sample_counts`); every pixel stays an unbiased mean.
+9. The Earth's shadow multiplies each pixel by the visible fraction of the solar disc
+   (:mod:`starnav.eclipse`).
 
-Tuning knobs
-------------
-=================== ======= ===============================================================
-knob                default effect
-=================== ======= ===============================================================
-``spp``             16      samples per pixel: Monte Carlo noise ~ 1/sqrt(spp) at the limb
-``crop``            True    trace only the Moon's bounding box (same result, faster)
-``crop_margin_px``  4       extra pixels around the box
-``aovs``            True    the geometric channels (one extra ray per pixel)
-``sampler``         multi-  jittered strata over pixel area and wavelength: 0.7 % per-pixel
-                    jitter  noise at 16 spp on a Lambert disc (2.1 % with ``independent``)
-``wavelength_step`` 1 nm    grid of the regular spectra handed to Mitsuba (O(1) lookups)
-``fused_loop``      True    the renderer's own render loop on JIT variants (``False``:
-                            ``mi.render``, the reference it is tested against)
-``adaptive``        True    adaptive samples per pixel (step 8; JIT variants with the fused
-                            loop; ignored by ``mi.render``)
-``interior_spp``    2       samples of a flat interior pixel with ``adaptive`` (<= ``spp``;
-                            unset: 2, or ``spp`` if fewer)
-``spectral_``       electr- wavelengths drawn by the lit surface's electron spectrum (step 4)
-``sampling``        ons     or by the sensor response (``response``)
-``earth_shadow``    True    the Earth's shadow (step 9)
-``sun_limb_``       0       the Sun's linear limb darkening in the shadow (0: uniform disc)
-``darkening``
-=================== ======= ===============================================================
+The knobs are :class:`RenderSettings` (scenario: ``renderer.schema.RenderConfig``).
 
-Example
--------
->>> from starnav.config import Scenario
->>> from starnav.simulate import render_scenario
->>> img = render_scenario(Scenario())[0]          # doctest: +SKIP
->>> img.L.max()                                    # W m^-2 sr^-1  # doctest: +SKIP
+Index
+-----
+:class:`MoonRenderer`, :class:`RenderSettings`, :class:`MoonModel`, :class:`AlbedoMap`,
+:func:`load_albedo_map`, :func:`moon_bounding_box`, :func:`adaptive_sample_counts`,
+:class:`AdaptivePlan`, :class:`AovFrame`, :data:`SAMPLERS`, :data:`SPECTRAL_SAMPLINGS`.
 """
 
 from __future__ import annotations
@@ -270,7 +213,8 @@ ADAPTIVE_SPREAD = 0.3
 
 @dataclass(frozen=True)
 class RenderSettings:
-    """Rendering knobs (see the module docstring's table)."""
+    """Rendering knobs, SI; each is declared with its meaning in
+    :class:`~starnav.renderer.schema.RenderConfig`."""
 
     spp: int = 16
     crop: bool = True

@@ -1,74 +1,22 @@
-r"""Point-mass dynamics about the Earth-Moon barycentre, RK4 propagation and the STM.
+"""Point-mass dynamics about the Earth-Moon barycentre, RK4 propagation and the STM.
 
-This is the force model of the navigation filter (an EKF in EMB J2000 axes with RK4 and the
-STM) and, unless ``trajectory.forces`` adds planets, solar radiation pressure or J2
-(:mod:`starnav.scenes.forces`), of the truth trajectory.
+The force model of the navigation filter and, unless ``trajectory.forces`` adds planets, solar
+radiation pressure or J2 (:mod:`starnav.scenes.forces`), of the truth trajectory: Earth, Moon
+and Sun point masses in EMB-centred J2000 axes (SI, TDB seconds past J2000) with the
+barycentre's indirect term (``emb_indirect``: ``barycentric``, exact, or ``sun-at-emb``).
+Propagation is fixed-step RK4 with the ephemeris evaluated at every stage in one call, and the
+STM integrated with the same stages. The equations and the Jacobian: docs/methods.md,
+"starnav.scenes.dynamics".
 
-Equations of motion
--------------------
-Frame: origin at the Earth-Moon barycentre (EMB), non-rotating ICRF/J2000 axes, SI units,
-time in TDB seconds past J2000. The EMB is not an inertial point: it falls towards the Sun. With
-Earth (E), Moon (M) and Sun (S) as point masses, the inertial accelerations are
+References
+----------
+O. Montenbruck, E. Gill (2000), *Satellite Orbits*, Springer, ss. 3.2 (point masses and
+indirect terms) and 7.2 (variational equations).
 
-* spacecraft:  ``R'' = - sum_i GM_i (R - R_i) / |R - R_i|^3``, i in {E, M, S};
-* barycentre:  ``R_B'' = (m_E R_E'' + m_M R_M'') / (m_E + m_M)``. The Earth-Moon mutual pulls
-  cancel in this mass-weighted sum (action = reaction), so only the Sun is left:
-
-  ``a_B = -GM_S [ (1 - f) (r_E - r_S) / |r_E - r_S|^3 + f (r_M - r_S) / |r_M - r_S|^3 ]``,
-  ``f = m_M / (m_E + m_M) = 1 / (1 + EMRAT)``,
-
-  with ``r_E, r_M, r_S`` the EMB-centred positions from the ephemeris.
-
-Relative to the EMB, ``r = R - R_B``::
-
-    r'' = - GM_E (r - r_E)/|r - r_E|^3 - GM_M (r - r_M)/|r - r_M|^3
-          - GM_S (r - r_S)/|r - r_S|^3 - a_B
-
-``-a_B`` is the *indirect term*. Earth and Moon contribute none (they do not accelerate their own
-barycentre). Expanding ``a_B`` about the Sun's position, the first-order terms cancel because
-``(1 - f) r_E + f r_M = 0`` (definition of the barycentre), leaving
-``a_B = GM_S r_S / |r_S|^3 + O(3 GM_S f (1 - f) d_EM^2 / |r_S|^4)``: the Sun's indirect term of
-docs/facts.md s4, ``-GM_S r_S/|r_S|^3``, plus a tidal correction below 1.5e-9 m/s^2 (a few km
-over a month). ``emb_indirect="barycentric"`` (default) uses the exact mass-weighted form above;
-``"sun-at-emb"`` uses the docs/facts.md approximation. Planets, solar radiation pressure and
-J2 are left out of this model (the filter's); the truth may add them
-(:mod:`starnav.scenes.forces`: Venus's tide alone reaches ~5e-9 m/s^2).
-
-Jacobian (for the STM)::
-
-    d r''/d r = - sum_i GM_i [ I / rho_i^3 - 3 rho_i rho_i^T / rho_i^5 ],  rho_i = r - r_i
-
-(the indirect term does not depend on ``r``).
-
-Propagation
------------
-1. The epochs of every RK4 stage (grid nodes and mid-points) are known in advance for a fixed-step
-   scheme, so the ephemeris is evaluated for all of them in one vectorised call.
-2. Classic fourth-order Runge-Kutta on the 6-state; with ``with_stm`` the 6x6 state transition
-   matrix ``Phi' = A Phi``, ``A = [[0, I], [d r''/d r, 0]]``, ``Phi(t0) = I``, is integrated
-   with the same stages (the discrete STM of the RK4 map to truncation order).
-3. The interval is split into ``ceil(|t1 - t0| / step)`` equal steps, so the nominal ``step`` is
-   used exactly when it divides the interval; backward propagation works the same way.
-
-Tuning knobs
-------------
-============  =======  ==================================================================
-knob          default  effect
-============  =======  ==================================================================
-step          300 s    RK4 step; error ~ step^4. 300 s keeps the position error over one
-                       14.7 d halo period at the mm level; the truth arc uses 60 s.
-emb_indirect  exact    "barycentric" (exact) or "sun-at-emb" (docs/facts.md s4 form)
-gm_*          DE421    GM of Earth, Moon, Sun [m^3/s^2]; default from the ephemeris
-============  =======  ==================================================================
-
-Example
--------
->>> from starnav.scenes.dynamics import PointMassModel, propagate
->>> model = PointMassModel()                     # DE421, Earth + Moon + Sun
->>> x1, Phi = propagate(model, t0, x0, t0 + 3600.0, with_stm=True)   # doctest: +SKIP
-
-Reference: O. Montenbruck, E. Gill (2000), *Satellite Orbits*, Springer, ss. 3.2 (point masses
-and indirect terms) and 7.2 (variational equations).
+Index
+-----
+:class:`PointMassModel`, :func:`propagate`, :func:`propagate_many`, :func:`rk4_grid`,
+:func:`step_grid`, :data:`DEFAULT_STEP`.
 """
 
 from __future__ import annotations

@@ -1,60 +1,28 @@
 """Fly-by of a small body: the spacecraft's motion relative to the body, the Sun, the epochs.
 
+Each step and why the straight line is the default: docs/methods.md, "starnav.scenes.flyby".
+
 Technique
 ---------
-1. **Fly-by frame.** ``y`` is the direction of the relative velocity at closest approach (CA),
-   given in J2000 by ``velocity_ra_deg`` / ``velocity_dec_deg``; ``x`` the direction from the
-   body centre to the spacecraft at CA, perpendicular to ``y`` and turned by ``ca_angle_deg``
-   about ``y`` from the projection of the J2000 pole (the B-plane angle); ``z = x cross y``
-   is the normal of the fly-by plane.
-2. **Relative motion** (body-centred J2000, SI), ``t`` seconds from CA:
+1. Fly-by frame: ``y`` the relative velocity at closest approach (CA), ``x`` the body-to-
+   spacecraft direction at CA turned by the B-plane angle ``ca_angle_deg``, ``z = x cross y``.
+2. Relative motion ``t`` seconds from CA: ``straight`` (default, ``r = d x + v t y``) or the
+   Kepler ``hyperbolic`` orbit of the body's ``GM`` (:func:`hyperbola_in_plane`); the
+   deflection between them is :func:`deflection_angle` (``~2 GM / (d v^2)``, negligible for the
+   packaged bodies).
+3. Sun: a fixed inertial direction from the phase at CA and ``sun_azimuth_deg``.
+4. Epochs every ``trajectory.cadence_s`` from ``CA + start_s`` to ``CA + end_s``.
 
-   * ``straight`` (default): ``r(t) = d x + v t y``, ``v(t) = v y``, so that the range is
-     ``sqrt(d^2 + (v t)^2)`` exactly;
-   * ``hyperbolic``: the Kepler hyperbola of the body's ``GM`` with periapsis ``d`` on ``x`` and
-     hyperbolic excess speed ``v_inf``: ``a = -GM / v_inf^2``, ``e = 1 + d v_inf^2 / GM``,
-     ``e sinh H - H = n t`` with ``n = sqrt(GM / |a|^3)`` (Newton), then
-     ``r = |a| (e - cosh H) x + |a| sqrt(e^2 - 1) sinh H y`` (Vallado 2013, section 2.2).
-     Its velocity at CA is ``sqrt(v_inf^2 + 2 GM / d)`` along ``y``.
+The knobs are :class:`~starnav.scenes.schema.FlybyConfig`.
 
-   Why straight is the default: the deflection of the asymptotes is ``delta = 2 asin(1/e)
-   ~ 2 GM / (d v_inf^2)``. Itokawa (GM = 2.34 m^3 s^-2) passed at 10 km and 5 km/s:
-   ``delta = 1.9e-11 rad``; even 1 km away at 1 km/s, 4.7e-9 rad. Eros (GM = 4.46e5
-   m^3 s^-2) at 100 km and 5 km/s: 3.6e-7 rad, and the hyperbola leaves the straight line by a
-   few metres over an hour (its CA speed is higher by ``GM / (d v)`` = 0.9 mm/s), a tenth of
-   the 36 m pixel footprint at that range. :func:`deflection_angle` gives the number for any
-   case; the tests compare both models and the hyperbola against a numerical integration.
-3. **Sun.** A fixed inertial direction over the fly-by (the body moves ~0.04 deg around the
-   Sun in an hour at 1 AU): ``s = cos(a) x + sin(a) (cos(b) y + sin(b) z)`` with ``a`` the
-   phase angle at CA (body->Sun vs body->spacecraft) and ``b = sun_azimuth_deg`` its azimuth
-   about ``x`` from the velocity. The spacecraft comes from ``-y``: the approach phase is
-   ``acos(-sin(a) cos(b))``, so ``b = 180 deg`` (the default: Sun on the approach side) gives
-   ``90 deg - a`` on approach and ``90 deg + a`` on departure; in the fly-by plane
-   (``b = 0, 180``) the path crosses zero phase at ``t = -d tan(a) / v`` for ``b = 180``
-   (an out-of-plane ``b`` avoids the opposition surge). The Sun is at
-   ``sun_distance_au`` from the body (the renderer scales the irradiance by ``1/d^2``).
-4. **Epochs.** Frames every ``trajectory.cadence_s`` from ``CA + start_s`` to ``CA + end_s``
-   (at most ``trajectory.frames``), CA at ``trajectory.epoch``.
+References
+----------
+D. A. Vallado, *Fundamentals of Astrodynamics and Applications*, 4th ed. (2013), section 2.2.
 
-Tuning knobs (:class:`~starnav.scenes.schema.FlybyConfig`)
-----------------------------------------------------------
-======================= ========== ======================================================
-knob                    default    effect
-======================= ========== ======================================================
-v_inf_km_s              5          relative speed (at infinity for the hyperbola)
-closest_approach_km     20         CA distance (periapsis radius for the hyperbola)
-phase_at_ca_deg         45         Sun phase at CA
-sun_azimuth_deg         180        Sun azimuth about the CA direction (180: low phase in)
-start_s / end_s         -600 / 600 first and last frame relative to CA
-dynamics                straight   ``straight`` or ``hyperbolic`` (the body's GM)
-======================= ========== ======================================================
-
-Example
--------
->>> from starnav.scenes.schema import FlybyConfig
->>> fb = flyby_from_config(FlybyConfig(), epoch_ca=0.0)
->>> round(float(np.linalg.norm(fb.states(np.array([0.0]))[0, :3])))
-20000
+Index
+-----
+:class:`Flyby`, :func:`flyby_from_config`, :func:`hyperbola_in_plane`, :func:`deflection_angle`,
+:func:`unit_vector_radec`.
 """
 
 from __future__ import annotations

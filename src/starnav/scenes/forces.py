@@ -1,47 +1,16 @@
-r"""Truth dynamics richer than the filter's: planets, solar radiation pressure with eclipses, J2.
+"""Truth dynamics richer than the filter's: planets, solar radiation pressure with eclipses, J2.
 
 The navigation filter integrates Earth, Moon and Sun point masses
-(:class:`~starnav.scenes.dynamics.PointMassModel`). The truth a scenario renders may add what a
+(:class:`~starnav.scenes.dynamics.PointMassModel`); the truth a scenario renders may add what a
 real spacecraft feels and the filter does not model, each a switch of ``trajectory.forces``:
 
-1. **Planets** (DE421 barycentres of Venus, Mars, Jupiter, Saturn by default): each a point
-   mass on the spacecraft, and on the Earth and the Moon through the barycentre's own
-   acceleration (the mass-weighted form of the Sun's indirect term,
-   :mod:`starnav.scenes.dynamics`). What is left across the Earth-Moon system is the tidal
-   term, of order ``2 GM_p r / d^3`` (``r`` the spacecraft's distance from the barycentre,
-   ``d`` the planet's): ~4e-9 m/s^2 for Venus at its closest (0.28 AU), 5e-10 for Jupiter.
-2. **Solar radiation pressure**, cannonball model: ``a = nu P_sun (AU / |r - r_S|)^2 C_r A / m
-   u``, ``u`` the unit vector from the Sun to the spacecraft, ``P_sun = 1361 W/m^2 / c`` (IAU
-   2015 nominal total solar irradiance), ``C_r`` the reflectivity coefficient (1 absorbing, 2
-   a flat mirror face-on), ``A`` the area facing the Sun, ``m`` the mass (``spacecraft``
-   section). ``nu`` is the lit fraction of the solar disc (:func:`shadow_fraction`).
-3. **Eclipses** by the Earth and the Moon: a conical shadow, the lit fraction from the
-   overlap of the apparent discs of the Sun (radius ``a``) and the occulting body (``b``),
-   ``c`` apart: 1 for ``c >= a + b``, 0 in the umbra (``c <= b - a``), ``1 - b^2/a^2`` in
-   the antumbra, else ``1 - A / (pi a^2)`` with the overlap area ``A = a^2 acos(x/a) + b^2
-   acos((c - x)/b) - c y``, ``x = (c^2 + a^2 - b^2) / (2 c)``, ``y = sqrt(a^2 - x^2)``
-   (Montenbruck & Gill 2000, s. 3.4.2). Earth and Moon shadows multiply.
-4. **J2** of the Earth (pole along the ICRF z axis: precession since J2000 tilts it by ~0.1
-   deg by 2030, a relative change of the force of ~1e-3, neglected) and of the Moon (pole the
-   DE421 principal-axis z axis): ``a = -3/2 J2 GM R^2 / rho^5 [(1 - 5 (rho.p)^2 / rho^2) rho +
-   2 (rho.p) p]``, ``rho`` from the body's centre, ``p`` its pole (Montenbruck & Gill 2000,
-   s. 3.2). Each body's J2 also pulls the other, but those pulls cancel in the barycentre's
-   motion (action and reaction).
+1. planets (DE421 barycentres) as point masses, with their indirect term;
+2. cannonball solar radiation pressure (``spacecraft`` section), times the lit fraction;
+3. conical eclipses by the Earth and the Moon (:func:`shadow_fraction`);
+4. J2 of the Earth and the Moon (:func:`j2_acceleration`).
 
-The Jacobian used by the variational equations (multiple shooting of the truth arc) is that of
-the point masses (planets included); the small SRP and J2 gradients are left out of it, which
-only slows Newton's convergence, not the converged arc.
-
-Tuning
-------
-==================  ==========================  =============================================
-knob                default                     effect
-==================  ==========================  =============================================
-planets             venus, mars, jupiter,       extra point masses (DE421 barycentres)
-                    saturn
-srp, eclipses       on                          cannonball SRP, Earth and Moon shadows
-j2                  on                          Earth and Moon J2
-==================  ==========================  =============================================
+The variational equations keep the point masses' Jacobian only (slower Newton convergence, same
+converged arc). The formulas and their magnitudes: docs/methods.md, "starnav.scenes.forces".
 
 References
 ----------
@@ -55,6 +24,11 @@ GRAIL Primary Mission", J. Geophys. Res. Planets 118 (2013), 1415-1434: lunar ``
 sqrt(5) = 2.0321e-4`` (normalised ``C20 = -9.0880e-5``), ``R = 1738 km``.
 G. Kopp, J. L. Lean, "A new, lower value of total solar irradiance", Geophys. Res. Lett. 38
 (2011), L01706; IAU 2015 Resolution B3 (nominal 1361 W/m^2).
+
+Index
+-----
+:class:`TruthForceModel`, :class:`SrpParameters`, :func:`shadow_fraction`,
+:func:`j2_acceleration`, :func:`unmodelled_acceleration_psd`, :data:`PLANETS`.
 """
 
 from __future__ import annotations

@@ -1,56 +1,33 @@
 r"""The LUMIO-like truth trajectory: a CR3BP L2 halo carried into the ephemeris model.
 
-Technique (multiple shooting, e.g. Howell & Pernicka 1988; Pavlak 2013)
------------------------------------------------------------------------
-1. **CR3BP halo** (:mod:`starnav.scenes.cr3bp`): southern L2 halo by differential correction,
-   docs/facts.md s4 defaults (period 14.70 d, 48 000-77 000 km from the Moon).
-2. **Patch points**: epochs ``t_k = t0 - pad + k dt`` spanning the requested arc plus ``pad`` on
-   both sides; the halo state at ``tau_k = tau_0 + (t_k - t0) / TU`` (``tau_0`` = phase of the
-   orbit at ``t0``) is mapped to EMB-centred J2000 with the *real* Earth-Moon geometry of DE421
-   at ``t_k`` (pulsating rotating frame): ``x_hat`` along Earth->Moon, ``z_hat`` along the Moon's
-   orbital angular momentum, lengths scaled by the instantaneous Earth-Moon distance ``l``,
-   velocities by the instantaneous rotation rate::
+Each step in full: docs/methods.md, "starnav.scenes.trajectory".
 
-       r = l C rho,      v = l' C rho + l C' rho + l theta' C rho'
+Technique
+---------
+1. CR3BP southern L2 halo by differential correction (:mod:`starnav.scenes.cr3bp`).
+2. Patch points: the halo mapped to EMB-centred J2000 with DE421's instantaneous Earth-Moon
+   geometry (pulsating rotating frame, :func:`rotating_to_emb`).
+3. Multiple shooting in the point-mass ephemeris model (:mod:`starnav.scenes.dynamics`):
+   minimum-norm Newton updates on the continuity defects (:func:`multiple_shooting`).
+4. The arc: each segment propagated from its converged patch state; it must stay within
+   ``[range_min, range_max]`` of the Moon.
+5. Cache: the arc stored as ``.npz`` in the user cache, keyed by a hash of every input.
 
-   (``C = [x_hat y_hat z_hat]``, ``C'`` by a central difference over 60 s).
-3. **Multiple shooting** in the ephemeris point-mass model of :mod:`starnav.scenes.dynamics`
-   (the navigation filter's model): unknowns are all patch states, constraints the continuity
-   defects ``F_k = phi(t_k -> t_k+1; x_k) - x_k+1``. Each iteration propagates every segment
-   at once with RK4 + STM and applies the minimum-norm Newton update
-   ``dX = -J^T (J J^T)^-1 F`` in scaled units (LU, LU/TU), halving the step while the defect
-   norm grows. Epochs are fixed; the ends are free.
-4. **The arc**: every segment is propagated from its converged patch state with the same RK4
-   step, and the nodes from ``t0`` to ``t0 + duration`` are kept: a ballistic arc in the same
-   force model, continuous to the shooting tolerance (mm, nm/s) at the patch epochs. (A single
-   propagation of the first state would do the same over ~40 days, but the halo's instability,
-   e-folding time ~2.2 d, makes it diverge on longer arcs.) The arc must stay within
-   ``[range_min, range_max]`` of the Moon, otherwise
-   :class:`~starnav.scenes.cr3bp.ConvergenceError` is raised.
-5. **Cache**: the arc is stored as ``.npz`` under the user cache directory (``STARNAV_CACHE_DIR``
-   or ``$XDG_CACHE_HOME/starnav`` or ``~/.cache/starnav``), keyed by a hash of every input.
+The knobs are :class:`ShootingOptions`.
 
-Tuning knobs (:class:`ShootingOptions`)
----------------------------------------
-==================  ========  ============================================================
-knob                default   effect
-==================  ========  ============================================================
-segment             0.5 d     patch spacing; shorter = more robust, larger system
-pad                 2 d       free margin before/after the arc (absorbs end effects)
-step                300 s     RK4 step of shooting and arc (docs/facts.md s4: mm per period)
-tol_position        1e-3 m    defect tolerance on positions
-tol_velocity        1e-9 m/s  defect tolerance on velocities
-max_iter            40        Newton iterations
-range_min/max       35/90 Mm  allowed Moon range along the arc
-==================  ========  ============================================================
-
-Sampling: :meth:`Trajectory.sample` interpolates the node states with cubic Hermite splines
-(position and velocity at both ends); with 300 s nodes the interpolation error is below 0.1 mm.
-
-References: K. C. Howell, H. J. Pernicka (1988), *Numerical determination of Lissajous
-trajectories in the restricted three-body problem*, Celestial Mechanics 41, 107-124;
+References
+----------
+K. C. Howell, H. J. Pernicka (1988), *Numerical determination of Lissajous trajectories in the
+restricted three-body problem*, Celestial Mechanics 41, 107-124.
 T. A. Pavlak (2013), *Trajectory design and orbit maintenance strategies in multi-body
 dynamical regimes*, PhD thesis, Purdue University, ch. 3.
+
+Index
+-----
+:func:`ephemeris_halo_arc`, :class:`Trajectory`, :func:`halo_patch_guess`,
+:func:`multiple_shooting`, :class:`ShootingResult`, :class:`ShootingOptions`,
+:func:`rotating_frame`, :func:`rotating_to_emb`, :func:`emb_to_rotating`, :func:`load_cached_arc`,
+:func:`default_cache_dir`.
 """
 
 from __future__ import annotations

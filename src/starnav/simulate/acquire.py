@@ -1,58 +1,26 @@
 """Emulated star-tracker acquisitions of one frame: segments, then windows along the limb.
 
-The AA-STR cannot read a full frame below 200 ms; the STAR Nav subpixel algorithm (seed paper,
-algorithm 1) therefore alternates its two readout modes: a *full image compressed* acquisition
-gives the segments, the on-board chain finds the lit limb in them, and the next acquisition
-reads up to 16 *windows* of DN placed along that limb. This module emulates that sequence on a
-rendered :class:`~starnav.radiance.RadianceImage`.
+The AA-STR cannot read a full frame below 200 ms, so the STAR Nav subpixel algorithm
+alternates its two readout modes; this module emulates that sequence on a rendered
+:class:`~starnav.radiance.RadianceImage`:
 
-Technique
----------
-1. **Acquisition 0 (segments).** :func:`starnav.detector.expose` at the exposure time; its
-   segments and its full DN frame (kept for analysis; the tracker never sends it) are stored.
-2. **Window plan.** The on-board pixel-level chain of :mod:`starnav.navigation` runs on the
-   segments alone (Sun direction from the *measured* attitude, limb scan, RANSAC): the
-   consensus limb points go to :func:`starnav.navigation.refine.plan_windows`, which spreads
-   ``navigation.refine.n_windows`` (<= 16) windows of ``window_size_px`` along the lit arc.
-   Windows are planned by the navigation package's own planner so that the windows the dataset
-   stores are the ones its refinement expects.
-3. **Acquisition 1 (windows).** A second exposure of the *same* radiance with the same
-   exposure time and its own temporal-noise stream reads the planned windows (``windows =
-   "second"``, the default). The two acquisitions are milliseconds apart on the tracker: at
-   1 km/s and 60 000 km the Moon moves by ~1e-5 px between them, so the geometry is shared,
-   while shot and read noise are independent, as on the real sensor. ``windows = "same"`` cuts
-   the windows out of acquisition 0 instead (cheaper; the windows then share the segments'
-   noise, which the tracker cannot do); ``"none"`` skips them. Acquisition 1 starts from
-   acquisition 0's frame before shot noise (the optics, smear, PRNU and dark current are the
-   same deterministic numbers: :class:`starnav.detector.chain.MeanCharge`) and draws its own
-   noise from there; its bytes are those of a full second run of the chain.
+1. Acquisition 0 (segments): :func:`starnav.detector.expose` at the exposure time.
+2. Window plan: the on-board pixel-level chain of :mod:`starnav.navigation` on the segments
+   alone, then :func:`starnav.navigation.refine.plan_windows`
+   (:func:`plan_windows_from_segments`).
+3. Acquisition 1 (windows): the same radiance with its own temporal noise (``windows =
+   "second"``), or cut from acquisition 0 (``"same"``), or none (:data:`WINDOWS_MODES`); it
+   starts from acquisition 0's mean charge.
 
-Randomness
-----------
-Every stream comes from :mod:`starnav.seeding` with fixed keys, so a frame is the same whatever
-the worker that makes it:
+Every random stream is keyed by :mod:`starnav.seeding` (:func:`acquisition_seed`,
+:data:`ACQUISITION_STREAM`, :data:`PLAN_STREAM`), independent of the exposure time (common
+random numbers across exposures); the table of streams: docs/dataset.md.
 
-===================================  ==================================================
-stream                               seed
-===================================  ==================================================
-acquisition ``a`` of run ``r``       ``seed`` itself for ``(r, a) = (0, 0)`` (so run 0's
-(detector temporal noise)            segments acquisition equals ``starnav expose`` of
-                                     the frame), else
-                                     ``seed_u32(seed, STAGE_DETECTOR_TEMPORAL, 1000, r, a)``
-fixed pattern (PRNU, DSNU)           ``detector.sensor_seed`` or ``seed``, for every
-                                     acquisition and run: one physical sensor
-RANSAC of the window plan            ``generator(seed, STAGE_NAVIGATION, r, frame, 1)``
-===================================  ==================================================
-
-The acquisition seed does not depend on the exposure time: the exposures of one frame are
-what-if variants of the same acquisition (common random numbers), which keeps comparisons
-between exposures free of noise-realisation differences and makes each exposure of a
-multi-exposure dataset identical to a dataset made with that exposure alone.
-
-Example
--------
->>> acq = acquire(radiance, geom, camera, scenario, exposure_time=1.5e-5)      # doctest: +SKIP
->>> acq.segments, acq.windows, acq.plan_status                            # doctest: +SKIP
+Index
+-----
+:func:`acquire`, :class:`Acquisition`, :func:`plan_windows_from_segments`,
+:func:`readout_feasibility`, :func:`check_windows_mode`, :func:`acquisition_seed`,
+:func:`sensor_seed_of`, :func:`quiet_timing`, :func:`star_field`.
 """
 
 from __future__ import annotations
@@ -103,7 +71,7 @@ def check_windows_mode(mode: str) -> WindowsMode:
 
 
 def acquisition_seed(seed: int, run: int, acquisition: int) -> int:
-    """Dataset seed of acquisition ``acquisition`` of Monte Carlo run ``run`` (module table)."""
+    """Dataset seed of acquisition ``acquisition`` of Monte Carlo run ``run`` (docs/dataset.md, random streams)."""
     if run < 0 or acquisition < 0:
         raise ConfigError("run/acquisition", (run, acquisition), "non-negative integers")
     if run == 0 and acquisition == 0:

@@ -2,61 +2,27 @@
 
 A fly-by scenario (``target.kind: shape_model``, ``trajectory.source: flyby``) end to end:
 
-1. **Render** every frame once (:meth:`~starnav.simulate.frames.Simulator.render`: geometry
-   and spectral radiance with the body-fixed AOVs); the radiance is reused by every Monte
-   Carlo run, as the limb case re-exposes a dataset's radiance.
-2. **Per run** ``r`` (a run is the same whatever the number of runs):
+1. Render every frame once (:func:`render_flyby`); every Monte Carlo run reuses the radiance.
+2. Per run ``r`` (the same whatever the number of runs): a. the measured attitude (run 0 the
+   frame's own draw, ``r >= 1`` a fresh one); b. the tracker's acquisitions and the front end
+   (:func:`starnav.simulate.trn.track_flyby`); c. the estimator
+   (:func:`~starnav.navigation.trn.filter.run_filter`) from the truth plus a draw of the
+   initial covariance; d. the metrics against the truth; e. with
+   ``navigation.trn.dispersion: orientation`` the run first draws the fly-by's orientation
+   relative to the body and renders its own frames (:func:`flyby_dispersed_runs`).
+3. Consistency over the runs (:func:`~starnav.navigation.trn.montecarlo.summarise_runs`).
 
-   a. the *measured attitude* of every frame: run 0 the frame's own knowledge draw, run
-      ``r >= 1`` a fresh one (:meth:`Simulator.measured_attitude
-      <starnav.simulate.frames.Simulator.measured_attitude>`);
-   b. the tracker's acquisitions of every frame, segments then windows, with detector noise
-      keyed by ``(seed, r, acquisition, frame)`` (:func:`starnav.simulate.trn.track_flyby`),
-      and the front end (windows only): tracks, centroid, apparent radius, with the known Sun
-      direction attached to each :class:`~starnav.navigation.trn.measurements.
-      FlybyMeasurement`;
-   c. the estimator (:func:`~starnav.navigation.trn.filter.run_filter`) from the first true
-      state plus an error drawn from the initial covariance
-      (``navigation.trn.filter.initial_*_sigma``) on the stream
-      ``generator(seed, STAGE_NAVIGATION, r, 0, INITIAL_ERROR_STREAM)``;
-   d. :class:`~starnav.navigation.trn.metrics.FlybyMetrics` against the scenario's truth
-      (``Scene.relative_states``; CA the frame nearest the fly-by's CA epoch).
+Why the orientation is dispersed (the silhouette's model error is a function of the aspect):
+docs/navigation.md.
 
-   e. with ``navigation.trn.dispersion: orientation``, run ``r`` first draws the fly-by's
-      orientation relative to the body (:func:`dispersed_flyby`, stream
-      ``generator(seed, STAGE_NAVIGATION, r, 0, DISPERSION_STREAM)``) and renders its own
-      frames (:func:`flyby_dispersed_runs`); step 1 is then per run.
-
-3. **Consistency** over the runs (:func:`~starnav.navigation.trn.montecarlo.summarise_runs`):
-   mean NEES against its two-sided chi-square band, the position error at CA over range.
-
-Why disperse the orientation: the band of step 3 holds when every error the filter treats as
-random is drawn afresh in every run. The lit silhouette's model error (cast shadows, the
-segments' threshold at the terminator, the limb's blur) is a deterministic function of how the
-body is seen; the filter carries it as Gauss-Markov bias states with a stationary sigma, i.e.
-as a random draw over aspects. Runs that re-expose one geometry share one draw of that error,
-so their mean NEES measures the noise around one bias, not the filter's consistency (a 20-run
-mean then sits wherever that one draw puts it, inside or outside the band). Drawing the
-fly-by's orientation relative to the body uniformly over the rotations (the CA velocity
-uniform on the sphere, the B-plane angle uniform: the frame they build is Haar-distributed,
-while the body keeps its IAU orientation) keeps what defines the fly-by (v_inf, CA distance,
-phase at CA, Sun azimuth) and samples the aspect, hence the silhouette error, once per run.
-Its cost is one render of the pass per run instead of one in all.
-
-The report (:func:`navigate_flyby`) adds run 0's frame overlays (:func:`plot_overlays`: the
-segments the front end read, re-exposed by :func:`segments_image`, with windows, tracks, truth
-and both centroids); :func:`flyby_rendered_sweep` runs the loop over a grid of ``v_inf``, CA
-distance and phase (``starnav navigate SCENARIO.yaml --sweep``), :func:`write_flyby_sweep`
-writes its table and figure.
-
-Per-frame cost of each stage (render, detector, front end, filter) is kept in
-:attr:`FlybyClosedLoop.timings_s` (``benchmarks/flyby.py``).
-
-Example
--------
->>> sim = Simulator(load_scenario("flyby.yaml"))                          # doctest: +SKIP
->>> loop = flyby_closed_loop(sim, runs=20)                                 # doctest: +SKIP
->>> loop.summary["verdict"], loop.runs[0].metrics.ca_position_error_pct_range  # doctest: +SKIP
+Index
+-----
+:func:`flyby_closed_loop`, :class:`FlybyClosedLoop`, :func:`flyby_run`,
+:class:`FlybyRunResult`, :func:`render_flyby`, :func:`initial_state`, :func:`dispersed_flyby`,
+:func:`flyby_dispersed_runs`; :func:`navigate_flyby`, :func:`plot_overlays`,
+:func:`segments_image`; the sweep :func:`flyby_rendered_sweep`, :func:`flyby_sweep_points`,
+:func:`flyby_sweep_row`, :func:`parse_sweep_axes`, :func:`write_flyby_sweep`;
+:func:`is_flyby_scenario`, :func:`check_flyby_scenario`.
 """
 
 from __future__ import annotations

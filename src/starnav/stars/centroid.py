@@ -1,56 +1,31 @@
 """Star centroids on a DN frame: detection, rejection of what is not a star, centroid and its noise.
 
+Each step in full: docs/methods.md, "starnav.stars.centroid".
+
 Technique
 ---------
-1. **Background.** The frame (DN) is cut into ``block_px`` blocks; each block's median is the
-   local background and ``1.4826 MAD`` its noise (robust to the stars in it, and following the
-   Moon's stray-light halo); both are brought back to full resolution by bilinear zoom.
-2. **Detection.** The background-subtracted frame is smoothed by a unit-sum Gaussian of
-   ``smooth_sigma_px`` (close to the defocused PSF: a matched filter that cuts the per-pixel
-   noise by ``1 / (2 sqrt(pi) s)``) and thresholded at ``threshold_sigma`` times the smoothed
-   noise; 8-connected components (``scipy.ndimage.label``) are the candidates.
-3. **Rejection.** A candidate is not a star when it is *saturated* (a pixel at or above the
-   saturation DN: its centroid is biased by the full well and blooming), *a hot pixel* (the
-   eight neighbours of its brightest pixel hold less than ``spike_ratio`` of that pixel's signal:
-   the defocused PSF spreads a star over several pixels, a hot pixel or a cosmic ray does not),
-   *extended* (more than ``max_area_px`` pixels above threshold, or a second-moment major
-   sigma above ``max_sigma_px``: the Moon, an asteroid's disc, ghosts, the limb's halo), or
-   inside an *exclusion disc* (the known bright body's predicted disc with a margin, and its
-   ghosts: :func:`body_exclusions`).
-4. **Centroid.** Iteratively weighted centre of mass (IWC): weight ``w_i = exp(-|x_i -
-   x_c|^2 / (2 s^2))`` with ``s = weight_sigma_px`` centred on the current estimate, pixels in
-   a ``4 s`` box, until it moves less than 1e-4 px (all candidates of a frame iterated
-   together: :func:`iwc_many`). Its fixed point is unbiased for a
-   symmetric PSF (the weight is symmetric about it), unlike a plain windowed centre of mass.
-5. **Noise.** Linearising the fixed point ``sum_i w_i I_i (x_i - x_c) = 0`` gives, per axis,
-   ``sigma_x^2 = sum_i w_i^2 (x_i - x_c)^2 var_i / D^2`` with ``D = sum_i w_i I_i (1 - (x_i -
-   x_c)^2 / s^2)`` and ``var_i = max(I_i, 0) + sigma_b^2`` [e-^2] (shot noise of the star,
-   background noise: read + dark + quantisation, measured in step 1), evaluated with the
-   measured pixels ``I_i`` (plug-in). Checked against Monte Carlo (``tests/stars``).
+1. Background: block medians and ``1.4826 MAD`` noise, zoomed back (:func:`background`).
+2. Detection: a matched Gaussian filter, a threshold, 8-connected components.
+3. Rejection: saturated, hot pixels, extended objects, exclusion discs of a bright body
+   (:func:`body_exclusions`).
+4. Centroid: iteratively weighted centre of mass (:func:`iwc`, :func:`iwc_many`), unbiased for
+   a symmetric PSF.
+5. Noise: the fixed point linearised, with shot and background variance.
 
-Tuning
-------
-=====================  ========  ===================================================
-knob                   default   effect
-=====================  ========  ===================================================
-``block_px``           32        background block: smaller follows the halo closer
-``smooth_sigma_px``    1.0       detection matched filter
-``threshold_sigma``    5.0       detection threshold (smoothed noise units)
-``spike_ratio``        0.5       hot-pixel test (neighbours / peak)
-``max_area_px``        150       larger blobs are extended bodies
-``max_sigma_px``       3.0       larger second-moment sigma: extended
-``weight_sigma_px``    1.5       IWC weight width (about the AA-STR PSF's rms width)
-=====================  ========  ===================================================
+The knobs are :class:`CentroidOptions`.
 
-Example
--------
->>> cents = find_stars(exposure.dn, gain_e_per_dn=24.4, saturation_dn=4095)  # doctest: +SKIP
->>> cents.uv, cents.sigma_px, cents.flux_e                                    # doctest: +SKIP
+References
+----------
+B. M. Quine et al., "Determining star-image location: a new sub-pixel interpolation technique
+to process image centroids", Comput. Phys. Commun. 177 (2007) 700-706 (IWC).
+C. C. Liebe, "Accuracy performance of star trackers - a tutorial", IEEE Trans. Aerosp.
+Electron. Syst. 38 (2002) 587.
 
-Reference: the IWC is the "iteratively weighted centroiding" of B. M. Quine et al., "Determining
-star-image location: a new sub-pixel interpolation technique to process image centroids",
-Comput. Phys. Commun. 177 (2007) 700-706; detection and rejection follow C. C. Liebe, "Accuracy
-performance of star trackers - a tutorial", IEEE Trans. Aerosp. Electron. Syst. 38 (2002) 587.
+Index
+-----
+:func:`find_stars`, :class:`Centroids`, :class:`CentroidOptions`, :class:`Exclusion`,
+:func:`body_exclusions`, :func:`background`, :func:`iwc`, :func:`iwc_many`,
+:func:`saturation_dn`.
 """
 
 from __future__ import annotations

@@ -1,59 +1,35 @@
 """Star identification: lost in space (triangles in a sorted pair table, verified), and tracking.
 
+Each step, the false-match bound and the aberration allowance in full: docs/methods.md,
+"starnav.stars.identify".
+
 Technique
 ---------
-1. **Index.** Once per process (per magnitude limit, field and epoch year), every pair of
-   catalogue stars brighter than ``index_v_limit`` closer than the field's diagonal: their
-   angular separations sorted, with the two star rows (a sorted pair table, looked up by
-   ``searchsorted``: the k-vector idea of Mortari without its linear fit). To V = 6 and the
-   AA-STR's 29 deg diagonal: ~5000 stars, ~6e5 pairs, ~1 s to build.
-2. **Triangles.** The ``n_brightest`` detections (by flux) form triangles ``(i, j, k)``,
-   brightest combinations first. For each side the pair table gives the catalogue pairs within
-   ``tol = n_sigma sqrt(sigma_i^2 + sigma_j^2) + catalogue_tol`` of the measured angle; the
-   candidates for ``i`` are the stars in a pair of ``ij`` AND of ``ik``; the third side and
-   the sense of the triangle (sign of ``b_i . (b_j x b_k)``, no mirror images) must match.
-3. **Verification.** Each candidate triangle gives an attitude (SVD, three vectors); every
-   detection is rotated to the sky and matched to the nearest catalogue star brighter than
-   ``verify_v_limit`` within ``match_radius``. The candidate is accepted when at least ``k``
-   detections besides the triangle are confirmed, ``k`` being the smallest integer with
-   ``N_hyp P(X >= k) <= false_match_probability``, ``X ~ Poisson(lambda)``,
-   ``lambda = (n_det - 3) n_cat Omega_match / Omega_field`` (for a WRONG attitude the catalogue
-   stars fall at random with respect to the detections: each detection has a chance
-   ``n_cat Omega_match / Omega_field`` of having one within the radius), and ``N_hyp`` the
-   number of candidate triangles that may be tried (``max_hypotheses``). A second, different
-   attitude that also verifies makes the frame ambiguous: no attitude (a wrong match is worse
-   than none).
-4. **Refinement.** The accepted attitude is re-solved with all confirmed stars and the
-   detections are matched once more within ``refine_n_sigma`` of their own sigma (plus
-   the attitude's own error); confirmed stars are the output.
-5. **Tracking.** With a prior attitude (previous frame propagated), step 3's match is done
-   directly with a radius widened by ``3 prior_sigma`` and step 4 follows; the same count rule
-   with ``N_hyp = 1`` accepts it.
-6. **Aberration.** With the tracker's barycentric velocity ``observer_velocity`` the catalogue
-   stars of steps 3-5 are moved to their apparent directions
-   (:func:`starnav.stars.aberration.apparent_directions`), so the attitude is the true one in
-   ICRF axes. The pair table stays astrometric (built once, independent of the velocity):
-   aberration changes a separation ``theta`` by at most ``2 beta tan(theta / 2)`` (10.6 arcsec
-   at 30 km/s and the 29 deg diagonal), added to the pair tolerance of step 2.
+1. Index: every catalogue pair brighter than ``index_v_limit`` within the field's diagonal,
+   sorted by separation (:func:`star_index`, cached per process).
+2. Triangles of the brightest detections matched side by side in the pair table, sense
+   checked (no mirror images).
+3. Verification: a candidate attitude is accepted when at least ``k`` further detections are
+   confirmed, ``k`` the smallest with ``N_hyp P(Poisson(lambda) >= k) <= alpha``
+   (:func:`required_confirmations`); two verified attitudes: ambiguous, none.
+4. Refinement with all confirmed stars.
+5. Tracking: with a prior attitude, step 3's match directly (``N_hyp = 1``).
+6. Aberration: with ``observer_velocity`` the catalogue stars are moved to their apparent
+   directions (:mod:`starnav.stars.aberration`).
 
-Tuning
-------
-=========================  ===========  ==============================================
-knob                       default      effect
-=========================  ===========  ==============================================
-``index_v_limit``          6.0          stars in the pair table
-``verify_v_limit``         7.0          catalogue stars verification can confirm
-``n_brightest``            12           detections forming triangles
-``n_sigma``                5            pair-angle tolerance in centroid sigmas
-``catalogue_tol_arcsec``   10           catalogue, distortion, aberration allowance
-``match_radius_arcsec``    300          verification radius (~4 AA-STR px)
-``false_match_probability`` 1e-9        per frame, the Poisson bound of step 3
-``max_hypotheses``         2000         candidate triangles tried at most
-=========================  ===========  ==============================================
+The knobs are :class:`IdentifyOptions`.
 
-References: D. Mortari, M. A. Samaan, C. Bruccoleri and J. L. Junkins, "The pyramid star
-identification technique", Navigation 51 (2004) 171-183; D. Mortari, "Search-less algorithm
-for star pattern recognition", J. Astronaut. Sci. 45 (1997) 179-194 (k-vector).
+References
+----------
+D. Mortari, M. A. Samaan, C. Bruccoleri and J. L. Junkins, "The pyramid star identification
+technique", Navigation 51 (2004) 171-183. D. Mortari, "Search-less algorithm for star pattern
+recognition", J. Astronaut. Sci. 45 (1997) 179-194 (k-vector).
+
+Index
+-----
+:func:`identify_lost_in_space`, :func:`identify_tracking`, :class:`Identification`,
+:class:`IdentifyOptions`, :func:`star_index`, :class:`StarIndex`,
+:func:`required_confirmations`.
 """
 
 from __future__ import annotations

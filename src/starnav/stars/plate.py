@@ -1,60 +1,35 @@
 """Plate solving of any star camera's frame: lost in space with the focal length only roughly known.
 
-The tracker pipeline (:mod:`starnav.stars.attitude`) knows its camera exactly and was tuned on
-the AA-STR's 20.6 deg field. A user's frame comes from another camera, whose focal length is
-known to a few per cent and whose sky (ground, atmosphere, other optics) differs. Here every
-setting follows the camera and the frame.
+Unlike the tracker pipeline (:mod:`starnav.stars.attitude`), every setting here follows the
+user's camera and frame. Each step in full: docs/methods.md, "starnav.stars.plate".
 
 Technique
 ---------
-1. **Detections.** :func:`starnav.stars.centroid.find_stars` on the frame in DN (the gain is
-   unknown: DN are the unit; sigmas get their scale a posteriori, step 6). Centroids closer
-   than 1 px are one star (two threshold components of one blob converge to it). Unit vectors
-   from the nominal camera.
-2. **Settings from the camera** (:func:`plate_settings`). The field's solid angle ``Omega``
-   (rectangular pyramid ``4 asin(sin a sin b)``, half-angles ``a``, ``b``) fixes the pattern
-   index depth: every catalogue star brighter than the ``V`` at which the whole sky holds
-   ``stars_per_field 4 pi / Omega`` stars (read off the catalogue itself; at most
-   ``index_v_max``, the catalogue's completeness), pairs up to the field diagonal. Pixel
-   scale ``1 / f_x`` sets the tolerances: pair angles
-   ``n_sigma sqrt(2) sigma + catalogue allowance``, with ``sigma`` the centroid sigma and a floor
-   of ``floor_px`` pixels; verification radius ``match_px`` pixels. Verification uses as many
-   catalogue stars as there are detections (the brightest in the hypothesised field): the
-   depth adapts to what the frame shows (exposure, aperture, sky) without knowing them.
-3. **Scale-free triangles.** For a detection triangle the pair table gives the catalogue
-   pairs of sides ``ij`` and ``ik`` in the windows the focal-length tolerance ``+-t`` allows
-   (``[m / (1 + t) - tol, m / (1 - t) + tol]``), joined on the shared star. The common scale
-   ``s = sum m / sum c`` of the three sides (measured ``m``, catalogue ``c``; ``s`` is the ratio
-   of the true focal length to the nominal one) must lie in ``[1 - t, 1 + t]`` and bring every
-   side within its tolerance (``|m - s c| <= tol``); the sense (no mirror images) must match.
-4. **Screening and verification.** The candidates' attitudes (SVD, batched) are scored by how
-   many of the next ``screen_stars`` brightest detections fall on an index star; those with at
-   least 40 % of them are verified, best first: scale and attitude re-fitted on the triangle
-   and its screening hits (all their mutual angles), then the count rule of
-   :mod:`starnav.stars.identify` on the *other* detections (confirmations ``>= k`` with
-   ``N_hyp P(Poisson(lambda) >= k) <= alpha``, ``lambda = n n_cat Omega_match / Omega``, the
-   radius ``match_px`` plus the fitted scale's uncertainty at the field's edge): a false
-   acceptance below ``alpha`` per frame. A second, different attitude among the candidates of
-   the same triangle that screened at least half as well and also verifies: ambiguous, no
-   attitude.
-5. **Refinement.** Non-linear least squares (``scipy.optimize.least_squares``) of the pixel
-   residuals of the matched stars over the attitude (small rotation, camera axes), the focal
-   length and, when at least ``k1_min_stars`` stars reach past half the half-diagonal, the
-   radial term ``k1``; re-matched within ``refine_n_sigma`` residual rms, three passes, stars
-   beyond it dropped.
-6. **Covariance.** ``s^2 (J^T J)^-1`` of the final fit (Gauss-Newton), ``s^2`` the residual
-   variance per axis (reduced chi-square): the attitude block (camera axes, ``z`` = roll), the
-   focal length's and ``k1``'s sigmas.
+1. Detections (:func:`starnav.stars.centroid.find_stars`, in DN).
+2. Settings from the camera (:func:`plate_settings`): index depth from the field's solid
+   angle, tolerances from the pixel scale.
+3. Scale-free triangles matched to catalogue pairs within the focal-length tolerance.
+4. Screening and verification: a count rule with a false acceptance below ``alpha`` per frame;
+   two verified attitudes: ambiguous.
+5. Refinement of attitude, focal length and ``k1`` by least squares on the pixel residuals.
+6. Covariance ``s^2 (J^T J)^-1`` of the final fit.
 
 Conventions: RA, Dec of the principal point's direction; roll the angle of celestial north
-from the image's up (towards row 0), positive counter-clockwise on the displayed image (that of
-tetra3 and cedar-solve); field of view ``2 atan(W / (2 f_x))``.
+from the image's up, counter-clockwise (as tetra3 and cedar-solve). The knobs are
+:class:`PlateOptions`.
 
-References: D. Mortari et al., "The pyramid star identification technique", Navigation 51
-(2004) 171-183 (pairs, verification by further stars); F. L. Markley, J. Astronaut. Sci. 36
-(1988) 245 (SVD attitude); D. Lang et al., "Astrometry.net: blind astrometric calibration of
-arbitrary astronomical images", AJ 139 (2010) 1782 (scale-free matching, the false-positive
-argument); Brown-Conrady distortion as in :mod:`starnav.camera`.
+References
+----------
+D. Mortari et al., "The pyramid star identification technique", Navigation 51 (2004) 171-183.
+F. L. Markley, J. Astronaut. Sci. 36 (1988) 245 (SVD attitude).
+D. Lang et al., "Astrometry.net: blind astrometric calibration of arbitrary astronomical
+images", AJ 139 (2010) 1782.
+
+Index
+-----
+:func:`solve_plate`, :class:`PlateSolution`, :class:`PlateOptions`, :func:`plate_settings`,
+:class:`PlateSettings`, :func:`pattern_index`, :func:`field_solid_angle`, :func:`ra_dec_roll`,
+:func:`index_cache_dir`.
 """
 
 from __future__ import annotations

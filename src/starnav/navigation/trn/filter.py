@@ -1,195 +1,30 @@
 """Fly-by estimator: an EKF with body-fixed landmark states, fed by tracked features, the
 tracker's own attitude, and the lit silhouette's centroid and apparent size.
 
-What it estimates
------------------
-The spacecraft's position ``r`` and velocity ``v`` relative to the body's centre (the origin of
-its shape model), in J2000 axes [m, m/s], with their covariance, from a sequence of
-:class:`~starnav.navigation.trn.measurements.FlybyMeasurement` (one per frame).
+It estimates the spacecraft's position and velocity relative to the body's centre (J2000 axes,
+m and m/s) with their covariance. The body's known size fixes the range (bearings alone do
+not), the lit centroid its direction, the features the relative motion. Why landmark states and
+not an MSCKF, the observability argument and each step in full: docs/methods.md,
+"starnav.navigation.trn.filter".
 
-Why an EKF with landmark states (and not an MSCKF)
---------------------------------------------------
-The body's shape and spin are known (the shape model, the IAU spin of
-:class:`~starnav.bodies.small_body.ShapeModelBody`), so a tracked surface feature is a point
-*fixed in the body frame* whose position is, at its first sighting, almost known: the ray of its
-pixel cast from the estimated position onto the shape model. A landmark state ``l`` (3 body-fixed
-coordinates) therefore starts with a covariance of a few metres to tens of metres, not the
-unbounded depth of a bearing-only SLAM landmark, and a track of a few frames already constrains
-the relative motion. An MSCKF would throw that prior away (it triangulates the feature from the
-window of poses and marginalises it) and needs long tracks and a clone of the pose per frame;
-with tracks of 5-30 frames (windows, a rotating body, a fast fly-by) and at most a few tens of
-features at once, the landmark EKF is smaller and simpler: 9 + 3 N states (``r``, ``v``, three
-silhouette bias states, N <= ``max_landmarks`` landmarks; 40: 129 states, a few milliseconds
-per frame; ``benchmarks/flyby.py``).
+Technique, per frame
+--------------------
+1. Predict ``(r, v)``: constant velocity plus the body's point-mass gravity, white-acceleration
+   process noise; the silhouette bias states decay as first-order Gauss-Markov processes.
+2. Drop the landmarks whose track is absent from the frame (marginalised).
+3. Append the frame's attitude error ``dtheta`` (camera axes) to the state.
+4. Measurements: each feature, the lit centroid and the apparent radius, with their analytic
+   Jacobians; 4a the bias sigmas follow the geometry, 4b features share part of their error,
+   4c the silhouette's deterministic offset, 4d the bias's calibrated mean.
+5. Gate each measurement on its own innovation; 5a re-open the state after ``reset_after``
+   rejected silhouettes in a row.
+6. Update with every accepted measurement at once (Joseph form); record the NIS.
+7. Birth new landmarks by casting their pixel rays onto the shape model (EKF-SLAM
+   augmentation).
+8. Marginalise ``dtheta``; record the state, covariance, NIS and counts.
 
-Observability (what fixes the scale)
-------------------------------------
-* **Bearings only do not.** With constant-velocity relative motion, scaling ``(r, v)`` and the
-  landmarks by the same factor leaves every bearing unchanged; classic bearings-only target
-  motion analysis needs an observer manoeuvre (Nardone & Aidala 1981). A star tracker on a
-  ballistic fly-by makes none.
-* **The body's known size does.** The apparent radius ``rho`` of a body of known shape gives the
-  range, ``|r| ~ f R / rho`` (``f`` the focal length in pixels); the shape model also fixes the
-  landmarks' scale, since a landmark is put on the surface, and the spread of the features then
-  measures the range as the radius does, more precisely once many are tracked.
-* **The centroid fixes the direction** of the body in the camera frame, hence (with the
-  attitude) the inertial direction of ``r``; it is biased towards the Sun by the phase (only
-  the lit part is seen). That bias is *modelled*: the prediction is the centroid of the lit
-  facets of the shape model seen from the estimated position under the known Sun
-  (:func:`~starnav.navigation.trn.body_view.lit_silhouette`); what the facet model leaves out
-  (cast shadows, hidden facets counted, the segments threshold) is a *bias*: on rendered
-  frames it is the same in consecutive frames (lag-1 autocorrelation 0.9; on the calibration
-  fly-by 1.27 px along the Sun's image direction, 0.09 px across, +1.6 % of the radius, all
-  nearly constant over the pass), so it is estimated as three first-order Gauss-Markov states
-  (step 4), not added as white noise: 21 frames of a white 1.6 % would place the range to
-  0.35 %, five times better than the model allows (mean NEES ~45 on the rendered fly-by).
-* **Features fix the relative motion**: their image motion between frames is the parallax of
-  body-fixed points, i.e. ``v`` over range, and with the range known, ``v``.
-
-Technique (per frame)
----------------------
-1. **Predict** ``(r, v)`` from the previous epoch: constant velocity plus, with ``gravity``, the
-   body's point-mass acceleration ``-GM r / |r|^3`` (the process model of both ``Flyby``
-   dynamics: ``straight`` has no gravity, ``hyperbolic`` the Kepler term; for Itokawa at 10 km
-   it is 2e-8 m/s^2 and either model fits), in steps of at most ``MAX_STEP`` seconds, with the
-   gravity-gradient state transition and white-acceleration process noise of PSD ``q``:
-   ``Q = q [[dt^3/3, dt^2/2], [dt^2/2, dt]] (x) I_3`` (Bar-Shalom et al. 2001, 6.2.2).
-   Landmarks are fixed in the body frame (no process noise); the body's rotation is applied in
-   the measurement, ``R_bi(t) l``. The silhouette bias states ``b`` (step 4) decay as
-   ``b <- a b``, ``a = exp(-dt / tau)``, with process noise ``sigma_b^2 (1 - a^2)`` (stationary
-   sigma ``sigma_b``, ``tau = silhouette_bias_time``; Gelb 1974, 4.4).
-2. **Drop** the landmarks whose track is absent from this frame (the contract gives a
-   re-acquired feature a new id): their rows and columns are deleted (marginalised).
-3. **Attitude error as a frame state.** The measured attitude ``R_m`` (camera -> J2000) is
-   wrong by a small rotation ``dtheta`` about the camera axes, ``R_true = R_m exp([dtheta]x)``,
-   ``dtheta ~ N(0, diag(attitude_sigma^2))``, independent between frames. It is appended to
-   the state for the frame, so that its effect, common to every measurement of the frame, is
-   correlated exactly (not as an inflated diagonal noise), and the landmarks born in the frame
-   carry their share of it; it is marginalised at the end of the frame.
-4. **Measurements** (all distorted pixels, :class:`~starnav.camera.Camera`):
-
-   * feature of landmark ``l``: ``uv = project(exp(-[dtheta]x) R_m^T (R_bi l - r))``;
-   * centroid: ``uv_c = project(R_m^T (D - r)) + b_s e_s + b_x e_x``, ``D`` the point along
-     the ray of the predicted lit centroid at the depth of the body's centre (the phase bias),
-     ``e_s`` the Sun's direction in the image at the body, ``e_x`` across it, ``(b_s, b_x)``
-     the model-error states [px] (stationary sigmas ``centroid_model_sigma_px sqrt(2 share)``
-     and ``... sqrt(2 (1 - share))``, ``share = centroid_sun_share``: the error is along the
-     Sun, where the terminator is);
-   * apparent radius: ``rho = (1 + b_r) K / |r|``, ``K = rho_lit |r|`` from the lit facets'
-     area, ``b_r`` the radius scale state (stationary sigma ``radius_model_fraction``).
-
-   ``D``, ``e_s`` and ``K`` are recomputed from the lit facets at every iterate of step 6
-   (Itokawa is elongated: a 1 km error at 5 km turns the view by 11 deg, which changes its
-   projected area; frozen at the prediction, that error biased the first frames' update).
-   The measurement noise is then the front end's own (segments noise); with
-   ``silhouette_bias_time = 0`` the bias states stay zero and the model sigmas are added to
-   each frame as white noise instead (the former model).
-
-   Jacobians are analytic (``tests/navigation/test_trn_filter.py`` checks them by central
-   differences).
-4a. **The bias sigmas follow the geometry** (``silhouette_scaling = "geometry"``,
-   :func:`silhouette_scale`): the model error of the lit centroid is a shift of the effective
-   terminator, so in pixels it grows as ``rho sin(alpha)`` (apparent radius, Sun phase; on the
-   calibration fly-by the error over ``rho sin alpha`` stays within 0.030 - 0.033 over phases
-   35 - 66 deg), the radius's as the root sum square of a limb-blur term ``w / (rho (1 +
-   cos alpha))`` and a terminator term ``tan(alpha / 2) delta / 2``. With ``s_k`` the factors
-   at frame ``k`` (from the predicted state), the bias states are the stationary
-   Gauss-Markov process scaled by ``s_k``: ``b <- (s_k / s_k-1) b`` with its rows and
-   columns of ``P``, before the update (the factor is a known function of the prediction,
-   not differentiated).
-4b. **Features share part of their error** within a frame (the shading of every window moves
-   the same way as the view turns): with a pairwise correlation ``c`` (calibrated 0.37),
-   ``N`` features carry the information of ``N / (1 + (N - 1) c)`` independent ones about a
-   shift common to all, so each feature's variance is multiplied by ``1 + (N - 1) c``. The
-   closer or larger the body, the more features (12 - 15 tracks per frame at CA 5 km), the
-   more it matters.
-4c. **The deterministic part of the silhouette offset in the prediction**
-   (``silhouette_offset``, :func:`silhouette_offset`): the same two mechanisms as offsets, not
-   sigmas. The centroid is predicted ``c rho sin(alpha)`` further along ``e_s`` (``c =
-   centroid_offset_fraction``, 0.035 on the calibration fly-by), the radius ``w / (1 + cos
-   alpha) - rho tan(alpha / 2) delta / 2`` px larger (``limb_blur_px``, ``terminator_shift``),
-   ``rho`` and ``alpha`` from the iterate (their gradients in ``H``; ``e_s`` is held, as for
-   the bias states). The bias states then carry only the residual (on the calibration fly-by
-   0.087 px, 0.40 % of the radius, 1.6 s correlation time: almost white; out of sample,
-   fitted on one half of the pass and measured on the other, 0.099 px and 1.70 %). Off by
-   default: on the rendered sweep it is consistent at phase 40 deg but overconfident by one to
-   two orders at phase 70 deg, where ``c`` is ~0.049, not 0.033 (docs/navigation.md, "the
-   silhouette offset in the measurement model").
-4d. **The bias's mean** (``bias_mean``, the scenario's ``silhouette_bias_mean``): over the
-   calibration's draws of aspect and geometry the silhouette's model error has a part of the
-   same sign at every aspect: the rendered lit centroid lies Sun-ward of the lit-facet
-   model's and the rendered radius is larger (the detector's blur spreads the lit limb over
-   the segments' threshold), +1.47 px along the Sun and +1.98 % of the radius at the
-   reference geometry. With a zero-mean prior that offset is an error the filter does not
-   know it makes, and it shows as a NEES growing over the pass while the covariance shrinks.
-   The mean ``mu`` enters the prediction as a known offset scaled by the frame's geometry
-   factors ``s_k`` (step 4a), ``uv_c + E_b (s_k mu)_{1,2}`` and ``rho (1 + s_k,r mu_r +
-   b_r)``; the bias states then carry the scatter about it (their sigmas and correlation
-   time calibrated on the deviations from the mean, tools/calibrate_flyby_model_error.py).
-5. **Gate** each feature, the centroid and the radius on their own innovation,
-   ``nu^T S^-1 nu < chi2.ppf(gate_probability, dof)``; a rejected feature's landmark is
-   dropped and its track id ignored from then on (a tracker that jumped keeps the id).
-5a. **Divergence** (``reset_after``): an update that lands far off can leave the estimate
-   where the gate rejects the silhouette ever after (seen once in 8 draws at 1 km/s, phase
-   40 deg: the Sun grazing an end of the elongated body, 5 sigma off at the first update,
-   the silhouette then rejected in 20 of 21 frames). The silhouette is the measurement the
-   filter can least afford to lose (it alone fixes the range), and a consistent filter
-   rejects its centroid or its radius with probability below 2e-4 a frame. After
-   ``reset_after`` frames in a row with either rejected, the relative state is re-opened by the
-   initial covariance (``P_rv += P0``, the estimate kept), the bias states restart from
-   their prior, the landmarks are dropped (placed from the diverged position, they would
-   hold it there; their tracks are born again) and the frame is gated again. The frames are
-   recorded in ``FlybyRun.info["resets"]``. (Accepting the rejected silhouette instead, the
-   limb EKF's rule, made that run worse: NEES 283 -> 590; its covariance was still the
-   diverged one.)
-6. **Update** with every accepted measurement at once (Joseph form); the NIS of the stacked
-   innovation (its dof = the number of scalars) is recorded.
-7. **New landmarks**: each new track's pixel ray, cast from the updated ``r`` under the updated
-   attitude onto the shape model (:func:`~starnav.navigation.trn.body_view.raycast`), gives
-   ``l = R_bi^T (r + t d)``. Locally the surface is the facet's plane (normal ``n``), so
-   ``dl/dr = R_bi^T (I - d n^T / (n.d))`` (a position error along the ray moves nothing),
-   ``dl/dd = t`` times the same, and a height error ``h`` of the model moves ``l`` by
-   ``d / (n.d)`` per metre. The state is augmented with ``l`` and its covariance
-   ``J P J^T + G N G^T`` and cross-covariance ``J P`` (EKF-SLAM augmentation, Bar-Shalom et al.
-   2001; Davison et al. 2007); rays that miss or meet the surface beyond ``max_incidence``
-   are left for the next frame. The first sighting is spent on the initialisation.
-8. **Marginalise** ``dtheta``; record ``(r, v)``, its covariance, NIS and the counts.
-
-Tuning knobs (:class:`TrnFilterOptions`; scenario keys in
-:class:`~starnav.navigation.schema.TrnFilterConfig`)
-------------------------------------------------------
-======================== ============= =====================================================
-knob                     default       effect
-======================== ============= =====================================================
-accel_psd                1e-8 m^2/s^3  unmodelled acceleration (SRP ~1e-8 m/s^2, thrusters)
-gravity                  True          point-mass gravity of the body in the prediction
-gate_probability         0.9999        per-measurement chi-square gate (dof 2 or 1)
-max_landmarks            40            landmark states at once (cost ~ N^2 per frame)
-max_incidence            75 deg        steepest ray-to-normal angle of a landmark birth
-landmark_height_sigma    1 m           shape-model height error at a landmark birth
-centroid_model_sigma_px  0.3 px        centroid model error, rms per image coordinate
-radius_model_fraction    0.01          radius model error, fraction of the radius
-silhouette_bias_time     19.0 s        their correlation time (0: white, per frame)
-silhouette_scaling       constant      "geometry": sigmas follow radius and phase (4a;
-                                       the scenario's default, calibrated so)
-reference_radius_px      48.95 px      ... relative to the calibration geometry's radius
-reference_phase          50 deg        ... and phase
-limb_blur_px             1.85 px       radius error's limb-blur term (silhouette_scale)
-terminator_shift         4.12 deg      radius error's terminator term
-centroid_sun_share       0.962         share of the centroid's error along the Sun
-feature_correlation      0             features' error correlation within a frame (4b)
-silhouette_offset        False         predict the silhouette's deterministic offset (4c)
-centroid_offset_fraction 0.0374        ... the centroid's, over ``rho sin(alpha)``
-bias_mean                (0, 0, 0)     the silhouette model error's mean (4d; calibrated)
-reset_after              0             re-open after this many rejected silhouettes (5a)
-use_centroid, use_radius True          which silhouette measurements are used
-======================== ============= =====================================================
-
-Example
--------
->>> from starnav.navigation.trn.filter import TrnFilterOptions, run_filter
->>> # run = run_filter(measurements, camera, body, x0, P0, TrnFilterOptions(),
->>> #                  sun_direction=flyby.sun_direction)
+The knobs are :class:`TrnFilterOptions` (scenario keys:
+:class:`~starnav.navigation.schema.TrnFilterConfig`).
 
 References
 ----------
@@ -200,6 +35,13 @@ S. C. Nardone and V. J. Aidala, "Observability criteria for bearings-only target
 analysis", IEEE Trans. AES 17 (1981) 162-166.
 A. J. Davison, I. D. Reid, N. D. Molton and O. Stasse, "MonoSLAM: real-time single camera
 SLAM", IEEE Trans. PAMI 29 (2007) 1052-1067.
+
+Index
+-----
+:func:`run_filter` (the estimator), :class:`TrnFilterOptions`, :class:`FlybyRun`;
+measurement models :func:`feature_model`, :func:`features_model`, :func:`centroid_model`,
+:func:`radius_model`, :func:`silhouette_scale`, :func:`silhouette_offset`;
+:func:`propagate`, :func:`landmark_births`, :func:`gate_rows`, :func:`validate_inputs`.
 """
 
 from __future__ import annotations

@@ -1,61 +1,26 @@
 """The fly-by front end: from a frame's segments and windows to a :class:`FlybyMeasurement`.
 
 The seed paper's third algorithm (STAR Nav, asteroid fly-by, inspired by HERA) tracks features
-on the asteroid among *windows* readings of the star tracker. This module runs it frame by
-frame, in the order the tracker acquires:
+on the asteroid among *windows* readings of the star tracker, frame by frame in the order the
+tracker acquires:
 
-1. :meth:`FlybyFrontEnd.plan` - the segments acquisition: the lit body's centroid and apparent
-   radius, the prediction of every live track's position from the centroid motion and its own
-   previous motion, and up to 16 windows (:mod:`~starnav.navigation.trn.windows`).
-2. (the windows acquisition, by the caller: the detector reads the planned windows)
-3. :meth:`FlybyFrontEnd.track` - pyramidal LK of every live track from the previous frame's
-   window to this frame's, forward-backward check, the epipolar RANSAC with the tracker's own
-   attitude (:mod:`~starnav.navigation.trn.features`), deaths (LK failure, forward-backward,
-   epipolar outlier, left the window, closer than ``limb_margin_px`` to the limb or
-   terminator) and births (Shi-Tomasi in windows with fewer than ``min_tracks_per_window``
-   tracks; a re-acquired point gets a new id).
+1. :meth:`FlybyFrontEnd.plan` (segments acquisition): the lit body's centroid and apparent
+   radius, each live track's predicted position, up to 16 windows
+   (:mod:`~starnav.navigation.trn.windows`).
+2. The caller's windows acquisition reads the planned windows.
+3. :meth:`FlybyFrontEnd.track`: pyramidal LK from the previous frame's window, forward-backward
+   check, epipolar RANSAC with the tracker's attitude (:mod:`~starnav.navigation.trn.features`),
+   deaths and Shi-Tomasi births.
 
-The front end sees the frame only through a :class:`~starnav.navigation.trn.windows.WindowReader`
-(segments image and window crops, every pixel recorded); truth is attached afterwards by
-:class:`~starnav.navigation.trn.truth.FeatureTruthBook` and never read here.
+The front end sees the frame only through a
+:class:`~starnav.navigation.trn.windows.WindowReader`; truth is attached afterwards
+(:class:`~starnav.navigation.trn.truth.FeatureTruthBook`) and never read here. The knobs are
+:class:`FrontEndOptions` (calibrated ones: ``tools/calibrate_flyby_model_error.py``).
 
-Tuning (:class:`FrontEndOptions`)
----------------------------------
-=========================  =======  ==========================================================
-option                     default  effect
-=========================  =======  ==========================================================
-``n_windows``              8        windows per frame (<= 16): tracks vs readout time
-``core_px``                16       detection region of a birth window [px]
-``template_half_px``       7        LK template half side [px]: larger averages more noise,
-                                    suffers more from the perspective change
-``search_margin_px``       5        prediction error allowed [px]; window = cluster + 2 x
-                                    (template + margin + 1)
-``max_window_px``          64       largest window side [px]
-``limb_margin_px``         6        clearance from the lit mask's edge [px]
-``min/max_tracks_per_window``  3/6  births below the minimum, up to the maximum
-``quality``                0.05     Shi-Tomasi quality (fraction of the window's best corner)
-``min_distance_px``        5        between corners [px]
-``fb_max_px``              0.3      forward-backward limit [px]
-``epipolar_px``            1.0      epipolar RANSAC threshold [px]
-``sigma_detect_px``,       cal.     per-feature 1-sigma ``k hypot(detect, drift x turned)``
-``drift_px_per_rad``,               [px], ``turned`` the camera rotation summed along the track
-``correlation_factor`` k            [rad]; ``k`` covers the drift's correlation along a track
-                                    (the same error in consecutive frames); 3, chosen on
-                                    rendered frames by the NEES over the pass's thirds
-                                    (tools/calibrate_flyby_model_error.py)
-``max_track_turn``         cal.     a track ends (``aged``) once the view turned this much
-                                    along it [rad]: bounds the drift; the point is found again
-                                    under a new id
-``centroid_sigma_fraction``, cal.   1-sigma of the segments' centroid (per coordinate) and
-``radius_sigma_fraction``           radius, times the radius (their noise over runs)
-=========================  =======  ==========================================================
-
-Example
--------
->>> fe = FlybyFrontEnd(camera, FrontEndOptions(n_windows=8))               # doctest: +SKIP
->>> reader = WindowReader(segments)                                        # doctest: +SKIP
->>> plan = fe.plan(reader, index=i, epoch_tdb=t, R_cam_to_inertial=R)      # doctest: +SKIP
->>> out = fe.track(reader.with_windows(read_windows_somehow(plan.windows)), plan)
+Index
+-----
+:class:`FlybyFrontEnd`, :class:`FrontEndOptions`, :class:`WindowPlan`, :class:`FrontEndFrame`,
+:class:`Track`, :data:`STAGES`.
 """
 
 from __future__ import annotations

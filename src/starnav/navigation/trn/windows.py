@@ -1,56 +1,24 @@
 """Acquisition of the fly-by front end: the lit body in the segments, and where to open windows.
 
-The AA-STR reads either the *full image compressed* product (segments: runs of pixels above a
-DN threshold, with their DN) or up to 16 rectangular *windows* of DN. The fly-by front end
-(seed paper, algorithm 3) sees the asteroid only through these two products, and this module
-is the gate that enforces it.
+The fly-by front end (seed paper, algorithm 3) sees the asteroid only through the AA-STR's two
+products, segments and up to 16 windows of DN; this module is the gate that enforces it. Each
+step in full: docs/methods.md, "starnav.navigation.trn.windows".
 
 Technique
 ---------
-1. **Window reader** (:class:`WindowReader`). The only way the front end receives a frame: it
-   holds the segments product and the window products of the frame, hands out the segments
-   image (pixels outside the runs are 0, "not read") and crops that lie inside a window read
-   this frame, and records every pixel handed out. A crop that leaves the windows raises
-   :class:`WindowAccessError`: no stage can read a pixel outside the windows and the segments.
-2. **Segments analysis** (:func:`analyse_segments`). The segments' pixel mask is closed
-   (3 x 3); its 8-connected components of at least 2 % of the largest one's area are the lit
-   body (a shadow can cut it in pieces; hot pixels stay out). Its area centroid is the
-   *centroid* measurement and ``sqrt(area / pi)`` the *apparent radius*. Both are those of the
-   lit part (above the lowest threshold): at phase angle ``g`` the lit centroid lies sunward
-   of the silhouette's centre by up to ``~(4 / 3 pi) R (1 - cos g)`` for a sphere, and an
-   irregular body adds its own shape; ``centroid_sigma_fraction`` carries that to the
-   estimator. The distance of every lit pixel to the mask's edge (OpenCV distance transform)
-   is the *limb/terminator clearance*: the edge of the lit mask is the limb on the sunward
-   side and the terminator on the other, where features are occluded or drift with the
-   shadows. A texture score, the Shi-Tomasi minimum eigenvalue of the DN structure tensor
-   (``cv2.cornerMinEigenVal``, ``block_px`` box), is computed on the segments image.
-3. **Window plan** (:func:`plan_windows`). First one window per group of live tracks (the
-   tracks of one window of the previous frame): it covers their *predicted* positions plus
-   ``patch_half_px`` (the tracking template, ``template_half_px``, plus the search margin for
-   the prediction error); then birth windows, ``core_px + 2 patch_half_px`` wide, centred on
-   the best texture scores among the pixels with ``clearance >= limb_margin_px + core_px / 2``,
-   greedy with non-overlap, until ``n_windows`` (<= 16) windows are open. The prediction of a
-   track's motion is the measured centroid motion between the previous and this frame's
-   segments, plus the track's motion relative to the centroid over the previous step
-   (constant relative velocity; zero for a track one frame old).
-4. **Readout law**: the windows' pixel count enters ``t_min = a + b N_pix / unit`` through
-   :func:`starnav.detector.readout.readout_timing` (mode ``windows``).
+1. Window reader (:class:`WindowReader`): the only way a frame reaches the front end; it
+   records every pixel handed out, and a crop outside the windows raises
+   :class:`WindowAccessError`.
+2. Segments analysis (:func:`analyse_segments`): the lit body's components, its area centroid
+   and apparent radius, the clearance from the limb/terminator, a Shi-Tomasi texture score.
+3. Window plan (:func:`plan_windows`): one window per group of live tracks at their predicted
+   positions, then birth windows on the best texture away from the edge, up to ``n_windows``.
+4. Readout law: the windows' pixel count enters :func:`starnav.detector.readout.readout_timing`.
 
-Tuning (:class:`~starnav.navigation.trn.frontend.FrontEndOptions`)
------------------------------------------------------------------
-=====================  ===========================================================
-``n_windows``           windows per frame (<= 16); more windows, more tracks, longer readout
-``core_px``             side of the region a birth window detects features in [px]
-``template_half_px``    half side of the tracking template [px]
-``search_margin_px``    room for the prediction error around the template [px]
-``limb_margin_px``      clearance from the lit mask's edge (limb, terminator) [px]
-=====================  ===========================================================
-
-Example
--------
->>> reader = WindowReader(segments_exposure.segments)               # doctest: +SKIP
->>> body = analyse_segments(reader, block_px=7, min_area_px=50)      # doctest: +SKIP
->>> body.centroid_uv, body.radius_px                                 # doctest: +SKIP
+Index
+-----
+:class:`WindowReader`, :class:`WindowAccessError`, :func:`analyse_segments`, :class:`BodyFix`,
+:func:`plan_windows`.
 """
 
 from __future__ import annotations

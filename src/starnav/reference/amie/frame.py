@@ -1,150 +1,16 @@
 """Raw SMART-1 AMIE frames (PDS3): decoding, masking and calibration to electrons per second.
 
-SMART-1's Advanced Moon micro-Imager Experiment (AMIE) is a 1024 x 1024 CCD behind a filter
-mosaic; through the clear ``NONE`` filter it reads one 512 x 512 quadrant (14 um pixels, 154.7 mm
-f/10, 2.65 deg field; instrument kernel ``calib/SMART1_AMIE_V01.TI``). starnav ships six raw
-frames of the ESA PSA data set ``S1-L/X-AMIE-2-EDR-EEP-V1.1`` (:data:`AMIE_FRAMES`) with the
-NONE quadrant of the master bias and flat (``starnav/data/amie/``, see its ``PROVENANCE.md``).
+AMIE reads, through its clear ``NONE`` filter, one 512 x 512 quadrant of a 1024 x 1024 CCD
+(14 um pixels, 154.7 mm f/10). starnav ships six raw frames of the ESA PSA data set
+``S1-L/X-AMIE-2-EDR-EEP-V1.1`` (:data:`AMIE_FRAMES`) with the NONE quadrant of the master bias
+and flat (``starnav/data/amie/PROVENANCE.md``). The file format, the ``valid`` mask (marker,
+saturation, the dark top band), the calibration stages and what is not corrected:
+docs/methods.md, "starnav.reference.amie.frame".
 
-The format
-----------
-One ``.IMG`` file is an attached ASCII PDS3 label, a browse image and the image:
-
-* the label fills the first ``RECORD_BYTES x LABEL_RECORDS`` bytes (1024 x 20 = 20 480 in every
-  shipped file). It is parsed with :mod:`pvl` up to its ``END`` statement; nothing is assumed
-  about where it ends or where the objects start;
-* ``^IMAGE = 36865 <BYTES>`` is a **1-based** byte pointer (a bare integer would count
-  records): the image starts at byte offset 36 864, after the 128 x 128 8-bit browse image at
-  ``^BROWSE_IMAGE = 20481 <BYTES>``;
-* the ``IMAGE`` object: ``LINES = LINE_SAMPLES = 512``, ``SAMPLE_TYPE = LSB_UNSIGNED_INTEGER``,
-  ``SAMPLE_BITS = 16``, no line prefix or suffix, ``SCALING_FACTOR = 0.015625`` = 2^-6.
-
-Decoding
---------
-1. ``DN = stored >> 6``: the 10-bit ADC value sits in the top bits of each 16-bit word, the low
-   six bits are zero. The shift is taken from ``SCALING_FACTOR`` (it must be a power of two) and
-   the decoding is checked to be exact (a file whose low bits are not zero is refused), so ``DN``
-   is an integer 0..1023, identical to ``stored x SCALING_FACTOR``.
-2. The label values are converted to SI at the edge (:func:`read_amie`): exposure [s], distances
-   [m], angles [rad]; the parsed label stays available (``AmieFrame.label``) with its units.
-
-The ``valid`` mask (:class:`AmieFrame`)
----------------------------------------
-* the **marker**: the last two pixels of the last row, ``(511, 510)`` and ``(511, 511)``, always
-  read 1023 (they are in the master bias too);
-* **saturated** pixels, ``DN = 1023`` (the 10-bit ADC's top);
-* the **dark band** at the top, detected per column from the data (:func:`dark_band_rows`):
-
-  1. the sky's vertical ramp (the background grows by 20-50 DN from the top row to the bottom
-     one) is a straight line fitted to the row medians of the reference rows 32..95;
-  2. each column's offset from that line is the median over the same rows of its sky pixels
-     (within 8 DN of the line: the Moon is left out);
-  3. the residual ``DN - line - offset`` of the top rows is smoothed by a running median of 5 rows
-     x 15 columns (the band's edge is ragged over tens of columns; the data are integers);
-  4. in each column the band is the rows **above the first row** (of the top 32) **whose smoothed
-     residual has risen to the background**, i.e. to ``-max(1 DN, 3 sigma)`` (sigma: the rms of
-     the smoothed residual over the reference rows). A column that never rises is masked over
-     all 32 rows; a column without a usable reference (the Moon over half of it) gets no band.
-
-  The band looks like a shadow (the flat field has a ragged top band too) in the *sky's* light:
-  it shows where the sky carries stray light, and deepens with the exposure. Measured on the
-  shipped frames: 041111_00070 (18 ms) median 24 rows (10-90 % of the columns: 21-27), 2.6 DN
-  deep; 041111_00072 (40 ms) median 29 rows (27-32; 167 columns reach the 32-row limit), 6 DN
-  deep; 040819_00208 has a 0.7 DN band, under the threshold (5 columns flagged, <= 3 rows); the
-  other three frames have none. :func:`calibrate` masks the vignetted edge by the flat field as
-  well, band or not.
-
-Calibration (:func:`calibrate`), in this fixed order
-----------------------------------------------------
-=====  =====================  ==========================================================
-stage  step                   what
-=====  =====================  ==========================================================
-1      bias                   ``x = DN - k(T) bias``: ``calib/mfbias_NONE_512.npy``, the
-                              NONE quadrant ``mf[512:1024, 512:1024]`` of the master bias
-                              [DN at 273.15 K]; ``k = 1`` by default (below)
-2      sky background         ``x -= R(r) + C(c)``: a row term (the vertical ramp, the step
-                              at row ~256, the dark band) plus a column term (the column
-                              stripes), fitted to the dark-sky pixels by a median polish
-3      flat field             ``x /= flat``, ``flat = ff / median(ff)``
-                              (``calib/ff_NONE_512.npy``: median 4.286, mean 4.096, i.e.
-                              *not* normalised; divided to unit median here)
-4      electrons              ``e = x gain``, gain from the label (``GAIN_NUMBER`` = 280
-                              e-/DN)
-5      rate                   ``e / t``, ``t`` = ``EXPOSURE_DURATION`` [s]
-=====  =====================  ==========================================================
-
-Additive terms go first (stages 1-2, in DN as read), the multiplicative flat after them: the
-flat then scales only the light. Stage 2 makes the dark sky zero on average, so the calibrated
-image holds the light of the scene (Moon, stars, stray light near the Moon) and no offset.
-
-*The bias and the temperature.* The master bias is given at 273.15 K; the frames were taken at
-285.9-297.1 K (``FOCAL_PLANE_TEMPERATURE``). Neither the data README nor the label gives a
-temperature law, so **no scaling is applied** (``bias_law = "none"``, ``k = 1``). The
-amiextractor code the data come from multiplies the master by the silicon thermal-generation
-factor ``k(T) = (T/T0)^1.5 exp(Eg(T0)/(2 k_B T0) - Eg(T)/(2 k_B T))`` (``"silicon-thermal"``,
-3.2-8.1 for these frames). Measured on the six frames (clipped rms of the dark sky after the
-stage-2 fit, scale of the master scanned over 0-2 and k(T)):
-
-* the master's *pixel-scale* pattern is in the frames at scale ~1, whatever the temperature:
-  the rms is 0.64-0.78 DN without the master, 0.52-0.63 DN with it (the minimum lies between
-  0.75 and 1.25 x in all six frames), and 0.62-0.95 DN with ``k(T) x`` it;
-* the master's *row ramp* (its rows 128-511) is in the frames at about ``k(T) x`` (presumably
-  dark signal gathered during the read-out), but stage 2 measures the row and column terms on
-  each frame's own dark sky, so that part of the temperature dependence is corrected anyway;
-* the master's rows 0-127 hold a flat block with column bands and a ragged lower edge at rows
-  128-150 that the frames do not show in the same place: a +-0.5 DN ragged ridge remains there
-  after calibration.
-
-*The sky background.* ``R`` and ``C`` are fitted (median polish: alternate row and column
-medians) to the *dark-sky* pixels: valid pixels, not individually more than 5 sigma from the
-background (hot pixels), and farther than ``sky_margin_px`` from any source pixel, a source
-pixel being one whose 5 x 5 running median stands ``sky_nsigma`` times its own rms above the
-background (the Moon, its halo, the star). The fit and the dark-sky selection are iterated
-(``sky_iterations``). A row or column with fewer than ``min_sky_pixels`` dark-sky pixels takes
-its term interpolated from its neighbours. ``C - median(C)`` are the column stripes
-(``AmieCalibrated.column_offsets_dn``): a fixed pattern of the detector (the offsets of two
-frames correlate by 0.56-0.97, 0.96 between 040326 and 041028). Measured over the rows 48-207
-(row medians removed, column medians compared): stripe rms 0.8-1.7 DN raw, 0.10-0.36 DN after.
-
-*The flat field.* It carries the optics' vignetting: its top ~15 rows and left ~12 columns fall
-below half the median (5.0 % of the pixels; below 1 % in the corner), and the ragged top band
-of the frames is in it. There the division would multiply the noise by more than 2 and depends
-on the flat's edge being right to the pixel (the stray light of the 041111 frames does not follow
-it there: 45-75 % of its level where the flat says 10-20 %), so pixels with ``flat < min_flat``
-are made invalid.
-Electrons after the flat are those a pixel of median response would have collected.
-
-Not corrected: the charge trail below bright sources (read-out smear: the columns under the
-Moon in 041028_00269 and 040504_00013 carry 1.4-1.7 % of the Moon's signal, counted in
-:func:`moon_signal`'s sum), stray light and the Moon's halo (not separable in rows and columns),
-and the dark current proper (5-200 ms exposures; it is part of the sky background of stage 2).
-The data are wavelet-compressed on board (``INST_CMPRS_NAME``, 1 bit/pixel).
-
-Tuning (:class:`AmieCalibrationOptions`)
-----------------------------------------
-====================  =======  =================================================================
-option                default  effect
-====================  =======  =================================================================
-``bias_law``          "none"   temperature scaling of the master bias (:data:`BIAS_LAWS`)
-``sky_nsigma``        3.0      source threshold of the smoothed residual [its rms]; lower keeps
-                               more of a halo out of the sky
-``sky_margin_px``     5        dark sky lies farther than this from a source pixel [px]
-``hot_nsigma``        5.0      single pixels beyond this [rms] are left out of the sky [-]
-``min_sky_pixels``    32       rows/columns with fewer dark-sky pixels take interpolated terms
-``sky_iterations``    3        fit / dark-sky selection rounds
-``min_flat``          0.5      pixels whose unit-median flat is lower are invalid [-]
-====================  =======  =================================================================
-
-Example
--------
->>> from starnav.reference.amie.frame import calibrate, moon_signal, packaged_frame, read_amie
->>> frame = read_amie(packaged_frame("041028_00269"))
->>> frame.exposure_s, frame.gain_e_per_dn
-(0.005, 280.0)
->>> cal = calibrate(frame)
->>> s = moon_signal(cal)          # pixels above background + 5 sigma
->>> bool(s.e_per_s > 0)
-True
+Calibration (:func:`calibrate`), in this fixed order: 1 bias, 2 sky background (row and column
+terms by median polish on the dark sky), 3 flat field (unit median; ``flat < min_flat``
+invalid), 4 electrons (label gain), 5 rate (label exposure). The knobs are
+:class:`AmieCalibrationOptions`.
 
 References
 ----------
@@ -152,7 +18,13 @@ References
   EAICD (``doc/EAICD.pdf`` in amiextractor) for the vector frame (``frames.csv``: section 5.2.3).
 * andrepiz/amiextractor (MIT), ``functions/img/mf2imgcorr.m``,
   ``amie_thermal_noise_factor.m``: the master frames, the quadrant, the temperature factor.
-* starnav shared data README, section ``amie/``.
+
+Index
+-----
+:func:`read_amie`, :class:`AmieFrame`, :func:`packaged_frame`; :func:`calibrate`,
+:class:`AmieCalibrated`, :class:`AmieCalibrationOptions`, :data:`BIAS_LAWS`,
+:func:`silicon_thermal_factor`, :func:`dark_band_rows`; :func:`moon_signal`,
+:class:`MoonSignal`.
 """
 
 from __future__ import annotations
@@ -848,7 +720,7 @@ BIAS_LAWS: Registry[Callable[[float], float]] = Registry("bias law", {
 
 @dataclass(frozen=True)
 class AmieCalibrationOptions:
-    """Knobs of :func:`calibrate` (module docstring, "Tuning").
+    """Knobs of :func:`calibrate`.
 
     Attributes
     ----------

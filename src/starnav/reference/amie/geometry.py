@@ -1,80 +1,34 @@
 """Geometry of a SMART-1 AMIE frame from its PDS3 label: epoch, attitude, Sun and Moon.
 
-The AMIE labels carry no attitude quaternion. They give the epoch (``START_TIME``, UTC), the
-spacecraft-to-Moon-centre vector (``SC_TARGET_POSITION_VECTOR``, km, Earth mean equator J2000),
-the boresight (``RIGHT_ASCENSION``, ``DECLINATION``) and the four corners of the field
-(``RETICLE_POINT_RA``, ``RETICLE_POINT_DECLINATION``), all J2000 and in degrees. This module
-turns those plain numbers into a :class:`~starnav.geometry.FrameGeometry` (SI, Moon-centred,
-ICRF axes; the ~20 mas frame bias between EME2000 and ICRF is ignored).
+The labels carry no attitude quaternion: they give the epoch (UTC), the spacecraft-to-Moon
+vector, the boresight and the four corners of the field (J2000, degrees). This module turns them
+into a :class:`~starnav.geometry.FrameGeometry` (SI, Moon-centred, ICRF axes). Evidence for the
+corner ordering and the choice of the Moon frame: docs/methods.md,
+"starnav.reference.amie.geometry".
 
 Technique
 ---------
-1. **Epoch.** ``START_TIME`` is UTC; :func:`amie_epoch_tdb` converts it to TDB seconds past
-   J2000 with astropy (leap seconds, the TT-TDB series) through
-   :func:`starnav.scenes.ephemeris.parse_epoch`. Exposures are 5-200 ms: the start time is used.
-2. **Attitude (Wahba's problem).** The five label directions (boresight and four corners) are
-   paired with the camera-frame rays of the principal point and of the four corner pixels
-   ``(0, 0), (W-1, 0), (W-1, H-1), (0, H-1)`` (pixel centres; the instrument kernel defines the
-   field by "the first and last pixels of the first and last lines", half-angle 1.325 deg). The
-   rotation minimising ``sum |b_i - R r_i|^2`` is ``R = U diag(1, 1, det U det V) V^T`` from
-   the SVD of ``B = sum b_i r_i^T`` (Wahba 1965; Markley 1988).
-3. **Which label corner is which pixel.** All eight orderings of the corners (four rotations of
-   each handedness) are fitted; a mirrored ordering cannot be fitted by a proper rotation and
-   leaves a residual of ~2.4 deg, so the handedness is fixed by the residual. For a square
-   detector with the principal point at its centre the four rotations of one handedness fit
-   *exactly* alike: the label alone cannot tell them apart. Ties (within
-   :data:`ORDERING_TIE_TOL`) go to the first ordering of :data:`CORNER_ORDERINGS`, which is the
-   order established on the real frames: the label lists the corners as **upper-left,
-   upper-right, lower-right, lower-left**, i.e. pixels ``(0, 0), (511, 0), (511, 511),
-   (0, 511)`` (row 0 first as stored), and the stored image is *not* mirrored with respect to
-   the sky (camera frame +x right, +y down, +z boresight). Evidence (tests/reference/
-   test_amie_geometry.py): with this ordering the predicted Moon centre lies 1.5 px (041028_00269),
-   6.6 px (040819_00208, whose Moon is 23 px off the boresight, which fixes the roll) and
-   8-10 px (041111) from the limb-fitted one, and the predicted lit crescents fall on the
-   imaged ones (lit-region centroids 6-16 px apart; the other three rolls put them 56-81 px
-   away for 040819 and 275-387 px for 041111). Label fits leave 8-15 arcsec rms: the labels
-   round to 0.01 deg.
-4. **Sun and Moon.** The camera sits at ``-SC_TARGET_POSITION_VECTOR`` from the Moon centre;
-   the Sun relative to the Moon and the Moon's orientation come from DE421
-   (:class:`~starnav.scenes.ephemeris.Ephemeris`), geometric positions at the epoch (no light
-   time or aberration: < 0.01 deg on the phase angle). The Moon's body-fixed frame is the
-   **mean-Earth/polar-axis (ME)** frame by default: the renderer places the lunar maps (LOLA
-   heights, the albedo map, both published in ME) in ``R_moon_to_inertial``'s body frame, so ME
-   puts the features where they are; DE421's principal-axis frame (``moon_frame="PA"``, the
-   default of trajectory scenarios) differs by ~0.9 km on the surface. The labels agree: their
-   ``SUB_SOLAR_LATITUDE`` / ``_LONGITUDE`` are reproduced to <= 0.008 deg in ME, while PA is
-   off by 0.01-0.02 deg.
-5. **Refinement.** The label pointing can be wrong (~1.8 deg for frame
-   AMI_EE3_040504_00013_00020).
-   :func:`refine_attitude` applies the smallest rotation (2 degrees of freedom, about the axis
-   normal to both directions) that moves the label-predicted Moon-centre direction onto the one
-   measured on the image (limb fit), keeping the roll of the label.
-
-The label's ``PHASE_ANGLE``, ``INCIDENCE_ANGLE``, ``EMISSION_ANGLE`` and ``CENTER_LATITUDE`` /
-``CENTER_LONGITUDE`` refer to the point where the **boresight** meets the Moon (they are
-``N/A`` when it misses); :func:`surface_point` computes them for comparison. The Moon-centre
-phase angle (:attr:`FrameGeometry.phase_angle`) differs from them by up to the boresight's offset
-from the Moon centre (0.12 deg for 040819_00208).
-
-Example
--------
->>> import numpy as np
->>> from starnav.camera import Camera
->>> from starnav.reference.amie.geometry import (amie_epoch_tdb, attitude_from_reticle,
-...                                              frame_geometry)
->>> cam = Camera.preset("amie")
->>> t = amie_epoch_tdb("2004-10-28T05:35:10.428")             # label START_TIME
->>> R = attitude_from_reticle((28.07, 7.39), [(29.92, 7.80), (27.65, 9.22), (26.23, 6.97),
-...                                           (28.49, 5.56)], cam)
->>> g = frame_geometry(t, np.array([587808.9, 313502.5, 86398.7]) * 1e3, R)
->>> round(float(np.degrees(g.phase_angle)), 3)                 # label PHASE_ANGLE = 7.45
-7.455
+1. Epoch: ``START_TIME`` (UTC) to TDB seconds past J2000 (:func:`amie_epoch_tdb`).
+2. Attitude: Wahba's problem on the five label directions paired with the camera rays of the
+   principal point and the corner pixels, solved by SVD (:func:`wahba_svd`).
+3. Corner ordering: all eight fitted; handedness fixed by the residual, ties to
+   :data:`AMIE_CORNER_ORDERING` (upper-left, upper-right, lower-right, lower-left).
+4. Sun and Moon from DE421 at the epoch; the Moon in the mean-Earth/polar-axis frame.
+5. :func:`refine_attitude`: the smallest rotation moving the predicted Moon centre onto the
+   measured one, keeping the label's roll.
 
 References
 ----------
 G. Wahba (1965), *A least squares estimate of satellite attitude*, SIAM Review 7(3):409.
 F. L. Markley (1988), *Attitude determination using vector observations and the singular value
 decomposition*, J. Astronaut. Sci. 36(3):245-258.
+
+Index
+-----
+:func:`frame_geometry`, :func:`attitude_from_reticle`, :func:`fit_reticle`,
+:class:`ReticleFit`, :func:`refine_attitude`, :func:`amie_epoch_tdb`, :func:`radec_to_unit`,
+:func:`wahba_svd`, :func:`detector_corners`, :func:`surface_point`, :class:`SurfacePoint`,
+:func:`subsolar_point`, :func:`solar_elongation`.
 """
 
 from __future__ import annotations

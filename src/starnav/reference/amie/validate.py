@@ -1,66 +1,30 @@
 """starnav against real images: SMART-1 AMIE frames of the Moon, simulated and compared.
 
-For each raw AMIE frame (PDS3, :mod:`starnav.reference.amie.frame`) the workflow rebuilds the
-view from the label alone, renders it with the real (ROLO-calibrated) Moon through the AMIE
-camera, exposes it with the AMIE detector, and compares; it also navigates on the real frame.
+For each raw AMIE frame the workflow rebuilds the view from the label alone, renders it with
+the real (ROLO-calibrated) Moon through the AMIE camera, exposes it with the AMIE detector and
+compares; it also navigates on the real frame. The steps and what happens to each frame:
+docs/methods.md, "starnav.reference.amie.validate" (results: docs/real-images.md).
 
 Technique
 ---------
-1. **Real frame.** Decode (``DN = stored >> 6``), mask the marker pixels, the dark top band and
-   saturation, subtract the master bias and the per-column stripe offsets, divide by the flat,
-   convert to electrons with the label's gain (280 e-/DN).
-2. **Geometry from the label.** Epoch UTC -> TDB; Sun and Moon from DE421 and the Moon's
-   orientation from its librations; the spacecraft from the label's spacecraft-to-Moon vector
-   (J2000); the camera attitude from the label's boresight and reticle corners (Wahba).
-3. **Limb on the real frame**: the tracker's own chain
-   (:func:`starnav.navigation.pipeline.process_frame`) as on board: segments above
-   ``threshold_sigma`` times the dark sky's noise (and a fraction of the peak), pixel-level
-   limb points on the lit side, RANSAC, 16 windows planned along the limb and refined (PSF-aware
-   edge fit), then a Christian-Robinson fix: the Moon-centre direction and range.
-4. **Attitude refinement.** The label pointing is off by up to ~1 deg (frame
-   AMI_EE3_040504_00013_00020): the smallest rotation that moves the label-predicted
-   Moon-centre direction onto the measured one (roll kept from the label) is applied.
-   Nothing else is adjusted per frame.
-5. **Simulation.** Render (Mitsuba, spectral, the AMIE response) the default real Moon (LOLA
-   terrain, LROC albedo, ROLO-calibrated Hapke, no per-frame tuning)
-   with the refined attitude, expose it with the AMIE detector
-   (:mod:`starnav.reference.amie.presets`).
-6. **Comparison.** Disc-integrated signal simulated / real; per-pixel agreement inside the disc
-   after sub-pixel registration (phase correlation); limb position difference along the lit
-   limb (the same limb chain on both images, radial distance at the same position angles);
-   navigation range from the real limb against the label's.
+1. Real frame decoded and calibrated (:mod:`starnav.reference.amie.frame`).
+2. Geometry from the label (:mod:`starnav.reference.amie.geometry`).
+3. Limb and fix on the real frame with the tracker's own chain.
+4. Attitude refined so that the Moon centre falls where it is measured (roll kept).
+5. Simulation: the default real Moon, rendered and exposed (:mod:`.presets`).
+6. Comparison: disc signal, per-pixel agreement, limb position, navigation range.
 
-Tuning
-------
-===================== ======= ========================================================
-option                default effect
-===================== ======= ========================================================
-``spp``               16      render samples per pixel
-``threshold_sigma``   8       segment threshold above the dark sky [its rms]
-``threshold_peak_``   0.1     ... and at least this fraction of the Moon's peak (the real
-``fraction``                  optics' halo: the limb must land inside a refinement window)
-``window_px``         11      side of a refinement window [px]
-``interior_erode_px`` 4       pixels eroded from the disc for the per-pixel comparison
-``seed``              1       RANSAC and detector noise
-``max_phase_deg``     145     the chain's thin-crescent limit (no fix beyond it)
-``edge_margin_px``    3       limb points this close to the border or an invalid pixel
-                              are the disc's cut, not its limb
-``min_limb_points``   30      fewer limb points in the valid area: cannot be compared
-``max_fit_rms_px``    1.5     limb fit (label radius) rms above it: not converged
-``min_disc_inside``   0.5     smaller fraction of the disc in the valid area: cannot be
-                              compared
-===================== ======= ========================================================
+A frame that cannot be compared says why and carries no numbers; one frame never aborts a
+run. The knobs are :class:`AmieOptions`.
 
-What happens to each frame
---------------------------
-One frame never aborts a run of many (a file that does not read is refused before any work):
-
-* **compared**, with a fix or **no fix**: a frame on which the chain gives no fix (a crescent
-  beyond its phase limit, RANSAC or the fix failing) is still compared (signal, pixels, limb),
-  its attitude refined on the chain's pixel-level limb points;
-* **cannot be compared**, with the reason and no numbers: no limb on the frame, too little
-  limb in the valid area, an attitude refinement that does not converge, or a Moon mostly
-  outside the valid area (:func:`limb_in_valid_area`).
+Index
+-----
+:func:`run_amie_validation`, :func:`analyse_frame`, :class:`AmieFrameResult`,
+:class:`AmieOptions`, :data:`CRITERIA`; :func:`real_limb_fix`, :class:`RealLimbFix`,
+:class:`LimbSolution`, :class:`NoLimbError`, :func:`limb_in_valid_area`, :func:`not_compared`;
+:func:`fit_centre_known_range`, :func:`centre_direction_known_range`, :func:`edge_radii`,
+:func:`edge_circle_radius`, :func:`focal_scale_cross_validation`, :func:`linearity`;
+:func:`write_results`, :func:`write_report`, :func:`frame_figure`.
 """
 
 from __future__ import annotations
@@ -112,7 +76,35 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class AmieOptions:
-    """Knobs of the validation (module table)."""
+    """Knobs of the validation.
+
+    Attributes
+    ----------
+    spp : int
+        Render samples per pixel.
+    threshold_sigma : float
+        Segment threshold above the dark sky [its rms].
+    window_px : int
+        Side of a refinement window [px].
+    interior_erode_px : int
+        Pixels eroded from the disc for the per-pixel comparison.
+    threshold_peak_fraction : float
+        The threshold is at least this fraction of the Moon's peak (the real optics' halo: the
+        limb must land inside a refinement window).
+    seed : int
+        Seed of RANSAC and the detector noise.
+    max_phase_deg : float
+        The chain's thin-crescent limit (no fix beyond it) [deg].
+    edge_margin_px : int
+        Limb points this close to the border or an invalid pixel are the disc's cut, not its
+        limb [px].
+    min_limb_points : int
+        Fewer limb points in the valid area: the frame cannot be compared.
+    min_disc_inside : float
+        A smaller fraction of the disc in the valid area: the frame cannot be compared.
+    max_fit_rms_px : float
+        A limb fit (label radius) rms above this has not converged [px].
+    """
 
     spp: int = 16
     threshold_sigma: float = 8.0
