@@ -1,41 +1,23 @@
 """Quick looks: 8-bit PNGs of a frame, its own shape, stretched and annotated for a person.
 
-A dataset's ``dn.png`` holds 12-bit DN in a 16-bit PNG (data: any viewer shows it black) and
-``starnav render`` writes float EXR (data: no viewer shows its range). Next to each of them a
-quick look is written: the picture.
+Next to each data image (16-bit DN PNG, float EXR radiance) a picture is written:
 
-Technique
----------
-1. **Levels** (:func:`quicklook_levels`): black is the sky (the frame's median for DN: the
-   offset and the dark sky, which cover most of a Moon frame; 0 for radiance); white is the
-   99.5th percentile of the pixels more than 5 sky sigmas above black (a percentile over all
-   pixels would be the sky when the Moon covers under 0.5 % of the field).
-2. **Stretch** (:func:`asinh_stretch`): ``asinh(x / s) / asinh(1 / s)`` with ``x`` the value
-   between black and white and ``s = 0.05``: linear near the sky (the sky stays black, its
-   noise dark), logarithmic over the disc (terminator and bright or saturated limb both
-   visible). Lupton, Gunn & Szalay (1999, AJ 118, 1406).
-3. **Annotation** (:func:`write_quicklook`): PNG text chunks (``Title``, ``Description`` and
-   machine-readable ``starnav:black``, ``starnav:white``, ``starnav:unit``,
-   ``starnav:stretch``) and, burnt in, a caption band over the top rows (frame index, exposure
-   time in ms, range in km, phase in deg, the black..white range and the stretch) and a scale
-   bar over the bottom-left rows labelled with black and white. Single-channel 8-bit PNG the
-   frame's shape, deterministic bytes (:func:`starnav.detector.io.png_bytes`, no time
-   stamp), written atomically.
+1. Levels (:func:`quicklook_levels`): black the sky (the DN median, 0 for radiance), white the
+   :data:`QUICKLOOK_WHITE_PERCENTILE` of the pixels :data:`QUICKLOOK_SKY_SIGMAS` above it.
+2. Stretch (:func:`asinh_stretch`): linear near the sky, logarithmic over the disc (softening
+   :data:`QUICKLOOK_SOFTENING`).
+3. Annotation (:func:`write_quicklook`): PNG text chunks (:data:`QUICKLOOK_KEYS`), a burnt-in
+   caption and scale bar; deterministic bytes, written atomically.
 
-========================  =====  ======================================================
-knob                      value  effect
-========================  =====  ======================================================
-``QUICKLOOK_SOFTENING``   0.05   lower: more of the faint terminator, flatter bright disc
-``..._WHITE_PERCENTILE``  99.5   lower: the bright limb clips to white over a wider band
-``QUICKLOOK_SKY_SIGMAS``  5      which pixels count as "above the sky" for the white level
-========================  =====  ======================================================
+References
+----------
+R. Lupton, J. E. Gunn and A. Szalay, AJ 118 (1999) 1406 (asinh magnitudes).
 
-Example
--------
->>> import numpy as np
->>> from starnav.quicklook import write_quicklook
->>> dn = np.full((64, 64), 20); dn[20:40, 20:40] = 3000
->>> info = write_quicklook(dn, "dn_quicklook.png", "frame 0", unit="DN")   # doctest: +SKIP
+Index
+-----
+:func:`write_quicklook`, :func:`write_dn_quicklook`, :func:`write_radiance_quicklook`,
+:class:`QuickLookInfo`, :func:`quicklook_levels`, :func:`asinh_stretch`,
+:func:`quicklook_caption`, :func:`to_uint8`.
 """
 
 from __future__ import annotations

@@ -1,44 +1,19 @@
 """A 3-D look at a scenario for a slide: the body, the observer, its field of view, the Sun.
 
-Technique
----------
-1. Frames of the scenario (:class:`starnav.scenes.Scene`); everything is drawn in the
-   body-centred J2000 frame (spacecraft minus Moon, DE421), in km, to scale.
-2. Two panels. *Overview* (left): the body (a sphere of its reference radius, or the
-   icosphere when ``moon.shape`` is ``mesh``), the trajectory, ``frusta`` camera frusta evenly
-   spread along the arc (four rays through the detector corners, pinhole intrinsics, cut at
-   ``frustum_fraction`` of the range to the body centre, boresight drawn), the Sun and Earth
-   directions as arrows from the body centre, axes labelled in km. *Seen from the observer*
-   (right): the body from the middle frame's camera direction, with the camera's own "up", so
-   its lit phase reads as on the detector; the Sun arrow again.
-3. Framing (:func:`fit_view`, pure geometry): for a view direction, the camera distance and
-   focal point are solved so that every point that matters (body silhouette, observer
-   positions, frustum corners, arrow tips) projects inside the image with a margin; the body
-   then fills ``BODY_FILL`` of the right panel's height. :meth:`View.project` is the same
-   perspective projection VTK applies, so tests check the placement without pixels.
-4. Offscreen rendering without an X server: the first VTK render window that works is found
-   by a tiny probe render in a subprocess, in the order EGL, OSMesa, X
-   (``VTK_DEFAULT_OPENGL_WINDOW``; a value set by the user is kept), and used for the figure,
-   so no "bad X server connection" warning is printed; where none works a clear
-   :class:`ShowUnavailableError` says what to install.
+1. Frames of the scenario, drawn in the body-centred J2000 frame, in km, to scale.
+2. Two panels: an overview (body, trajectory, camera frusta, Sun and Earth arrows) and the body
+   seen from the middle frame's camera, with the camera's own "up".
+3. Framing (:func:`fit_view`, pure geometry): every point that matters projects inside the
+   image with a margin; :meth:`View.project` is VTK's projection, so tests need no pixels.
+4. Offscreen rendering without an X server: the first VTK window that works (EGL, OSMesa, X)
+   found by a probe in a subprocess; where none works, :class:`ShowUnavailableError` says what
+   to install.
 
-Tuning
-------
-=====================  =======  ==================================================
-knob                   default  effect
-=====================  =======  ==================================================
-``frusta``             8        camera frusta drawn along the arc
-``frustum_fraction``   1.0      frustum length / range (1: reaches the body centre)
-``window_size``        1800x900 image size [px], two square panels
-:data:`BODY_FILL`      0.55     body diameter / right panel height
-:data:`VIEW_MARGIN`    0.08     margin kept free on every side, fraction of half-size
-=====================  =======  ==================================================
-
-Example
--------
->>> from starnav.config import load_scenario
->>> from starnav.show import render_scene
->>> render_scene(load_scenario("scenario.yaml"), "scene.png")          # doctest: +SKIP
+Index
+-----
+:func:`render_scene`, :func:`layout_scene`, :class:`Layout`, :class:`View`, :func:`fit_view`,
+:func:`body_view`, :func:`overview_direction`, :func:`frustum_corners`, :func:`sphere_points`,
+:func:`offscreen_window`, :func:`check_offscreen`, :class:`ShowUnavailableError`.
 """
 
 from __future__ import annotations

@@ -3,41 +3,26 @@
 :class:`ShapeModelBody` is the :class:`~starnav.bodies.base.TargetBody` of
 ``target: {kind: shape_model, model: itokawa|eros|<path>}``:
 
-* **shape** - the facets of the model (:mod:`starnav.bodies.shape`, metres, body-fixed axes),
-  rendered as they are (flat silhouette facets, smooth shading from the area-weighted vertex
-  normals);
-* **orientation** - the IAU model (:func:`~starnav.bodies.base.iau_orientation`), spin about
-  body z (both packaged models have z along the spin axis: Itokawa's radar model is in
-  principal axes, its z the axis of largest moment; the Eros plate model is in the IAU frame);
-* **reference ellipsoid** (``radii_m``) - the uniform ellipsoid with the mesh's moments of
-  inertia about the body axes (:meth:`~starnav.bodies.shape.ShapeModel.equivalent_ellipsoid_radii`),
-  or ``radii_km`` from the scenario; ``bounding_radius_m`` bounds every vertex (crop window,
-  clip planes, pointing margin);
-* **photometry** - Hapke with the S-type parameters of Eros (Clark et al. 2002,
-  :data:`starnav.photometry.HAPKE_S_TYPE_CLARK2002`) at the body's normal albedo, or any
-  registered model (``lommel_seeliger``, ``lambert``);
-* **truth** - :meth:`render_model` asks the renderer for the body-fixed surface point of each
-  pixel-centre ray (AOVs ``x_body``, ``y_body``, ``z_body`` [m]) beside its inertial normal:
-  the truth a feature tracker is scored against.
+* shape: the model's facets (:mod:`starnav.bodies.shape`, metres, body-fixed), rendered as
+  they are;
+* orientation: the IAU model (:func:`~starnav.bodies.base.iau_orientation`), spin about z;
+* reference ellipsoid: the uniform ellipsoid of the mesh's moments of inertia, or
+  ``radii_km``; ``bounding_radius_m`` bounds every vertex;
+* photometry: Hapke with Eros's S-type parameters
+  (:data:`starnav.photometry.HAPKE_S_TYPE_CLARK2002`) at the body's normal albedo, or any
+  registered model;
+* truth: :meth:`render_model` asks the renderer for each pixel's body-fixed surface point
+  (AOVs ``x_body``, ``y_body``, ``z_body`` [m]).
 
-Published facts of the packaged models (:data:`SMALL_BODY_FACTS`)
------------------------------------------------------------------
-========== ========================================= ================ =======================
-body       rotation (IAU: alpha0, delta0, W0, W_dot)  GM [m^3 s^-2]   normal albedo (550 nm)
-========== ========================================= ================ =======================
-itokawa    90.53, -66.30, 0.0, 712.143 deg/day        2.343           0.27
-           (Archinal et al. 2018 table 5, from the    (mass 3.51e10 kg (geometric albedo V,
-           Hayabusa pole of Demura et al. 2006:       +-3 %, Fujiwara Tatsumi et al. 2018,
-           ecliptic (128.5, -89.66) deg; period       et al. 2006)     Icarus 311, 175)
-           12.132 h)
-eros       11.35, 17.22, 326.07, 1639.38864745        4.4631e5        0.25
-           deg/day (Archinal et al. 2018 table 5;     (Miller et al.  (geometric albedo,
-           period 5.270 h)                            2002, Icarus    Veverka et al. 2000,
-                                                      155, 3)         Science 289, 2088)
-========== ========================================= ================ =======================
+References
+----------
+B. A. Archinal et al., "Report of the IAU Working Group on Cartographic Coordinates and
+Rotational Elements: 2015", Celest. Mech. Dyn. Astron. 130 (2018) 22, table 5. The other
+sources of :data:`SMALL_BODY_FACTS` stand beside it.
 
-The geometric albedo stands in for the normal albedo (they are equal for a Lommel-Seeliger
-sphere; a Hapke surface's limb darkening makes the geometric albedo a few per cent lower).
+Index
+-----
+:class:`ShapeModelBody`, :data:`SMALL_BODY_FACTS`, :class:`SmallBodyFacts`.
 """
 
 from __future__ import annotations
@@ -66,7 +51,11 @@ from starnav.renderer.scene import MoonMesh
 
 @dataclass(frozen=True)
 class SmallBodyFacts:
-    """Published values of a packaged small body (module docstring table for the sources)."""
+    """Published values of a packaged small body (sources beside :data:`SMALL_BODY_FACTS`).
+
+    The geometric albedo stands in for the normal albedo (they are equal for a Lommel-Seeliger
+    sphere; a Hapke surface's limb darkening makes the geometric albedo a few per cent lower).
+    """
 
     pole_ra_deg: float
     pole_dec_deg: float
@@ -82,6 +71,11 @@ class SmallBodyFacts:
 
 
 #: Published spin, GM and albedo of the packaged models, by the shape model's name.
+#: Itokawa: IAU rotation from Archinal et al. 2018 table 5 (the Hayabusa pole of Demura et al.
+#: 2006, ecliptic (128.5, -89.66) deg; period 12.132 h); mass 3.51e10 kg +-3 % (Fujiwara et
+#: al. 2006); geometric albedo V 0.27 (Tatsumi et al. 2018, Icarus 311, 175).
+#: Eros: IAU rotation from Archinal et al. 2018 table 5 (period 5.270 h); GM from Miller et al.
+#: 2002, Icarus 155, 3; geometric albedo 0.25 (Veverka et al. 2000, Science 289, 2088).
 SMALL_BODY_FACTS: Registry[SmallBodyFacts] = Registry("small body", {
     "itokawa": SmallBodyFacts(90.53, -66.30, 0.0, 712.143, 6.6743e-11 * 3.51e10, 0.27),
     "eros": SmallBodyFacts(11.35, 17.22, 326.07, 1639.38864745, 4.4631e5, 0.25),

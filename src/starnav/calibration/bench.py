@@ -1,56 +1,32 @@
 """Emulated hardware-in-the-loop bench: screen -> collimator -> camera -> detector.
 
+The bench model in full: docs/calibration.md, "2. Emulated acquisition".
+
 Technique
 ---------
-1. **Geometry** (:class:`BenchGeometry`). A screen pixel ``(j, i)`` (column, row) sits at
-   ``a = (j - c_j) p``, ``b = (i - c_i) p`` in the screen plane (pitch ``p``); the screen is
-   rolled, tilted and shifted (``misalignment``), giving the point ``P`` in the collimator frame
-   (``z`` from the focal plane towards the lens). The collimator turns it into a beam along the
-   chief ray, tangent ``t = (P_x, P_y) / (f - P_z)`` (a point off the focal plane also gives a
-   slightly divergent beam: the defocus blur below), distorted to ``t (1 + k1 |t|^2 + k2
-   |t|^4)``. The camera, rotated by ``R_cam`` with respect to the collimator axis, sees it along
-   ``R_cam (t_x, t_y, 1)``, i.e. at pinhole pixel ``(fx x/z + cx, fy y/z + cy)``. The inverse
-   (camera pixel -> screen pixel) is solved by Newton iterations.
-2. **Radiance at the camera** (:meth:`Bench.radiance_at_camera`). Radiance is conserved through
-   the collimator, so each screen pixel contributes its electron radiance
-   (:class:`~starnav.calibration.screen.ScreenRadiometry`) times the area of its footprint on
-   the pinhole pixel grid. Footprints are splatted with their exact box overlap with the camera
-   pixels (area ``|det J|`` of the screen-to-pixel Jacobian): the exact pixel-area integral of
-   the piecewise-constant screen, flux conserving. Optional vignetting by the collimator
-   aperture.
-3. **Collimator spot** (seed paper Table 2) and the defocus of a tilted/shifted screen
-   (``D_pupil |z| / f^2`` blur diameter) vary over the field. They are applied by input-side
-   blending: the image is split by hat weights in ``sigma`` over ``psf_levels`` Gaussian
-   widths, each part is convolved with its Gaussian and the parts are summed -- every point
-   source gets its own (mixed) PSF, flux and centroid are conserved exactly.
-4. **Detector**: the pinhole electron-radiance image goes through a pluggable stage:
-   :class:`ChainDetector` (the full :func:`starnav.detector.expose` chain of the scenario:
-   camera PSF, distortion, noise, saturation, ADC) or :class:`IdealDetector` (mean charge,
-   no noise) for noise-free checks.
-5. **Check** (:func:`check_bench`): eq. 2 with the stated and the derived FoV, plus the actual
-   coverage of the detector computed with the full bench model (distortion, misalignments).
+1. Geometry (:class:`BenchGeometry`): screen pixel -> misaligned screen point -> collimated
+   beam (tangent, collimator distortion) -> camera pixel; the inverse by Newton iterations.
+2. Radiance at the camera (:meth:`Bench.radiance_at_camera`): radiance is conserved through
+   the collimator; each screen pixel's footprint is splatted with its exact box overlap
+   (:func:`splat`), flux conserving.
+3. Collimator spot and the defocus of a tilted screen, varying over the field, by input-side
+   blending of Gaussians (:func:`field_varying_blur`): flux and centroid conserved.
+4. Detector: the scenario's chain (:class:`ChainDetector`) or a noise-free one
+   (:class:`IdealDetector`).
+5. Check (:func:`check_bench`): eq. 2 with the stated and the derived field, plus the actual
+   detector coverage.
 
-Tuning knobs
-------------
-========================== ========= ================================================
-knob                       default   effect
-========================== ========= ================================================
-``acquisition.psf_levels`` 6         Gaussian widths blended for the varying spot
-``include_spot_psf``       true      switch the collimator blur off (ideal optics)
-``misalignment.*``         0         the emulated assembly errors (the "truth")
-``collimator.distortion``  k1 = 0.1  collimator distortion (the "truth")
-========================== ========= ================================================
+References
+----------
+Seed paper, "Hardware-in-the-loop testing preparation", and its refs. 7 and 18 (the TinyV3RSE
+facility).
 
-Example
--------
->>> import numpy as np
->>> from starnav.calibration import Bench, BenchConfig, IdealDetector
->>> bench = Bench(BenchConfig())
->>> counts = np.zeros(bench.screen_shape, np.uint16); counts[1080, 1920] = 255
->>> acq = bench.acquire(counts, 1e-3, IdealDetector(bench.camera))      # doctest: +SKIP
-
-Reference: seed paper, "Hardware-in-the-loop testing preparation", and its refs. 7 and 18
-(the TinyV3RSE facility).
+Index
+-----
+:class:`Bench`, :class:`Acquisition`, :class:`BenchGeometry`, :func:`as_built_camera`,
+:func:`splat`, :func:`field_varying_blur`, :class:`DetectorStage`, :class:`ChainDetector`,
+:class:`IdealDetector`, :class:`DetectorFrame`, :func:`check_bench`, :class:`BenchCheck`,
+:func:`angle_between`.
 """
 
 from __future__ import annotations

@@ -1,52 +1,22 @@
 """The collimator: optical-stimulator condition, aberration spot over the field, distortion,
 vignetting.
 
-Technique
----------
-1. **Optical-stimulator condition** (seed paper eq. 2, taken from its ref. 7, the TinyV3RSE
-   facility): a screen of height ``h_s`` in the focal plane of a collimator of focal length
-   ``f_coll`` spans the field ``+-atan(h_s / (2 f_coll))``; the camera's field is filled when
-   ``tan(FoV / 2) <= h_s / (2 f_coll)``, i.e. ``f_coll <= h_s / (2 tan(FoV / 2))``.
-   :func:`stimulator_condition` evaluates it for one FoV;
-   :func:`~starnav.calibration.bench.check_bench` evaluates it for the FoV the paper *stated*
-   (10 deg) and for the FoV *derived* from the camera (``2 atan(H p / 2 f)``, 20.60 deg for the
-   AA-STR, docs/facts.md s1), along both screen axes.
-   With the paper's numbers: 10 deg gives ``f_coll <= 371.5 mm`` (satisfied with a 2x margin,
-   but the paper's own bound "f_coll <= 180.07 mm" corresponds to a 20.46 deg FoV); the derived
-   20.60 deg gives ``f_coll <= 178.8 mm``: the 180 mm doublet misses by 0.7 %, i.e. the
-   screen is 0.44 mm too short and ~3 detector rows at the top and at the bottom of the
-   AA-STR image are not stimulated (2 with the default collimator distortion; the bench model
-   of :mod:`~starnav.calibration.bench` includes distortion and misalignments).
-2. **Aberration spot** (Table 2, Zemax RMS spot radius): stored as an angular RMS radius,
-   interpolated over the field angle (``quadratic``: least-squares ``r = a + b theta^2``, or
-   ``linear``), and turned into a Gaussian of per-axis ``sigma = r_rms / sqrt(2)`` (a circular
-   Gaussian's RMS radius is ``sqrt(2) sigma``).
-3. **Distortion** of the screen-to-angle map: ``t_d = t (1 + k1 |t|^2 + k2 |t|^4)`` on the
-   tangent of the field angle.
-4. **Vignetting**: the collimated beam of a screen point fills the clear aperture ``D_c``; at
-   the camera pupil (diameter ``D_p``, distance ``d``) it is displaced by ``d tan(theta)``;
-   the collected fraction is the overlap of the two discs over the pupil area.
+1. Optical-stimulator condition (seed paper eq. 2): the field is filled when
+   ``f_coll <= h_s / (2 tan(FoV / 2))`` (:func:`stimulator_condition`); evaluated for the
+   stated and the derived field in docs/calibration.md, "1. The collimator condition".
+2. Aberration spot (Table 2): an angular RMS radius over the field, as a Gaussian
+   (:class:`SpotModel`).
+3. Distortion of the screen-to-angle map on the tangent (:func:`distort_tangent`).
+4. Vignetting: overlap of the displaced beam with the camera pupil (:func:`vignetting`).
 
-Tuning knobs
-------------
-=========================== =========== ================================================
-knob                        default     effect
-=========================== =========== ================================================
-``focal_length_mm``         180         field covered by the screen; magnification
-``spot_model``              quadratic   spot growth between/beyond the Table 2 rows
-``distortion_k1, k2``       0.1, 0      collimator distortion (calibrated away)
-``clear_aperture_mm``       null        vignetting when set (with ``pupil_distance_mm``)
-``stated_camera_fov_deg``   10          the FoV put in eq. 2 by the paper (reported)
-=========================== =========== ================================================
+References
+----------
+Seed paper, "TinyV3RSE customization" (eq. 2, Table 2).
 
-Example
--------
->>> from starnav.calibration.collimator import stimulator_condition
->>> v = stimulator_condition(fov_deg=20.6049, screen_height_mm=65.0, focal_length_mm=180.0)
->>> v.satisfied, round(v.max_focal_length_mm, 1)
-(False, 178.8)
-
-Reference: seed paper, "TinyV3RSE customization" (eq. 2, Table 2).
+Index
+-----
+:func:`stimulator_condition`, :class:`StimulatorCondition`, :func:`implied_fov_deg`,
+:class:`SpotModel`, :func:`distort_tangent`, :func:`vignetting`, :func:`disc_overlap_fraction`.
 """
 
 from __future__ import annotations

@@ -1,50 +1,31 @@
 """The camera's focal length, principal point and distortion estimated on the bench, with
 their covariance: the calibration product navigation reads.
 
-The dot-pattern acquisition of :mod:`starnav.calibration.geometric` gives, for every matched
-dot, the screen pixel it was drawn at and the detector pixel its centroid was seen at. Through
-the collimator *as designed* (its nominal focal length, no distortion, screen centred and
-square to the axis) each screen pixel is a known direction; the camera model maps directions
-to pixels. Fitting one to the other estimates the camera.
+Each matched dot of :mod:`starnav.calibration.geometric` pairs a screen pixel (a known
+direction through the nominal collimator) with the detector pixel it was seen at; fitting the
+camera model to those pairs estimates the camera. The steps in full: docs/calibration.md, "The
+camera's focal length, principal point and distortion".
 
 Technique
 ---------
-1. **Model.** ``uv = camera(theta).project(R(omega) d(s))``: ``d(s)`` the collimated direction
-   of screen pixel ``s`` through the nominal collimator
-   (:meth:`~starnav.calibration.bench.BenchGeometry.beam_tangent` of the nominal geometry),
-   ``R(omega)`` the camera's unknown mounting rotation on the bench (rotation vector),
-   ``theta`` the camera parameters (:data:`ESTIMATED`: focal length, principal point, radial
-   ``k1, k2`` and tangential ``p1, p2``).
-2. **Prior on the mount.** A tilt of the camera about its x or y axis moves the image almost
-   like a principal-point shift (they differ only by the ``1 + tan^2`` growth over the
-   field), so the two are separated by a prior: the mount's tilts are zero with the
-   mechanical tolerance ``mount_tilt_sigma_rad`` (pseudo-observations). The roll is free.
-3. **Fit.** Levenberg-Marquardt (:func:`scipy.optimize.least_squares`) on the pixel residuals,
-   from the nominal camera. The centroid noise is estimated from the residuals
-   (``s^2 = sum r^2 / (2 N - p)``), alternating with the fit (the prior's weight depends on
-   it) until it changes by less than 1 %.
-4. **Covariance.** ``P = (J^T W J)^-1`` with the Jacobian by central differences at the
-   solution, the residual rows weighted by ``1 / s^2`` and the prior rows by their tolerance.
-5. **Consider parameters.** What the bench does not know about itself and the fit cannot
-   estimate (:data:`CONSIDER`): the collimator's focal length (a scale error ``epsilon`` is
-   exactly a camera focal-length error ``f epsilon``: only ``f_cam / f_coll`` is observable),
-   its radial distortion (absorbed by the camera's ``k1``), and the screen's shift, tilt and
-   defocus (a shift is a pointing offset, which the tilt prior splits between the mount and
-   the principal point; a tilt is a keystone). Their tolerances enter as
-   ``P_c = S C S^T``, ``S = -(J^T W J)^-1 J^T W dr/dc`` the sensitivity of the estimate to
-   each (Tapley, Schutz & Born 2004, *Statistical Orbit Determination*, ch. 6.3), added to
-   ``P``. They are *not* estimated: the bench cannot tell them from the camera.
+1. Model ``uv = camera(theta).project(R(omega) d(s))``: ``theta`` the parameters
+   :data:`ESTIMATED`, ``omega`` the unknown mount rotation (a nuisance, not written).
+2. Prior on the mount's tilts (they mimic a principal-point shift); the roll is free.
+3. Fit: Levenberg-Marquardt on the pixel residuals, alternating with the centroid noise
+   estimate.
+4. Covariance ``(J^T W J)^-1``.
+5. Consider parameters (:data:`CONSIDER`: the collimator's focal length and distortion, the
+   screen's shift, tilt and defocus) added as ``S C S^T``, not estimated.
 
-The mounting rotation is a nuisance parameter: it is estimated and its uncertainty is part of
-``P`` but it is not written (the flight camera's alignment is the star tracker's own attitude).
+References
+----------
+B. D. Tapley, B. E. Schutz and G. H. Born, *Statistical Orbit Determination*, Elsevier (2004),
+ch. 6.3 (consider covariance).
 
 Index
 -----
-:data:`ESTIMATED`              the camera parameters estimated
-:data:`CONSIDER`               the bench's own parameters taken with their tolerance
-:class:`IntrinsicsResult`      estimate, covariance split (noise, consider), residuals
-:func:`estimate_camera`        the fit of steps 1-5 on one dot acquisition
-:func:`calibrate_camera`       the dot acquisition on an emulated bench, then the fit
+:func:`estimate_camera`, :func:`calibrate_camera`, :class:`IntrinsicsResult`,
+:data:`ESTIMATED`, :data:`CONSIDER`.
 """
 
 from __future__ import annotations

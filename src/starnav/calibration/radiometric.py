@@ -1,53 +1,28 @@
 """Radiometric calibration of the bench: screen count <-> Moon flux, calibrated stimuli, and
 their validation against the in-orbit exposure of the rendered image.
 
+The steps in full: docs/calibration.md, "4. Radiometric calibration".
+
 Technique
 ---------
-1. **Screen effective flux per count** (paper steps 1-2): the emittance of each channel,
-   convolved with the camera response ``QE T lambda / (h c)`` and the collimator throughput,
-   gives the electron radiance ``Le_s(n)`` at the camera for every count ``n``
-   (:class:`~starnav.calibration.screen.ScreenRadiometry`); times the pixel etendue
-   ``A_pupil Omega_pix`` it is the electron rate of a pixel [e-/s].
-2. **Moon flux density** (paper steps 3-4): the renderer's ``L`` and ``Le`` channels, computed
-   with the *same* response, give the Moon's band radiance, its electron radiance and their
-   ratio ``eps_moon = Le / L`` [e-/J] (the Moon is grey: the Sun's spectrum through the camera);
-   :func:`moon_flux` also integrates the disc (band irradiance at the camera [W m^-2]).
-3. **Mapping** (paper step 5, Fig. 14): a count ``n`` stimulates the camera like a Moon of band
-   radiance ``L_eq(n) = Le_s(n) / eps_moon`` [W m^-2 sr^-1], i.e. a radiant flux density of
-   ``L_eq Omega_pix`` [W m^-2] per pixel (:func:`count_flux_mapping`). Matching electrons, not
-   watts, is what makes the stimulus right for *this* detector: the screen's spectrum differs
-   from the Sun's.
-4. **Stimulus**: the rendered pinhole ``Le`` image, times ``1/k`` (albedo-exposure scaling,
-   :mod:`~starnav.calibration.scaling`), is pre-warped through the geometric calibration and
-   turned into counts with the inverse of step 1 (dithered by default).
-5. **Validation** (paper Figs. 15-16; :func:`compare_stimulus`): the stimulus is acquired with
-   the emulated bench at ``k t_render`` and compared with the in-orbit exposure of the rendered
-   image at ``t_render``, both through the same detector and both dark-subtracted: the ratio of
-   the electrons summed over the disc (plus ``disc_margin_px``), the per-pixel ratio inside the
-   disc, the saturation of both, and the intensity centroids (the extended-object check of the
-   geometric calibration, Fig. 13).
+1. Screen electron radiance per count through the camera response and the collimator
+   (:class:`~starnav.calibration.screen.ScreenRadiometry`).
+2. The Moon's band and electron radiance from the renderer, with the same response
+   (:func:`moon_flux`).
+3. Mapping: a count stimulates the camera like a Moon of band radiance ``Le_s(n) / eps_moon``
+   (:func:`count_flux_mapping`): electrons are matched, not watts.
+4. Stimulus: the rendered ``Le`` image over ``k``, pre-warped and turned into counts.
+5. Validation (:func:`compare_stimulus`): bench acquisition at ``k t`` against the in-orbit
+   exposure at ``t``.
 
-Tuning knobs
-------------
-============================ ========= ==================================================
-knob                         default   effect
-============================ ========= ==================================================
-``quantization``             dither    ``nearest`` shows the paper's Fig. 16 steps
-``headroom_fraction``        0.9       stimulus peak at most this share of full white
-``disc_margin_px``           8         region of the disc sum beyond the rendered mask
-``nd_optical_density``       0         finer count steps when the exposure is long
-============================ ========= ==================================================
+References
+----------
+Seed paper, "Radiometric Calibration" (steps 1-5, Figs. 14-17) and its ref. 20.
 
-Example
--------
->>> from starnav.calibration import Bench, BenchConfig
->>> from starnav.calibration.radiometric import count_flux_mapping
->>> bench = Bench(BenchConfig())
->>> m = count_flux_mapping(bench.radiometry, bench.camera, moon_electrons_per_joule=8.58e17)
->>> round(float(m.moon_equivalent_l[-1]), 3)        # W m^-2 sr^-1 of Moon per full white
-1.646
-
-Reference: seed paper, "Radiometric Calibration" (steps 1-5, Figs. 14-17) and its ref. 20.
+Index
+-----
+:func:`moon_flux`, :class:`MoonFlux`, :func:`count_flux_mapping`, :class:`CountFluxMapping`,
+:func:`screen_limited_k`, :func:`compare_stimulus`, :class:`StimulusComparison`.
 """
 
 from __future__ import annotations

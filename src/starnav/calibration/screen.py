@@ -1,47 +1,21 @@
 """The stimulating screen: digital counts <-> radiance seen by the camera, and what it displays.
 
-Technique
----------
-1. Each channel ``c`` of a screen pixel at count ``n`` emits the spectral radiance
-   ``L_c(lambda) [b + (1 - b) (n / n_max)^gamma_c]`` (``b`` the black level; tables and gammas
-   from :class:`~starnav.calibration.schema.ScreenEmittanceConfig`).
-2. Radiance is conserved through the collimator (a screen in its focal plane makes a collimated
-   beam of the same radiance, times the transmission ``tau`` and the ND filter ``10^-OD``), so
-   the camera sees, in the direction of a screen pixel, the electron radiance
-   ``Le = tau 10^-OD sum_c g_c(n) integral L_c(lambda) QE T lambda/(h c) dlambda``
-   [e- s^-1 m^-2 sr^-1] -- the same quantity as the renderer's ``Le`` channel. The band
-   radiance ``L`` is the same integral with a unit box response. This is the paper's
-   "effective radiant flux density" (emittance convolved with the camera response).
-3. A look-up table of ``Le`` for every count turns counts into radiance and back. The camera is
-   monochrome, so stimuli are grey (R = G = B = n); RGB counts are accepted too.
-4. Radiance to counts: ``nearest`` takes the level closest in radiance; ``dither`` picks one of
-   the two neighbouring levels at random with the probability that makes the *expected*
-   radiance exact (a screen pixel is ~0.5 camera pixel and the PSFs average several, so the
-   dither noise averages out while the quantisation bias of Fig. 16 of the paper disappears).
+1. Each channel at count ``n`` emits ``L_c(lambda) [b + (1 - b) (n / n_max)^gamma_c]``
+   (:class:`~starnav.calibration.schema.ScreenEmittanceConfig`).
+2. Radiance is conserved through the collimator (times its transmission and the ND filter),
+   so the camera sees the electron radiance ``Le`` of the renderer's channel: the paper's
+   "effective radiant flux density".
+3. A look-up table of ``Le`` per count turns counts into radiance and back (grey stimuli).
+4. Radiance to counts: ``nearest``, or ``dither`` (the expected radiance exact, removing the
+   quantisation bias of the paper's Fig. 16).
 
-Tuning knobs
-------------
-======================= ========= ======================================================
-knob                    default   effect
-======================= ========= ======================================================
-``screen.bit_depth``    8         levels; the relative step at count n is ~gamma / n
-``emittance.gamma``     2.2       transfer curve; sets which radiance each count gives
-``black_level_fraction`` 0        radiance at count 0 (LCD leakage) added everywhere
-``quantization``        dither    ``nearest`` (deterministic) or ``dither`` (unbiased)
-``nd_optical_density``  0         dims every level by 10^-OD (finer steps at a given flux)
-======================= ========= ======================================================
+References
+----------
+Seed paper, "Radiometric Calibration", steps 1-2 and Figs. 14-16.
 
-Example
--------
->>> from starnav.calibration.schema import BenchConfig
->>> from starnav.calibration.screen import ScreenRadiometry
->>> from starnav.spectra import sensor_response
->>> b = BenchConfig()
->>> rad = ScreenRadiometry.from_config(b.screen, b.collimator, sensor_response())
->>> f"{rad.le_max:.2e}"          # e- s^-1 m^-2 sr^-1 at full white, through the collimator
-'1.41e+18'
-
-Reference: seed paper, "Radiometric Calibration", steps 1-2 and Figs. 14-16.
+Index
+-----
+:class:`ScreenRadiometry`, :func:`gaussian_dots`, :data:`QUANTIZATION_METHODS`.
 """
 
 from __future__ import annotations

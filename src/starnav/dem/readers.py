@@ -1,41 +1,18 @@
 """Readers and writers of lunar DEMs and albedo maps.
 
-Formats
--------
-=================  ===========================================================================
-``pds3``           LOLA LDEM/LDAM PDS3 products: ``.LBL`` + ``.IMG`` (or an ``.IMG`` with an
-                   attached label). Pixels are decoded by GDAL's ``PDS`` driver (through
-                   rasterio), which honours the label's ``SAMPLE_TYPE`` / ``SAMPLE_BITS`` (byte
-                   order, signedness, integer or IEEE real), ``SCALING_FACTOR`` and ``OFFSET``
-                   and the map projection. The label itself comes from GDAL's ``json:PDS``
-                   metadata (GDAL's own ODL parser), so no label parser is written here; what
-                   GDAL does *not* check, we do: a truncated or oversized ``.IMG`` (GDAL reads
-                   missing bytes as zeros, silently), label fields that contradict each other
-                   (``LINES`` vs the latitude extent and resolution), latitudes outside
-                   -90..90 deg, projections other than simple cylindrical, west-positive
-                   longitudes.
-``geotiff``        Any single-band raster GDAL reads (GeoTIFF first): geographic (degrees) or
-                   equirectangular (``eqc``, metres) georeferencing; band scale/offset/units
-                   from the file.
-``svs-geotiff``    The NASA SVS CGI Moon Kit ``ldem_*.tif``: float kilometres, or unsigned
-                   16-bit half-metres offset by +20 000 (10 km), relative to 1737.4 km; no
-                   georeferencing: a global grid whose western edge is ``extent_deg[0]``
-                   (default -180 deg, the kit's maps are centred on the prime meridian).
-``npy``            A NumPy ``.npy`` 2-D array of heights (metres unless ``units``), north row
-                   first, extent from ``extent_deg``.
-=================  ===========================================================================
+Formats (:data:`DEM_READERS`; what each decodes and what is checked beyond GDAL: docs/dem.md,
+"Formats"): ``pds3`` (LOLA LDEM/LDAM through GDAL's PDS driver), ``geotiff`` (any single-band
+raster GDAL reads), ``svs-geotiff`` (the NASA SVS CGI Moon Kit), ``npy``. Heights are decoded
+as ``raw * scale + offset`` in the file's unit, converted to metres, and the reference radius
+subtracted from radii; float32 with the offset folded in float64, so LOLA's half-metre steps
+are exact. Albedo decodings: :class:`starnav.dem.schema.AlbedoConfig`. Every error names the
+file, the field, the value found and what was expected (:class:`DemFileError`).
 
-Decoding (DEMs): ``value = raw * scale + offset`` in the file's unit (``UNIT`` / band unit /
-``units``), converted to metres; if the values are radii (``vertical='radius'``, or ``auto`` and
-the offset or the median value exceeds half the reference radius, as in LOLA's
-``OFFSET = 1737400``), the reference radius (the label's ``A_AXIS_RADIUS`` when present) is
-subtracted. Arithmetic is float32 with the offset folded in float64 first, so LOLA's half-metre
-steps are exact and no float64 copy of the grid is made.
-
-Albedo decodings are described in :class:`starnav.dem.schema.AlbedoConfig`.
-
-Every error names the file, the field or label keyword, the value found and what was
-expected (:class:`DemFileError`, a :class:`~starnav.errors.ConfigError`).
+Index
+-----
+:func:`read_dem`, :func:`detect_format`, :func:`read_albedo`, :data:`ALBEDO_DECODERS`,
+:func:`dem_info`, :class:`DemInfo`, :func:`write_geotiff`, :func:`encode_svs_8bit`,
+:func:`pds3_label_path`, :class:`RasterData`, :class:`DemFileError`.
 """
 
 from __future__ import annotations

@@ -1,48 +1,21 @@
 """Full-well saturation and blooming, charge conserving except what leaves the array or drains.
 
-Technique
----------
-1. Pixels above the full well ``F`` keep ``F``; their excess ``x = q - F`` is split into a
-   drained part ``(1 - s) x`` (the reset / overflow drain of an APS pixel, or the anti-blooming
-   drain of a CCD) and a spilled part ``s x`` (``s = spill_fraction``).
-2. The spilled charge of each connected group of full pixels flows to the *nearest* pixels that
-   are not full, nearest first, filling each to ``F``: the group's excess ``E`` fills the
-   distance shells ``d_1 < d_2 < ...`` around it in order; the shell where ``E`` runs out is
-   filled in proportion to each pixel's free capacity, so the result keeps the symmetry of the
-   source. Distance is Euclidean in the ``isotropic`` mode (an APS with no preferred direction)
-   and counted along the column only in the ``column`` mode (CCD-like bleeding up and down;
-   charge never crosses columns). Each non-full pixel belongs to the group it is nearest to
-   (a Voronoi split, via ``scipy.ndimage.distance_transform_edt``).
-3. Outside the detector the computation continues on virtual pixels (up to ``max_margin_px``
-   away): charge that reaches them has *left the array* and is reported. If a group's cell is
-   full before its excess is spent, the newly full pixels merge with their neighbours and the
-   step repeats; if the spill reaches the edge of the working canvas the canvas is enlarged and
-   the step redone, so the result does not depend on the canvas size.
-4. The ``drain`` mode is the perfect anti-blooming drain (``s = 0``): clip at ``F``.
+1. Pixels above the full well keep it; their excess is split into a drained part and a
+   spilled part (``spill_fraction``).
+2. Each connected group of full pixels spills to its nearest non-full pixels, nearest shell
+   first, the last shell in proportion to free capacity (symmetry kept); distance Euclidean
+   (``isotropic``) or along the column (``column``); pixels split between groups by a Voronoi
+   partition.
+3. Charge past the detector's edge has left the array and is reported; the working canvas
+   grows until the result does not depend on it.
+4. ``drain``: the perfect anti-blooming drain, a clip at the full well.
 
 Charge balance (tested): ``sum(in) = sum(out) + drained + left_array``.
 
-Tuning
-------
-================== ============ ==============================================================
-knob               default      effect
-================== ============ ==============================================================
-``mode``           isotropic    direction of the spill (``drain``, ``column``, ``isotropic``)
-``spill_fraction`` 5e-4         halo size ~ sqrt(s * total excess / F) pixels
-``max_margin_px``  1024         how far outside the array charge is followed [px]
-================== ============ ==============================================================
-
-Modes are a registry (:data:`BLOOMING_MODES`, :func:`register_blooming_mode`); an unknown name
-raises :class:`~starnav.errors.UnknownNameError` listing the known ones.
-
-Example
--------
->>> import numpy as np
->>> from starnav.detector.blooming import bloom
->>> q = np.zeros((9, 9), np.float32); q[4, 4] = 5.0
->>> r = bloom(q, full_well=1.0, mode="isotropic", spill_fraction=1.0)
->>> float(r.charge.sum()), r.drained, r.left_array
-(5.0, 0.0, 0.0)
+Index
+-----
+:func:`bloom`, :class:`BloomResult`, :func:`bloom_drain`, :func:`bloom_isotropic`,
+:func:`bloom_column`, :func:`register_blooming_mode`, :data:`BLOOMING_MODES`.
 """
 
 from __future__ import annotations

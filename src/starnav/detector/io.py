@@ -1,37 +1,28 @@
 """Files of an exposed frame: DN PNG (16 bit), segments and windows (NPZ), summary (JSON).
 
 All files are written to a temporary name and renamed (never half-written) and are readable
-without starnav: ``imageio.v3.imread`` for the PNG, ``numpy.load`` for the NPZ, ``json`` for
-the summary.
+without starnav (``imageio.v3.imread``, ``numpy.load``, ``json``):
 
 ========================= ================================================================
 file                      content
 ========================= ================================================================
 ``<prefix>dn.png``        full DN frame, uint16 PNG (values 0 .. 2^bits - 1)
-``<prefix>segments.npz``  :meth:`Segments.to_arrays` (row, col_start, length, offset,
-                          values, level, thresholds, shape, truncated)
+``<prefix>segments.npz``  :meth:`Segments.to_arrays`
 ``<prefix>windows.npz``   ``corners`` (n, 2) int (row0, col0) and ``dn_<k>`` per window
-``<prefix>readout.json``  :meth:`Exposure.summary`: exposure, gain, seeds, charge ledger,
-                          readout timing and feasibility, segment / window counts
+``<prefix>readout.json``  :meth:`Exposure.summary`
 ========================= ================================================================
 
-PNG encoding (:func:`png_bytes`)
---------------------------------
-The PNGs (the DN frames here, the 8-bit quick looks of :mod:`starnav.quicklook`) are encoded
-by this module, not by Pillow: greyscale, 8 or 16 bit, every row with PNG filter 0 (none)
-and one zlib stream at level :data:`PNG_COMPRESS_LEVEL`, optional ``tEXt`` chunks before
-the image data, no time stamp. A DN frame is mostly read and shot noise: no PNG filter makes
-it smaller (Pillow's adaptive filter costs more than it gains) and zlib's string matching
-finds almost nothing in it, so Huffman coding alone (``Z_HUFFMAN_ONLY``) gives the same size
-3x faster than Pillow at level 1 (1024 x 1024: 15 vs 50 ms, 0.82 vs 0.85 MB; a DN quick look
-8 vs 27 ms, 0.32 vs 0.45 MB); an image whose neighbouring samples are mostly equal (the black
-sky of a radiance quick look) is coded with run-length matches (``Z_RLE``: 2 ms, 9 kB,
-where Huffman alone would give 137 kB); docs/performance.md. OpenCV's ``cv2.imencode`` takes
-the same zlib strategies but applies libpng's row filters and writes no text chunks: 30 vs
-15 ms for a noisy 1024 x 1024 16-bit frame, 7 vs 2 ms for a black-sky 8-bit one (both
-decoded back to the same pixels). Any PNG reader decodes it
-(PNG 1.2, ISO/IEC 15948); the pixels are those of the array, the file's bytes are
-deterministic for one zlib build.
+PNG encoding (:func:`png_bytes`): greyscale 8 or 16 bit, filter 0 on every row, one zlib
+stream at :data:`PNG_COMPRESS_LEVEL` with a strategy chosen for the content (Huffman only for
+noisy frames, where no filter or string match gains; run-length for mostly flat images),
+optional ``tEXt`` chunks, no time stamp: deterministic bytes for one zlib build, any PNG 1.2
+reader decodes it (ISO/IEC 15948). Its cost: docs/performance.md.
+
+Index
+-----
+:func:`write_exposure`, :func:`png_bytes`, :func:`write_png`, :func:`write_dn_png`,
+:func:`read_dn_png`, :func:`write_segments`, :func:`read_segments`, :func:`write_windows`,
+:func:`read_windows`.
 """
 
 from __future__ import annotations

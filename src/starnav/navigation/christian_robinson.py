@@ -28,23 +28,6 @@ Technique
    divided by the pixel's angular size ``1/f_x``: an ellipse-aware distance in pixels that
    does not depend on the circle approximation.
 
-Tuning
-------
-==========================  ==============  =============================================
-option                      default         effect
-==========================  ==============  =============================================
-``radii_m``                 Moon sphere     semi-axes (a, b, c) of the body [m]
-``min_points``              3               fewer points raise :class:`FixError`
-``attitude_sigma_rad``      0               attitude knowledge 1-sigma per axis [rad],
-                                            added to the inertial covariance
-==========================  ==============  =============================================
-
-Example
--------
->>> from starnav.navigation.christian_robinson import christian_robinson
->>> fix = christian_robinson(uv, camera, sigma_px=0.3)               # doctest: +SKIP
->>> fix.range_m, fix.covariance_camera                                 # doctest: +SKIP
-
 Reference
 ---------
 J. A. Christian and S. B. Robinson, "Noniterative horizon-based optical navigation by Cholesky
@@ -52,6 +35,14 @@ factorization", J. Guid. Control Dyn. 39 (2016) 2757-2765, doi:10.2514/1.G000708
 J. A. Christian, "A tutorial on horizon-based optical navigation and attitude determination
 with space imaging systems", IEEE Access 9 (2021) 19819-19853,
 doi:10.1109/ACCESS.2021.3051914.
+
+Index
+-----
+:func:`christian_robinson`, :class:`LimbFix`, :class:`ChristianRobinsonOptions`,
+:class:`FixError`, :func:`christian_robinson_centres`, :func:`christian_robinson_jacobian`,
+:func:`christian_robinson_jacobian_from`, :func:`attitude_covariance`, :func:`shape_transform`,
+:func:`scaled_rays`, :func:`centre_from_n`, :func:`cone_residual_px`, :func:`limb_cone_matrix`,
+:func:`limb_conic_pixels`, :func:`ellipsoid_limb_points`.
 """
 
 from __future__ import annotations

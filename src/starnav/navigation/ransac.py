@@ -26,33 +26,16 @@ Technique
 5. **Refit.** The model is refitted by least squares on the consensus set (Kasa circle, or
    Christian-Robinson on all inliers) and the inliers recomputed, ``refits`` times.
 
-Tuning
-------
-======================  ===========  ==========================================================
-option                  default      effect
-======================  ===========  ==========================================================
-``model``               ``circle``   ``circle`` or ``christian-robinson`` (registry below)
-``threshold_px``        2.0          inlier threshold [px]; the circle model needs >= 2 px off
-                                     axis; the conic model can use ~3 sigma of the point noise
-``max_iterations``      200          upper bound on hypotheses
-``batch``               32           hypotheses evaluated per numpy batch
-``confidence``          0.999        probability of drawing one all-inlier sample
-``refits``              2            least-squares refit / re-inlier rounds
-``min_inlier_fraction`` 0.3          fewer inliers raise :class:`RansacError`
-======================  ===========  ==========================================================
-
-Example
--------
->>> from starnav.navigation.ransac import ransac_limb, RansacOptions
->>> res = ransac_limb(uv, camera, rng=np.random.default_rng(1),
-...                   options=RansacOptions(model="christian-robinson", threshold_px=1.0))
-...                                                                   # doctest: +SKIP
-
 Reference
 ---------
 M. A. Fischler and R. C. Bolles, "Random sample consensus", Commun. ACM 24 (1981) 381-395.
 P. H. S. Torr and A. Zisserman, "MLESAC: a new robust estimator with application to estimating
 image geometry", Comput. Vis. Image Underst. 78 (2000) 138-156.
+
+Index
+-----
+:func:`ransac_limb`, :class:`RansacOptions`, :class:`RansacResult`, :class:`RansacError`,
+:data:`RANSAC_MODELS`.
 """
 
 from __future__ import annotations

@@ -1,45 +1,18 @@
 """Mitsuba scene pieces for a Moon frame: the Moon (exact sphere or triangle mesh), the Sun,
 the sensor and its spectral film.
 
-Scene units are **kilometres** (Moon-centred, inertial axes); radiance does not depend on the
-length unit. The camera follows starnav's convention (+z boresight, +x right, +y down); Mitsuba's
-sensor looks along its local +z with +x to the *left* of the image and +y up, so the sensor's
-``to_world`` is the camera attitude times ``diag(-1, -1, 1)`` (a 180 deg turn about z).
+Scene units are kilometres (Moon-centred, inertial axes). The camera's convention (+z
+boresight, +x right, +y down) becomes Mitsuba's sensor by ``diag(-1, -1, 1)``
+(:func:`to_world_matrix`). At long range the float32 intersection of the JIT variants needs the
+near clip plane just in front of the Moon (:func:`clip_planes`): why, and what it leaves,
+in docs/methods.md, "starnav.renderer.scene". Only this subpackage imports Mitsuba and Dr.Jit.
 
-Long range: the near clip plane sits just in front of the Moon
---------------------------------------------------------------
-The ``llvm_ad_*`` (and ``cuda_ad_*``) variants intersect Mitsuba's exact ``sphere`` in float32
-and, being differentiable variants, take the hit point as ``o + t d`` without projecting it back
-onto the sphere. With the ray origin at the camera, 1e7 km away, ``o`` and ``t`` carry errors of
-~ulp(1e7 km) = 1 km, and the hit points scatter by +-0.43 km (1st-99th percentile) about the
-surface (+-0.05 km at 2e6 km, +-0.22 km at 5e6 km). Those lying deeper than Mitsuba's shadow-ray
-offset ((1 + max |p_i|) x 8.9e-5, at most 0.15 km) shadow themselves: a Lambert sphere at 30 deg
-phase (2 m focal length) gave 1.0000, 0.849 and 0.690 of the closed form at 2e6, 5e6 and
-1e7 km, with the right disc size (4684 vs 4683 analytic pixels at 5e6 km). Measured:
-
-* the same scene in ``scalar_spectral`` (float64 intersection, hit point re-projected onto the
-  sphere): 1.0000, 0.9999, 1.0004;
-* the scene in metres instead of km: 0.844 and 0.692 at 5e6 and 1e7 km (float precision is
-  scale-free: the unit is not the cause); no crop window: 0.848 and 0.688; far clip 1.2e7 km
-  instead of 1e9 km: 0.849 and 0.690, unchanged;
-* the 81 920-triangle icosphere (Embree, float32; hit point from barycentrics, on the
-  triangle): 0.9996 and 0.9995 (its facets), already right.
-
-Mitsuba 3.9's ``perspective`` sensor starts each ray on the near clip plane
-(``ray.o += ray.d * near_clip / d_z`` in ``sample_ray``), so :func:`clip_planes` puts that plane
-less than one bounding radius in front of the Moon. The intersection then works with distances
-of the order of the radius: hit points lie within 1e-4 km of the surface at any range, and the
-sphere gives 1.0000, 0.9996, 0.9996 at 2e6, 5e6 and 1e7 km (0.9999 from 1e4 to 1e7 km in
-``tests/renderer/test_long_range.py``). What is left of the far origin is the float32 rounding
-of the shifted origin, ~3e-8 x range across the ray: a ray-direction error of ~3e-8 rad at any
-range. The clip distance is a literal in the compiled kernels (changing it on every frame cost
-0.13 s instead of 0.02 s per frame, for the recompilation), so the plane moves on a grid of one
-bounding radius and nearby frames share the kernels.
-The renderer's fused loop on the JIT variants (``render._render_fused``) keeps the sensor's
-near clip at :data:`NEAR_CLIP_MIN_KM` and moves the ray origins to this plane itself, as data:
-there the plane's value never recompiles anything.
-
-Only this subpackage imports Mitsuba and Dr.Jit.
+Index
+-----
+:class:`MoonMesh`, :func:`icosphere_mesh`, :func:`to_world_matrix`, :func:`clip_planes`,
+:func:`sensor_fov_deg`, :func:`principal_point_offsets`, :func:`check_camera_for_render`,
+:func:`regular_spectrum_dict`, :func:`film_channels`, :class:`FilmChannels`,
+:func:`flat_irradiance_in_band`, :func:`sun_irradiance_in_band`.
 """
 
 from __future__ import annotations

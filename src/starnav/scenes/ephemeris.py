@@ -1,50 +1,27 @@
 """JPL DE421 ephemeris: Sun, Earth, Moon and Earth-Moon barycentre, lunar orientation, time.
 
-Technique
----------
-1. The ``de421`` PyPI package ships DE421 as Chebyshev coefficient arrays (one ``.npy`` per
-   body, the layout of jplephem's legacy :class:`jplephem.ephem.Ephemeris`) plus the
-   ephemeris constants (``constants.npy``). Nothing is downloaded.
-2. Positions are Chebyshev series evaluated here in vectorised numpy (many epochs per call, which
-   is what the propagators need); velocities are the analytic derivative of the same series.
-   DE421 natives are km, km/day, radians and days of TDB; they become m, m/s, rad, rad/s on the
-   way out. Inside starnav time is **TDB seconds past J2000** (JD 2451545.0 TDB).
-3. Bodies: ``sun`` and ``earthmoon`` (the Earth-Moon barycentre, EMB) are solar-system-barycentre
-   (SSB) centred; ``moon`` is geocentric. Earth and Moon about the EMB follow from the Earth/Moon
-   mass ratio EMRAT: ``r_E = -r_EM / (1 + EMRAT)``, ``r_M = r_EM EMRAT / (1 + EMRAT)``.
-4. Axes: ICRF (DE421 is aligned to ICRF; the ~20 mas frame bias to EME2000 is ignored and the
-   two names are used interchangeably at the edges).
-5. Moon body-fixed frame: the **principal-axis (PA) frame of DE421**, from the physical libration
-   Euler angles (phi, theta, psi) integrated with the orbits, a 3-1-3 sequence:
-   ``R_icrf_to_pa = R3(psi) R1(theta) R3(phi)`` (passive rotations). This is the dynamically
-   meaningful frame and the one DE421 provides directly; it is the frame starnav calls
-   "Moon body-fixed". Lunar maps (LOLA) are published in the Mean-Earth/polar-axis
-   (ME) frame, which differs from PA by a constant rotation of (67.92", 78.56", 0.30") about
-   (z, y, x) for DE421 (Williams et al. 2008, *DE421 Lunar Orbit, Physical Librations, and
-   Surface Coordinates*, JPL IOM 335-JW,DB,WF-20080314-001): ~0.9 km on the surface.
-   ``moon_orientation(t, frame="ME")`` applies it.
-6. GM values come from the ephemeris constants (``GMS``, ``GMB``, ``EMRAT`` in AU^3/day^2 with
-   DE421's own AU), so dynamics built on this ephemeris are consistent with it.
-7. Time scales appear only at the edges: :func:`parse_epoch` turns an ISO string with an explicit
-   scale (``"2027-03-01T00:00:00 TDB"``, ``UTC``, ``TT``, or a trailing ``Z`` for UTC) into TDB
-   seconds with astropy (IAU SOFA algorithms: leap seconds, TT-TDB series).
+The ``de421`` package ships DE421 as Chebyshev coefficient arrays plus its constants (nothing
+is downloaded); positions and their analytic velocities are evaluated here, vectorised over
+epochs. Out: SI (m, m/s, rad, rad/s); time is TDB seconds past J2000 (JD 2451545.0 TDB); axes
+ICRF (the ~20 mas frame bias to EME2000 ignored). Earth and Moon about the EMB follow from
+EMRAT. The Moon's body-fixed frame is DE421's principal-axis (PA) frame from its libration
+angles (3-1-3); ``moon_orientation(t, frame="ME")`` applies the constant PA -> mean-Earth
+rotation of the lunar maps (:func:`pa_to_me_matrix`). GM values come from the ephemeris
+constants. Time scales appear only at the edges (:func:`parse_epoch`, :func:`format_epoch`).
+An epoch outside the packaged span (1899-12-04 to 2199-06-22 TDB) raises
+:class:`EphemerisRangeError` before any work.
 
-Span
-----
-The packaged DE421 covers JD 2414992.5 to 2524624.5 TDB (1899-12-04 to 2199-06-22). Any epoch
-outside raises :class:`EphemerisRangeError` naming the epoch and the span, before any work.
+References
+----------
+W. M. Folkner, J. G. Williams, D. H. Boggs (2009), *The Planetary and Lunar Ephemeris DE 421*,
+IPN Progress Report 42-178.
+J. G. Williams et al. (2008), *DE421 Lunar Orbit, Physical Librations, and Surface
+Coordinates*, JPL IOM 335-JW,DB,WF-20080314-001 (PA -> ME).
 
-Example
--------
->>> import numpy as np
->>> from starnav.scenes.ephemeris import Ephemeris, parse_epoch
->>> eph = Ephemeris.default()
->>> t = parse_epoch("2000-01-01T12:00:00 TDB")
->>> round(float(np.linalg.norm(eph.moon_geocentric(t)[0])) / 1e3)   # km
-402449
-
-Reference: W. M. Folkner, J. G. Williams, D. H. Boggs (2009), *The Planetary and Lunar
-Ephemeris DE 421*, IPN Progress Report 42-178.
+Index
+-----
+:class:`Ephemeris`, :func:`parse_epoch`, :func:`format_epoch`, :func:`pa_to_me_matrix`,
+:class:`EphemerisRangeError`, :data:`J2000_JD`, :data:`PA_TO_ME_DE421_ARCSEC`.
 """
 
 from __future__ import annotations

@@ -1,43 +1,24 @@
 """Moon-pointing attitude: the Moon centre on a chosen pixel, random placement and roll, and
 the attitude as known on board.
 
-Technique
----------
-1. The requested Moon-centre pixel ``(u, v)`` is turned into a camera-frame line of sight with
-   the camera model (through the distortion when the camera has one), and
-   :func:`starnav.geometry.look_rotation` finds the rotation camera -> inertial that maps it onto
-   the inertial direction from the camera to the Moon centre, then rolls about that line by
-   ``roll``. Projecting the Moon centre back gives ``(u, v)`` to rounding (tested to 1e-6 px).
-2. Random placement (the paper "varied the Moon's position in the image randomly"): the offset
-   from the principal point is drawn uniformly over a box that keeps the on-axis disc inside the
-   detector, within ``max_offset`` of the principal point; each draw is accepted only if the
-   exact limb (the ellipse of the tangency cone, :meth:`FrameGeometry.limb_points`) stays at
-   least ``margin`` pixels inside the detector edges (rejection sampling).
-3. Roll: uniform in [0, 2 pi) or fixed (0 = inertial north towards the top of the image, or,
-   with a ``down_hint``, that inertial direction towards the bottom). The north-up law is
-   singular where the line of sight passes the pole; a fly-by passes the hint = the normal of
-   its plane (:class:`~starnav.scenes.frames.Scene`), which is perpendicular to every line of
-   sight of a straight-line fly-by, so the body moves smoothly across the image through
-   closest approach instead of flipping by 180 deg in roll.
-4. Knowledge error: ``R_measured = R_true @ exp([e]x)``, ``e ~ N(0, diag(s_x^2, s_y^2, s_z^2))``
-   a small rotation in camera axes (x, y cross-boresight, z roll). The true attitude is what the
-   renderer uses; the measured one is the navigation input.
-5. Randomness only through ``numpy.random.Generator`` objects passed in; the per-frame
-   generators come from :func:`frame_generators` (``SeedSequence`` with a spawn key per frame and
-   per effect, so frame ``i`` draws the same numbers whatever the order frames are made in).
+1. The Moon centre on pixel ``(u, v)`` (:func:`moon_pointing`, through the distortion), then a
+   roll about that line of sight.
+2. Random placement (:func:`sample_pointing`): offsets drawn uniformly, accepted only if the
+   exact limb stays ``margin`` pixels inside the detector.
+3. Roll: uniform or fixed (north up, or a ``down_hint``; a fly-by passes its plane's normal, so
+   the body crosses the image smoothly through closest approach).
+4. Knowledge error ``R_measured = R_true exp([e]x)``, ``e`` Gaussian in camera axes
+   (:func:`knowledge_for_run`).
+5. Randomness only through generators passed in; per-frame streams from
+   :func:`frame_generators` (the same numbers whatever the order frames are made in).
 
-Tuning knobs (:class:`~starnav.scenes.schema.PointingConfig`)
---------------------------------------------------------------
-==========================  =========  ====================================================
-knob                        default    effect
-==========================  =========  ====================================================
-moon_offset                 random     random or fixed Moon-centre pixel
-moon_offset_max_px          512 px     largest offset from the principal point
-edge_margin_px              8 px       limb to detector-edge clearance
-roll                        random     random or fixed roll about the Moon line
-knowledge_cross_arcsec      5          1-sigma knowledge error about camera x and y
-knowledge_roll_arcsec       40         1-sigma knowledge error about the boresight
-==========================  =========  ====================================================
+The knobs are :class:`~starnav.scenes.schema.PointingConfig`.
+
+Index
+-----
+:func:`pointing_from_config`, :func:`sample_pointing`, :func:`moon_pointing`, :class:`Pointing`,
+:func:`knowledge_for_run`, :func:`frame_generators`, :func:`rotation_from_vector`,
+:func:`disc_inside`, :func:`disc_radius_px`.
 """
 
 from __future__ import annotations

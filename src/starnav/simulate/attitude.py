@@ -1,50 +1,27 @@
 """The tracker's own attitude per navigation frame: star acquisitions on a schedule, the gyro
 between them (``navigation.attitude.source: stars``).
 
-Technique
----------
-For frame ``k`` of a sequence (:meth:`StarAttitudeTracker.step`), in this order:
+For frame ``k`` (:meth:`StarAttitudeTracker.step`), in this order:
 
-1. **Star acquisition** (frames ``0, k, 2k, ...``, ``schedule_every = k``): the same rendered
-   radiance and geometry exposed again at ``star_exposure_s`` with the stars drawn (the Moon
-   occults them; its stray light, ghosts and blooming are on top: at 200 ms it is a saturated
-   blob), its own temporal noise (acquisition :data:`STAR_ACQUISITION`), solved by
-   :func:`starnav.stars.attitude.solve_attitude`: tracking from the propagated attitude when
-   there is one (lost in space if tracking fails or there is none). The Moon's disc and its
-   ghosts are excluded around its predicted image position (module note below).
-2. **The navigation frame's own stars** (``navigation_frames``) when step 1 is not scheduled
-   or failed: the segments acquisition's DN frame at the navigation exposure (stars drawn when
-   ``stars.enabled``). At 0.015 ms no star is detectable: "0 star candidates detected".
-3. **Propagation** when neither solves: the last solution carried by the gyro
-   (:func:`starnav.stars.gyro.propagate`, covariance ``dR^T P dR + (N^2 dt + sigma_b^2 dt^2) I``).
-4. **Assumed** only when no solution exists yet (the first star solve failed): the scenario's
-   attitude knowledge (:meth:`Simulator.measured_attitude`) and sigma.
+1. Star acquisition (frames that are multiples of ``schedule_every``): the same radiance
+   exposed at ``star_exposure_s`` with the stars, solved by
+   :func:`starnav.stars.attitude.solve_attitude` (tracking, else lost in space), the Moon's
+   disc and ghosts excluded around its true image position.
+2. The navigation frame's own stars when step 1 is not scheduled or failed.
+3. Propagation by the gyro (:func:`starnav.stars.gyro.propagate`) when neither solves.
+4. Assumed: the scenario's attitude knowledge, only before the first solution.
 
-Every frame's :class:`AttitudeRecord` says which source gave its attitude and why the others
-did not (``reasons``), with the attitude error against the truth.
+Each :class:`AttitudeRecord` says which source gave the attitude and why the others did not.
+Every user-facing path shares these steps on DN frames (:meth:`StarAttitudeTracker.advance`,
+:func:`star_acquisition_dn`, :class:`StarSolver`); random streams: :data:`STAR_ACQUISITION`
+and :data:`GYRO_STREAM` under :mod:`starnav.seeding`. Usage: docs/stars.md.
 
-Step 1 runs on frames whose index is a multiple of ``schedule_every``. The steps work on DN
-frames (:meth:`StarAttitudeTracker.advance`), so every user-facing run shares them: the
-attitude study and the sweep expose the star acquisition from the radiance
-(:func:`star_acquisition_dn`), a ``source: stars`` dataset records it (``stars_dn.png``) and
-``starnav navigate`` reads it back (:mod:`starnav.dataset.attitude`). Every solve goes
-through :class:`StarSolver`, also the exposure study's lost-in-space solve of each navigation
-frame (:func:`frame_attitude_summary`).
-
-Note: the exclusion discs are placed at the Moon's true image position (the navigation
-filter predicts it within a few pixels at these ranges; the discs' 20 px + 15 % margin covers
-that). The truth enters nowhere else: the gyro measures the true turn with its modelled error.
-
-Randomness: star acquisition of frame ``i``, run ``r``: ``acquisition_seed(seed, r, 2)`` with
-``frame_index = i`` (independent of the navigation acquisitions 0 and 1); the gyro errors of
-run ``r``: ``generator(seed, STAGE_NAVIGATION, r, GYRO_STREAM)``.
-
-Example
--------
->>> tracker = StarAttitudeTracker(sim)                                  # doctest: +SKIP
->>> obs = sim.observe(img, geom)                                        # doctest: +SKIP
->>> rec = tracker.step(img, geom, obs.acquisition)                      # doctest: +SKIP
->>> frame, chain = with_attitude(obs.frame, chain, rec)                 # doctest: +SKIP
+Index
+-----
+:class:`StarAttitudeTracker`, :class:`AttitudeRecord`, :class:`StarSolver`,
+:func:`star_acquisition_dn`, :func:`frame_attitude_summary`, :func:`assumed_covariance`,
+:func:`with_attitude`, :func:`check_star_attitude`, :func:`uses_star_attitude`,
+:func:`is_star_frame`, :data:`SOURCES`.
 """
 
 from __future__ import annotations

@@ -1,54 +1,25 @@
 """Stellar aberration: the apparent directions of the stars seen by a moving tracker.
 
-Technique
----------
-1. **Observer velocity.** The tracker's velocity relative to the solar-system barycentre
-   (SSB), ICRF axes, at the frame's epoch from the project's DE421 ephemeris
-   (:class:`~starnav.scenes.ephemeris.Ephemeris`): the Earth-Moon barycentre about the SSB,
-   plus the Moon about the EMB, plus the camera's velocity relative to the Moon
-   (:attr:`~starnav.geometry.FrameGeometry.camera_velocity`):
-   ``v = v_EMB/SSB(t) + v_Moon/EMB(t) + v_cam/Moon``. Static frames (epoch 0 = J2000.0, camera
-   at rest relative to the Moon) get the Moon's barycentric velocity at J2000.0. A small-body
-   fly-by has no orbit for its body: the body is given the Moon's barycentric motion (the
-   drawing and the correction use the same velocity, so the solved attitude stays unbiased).
-2. **Apparent direction.** Special-relativistic aberration of light (the Lorentz
-   transformation of the photon's direction), in the form of ERFA's ``eraAb`` without its
-   ``2 GM_sun / (c^2 s)`` term (a ~1e-12 rad effect of the Sun's potential on the observer's
-   clock):
+1. Observer velocity (:func:`observer_velocity`): the tracker's barycentric velocity from
+   DE421 (EMB about the SSB, Moon about the EMB) plus the camera's velocity relative to the
+   Moon; a fly-by's body is given the Moon's barycentric motion.
+2. Apparent direction (:func:`apparent_directions`): special-relativistic aberration in the
+   form of ERFA's ``eraAb`` without its solar-potential term; exact, ``|u'| = 1``.
+3. Not included: light deflection by the Sun, stellar parallax, the body's own aberration.
 
-   ``u' = (u / gamma + (1 + (u . beta) / (1 + 1 / gamma)) beta) / (1 + u . beta)``,
-   ``beta = v / c``, ``gamma = 1 / sqrt(1 - beta^2)``.
+The sky is drawn at apparent directions when ``stars.aberration`` is on, and the tracker
+corrects its catalogue with its own velocity knowledge (``stars.aberration_correction``).
+Magnitudes of what is and is not modelled: docs/stars.md, "Stellar aberration".
 
-   It is exact in special relativity (``|u'| = 1`` identically); the shift towards the apex
-   ``beta`` is ``dtheta`` with ``cos(theta') = (cos(theta) + beta) / (1 + beta cos(theta))``,
-   ``dtheta = beta sin(theta) - (beta^2 / 4) sin(2 theta) + O(beta^3)``: at the Earth's
-   29.8 km/s, ``beta = 9.94e-5`` rad = 20.5 arcsec at ``theta = 90 deg`` (the constant of
-   aberration, 20.49552 arcsec, IAU 1976), the second-order term at most 1.0 mas.
-3. **Not included.** Light deflection by the Sun (``4.07 mas cot(E / 2)`` at solar elongation
-   ``E``: 4 mas at 90 deg, 1.75 arcsec at the limb), stellar parallax (< 0.8 arcsec,
-   Proxima Cen), and the body's own aberration (the rendered Moon is drawn at its geometric
-   direction: its apparent direction differs by the camera's velocity relative to the Moon,
-   ``|v_cam/Moon| / c`` = 0.69 arcsec per km/s: 0.64-0.93 arcsec at LUMIO's
-   0.93-1.35 km/s).
-
-Use
----
-The sky is drawn at apparent directions when ``stars.aberration`` is on (the default;
-:func:`starnav.stars.field.frame_stars`), and the tracker corrects its catalogue to apparent
-directions with its own knowledge of its velocity (``stars.aberration_correction``; the
-solver's ``observer_velocity``). A velocity knowledge error ``dv`` leaves an attitude error of at
-most ``|dv| / c`` = 0.69 arcsec per km/s; the navigation filter's velocity (m/s) gives mas.
-
-Example
--------
->>> import numpy as np
->>> u = np.array([[1.0, 0.0, 0.0]])
->>> up = apparent_directions(u, [0.0, 29_800.0, 0.0])
->>> round(float(np.degrees(np.arccos(up[0] @ u[0]))) * 3600.0, 2)   # arcsec
-20.5
-
-Reference: ERFA/SOFA ``eraAb`` (IAU SOFA Board, "SOFA Astrometry Tools", 2021, section 3.2);
+References
+----------
+ERFA/SOFA ``eraAb`` (IAU SOFA Board, "SOFA Astrometry Tools", 2021, section 3.2).
 P. K. Seidelmann (ed.), *Explanatory Supplement to the Astronomical Almanac* (1992), 3.252.
+
+Index
+-----
+:func:`apparent_directions`, :func:`aberration_shift`, :func:`observer_velocity`,
+:data:`MAX_OBSERVER_SPEED`, :data:`ABERRATION_MARGIN`.
 """
 
 from __future__ import annotations

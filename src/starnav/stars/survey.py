@@ -1,47 +1,20 @@
 """Lost-in-space identification over the sky: random pointings, rendered and solved.
 
-A star tracker must solve at least 99 % of random pointings over the sky correctly at
-200 ms with the default noise and none wrongly (a wrong attitude is worse than none), and its
-false-star rate with the Moon in the field must be known. This module measures both on
-*rendered* frames, through the same path as the tracker's star acquisitions.
+Measures, on rendered frames and through the tracker's own path, the share of random pointings
+solved correctly, wrongly or not at all, and the false-star rate with the Moon in the field
+(results: docs/stars.md, "Identification over the sky").
 
-Technique
----------
-1. **Pointings.** Boresight uniform on the sphere (a normalised standard normal 3-vector),
-   roll uniform in ``[0, 2 pi)``, drawn from the ``rng`` passed in.
-2. **Frame.** The pointing's stars (:func:`~starnav.stars.field.frame_stars`: Hipparcos to
-   ``magnitude_limit``, aberrated for a camera at rest relative to the Moon at J2000.0)
-   exposed through the whole detector chain (:func:`starnav.detector.expose` with the stars as
-   point sources: PSF, noise, saturation, ADC; the sensor's fixed pattern, its own temporal
-   noise stream per pointing: ``seed = first_seed + k``).
-3. **The Moon** (``moon=True``): a disc of uniform electron radiance :data:`MOON_LE` (saturated
-   at 200 ms: the chain adds its blooming, halo and ghosts) of the apparent size at a range
-   drawn uniformly in ``moon_range_m``, its centre uniform over the frame; the camera sits at
-   that range so the stars behind the disc are occulted; the solver gets the disc's and its
-   ghosts' exclusions (:func:`~starnav.stars.centroid.body_exclusions`) as the tracker does.
-4. **Solve** lost in space (no prior; :func:`~starnav.stars.attitude.solve_attitude`, the
-   tracker's aberration correction) and classify: *correct* (error rotation below
-   ``correct_arcsec``), *wrong* (solved, error above it), *unsolved* (with the solver's
-   reason). A *false candidate* is an accepted centroid farther than ``false_px`` from every
-   drawn star (halo structure, ghost edges, blends of two stars); *false matched* counts
-   those the identification used; *foreign matched* counts matched catalogue stars that were
-   not drawn in the frame.
+1. Pointings: boresight uniform on the sphere, roll uniform (:func:`random_pointing`).
+2. Frame: the pointing's stars through the whole detector chain, a noise stream per pointing.
+3. The Moon (``moon=True``): a saturated disc of :data:`MOON_LE` at a random range and
+   position, occulting the stars behind it, with the tracker's exclusions.
+4. Solve lost in space and classify: correct, wrong, unsolved; count false and foreign
+   candidates.
 
-Tuning
-------
-============== ========== ============================================================
-knob           default    effect
-============== ========== ============================================================
-exposure_time  0.2 s      the tracker's star acquisition
-correct_arcsec 30 arcsec  ~100 x the cross-boresight sigma, ~15 x the roll sigma
-false_px       2 px       a candidate farther than this from every drawn star is false
-moon_range_m   40-90 Mm   disc radius 54-122 AA-STR px (LUMIO's ranges)
-============== ========== ============================================================
-
-Example
--------
->>> res = identification_survey(30, np.random.default_rng(17))     # doctest: +SKIP
->>> res.summary()["correct"], res.summary()["wrong"]               # doctest: +SKIP
+Index
+-----
+:func:`identification_survey`, :class:`SurveyResult`, :class:`PointingResult`,
+:func:`random_pointing`.
 """
 
 from __future__ import annotations

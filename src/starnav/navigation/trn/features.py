@@ -1,44 +1,22 @@
 """Features of the fly-by front end: corners in the windows, Lucas-Kanade between frames,
 and the epipolar test with the tracker's own attitude.
 
+Each step and what limits the accuracy: docs/methods.md, "starnav.navigation.trn.features".
+
 Technique
 ---------
-1. **DN to 8 bit.** OpenCV's pyramidal Lucas-Kanade takes 8-bit images. A patch is mapped
-   ``q = clip(round(255 (DN - lo) / (hi - lo)), 0, 255)`` with ``(lo, hi)`` the 1st and
-   99.9th percentile of the lit body's DN in *this* frame's segments, the same map for the
-   previous and the current patch of a track (brightness constancy holds between them). With a
-   body spread over ~2000 DN the step is ~8 DN (a quantisation noise of 2.3 DN rms), below the
-   shot noise of a well-exposed pixel (tens of DN). Detection works on the DN as float32.
-2. **Detection** (:func:`detect_corners`): Shi-Tomasi (``cv2.goodFeaturesToTrack``) in a
-   window's allowed region (clear of the window border by the tracking patch, of the limb and
-   terminator by ``limb_margin_px``, of existing tracks by ``min_distance_px``). Corners are
-   kept at pixel centres: the truth of a track is the surface point the pixel-centre ray of
-   its first position hits, read exactly from the renderer's per-pixel AOVs.
-3. **Tracking** (:func:`track_patch`): a square patch of half side ``template_half +
-   search_margin + 1`` around the track in the previous frame's window and one around its
-   predicted position in this frame's window (both wholly inside the windows read, else the
-   track ends: "left the window"); pyramidal LK (``cv2.calcOpticalFlowPyrLK``, 2 levels,
-   ``2 template_half + 1`` window, started at the prediction), then the same backwards: the
-   forward-backward distance must stay below ``fb_max_px``.
-4. **Epipolar test with the known attitude** (:func:`epipolar_ransac`). Between two frames the
-   body turns by the camera's rotation ``R = R_k^T R_{k-1}`` (from the tracker's own
-   attitude; the asteroid's spin, < 1e-5 rad per frame, is neglected) and the camera moves by
-   an unknown ``t``: ``x_k . (t x R x_{k-1}) = 0`` for every surface point. Each track gives
-   one linear constraint ``n . t = 0`` with ``n = R x_{k-1} x x_k``, two tracks fix
-   ``t = n_i x n_j``; RANSAC over pairs keeps the tracks within ``epipolar_px`` of their
-   epipolar line. OpenCV has no known-rotation solver (``findEssentialMat`` would re-estimate
-   the rotation the tracker measures better); a near-pure rotation (``t ~ 0``) passes every
-   track, which is right: nothing can then be told apart.
+1. DN to 8 bit for OpenCV's LK (:func:`to_8bit`), one map per track's pair of patches.
+2. Detection (:func:`detect_corners`): Shi-Tomasi in a window's allowed region, at pixel
+   centres (the truth is read from the renderer's per-pixel AOVs).
+3. Tracking (:func:`track_patch`): pyramidal LK from the prediction, then backwards; the
+   forward-backward distance below ``fb_max_px``.
+4. Epipolar test with the known attitude (:func:`epipolar_ransac`): each track constrains the
+   translation, ``n . t = 0``; RANSAC over pairs.
 
-What limits the accuracy
-------------------------
-The asteroid's texture at these resolutions is shading of facets and shadows, smooth at the
-scale of the template: the LK error grows as ``sigma_DN / sqrt(sum |grad I|^2)``; the
-template's perspective change between frames (the view turns by ``v dt / d``) biases it;
-frame-to-frame tracking makes the error a random walk along the track (the truth is the
-point seen at the first detection). The per-feature 1-sigma is therefore
-``sqrt(sigma_detect^2 + age sigma_step^2)``, constants measured on rendered fly-bys
-(``tests/navigation/test_trn_frontend.py``).
+Index
+-----
+:func:`to_8bit`, :func:`detect_corners`, :func:`track_patch`, :func:`epipolar_ransac`,
+:data:`LK_CRITERIA`.
 """
 
 from __future__ import annotations
