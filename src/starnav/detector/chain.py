@@ -542,7 +542,8 @@ def expose(radiance: RadianceImage | NDArray[Any], camera: Camera,
         Keep a copy of the frame after every effect; default ``config.debug.keep_stages``.
     point_sources : PointSources, optional
         Stars (pinhole positions [px], rates [e-/s]), added after the aberration PSF's place
-        in the chain (step 2b of docs/detector.md, "Stage order"); ``None``: the frame is exactly as without.
+        in the chain (step 2b of docs/detector.md, "Stage order"); ``None``: the frame is
+        exactly as without.
     keep_mean_charge : bool
         Keep the frame before the first temporal-noise effect as
         :attr:`Exposure.mean_charge` (module essay), for another acquisition of the same

@@ -71,7 +71,8 @@ def check_windows_mode(mode: str) -> WindowsMode:
 
 
 def acquisition_seed(seed: int, run: int, acquisition: int) -> int:
-    """Dataset seed of acquisition ``acquisition`` of Monte Carlo run ``run`` (docs/dataset.md, random streams)."""
+    """Dataset seed of acquisition ``acquisition`` of Monte Carlo run ``run`` (the table of
+    streams: docs/dataset.md)."""
     if run < 0 or acquisition < 0:
         raise ConfigError("run/acquisition", (run, acquisition), "non-negative integers")
     if run == 0 and acquisition == 0:
