@@ -1,37 +1,19 @@
 """Preview pictures of rendered frames: 8-bit PNGs a person can look at, labelled with units.
 
-The EXR frames (:mod:`starnav.radiance`) hold band radiance in W m^-2 sr^-1, float32, with a
-dynamic range no screen shows. A preview maps it to 8 bits the same way every time:
+1. Stretch (:func:`radiance_stretch`): linear from 0 to the 99.9th percentile of the lit pixels.
+2. Display encoding (:func:`srgb_encode`): the sRGB curve (IEC 61966-2-1), so the screen's
+   luminance is proportional to radiance.
+3. Layout (:func:`write_radiance_preview`): caption, the frame pixel for pixel, a scale bar in
+   W m^-2 sr^-1; 8-bit greyscale PNG written atomically.
 
-Technique
----------
-1. **Stretch** (:func:`radiance_stretch`): linear in radiance, from 0 to ``L_top``, the
-   99.9th percentile of the frame's *lit* pixels (``L > 0``; a percentile over all pixels
-   would be 0 for a Moon covering less than 0.1 % of the field). Brighter pixels clip to
-   white (at most 0.1 % of the lit ones); black is exactly zero radiance.
-2. **Display encoding** (:func:`srgb_encode`): the stretched value ``x = L / L_top`` is written
-   through the sRGB transfer curve (IEC 61966-2-1), so that the *screen's* luminance is
-   proportional to radiance: mid-grey on screen is half of ``L_top``, the terminator does not
-   look darker than it is. No asinh or gamma is added on top.
-3. **Layout** (:func:`write_radiance_preview`): a caption strip on top (frame index, range
-   [km], phase angle [deg], ``L_top``), the frame pixel for pixel (no resampling: pixel
-   ``(row, col)`` of the frame is pixel ``(origin[0] + row, origin[1] + col)`` of the PNG), and
-   a grey scale bar below labelled in W m^-2 sr^-1. Single-channel 8-bit PNG (mode ``L``),
-   written atomically.
+:func:`write_previews` puts one next to each EXR (``starnav render --preview``);
+:func:`plot_radiance_and_dn` draws the radiance next to the DN frames of the same epoch.
 
-:func:`write_previews` puts one next to each EXR (``starnav render --preview``).
-:func:`plot_radiance_and_dn` draws the rendered radiance (same stretch) next to the detector's
-DN frames of the same epoch (each linear from 0 to the ADC full scale, same encoding), all
-cropped to the same square around the Moon (matplotlib ``Figure`` with the Agg canvas, no global
-backend switch); the demo report uses it.
-
-Example
--------
->>> from starnav.radiance import read_exr
->>> from starnav.preview import write_radiance_preview
->>> info = write_radiance_preview(read_exr("out/render/frame_000000.exr"),
-...                               "out/render/frame_000000.png")          # doctest: +SKIP
->>> info.l_top                                                 # W m^-2 sr^-1   # doctest: +SKIP
+Index
+-----
+:func:`write_radiance_preview`, :class:`PreviewInfo`, :func:`write_previews`,
+:func:`plot_radiance_and_dn`, :func:`radiance_stretch`, :func:`srgb_encode`,
+:func:`frame_caption`.
 """
 
 from __future__ import annotations

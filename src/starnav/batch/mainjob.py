@@ -1,38 +1,20 @@
 """The main job (``make demo`` / ``starnav demo``): a LUMIO-arc dataset, navigation, a report.
 
-Technique
----------
-1. **Dataset** (:func:`starnav.dataset.generate`): the demo scenario
-   (:func:`starnav.batch.presets.demo_scenario`: the AA-STR, 1024 x 1024, the real Moon (LOLA
-   terrain, LROC albedo, ROLO-calibrated Hapke: the defaults), 12 hours of the LUMIO-like L2
-   halo at 70 000-80 000 km with an image every 30 minutes = 25 frames, the Moon placed at
-   random in the field) is rendered once and exposed at the paper's well-exposed 0.015 ms and
-   its saturated 7.7 ms, each with the segments acquisition and a windows acquisition along the
-   limb; the 7.7 ms frames are read out at a 2048 DN threshold and filtered with range-scale and
-   3-axis Gauss-Markov biases (the paper tuned its processing to each scenario;
-   :data:`~starnav.batch.presets.DEMO_EXPOSURE_OVERRIDES`). An existing dataset of the same
-   scenario is resumed (a second run only redoes what is missing).
-2. **Navigation** (:func:`starnav.navigation.report.navigate_dataset`) on each exposure, read
-   back with :func:`starnav.dataset.open`: limb from the segments, RANSAC, subpixel refinement in
-   the windows, Christian-Robinson fix, EKF; estimates, metrics and the paper's figures per
-   exposure. Then the consistency of the filter (:func:`starnav.batch.montecarlo.
-   navigate_runs`): :data:`DEMO_RUNS` Monte Carlo runs per exposure, each frame's radiance
-   re-exposed with its own noise, a fresh attitude knowledge error and initial error: are
-   the 3-sigma bounds true?
-3. **Report** ``report.md``: set-up, per-exposure results, the comparison with the paper and
-   links to the figures, among them one frame (the middle one of the arc) as rendered (band
-   radiance, :mod:`starnav.preview` stretch) next to the detector's DN frames of the same epoch
-   at each exposure (``figures/frame_radiance_dn.png``); the returned summary says where it is.
+1. Dataset (:func:`starnav.dataset.generate`) of the demo scenario
+   (:func:`starnav.batch.presets.demo_scenario`), exposed at the paper's 0.015 and 7.7 ms with
+   its per-exposure settings (:data:`~starnav.batch.presets.DEMO_EXPOSURE_OVERRIDES`); an
+   existing dataset of the same scenario is resumed.
+2. Navigation per exposure (:func:`starnav.navigation.report.navigate_dataset`), then the
+   filter's consistency over :data:`DEMO_RUNS` Monte Carlo runs
+   (:func:`starnav.batch.montecarlo.navigate_runs`).
+3. Report ``report.md``: set-up, results, the comparison with the paper, the figures (among
+   them :data:`FRAME_FIGURE`, one frame rendered next to its DN frames).
 
-Budget: ``make demo`` must finish in 5 minutes on a 2-core machine, pip install included; the
-job itself takes about one minute there (measured numbers in docs/sweep.md).
+Its time budget and measured duration: docs/performance.md.
 
-Example
--------
->>> from starnav.batch import main_job
->>> summary = main_job(None, "out/demo")                                  # doctest: +SKIP
->>> summary["report"]                                                    # doctest: +SKIP
-'out/demo/report.md'
+Index
+-----
+:func:`main_job`, :data:`DEMO_RUNS`, :data:`FRAME_FIGURE`.
 """
 
 from __future__ import annotations

@@ -1,36 +1,22 @@
 """A dataset navigated over Monte Carlo runs: are the filter's 3-sigma bounds true?
 
-``starnav navigate DATASET --runs N`` (N >= 2) runs this: the consistency of a filter can only
-be judged over independent realisations of what it does not know, and a dataset holds one.
+``starnav navigate DATASET --runs N`` (N >= 2): a filter's consistency can only be judged over
+independent realisations of what it does not know, and a dataset holds one.
 
-Technique
----------
-1. Every frame's rendered radiance (``radiance.exr``) and truth are read back from the dataset
-   (the render is the expensive, deterministic part; nothing is rendered again).
-2. Run ``r`` of ``N`` re-exposes every frame with its own detector temporal noise (shot, read,
-   dark; the fixed pattern stays the sensor's), plans and reads its windows as the tracker
-   would, draws a fresh attitude knowledge error (run 0 keeps the dataset's own acquisitions
-   and attitude: its fixes are those of ``starnav navigate`` without ``--runs``), runs the
-   chain (segments, limb, RANSAC, windows, fix) and the filter from its own initial error
-   drawn from ``P0``: :func:`starnav.batch.tasks.expose_task` and
-   :func:`~starnav.batch.tasks.filter_task`, the sweep's own tasks. With
-   ``navigation.attitude.source: stars`` the run's star tracker gives each frame's attitude
-   (its star acquisitions re-exposed from the radiance with the run's stream, run 0 the
-   dataset's): :func:`~starnav.batch.tasks.expose_sequence_task`.
-3. :func:`~starnav.batch.consistency.consistency_metrics` judges the covariance: the
-   time-averaged NEES (6 states, and position and velocity apart) against its two-sided 99 %
-   band with the degrees of freedom its autocorrelation leaves, the run-averaged NEES of each
-   epoch against the 95 % band of an ``N``-run mean, NIS likewise, and the fraction of errors
-   inside the 3-sigma bounds; the accuracy is the final
-   error over the runs.
+1. Every frame's radiance and truth are read back (:func:`rendered_from_dataset`; nothing is
+   rendered again).
+2. Run ``r`` re-exposes every frame with its own temporal noise, draws a fresh attitude
+   knowledge error and initial error, and runs the chain and the filter through the sweep's own
+   tasks (:mod:`starnav.batch.tasks`); run 0 keeps the dataset's acquisitions and attitude.
+3. :func:`~starnav.batch.consistency.consistency_metrics` judges the covariance (NEES, NIS and
+   the 3-sigma fraction against their bands).
 
-Outputs (``write``): ``metrics.json`` (consistency and accuracy, every number),
-``runs.csv`` (one row per run), ``consistency.png`` (run-averaged NEES and NIS per step with
-their bands), ``position_error.png`` and ``velocity_error.png`` (every run, with the 3-sigma
-bounds of run 0), ``report.md`` (the verdict line first).
+Outputs (:func:`write`): ``metrics.json``, ``runs.csv``, ``consistency.png``,
+``position_error.png``, ``velocity_error.png``, ``report.md`` (the verdict line first).
 
-Randomness: the sweep's streams (:mod:`starnav.batch.tasks`), keyed by the scenario's seed,
-so a run is the same whatever the number of runs or workers.
+Index
+-----
+:func:`navigate_runs`, :func:`rendered_from_dataset`, :func:`verdict_line`, :func:`write`.
 """
 
 from __future__ import annotations
@@ -145,7 +131,7 @@ def verdict_line(m: dict[str, Any]) -> str:
 
 def write(out_dir: str | os.PathLike[str], nav: dict[str, Any], *,
           plots: bool = True) -> dict[str, Path]:
-    """Write the outputs of :func:`navigate_runs` into ``out_dir`` (module table)."""
+    """Write the outputs of :func:`navigate_runs` into ``out_dir`` (the module lists them)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     m, res = nav["metrics"], nav["result"]

@@ -1,38 +1,17 @@
 """What-if sweeps and Monte Carlo runs on Dask: grid -> task graph -> table, figures, report.
 
-Technique
----------
-1. **Validate everything first** (seconds, nothing written): the grid axes and every grid
-   point's scenario (:mod:`starnav.batch.grid`), the run count, the windows mode, the output
-   directory (new, empty, or a previous sweep with ``overwrite``; its parent writable), the
-   frames of each render group (trajectory), and the cluster (a scheduler that does not answer
-   within ``connect_timeout_s`` is an error).
-2. **Task graph** (:mod:`starnav.batch.tasks`): ``render(group, frame)`` once per render group,
-   ``expose(point, frame)`` for all runs, ``filter(point)`` for all runs. Points that differ
-   only downstream of the renderer share its tasks. Tasks are pure functions of their inputs
-   and of seeds split by :mod:`starnav.seeding`, so the table does not depend on the number of
-   workers, on the order tasks run in, or on a worker dying and its tasks being re-run.
-3. **Outputs**, written into a temporary sibling directory renamed to ``out`` at the end (a
-   failed sweep leaves nothing behind):
+1. Validate everything first, nothing written: grid axes and every point's scenario
+   (:mod:`starnav.batch.grid`), runs, windows mode, output directory, frames, the cluster.
+2. Task graph (:mod:`starnav.batch.tasks`): render once per render group, expose per point and
+   run, filter per point and run; pure functions of their inputs and of :mod:`starnav.seeding`
+   keys, so the table does not depend on workers, order or re-runs.
+3. Outputs written into a temporary sibling renamed to ``out`` at the end (files:
+   docs/sweep.md).
 
-   ======================  ==============================================================
-   file                    content
-   ======================  ==============================================================
-   ``results.parquet``     one row per (point, run); units and meanings in the schema
-   ``results.csv``         the same table as CSV
-   ``sweep.json``          grid, runs, points, render groups, runner, timings, columns
-   ``report.md``           the Markdown report (with the paper comparison when it applies)
-   ``figures/*.png``       limb-error PDFs, error vs time per point, error vs exposure
-   ``scenario.resolved.yaml``, ``points/point_NNN.yaml``  base and per-point scenarios
-   ======================  ==============================================================
-
-Example
--------
->>> from starnav.config import load_scenario
->>> from starnav.batch import run_sweep
->>> res = run_sweep(load_scenario("scenario.yaml"),                       # doctest: +SKIP
-...                 ["detector.exposure_time_s=1.5e-5,7.7e-3"], "out/sweep", runs=5, workers=2)
->>> res.paths["report"]                                                  # doctest: +SKIP
+Index
+-----
+:func:`run_sweep`, :class:`SweepResult`, :func:`summarize_points`, :func:`check_sweep_output`,
+:func:`staging`, :data:`CONSISTENCY_KEYS`.
 """
 
 from __future__ import annotations

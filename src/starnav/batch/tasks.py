@@ -1,36 +1,21 @@
 """The three kinds of sweep task: render a frame, expose and process it, filter a point.
 
-Technique
----------
-A sweep of ``P`` grid points, ``R`` Monte Carlo runs and ``F`` frames is the task graph
+A sweep of ``P`` points, ``R`` runs and ``F`` frames is the graph ``render(group, frame)`` (one
+per render group and frame) -> ``expose(point, frame)`` (every run: acquisitions, on-board
+chain, limb errors) -> ``filter(point)`` (every run: the EKF over the fixes). Only small
+objects travel between workers and no task needs a shared file system.
 
-.. code-block:: text
+Randomness, all through :mod:`starnav.seeding` (a result does not depend on its worker): the
+render ``seed_u32(seed, STAGE_RENDER, frame)`` as datasets; the acquisitions of run ``r``
+:func:`starnav.simulate.acquire.acquisition_seed` (run 0 = the dataset's); RANSAC of frame
+``k`` in run ``r`` ``generator(seed, STAGE_NAVIGATION, r, k)``; the filter's initial error of
+run ``r`` ``generator(seed, STAGE_NAVIGATION, r)``.
 
-    render(group g, frame k)        one per render group and frame      (shared by the group)
-      -> expose(point p, frame k)   every run r of point p: acquisitions (starnav.dataset.
-                                    acquire), on-board limb -> RANSAC -> [windows] -> fix,
-                                    limb-point errors against the true limb
-        -> filter(point p)          every run r: the EKF over the F fixes, errors vs truth
-
-:func:`render_task` returns the radiance cropped to its non-zero box (the renderer traces only
-the Moon's box, so nothing is lost) and the frame geometry; :func:`expose_task` returns small
-per-frame results (a fix, its covariance, the limb errors, counters and timings) and
-:func:`filter_task` the table rows and the series the figures need. Only small objects travel
-between workers, and no task needs a shared file system.
-
-Randomness (all through :mod:`starnav.seeding`, so a task's result does not depend on the
-worker that runs it):
-
-=================================  =============================================================
-stream                             seed
-=================================  =============================================================
-render                             ``seed_u32(seed, STAGE_RENDER, frame)`` (as datasets)
-acquisitions of run r              :func:`starnav.simulate.acquire.acquisition_seed` (run 0 =
-                                   the dataset's streams)
-RANSAC of frame k in run r         ``generator(seed, STAGE_NAVIGATION, r, k)``
-filter initial error of run r      ``generator(seed, STAGE_NAVIGATION, r)``: x0 = truth + L z,
-                                   ``L L^T = P0``
-=================================  =============================================================
+Index
+-----
+:func:`render_task`, :class:`RenderedFrame`, :func:`expose_task`, :func:`expose_sequence_task`,
+:class:`FrameResult`, :class:`LimbPointRecord`, :func:`filter_task`, :class:`PointResult`,
+:func:`attitude_columns`, :data:`TIMED_STAGES`.
 """
 
 from __future__ import annotations

@@ -1,40 +1,21 @@
 """Bench description (``BENCH`` YAML file) owned by :mod:`starnav.calibration`.
 
-One frozen model per part of the hardware-in-the-loop bench: the screen, the collimator, the
-misalignments of the assembly, and the knobs of each calibration step. Units are in the key
-names (``_mm``, ``_deg``, ``_px``, ``_ms``, ``_w_m2_sr_nm``); the library converts to SI on
-entry. Unknown keys are rejected and every model is frozen.
+One frozen model per part of the hardware-in-the-loop bench (screen, collimator, misalignments
+of the assembly) and per calibration step; units in the key names, unknown keys rejected.
+Defaults are the paper's TinyV3RSE bench where the paper gives a number (screen height 65 mm,
+180 mm doublet, Table 2's spot radii, the stated 10 deg field of eq. 2); the screen's pixels
+and emittance, the collimator's transmission and distortion are **representative**, not
+measured; misalignments are zero. Sources and trust of each: docs/calibration.md, "The bench
+file". The camera, detector and scene come from an embedded
+:class:`~starnav.config.Scenario` (key ``scenario``).
 
-Defaults are the paper's TinyV3RSE bench (seed paper, "Hardware-in-the-loop testing
-preparation"; docs/facts.md section 5) where the paper gives a number:
-
-============================== ============================ =====================================
-quantity                       default                      source / trust
-============================== ============================ =====================================
-screen height                  65 mm                        seed paper, eq. 2
-collimator                     achromatic doublet, 180 mm   seed paper
-collimator spot RMS radius     0.49 / 0.72 / 1.49 / 2.13 px seed paper, Table 2 (Zemax); the
-                               at 0 / 3.67 / 7.32 / 9.61    table's "mm" column is in um
-                               deg                          (8.88 um / 18 um = 0.49 px)
-camera FoV used in eq. 2       10 deg (stated)              seed paper; the derived AA-STR FoV is
-                                                            20.60 deg (docs/facts.md s1): both
-                                                            verdicts are reported
-screen pixels, bit depth       3840 x 2160, 8 bit           **representative** (4K panel of
-                                                            65 mm height), not from the paper
-screen spectral emittance      Gaussian R/G/B primaries,    **representative** LCD/OLED, not
-                               500 cd/m^2 white, gamma 2.2  measured (see
-                                                            :func:`representative_emittance`)
-collimator transmission        0.96                         **representative** (AR-coated
-                                                            cemented doublet)
-collimator distortion          k1 = 0.1 (0.33 % at 10 deg) **representative** (a doublet used
-                                                            at +-10 deg; not in the paper)
-misalignments                  all zero                     the nominal assembly; set them to
-                                                            emulate a real one
-============================== ============================ =====================================
-
-The camera, its spectral response, the detector and the Moon/Sun used by the radiometric
-calibration come from an embedded :class:`~starnav.config.Scenario` (key ``scenario``: a mapping,
-or the path of a scenario YAML relative to the bench file).
+Index
+-----
+:class:`BenchConfig`, :func:`load_bench`, :func:`bench_from_dict`, :func:`bench_to_dict`;
+:class:`ScreenConfig`, :class:`ScreenEmittanceConfig`, :func:`representative_emittance`,
+:func:`photopic_efficiency`, :class:`CollimatorConfig`, :class:`MisalignmentConfig`,
+:class:`AcquisitionConfig`, :class:`GeometricCalibrationConfig`, :class:`RadiometricConfig`,
+:class:`ScalingConfig`, :class:`CheckConfig`.
 """
 
 from __future__ import annotations

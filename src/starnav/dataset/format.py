@@ -1,39 +1,23 @@
 """The on-disk dataset format: layout, names, and the JSON encodings of truth and readouts.
 
-A dataset is a directory that any OpenEXR, PNG and JSON tool can read (docs/dataset.md):
+A dataset is a directory any OpenEXR, PNG and JSON tool can read; its layout, file by file:
+docs/dataset.md. Values are SI with the unit in the name; pixels ``(u, v) = (column, row)``
+from the centre of the top-left pixel; attitude matrices map camera to inertial;
+quaternions are scalar-last.
 
-.. code-block:: text
+The same scenario and seed give the same bytes, whatever the workers, the order or the
+interruptions: JSON with sorted keys and shortest round-trip floats (no NaN), no time stamps,
+host names or wall-clock times in any file, frames listed by index.
 
-    DIR/
-      manifest.json                    written first, rewritten as frames land, last at the end
-      scenario.resolved.yaml           the fully resolved scenario (same as manifest["config"])
-      frames/
-        000000/                        one directory per frame, renamed into place when whole
-          truth.json                   epoch, states, attitudes, Sun, Moon centre pixel, limb
-          radiance.exr                 RadianceImage: L, Le and the AOVs (starnav.radiance)
-          radiance_quicklook.png       8-bit quick look of radiance.exr (picture, not data)
-          exposure_0.015ms/            one directory per exposure time
-            dn.png                     16-bit DN frame of the segments acquisition (data:
-                                       raw DN 0..2^bits-1, looks black in a viewer)
-            dn_quicklook.png           8-bit quick look of dn.png: asinh-stretched, annotated
-                                       (starnav.quicklook; the picture to look at)
-            segments.json              full-image-compressed readout (runs)
-            windows.json               windows readout (up to 16 windows of DN)
-            readout.json               acquisitions, seeds, charge ledger, timing law, plan
-
-Every value is in SI units (names carry them: ``_m``, ``_m_s``, ``_s``, ``_rad``, ``_px``,
-``_dn``). Pixels follow the camera convention (:mod:`starnav.camera`): ``(u, v) = (column, row)``,
-``(0, 0)`` the centre of the top-left pixel. Attitude matrices map camera to inertial
-(ICRF/J2000 axes) vectors; quaternions are scalar-last ``(x, y, z, w)``.
-
-Byte reproducibility
---------------------
-The same scenario and seed give the same bytes, whatever the number of workers, the order in
-which frames were made, or how often the run was interrupted and resumed. This module is where
-that is made true: JSON is written with sorted keys and Python's shortest round-trip float
-``repr`` (no NaN: ``null``), no file carries a timestamp, a host name or a wall-clock time, PNG
-and EXR writers add no time stamps (checked by the tests), and the manifest lists frames sorted
-by index.
+Index
+-----
+Names: :data:`SCHEMA_VERSION`, :data:`MANIFEST`, :data:`FRAME_FILES`, :func:`frame_dirname`,
+:func:`exposure_dirname`, :func:`check_exposures`; JSON: :func:`dumps`, :func:`plain`,
+:func:`write_json`, :func:`read_json`, :func:`json_value`; integrity: :func:`sha256_file`,
+:func:`file_record`, :func:`frame_problems`; encodings: :func:`truth_to_dict`,
+:func:`geometry_of_truth`, :func:`segments_to_dict`, :func:`segments_from_dict`,
+:func:`windows_to_dict`, :func:`windows_from_dict`, :func:`camera_to_dict`,
+:func:`camera_from_dict`, :func:`uint16_image`.
 """
 
 from __future__ import annotations

@@ -1,33 +1,16 @@
 """Navigation metrics against truth: limb-point errors, estimation errors, NEES and NIS.
 
-Technique
----------
-1. **Limb-point error** (the paper's figures 8, 22, 25). The true limb of the reference body
-   seen from the true pose is the conic ``[u v 1] Q [u v 1]^T = 0`` of the pinhole image
-   (:func:`~starnav.navigation.christian_robinson.limb_conic_pixels`). Each measured point is
-   undistorted to the pinhole image and moved along the conic's gradient by Newton steps until it
-   lies on the conic; the error is the length of that path, positive outside the limb (the
-   saturation bias of the paper is positive). Its bias (mean), standard deviation and a PDF
-   (histogram density) summarise a frame or a sequence.
-2. **Estimation error** ``e = x_hat - x_true`` of position and velocity (origin-free: the
-   Moon's ephemeris cancels), and the 3-sigma bounds ``3 sqrt(diag P)``.
-3. **NEES** ``e^T P^-1 e`` over the 6 position-velocity states and **NIS**
-   ``nu^T S^-1 nu`` of every processed fix; a consistent filter has NEES ~ chi2(6) and NIS ~
-   chi2(3). :func:`chi2_band` gives the two-sided band for the mean of ``runs`` samples.
-4. **Monte Carlo consistency** (:func:`anees_statistics`) of ``R`` runs x ``K`` epochs of a
-   chi-square statistic with ``n`` dof (the 6-state NEES, its position and velocity 3-dof
-   blocks, the NIS): the *per-epoch ANEES* (mean over the runs at one epoch) against the
-   two-sided band ``chi2.ppf([a/2, 1 - a/2], n R) / R`` (exact for independent runs) and the
-   fraction of epochs inside it; the *time-averaged ANEES* (mean over runs and epochs) against
-   a band whose degrees of freedom are those of ``R K_eff`` independent samples, ``K_eff =
-   K / tau``, with ``tau`` the integrated autocorrelation time of the series
-   (:func:`integrated_autocorrelation_time`). The band of ``R K`` independent samples is too
-   narrow for a filter whose NEES is correlated from epoch to epoch, that of ``R`` too wide.
-   The scaled chi-square ``chi2(n R K_eff) / (R K_eff)`` has the mean ``n`` and the variance
-   ``2 n tau / (R K)`` of the time average (the moment match of Satterthwaite 1946).
+1. Limb-point error (the paper's figures 8, 22, 25): each measured point's signed distance to
+   the true limb conic along its gradient, positive outside (:func:`limb_point_errors`).
+2. Estimation error of position and velocity, and the 3-sigma bounds.
+3. NEES over the 6 states and NIS of every fix (:func:`nees`, :func:`chi2_band`).
+4. Monte Carlo consistency (:func:`anees_statistics`): the per-epoch ANEES against its exact
+   band, and the time-averaged ANEES against a band of ``R K / tau`` effective samples, ``tau``
+   the integrated autocorrelation time (the moment match of Satterthwaite 1946). The
+   statistics in full: docs/navigation.md, "Consistency statistics".
 
-Reference
----------
+References
+----------
 Y. Bar-Shalom, X. R. Li and T. Kirubarajan, "Estimation with applications to tracking and
 navigation", Wiley (2001), sections 5.4 (NEES, NIS) and 5.4.2 (the chi-square bands).
 A. D. Sokal, "Monte Carlo methods in statistical mechanics: foundations and new algorithms",
@@ -35,6 +18,13 @@ in Functional Integration, Plenum (1997), pp. 131-192, section 3 (integrated aut
 time, its automatic window ``M >= c tau(M)``).
 F. E. Satterthwaite, "An approximate distribution of estimates of variance components",
 Biometrics Bulletin 2 (1946), 110-114.
+
+Index
+-----
+:class:`NavMetrics`, :func:`limb_point_errors`, :func:`conic_signed_distance`,
+:func:`undistorted_pixels`, :class:`ErrorSummary`, :func:`error_pdf`, :func:`nees`,
+:func:`chi2_band`, :func:`consistency_fraction`, :func:`anees_statistics`,
+:func:`autocorrelation`, :func:`integrated_autocorrelation_time`.
 """
 
 from __future__ import annotations

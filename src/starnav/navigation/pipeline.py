@@ -1,40 +1,23 @@
 """The limb-based VBN chain end to end: segments -> limb -> RANSAC -> fix -> EKF.
 
-Technique
----------
-1. :func:`process_frame` - one frame to one position fix:
+1. :func:`process_frame`, one frame to one position fix: a. the Moon's rough image position and
+   the Sun's direction in the image from the measured attitude; b. pixel-level limb points
+   (:mod:`~starnav.navigation.limb`); c. RANSAC (:mod:`~starnav.navigation.ransac`); d. with
+   windows, subpixel points (:mod:`~starnav.navigation.refine`) screened by their residual to
+   a first fix; e. the Christian-Robinson fix with its covariance
+   (:mod:`~starnav.navigation.christian_robinson`). A frame without a usable limb returns a
+   measurement with a ``status`` and a message instead of raising, so a sequence goes on.
+2. :func:`run_filter`: the EKF (:mod:`~starnav.navigation.ekf`) over the measurements.
+3. :func:`navigate`: both over a dataset, timing each stage and, on request, the peak heap.
+4. :func:`monte_carlo`: the filter re-run from initial states drawn from ``P0``, on the same
+   measurements.
 
-   a. the Moon's rough image position (centroid of the segment pixels) and the Sun's direction
-      in the image from the *measured* attitude
-      (:func:`~starnav.navigation.limb.sun_direction_in_image`);
-   b. pixel-level limb points from the segments (:mod:`~starnav.navigation.limb`);
-   c. RANSAC (:mod:`~starnav.navigation.ransac`, circle or Christian-Robinson model);
-   d. if the frame carries windows and refinement is on: subpixel points, one per window, from
-      the blurred-limb fit (:mod:`~starnav.navigation.refine`), screened by their residual to
-      a first Christian-Robinson fit (``refine_outlier_px``);
-   e. the Christian-Robinson fix with its covariance, in the camera frame and in J2000
-      (:mod:`~starnav.navigation.christian_robinson`).
-
-   A frame without a usable limb returns a measurement with ``status`` (``no-segments``,
-   ``no-moon``, ``thin-crescent``, ``degenerate-arc``, ``sun-on-axis``, ``ransac-failed``,
-   ``fix-failed``) and a message instead of raising, so a sequence goes on.
-2. :func:`run_filter` - the EKF (:mod:`~starnav.navigation.ekf`) over a sequence of
-   measurements: every frame is a prediction, every usable fix an update.
-3. :func:`navigate` - both over a dataset, timing each stage (wall clock) and, on request, the
-   peak Python heap of the whole per-frame chain (``tracemalloc``; it slows the run, so timing
-   and memory are measured in separate passes by the benchmark).
-4. :func:`monte_carlo` - the filter re-run from initial states drawn from ``P0`` about the
-   truth, on the same measurements (the image processing does not depend on the filter).
-
-Tuning: :class:`ChainOptions` gathers the per-stage options (each documented in its module);
-:class:`~starnav.navigation.ekf.EkfOptions` the filter's.
-
-Example
--------
->>> from starnav.navigation import process_frame, run_filter
->>> m = process_frame(frame, camera)                                   # doctest: +SKIP
->>> m.status, m.position, m.covariance                                 # doctest: +SKIP
->>> res = run_filter([m, ...], dynamics=dyn, moon=dyn, t0=t0, x0=x0, P0=P0)  # doctest: +SKIP
+Index
+-----
+:func:`process_frame`, :class:`FrameMeasurement`, :class:`ChainOptions`,
+:func:`camera_consider_covariance`, :func:`run_filter`, :class:`FilterResult`,
+:func:`navigate`, :class:`NavigationRun`, :func:`monte_carlo`, :func:`initial_error_normal`,
+:func:`truth_states`, :data:`STAGES`.
 """
 
 from __future__ import annotations

