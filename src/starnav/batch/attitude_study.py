@@ -1,31 +1,19 @@
 """Navigation with the tracker's own attitude next to the assumed one, at the demo's exposures.
 
-Technique
----------
-1. **Scenario.** The demo's (:func:`starnav.batch.presets.demo_scenario`, or
-   :func:`reduced_demo`: fewer frames, a smaller image, fewer samples) with the stars drawn
-   (``stars.enabled``, in both cases: the two cases see the same frames) and each exposure's
-   overrides (:data:`~starnav.batch.presets.DEMO_EXPOSURE_OVERRIDES`).
-2. **Frames.** Every frame is rendered once; at each exposure it is exposed (segments +
-   windows, :meth:`~starnav.simulate.frames.Simulator.observe`) and the star attitude tracker
-   (:class:`~starnav.simulate.attitude.StarAttitudeTracker`) takes its star acquisition on the
-   schedule, tries the navigation frame's own stars, or propagates by the gyro.
-3. **Navigation, twice per exposure** (same frames, same seeds): (a) *assumed*: the frame's
-   attitude knowledge error (``pointing.knowledge_*``) and the fix's assumed sigma; (b)
-   *stars*: the solved or propagated attitude and its 3x3 covariance in each fix.
-4. **Metrics** per case: fixes, final position error (% of range), mean NEES of the 6 states
-   with its two-sided 95 % band ``chi2(6K)/K`` (K steps treated as independent: a single run's
-   indication, not a Monte Carlo verdict), the attitude errors (RMS cross-boresight and roll
-   [arcsec]) with the predicted 1-sigma and the attitude NEES (3 dof) against ``chi2(3K)/K``;
-   for (b) the attitude sources per frame and why the better ones failed.
+1. Scenario: the demo's (or :func:`reduced_demo`) with the stars drawn, per-exposure overrides.
+2. Frames rendered once; at each exposure exposed and the star attitude tracker
+   (:class:`~starnav.simulate.attitude.StarAttitudeTracker`) run on its schedule.
+3. Navigation twice per exposure on the same frames and seeds: (a) *assumed* attitude error
+   and sigma; (b) *stars*: the solved or propagated attitude and its covariance.
+4. Metrics per case: fixes, final position error, mean NEES with its 95 % band (a single run's
+   indication, not a Monte Carlo verdict), attitude errors and NEES, the attitude sources.
 
-:func:`comparison_markdown` writes the table (``benchmarks/stars.py --navigation`` prints it
-for the reduced demo; docs/stars.md holds the measured numbers).
+:func:`comparison_markdown` writes the table (numbers: docs/stars.md).
 
-Example
--------
->>> res = attitude_comparison(reduced_demo(frames=4, size_px=512))      # doctest: +SKIP
->>> print(comparison_markdown(res))                                     # doctest: +SKIP
+Index
+-----
+:func:`attitude_comparison`, :func:`comparison_markdown`, :func:`attitude_monte_carlo`,
+:func:`monte_carlo_markdown`, :func:`reduced_demo`, :func:`exposure_scenario`.
 """
 
 from __future__ import annotations

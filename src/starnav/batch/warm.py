@@ -1,29 +1,23 @@
 """Warm Dask workers: a worker process pays its one-off costs when it starts, not in its first
 task.
 
-A fresh worker process spends seconds before its first frame: importing starnav's chain
-(NumPy, SciPy, pydantic, the navigation and detector modules), loading Mitsuba and Dr.Jit and
-choosing the variant, and reading the solar spectrum (packaged: reading it through
-``colour`` takes seconds), then reading the packaged data
-every sweep of the default Moon and tracker needs (:func:`warm_data`: the limb topography of
-the LOLA DEM, the Hipparcos catalogue and its lost-in-space pair table; ~2 s a worker, which
-each worker of a sweep paid again in its first task). :func:`warm` does these once per
-process;
-the scenario-specific set-up (scene, renderer, kernels) stays in the per-process caches the
-tasks use (:func:`starnav.simulate.simulator_for`, :func:`starnav.dataset.writer.frame_maker`).
+:func:`warm` imports starnav's chain, loads Mitsuba and chooses the variant, reads the solar
+spectrum and the packaged data every default sweep needs (:func:`warm_data`: the LOLA limb
+topography, the Hipparcos catalogue and its pair table), once per process; scenario-specific
+set-up stays in the per-process caches of the tasks (:func:`starnav.simulate.simulator_for`,
+:func:`starnav.dataset.writer.frame_maker`).
 
-Use it as a Dask *preload*: a module with ``dask_setup(worker)`` that the worker runs before it
-registers with the scheduler, so no task is sent to a worker that is still cold, and a worker
-that a nanny restarts after a crash is warm again before it takes work:
-
-.. code-block:: bash
+Use it as a Dask *preload* (``dask_setup(worker)`` runs before the worker registers, so no
+task reaches a cold worker, and a restarted worker is warm again before it takes work)::
 
     dask worker --scheduler-file sched.json --nthreads 1 --preload starnav.batch.warm
 
-:func:`starnav.batch.cluster.open_runner` gives it to the workers of the local clusters it
-starts (``cluster.WORKER_PRELOAD``). The time moves from the first tasks to the cluster start
-(measured in ``benchmarks/sweep.py``, docs/performance.md); a worker that lives across several
-sweeps pays it once.
+:func:`starnav.batch.cluster.open_runner` gives it to the local clusters it starts
+(``cluster.WORKER_PRELOAD``); the cost it moves: docs/performance.md.
+
+Index
+-----
+:func:`warm`, :func:`warm_data`, :func:`dask_setup`.
 """
 
 from __future__ import annotations

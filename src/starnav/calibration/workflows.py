@@ -321,7 +321,7 @@ def run_stimulate(cfg: BenchConfig, dataset: str | Path, sink: FrameSink,
         if progress is not None:
             progress(i + 1, len(files))
     summary = {"dataset": str(d), "dataset_format": "directory of RadianceImage EXRs "
-               "(`starnav render`); the issue-8 dataset format is not supported yet",
+               "as `starnav render` writes them",
                "plan": plan.to_dict(), "frames": frames}
     figs = {}
     if first is not None:
