@@ -98,3 +98,31 @@ def test_exposure_study_preset_file_round_trips(tmp_path):
     assert [q.scenario.detector.exposure_time_s for q in pts] == list(PAPER_EXPOSURES_S)
     assert len(render_groups(pts)) == 1
     assert "--preset exposure-study" in exposure_study_header()
+
+
+def test_every_scenario_section_is_upstream_or_downstream_of_the_renderer():
+    """A section in neither list would be dropped from the shared render (its defaults
+    rendered instead): a small body's sweep would render the Moon."""
+    from starnav.batch.grid import DOWNSTREAM_SECTIONS, UPSTREAM_SECTIONS
+    from starnav.config import Scenario
+
+    assert not set(UPSTREAM_SECTIONS) & set(DOWNSTREAM_SECTIONS)
+    assert set(UPSTREAM_SECTIONS) | set(DOWNSTREAM_SECTIONS) == set(Scenario.model_fields)
+
+
+def test_a_small_body_point_renders_its_own_body():
+    """The render a point's group uses is the point's target and spacecraft; the stars are
+    drawn downstream (one render for star fields on and off)."""
+    from starnav.batch.grid import render_config
+    from starnav.config import scenario_from_dict
+
+    base = {"target": {"kind": "ellipsoid"}, "spacecraft": {"mass_kg": 50.0},
+            "geometry": {"range_km": 3.0}}
+    (p,) = expand(base, parse_grid(["detector.exposure_time_s=1e-5"]))
+    cfg, _ = render_config(p.scenario)
+    rendered = scenario_from_dict(cfg)
+    assert rendered.target is not None and rendered.target.kind == "ellipsoid"
+    assert rendered.spacecraft.mass_kg == 50.0
+    pts = expand(base, parse_grid(["stars.enabled=true,false", "target.radii_km=[0.3,0.2,0.1],"
+                                   "[0.4,0.2,0.1]"]))
+    assert len(pts) == 4 and len(render_groups(pts)) == 2

@@ -16,13 +16,13 @@ import pytest
 
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 
+from starnav.batch.flyby_sweep import parse_sweep_axes
 from starnav.errors import ConfigError
 from starnav.navigation.metrics import chi2_band
 from starnav.simulate import Simulator
 from starnav.simulate.flyby import (
     flyby_closed_loop,
     flyby_rendered_sweep,
-    parse_sweep_axes,
     write_flyby_sweep,
 )
 from tests.flyby_scenarios import tiny_flyby

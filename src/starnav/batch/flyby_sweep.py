@@ -44,16 +44,17 @@ import yaml
 from starnav import __version__
 from starnav.atomic import atomic_write_text
 from starnav.batch.cluster import open_runner
+from starnav.batch.grid import parse_axis
 from starnav.batch.sweep import MARKER, check_sweep_output, staging
 from starnav.config import Scenario, scenario_to_dict
 from starnav.dataset import format as F
 from starnav.dataset.runner import TaskRunner
 from starnav.errors import ConfigError
 from starnav.simulate.flyby import (
+    SWEEP_AXES,
     check_flyby_scenario,
     flyby_sweep_points,
     flyby_sweep_row,
-    parse_sweep_axes,
     write_flyby_sweep,
 )
 
@@ -72,10 +73,31 @@ class FlybySweepResult:
     runner: str
 
 
-def is_flyby(sc: Scenario) -> bool:
-    """True for a fly-by of a small body (the scenarios ``starnav sweep`` hands here)."""
-    return (sc.trajectory is not None and sc.trajectory.source == "flyby") or (
-        sc.target is not None and sc.target.kind == "shape_model")
+def parse_sweep_axes(items: Sequence[str], flag: str = "--sweep") -> dict[str, list[float]]:
+    """``["v_inf_km_s=0.4,0.6", "phase_at_ca_deg=30,60"]`` -> ``{axis: values}``: the grid
+    parser of every sweep (:func:`starnav.batch.grid.parse_grid`) with the fly-by's axes
+    (:data:`~starnav.simulate.flyby.SWEEP_AXES`, with or without ``trajectory.flyby.``) and
+    numbers only; the CLI's ``navigate --sweep`` / ``sweep --grid``, named by ``flag``. A bad
+    axis or value is a ConfigError naming it."""
+    out: dict[str, list[float]] = {}
+    for item in items:
+        try:
+            axis = parse_axis(item)
+        except ConfigError as err:
+            raise ConfigError(err.field.replace("--grid", flag, 1), err.value,
+                              err.expected) from None
+        key = axis.key.removeprefix("trajectory.flyby.")
+        if key not in SWEEP_AXES:
+            raise ConfigError(flag, item, f"AXIS=V1,V2,... with AXIS one of "
+                              f"{', '.join(SWEEP_AXES)}")
+        bad = [v for v in axis.values
+               if isinstance(v, bool) or not isinstance(v, int | float)]
+        if bad:
+            raise ConfigError(f"{flag} {key}", bad[0], "comma-separated numbers")
+        if key in out:
+            raise ConfigError(flag, key, "each axis once (give all its values in one item)")
+        out[key] = [float(v) for v in axis.values]
+    return out
 
 
 def run_flyby_sweep(scenario: Scenario, grid: Sequence[str], out: str | os.PathLike[str], *,

@@ -1,33 +1,27 @@
 """What-if grids: ``--grid key=v1,v2`` axes, their points, and which keys reach the renderer.
 
-Technique
----------
-1. **Axes.** Each ``--grid KEY=V1,V2,...`` is an axis: ``KEY`` a dotted scenario key
-   (``detector.exposure_time_s``), the values parsed as YAML one by one (``1.5e-5`` is a float,
-   ``true`` a bool, ``[1, 2]`` a list; commas inside brackets do not split).
-   **Linked axes**: keys joined by ``+`` vary together; each value is a list with one entry
-   per key: ``--grid "detector.exposure_time_s+detector.readout.segments.thresholds_dn=
-   [7.7e-3,[2048]],[1.5e-5,[200]]"`` gives two points, not four (the paper tuned its image
-   processing to each exposure; this is how a sweep says so).
-2. **Points.** The grid is the Cartesian product of the axes, in the order given (the last axis
-   varies fastest); point ``p`` is the base scenario with the ``--set``-style overrides of its
-   values, validated like any scenario, so a bad key or value is reported, with its name,
-   before any work.
-3. **Render groups.** Points that differ only *downstream* of the renderer share their renders.
-   Upstream (changes the radiance image): ``camera``, ``sensor_response``, ``moon``, ``sun``,
-   ``geometry``, ``trajectory``, ``pointing``, ``render`` and ``seed``. Downstream: ``detector``
-   (exposure, PSF, noise, saturation, readout), ``navigation`` and ``output``.
-   ``moon.albedo_scale`` is also downstream: it multiplies the reflectance of every photometric
-   model (the renderer's BSDF ``scale``), so the group is rendered at scale 1 and each point
-   multiplies the radiance by its own scale, the albedo-exposure equivalence the paper's HIL
-   bench relies on (identical up to float32 rounding, ~1e-7). The albedo itself
-   (``moon.albedo``) enters Hapke non-linearly and stays upstream.
+The one grid parser of ``starnav sweep`` and the fly-by sweeps
+(:func:`starnav.batch.flyby_sweep.parse_sweep_axes` reads its axes through it).
 
-Example
--------
->>> axes = parse_grid(["detector.exposure_time_s=1.5e-5,7.7e-3", "moon.albedo_scale=1,0.5"])
->>> [a.key for a in axes], len(axes[0].values) * len(axes[1].values)
-(['detector.exposure_time_s', 'moon.albedo_scale'], 4)
+1. Axes (:func:`parse_grid`): each ``--grid KEY=V1,V2,...`` is an axis of a dotted scenario
+   key, the values parsed as YAML one by one (commas inside brackets do not split); keys
+   joined by ``+`` are linked and vary together, one list entry per key
+   (``--grid "detector.exposure_time_s+detector.readout.segments.thresholds_dn=
+   [7.7e-3,[2048]],[1.5e-5,[200]]"`` gives two points, not four).
+2. Points (:func:`expand`): the Cartesian product of the axes, the last varying fastest; each
+   point is the base scenario with its overrides, validated before any work.
+3. Render groups (:func:`render_config`, :func:`render_groups`): points that differ only
+   downstream of the renderer share their renders. Every scenario section is either upstream
+   (:data:`UPSTREAM_SECTIONS`: it changes the radiance image) or downstream
+   (:data:`DOWNSTREAM_SECTIONS`). ``moon.albedo_scale`` is downstream too: it multiplies the
+   reflectance of every photometric model, so the group is rendered at scale 1 and each point
+   scales the radiance (the albedo-exposure equivalence of the paper's HIL bench).
+
+Index
+-----
+:func:`parse_grid`, :func:`parse_axis`, :class:`GridAxis`, :func:`parse_value`,
+:func:`split_values`, :func:`expand`, :class:`GridPoint`, :func:`render_config`,
+:func:`render_key`, :func:`render_groups`, :func:`known_keys`, :func:`check_key`.
 """
 
 from __future__ import annotations
@@ -44,6 +38,7 @@ from typing import Any
 
 import yaml
 
+from starnav.bodies.schema import EllipsoidConfig, MoonTargetConfig, ShapeModelConfig
 from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
 from starnav.config_base import apply_overrides, set_dotted
 from starnav.dem.schema import DemConfig
@@ -51,10 +46,11 @@ from starnav.errors import ConfigError
 from starnav.scenes.schema import TrajectoryConfig
 
 #: Scenario sections that change the rendered radiance (module step 3).
-UPSTREAM_SECTIONS: tuple[str, ...] = ("camera", "sensor_response", "moon", "sun", "geometry",
-                                      "trajectory", "pointing", "render", "seed")
-#: Sections that act after the renderer.
-DOWNSTREAM_SECTIONS: tuple[str, ...] = ("detector", "navigation", "output")
+UPSTREAM_SECTIONS: tuple[str, ...] = ("camera", "sensor_response", "moon", "target", "sun",
+                                      "geometry", "trajectory", "spacecraft", "pointing",
+                                      "render", "seed")
+#: Sections that act after the renderer (the stars are drawn by the detector chain).
+DOWNSTREAM_SECTIONS: tuple[str, ...] = ("detector", "stars", "navigation", "output")
 #: Keys below which any sub-key is accepted (free-form mappings).
 _FREE_FORM = ("moon.photometry.params",)
 
@@ -216,6 +212,8 @@ def known_keys() -> set[str]:
     keys: set[str] = set()
     _flatten(scenario_to_dict(Scenario(trajectory=TrajectoryConfig())), "", keys)
     _flatten({"moon": {"dem": DemConfig().model_dump(mode="json")}}, "", keys)
+    for target in (MoonTargetConfig, EllipsoidConfig, ShapeModelConfig):
+        _flatten({"target": target().model_dump(mode="json")}, "", keys)
     return keys
 
 

@@ -64,13 +64,13 @@ def _navigate_flyby(path: Path, out: Path, runs: int | None, set_: list[str] | N
     (the front end places this frame's windows from the last frame's tracks), so the closed
     loop renders the scenario once and runs the front end and the estimator per run.
     ``--sweep``: the closed loop over a grid of v_inf, CA distance and phase instead."""
+    from starnav.batch.flyby_sweep import parse_sweep_axes
     from starnav.config import load_scenario
     from starnav.simulate import Simulator
     from starnav.simulate.flyby import (
         check_flyby_scenario,
         flyby_rendered_sweep,
         navigate_flyby,
-        parse_sweep_axes,
         write_flyby_sweep,
     )
 

@@ -57,13 +57,13 @@ def register(app: typer.Typer) -> None:
         sweep.csv/.md/.png."""
         from starnav.batch import run_sweep
         from starnav.batch.cluster import resolve_scheduler
-        from starnav.batch.flyby_sweep import is_flyby
         from starnav.batch.presets import get_preset
         from starnav.batch.sweep import summarize_points
         from starnav.cli._output import check_output, console, print_table
         from starnav.cli.dataset import frames_progress
         from starnav.config import load_scenario, scenario_from_dict
         from starnav.errors import StarnavError
+        from starnav.simulate.flyby import is_flyby_scenario
 
         try:
             check_output(out, directory=True, overwrite=overwrite,
@@ -78,7 +78,7 @@ def register(app: typer.Typer) -> None:
                 sc = load_scenario(scenario, tuple(set_ or ()))
             axes = list(grid or ()) or (list(p.grid) if p else [])
             n_runs = runs if runs is not None else (p.runs if p else None)
-            if is_flyby(sc):
+            if is_flyby_scenario(sc):
                 _flyby(sc, axes, out, n_runs, workers, scheduler, overwrite, no_figures)
                 return
             bar = frames_progress()

@@ -71,7 +71,7 @@ from starnav.simulate import (
 )
 from starnav.simulate.acquire import sensor_seed_of
 from starnav.simulate.attitude import is_star_frame, star_acquisition_dn, uses_star_attitude
-from starnav.simulate.flyby import is_flyby_scenario
+from starnav.simulate.flyby import check_flyby_scenario, is_flyby_scenario
 from starnav.spectra import (
     band_integrals,
     sensor_response_from_config,
@@ -133,6 +133,7 @@ class DatasetOptions:
         """Validated options with the exposures filled in (a fly-by: no exposure, windows
         ``closed-loop``, radiance stored; module "Fly-by datasets")."""
         if is_flyby_scenario(scenario):
+            check_flyby_scenario(scenario)
             return self._resolved_flyby()
         exps = (scenario.detector.exposure_time_s,) if self.exposures_s is None \
             else self.exposures_s

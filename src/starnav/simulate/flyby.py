@@ -21,7 +21,7 @@ Index
 :class:`FlybyRunResult`, :func:`render_flyby`, :func:`initial_state`, :func:`dispersed_flyby`,
 :func:`flyby_dispersed_runs`; :func:`navigate_flyby`, :func:`plot_overlays`,
 :func:`segments_image`; the sweep :func:`flyby_rendered_sweep`, :func:`flyby_sweep_points`,
-:func:`flyby_sweep_row`, :func:`parse_sweep_axes`, :func:`write_flyby_sweep`;
+:func:`flyby_sweep_row`, :func:`write_flyby_sweep`, :data:`SWEEP_AXES`;
 :func:`is_flyby_scenario`, :func:`check_flyby_scenario`.
 """
 
@@ -89,10 +89,11 @@ Renders = Sequence[tuple[FrameGeometry, RadianceImage]]
 
 
 def is_flyby_scenario(sc: Scenario) -> bool:
-    """Whether ``sc`` is a small body's fly-by (``trajectory.source: flyby`` and
-    ``target.kind: shape_model``): the scenarios :func:`check_flyby_scenario` accepts."""
-    return (sc.trajectory is not None and sc.trajectory.source == "flyby"
-            and sc.target is not None and sc.target.kind == "shape_model")
+    """Whether ``sc`` asks for a fly-by (``trajectory.source: flyby``): the scenarios the
+    fly-by paths take (closed loop, fly-by sweep, fly-by dataset), where
+    :func:`check_flyby_scenario` then demands what the closed loop needs, a shape model. A
+    small body on any other trajectory is a limb scenario."""
+    return sc.trajectory is not None and sc.trajectory.source == "flyby"
 
 
 def check_flyby_scenario(sc: Scenario) -> None:
@@ -551,27 +552,6 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
 # ----------------------------------------------------------------------------- rendered sweep
 #: Axes of the rendered fly-by sweep: keys of ``trajectory.flyby``.
 SWEEP_AXES = ("v_inf_km_s", "closest_approach_km", "phase_at_ca_deg")
-
-
-def parse_sweep_axes(items: Sequence[str], flag: str = "--sweep") -> dict[str, list[float]]:
-    """``["v_inf_km_s=0.4,0.6", "phase_at_ca_deg=30,60"]`` -> ``{axis: values}`` (axes of
-    :data:`SWEEP_AXES`; the CLI's ``navigate --sweep`` / ``sweep --grid``, named by
-    ``flag``). A bad axis or value is a ConfigError naming it."""
-    out: dict[str, list[float]] = {}
-    for item in items:
-        key, sep, text = item.partition("=")
-        key = key.strip().removeprefix("trajectory.flyby.")
-        if not sep or key not in SWEEP_AXES:
-            raise ConfigError(flag, item, f"AXIS=V1,V2,... with AXIS one of "
-                              f"{', '.join(SWEEP_AXES)}")
-        try:
-            vals = [float(v) for v in text.split(",") if v.strip()]
-        except ValueError:
-            raise ConfigError(f"{flag} {key}", text, "comma-separated numbers") from None
-        if not vals:
-            raise ConfigError(f"{flag} {key}", text, "at least one value")
-        out[key] = vals
-    return out
 
 
 def flyby_sweep_points(base: Scenario, axes: dict[str, Sequence[float]]
