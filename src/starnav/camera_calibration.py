@@ -44,7 +44,8 @@ import numpy as np
 
 from starnav.atomic import atomic_write_text
 from starnav.camera import Camera
-from starnav.errors import ConfigError, DataFileError
+from starnav.config_base import read_json_file
+from starnav.errors import ConfigError
 from starnav.typing import FloatArray
 
 FORMAT = "starnav-camera-calibration"
@@ -237,12 +238,7 @@ def write_calibration(path: str | Path, cal: CameraCalibration) -> Path:
 def read_calibration(path: str | Path) -> CameraCalibration:
     """Read a calibration file; a malformed one raises an error naming the entry."""
     p = Path(path)
-    if not p.is_file():
-        raise DataFileError(f"{p}: no such calibration file")
-    try:
-        d = json.loads(p.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise ConfigError(str(p), "unreadable", f"a JSON calibration file ({err})") from None
+    d = read_json_file(p, "calibration file")
     if not isinstance(d, dict):
         raise ConfigError(str(p), type(d).__name__, "a JSON object")
     try:

@@ -24,20 +24,13 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import yaml
-from pydantic import Field, ValidationError
+from pydantic import Field
 
 from starnav.atomic import atomic_write_text
 from starnav.bodies.schema import TargetConfig
 from starnav.camera import CameraConfig, camera_from_config
-from starnav.config_base import (
-    StrictModel,
-    apply_overrides,
-    format_validation_error,
-    parse_override,
-    read_yaml_file,
-)
+from starnav.config_base import StrictModel, apply_overrides, model_from_mapping, read_yaml_file
 from starnav.detector.schema import DetectorConfig
-from starnav.errors import ConfigError
 from starnav.geometry import StaticGeometryConfig
 from starnav.navigation.schema import NavigationConfig
 from starnav.renderer.schema import (
@@ -112,10 +105,7 @@ class Scenario(StrictModel):
 
 
 # --------------------------------------------------------------------------- loading
-# The dotted ``--set`` overrides and the validation-error message are shared with the bench, DEM
-# and sweep schemas: one implementation in starnav.config_base, re-exported here.
-_format_validation_error = format_validation_error
-_parse_override = parse_override
+# One loader for every configuration file (scenario, bench): starnav.config_base.
 
 
 def scenario_from_dict(data: dict[str, Any],
@@ -127,15 +117,8 @@ def scenario_from_dict(data: dict[str, Any],
     ConfigError
         naming the first offending field, its value and what was expected.
     """
-    if data is None:
-        data = {}
-    if not isinstance(data, dict):
-        raise ConfigError("<root>", type(data).__name__, "a mapping of scenario sections")
-    data = apply_overrides(data, overrides)
-    try:
-        return Scenario.model_validate(data)
-    except ValidationError as err:
-        raise _format_validation_error(err) from None
+    return model_from_mapping(Scenario, data, overrides, root="<root>",
+                              expected="a mapping of scenario sections")
 
 
 def load_scenario(path: str | os.PathLike[str] | None,

@@ -32,6 +32,8 @@ cycle. It holds the three things they would otherwise each write again:
 from __future__ import annotations
 
 import copy
+import json
+import os
 import textwrap
 import types
 import typing
@@ -191,10 +193,10 @@ def parse_override(item: str) -> tuple[list[str], Any]:
 MAX_CONFIG_BYTES = 1 << 20
 
 
-def read_yaml_file(path: Path, what: str) -> Any:
-    """The YAML mapping of the configuration file ``path`` (``what``: ``scenario file``, ...).
+def read_config_text(path: str | os.PathLike[str], what: str) -> str:
+    """The text of the configuration file ``path`` (``what``: ``scenario file``, ...).
 
-    A file larger than :data:`MAX_CONFIG_BYTES`, not UTF-8 or not valid YAML is a
+    A file larger than :data:`MAX_CONFIG_BYTES` or not UTF-8 is a
     :class:`~starnav.errors.ConfigError` naming the file (a directory or a device: a
     :class:`~starnav.errors.DataFileError` saying what it is).
     """
@@ -207,16 +209,60 @@ def read_yaml_file(path: Path, what: str) -> Any:
                           f"{MAX_CONFIG_BYTES} bytes ({str(p)!r} is {size / MAX_CONFIG_BYTES:.3g} "
                           "times that): put bulk data in the files the scenario names")
     try:
-        text = p.read_bytes().decode("utf-8")
+        return p.read_bytes().decode("utf-8")
     except UnicodeDecodeError as err:
         line = p.read_bytes()[: err.start].count(b"\n") + 1
         raise ConfigError(what, str(p), f"UTF-8 text (byte 0x{err.object[err.start]:02x} on "
                           f"line {line} is not UTF-8: save the file as UTF-8)") from None
+
+
+def read_yaml_file(path: str | os.PathLike[str], what: str) -> Any:
+    """The YAML content of the configuration file ``path`` (:func:`read_config_text`); not
+    valid YAML is a :class:`~starnav.errors.ConfigError` naming the file."""
+    text = read_config_text(path, what)
     try:
         return yaml.safe_load(text)
     except (yaml.YAMLError, ValueError) as err:  # ValueError: a YAML date that is none
         msg = " ".join(str(err).split())
-        raise ConfigError(what, str(p), f"valid YAML ({msg})") from None
+        raise ConfigError(what, str(path), f"valid YAML ({msg})") from None
+
+
+def read_json_file(path: str | os.PathLike[str], what: str) -> Any:
+    """The JSON content of the file ``path`` (:func:`read_config_text`: a calibration, a
+    manifest); not valid JSON is a :class:`~starnav.errors.ConfigError` naming the file."""
+    text = read_config_text(path, what)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as err:
+        raise ConfigError(what, str(path), f"valid JSON ({err})") from None
+
+
+M = typing.TypeVar("M", bound=BaseModel)
+
+
+def model_from_mapping(model: type[M], data: Any, overrides: Sequence[str] = (), *,
+                       root: str, expected: str,
+                       prepare: typing.Callable[[dict[str, Any]], dict[str, Any]] | None = None
+                       ) -> M:
+    """Validate a configuration mapping as ``model``: the one path of every configuration
+    file (scenario, bench) from its parsed content to its frozen model.
+
+    ``data`` ``None`` is an empty mapping, anything else but a mapping is an error named
+    ``root`` (``expected`` says what it should be); the ``a.b=value`` ``overrides`` apply
+    first (:func:`apply_overrides`), then ``prepare`` (e.g. reading a file a key names),
+    then validation, whose first problem is reported by :func:`format_validation_error`.
+    """
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(root, type(data).__name__, expected)
+    data = apply_overrides(data, overrides)
+    if prepare is not None:
+        data = prepare(data)
+    try:
+        return model.model_validate(data)
+    except ValidationError as err:
+        raise format_validation_error(err) from None
 
 
 def apply_overrides(data: dict[str, Any], overrides: Iterable[str]) -> dict[str, Any]:

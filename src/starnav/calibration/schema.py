@@ -26,16 +26,10 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from starnav.config import Scenario, load_scenario
-from starnav.config_base import (
-    StrictModel,
-    apply_overrides,
-    format_validation_error,
-    read_yaml_file,
-)
-from starnav.errors import ConfigError
+from starnav.config_base import StrictModel, model_from_mapping, read_yaml_file
 from starnav.fields import FiniteFloat, NonNegativeFloat, PositiveFloat, PositiveFraction
 
 #: Luminous efficacy of radiation at 555 nm [lm/W] (CIE).
@@ -404,22 +398,17 @@ def bench_from_dict(data: dict[str, Any] | None, overrides: list[str] | tuple[st
     DataFileError
         The referenced scenario file does not exist.
     """
-    if data is None:
-        data = {}
-    if not isinstance(data, dict):
-        raise ConfigError("<bench root>", type(data).__name__, "a mapping of bench sections")
-    data = apply_overrides(data, overrides)
-    sc = data.get("scenario")
-    if isinstance(sc, str | os.PathLike):
+    def scenario_file(d: dict[str, Any]) -> dict[str, Any]:
+        sc = d.get("scenario")
+        if not isinstance(sc, str | os.PathLike):
+            return d
         p = Path(sc)
         if not p.is_absolute() and base_dir is not None:
             p = Path(base_dir) / p
-        data = dict(data)
-        data["scenario"] = load_scenario(p)
-    try:
-        return BenchConfig.model_validate(data)
-    except ValidationError as err:
-        raise format_validation_error(err) from None
+        return {**d, "scenario": load_scenario(p)}
+
+    return model_from_mapping(BenchConfig, data, overrides, root="<bench root>",
+                              expected="a mapping of bench sections", prepare=scenario_file)
 
 
 def load_bench(path: str | os.PathLike[str] | None,

@@ -46,7 +46,8 @@ from starnav.calibration.scaling import (
     plan_scaling,
 )
 from starnav.calibration.schema import BenchConfig, bench_to_dict
-from starnav.errors import ConfigError, DataFileError, not_a_file_error
+from starnav.config_base import read_json_file
+from starnav.errors import ConfigError, DataFileError
 from starnav.radiance import RadianceImage, read_exr
 from starnav.simulate import frame_geometries, renderer_from_scenario
 
@@ -144,14 +145,8 @@ def run_geometric(cfg: BenchConfig, *, moon: bool = True,
 
 def load_calibration(path: str | Path, bench: Bench) -> GeometricCalibration:
     """Read a ``geometric_calibration.json`` written by ``hil geometric``."""
-    p = Path(path)
-    if not p.is_file():
-        raise not_a_file_error(p, "geometric calibration")
-    try:
-        d = json.loads(p.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise ConfigError("geometric calibration file", str(p), f"valid JSON ({err})") from None
-    return GeometricCalibration.from_dict(d, bench.camera)
+    return GeometricCalibration.from_dict(read_json_file(path, "geometric calibration file"),
+                                          bench.camera)
 
 
 def _calibration(bench: Bench, calibration: GeometricCalibration | str | Path | None

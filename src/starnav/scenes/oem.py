@@ -208,25 +208,29 @@ def parse_oem(text: str, source: str = "<string>",
             k += 1
         return k
 
+    def key_values(k: int, stop: str, context: str, at_end: str) -> tuple[dict[str, str], int]:
+        """The ``KEY = value`` lines from line ``k`` up to the line ``stop``: the mapping and
+        the index of the ``stop`` line."""
+        out: dict[str, str] = {}
+        while True:
+            k = next_content(k)
+            if k >= n:
+                raise OEMFormatError(at_end)
+            s = lines[k].strip()
+            if s == stop:
+                return out, k
+            kv = _key_value(s)
+            if kv is None:
+                raise OEMFormatError(f"{where(k)}: {s!r}: expected 'KEY = value' {context}")
+            out[kv[0]] = kv[1]
+            k += 1
+
     i = next_content(0)
     if i >= n or not re.match(r"^CCSDS_OEM_VERS\s*=\s*[12]\.\d+\s*$", lines[i].strip()):
         raise OEMFormatError(f"{where(min(i, max(n - 1, 0)))}: expected the header line "
                              "'CCSDS_OEM_VERS = 2.0' (or 1.0) first")
-    header: dict[str, str] = {}
-    i += 1
-    while True:
-        i = next_content(i)
-        if i >= n:
-            raise OEMFormatError(f"{source}: no META_START block: expected at least one segment")
-        s = lines[i].strip()
-        if s == "META_START":
-            break
-        kv = _key_value(s)
-        if kv is None:
-            raise OEMFormatError(f"{where(i)}: {s!r}: expected 'KEY = value' in the header "
-                                 "or META_START")
-        header[kv[0]] = kv[1]
-        i += 1
+    header, i = key_values(i + 1, "META_START", "in the header or META_START",
+                           f"{source}: no META_START block: expected at least one segment")
     for k in ("CREATION_DATE", "ORIGINATOR"):
         if k not in header:
             raise OEMFormatError(f"{source}: header: missing {k}")
@@ -241,21 +245,9 @@ def parse_oem(text: str, source: str = "<string>",
         if lines[i].strip() != "META_START":
             raise OEMFormatError(f"{where(i)}: {lines[i].strip()!r}: expected META_START")
         meta_line = i
-        meta: dict[str, str] = {}
+        meta, i = key_values(i + 1, "META_STOP", "in metadata",
+                             f"{where(meta_line)}: META_START without META_STOP")
         i += 1
-        while True:
-            i = next_content(i)
-            if i >= n:
-                raise OEMFormatError(f"{where(meta_line)}: META_START without META_STOP")
-            s = lines[i].strip()
-            if s == "META_STOP":
-                i += 1
-                break
-            kv = _key_value(s)
-            if kv is None:
-                raise OEMFormatError(f"{where(i)}: {s!r}: expected 'KEY = value' in metadata")
-            meta[kv[0]] = kv[1]
-            i += 1
         for k in _REQUIRED_META:
             if k not in meta:
                 raise OEMFormatError(f"{where(meta_line)}: metadata: missing {k}")
