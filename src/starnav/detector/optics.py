@@ -100,6 +100,20 @@ def disc_coverage(radius: float, x: NDArray[np.float64], y: NDArray[np.float64],
     return np.clip((radius - r) / step + 0.5, 0.0, 1.0)
 
 
+def _psf_samples(defocus_radius: float, smax: float, oversample: int
+                 ) -> tuple[int, int, int, float, NDArray[np.float64], NDArray[np.float64]]:
+    """The sample grid of a PSF: ``(half, s, n, step, x, y)``, ``2 half + 1`` pixels a side
+    (the disc and :data:`GAUSS_TRUNCATE_SIGMA` of the widest Gaussian), ``s`` samples per pixel
+    and axis, ``n`` a side, sample centres ``x`` along u (columns), ``y`` along v (rows) [px]."""
+    half = int(math.ceil(defocus_radius + GAUSS_TRUNCATE_SIGMA * smax + 1.0))
+    s = int(oversample)
+    n = (2 * half + 1) * s
+    step = 1.0 / s
+    t = (np.arange(n) + 0.5) * step - (half + 0.5)
+    x, y = np.meshgrid(t, t)
+    return half, s, n, step, x, y
+
+
 @lru_cache(maxsize=512)
 def aberration_kernel(defocus_radius: float, sigma_radial: float, sigma_tangential: float,
                       angle: float, oversample: int) -> Float32Array:
@@ -109,12 +123,7 @@ def aberration_kernel(defocus_radius: float, sigma_radial: float, sigma_tangenti
     from scipy.signal import fftconvolve
 
     smax = max(sigma_radial, sigma_tangential)
-    half = int(math.ceil(defocus_radius + GAUSS_TRUNCATE_SIGMA * smax + 1.0))
-    s = int(oversample)
-    n = (2 * half + 1) * s
-    step = 1.0 / s
-    t = (np.arange(n) + 0.5) * step - (half + 0.5)
-    x, y = np.meshgrid(t, t)  # x along u (columns), y along v (rows)
+    half, s, n, step, x, y = _psf_samples(defocus_radius, smax, oversample)
     if defocus_radius > 0:
         disc = disc_coverage(defocus_radius, x, y, step)
         if disc.sum() == 0:  # radius far below a sample: a point
@@ -448,12 +457,7 @@ def _point_source_integral(defocus_radius: float, sigma_radial: float, sigma_tan
     ``(n + 1, n + 1)``; returns ``(C, half)`` with the samples spanning ``[-half - 0.5,
     half + 0.5]`` px. Cached per node: the per-star work is a shifted read of ``C``."""
     smax = max(sigma_radial, sigma_tangential)
-    half = int(math.ceil(defocus_radius + GAUSS_TRUNCATE_SIGMA * smax + 1.0))
-    s = int(oversample)
-    n = (2 * half + 1) * s
-    step = 1.0 / s
-    t = (np.arange(n) + 0.5) * step - (half + 0.5)
-    x, y = np.meshgrid(t, t)
+    half, s, n, step, x, y = _psf_samples(defocus_radius, smax, oversample)
     fine = _sampled_psf(x, y, step, defocus_radius, sigma_radial, sigma_tangential, angle)
     if fine is None:  # no optics: a point at the centre
         fine = np.zeros((n, n))
