@@ -1,31 +1,19 @@
 """``starnav sweep`` of a fly-by scenario: the rendered fly-by sweep on the batch runner.
 
-The limb sweep (:mod:`starnav.batch.sweep`) splits a point into render, expose and filter
-tasks; a fly-by point cannot be split that way, since its acquisitions are a *closed loop*
-(the windows of a frame are placed from the previous frame's tracks), so one task is one
-point: :func:`starnav.simulate.flyby.flyby_sweep_row` (render the point once, ``runs`` closed
-loops), the same function the in-process :func:`~starnav.simulate.flyby.flyby_rendered_sweep`
-maps. Tasks are pure functions of the point's scenario dict and its seed, so the table does
-not depend on the runner (this process, local Dask workers or a scheduler) nor on the order.
+A fly-by point cannot be split into render, expose and filter tasks (its acquisitions are a
+closed loop), so one task is one point: :func:`starnav.simulate.flyby.flyby_sweep_row`, the
+function the in-process :func:`~starnav.simulate.flyby.flyby_rendered_sweep` maps; the table
+does not depend on the runner or the order.
 
-Technique
----------
-1. **Validate first** (nothing written): the scenario is a fly-by, the axes are
-   ``trajectory.flyby`` keys (``v_inf_km_s``, ``closest_approach_km``, ``phase_at_ca_deg``;
-   with or without the ``trajectory.flyby.`` prefix), every point's scenario and scene, the
-   run count, the output directory (as the limb sweep: new, empty, or a previous sweep with
-   ``overwrite``), the runner.
-2. **One task per point** on the runner; rows collected as they complete, sorted by point.
-3. **Outputs**, staged in a sibling directory renamed to ``out`` at the end:
-   ``sweep.csv`` / ``sweep.md`` / ``sweep.png`` (:func:`~starnav.simulate.flyby.
-   write_flyby_sweep`: CA error, mean NEES with its band, tracks, the per-frame cost of the
-   tracker's stages), ``sweep.json`` (grid, runs, runner, wall time, files) and
-   ``scenario.resolved.yaml``.
+1. Validate first, nothing written: a fly-by, its axes (:func:`parse_sweep_axes`, through the
+   grid parser of every sweep), every point's scenario and scene, runs, output, runner.
+2. One task per point; rows sorted by point.
+3. Outputs staged and renamed to ``out``: ``sweep.csv``, ``sweep.md``, ``sweep.png``,
+   ``sweep.json``, ``scenario.resolved.yaml`` (docs/sweep.md).
 
-Example
--------
->>> res = run_flyby_sweep(load_scenario("flyby.yaml"),                   # doctest: +SKIP
-...                       ["v_inf_km_s=0.5,1.0"], "out/fb-sweep", runs=3, workers=2)
+Index
+-----
+:func:`run_flyby_sweep`, :class:`FlybySweepResult`, :func:`parse_sweep_axes`.
 """
 
 from __future__ import annotations

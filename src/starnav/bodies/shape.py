@@ -1,34 +1,20 @@
 """Small-body shape models: PDS vertex/facet ``.tab`` files and Wavefront OBJ, read into SI.
 
-Formats
--------
-* **PDS ``.tab`` vertex/facet** (``EAR-A-5-DDR-RADARSHAPE-MODELS``, NEAR plate models): one
-  record per line, ``v x y z`` (km) then ``f i j k`` (vertex indices). The PDS label of the
-  Itokawa radar model says the vertices are "implicitly numbered beginning with 1" (the OBJ
-  convention); the NEAR Eros 7 790-plate file shipped by Basilisk numbers them from 0. The
-  base is detected, not assumed: a smallest face index of 0 means 0-based, of 1 means 1-based,
-  anything else is an error, and every index must then lie in ``[0, n_vertices)``.
-* **Wavefront OBJ** (``.obj``): the same ``v``/``f`` records, 1-based, with the OBJ extras a
-  shape model may carry (``vn``, ``vt``, ``f a/b/c``, polygons, comments, groups), read by
-  trimesh; polygons are fan-triangulated by it. Units are km, like the PDS models.
+* PDS ``.tab`` (``v x y z`` in km, ``f i j k``): the index base is detected (a smallest face
+  index of 0 or 1; the Itokawa radar model is 1-based, Basilisk's Eros plates 0-based), and
+  every index checked.
+* Wavefront OBJ (km, 1-based, with the usual extras) read by trimesh, polygons fan-triangulated.
 
-Both give a :class:`ShapeModel`: vertices in metres (body-fixed axes of the file), faces as
-0-based ``int64`` triangles, and the file it came from. Its mass properties (volume, centre of
-mass, inertia of a uniform body) come from trimesh (divergence theorem over the closed
-surface) and are only defined for a closed, consistently wound mesh: :meth:`ShapeModel.volume`
-raises otherwise rather than return the meaningless number of an open surface.
+Both give a :class:`ShapeModel` (vertices in metres, 0-based ``int64`` triangles, its source);
+mass properties come from trimesh and exist only for a closed, consistently wound mesh. A bad
+file raises :class:`ShapeModelError` naming the file, the line and what was expected, before
+anything is rendered. Packaged models: :data:`PACKAGED_SHAPE_MODELS`
+(``starnav/data/smallbody/PROVENANCE.md``).
 
-Bad files raise :class:`ShapeModelError` (a :class:`~starnav.errors.DataFileError`) naming the
-file, the line and what was expected, before anything is rendered.
-
-Packaged models (:data:`PACKAGED_SHAPE_MODELS`, ``starnav/data/smallbody/PROVENANCE.md``)
--------------------------------------------------------------------------------------------
-========== ============================= ======== ======= ============================
-name       file                          vertices faces   extents [km]
-========== ============================= ======== ======= ============================
-itokawa    ``25143itokawa.tab`` (1-based) 6 098   12 192  0.548 x 0.313 x 0.276
-eros       ``eros007790.tab`` (0-based)   3 897    7 790  32.7 x 16.8 x 11.9
-========== ============================= ======== ======= ============================
+Index
+-----
+:func:`read_shape_model`, :func:`shape_model_path`, :class:`ShapeModel`,
+:class:`ShapeModelError`, :data:`PACKAGED_SHAPE_MODELS`, :data:`SHAPE_SUFFIXES`.
 """
 
 from __future__ import annotations

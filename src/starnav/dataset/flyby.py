@@ -1,29 +1,19 @@
 """A fly-by dataset read back and navigated through the fly-by closed loop.
 
-Why a fly-by dataset holds no exposure: the fly-by front end places each frame's windows from
-the previous frame's tracks (:mod:`starnav.simulate.flyby`, step 2b), so the window pixels
-depend on the run (its detector noise, its attitude draw) and cannot be stored once. A fly-by
-dataset (``target_kind: "flyby"`` in the manifest, :mod:`starnav.dataset.writer`, "Fly-by
-datasets") stores per frame what every run starts from: the full-frame radiance with the
-renderer's AOVs (hit mask, body-fixed coordinates: the features' truth) and ``truth.json``
-(geometry, relative state, attitude, Sun).
+A fly-by's windows follow each run's tracks, so its dataset stores per frame what every run
+starts from: the radiance with the renderer's AOVs and ``truth.json`` (docs/dataset.md,
+"Fly-by datasets").
 
-Technique
----------
-1. :func:`read_flyby`: the manifest (complete, fly-by), the dataset's resolved scenario with
-   the ``navigation.*`` / ``seed`` overrides, a :class:`~starnav.simulate.Simulator` of it
-   (camera, scene, body; nothing is rendered), and every frame read back as the
-   ``(FrameGeometry, RadianceImage)`` pair the closed loop renders: the geometry from
-   ``truth.json`` (checked against the scenario's: same epoch), the radiance from
-   ``radiance.exr`` (float32, lossless).
+1. :func:`read_flyby`: the manifest, the dataset's scenario with the ``navigation.*`` /
+   ``seed`` overrides (:data:`NAVIGATE_KEYS`), and every frame as the ``(FrameGeometry,
+   RadianceImage)`` pair the closed loop renders (geometry checked against the scenario's).
 2. :func:`navigate_flyby_dataset`: :func:`starnav.simulate.flyby.navigate_flyby` on those
-   frames; its runs are those of ``starnav navigate SCENARIO.yaml`` with the same seed
-   (metrics equal: ``tests/dataset/test_flyby_dataset.py``).
+   frames; its runs equal those of ``starnav navigate SCENARIO.yaml`` with the same seed.
 
-Example
--------
->>> from starnav.dataset.flyby import navigate_flyby_dataset
->>> navigate_flyby_dataset("out/fb_ds", "out/fb_nav", runs=4)               # doctest: +SKIP
+Index
+-----
+:func:`navigate_flyby_dataset`, :func:`read_flyby`, :func:`is_flyby_dataset`,
+:data:`NAVIGATE_KEYS`.
 """
 
 from __future__ import annotations

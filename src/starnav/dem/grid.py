@@ -1,37 +1,19 @@
 """Equirectangular lunar grids: heights (:class:`DemGrid`) and albedo (:class:`AlbedoGrid`).
 
-Conventions
------------
-* **Selenographic, planetocentric, east-positive** latitude ``lat`` and longitude ``lon`` in
-  radians inside (degrees only at the edges). Latitude is in ``[-pi/2, pi/2]``; anything outside
-  is an error. Longitude may be given in any range (``[-180, 180)``, ``[0, 360)`` or beyond): it
-  is wrapped. Longitudes *returned* (:func:`body_to_selenographic`, mesh attributes) are in
-  ``[-pi, pi)``.
-* **Moon body-fixed** Cartesian axes (the DE421 principal axes the rest of starnav uses; LOLA
-  products are in the mean-Earth/polar-axis frame, which differs by < 1 km on the surface;
-  we do not correct for it): ``+x`` towards ``(lat, lon) = (0, 0)``, ``+z`` the north pole,
-  ``+y`` towards ``(0, 90 deg E)``, metres::
+Conventions: selenographic, planetocentric, east-positive latitude and longitude in radians
+inside (longitudes wrapped, returned in ``[-pi, pi)``); Moon body-fixed axes, metres, ``+x``
+towards (0, 0), ``+z`` the north pole (:func:`selenographic_to_body`; LOLA's mean-Earth frame is
+not corrected, < 1 km); ``values[i, j]`` the cell (pixel-is-area) centred at ``lat = north -
+(i + 1/2) dlat``, ``lon = west + (j + 1/2) dlon``: row 0 north, column 0 west; a 360 deg grid
+wraps, a regional one returns ``fill_value`` outside; heights in metres above the reference
+sphere, float32. Sampling is bilinear between cell centres; :meth:`DemGrid.level` gives the
+area-averaged mip level the mesher samples so that sparse vertices do not alias a fine DEM.
 
-      x = (R + h) cos(lat) cos(lon),  y = (R + h) cos(lat) sin(lon),  z = (R + h) sin(lat)
-
-* **Grid layout**: ``values[i, j]`` is the cell (pixel-is-area) whose centre is at
-  ``lat = north - (i + 1/2) dlat`` and ``lon = west + (j + 1/2) dlon``: row 0 is the northern
-  edge, column 0 the western edge. A grid whose longitude span is 360 deg wraps; one whose
-  latitude span is the full -90..90 deg is clamped to its first/last row at the poles.
-  A *regional* grid returns ``fill_value`` outside its extent (0 m for heights).
-* **Heights** are metres above the reference sphere (LOLA: 1737.4 km), stored as float32.
-
-Sampling is bilinear between cell centres. :meth:`DemGrid.level` gives an area-averaged copy
-at half the resolution per level (a mip pyramid, built lazily and kept), which the mesher uses
-so that vertices spaced far apart do not point-sample (alias) a fine DEM.
-
-Example
--------
->>> import numpy as np
->>> from starnav.dem.grid import DemGrid
->>> g = DemGrid(np.zeros((180, 360), np.float32))          # 1 deg, global, lon -180..180
->>> float(g.sample(np.radians(10.0), np.radians(370.0)))   # longitude wraps
-0.0
+Index
+-----
+:class:`DemGrid`, :class:`AlbedoGrid`, :class:`EquirectangularGrid`,
+:func:`selenographic_to_body`, :func:`body_to_selenographic`, :func:`wrap_longitude`,
+:func:`area_resample`, :func:`area_resample_blocks`.
 """
 
 from __future__ import annotations

@@ -1,33 +1,17 @@
 """The Moon's limb as the terrain makes it: how far the apparent limb departs from the sphere.
 
-A navigation fix models the limb of a smooth sphere (or ellipsoid). The real limb, seen from far
-away, is the terrain that sticks out furthest in each direction: for a view direction ``v`` and
-an image-plane direction ``e`` (perpendicular to ``v``), the apparent radius is
+For a view direction ``v`` and an image-plane direction ``e``, the apparent radius is the
+highest terrain near the limb plane, ``r(e) = max_theta (R + h(cos(theta) e + sin(theta) v))
+cos(theta)``; its departure from ``R``, the *limb height*, is what a limb-based fix reads as
+noise (its spread) and bias (its mean). :func:`limb_topography` samples it over random views
+and position angles of a DEM. The navigation chain (:mod:`starnav.navigation.refine`) takes
+the spread over one window's arc as a refined point's model error, and the part shared by the
+whole lit limb as a range error of the fix. Its values on LOLA LDEM_4: docs/dem.md.
 
-    r(e) = max over theta of (R + h(p(theta))) cos(theta),  p(theta) = cos(theta) e + sin(theta) v,
-
-the highest terrain within a few degrees of the limb plane (``theta`` up to
-``sqrt(2 (h_max - h_min) / R)``, 9 deg for the Moon's 20 km of relief). Its departure from
-``R``, the *limb height*, is what a limb-based fix reads as noise (its spread) and bias (its
-mean). :func:`limb_topography` samples it over random views and position angles of a DEM.
-
-Used by the navigation chain (:mod:`starnav.navigation.refine`) as the model-error term of a
-refined limb point: ``sigma_px = radius_px * sigma_h(arc) / R``, with ``sigma_h(arc)`` the
-spread of the limb height averaged over the arc one refinement window covers
-(``arc = window_px / radius_px`` of position angle; the edge fit reads the window's mean edge).
-The part of the limb height shared by the whole lit limb (its half-circle mean) is not
-independent from point to point: it is an error of the disc's apparent radius, which the fix
-carries as a range error ``range * sigma_common / R`` along the line of sight
-(:meth:`~starnav.navigation.christian_robinson.LimbFix.covariance_inertial`); the points carry
-the rest. Measured on LOLA LDEM_4 (60 views x 720 position angles): mean +0.54 km, spread
-2.36 km point by point; common (half-circle) part 1.18 km; local part averaged over 8 deg of
-arc (a window at 60 000 km) 1.67 km.
-
-Example
--------
->>> from starnav.dem.limb import limb_topography_for
->>> t = limb_topography_for({"source": "lola"})            # doctest: +SKIP
->>> t.mean_m, t.std_m, t.sigma_fraction_over(0.1)          # doctest: +SKIP
+Index
+-----
+:func:`limb_topography`, :func:`limb_topography_for`, :class:`LimbTopography`,
+:func:`limb_heights`, :data:`ARC_WIDTHS_RAD`.
 """
 
 from __future__ import annotations

@@ -1,34 +1,25 @@
 """Star radiometry: spectral irradiance at the aperture from V and B - V, and electrons.
 
-Technique
----------
-1. **Temperature from colour.** ``T = 4600 K (1 / (0.92 (B-V) + 1.7) + 1 / (0.92 (B-V) +
-   0.62))`` (Ballesteros 2012, EPL 97:34008, eq. 14: black bodies matched to the colours of
-   main-sequence stars; ~10 100 K at B - V = 0, 5 800 K at 0.65, 3 900 K at 1.5).
-2. **Shape.** A black body of that temperature, tabulated every 1 nm over
-   :data:`STAR_GRID_NM` and piecewise linear between samples (the :mod:`starnav.spectra`
-   convention).
-3. **Scale: a Vega-based zero point in V.** The spectrum is scaled so that its photon-weighted
-   mean flux density in the Johnson V passband, ``<F> = int F S_V lambda dlambda /
-   int S_V lambda dlambda``, equals ``F0 10^(-0.4 V)`` with ``F0 = 3.61e-11 W m^-2 nm^-1``,
-   the flux density of a V = 0 star (REFERENCE.md s6; Bessell 1979, PASP 91:589; Bessell,
-   Castelli & Plez 1998, A&A 333:231, Table A2, give 3.631e-11 at 545 nm). The V passband is
-   ``GROUND_JOHNSON_V`` of ``pyphot`` (Bessell's tabulation, 475-740 nm).
-4. **Electrons.** The irradiance spectrum goes through the SAME sensor response as the Moon:
-   ``rate = A_pupil int F QE T lambda / (h c) dlambda`` [e-/s] is
-   :func:`starnav.spectra.band_integrals`' ``electron_irradiance`` times the pupil area
-   (:func:`electron_rate`); :func:`electron_rates` does the same integral for many stars at
-   once on the same union grid (equal to 1e-12, tested).
+1. Temperature from colour (:func:`colour_temperature`, Ballesteros 2012, eq. 14).
+2. Shape: a black body of that temperature on :data:`STAR_GRID_NM`, piecewise linear.
+3. Scale: the photon-weighted mean flux density in Johnson V (:func:`v_passband`) equals
+   :data:`V_ZERO_POINT_W_M2_NM` ``10^(-0.4 V)``.
+4. Electrons through the same sensor response as the Moon (:func:`electron_rate`,
+   :func:`electron_rates`).
 
-What a black body leaves out: absorption lines and the Balmer jump (an A0V star has ~10 %
-less flux below 400 nm than its black body; the AA-STR band starts at 425 nm), molecular bands
-of M stars. ``docs/stars.md`` compares the result with Vega's CALSPEC spectrum.
+A black body leaves out absorption lines, the Balmer jump and the bands of M stars; the result
+against Vega's CALSPEC spectrum: docs/stars.md.
 
-Example
--------
->>> from starnav.spectra import sensor_response
->>> from starnav.stars.radiometry import electron_rate
->>> round(electron_rate(0.0, 0.0, sensor_response("aa-str"), 1.0) / 1e9, 2)  # doctest: +SKIP
+References
+----------
+B. Ballesteros (2012), "New insights into black bodies", EPL 97, 34008.
+M. S. Bessell (1979), PASP 91, 589; M. S. Bessell, F. Castelli and B. Plez (1998), A&A 333,
+231, Table A2 (the V zero point).
+
+Index
+-----
+:func:`star_spectrum`, :func:`star_spectra`, :func:`electron_rate`, :func:`electron_rates`,
+:func:`photon_flux_density`, :func:`colour_temperature`, :func:`v_passband`.
 """
 
 from __future__ import annotations

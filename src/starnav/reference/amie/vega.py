@@ -1,32 +1,28 @@
 """The AMIE's absolute efficiency and its PSF, measured on a star: Vega in frame 040326.
 
-The AMIE user manual gives the detector's efficiency only as "> 15 % at 640 nm", and the
-optics' PSF is not published. Both are measured here on the one stellar frame of the data set,
-``AMI_EE3_040326_00034_00200`` (200 ms, Vega near the centre, no Moon), the way a flight
-team calibrates a camera on a standard star, and *not* on the Moon frames that score the
-simulation (:mod:`starnav.reference.amie.validate`).
+The user manual gives the efficiency only as "> 15 % at 640 nm" and the PSF is not published;
+both are measured on the data set's one stellar frame (:data:`VEGA_FRAME`), not on the Moon
+frames that score the simulation:
 
-1. **Measured signal.** The frame is calibrated like the Moon frames (bias, sky rows and column
-   stripes, flat; :func:`~starnav.reference.amie.frame.calibrate`). Vega's total is aperture
-   photometry around its centroid: the sum within ``aperture_px`` minus the local sky (the plain
-   mean of the wide annulus ``sky_annulus_px``: the sky's sparse positive outliers fall in the
-   aperture too), in DN. The growth curve (the same sum at 5-20 px) is kept
-   and must be flat: beyond ~7 px it changes by < 2 % (below the noise of the sky level).
-2. **Predicted signal.** Vega's absolute spectrum is the HST CALSPEC ``alpha_lyr_stis_011``
-   (Bohlin 2014, AJ 147:127; shipped by ``pyphot``), photons through the AMIE aperture (the
-   ``amie`` camera's pupil, f / N) and the measured NONE-filter curve ``T`` (transmission,
-   :data:`starnav.spectra.AMIE_RESPONSE_TABLE`), for the label's exposure and gain.
-3. **Efficiency.** The flat quantum efficiency that makes 2 equal 1:
-   ``QE = measured / predicted(QE = 1)``. The Vega frame (AMI_EE3_040326_00034_00200) is
-   older than all the Moon frames; Vega is not variable at the 1 % level in this band.
-4. **PSF core.** A pixel-integrated circular Gaussian fitted to the star within ``psf_fit_px``
-   (centre, flux, sigma, sky); the wings beyond ~4 px are below the sky noise (0.5 DN) and are
-   not modelled.
+1. Measured signal: the frame calibrated like the Moon frames, Vega's aperture photometry with
+   a flat growth curve (:func:`star_photometry`).
+2. Predicted signal: Vega's CALSPEC spectrum (Bohlin 2014) through the AMIE aperture and its
+   measured NONE-filter curve (:func:`vega_spectrum`, :func:`photon_rate`).
+3. Efficiency: the flat QE that makes the two equal.
+4. PSF core: a pixel-integrated circular Gaussian fitted within ``psf_fit_px``.
 
-The result is written by ``tools/calibrate_amie_vega.py`` to the packaged
-``starnav/data/amie/vega_calibration.json``, which :func:`starnav.spectra.amie_none_response`
-and :mod:`~starnav.reference.amie.presets` read; :func:`stellar_calibration` recomputes it
-from the packaged frame (a test checks they agree).
+``tools/calibrate_amie_vega.py`` writes the packaged :data:`VEGA_CALIBRATION_FILE`;
+:func:`stellar_calibration` recomputes it (a test checks they agree).
+
+References
+----------
+R. C. Bohlin (2014), "Hubble Space Telescope CALSPEC flux standards: Sirius (and Vega)",
+AJ 147, 127.
+
+Index
+-----
+:func:`stellar_calibration`, :class:`StellarCalibration`, :func:`load_calibration`,
+:func:`write_calibration`, :func:`star_photometry`, :func:`vega_spectrum`, :func:`photon_rate`.
 """
 
 from __future__ import annotations
