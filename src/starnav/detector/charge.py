@@ -1,31 +1,17 @@
 """Charge generation: PRNU, dark current (DSNU, hot pixels, temperature) and shot noise.
 
-Technique
----------
-1. **PRNU** multiplies the mean photo-electrons by a per-pixel gain ``1 + sigma_prnu z``,
-   ``z ~ N(0, 1)``, clipped at 0. The map belongs to the sensor: it is drawn from the sensor's
-   fixed-pattern stream (:mod:`starnav.detector.seeding`) and cached.
-2. **Dark current.** ``D(T) = D_ref 2^((T - T_ref) / T_2)`` [e-/s] scales the mean rate with
-   the detector temperature (the usual "doubling temperature" law of silicon). The per-pixel rate
-   is ``D(T) (1 + sigma_dsnu z)`` (DSNU, clipped at 0) and, for a fixed random fraction of
-   hot pixels, ``D(T) * hot_factor``. The mean dark charge ``D t_exp`` is added to the photo
-   charge before shot noise, so both are Poisson.
-3. **Shot noise.** ``Poisson(mu)`` per pixel (NumPy's exact sampler); above
-   ``gaussian_above_e`` the draw is ``N(mu, mu)`` (skewness ``mu^-1/2``: 3 % at 1000 e-), which
-   is ~5x faster and indistinguishable at those levels.
+1. PRNU: a frozen per-pixel gain ``1 + sigma_prnu z`` from the sensor's fixed-pattern stream
+   (:func:`prnu_map`).
+2. Dark current ``D_ref 2^((T - T_ref) / T_2)`` with DSNU and hot pixels
+   (:func:`dark_rate_at`, :func:`dark_pattern`, :func:`hot_pixel_mask`), added to the mean
+   before shot noise (:func:`add_dark_current`).
+3. Shot noise (:func:`shot_noise`): Poisson, or ``N(mu, mu)`` above ``gaussian_above_e``
+   (skewness ``mu^-1/2``: 3 % at 1000 e-).
 
-Tuning
-------
-======================== ================ ======================================================
-knob                     default          effect
-======================== ================ ======================================================
-``sigma_fraction``       0.02             PRNU rms (ABRAM)
-``rate_e_per_s``         590 e-/s         mean dark current at ``reference_temperature_c``
-``dsnu_fraction``        0.013            DSNU rms relative to the mean
-``doubling_temperature`` 7 K              dark current x2 per 7 K
-``hot_pixel_*``          1e-4, x100       hot-pixel population
-``gaussian_above_e``     1000 e-          Gaussian shortcut of the Poisson draw
-======================== ================ ======================================================
+Index
+-----
+:func:`prnu_map`, :func:`dark_rate_at`, :func:`dark_pattern`, :func:`hot_pixel_mask`,
+:func:`add_dark_current`, :func:`shot_noise`.
 """
 
 from __future__ import annotations

@@ -1,32 +1,20 @@
 """Signal chain to DN and the AA-STR readout modes: segments, windows, full frame, and timing.
 
-Technique
----------
-1. **Non-linearity** of the charge-to-voltage conversion: ``S' = S / (1 + beta S / F)`` with
-   ``beta = d / (1 - d)`` so that the full well ``F`` reads ``(1 - d) F`` (monotonic for any S).
-2. **Read noise**: ``S' + sigma_read z``, ``z ~ N(0, 1)``, from the frame's temporal stream.
-3. **ADC**: ``DN = clip(round(S / g + offset), 0, 2^bits - 1)`` as uint16 (gain ``g`` in
-   e-/DN, round half to even).
-4. **Full image compressed (segments)**: the DN frame is cut into per-row runs of consecutive
-   pixels that lie in the same threshold band ``thresholds[l] <= DN < thresholds[l + 1]``;
-   ``level`` is ``l``. Every pixel at or above the lowest threshold belongs to exactly one run,
-   so :meth:`Segments.to_image` rebuilds the thresholded frame exactly. Runs are returned in
-   raster order until ``max_runs`` or ``max_pixels`` would be exceeded (the gate array fills
-   its buffer while scanning); then ``truncated`` is set.
-5. **Windows**: up to 16 rectangles, each a copy of the DN inside it.
-6. **Readout law** (seed paper eq. 1): ``t_min = a + b N_pix / unit``; ``N_pix`` is every pixel
-   for the segments and full-frame readouts (the gate array scans the whole array) and the sum
-   of the window areas for windows; a full-frame readout is never faster than
-   ``full_frame_min``. An exposure shorter than ``t_min`` is infeasible for that readout.
+1. Non-linearity (:func:`nonlinearity`): ``S / (1 + beta S / F)``, the full well reading
+   ``(1 - d) F``.
+2. Read noise (:func:`read_noise`) from the frame's temporal stream.
+3. ADC (:func:`adc`): ``clip(round(S / g + offset), 0, 2^bits - 1)``.
+4. Segments (:func:`extract_segments`): per-row runs of pixels in one threshold band; the
+   thresholded frame is rebuilt exactly; ``truncated`` when the buffer fills.
+5. Windows (:func:`read_windows`): up to 16 rectangles of DN.
+6. Readout law (seed paper eq. 1, :func:`readout_timing`): ``t_min = a + b N_pix / unit``;
+   a shorter exposure is infeasible for that readout.
 
-Example
--------
->>> import numpy as np
->>> from starnav.detector.readout import extract_segments
->>> dn = np.array([[0, 5, 9, 5, 0]], np.uint16)
->>> s = extract_segments(dn, (4, 8))
->>> s.col_start.tolist(), s.length.tolist(), s.level.tolist()
-([1, 2, 3], [1, 1, 1], [0, 1, 0])
+Index
+-----
+:func:`nonlinearity`, :func:`read_noise`, :func:`adc`, :func:`extract_segments`,
+:func:`thresholded`, :func:`read_windows`, :func:`check_windows`, :func:`readout_timing`,
+:class:`ReadoutTiming`, :func:`min_exposure`, :func:`check_timing`.
 """
 
 from __future__ import annotations

@@ -1,37 +1,16 @@
 """Analytic Moon frames for tests, examples and benchmarks of the navigation chain.
 
-The navigation chain must be checkable without the renderer and the detector chain. This module
-draws a sphere exactly (ray-sphere intersection per sub-pixel sample, so the disc is
-anti-aliased by area), shades it with a closed-form photometric law, blurs it with a Gaussian
-PSF, scales it to DN and reads it out as segments and windows the way the AA-STR does.
+The chain is checkable without the renderer and the detector chain: :func:`draw_moon` casts
+``supersample^2`` rays per pixel at an exact sphere (the disc anti-aliased by area), shades the
+hits by ``lambert`` or ``lommel-seeliger`` (:data:`SHADING_LAWS`), blurs by a Gaussian PSF,
+scales to ``peak_dn`` with background and optional read noise, and rounds and clips to the full
+scale; :func:`threshold_segments` reads it out as segments. The truth limb of such a frame is
+the exact conic of :func:`~starnav.navigation.christian_robinson.limb_conic_pixels`.
 
-Technique
----------
-1. For the pixels of the disc's bounding box (plus a PSF margin), ``supersample^2`` rays per
-   pixel are cast through the pinhole (distortion removed with the camera model) and intersected
-   with the sphere of radius ``R`` centred at the Moon centre in the camera frame.
-2. A hit is shaded by ``lambert`` (``max(mu0, 0)``) or ``lommel-seeliger``
-   (``mu0 / (mu0 + mu)``), with ``mu0 = n . s`` and ``mu = -n . d``; the pixel value is the mean
-   over its samples (box response).
-3. A Gaussian PSF of ``psf_sigma_px`` is applied (``scipy.ndimage.gaussian_filter``), the image is
-   scaled so that its brightest pixel is ``peak_dn``, ``background_dn`` and optional Gaussian read
-   noise are added, and the result is rounded and clipped to ``full_scale_dn``.
-4. :func:`threshold_segments` encodes every row's runs of pixels at or above the lowest threshold
-   (``level`` = the highest threshold reached inside the run).
-
-The truth limb of such a frame is the exact conic of
-:func:`~starnav.navigation.christian_robinson.limb_conic_pixels`.
-
-Example
--------
->>> from starnav.camera import Camera
->>> from starnav.geometry import static_geometry
->>> cam = Camera.preset("aa-str")
->>> g = static_geometry(cam, 6.0e7, 0.5)
->>> dn = draw_moon(cam, g, peak_dn=3000.0)
->>> seg = threshold_segments(dn, (300,))
->>> len(seg) > 100
-True
+Index
+-----
+:func:`synthetic_frame`, :func:`draw_moon`, :func:`threshold_segments`,
+:func:`pointing_geometry`, :data:`SHADING_LAWS`.
 """
 
 from __future__ import annotations

@@ -1,33 +1,23 @@
 """Per-frame geometry and truth: epochs, trajectory, ephemeris, pointing.
 
-Technique
----------
-1. Build the trajectory of the scenario (:func:`build_trajectory`): the LUMIO-like ephemeris
-   halo arc or an OEM file; states are EMB-centred J2000 [m, m/s] at TDB epochs.
-2. Frame epochs: ``epoch + frame_offset_s + k cadence_s`` inside the arc (``frames`` at most).
-3. At each epoch: spacecraft state (Hermite interpolation of the arc nodes, exact on nodes);
-   Moon and Sun from DE421; camera position and velocity relative to the Moon; Sun relative to
-   the Moon; Moon orientation from the DE421 librations (PA or ME axes).
-4. Attitude from :mod:`starnav.scenes.pointing` with the frame's own generators
-   (``SeedSequence(seed, spawn_key=(index, stream))``): frame ``i`` is the same whatever the
-   order or the subset of frames built, so workers can build any frame independently.
-5. A small-body fly-by (``trajectory.source: flyby``, :mod:`starnav.scenes.flyby`) has no
-   ephemeris: the spacecraft state relative to the body comes from the fly-by's closed form,
-   the Sun from its fixed direction, the body's orientation from ``orientation``; the frames'
-   truth is body-centred (:attr:`Scene.relative_states`) and there is no EMB state.
-6. Without a ``trajectory`` section the scenario's static ``geometry`` gives one frame
-   (:func:`starnav.geometry.static_geometry_from_config`); its measured attitude still carries
-   the configured knowledge error.
+1. The trajectory (:func:`build_trajectory`): the LUMIO-like halo arc or an OEM file,
+   EMB-centred J2000 at TDB epochs.
+2. Frame epochs every ``cadence_s`` inside the arc.
+3. At each epoch the spacecraft (Hermite interpolation), Moon and Sun (DE421), the relative
+   states and the Moon's orientation.
+4. Attitude (:mod:`starnav.scenes.pointing`) from the frame's own generators: any frame is the
+   same whatever the order or subset built.
+5. A small-body fly-by has no ephemeris: body-centred truth from its closed form
+   (:attr:`Scene.relative_states`).
+6. Without a trajectory, the static ``geometry`` gives one frame.
 
-Positions are geometric (no light-time or aberration): the Moon's light time (~0.2 s) moves it
-by ~0.2 km relative to the camera, a hundredth of a pixel at 60 000 km.
+Positions are geometric (no light time or aberration: the Moon's 0.2 s light time is a
+hundredth of a pixel at 60 000 km).
 
-Example
--------
->>> from starnav.config import scenario_from_dict
->>> from starnav.simulate import scene_from_scenario
->>> scene = scene_from_scenario(scenario_from_dict({"trajectory": {"frames": 3}}))  # doctest: +SKIP
->>> [round(g.range / 1e3) for g in scene.geometries()]                # doctest: +SKIP
+Index
+-----
+:class:`Scene`, :func:`build_trajectory`, :func:`truth_force_model`,
+:func:`trajectory_summary`.
 """
 
 from __future__ import annotations

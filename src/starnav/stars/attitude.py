@@ -1,30 +1,28 @@
 """Attitude from matched star vectors: Wahba's problem by SVD, its covariance, the frame solver.
 
-Technique
----------
-1. **Wahba.** With body (camera) unit vectors ``b_i``, catalogue (inertial) unit vectors
-   ``r_i`` and weights ``w_i = 1 / sigma_i^2``, the attitude matrix ``A`` (inertial ->
-   camera) minimises ``sum w_i |b_i - A r_i|^2``. Solved by the SVD of
-   ``B = sum w_i b_i r_i^T = U S V^T``: ``A = U diag(1, 1, det U det V) V^T`` (Markley 1988): the
-   same optimum as Davenport's q-method and QUEST, without QUEST's Newton iteration or its
-   loss of accuracy near 180 deg.
-2. **Covariance.** For the QUEST measurement model (each ``b_i`` isotropic noise of
-   ``sigma_i`` rad perpendicular to it) the covariance of the small error rotation ``dtheta``
-   in camera axes (``R_true = R_est exp([dtheta x])``) is
-   ``P = (sum_i sigma_i^-2 (I - b_i b_i^T))^-1`` (Shuster & Oh 1981). For stars near the
-   boresight ``b_i ~ z``: the cross-boresight axes are determined by every star, the roll (z)
-   only by the stars' lever arms: roll is the worst axis by ~ (focal length / spread) ~ 5-10x.
-3. **Centroid sigma.** ``sigma_i`` [rad] = the centroid's predicted 1-sigma [px] (mean of its
-   two axes, ``starnav.stars.centroid``) combined with a systematic floor ``floor_px``
-   (distortion resampling, neighbour blends) divided by the focal length ``f_x`` [px].
+1. Wahba (:func:`wahba_svd`): ``A = U diag(1, 1, det U det V) V^T`` from the SVD of
+   ``sum w_i b_i r_i^T`` (Markley 1988), the optimum of the q-method and QUEST.
+2. Covariance (:func:`attitude_covariance`): ``(sum sigma_i^-2 (I - b_i b_i^T))^-1`` in camera
+   axes (Shuster & Oh 1981); roll is the worst axis.
+3. Centroid sigma (:func:`centroid_sigma_rad`): the centroid's 1-sigma with a systematic floor,
+   over the focal length.
 
-:func:`solve_attitude` runs the whole frame: centroids, lost-in-space or tracking
-identification (:mod:`starnav.stars.identify`), the SVD solution and its covariance.
-:func:`navigation_attitude` hands the result to the limb fix (docs/stars.md, "Coupling").
+:func:`solve_attitude` runs a frame: centroids, identification (:mod:`starnav.stars.identify`),
+the SVD and its covariance; :func:`navigation_attitude` hands it to the limb fix (docs/stars.md,
+"Coupling").
 
-References: F. L. Markley, "Attitude determination using vector observations and the singular
-value decomposition", J. Astronaut. Sci. 36 (1988) 245-258; M. D. Shuster and S. D. Oh,
-"Three-axis attitude determination from vector observations", J. Guid. Control 4 (1981) 70-77.
+References
+----------
+F. L. Markley, "Attitude determination using vector observations and the singular value
+decomposition", J. Astronaut. Sci. 36 (1988) 245-258.
+M. D. Shuster and S. D. Oh, "Three-axis attitude determination from vector observations",
+J. Guid. Control 4 (1981) 70-77.
+
+Index
+-----
+:func:`solve_attitude`, :class:`AttitudeSolution`, :class:`AttitudeOptions`,
+:func:`navigation_attitude`, :func:`wahba_svd`, :func:`attitude_covariance`,
+:func:`error_rotation`, :func:`unit_vectors`, :func:`centroid_sigma_rad`.
 """
 
 from __future__ import annotations

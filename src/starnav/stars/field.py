@@ -1,32 +1,20 @@
 """The star field of a frame: which stars, where on the detector, how many electrons.
 
-Technique
----------
-1. **Query.** The camera's boresight (true attitude) and the half-diagonal of its field plus
-   ``margin_px`` give a cone; :meth:`~starnav.stars.catalogue.StarCatalogue.cone` returns the
-   stars brighter than ``magnitude_limit`` at the frame's epoch (or ``epoch_jyear``).
-   With ``aberration`` on (the default) the cone is widened by the largest aberration and
-   each star moves to its apparent direction for the camera's barycentric velocity
-   (:mod:`starnav.stars.aberration`: DE421 + the camera's velocity at the frame's epoch).
-2. **Project.** Each unit vector goes to the camera frame with the TRUE attitude
-   (``R_cam_to_inertial.T``) and through the pinhole (``pinhole_px``); the detector position
-   (``pixel_px``) adds the lens distortion when the detector chain applies it (the chain draws
-   stars in the pinhole image and distorts them with the rendered light).
-3. **Occult.** A star is hidden when the ray to it hits the body: the renderer's hit mask
-   (``mask`` AOV) at the star's pinhole pixel when a rendered image is given (any body shape;
-   pixel resolution), else the reference sphere of the geometry (exact for the Moon).
-4. **Electrons.** :func:`~starnav.stars.radiometry.electron_rates` through the scenario's
-   sensor response and the camera's pupil; ``electrons = rate x exposure`` (x ``cos(theta)``
-   of the pupil when the chain's relative illumination is on), before the PSF spreads them.
+1. Query: the catalogue's cone about the true boresight, moved to apparent directions when
+   ``aberration`` is on (:mod:`starnav.stars.aberration`).
+2. Project with the true attitude through the pinhole (``pinhole_px``) and the distortion
+   (``pixel_px``).
+3. Occult by the body: the renderer's hit mask when a rendered image is given, else the
+   reference sphere.
+4. Electrons through the scenario's sensor response and the camera's pupil
+   (:func:`~starnav.stars.radiometry.electron_rates`), times the exposure.
 
-:func:`frame_stars` returns everything (:class:`StarField`: the truth for attitude solvers and
-tests); :meth:`StarField.point_sources` is what :func:`starnav.detector.expose` takes.
+:func:`frame_stars` returns a :class:`StarField` (the truth for solvers and tests);
+:meth:`StarField.point_sources` is what :func:`starnav.detector.expose` takes.
 
-Example
--------
->>> field = frame_stars(geom, camera, StarsConfig(enabled=True), response,  # doctest: +SKIP
-...                     exposure_time=0.2, radiance=img)
->>> field.visible().hip, field.visible().pixel_px, field.visible().electrons  # doctest: +SKIP
+Index
+-----
+:func:`frame_stars`, :class:`StarField`, :func:`field_radius`.
 """
 
 from __future__ import annotations

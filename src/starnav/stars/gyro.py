@@ -1,30 +1,23 @@
 """The attitude between star solutions: the last solution carried forward by a rate gyro.
 
-Technique
----------
-1. **Truth.** Between two frames the spacecraft turns by ``dR = R_0^T R_1`` (camera -> inertial
-   attitudes ``R``; ``dR`` in the camera axes of frame 0): inertial pointing gives ``dR = I``,
-   the pointing law's slews anything else. The gyro measures that turn with an error.
-2. **Gyro error model** (per axis, isotropic, the same on the three axes). The integrated
-   angle error after ``dt`` seconds since the last star solution is
-   ``g = b dt + w(dt)``: ``b`` the uncalibrated rate bias, a random constant per run with
-   1-sigma ``sigma_b`` [rad/s] (its drift over one arc neglected), and ``w`` the angle random
-   walk, a Wiener process with ``E[w w^T] = N^2 dt I`` (``N`` [rad/sqrt(s)]). Its covariance
-   is therefore the closed form ``Q(dt) = (N^2 dt + sigma_b^2 dt^2) I`` (Farrenkopf 1978 without
-   the bias estimation of a Kalman filter: the bias term of an unfiltered gyro).
-3. **Propagation.** With ``R_true,0 = R_est,0 exp([dtheta_0 x])`` (error rotation in camera
-   axes, :func:`starnav.stars.attitude.error_rotation`) and the gyro's turn
-   ``dR_g = dR exp(-[g x])``, the propagated attitude ``R_est,1 = R_est,0 dR_g`` has the error
-   ``dtheta_1 = dR^T dtheta_0 + g`` to first order: covariance
-   ``P_1 = dR^T P_0 dR + Q(dt)`` [rad^2], camera axes of frame 1.
+1. Truth: between two frames the spacecraft turns by ``dR = R_0^T R_1`` (camera axes of frame
+   0); the gyro measures it with an error.
+2. Error model (:class:`GyroModel`, per axis): ``g = b dt + w(dt)``, ``b`` a constant rate bias
+   of 1-sigma ``sigma_b`` per run, ``w`` an angle random walk ``E[w w^T] = N^2 dt I``:
+   ``Q(dt) = (N^2 dt + sigma_b^2 dt^2) I`` (Farrenkopf 1978, the bias unfiltered).
+3. Propagation (:func:`propagate`): ``P_1 = dR^T P_0 dR + Q(dt)`` in the camera axes of frame 1.
 
-Default numbers (``navigation.attitude``): ``N = 0.005 deg/sqrt(h)``, ``sigma_b = 0.01 deg/h``:
-an assumption of the order of a space fibre-optic gyro, not a data sheet. Over the demo's
-30 min cadence they give 0.0035 deg (ARW) and 0.005 deg (bias): 22 arcsec together.
+The defaults (``navigation.attitude``: 0.005 deg/sqrt(h), 0.01 deg/h) are of the order of a
+space fibre-optic gyro, an assumption, not a data sheet.
 
-Reference: R. L. Farrenkopf, "Analytic steady-state accuracy solutions for two common
-spacecraft attitude estimators", J. Guid. Control 1 (1978) 282-284 (the ARW / rate random
-walk gyro model).
+References
+----------
+R. L. Farrenkopf, "Analytic steady-state accuracy solutions for two common spacecraft
+attitude estimators", J. Guid. Control 1 (1978) 282-284.
+
+Index
+-----
+:func:`propagate`, :class:`GyroModel`, :class:`GyroErrors`.
 """
 
 from __future__ import annotations

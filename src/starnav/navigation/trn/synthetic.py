@@ -1,36 +1,25 @@
 """Synthetic fly-by measurements from truth: the estimator without rendering.
 
-What the front end would hand the filter (:class:`~starnav.navigation.trn.measurements.
-FlybyMeasurement`), made from the shape model and the fly-by's closed forms, so that the filter,
-its consistency and its Monte Carlo can be developed and tested in seconds. The rendered
-pipeline (windows, OpenCV tracking) produces the same records and goes through the same
-:func:`~starnav.navigation.trn.filter.run_filter`.
+The records the front end would hand the filter, made from the shape model and the fly-by's
+closed forms, so that the filter, its consistency and its Monte Carlo run in seconds through
+the same :func:`~starnav.navigation.trn.filter.run_filter` as the rendered pipeline.
 
-Technique
----------
-1. **Truth geometry** (:func:`flyby_truth`, deterministic, computed once for all runs): the
-   relative states of the :class:`~starnav.scenes.flyby.Flyby` at the frame epochs; the camera
-   boresight on the body centre (``+x`` of the camera along the fly-by plane's normal x
-   boresight); a pool of ``candidates`` surface points drawn uniformly over the facets' area
-   (the features a tracker could find); per frame, the candidates that are visible (first hit of
-   their ray, :func:`~starnav.navigation.trn.body_view.visible`), lit at an incidence below
-   ``max_incidence``, seen at an emission below ``max_emission``, inside the detector by
-   ``border_px``, with their exact pixel; and the lit silhouette's centroid and equivalent
-   radius (:func:`~starnav.navigation.trn.body_view.lit_silhouette`: the phase bias computed
-   from the shape model).
-2. **One run** (:func:`synthetic_measurements`, from one random generator): tracks are born on
-   visible candidates not already tracked, up to ``max_features``, once the body's apparent
-   radius reaches ``min_radius_px``; each lives a geometric number of frames (mean
-   ``mean_track_length``) and dies earlier when its point leaves the visible set; every
-   birth gets a new id. Each pixel gets Gaussian noise ``pixel_sigma_px``; a fraction
-   ``outlier_fraction`` of observations is displaced by ``outlier_px`` in a random direction
-   (a tracker's jump); the measured attitude is the true one rotated by
-   ``dtheta ~ N(0, diag(attitude_sigma^2))`` (the filter's convention ``R_true =
-   R_m exp([dtheta]x)``); the centroid and radius get their own noise.
+1. Truth geometry (:func:`flyby_truth`, once for all runs): relative states, a boresight on the
+   body, a pool of surface candidates, per frame the visible, lit and well-seen ones with their
+   pixels, and the lit silhouette's centroid and radius.
+2. One run (:func:`synthetic_measurements`): tracks born on candidates and dying geometrically
+   or when unseen; Gaussian pixel noise, outlier jumps, an attitude error
+   ``R_true = R_m exp([dtheta]x)``, noisy centroid and radius.
 
-Seeds (:mod:`starnav.seeding`): run ``r`` of seed ``s`` draws its measurements from
-``generator(s, STAGE_FLYBY_SYNTHETIC, r, 0)`` and its initial error from ``(..., r, 1)``; the
-candidate pool from ``(..., 0, 2)`` (the same for every run).
+Seeds: run ``r`` draws its measurements from ``generator(s, STAGE_FLYBY_SYNTHETIC, r, 0)``
+(:data:`STREAM_MEASUREMENTS`), its initial error from ``(..., r, 1)``, the candidate pool from
+``(..., 0, 2)`` for every run.
+
+Index
+-----
+:func:`run_measurements`, :func:`synthetic_measurements`, :func:`flyby_truth`,
+:class:`FlybyTruth`, :class:`SyntheticOptions`, :func:`initial_estimate`,
+:func:`boresight_attitude`, :func:`surface_samples`.
 """
 
 from __future__ import annotations

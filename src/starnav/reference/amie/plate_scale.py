@@ -1,30 +1,22 @@
 """The AMIE's in-flight plate scale, calibrated once on the packaged Moon frames.
 
-With the instrument kernel's focal length (154.7 mm) the range the navigation chain measures
-on every real Moon frame is short by 1.2-1.8 %: the real image is larger than the nominal
-camera makes it (docs/real-images.md says where this comes from). The focal length is
-therefore calibrated in flight, as any navigation camera's is, and shipped with the ``amie``
-preset (``starnav/data/amie/plate_scale.json``, :func:`starnav.reference.amie.presets.
-amie_plate_scale`).
+With the instrument kernel's focal length the range measured on every real Moon frame is
+short by 1.2-1.8 % (docs/real-images.md says why), so the focal length is calibrated in flight
+and shipped with the ``amie`` preset (:func:`starnav.reference.amie.presets.amie_plate_scale`).
 
-Method (:func:`calibrate_plate_scale`)
---------------------------------------
-1. The chain (:func:`starnav.reference.amie.validate.real_limb_fix`: the tracker's limb, RANSAC,
-   refinement windows and Christian-Robinson fix, no rendering) on each packaged Moon frame
-   with the nominal camera gives a range ``rho_i``; the label gives ``D_i``. For a disc of a
-   few degrees the fixed range scales with the focal length (the error of that is of order
-   the field angle squared, < 1e-5 relative), so ``k_i = D_i / rho_i`` is the factor on the
-   focal length that makes frame ``i`` agree with its label.
-2. The frames are grouped by day (an epoch: the 041111 pair, 20 s apart, is one measurement
-   of one geometry, not two), ``k_e`` the mean of an epoch's frames.
-3. The plate scale is the mean of the epochs' ``k_e``; its standard error is their standard
-   deviation over ``sqrt(n_epochs)``. A new frame's range carries the epochs' scatter as well:
-   its predictive 1-sigma is ``std(k_e) sqrt(1 + 1/n)``, the uncertainty the range with the
-   calibrated focal length is given with.
-4. Leave-one-epoch-out: each epoch's frames scored with the scale of the *other* epochs (the
-   test of whether one focal length serves every epoch).
+:func:`calibrate_plate_scale`:
 
-The packaged JSON is written by ``tools/calibrate_amie_plate_scale.py``.
+1. the chain's range ``rho_i`` on each frame with the nominal camera against the label's
+   ``D_i`` gives ``k_i = D_i / rho_i``;
+2. frames grouped by day (one geometry, one measurement), ``k_e`` per epoch;
+3. the scale is the epochs' mean; a new frame's predictive 1-sigma ``std(k_e) sqrt(1 + 1/n)``;
+4. leave-one-epoch-out scores each epoch with the others' scale.
+
+``tools/calibrate_amie_plate_scale.py`` writes the packaged JSON (:func:`write_plate_scale`).
+
+Index
+-----
+:func:`calibrate_plate_scale`, :class:`PlateScale`, :func:`write_plate_scale`.
 """
 
 from __future__ import annotations
