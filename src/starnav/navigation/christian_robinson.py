@@ -68,7 +68,8 @@ class FixError(StarnavError, ValueError):
 
 @dataclass(frozen=True)
 class ChristianRobinsonOptions:
-    """Knobs of :func:`christian_robinson` (see the module table).
+    """Knobs of :func:`christian_robinson` (their meanings:
+    :class:`~starnav.navigation.schema.FixConfig`).
 
     Attributes
     ----------

@@ -59,7 +59,8 @@ BIAS_MODELS: Registry[int] = Registry("bias model", {
 
 @dataclass(frozen=True)
 class EkfOptions:
-    """Knobs of :class:`NavigationEkf` (see the module table)."""
+    """Knobs of :class:`NavigationEkf` (their meanings:
+    :class:`~starnav.navigation.schema.FilterConfig`)."""
 
     bias_model: str = "none"
     bias_sigma_m: float = 0.0

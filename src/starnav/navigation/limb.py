@@ -69,7 +69,8 @@ class LimbNotFoundError(StarnavError, ValueError):
 
 @dataclass(frozen=True)
 class LimbScanOptions:
-    """Knobs of :func:`limb_points_from_segments` (units in the names; see the module table)."""
+    """Knobs of :func:`limb_points_from_segments` (units in the names; meanings:
+    :class:`~starnav.navigation.schema.LimbConfig`)."""
 
     max_points: int = MAX_LIMB_POINTS
     min_level: int = 0
@@ -345,7 +346,7 @@ def limb_points_from_segments(
     sun_dir_image : (2,) array
         Direction of the Sun in the image at the Moon (:func:`sun_direction_in_image`) [-].
     options : LimbScanOptions, optional
-        Tuning (module table).
+        Tuning (:class:`LimbScanOptions`).
 
     Returns
     -------

@@ -69,7 +69,8 @@ class RansacError(StarnavError, ValueError):
 
 @dataclass(frozen=True)
 class RansacOptions:
-    """Knobs of :func:`ransac_limb` (see the module table)."""
+    """Knobs of :func:`ransac_limb` (their meanings:
+    :class:`~starnav.navigation.schema.RansacConfig`)."""
 
     model: str = "circle"
     threshold_px: float = 2.0
