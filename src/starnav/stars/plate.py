@@ -8,7 +8,10 @@ setting follows the camera and the frame.
 Technique
 ---------
 1. **Detections.** :func:`starnav.stars.centroid.find_stars` on the frame in DN (the gain is
-   unknown: DN are the unit; sigmas get their scale a posteriori, step 6). Centroids closer
+   unknown: DN are the unit; sigmas get their scale a posteriori, step 6), detection on the
+   2 x 2 binned frame and the centroid at full resolution with a 1 px weight (an in-focus
+   lens's PSF is narrower than a pixel: a wider weight adds the background's noise, a
+   narrower one the pixel-phase bias). Centroids closer
    than 1 px are one star (two threshold components of one blob converge to it). Unit vectors
    from the nominal camera.
 2. **Settings from the camera** (:func:`plate_settings`). The field's solid angle ``Omega``
@@ -23,7 +26,8 @@ Technique
    depth adapts to what the frame shows (exposure, aperture, sky) without knowing them.
 3. **Scale-free triangles.** For a detection triangle the pair table gives the catalogue
    pairs of sides ``ij`` and ``ik`` in the windows the focal-length tolerance ``+-t`` allows
-   (``[m / (1 + t) - tol, m / (1 - t) + tol]``), joined on the shared star. The common scale
+   (``[m / (1 + t) - tol, m / (1 - t) + tol]``), joined on the shared star, kept where the
+   scales the two sides allow (``m / c +- tol / c``) overlap. The common scale
    ``s = sum m / sum c`` of the three sides (measured ``m``, catalogue ``c``; ``s`` is the ratio
    of the true focal length to the nominal one) must lie in ``[1 - t, 1 + t]`` and bring every
    side within its tolerance (``|m - s c| <= tol``); the sense (no mirror images) must match.
@@ -151,7 +155,8 @@ class PlateOptions:
     k1_min_stars: int = 20
     min_stars: int = 4
     verify_v_limit: float = 10.0
-    centroid: CentroidOptions = dataclasses.field(default_factory=CentroidOptions)
+    centroid: CentroidOptions = dataclasses.field(
+        default_factory=lambda: CentroidOptions(weight_sigma_px=1.0, detect_bin=2))
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.focal_tolerance < 0.5:
@@ -480,12 +485,12 @@ def _scaled_triangles(idx: StarIndex, b: FloatArray, i: int, j: int, k: int, tol
                   math.acos(min(1.0, float(b[i] @ b[k]))),
                   math.acos(min(1.0, float(b[j] @ b[k])))])
 
-    def window(a: float, tl: float) -> tuple[NDArray[np.int32], NDArray[np.int32]]:
+    def window(a: float, tl: float):
         lo, hi = np.searchsorted(idx.angle, [a / (1.0 + t) - tl, a / (1.0 - t) + tl])
-        return idx.pair_a[lo:hi], idx.pair_b[lo:hi]
+        return idx.pair_a[lo:hi], idx.pair_b[lo:hi], idx.angle[lo:hi]
 
-    aij, bij = window(m[0], tol[0])
-    aik, bik = window(m[1], tol[1])
+    aij, bij, cij_w = window(m[0], tol[0])
+    aik, bik, cik_w = window(m[1], tol[1])
     z = np.zeros(0, np.int64)
     if aij.size == 0 or aik.size == 0:
         return z, z, z, np.zeros(0)
@@ -499,14 +504,18 @@ def _scaled_triangles(idx: StarIndex, b: FloatArray, i: int, j: int, k: int, tol
     rep = np.repeat(np.arange(cnt.size), cnt)
     start = np.cumsum(cnt) - cnt
     kpos = np.repeat(lo - start, cnt) + np.arange(n)
-    si = sa_j[rep].astype(np.int64)
-    sj = bij[oj][rep].astype(np.int64)
-    sk = bik[ok_][kpos].astype(np.int64)
+    # the scales the two joined sides allow, m / c +- tol / c, must overlap (a necessary
+    # condition of the common-scale test below, on the table's stored angles)
+    cij = cij_w[oj][rep]
+    cik = cik_w[ok_][kpos]
+    keep = np.abs(m[0] / cij - m[1] / cik) <= tol[0] / cij + tol[1] / cik
+    si = sa_j[rep][keep].astype(np.int64)
+    sj = bij[oj][rep][keep].astype(np.int64)
+    sk = bik[ok_][kpos][keep].astype(np.int64)
+    cij, cik = cij[keep], cik[keep]
     keep = sj != sk
-    si, sj, sk = si[keep], sj[keep], sk[keep]
+    si, sj, sk, cij, cik = si[keep], sj[keep], sk[keep], cij[keep], cik[keep]
     d = idx.directions
-    cij = np.arccos(np.minimum(1.0, np.einsum("ij,ij->i", d[si], d[sj])))
-    cik = np.arccos(np.minimum(1.0, np.einsum("ij,ij->i", d[si], d[sk])))
     cjk = np.arccos(np.minimum(1.0, np.einsum("ij,ij->i", d[sj], d[sk])))
     s = m.sum() / np.maximum(cij + cik + cjk, 1e-12)
     keep = np.abs(s - 1.0) <= t + 1e-12
@@ -520,6 +529,40 @@ def _scaled_triangles(idx: StarIndex, b: FloatArray, i: int, j: int, k: int, tol
 
 def _triangle_order(m: int):
     return sorted(itertools.combinations(range(m), 3), key=lambda t: (t[2], t[1], t[0]))
+
+
+def _rotvec_matrix(w: FloatArray) -> FloatArray:
+    """Rotation matrix of the rotation vector ``w`` (Rodrigues)."""
+    th = math.sqrt(float(w @ w))
+    if th < 1e-15:
+        return np.eye(3)
+    k = w / th
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(th) * K + (1.0 - math.cos(th)) * (K @ K)
+
+
+def _pixel_residuals(uv: FloatArray, e: FloatArray, cam: Camera, fit_k1: bool):
+    """Residual function of the refinement (module step 5): detections ``uv`` minus the
+    projection of the star directions ``e`` (camera axes of the current attitude ``R0``)
+    through ``R0 Rot(p[:3])``, the focal length times ``exp(p[3])`` and ``k1 + p[4]``; the
+    camera's other distortion terms held. :meth:`Camera.project` written out for speed."""
+    k2, k3, p1, p2 = cam.k2, cam.k3, cam.p1, cam.p2
+
+    def resid(p: FloatArray) -> FloatArray:
+        c = e @ _rotvec_matrix(p[:3])
+        x, y = c[:, 0] / c[:, 2], c[:, 1] / c[:, 2]
+        k1 = cam.k1 + (p[4] if fit_k1 else 0.0)
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        f = math.exp(p[3])
+        out = np.empty_like(uv)
+        out[:, 0] = uv[:, 0] - (cam.fx * f * xd + cam.cx)
+        out[:, 1] = uv[:, 1] - (cam.fy * f * yd + cam.cy)
+        return out.ravel()
+
+    return resid
 
 
 # --------------------------------------------------------------------------- step 5
@@ -547,17 +590,11 @@ def _refine(uv: FloatArray, A: FloatArray, scale: float, camera: Camera, cat: St
         fit_k1 = bool(det.size >= opt.k1_min_stars
                       and np.count_nonzero(r_det > 0.5 * half_diag) >= 5)
 
-        def resid(p, det=det, ci=ci, fit_k1=fit_k1, R0=R0, cam=cam):
-            R = R0 @ Rotation.from_rotvec(p[:3]).as_matrix()
-            c = dataclasses.replace(cam, focal_length=cam.focal_length * math.exp(p[3]),
-                                    k1=cam.k1 + (p[4] if fit_k1 else 0.0))
-            q, _ = _project(R.T, dirs[ci], c)
-            return (uv[det] - q).ravel()
-
+        resid = _pixel_residuals(uv[det], dirs[ci] @ R0, cam, fit_k1)
         p0 = np.zeros(5 if fit_k1 else 4)
         result = least_squares(resid, p0, method="lm", x_scale="jac")
         p = result.x
-        R0 = R0 @ Rotation.from_rotvec(p[:3]).as_matrix()
+        R0 = R0 @ _rotvec_matrix(p[:3])
         cam = dataclasses.replace(cam, focal_length=cam.focal_length * math.exp(p[3]),
                                   k1=cam.k1 + (p[4] if fit_k1 else 0.0))
         r = result.fun.reshape(-1, 2)
