@@ -150,7 +150,8 @@ def background(dn: NDArray, block_px: int) -> tuple[FloatArray, FloatArray]:
     H, W = dn.shape
     nb_v, nb_u = max(1, H // block_px), max(1, W // block_px)
     bv, bu = H // nb_v, W // nb_u
-    core = np.asarray(dn[:nb_v * bv, :nb_u * bu], float).reshape(nb_v, bv, nb_u, bu)
+    ft = np.float32 if np.asarray(dn).dtype == np.float32 else float  # single stays single
+    core = np.asarray(dn[:nb_v * bv, :nb_u * bu], ft).reshape(nb_v, bv, nb_u, bu)
     blocks = core.transpose(0, 2, 1, 3).reshape(nb_v, nb_u, bv * bu)
     med = np.median(blocks, axis=2)
     mad = MAD_TO_SIGMA * np.median(np.abs(blocks - med[..., None]), axis=2)

@@ -41,7 +41,7 @@ Technique
    acceptance below ``alpha`` per frame. A second, different attitude among the candidates of
    the same triangle that screened at least half as well and also verifies: ambiguous, no
    attitude.
-5. **Refinement.** Non-linear least squares (``scipy.optimize.least_squares``) of the pixel
+5. **Refinement.** Non-linear least squares (Gauss-Newton, analytic Jacobian) of the pixel
    residuals of the matched stars over the attitude (small rotation, camera axes), the focal
    length and, when at least ``k1_min_stars`` stars reach past half the half-diagonal, the
    radial term ``k1``; re-matched within ``refine_n_sigma`` residual rms, three passes, stars
@@ -64,6 +64,7 @@ argument); Brown-Conrady distortion as in :mod:`starnav.camera`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import io
 import itertools
@@ -76,7 +77,6 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 from scipy.stats import poisson
@@ -99,6 +99,8 @@ ARCSEC = math.pi / (180.0 * 3600.0)
 INDEX_FORMAT = 1
 #: Pattern indexes kept in memory (one per camera field, catalogue and epoch year).
 _INDEXES: BoundedCache[tuple, StarIndex] = BoundedCache(4)
+#: k-d trees of the indexes' star directions (keyed by the array's id, checked by identity).
+_TREES: BoundedCache[int, tuple] = BoundedCache(4)
 
 
 @dataclass(frozen=True)
@@ -205,8 +207,7 @@ def plate_settings(camera: Camera, catalogue: StarCatalogue,
     opt = options or PlateOptions()
     omega = field_solid_angle(camera)
     n_sky = int(min(len(catalogue) - 1, opt.stars_per_field * 4.0 * math.pi / omega))
-    v_sorted = np.sort(catalogue.v)
-    v_lim = round(min(float(v_sorted[n_sky]), opt.index_v_max), 2)
+    v_lim = round(min(float(np.partition(catalogue.v, n_sky)[n_sky]), opt.index_v_max), 2)
     pix = 1.0 / camera.fx
     return PlateSettings(omega, v_lim, pix, opt.match_px * pix,
                          opt.n_sigma * math.sqrt(2.0) * opt.floor_px * pix
@@ -413,10 +414,14 @@ def _required(n_det: int, n_cat: int, omega_match: float, omega_field: float,
     lam = max(n_det, 0) * min(1.0, n_cat * omega_match / omega_field)
     # smallest k with P(X >= k) = sf(k - 1) <= alpha / n_hyp (isf: smallest j, sf(j) <= q)
     k = int(poisson.isf(alpha / n_hyp, lam)) + 1 if lam > 0 else 1
-    while k > 1 and n_hyp * poisson.sf(k - 2, lam) <= alpha:  # isf's float rounding
-        k -= 1
-    while n_hyp * poisson.sf(k - 1, lam) > alpha:
-        k += 1
+    # isf's float rounding: the exact smallest k among its neighbours, in one call
+    ks = np.arange(max(k - 3, 1), k + 4)
+    ok = n_hyp * poisson.sf(ks - 1, lam) <= alpha
+    if ok.any():
+        k = int(ks[np.argmax(ok)])
+    else:
+        while n_hyp * poisson.sf(k - 1, lam) > alpha:
+            k += 1
     return max(k, 3), lam
 
 
@@ -467,6 +472,16 @@ def pattern_index(cat: StarCatalogue, v_limit: float, max_separation_rad: float,
                 log.warning("star index not cached at %s (%s)", path, err)
     _INDEXES.put(mem_key, idx)
     return idx
+
+
+def _index_tree(idx: StarIndex) -> cKDTree:
+    """The k-d tree of an index's star directions, built once per index."""
+    key = id(idx.directions)
+    hit = _TREES.get(key)
+    if hit is None or hit[0] is not idx.directions:
+        hit = (idx.directions, cKDTree(idx.directions))
+        _TREES.put(key, hit)
+    return hit[1]
 
 
 def _load_index(path: Path) -> StarIndex | None:
@@ -527,7 +542,8 @@ def _scaled_triangles(idx: StarIndex, b: FloatArray, i: int, j: int, k: int, tol
     return si[keep], sj[keep], sk[keep], s[keep]
 
 
-def _triangle_order(m: int):
+@functools.lru_cache(maxsize=8)
+def _triangle_order(m: int) -> list[tuple[int, int, int]]:
     return sorted(itertools.combinations(range(m), 3), key=lambda t: (t[2], t[1], t[0]))
 
 
@@ -541,28 +557,53 @@ def _rotvec_matrix(w: FloatArray) -> FloatArray:
     return np.eye(3) + math.sin(th) * K + (1.0 - math.cos(th)) * (K @ K)
 
 
-def _pixel_residuals(uv: FloatArray, e: FloatArray, cam: Camera, fit_k1: bool):
-    """Residual function of the refinement (module step 5): detections ``uv`` minus the
-    projection of the star directions ``e`` (camera axes of the current attitude ``R0``)
-    through ``R0 Rot(p[:3])``, the focal length times ``exp(p[3])`` and ``k1 + p[4]``; the
-    camera's other distortion terms held. :meth:`Camera.project` written out for speed."""
-    k2, k3, p1, p2 = cam.k2, cam.k3, cam.p1, cam.p2
-
-    def resid(p: FloatArray) -> FloatArray:
-        c = e @ _rotvec_matrix(p[:3])
+def _fit_plate(uv: FloatArray, dirs: FloatArray, R: FloatArray, cam: Camera, fit_k1: bool,
+               iterations: int = 20) -> tuple[FloatArray, Camera, FloatArray, FloatArray]:
+    """Gauss-Newton over the small rotation ``w`` (camera axes), ``log f`` and ``k1`` of the
+    pixel residuals ``uv - project(R^T d)`` (module step 5), re-linearised about the current
+    estimate at each step: the analytic Jacobian of :meth:`Camera.project` (pinhole, the
+    camera's Brown-Conrady terms; ``d c / d w = [c]_x`` for ``c -> Rot(w)^T c``). Returns the
+    refined ``R`` (camera -> inertial) and camera, the residuals (n, 2) and the Jacobian of
+    the last linearisation (2n, 4 or 5) [px per parameter]."""
+    n_p = 5 if fit_k1 else 4
+    last = False
+    for it in range(iterations + 1):
+        last = last or it == iterations
+        c = dirs @ R  # camera axes
         x, y = c[:, 0] / c[:, 2], c[:, 1] / c[:, 2]
-        k1 = cam.k1 + (p[4] if fit_k1 else 0.0)
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-        f = math.exp(p[3])
-        out = np.empty_like(uv)
-        out[:, 0] = uv[:, 0] - (cam.fx * f * xd + cam.cx)
-        out[:, 1] = uv[:, 1] - (cam.fy * f * yd + cam.cy)
-        return out.ravel()
-
-    return resid
+        xy = np.stack([x, y], axis=1)
+        xd = cam.distort(xy) if cam.has_distortion else xy
+        f = np.array([cam.fx, cam.fy])
+        res = uv - (xd * f + np.array([cam.cx, cam.cy]))
+        # d(x, y)/dc, dc/dw = [c]_x, d(xd, yd)/d(x, y)
+        iz = 1.0 / c[:, 2]
+        dxy_dc = np.zeros((c.shape[0], 2, 3))
+        dxy_dc[:, 0, 0] = iz
+        dxy_dc[:, 0, 2] = -x * iz
+        dxy_dc[:, 1, 1] = iz
+        dxy_dc[:, 1, 2] = -y * iz
+        cx_ = np.zeros((c.shape[0], 3, 3))
+        cx_[:, 0, 1], cx_[:, 0, 2] = -c[:, 2], c[:, 1]
+        cx_[:, 1, 0], cx_[:, 1, 2] = c[:, 2], -c[:, 0]
+        cx_[:, 2, 0], cx_[:, 2, 1] = -c[:, 1], c[:, 0]
+        dxy_dw = dxy_dc @ cx_
+        if cam.has_distortion:
+            dxy_dw = cam.distortion_jacobian(xy) @ dxy_dw
+        J = np.empty((c.shape[0], 2, n_p))
+        J[:, :, :3] = f[None, :, None] * dxy_dw
+        J[:, :, 3] = f * xd
+        if fit_k1:
+            J[:, :, 4] = f * xy * (x * x + y * y)[:, None]
+        J = J.reshape(-1, n_p)
+        if last:
+            break
+        step = np.linalg.lstsq(J, res.ravel(), rcond=None)[0]
+        R = R @ _rotvec_matrix(step[:3])
+        cam = dataclasses.replace(cam, focal_length=cam.focal_length * math.exp(step[3]),
+                                  k1=cam.k1 + (float(step[4]) if fit_k1 else 0.0))
+        # converged: one more pass for the residuals and the Jacobian at the solution
+        last = bool(np.all(np.abs(step[:4]) < 1e-10) and (not fit_k1 or abs(step[4]) < 1e-8))
+    return R, cam, res, J
 
 
 # --------------------------------------------------------------------------- step 5
@@ -590,14 +631,8 @@ def _refine(uv: FloatArray, A: FloatArray, scale: float, camera: Camera, cat: St
         fit_k1 = bool(det.size >= opt.k1_min_stars
                       and np.count_nonzero(r_det > 0.5 * half_diag) >= 5)
 
-        resid = _pixel_residuals(uv[det], dirs[ci] @ R0, cam, fit_k1)
-        p0 = np.zeros(5 if fit_k1 else 4)
-        result = least_squares(resid, p0, method="lm", x_scale="jac")
-        p = result.x
-        R0 = R0 @ _rotvec_matrix(p[:3])
-        cam = dataclasses.replace(cam, focal_length=cam.focal_length * math.exp(p[3]),
-                                  k1=cam.k1 + (p[4] if fit_k1 else 0.0))
-        r = result.fun.reshape(-1, 2)
+        R0, cam, r, J = _fit_plate(uv[det], dirs[ci], R0, cam, fit_k1)
+        result = (r, J)
         rms = float(np.sqrt(np.mean(r**2)))
         radius = max(opt.refine_n_sigma * rms * math.sqrt(2.0), 0.5)
     if result is None or det.size < 3:
@@ -607,9 +642,9 @@ def _refine(uv: FloatArray, A: FloatArray, scale: float, camera: Camera, cat: St
     det, ci = _match_px(uv, np.where(inside[:, None], uvc, 1e9), radius)
     q, _ = _project(R0.T, dirs[ci], cam)
     res = uv[det] - q
-    J = result.jac
+    r, J = result
     dof = max(J.shape[0] - J.shape[1], 1)
-    s2 = float(np.sum(result.fun**2)) / dof
+    s2 = float(np.sum(r**2)) / dof
     try:
         cov = s2 * np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
@@ -681,7 +716,7 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
     idx = pattern_index(cat, settings.index_v_limit,
                         camera.fov_diagonal * (1 + opt.focal_tolerance), epoch_jyear,
                         cache_dir=index_cache)
-    idx_tree = cKDTree(idx.directions)
+    idx_tree = _index_tree(idx)
     m = min(n, opt.n_brightest)
     t = opt.focal_tolerance
     tol_cat = opt.catalogue_tol_arcsec * ARCSEC
