@@ -104,7 +104,14 @@ def test_overlay_stars_lie_on_the_detections(solved):
         det = np.array([m["detection_uv_px"] for m in x["matched"]])
         d = np.hypot(*(drawn - det).T)
         assert np.median(d) < 0.3
-        assert np.mean(d < 0.5) >= 0.9
+        # every circle within 0.5 px of its detection, or, for a faint star whose own
+        # centroid noise reaches that far, within 3.5 of its predicted radial sigma (with the
+        # 0.1 px systematic floor the bright stars show): a correct match beyond that has a
+        # probability exp(-3.5^2) ~ 5e-6 per star
+        sig = np.array([m["detection_sigma_px"] for m in x["matched"]])
+        bound = np.maximum(0.5, 3.5 * np.sqrt((sig**2).sum(axis=1) + 0.1**2))
+        assert np.all(d <= bound), (d.max(), bound[np.argmax(d)])
+        assert np.mean(d <= 0.5) >= 0.99
         # every detection listed as matched is one of the frame's detections
         dets = np.array(x["detections_uv_px"])
         assert np.all(np.min(np.hypot(*(det[:, None] - dets[None]).transpose(2, 0, 1)),

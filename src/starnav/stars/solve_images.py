@@ -167,11 +167,13 @@ def _result_dict(r: ImageResult, cat: StarCatalogue) -> dict[str, Any]:
         n_required=s.n_required, poisson_lambda=s.lam, hypotheses=s.hypotheses,
         matched=[{"hip": int(h), "v_mag": round(float(v), 3),
                   "detection_uv_px": [round(float(x), 4) for x in du],
+                  "detection_sigma_px": [round(float(x), 4) for x in sd],
                   "drawn_uv_px": [round(float(x), 4) for x in cu],
                   "residual_px": [round(float(x), 4) for x in rp],
                   "residual_arcsec": round(float(ra_), 3)}
-                 for h, v, du, cu, rp, ra_ in zip(s.hip, s.v_mag, det, drawn, s.residual_px,
-                                                  s.residual_arcsec, strict=True)],
+                 for h, v, du, sd, cu, rp, ra_ in zip(
+                     s.hip, s.v_mag, det, s.centroids.sigma_px[s.detection_index], drawn,
+                     s.residual_px, s.residual_arcsec, strict=True)],
     )
     return out
 
