@@ -656,7 +656,8 @@ def _refine(uv: FloatArray, A: FloatArray, scale: float, camera: Camera, cat: St
 def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
                 saturation_dn: float | None = None, catalogue: StarCatalogue | None = None,
                 options: PlateOptions | None = None,
-                index_cache: Path | bool | None = None) -> PlateSolution:
+                index_cache: Path | bool | None = None,
+                limiting_v: float | None = None) -> PlateSolution:
     """Lost-in-space plate solution of one frame (module steps 1-6).
 
     Parameters
@@ -675,6 +676,12 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
     options : PlateOptions, optional
     index_cache : path or bool, optional
         Where the pattern index is cached on disk (:func:`pattern_index`); False: memory only.
+    limiting_v : float, optional
+        Faintest V the camera can show in this exposure, when its radiometry is known
+        (:class:`~starnav.stars.images.StarImage`). A frame that is not identified while a
+        field of this size holds on average fewer than ``min_stars`` catalogue stars that
+        bright is reported ``"too-few-stars"`` (the camera cannot see a pattern there), not
+        ``"unidentified"``.
 
     Returns
     -------
@@ -808,6 +815,17 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
                                 hypotheses=hyp)
         if accepted:
             break
+    if not accepted and limiting_v is not None:
+        n_sky = int(np.count_nonzero(cat.v <= limiting_v))
+        mean = n_sky * settings.field_solid_angle_sr / (4.0 * math.pi)
+        if mean < opt.min_stars:
+            return fail("too-few-stars",
+                        f"the camera reaches V {limiting_v:.1f} at most in this exposure: the "
+                        f"sky holds {n_sky} stars that bright, {mean:.2f} per field of "
+                        f"{math.degrees(camera.fov_x):.2f} x {math.degrees(camera.fov_y):.2f} "
+                        f"deg on average, {opt.min_stars} needed; none of the {hyp} "
+                        f"candidate patterns among the {n} detections verified",
+                        hypotheses=hyp)
     if not accepted:
         return fail("unidentified",
                     f"no triangle of the {m} brightest of {n} detections verified ({hyp} "
