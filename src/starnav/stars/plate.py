@@ -509,7 +509,10 @@ def _scaled_triangles(idx: StarIndex, b: FloatArray, i: int, j: int, k: int, tol
     z = np.zeros(0, np.int64)
     if aij.size == 0 or aik.size == 0:
         return z, z, z, np.zeros(0)
-    oj, ok_ = np.argsort(aij, kind="stable"), np.argsort(aik, kind="stable")
+    # stable sorts of the star numbers: a radix sort when they fit in 16 bits
+    key = np.uint16 if idx.directions.shape[0] <= 65536 else np.int64
+    oj = np.argsort(aij.astype(key), kind="stable")
+    ok_ = np.argsort(aik.astype(key), kind="stable")
     sa_j, sa_k = aij[oj], aik[ok_]
     lo = np.searchsorted(sa_k, sa_j, "left")
     cnt = np.searchsorted(sa_k, sa_j, "right") - lo
