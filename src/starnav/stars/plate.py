@@ -627,9 +627,12 @@ def _refine(uv: FloatArray, A: FloatArray, scale: float, camera: Camera, cat: St
     for _ in range(3):
         A_now = R0.T
         uvc, inside = _project(A_now, dirs, cam)
+        prev = (det, ci)
         det, ci = _match_px(uv, np.where(inside[:, None], uvc, 1e9), radius)
         if det.size < 3:
             break
+        if result is not None and np.array_equal(det, prev[0]) and np.array_equal(ci, prev[1]):
+            break  # the same matches: the same fit
         r_det = np.hypot(*(uv[det] - centre).T)
         fit_k1 = bool(det.size >= opt.k1_min_stars
                       and np.count_nonzero(r_det > 0.5 * half_diag) >= 5)
