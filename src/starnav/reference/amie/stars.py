@@ -41,8 +41,10 @@ from starnav.spectra import (
     sensor_response,
 )
 from starnav.stars.catalogue import hipparcos
+from starnav.stars.centroid import CentroidOptions, background
 from starnav.stars.field import frame_stars
 from starnav.stars.images import StarImage
+from starnav.stars.radiometry import electron_rate
 from starnav.stars.schema import StarsConfig
 
 #: Vega's Hipparcos number.
@@ -124,9 +126,6 @@ def amie_star_image(path) -> StarImage:
     solve``): the 10-bit DN (saturation 1023) with the invalid pixels (marker, dark band) set
     to the valid pixels' median, the epoch from the label's ``START_TIME`` (UTC)."""
     from astropy.time import Time
-
-    from starnav.stars.centroid import CentroidOptions, background
-    from starnav.stars.radiometry import electron_rate
 
     f = read_amie(path)
     fill = int(np.median(f.dn[f.valid]))
