@@ -32,6 +32,15 @@ when that venv is missing; ``--cedar-python PATH`` to use another). Per image: s
 matched stars, residual rms, extraction and solve times (median of ``--repeat`` runs, default
 5), and the boresight and FOV differences between the two.
 
+``--extraction``: star extraction alone on the same real frames (median of ``--repeat`` runs):
+starnav's :func:`~starnav.stars.centroid.find_stars` at full resolution (the AA-STR path) and
+with detection on the 2 x 2 binned frame (the plate solver's), beside the well-kept libraries
+when importable (``sep``: SExtractor's background and extraction, ``photutils``:
+``Background2D`` + ``DAOStarFinder``), each at a 5-sigma threshold; detections and how many of
+cedar-solve's matched stars each finds within 1 px. ``--site DIR`` adds DIR to ``sys.path``
+(the libraries installed there with ``pip install --target DIR``, not into the project's venv;
+repeatable).
+
 ``--navigation``: the per-frame cost of the attitude schedule on the demo's arc (5 frames,
 1024 px, 8 spp, star acquisitions at 200 ms every 2nd frame, both demo exposures): the star
 acquisition (stars drawn + exposed), the solves (lost in space, tracking, the navigation
@@ -286,6 +295,86 @@ def real(repeat: int = 5, cedar_python: str = "/tmp/venv-cedar/bin/python") -> N
                       "load_average": os.getloadavg()}, indent=1))
 
 
+def extraction(repeat: int = 5) -> None:
+    import importlib
+    import os
+    from pathlib import Path
+
+    from starnav.stars.centroid import CentroidOptions, find_stars
+    from starnav.stars.images import read_star_image
+    from starnav.stars.plate import PlateOptions
+
+    data = Path(__file__).resolve().parents[1] / "tests" / "data" / "stars"
+    ref = {r["image"]: r for r in json.loads((data / "reference_cedar.json").read_text())
+           ["images"]}
+
+    def timed(fn):
+        runs = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            out = fn()
+            runs.append(time.perf_counter() - t0)
+        return statistics.median(runs), out
+
+    def found(xy, r):
+        want = np.array([m for m in r.get("matched_uv_px", [])], float)
+        if want.size == 0 or len(xy) == 0:
+            return None
+        d = np.hypot(*(want[:, None, :] - np.asarray(xy)[None]).transpose(2, 0, 1))
+        return int(np.count_nonzero(d.min(axis=1) < 1.0))
+
+    out = []
+    for p in sorted(data.glob("*.tiff")):
+        img = read_star_image(p)
+        a = img.data
+        r = ref[p.name]
+        row = {"image": p.name, "cedar_matched": len(r["matched_hip"])}
+        for name, opt in (("starnav_full_res", CentroidOptions(weight_sigma_px=1.0)),
+                          ("starnav_binned", PlateOptions().centroid)):
+            t, c = timed(lambda opt=opt, a=a, sat=img.saturation_dn: find_stars(
+                a, gain_e_per_dn=1.0, saturation_dn=sat, options=opt))
+            row[name] = {"ms": round(1e3 * t, 1), "n": len(c),
+                         "cedar_stars_found": found(c.uv, r)}
+        try:
+            sep = importlib.import_module("sep")
+
+            def run_sep(a=a, sep=sep):
+                f = np.ascontiguousarray(a, np.float32)
+                bkg = sep.Background(f, bw=32, bh=32)
+                return sep.extract(f - bkg.back(), 5.0, err=bkg.globalrms, minarea=3)
+
+            t, o = timed(run_sep)
+            row["sep"] = {"ms": round(1e3 * t, 1), "n": len(o),
+                          "cedar_stars_found": found(np.c_[o["x"], o["y"]], r),
+                          "version": sep.__version__}
+        except ImportError:
+            row["sep"] = "not installed"
+        try:
+            import photutils
+            from photutils.background import Background2D, MedianBackground
+            from photutils.detection import DAOStarFinder
+
+            photutils.future_column_names = True
+
+            def run_phot(a=a):
+                f = np.asarray(a, float)
+                bkg = Background2D(f, 32, filter_size=3, bkg_estimator=MedianBackground())
+                sub = f - bkg.background
+                return DAOStarFinder(5.0 * bkg.background_rms_median, fwhm=2.0)(sub)
+
+            t, o = timed(run_phot)
+            n = 0 if o is None else len(o)
+            xy = np.zeros((0, 2)) if o is None else np.c_[o["x_centroid"], o["y_centroid"]]
+            row["photutils"] = {"ms": round(1e3 * t, 1), "n": n,
+                                "cedar_stars_found": found(xy, r),
+                                "version": photutils.__version__}
+        except ImportError:
+            row["photutils"] = "not installed"
+        out.append(row)
+    print(json.dumps({"repeat": repeat, "images": out, "load_average": os.getloadavg()},
+                     indent=1))
+
+
 if __name__ == "__main__":
     import sys
 
@@ -293,7 +382,12 @@ if __name__ == "__main__":
         i = sys.argv.index(flag)
         return int(sys.argv[i + 1]) if len(sys.argv) > i + 1 else default
 
-    if "--real" in sys.argv:
+    for i, flag in enumerate(sys.argv):
+        if flag == "--site":
+            sys.path.insert(0, sys.argv[i + 1])
+    if "--extraction" in sys.argv:
+        extraction(_arg("--repeat", 5) if "--repeat" in sys.argv else 5)
+    elif "--real" in sys.argv:
         real(_arg("--repeat", 5) if "--repeat" in sys.argv else 5,
              sys.argv[sys.argv.index("--cedar-python") + 1] if "--cedar-python" in sys.argv
              else "/tmp/venv-cedar/bin/python")

@@ -104,7 +104,14 @@ def test_overlay_stars_lie_on_the_detections(solved):
         det = np.array([m["detection_uv_px"] for m in x["matched"]])
         d = np.hypot(*(drawn - det).T)
         assert np.median(d) < 0.3
-        assert np.mean(d < 0.5) >= 0.9
+        # every circle within 0.5 px of its detection, or, for a faint star whose own
+        # centroid noise reaches that far, within 3.5 of its predicted radial sigma (with the
+        # 0.1 px systematic floor the bright stars show): a correct match beyond that has a
+        # probability exp(-3.5^2) ~ 5e-6 per star
+        sig = np.array([m["detection_sigma_px"] for m in x["matched"]])
+        bound = np.maximum(0.5, 3.5 * np.sqrt((sig**2).sum(axis=1) + 0.1**2))
+        assert np.all(d <= bound), (d.max(), bound[np.argmax(d)])
+        assert np.mean(d <= 0.5) >= 0.99
         # every detection listed as matched is one of the frame's detections
         dets = np.array(x["detections_uv_px"])
         assert np.all(np.min(np.hypot(*(det[:, None] - dets[None]).transpose(2, 0, 1)),
@@ -161,14 +168,17 @@ def test_bad_options_are_one_line_errors(app, tmp_path, args, needle):
 @pytest.mark.slow
 def test_amie_vega_frame_from_the_command_line(app, tmp_path, monkeypatch):
     """The raw SMART-1 AMIE Vega frame (.IMG) with the amie preset: read, no attitude, the
-    reason with its counts, exit 1 (read but not identified)."""
+    one-line verdict "too few stars" with the camera's reach and the counts, exit 2."""
     from starnav.reference.amie.frame import packaged_frame
     from starnav.reference.amie.vega import VEGA_FRAME
 
     monkeypatch.setenv("STARNAV_CACHE_DIR", str(tmp_path / "cache"))
     r = run(app, [packaged_frame(VEGA_FRAME), "--camera", "amie", "--out", tmp_path / "o"])
-    assert r.exit_code == 1 and "not solved (unidentified)" in r.output
+    lines = error_lines(r)
+    assert r.exit_code == 2 and len(lines) == 1 and "too few stars: the camera reaches V" in \
+        lines[0], r.output
     row = json.loads((tmp_path / "o" / "results.json").read_text())["images"][0]
     assert row["epoch_source"] == "PDS label START_TIME"
     assert abs(row["epoch_jyear"] - 2004.23) < 0.01
-    assert f"of {row['n_detections']} detections verified" in row["reason"]
+    assert 3.0 < row["limiting_v"] < 6.0
+    assert f"among the {row['n_detections']} detections verified" in row["reason"]

@@ -66,7 +66,11 @@ def test_real_frames_solve_with_the_nominal_camera(solutions, ref):
     common = set(sol.hip.tolist()) & set(ref["matched_hip"])
     assert len(common) >= 0.9 * len(ref["matched_hip"])
     assert sol.n_matched >= len(ref["matched_hip"])
-    assert sol.rms_arcsec < 15.0
+    # residuals: over all matched stars (down to V ~ 8.5, photon-limited centroids) within
+    # 7.5 arcsec; over the stars cedar-solve matched, below cedar's own rms on them
+    assert sol.rms_arcsec < 7.5
+    on_cedar = np.isin(sol.hip, ref["matched_hip"])
+    assert math.sqrt(np.mean(sol.residual_arcsec[on_cedar] ** 2)) < ref["rmse_arcsec"]
     # the refined focal length is far from the nominal one (35 mm) in its own sigmas
     assert sol.focal_length_sigma_m < 2e-5
     assert np.all(np.isfinite(sol.sigma_arcsec)) and sol.sigma_arcsec[2] > sol.sigma_arcsec[0]
@@ -211,23 +215,46 @@ def test_pattern_index_is_built_once_per_field_and_cached_on_disk(tmp_path, monk
 
 @pytest.mark.slow
 def test_amie_vega_frame_is_handled():
-    """The real SMART-1 AMIE frame with Vega (2.65 deg field, 200 ms): AMIE sees stars to V ~2
-    there and Vega is alone; the frame's row ramp leaves faint false detections. No attitude is
-    reported; the reason counts the detections and the confirmations that were missing."""
-    from astropy.time import Time
-
-    from starnav.reference.amie.frame import packaged_frame, read_amie
+    """The real SMART-1 AMIE frame with Vega (2.65 deg field, 200 ms): the camera reaches V ~ 4.5
+    at most there (its radiometry, the label's exposure and gain), a field that size holds 0.15
+    such stars on average, and Vega is alone: "too few stars", with the counts, no attitude."""
+    from starnav.reference.amie.frame import packaged_frame
+    from starnav.reference.amie.stars import amie_star_image
     from starnav.reference.amie.vega import VEGA_FRAME
 
-    f = read_amie(packaged_frame(VEGA_FRAME))
-    dn = np.where(f.valid, f.dn, int(np.median(f.dn[f.valid])))
-    sol = solve_plate(dn, Camera.preset("amie"), epoch_jyear=Time(f.start_time).jyear,
-                      saturation_dn=1023, index_cache=False)
-    assert not sol.ok and sol.R_cam_to_inertial is None
-    assert f"of {len(sol.centroids)} detections verified" in sol.reason
-    assert "other detections of" in sol.reason
+    img = amie_star_image(packaged_frame(VEGA_FRAME))
+    assert 3.0 < img.limiting_v < 6.0  # Vega (V 0.03) is detected at ~30 sigma: V 3.7 at 1
+    sol = solve_plate(img.data, Camera.preset("amie"), epoch_jyear=img.epoch_jyear,
+                      saturation_dn=img.saturation_dn, index_cache=False,
+                      limiting_v=img.limiting_v)
+    assert sol.status == "too-few-stars" and sol.R_cam_to_inertial is None
+    assert f"among the {len(sol.centroids)} detections verified" in sol.reason
+    assert "per field of 2.65 x 2.65 deg on average, 4 needed" in sol.reason
     # Vega is the brightest detection, near the centre where the AMIE photometry finds it
     assert np.hypot(*(sol.centroids.uv[0] - [255.6, 258.0])) < 0.5
+
+
+def test_a_camera_that_cannot_see_a_pattern_reports_too_few_stars():
+    """Fast guard of the slow AMIE check: a frame of six point sources that is not identified
+    is "too few stars" when the camera's reach leaves fewer than ``min_stars`` catalogue stars
+    per field on average, and "unidentified" when it does not (or is unknown)."""
+    rng = np.random.default_rng(3)
+    cam = nominal()  # the real frames' camera: its pattern index is already built
+    yy, xx = np.mgrid[0:64, 0:64]
+    frame = rng.normal(100.0, 2.0, (768, 1024))
+    for u, v in rng.uniform(100, 600, (6, 2)):
+        iu, iv = int(u) - 32, int(v) - 32
+        frame[iv:iv + 64, iu:iu + 64] += 400.0 * np.exp(
+            -0.5 * ((xx + iu - u) ** 2 + (yy + iv - v) ** 2) / 0.8**2)
+    frame = np.round(frame).astype(np.uint16)
+    opt = PlateOptions(max_hypotheses=50)
+    faint = solve_plate(frame, cam, epoch_jyear=EPOCH, options=opt, index_cache=False,
+                        limiting_v=3.0)
+    assert faint.status == "too-few-stars" and "the camera reaches V 3.0" in faint.reason
+    for lim in (None, 9.0):
+        sol = solve_plate(frame, cam, epoch_jyear=EPOCH, options=opt, index_cache=False,
+                          limiting_v=lim)
+        assert sol.status == "unidentified"
 
 
 def test_batched_centroids_equal_the_per_star_iteration():
@@ -263,3 +290,28 @@ def test_dataset_dn_frame_takes_its_epoch_from_truth(tmp_path):
     img = read_star_image(frame / "exposure_200ms" / "stars_dn.png")
     assert img.epoch_jyear == pytest.approx(2025.5) and img.epoch_source == "dataset truth.json"
     assert np.array_equal(img.data, dn) and img.saturation_dn == 65535
+
+
+def test_binned_detection_finds_the_stars_and_rejects_hot_pixels():
+    """The plate solver's detection on the 2 x 2 binned frame (odd frame size): five
+    undersampled Gaussian stars (sigma 0.7 px, peak ~50 sigma) are found within 0.05 px of
+    their true centres (IWC at full resolution); a hot pixel and a hot pair along a column on a
+    raised local level are rejected as hot pixels."""
+    from starnav.stars.centroid import find_stars
+
+    rng = np.random.default_rng(7)
+    H, W = 97, 131
+    yy, xx = np.mgrid[0:H, 0:W]
+    frame = rng.normal(100.0, 2.0, (H, W)) + 0.02 * xx  # a gentle gradient
+    truth = np.array([[20.3, 15.8], [60.7, 40.1], [100.2, 70.6], [31.5, 80.2], [115.9, 20.4]])
+    for u, v in truth:
+        frame += 300.0 * np.exp(-0.5 * ((xx - u) ** 2 + (yy - v) ** 2) / 0.7**2)
+    frame[50, 20] += 300.0  # hot pixel
+    frame[10:12, 80] += 200.0  # hot pair along a column
+    frame[84:89, 60:65] += 3.0  # a raised local level under another hot pixel
+    frame[86, 62] += 150.0
+    c = find_stars(np.round(frame).astype(np.uint16), gain_e_per_dn=1.0, saturation_dn=65535,
+                   options=PlateOptions().centroid)
+    assert len(c) == len(truth) and c.rejected["hot_pixel"] == 3
+    d = np.hypot(*(c.uv[:, None] - truth[None]).transpose(2, 0, 1)).min(axis=1)
+    assert np.all(d < 0.05), d

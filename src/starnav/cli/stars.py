@@ -37,7 +37,7 @@ def solve(
 ) -> None:
     """Lost-in-space attitude, focal length and distortion of each image from its stars;
     results.json, report.md and an overlay PNG per image. Exit 2 if an image is bad input
-    (unreadable, no stars, wrong size), 1 if one could not be identified."""
+    (unreadable, no or too few stars, wrong size), 1 if one could not be identified."""
     from starnav.errors import StarnavError
     from starnav.stars.solve_images import camera_config, parse_epoch, solve_images
 

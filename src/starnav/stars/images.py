@@ -43,6 +43,9 @@ class StarImage:
         Grey level at which a pixel is saturated (``inf``: unknown, float data).
     epoch_jyear : float or None
         Epoch of the exposure [Julian year] when the file tells it; ``epoch_source`` says where.
+    limiting_v : float or None
+        Faintest V magnitude a point source can reach on this frame when the camera's
+        radiometry and the exposure are known (``limiting_v_source`` says how); None otherwise.
     """
 
     path: Path
@@ -50,6 +53,8 @@ class StarImage:
     saturation_dn: float
     epoch_jyear: float | None
     epoch_source: str
+    limiting_v: float | None = None
+    limiting_v_source: str = ""
 
 
 def _jyear_from_iso(text: str, scale: str = "utc") -> float:

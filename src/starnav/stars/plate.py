@@ -35,6 +35,7 @@ Index
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import io
 import itertools
@@ -47,7 +48,6 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 from scipy.stats import poisson
@@ -70,6 +70,8 @@ ARCSEC = math.pi / (180.0 * 3600.0)
 INDEX_FORMAT = 1
 #: Pattern indexes kept in memory (one per camera field, catalogue and epoch year).
 _INDEXES: BoundedCache[tuple, StarIndex] = BoundedCache(4)
+#: k-d trees of the indexes' star directions (keyed by the array's id, checked by identity).
+_TREES: BoundedCache[int, tuple] = BoundedCache(4)
 
 
 @dataclass(frozen=True)
@@ -126,7 +128,8 @@ class PlateOptions:
     k1_min_stars: int = 20
     min_stars: int = 4
     verify_v_limit: float = 10.0
-    centroid: CentroidOptions = dataclasses.field(default_factory=CentroidOptions)
+    centroid: CentroidOptions = dataclasses.field(
+        default_factory=lambda: CentroidOptions(weight_sigma_px=1.0, detect_bin=2))
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.focal_tolerance < 0.5:
@@ -175,8 +178,7 @@ def plate_settings(camera: Camera, catalogue: StarCatalogue,
     opt = options or PlateOptions()
     omega = field_solid_angle(camera)
     n_sky = int(min(len(catalogue) - 1, opt.stars_per_field * 4.0 * math.pi / omega))
-    v_sorted = np.sort(catalogue.v)
-    v_lim = round(min(float(v_sorted[n_sky]), opt.index_v_max), 2)
+    v_lim = round(min(float(np.partition(catalogue.v, n_sky)[n_sky]), opt.index_v_max), 2)
     pix = 1.0 / camera.fx
     return PlateSettings(omega, v_lim, pix, opt.match_px * pix,
                          opt.n_sigma * math.sqrt(2.0) * opt.floor_px * pix
@@ -383,10 +385,14 @@ def _required(n_det: int, n_cat: int, omega_match: float, omega_field: float,
     lam = max(n_det, 0) * min(1.0, n_cat * omega_match / omega_field)
     # smallest k with P(X >= k) = sf(k - 1) <= alpha / n_hyp (isf: smallest j, sf(j) <= q)
     k = int(poisson.isf(alpha / n_hyp, lam)) + 1 if lam > 0 else 1
-    while k > 1 and n_hyp * poisson.sf(k - 2, lam) <= alpha:  # isf's float rounding
-        k -= 1
-    while n_hyp * poisson.sf(k - 1, lam) > alpha:
-        k += 1
+    # isf's float rounding: the exact smallest k among its neighbours, in one call
+    ks = np.arange(max(k - 3, 1), k + 4)
+    ok = n_hyp * poisson.sf(ks - 1, lam) <= alpha
+    if ok.any():
+        k = int(ks[np.argmax(ok)])
+    else:
+        while n_hyp * poisson.sf(k - 1, lam) > alpha:
+            k += 1
     return max(k, 3), lam
 
 
@@ -439,6 +445,16 @@ def pattern_index(cat: StarCatalogue, v_limit: float, max_separation_rad: float,
     return idx
 
 
+def _index_tree(idx: StarIndex) -> cKDTree:
+    """The k-d tree of an index's star directions, built once per index."""
+    key = id(idx.directions)
+    hit = _TREES.get(key)
+    if hit is None or hit[0] is not idx.directions:
+        hit = (idx.directions, cKDTree(idx.directions))
+        _TREES.put(key, hit)
+    return hit[1]
+
+
 def _load_index(path: Path) -> StarIndex | None:
     try:
         with np.load(path, allow_pickle=False) as z:
@@ -455,16 +471,19 @@ def _scaled_triangles(idx: StarIndex, b: FloatArray, i: int, j: int, k: int, tol
                   math.acos(min(1.0, float(b[i] @ b[k]))),
                   math.acos(min(1.0, float(b[j] @ b[k])))])
 
-    def window(a: float, tl: float) -> tuple[NDArray[np.int32], NDArray[np.int32]]:
+    def window(a: float, tl: float):
         lo, hi = np.searchsorted(idx.angle, [a / (1.0 + t) - tl, a / (1.0 - t) + tl])
-        return idx.pair_a[lo:hi], idx.pair_b[lo:hi]
+        return idx.pair_a[lo:hi], idx.pair_b[lo:hi], idx.angle[lo:hi]
 
-    aij, bij = window(m[0], tol[0])
-    aik, bik = window(m[1], tol[1])
+    aij, bij, cij_w = window(m[0], tol[0])
+    aik, bik, cik_w = window(m[1], tol[1])
     z = np.zeros(0, np.int64)
     if aij.size == 0 or aik.size == 0:
         return z, z, z, np.zeros(0)
-    oj, ok_ = np.argsort(aij, kind="stable"), np.argsort(aik, kind="stable")
+    # stable sorts of the star numbers: a radix sort when they fit in 16 bits
+    key = np.uint16 if idx.directions.shape[0] <= 65536 else np.int64
+    oj = np.argsort(aij.astype(key), kind="stable")
+    ok_ = np.argsort(aik.astype(key), kind="stable")
     sa_j, sa_k = aij[oj], aik[ok_]
     lo = np.searchsorted(sa_k, sa_j, "left")
     cnt = np.searchsorted(sa_k, sa_j, "right") - lo
@@ -474,14 +493,18 @@ def _scaled_triangles(idx: StarIndex, b: FloatArray, i: int, j: int, k: int, tol
     rep = np.repeat(np.arange(cnt.size), cnt)
     start = np.cumsum(cnt) - cnt
     kpos = np.repeat(lo - start, cnt) + np.arange(n)
-    si = sa_j[rep].astype(np.int64)
-    sj = bij[oj][rep].astype(np.int64)
-    sk = bik[ok_][kpos].astype(np.int64)
+    # the scales the two joined sides allow, m / c +- tol / c, must overlap (a necessary
+    # condition of the common-scale test below, on the table's stored angles)
+    cij = cij_w[oj][rep]
+    cik = cik_w[ok_][kpos]
+    keep = np.abs(m[0] / cij - m[1] / cik) <= tol[0] / cij + tol[1] / cik
+    si = sa_j[rep][keep].astype(np.int64)
+    sj = bij[oj][rep][keep].astype(np.int64)
+    sk = bik[ok_][kpos][keep].astype(np.int64)
+    cij, cik = cij[keep], cik[keep]
     keep = sj != sk
-    si, sj, sk = si[keep], sj[keep], sk[keep]
+    si, sj, sk, cij, cik = si[keep], sj[keep], sk[keep], cij[keep], cik[keep]
     d = idx.directions
-    cij = np.arccos(np.minimum(1.0, np.einsum("ij,ij->i", d[si], d[sj])))
-    cik = np.arccos(np.minimum(1.0, np.einsum("ij,ij->i", d[si], d[sk])))
     cjk = np.arccos(np.minimum(1.0, np.einsum("ij,ij->i", d[sj], d[sk])))
     s = m.sum() / np.maximum(cij + cik + cjk, 1e-12)
     keep = np.abs(s - 1.0) <= t + 1e-12
@@ -493,8 +516,68 @@ def _scaled_triangles(idx: StarIndex, b: FloatArray, i: int, j: int, k: int, tol
     return si[keep], sj[keep], sk[keep], s[keep]
 
 
-def _triangle_order(m: int):
+@functools.lru_cache(maxsize=8)
+def _triangle_order(m: int) -> list[tuple[int, int, int]]:
     return sorted(itertools.combinations(range(m), 3), key=lambda t: (t[2], t[1], t[0]))
+
+
+def _rotvec_matrix(w: FloatArray) -> FloatArray:
+    """Rotation matrix of the rotation vector ``w`` (Rodrigues)."""
+    th = math.sqrt(float(w @ w))
+    if th < 1e-15:
+        return np.eye(3)
+    k = w / th
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(th) * K + (1.0 - math.cos(th)) * (K @ K)
+
+
+def _fit_plate(uv: FloatArray, dirs: FloatArray, R: FloatArray, cam: Camera, fit_k1: bool,
+               iterations: int = 20) -> tuple[FloatArray, Camera, FloatArray, FloatArray]:
+    """Gauss-Newton over the small rotation ``w`` (camera axes), ``log f`` and ``k1`` of the
+    pixel residuals ``uv - project(R^T d)`` (module step 5), re-linearised about the current
+    estimate at each step: the analytic Jacobian of :meth:`Camera.project` (pinhole, the
+    camera's Brown-Conrady terms; ``d c / d w = [c]_x`` for ``c -> Rot(w)^T c``). Returns the
+    refined ``R`` (camera -> inertial) and camera, the residuals (n, 2) and the Jacobian of
+    the last linearisation (2n, 4 or 5) [px per parameter]."""
+    n_p = 5 if fit_k1 else 4
+    last = False
+    for it in range(iterations + 1):
+        last = last or it == iterations
+        c = dirs @ R  # camera axes
+        x, y = c[:, 0] / c[:, 2], c[:, 1] / c[:, 2]
+        xy = np.stack([x, y], axis=1)
+        xd = cam.distort(xy) if cam.has_distortion else xy
+        f = np.array([cam.fx, cam.fy])
+        res = uv - (xd * f + np.array([cam.cx, cam.cy]))
+        # d(x, y)/dc, dc/dw = [c]_x, d(xd, yd)/d(x, y)
+        iz = 1.0 / c[:, 2]
+        dxy_dc = np.zeros((c.shape[0], 2, 3))
+        dxy_dc[:, 0, 0] = iz
+        dxy_dc[:, 0, 2] = -x * iz
+        dxy_dc[:, 1, 1] = iz
+        dxy_dc[:, 1, 2] = -y * iz
+        cx_ = np.zeros((c.shape[0], 3, 3))
+        cx_[:, 0, 1], cx_[:, 0, 2] = -c[:, 2], c[:, 1]
+        cx_[:, 1, 0], cx_[:, 1, 2] = c[:, 2], -c[:, 0]
+        cx_[:, 2, 0], cx_[:, 2, 1] = -c[:, 1], c[:, 0]
+        dxy_dw = dxy_dc @ cx_
+        if cam.has_distortion:
+            dxy_dw = cam.distortion_jacobian(xy) @ dxy_dw
+        J = np.empty((c.shape[0], 2, n_p))
+        J[:, :, :3] = f[None, :, None] * dxy_dw
+        J[:, :, 3] = f * xd
+        if fit_k1:
+            J[:, :, 4] = f * xy * (x * x + y * y)[:, None]
+        J = J.reshape(-1, n_p)
+        if last:
+            break
+        step = np.linalg.lstsq(J, res.ravel(), rcond=None)[0]
+        R = R @ _rotvec_matrix(step[:3])
+        cam = dataclasses.replace(cam, focal_length=cam.focal_length * math.exp(step[3]),
+                                  k1=cam.k1 + (float(step[4]) if fit_k1 else 0.0))
+        # converged: one more pass for the residuals and the Jacobian at the solution
+        last = bool(np.all(np.abs(step[:4]) < 1e-10) and (not fit_k1 or abs(step[4]) < 1e-8))
+    return R, cam, res, J
 
 
 # --------------------------------------------------------------------------- step 5
@@ -515,27 +598,18 @@ def _refine(uv: FloatArray, A: FloatArray, scale: float, camera: Camera, cat: St
     for _ in range(3):
         A_now = R0.T
         uvc, inside = _project(A_now, dirs, cam)
+        prev = (det, ci)
         det, ci = _match_px(uv, np.where(inside[:, None], uvc, 1e9), radius)
         if det.size < 3:
             break
+        if result is not None and np.array_equal(det, prev[0]) and np.array_equal(ci, prev[1]):
+            break  # the same matches: the same fit
         r_det = np.hypot(*(uv[det] - centre).T)
         fit_k1 = bool(det.size >= opt.k1_min_stars
                       and np.count_nonzero(r_det > 0.5 * half_diag) >= 5)
 
-        def resid(p, det=det, ci=ci, fit_k1=fit_k1, R0=R0, cam=cam):
-            R = R0 @ Rotation.from_rotvec(p[:3]).as_matrix()
-            c = dataclasses.replace(cam, focal_length=cam.focal_length * math.exp(p[3]),
-                                    k1=cam.k1 + (p[4] if fit_k1 else 0.0))
-            q, _ = _project(R.T, dirs[ci], c)
-            return (uv[det] - q).ravel()
-
-        p0 = np.zeros(5 if fit_k1 else 4)
-        result = least_squares(resid, p0, method="lm", x_scale="jac")
-        p = result.x
-        R0 = R0 @ Rotation.from_rotvec(p[:3]).as_matrix()
-        cam = dataclasses.replace(cam, focal_length=cam.focal_length * math.exp(p[3]),
-                                  k1=cam.k1 + (p[4] if fit_k1 else 0.0))
-        r = result.fun.reshape(-1, 2)
+        R0, cam, r, J = _fit_plate(uv[det], dirs[ci], R0, cam, fit_k1)
+        result = (r, J)
         rms = float(np.sqrt(np.mean(r**2)))
         radius = max(opt.refine_n_sigma * rms * math.sqrt(2.0), 0.5)
     if result is None or det.size < 3:
@@ -545,9 +619,9 @@ def _refine(uv: FloatArray, A: FloatArray, scale: float, camera: Camera, cat: St
     det, ci = _match_px(uv, np.where(inside[:, None], uvc, 1e9), radius)
     q, _ = _project(R0.T, dirs[ci], cam)
     res = uv[det] - q
-    J = result.jac
+    r, J = result
     dof = max(J.shape[0] - J.shape[1], 1)
-    s2 = float(np.sum(result.fun**2)) / dof
+    s2 = float(np.sum(r**2)) / dof
     try:
         cov = s2 * np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
@@ -559,7 +633,8 @@ def _refine(uv: FloatArray, A: FloatArray, scale: float, camera: Camera, cat: St
 def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
                 saturation_dn: float | None = None, catalogue: StarCatalogue | None = None,
                 options: PlateOptions | None = None,
-                index_cache: Path | bool | None = None) -> PlateSolution:
+                index_cache: Path | bool | None = None,
+                limiting_v: float | None = None) -> PlateSolution:
     """Lost-in-space plate solution of one frame (module steps 1-6).
 
     Parameters
@@ -578,6 +653,12 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
     options : PlateOptions, optional
     index_cache : path or bool, optional
         Where the pattern index is cached on disk (:func:`pattern_index`); False: memory only.
+    limiting_v : float, optional
+        Faintest V the camera can show in this exposure, when its radiometry is known
+        (:class:`~starnav.stars.images.StarImage`). A frame that is not identified while a
+        field of this size holds on average fewer than ``min_stars`` catalogue stars that
+        bright is reported ``"too-few-stars"`` (the camera cannot see a pattern there), not
+        ``"unidentified"``.
 
     Returns
     -------
@@ -619,7 +700,7 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
     idx = pattern_index(cat, settings.index_v_limit,
                         camera.fov_diagonal * (1 + opt.focal_tolerance), epoch_jyear,
                         cache_dir=index_cache)
-    idx_tree = cKDTree(idx.directions)
+    idx_tree = _index_tree(idx)
     m = min(n, opt.n_brightest)
     t = opt.focal_tolerance
     tol_cat = opt.catalogue_tol_arcsec * ARCSEC
@@ -711,6 +792,17 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
                                 hypotheses=hyp)
         if accepted:
             break
+    if not accepted and limiting_v is not None:
+        n_sky = int(np.count_nonzero(cat.v <= limiting_v))
+        mean = n_sky * settings.field_solid_angle_sr / (4.0 * math.pi)
+        if mean < opt.min_stars:
+            return fail("too-few-stars",
+                        f"the camera reaches V {limiting_v:.1f} at most in this exposure: the "
+                        f"sky holds {n_sky} stars that bright, {mean:.2f} per field of "
+                        f"{math.degrees(camera.fov_x):.2f} x {math.degrees(camera.fov_y):.2f} "
+                        f"deg on average, {opt.min_stars} needed; none of the {hyp} "
+                        f"candidate patterns among the {n} detections verified",
+                        hypotheses=hyp)
     if not accepted:
         return fail("unidentified",
                     f"no triangle of the {m} brightest of {n} detections verified ({hyp} "

@@ -135,12 +135,12 @@ class ImageResult:
 
 def _result_dict(r: ImageResult, cat: StarCatalogue) -> dict[str, Any]:
     out: dict[str, Any] = {"image": str(r.path), "epoch_jyear": r.epoch_jyear,
-                           "epoch_source": r.epoch_source}
-    if r.error is not None:
+                           "epoch_source": r.epoch_source,
+                           "limiting_v": None if r.image is None else r.image.limiting_v}
+    s = r.solution
+    if s is None:
         out.update(status="error", reason=r.error)
         return out
-    s = r.solution
-    assert s is not None
     out.update(status=s.status, reason=s.reason, n_detections=len(s.centroids),
                detections_uv_px=np.round(s.centroids.uv, 4).tolist(),
                settings=s.settings.as_dict(), time_extract_s=s.time_extract_s,
@@ -167,11 +167,13 @@ def _result_dict(r: ImageResult, cat: StarCatalogue) -> dict[str, Any]:
         n_required=s.n_required, poisson_lambda=s.lam, hypotheses=s.hypotheses,
         matched=[{"hip": int(h), "v_mag": round(float(v), 3),
                   "detection_uv_px": [round(float(x), 4) for x in du],
+                  "detection_sigma_px": [round(float(x), 4) for x in sd],
                   "drawn_uv_px": [round(float(x), 4) for x in cu],
                   "residual_px": [round(float(x), 4) for x in rp],
                   "residual_arcsec": round(float(ra_), 3)}
-                 for h, v, du, cu, rp, ra_ in zip(s.hip, s.v_mag, det, drawn, s.residual_px,
-                                                  s.residual_arcsec, strict=True)],
+                 for h, v, du, sd, cu, rp, ra_ in zip(
+                     s.hip, s.v_mag, det, s.centroids.sigma_px[s.detection_index], drawn,
+                     s.residual_px, s.residual_arcsec, strict=True)],
     )
     return out
 
@@ -279,10 +281,12 @@ def solve_images(paths: list[Path], out: Path, *, camera: CameraConfig,
                 r.epoch_source = (f"J{DEFAULT_EPOCH_JYEAR:.1f} assumed ({img.epoch_source}; "
                                   "give --epoch)")
             sol = solve_plate(img.data, cam, epoch_jyear=r.epoch_jyear,
-                              saturation_dn=img.saturation_dn, catalogue=cat, options=options)
+                              saturation_dn=img.saturation_dn, catalogue=cat, options=options,
+                              limiting_v=img.limiting_v)
             r.solution = sol
             if sol.status == "too-few-stars":
-                r.error = f"{p}: no stars: {sol.reason}"
+                what = "no stars" if len(sol.centroids) == 0 else "too few stars"
+                r.error = f"{p}: {what}: {sol.reason}"
         except StarnavError as err:
             r.error = f"{p}: {err}" if str(p) not in str(err) else str(err)
         results.append(r)

@@ -23,6 +23,7 @@ Technique
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,8 +41,10 @@ from starnav.spectra import (
     sensor_response,
 )
 from starnav.stars.catalogue import hipparcos
+from starnav.stars.centroid import CentroidOptions, background
 from starnav.stars.field import frame_stars
 from starnav.stars.images import StarImage
+from starnav.stars.radiometry import electron_rate
 from starnav.stars.schema import StarsConfig
 
 #: Vega's Hipparcos number.
@@ -126,5 +129,17 @@ def amie_star_image(path) -> StarImage:
 
     f = read_amie(path)
     fill = int(np.median(f.dn[f.valid]))
-    return StarImage(Path(path), np.where(f.valid, f.dn, fill), 1023.0,
-                     float(Time(f.start_time).jyear), "PDS label START_TIME")
+    dn = np.where(f.valid, f.dn, fill)
+    # the faintest star this frame can show: all its light in one pixel at the detection
+    # threshold over the frame's background noise (a bound: a real PSF needs more), its
+    # electrons from the camera's pupil, the AMIE response and the label's exposure and gain
+    _, noise = background(dn.astype(float), 32)
+    floor_dn = CentroidOptions().threshold_sigma * float(np.median(noise))
+    cam = Camera.preset("amie")
+    v0_dn = (electron_rate(0.0, 0.0, sensor_response("amie"), cam.pupil_area) * f.exposure_s
+             / f.gain_e_per_dn)
+    v_lim = 2.5 * math.log10(v0_dn / floor_dn)
+    return StarImage(Path(path), dn, 1023.0, float(Time(f.start_time).jyear),
+                     "PDS label START_TIME", v_lim,
+                     f"AMIE camera and response, label EXPOSURE_DURATION {f.exposure_s:g} s "
+                     f"and gain {f.gain_e_per_dn:g} e-/DN, {floor_dn:.1f} DN in one pixel")
