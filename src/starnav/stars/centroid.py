@@ -46,7 +46,32 @@ MAD_TO_SIGMA = 1.4826
 
 @dataclass(frozen=True)
 class CentroidOptions:
-    """Knobs of :func:`find_stars` (module table; lengths in pixels)."""
+    """Knobs of :func:`find_stars` (lengths in pixels).
+
+    Attributes
+    ----------
+    block_px : int
+        Background block: smaller follows the Moon's halo closer.
+    smooth_sigma_px : float
+        Detection matched filter.
+    threshold_sigma : float
+        Detection threshold, in units of the smoothed noise.
+    spike_ratio : float
+        Hot-pixel test: the eight neighbours must hold at least this fraction of the peak.
+    max_area_px, max_sigma_px : int, float
+        Larger blobs, or a larger second-moment sigma: an extended body.
+    weight_sigma_px : float
+        IWC weight width (about the PSF's rms width).
+    max_iterations : int
+        IWC iterations at most.
+    detect_bin : int
+        2: background, detection and rejection on the 2 x 2 binned frame (a quarter of the
+        pixels), the centroid and its noise at full resolution.
+    axis_ratio : float
+        With ``detect_bin`` 2, the hot-pixel test also asks, above the local level (5 x 5
+        border median), for at least this fraction of the peak in the two neighbours along
+        each axis (a PSF of sigma >= 0.4 px puts >= 0.25 there).
+    """
 
     block_px: int = 32
     smooth_sigma_px: float = 1.0
