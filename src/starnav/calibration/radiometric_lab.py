@@ -72,8 +72,9 @@ PAPER_ALBEDO = 0.12
 FILL_FRACTION = 0.9
 #: Budget terms, in the order they are reported.
 TERMS = ("reference absolute", "reference repeatability", "reference spectral",
+         "reference aperture",
          "LUT interpolation", "field factor", "field interpolation", "monitor / drift",
-         "tracker patch")
+         "tracker patch", "tracker linearity")
 
 
 # =========================================================================== products
@@ -268,8 +269,7 @@ def calibrate_radiometry(bench: Bench, truth: TruthScreen | None = None,
     Raises
     ------
     ConfigError
-        ``lut_counts`` do not end at the screen's full count, or a reading is below the
-        instrument's range.
+        ``lut_counts`` do not end at the screen's full count.
     """
     cfg = bench.config
     lab = cfg.radiometric_lab
@@ -328,11 +328,13 @@ def calibrate_radiometry(bench: Bench, truth: TruthScreen | None = None,
         lums = [lut_raw[0][3] + (lut_raw[-1][3] - lut_raw[0][3]) * x for x in g]
     # covariance by term
     n = len(counts)
-    cls = np.array([max(inst.level_class(x), 0) for x in lums])
+    raw_cls = [inst.level_class(x) if x > 0 else -1 for x in lums]
+    cls = np.array([max(c, 0) for c in raw_cls])
     acc = np.asarray(inst.config.accuracy_2sigma) / 2.0
     rep = np.asarray(inst.config.repeatability_2sigma) / 2.0
     absolute = np.outer(le, le) * acc[np.maximum.outer(cls, cls)] ** 2
-    repeat = np.diag((le * rep[cls]) ** 2 / n_read + (le * rep_w) ** 2 * lab.monitor)
+    repeat = np.diag((le * rep[cls]) ** 2 / n_read + (le * rep_w) ** 2 * lab.monitor
+                     + (np.array([x < 0 for x in raw_cls]) * carry * inst.floor_le()) ** 2)
     # spectral consider parameters through the nominal channel mix
     em = cfg.screen.emittance
     assert em is not None
@@ -487,6 +489,13 @@ def validate_radiometry(bench: Bench, cal: RadiometricCalibration,
     else:
         scale = 1.0
         drift_sigma = abs(cal.drift_per_s) * (t_val - cal.session_end_s)
+    # a panel radiating as cos^p, averaged over a disc of radius R at the collimator's focal
+    # distance f, falls by p R^2 / (4 f^2): the camera's pupil and the reference's aperture
+    # differ, and p is not measured
+    f_coll = bench.geometry.focal_length
+    r_cam = cam.pupil_diameter / 2.0
+    r_ref = inst.config.aperture_mm * 1e-3 / 2.0
+    aperture_sigma = lab.emission_exponent_sigma * abs(r_cam**2 - r_ref**2) / (4 * f_coll**2)
     gu = _grid(lab.validation_grid[0] + 1, cam.width, lab.flat_margin_px, between=True)
     gv = _grid(lab.validation_grid[1] + 1, cam.height, lab.flat_margin_px, between=True)
     uvs = np.array([(u, v) for v in gv for u in gu])
@@ -495,8 +504,14 @@ def validate_radiometry(bench: Bench, cal: RadiometricCalibration,
     npx = len(offs) ** 2
     gain = detector.gain_e_per_dn if detector is not None else 1.0
     full_well = detector.full_well_e if detector is not None else 1e5
-    ri_all = cam.relative_illumination(*cam.pixel_grid())
     scatter = truth.pixel_scatter((len(uvs),), average_px=npx)
+    # the tracker's charge-to-voltage non-linearity S / (1 + beta S / FWC): on the bench the
+    # stimulus rides on the black level's pedestal, in orbit it does not
+    beta = 0.0
+    dcfg = getattr(detector, "config", None)
+    if dcfg is not None and dcfg.signal.nonlinearity.enabled:
+        dfc = dcfg.signal.nonlinearity.full_well_deficit_fraction
+        beta = dfc / (1.0 - dfc)
     dark_frames: dict[float, Any] = {}
     points = []
     for ic, count in enumerate(lab.validation_counts):
@@ -514,7 +529,8 @@ def validate_radiometry(bench: Bench, cal: RadiometricCalibration,
         lut_terms = {"reference absolute": cal.lut_sigma(count, "absolute") / base,
                      "reference repeatability": cal.lut_sigma(count, "repeatability") / base,
                      "reference spectral": cal.lut_sigma(count, "spectral") / base,
-                     "LUT interpolation": cal.interpolation_sigma(count)}
+                     "LUT interpolation": cal.interpolation_sigma(count),
+                     "reference aperture": aperture_sigma}
         if detector is None:
             le_t = (truth.electron_radiance(count, uvs, t_val)
                     - truth.electron_radiance(0, uvs, t_val))
@@ -525,7 +541,8 @@ def validate_radiometry(bench: Bench, cal: RadiometricCalibration,
             iu, iv = int(round(u)), int(round(v))
             rr = np.clip(iv + offs, 0, cam.height - 1)
             cc = np.clip(iu + offs, 0, cam.width - 1)
-            ri = float(ri_all[np.ix_(rr, cc)].mean())
+            uu, vv = np.meshgrid(cc.astype(float), rr.astype(float))
+            ri = float(cam.relative_illumination(uu, vv).mean())
             if detector is not None:
                 patch = diff[np.ix_(rr, cc)]
                 measured = float(patch.mean())
@@ -545,6 +562,8 @@ def validate_radiometry(bench: Bench, cal: RadiometricCalibration,
                 if cal.options.get("model_field", True) else 0.0,
                 "monitor / drift": drift_sigma,
                 "tracker patch": patch_sigma,
+                "tracker linearity": beta * float(cal.lut(count) + cal.lut(0)) * scale * f
+                * t_exp * cam.etendue * ri / full_well,
             })
             points.append(ValidationPoint(int(count), float(t_exp), (float(u), float(v)),
                                           measured, predicted, budget))

@@ -48,6 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.interpolate import RectBivariateSpline
 
 from starnav.calibration.bench import Bench
 from starnav.calibration.schema import KM_LM_PER_W, photopic_efficiency
@@ -56,6 +57,8 @@ from starnav.errors import ConfigError
 from starnav.seeding import STAGE_HIL, generator
 from starnav.typing import FloatArray
 
+#: Step of the exact grid of the truth's smooth factors in a full image [camera px].
+IMAGE_GRID_PX = 16
 #: Polynomial terms of the smooth non-uniformity field over the normalised screen [-].
 _FIELD_TERMS = ((1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (3, 0), (2, 1), (1, 2), (0, 3))
 
@@ -71,12 +74,19 @@ def _pupil_samples(radius: float, rings: int = 3) -> FloatArray:
     return np.array(pts)
 
 
+#: Integration step of the spectral products [nm] (fine against the response's band edges).
+SPECTRAL_STEP_NM = 0.25
+
+
 def _spectral_tables(bench: Bench) -> tuple[FloatArray, FloatArray]:
+    """The screen's channel spectra resampled every :data:`SPECTRAL_STEP_NM` (linear)."""
     em = bench.config.screen.emittance
     if em is None:
         raise ConfigError("screen.emittance", None, "per-channel spectral radiance tables (the "
                           "radiometric truth and the reference instrument need the spectrum)")
-    return np.asarray(em.wavelengths_nm, float), em.channels()
+    wl0 = np.asarray(em.wavelengths_nm, float)
+    wl = np.arange(wl0[0], wl0[-1] + 0.5 * SPECTRAL_STEP_NM, SPECTRAL_STEP_NM)
+    return wl, np.array([np.interp(wl, wl0, c) for c in em.channels()])
 
 
 class TruthScreen:
@@ -88,9 +98,15 @@ class TruthScreen:
     rng : numpy.random.Generator, optional
         Stream of the drawn departures; default the bench's ``"truth"`` stream with
         ``radiometric_truth.truth_seed`` added to the seed.
+    points_cache : dict, optional
+        Screen points of pinhole pixels already solved on this bench's geometry (shared by
+        several truths drawn on one bench).
     """
 
-    def __init__(self, bench: Bench, rng: np.random.Generator | None = None) -> None:
+    def __init__(self, bench: Bench, rng: np.random.Generator | None = None,
+                 points_cache: dict[bytes, FloatArray] | None = None) -> None:
+        self._points: dict[bytes, FloatArray] = {} if points_cache is None else points_cache
+        self._base: FloatArray | None = None
         cfg = bench.config
         t = cfg.radiometric_truth
         self.bench = bench
@@ -183,6 +199,19 @@ class TruthScreen:
                        * self.nd)
 
     # ............................................................ what arrives
+    def screen_points(self, uv: ArrayLike) -> FloatArray:
+        """Screen points ``(..., 3)`` in the collimator frame seen at pinhole pixels
+        ``uv (..., 2)`` [m] (solved once per set of pixels)."""
+        uv = np.ascontiguousarray(uv, float)
+        key = uv.tobytes() + bytes(str(uv.shape), "ascii")
+        P = self._points.get(key)
+        if P is None:
+            geo = self.bench.geometry
+            P = geo.screen_points(geo.pixel_to_screen(uv))
+            if uv.size <= 4096:
+                self._points[key] = P
+        return P
+
     def channel_weights(self, counts: ArrayLike, uv: ArrayLike, time_s: ArrayLike,
                         pupil_m: ArrayLike | None = None, through_collimator: bool = True
                         ) -> FloatArray:
@@ -193,9 +222,7 @@ class TruthScreen:
         receiving aperture's sample points (default: the camera's pupil);
         ``through_collimator`` False gives the bare screen (no transmission, no ND).
         """
-        uv = np.asarray(uv, float)
-        ji = self.bench.geometry.pixel_to_screen(uv)
-        P = self.bench.geometry.screen_points(ji)
+        P = self.screen_points(uv)
         pup = self._cam_pupil if pupil_m is None else np.asarray(pupil_m, float)
         tx = self.transmission * self.nd if through_collimator else 1.0
         amb = self.ambient_weights() * (1.0 if through_collimator else 0.0)
@@ -223,15 +250,32 @@ class TruthScreen:
     def camera_image(self, count: int, time_s: float) -> FloatArray:
         """Pinhole electron-radiance image ``(H, W)`` of a uniform grey ``count`` (what the
         detector stage exposes) [e- s^-1 m^-2 sr^-1]."""
-        cam = self.bench.camera
-        u, v = cam.pixel_grid()
-        le = np.empty((cam.height, cam.width))
-        step = 64                       # rows per block: bounded memory
-        for r0 in range(0, cam.height, step):
-            uv = np.stack([u[r0:r0 + step], v[r0:r0 + step]], -1)
-            le[r0:r0 + step] = self.electron_radiance(count, uv, time_s)
+        base = self._image_base()                               # (H, W, 3): tau U A_c
+        lev = self.level(count) * self.k_e                      # (3,)
+        le = float(self.luminance_factor(time_s)) * (base @ lev)
+        le += float(self.ambient_weights() @ self.k_e)
         scatter = self.pixel_scatter(le.shape)
         return le * (1.0 + scatter * (count > 0))
+
+    def _image_base(self) -> FloatArray:
+        """``tau 10^-OD U A_c`` at every pixel ``(H, W, 3)``: exact on a grid every
+        :data:`IMAGE_GRID_PX` pixels, bicubic in between (both factors are smooth)."""
+        if self._base is None:
+            cam = self.bench.camera
+            us = np.unique(np.r_[np.arange(0, cam.width, IMAGE_GRID_PX), cam.width - 1])
+            vs = np.unique(np.r_[np.arange(0, cam.height, IMAGE_GRID_PX), cam.height - 1])
+            U, V = np.meshgrid(us.astype(float), vs.astype(float))
+            P = self.screen_points(np.stack([U, V], -1))
+            coarse = self.field(P[..., :2])[..., None] * self.angular(P, self._cam_pupil)
+            rows = np.arange(cam.height, dtype=float)
+            cols = np.arange(cam.width, dtype=float)
+            base = np.empty((cam.height, cam.width, 3))
+            k = min(3, len(us) - 1, len(vs) - 1)
+            for c in range(3):
+                base[..., c] = RectBivariateSpline(vs, us, coarse[..., c], kx=k, ky=k)(rows,
+                                                                                      cols)
+            self._base = base * self.transmission * self.nd
+        return self._base
 
     def summary(self) -> dict[str, object]:
         """The drawn departures (JSON-safe)."""
@@ -260,6 +304,9 @@ class Reading:
         0, 1, 2 from the lowest class; -1 below the instrument's range.
     time_s : float
         When it was taken (after power-on) [s].
+
+    A luminance below the instrument's range reads 0 with class -1; its uncertainty is the
+    range's floor (:meth:`ReferenceInstrument.floor_le`).
     """
 
     le: float
@@ -278,10 +325,13 @@ class ReferenceInstrument:
     rng : numpy.random.Generator, optional
         Stream of the instrument's own errors and noise; default the bench's ``"reference"``
         stream (seed + ``radiometric_truth.truth_seed``).
+    error_scale : float
+        The instrument's real errors in units of its specification (1: as certified; > 1 an
+        instrument worse than its certificate, for tests of the budget itself).
     """
 
     def __init__(self, bench: Bench, truth: TruthScreen,
-                 rng: np.random.Generator | None = None) -> None:
+                 rng: np.random.Generator | None = None, error_scale: float = 1.0) -> None:
         cfg = bench.config.reference_instrument
         self.config = cfg
         self.truth = truth
@@ -289,7 +339,7 @@ class ReferenceInstrument:
         seed = int(bench.config.seed) + int(bench.config.radiometric_truth.truth_seed)
         self.rng = rng if rng is not None else generator(seed, STAGE_HIL,
                                                          STREAMS.get("reference"))
-        acc = np.asarray(cfg.accuracy_2sigma) / 2.0
+        acc = np.asarray(cfg.accuracy_2sigma) / 2.0 * error_scale
         # absolute scale of each class: the top class's error, plus what the lower classes add
         z = self.rng.standard_normal(3)
         extra = np.sqrt(np.clip(acc**2 - np.concatenate([acc[1:], [0.0]])**2, 0.0, None))
@@ -297,8 +347,10 @@ class ReferenceInstrument:
         e1 = e2 + extra[1] * z[1]
         e0 = e1 + extra[0] * z[0]
         self.scale_error = np.array([e0, e1, e2])
-        self.wavelength_shift_nm = float(self.rng.normal(0.0, cfg.wavelength_2sigma_nm / 2.0))
-        self.tilt = float(self.rng.normal(0.0, cfg.spectral_tilt_2sigma / 2.0))
+        self.wavelength_shift_nm = float(self.rng.normal(
+            0.0, cfg.wavelength_2sigma_nm / 2.0 * error_scale))
+        self.tilt = float(self.rng.normal(0.0, cfg.spectral_tilt_2sigma / 2.0 * error_scale))
+        self.error_scale = float(error_scale)
         self.k_measured = self.channel_factors(self.wavelength_shift_nm, self.tilt)
         self._pupil = _pupil_samples(cfg.aperture_mm * 1e-3 / 2.0, rings=2)
 
@@ -324,6 +376,12 @@ class ReferenceInstrument:
             return -1
         return 0 if luminance < b[1] else (1 if luminance < b[2] else 2)
 
+    def floor_le(self) -> float:
+        """Electron radiance of the white spectrum at the bottom of the range [e- s^-1 m^-2
+        sr^-1] (the uncertainty of a reading below range)."""
+        tr = self.truth
+        return float(self.config.level_bounds_cd_m2[0] * tr.k_e.sum() / tr.k_v.sum())
+
     def relative_sigma(self, luminance: float, readings: int = 1) -> tuple[float, float]:
         """Stated 1-sigma ``(absolute scale, repeatability of the mean of readings)`` [-]."""
         c = max(self.level_class(luminance), 0)
@@ -333,13 +391,8 @@ class ReferenceInstrument:
     def read(self, count: int, uv: ArrayLike, time_s: float,
              through_collimator: bool = True) -> Reading:
         """One reading of a uniform grey ``count`` towards pinhole pixel ``uv`` at ``time_s``
-        after power-on, averaged over the instrument's aperture and acceptance cone.
-
-        Raises
-        ------
-        ConfigError
-            The luminance is below the instrument's range.
-        """
+        after power-on, averaged over the instrument's aperture and acceptance cone (below
+        the instrument's range: a zero reading of class -1)."""
         uv = np.asarray(uv, float).reshape(2)
         cam = self.bench.camera
         r_px = math.tan(math.radians(self.config.acceptance_deg)) * cam.fx
@@ -350,10 +403,9 @@ class ReferenceInstrument:
         lum = float(w @ self.truth.k_v)
         cls = self.level_class(lum)
         if cls < 0:
-            raise ConfigError("reference reading", f"{lum:.3g} cd/m^2 at count {count}",
-                              f">= {self.config.level_bounds_cd_m2[0]:g} cd/m^2 (the "
-                              "instrument's range)")
-        rep = self.config.repeatability_2sigma[cls] / 2.0
+            # below the range the instrument shows nothing: the lab records zero
+            return Reading(0.0, 0.0, -1, float(time_s))
+        rep = self.config.repeatability_2sigma[cls] / 2.0 * self.error_scale
         le = float(w @ self.k_measured) * (1.0 + self.scale_error[cls]) * (
             1.0 + rep * self.rng.standard_normal())
         return Reading(le, lum * (1.0 + self.scale_error[cls]), cls, float(time_s))

@@ -502,6 +502,10 @@ class RadiometricLabConfig(StrictModel):
         60.0, description="time from the end of the calibration to the validation [min]")
     patch_half_px: Annotated[int, Field(ge=1, le=64)] = Field(
         8, description="half size of the tracker patch averaged at each field point [px]")
+    emission_exponent_sigma: NonNegativeFloat = Field(
+        2.0, description="1-sigma of the screen's angular emission exponent (radiance ~ "
+        "cos^p) the lab assumes for an uncharacterised panel [-]: with the reference's "
+        "aperture smaller than the camera's pupil, the two average different emission cones")
     tolerance: PositiveFraction = Field(
         0.02, description="the paper's use: bench DN within this share of what the "
         "calibration predicts [-]")
