@@ -494,8 +494,9 @@ class RadiometricLabConfig(StrictModel):
         (13, 24, 48, 100, 220), description="hold-out grey counts of the validation (not in "
         "lut_counts)")
     validation_exposures_ms: tuple[PositiveFloat, ...] = Field(
-        (0.5, 200.0), description="hold-out exposures [ms]; each count is acquired at the "
-        "exposure of this list that fills the brightest patch best below half the full well")
+        (0.5, 7.7, 200.0), description="hold-out exposures [ms] (200: the paper's full frame, "
+        "7.7: its fictitious exposure); each count is acquired at the longest one that keeps "
+        "the patch below 90 % of the full well")
     validation_grid: tuple[Annotated[int, Field(ge=2)], Annotated[int, Field(ge=2)]] = Field(
         (4, 4), description="hold-out field points (x, y), placed between the flat_grid points")
     validation_delay_min: NonNegativeFloat = Field(

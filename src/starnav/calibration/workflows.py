@@ -20,7 +20,7 @@ import json
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,7 @@ from starnav.calibration.geometric import (
 )
 from starnav.calibration.intrinsics import calibrate_camera
 from starnav.calibration.radiometric import compare_stimulus, count_flux_mapping, moon_flux
+from starnav.calibration.radiometric_lab import radiometric_lab
 from starnav.calibration.scaling import (
     albedo_exposure_experiment,
     bench_min_exposure,
@@ -109,7 +110,10 @@ def run_check(cfg: BenchConfig) -> HilReport:
 # =========================================================================== geometric
 def run_geometric(cfg: BenchConfig, *, moon: bool = True,
                   image: RadianceImage | None = None) -> HilReport:
-    """Dot-pattern calibration, residuals (Fig. 12) and the displayed-Moon check (Fig. 13).
+    """Dot-pattern calibration, residuals (Fig. 12), the displayed-Moon check (Fig. 13), the
+    camera's intrinsics and the radiometric calibration against the reference instrument with
+    its hold-out validation (:mod:`~starnav.calibration.radiometric_lab`); both calibrations
+    go to ``camera_calibration.json``.
 
     Parameters
     ----------
@@ -122,7 +126,9 @@ def run_geometric(cfg: BenchConfig, *, moon: bool = True,
     bench = Bench(cfg)
     res = calibrate_geometry(bench)
     intr = calibrate_camera(bench, res.calibration_dots)
-    summary: dict[str, Any] = {"geometric": res.summary(), "camera": intr.summary()}
+    lab = radiometric_lab(bench, bench.chain_detector())
+    summary: dict[str, Any] = {"geometric": res.summary(), "camera": intr.summary(),
+                               "radiometric_lab": lab.summary()}
     figs = {"residuals_pdf_cdf": plots.residual_pdf_cdf(res),
             "dot_displacements": plots.dot_displacements(res)}
     if moon:
@@ -138,8 +144,9 @@ def run_geometric(cfg: BenchConfig, *, moon: bool = True,
         figs["moon_placement"] = plots.moon_placement(cal, unc)
     summary["bench"] = bench_to_dict(cfg)
     return HilReport(summary, figs, {"geometric_calibration.json": res.calibration.to_json(),
-                                     "camera_calibration.json": _json(
-                                         intr.calibration.to_dict())})
+                                     "camera_calibration.json": _json(replace(
+                                         intr.calibration,
+                                         radiometric=lab.calibration.to_dict()).to_dict())})
 
 
 def load_calibration(path: str | Path, bench: Bench) -> GeometricCalibration:
