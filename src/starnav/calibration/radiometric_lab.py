@@ -23,21 +23,42 @@ Technique
    counts, exposures and field points (between the calibration's): the monitor is read again
    and the prediction rescaled; the tracker acquires the uniform grey and a black frame; the
    dark-subtracted DN of a patch is compared with ``(LUT(n) - LUT(0)) F(u, v) t A Omega
-   cos^4 / gain``. Each point carries an uncertainty budget (one line per term, relative
-   1-sigma). The budget is **consistent** when no point's error exceeds ``z_crit`` of its
-   sigma (``z_crit`` the Bonferroni bound over the points at a 1 % family false-alarm rate);
-   the bench **meets the paper's use** when it is consistent and ``coverage_k`` sigma is
-   within ``tolerance`` at every point.
+   cos^4 / gain``. Each point carries an uncertainty budget, one line per term of
+   :data:`TERMS` (relative 1-sigma): the reference's absolute scale, repeatability and spectral
+   errors through the LUT; its aperture (smaller than the camera's pupil, it averages a
+   narrower cone of a panel whose angular exponent is only known to
+   ``emission_exponent_sigma``: ``sigma_p |R_cam^2 - R_ref^2| / (4 f^2)``); the LUT's
+   interpolation; the field factor and its interpolation; the monitor (or, without it, the
+   session's drift extrapolated); the tracker's patch noise and its non-linearity on the
+   screen's black-level pedestal. The budget is **consistent** when no point's error exceeds
+   ``z_crit`` of its sigma (``z_crit`` the Bonferroni bound over the points at a 1 % family
+   false-alarm rate); the bench **meets the paper's use** when it is consistent and
+   ``coverage_k`` sigma is within ``tolerance`` at every point.
 
-Switches of :class:`~starnav.calibration.schema.RadiometricLabConfig` turn a term off, as a lab
-that ignores it would (``model_field``, ``through_collimator``, ``measure_lut``, ``monitor``):
-the negative controls of the tests.
+Tuning knobs (``radiometric_lab``)
+----------------------------------
+=========================== ======================= ==========================================
+knob                        default                 effect
+=========================== ======================= ==========================================
+``lut_counts``              0 4 8 ... 192 255       read counts; finer near the counts you use
+``flat_grid``               5 x 5                   field points of the field factor
+``readings_per_point``      3                       repeatability / sqrt(n), session length
+``validation_counts``       13 24 48 100 220        hold-outs (never calibration counts)
+``validation_exposures_ms`` 0.5 7.7 200             hold-out exposures
+``emission_exponent_sigma`` 2                       the reference-aperture term
+``tolerance``               2 %                     the paper's use ...
+``coverage_k``              2                       ... at this many sigma
+=========================== ======================= ==========================================
+
+Switches turn a term off, as a lab that ignores it would (``model_field``,
+``through_collimator``, ``measure_lut``, ``monitor``): the negative controls of the tests.
 
 Index
 -----
 :func:`calibrate_radiometry`    the session against the reference -> RadiometricCalibration
 :func:`validate_radiometry`     hold-out DN vs prediction, budget, verdicts
-:func:`plausibility`            the paper's 19x and count 13 on the calibrated (and true) bench
+:func:`plausibility`            the paper's too-dim factor and k = 13 333 peak count, calibrated
+                                and true
 :func:`radiometric_lab`         all three, for ``starnav hil`` and the benchmark
 
 Reference: seed paper, "Radiometric Calibration"; JCGM 100:2008 (GUM) for the combination of
