@@ -20,6 +20,7 @@ from starnav.calibration.radiometric_lab import (
     RadiometricCalibration,
     calibrate_radiometry,
     plausibility,
+    radiometric_lab,
     validate_radiometry,
 )
 from starnav.calibration.radiometric_truth import ReferenceInstrument, TruthScreen
@@ -182,7 +183,8 @@ def test_calibration_file_round_trips_with_the_camera(paper_bench, tmp_path):
     malformed sections are refused naming the entry."""
     from starnav.camera import Camera
 
-    cal = calibrate_radiometry(paper_bench)
+    cal = radiometric_lab(paper_bench).calibration
+    assert cal.albedo_exposure["peak_count_sigma"] > 0
     cam = Camera.preset("aa-str")
     cc = CameraCalibration(cam, ("focal_length_m",), np.array([[1e-10]]),
                            radiometric=cal.to_dict())
@@ -192,6 +194,7 @@ def test_calibration_file_round_trips_with_the_camera(paper_bench, tmp_path):
     for k, v in cal.covariance.items():
         assert np.array_equal(rc.covariance[k], v)
     assert np.array_equal(rc.field, cal.field) and rc.options == cal.options
+    assert rc.albedo_exposure == cal.albedo_exposure and rc.provenance == cal.provenance
     assert rc.lut(13.5) == cal.lut(13.5)
     d = cal.to_dict()
     with pytest.raises(ConfigError, match="version"):

@@ -68,7 +68,7 @@ the budget (first order, uncorrelated terms within a point).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -132,6 +132,9 @@ class RadiometricCalibration:
         ``monitor``).
     provenance : dict
         Instrument, bench seed, method (free form).
+    albedo_exposure : dict or None
+        The paper's albedo-exposure plan made with this calibration (:func:`plausibility`:
+        ``k``, the stimulus peak count and the too-dim factor with their 1-sigma).
     """
 
     counts: FloatArray
@@ -147,6 +150,7 @@ class RadiometricCalibration:
     drift_per_s: float
     options: dict[str, bool]
     provenance: dict[str, Any] = field(default_factory=dict)
+    albedo_exposure: dict[str, Any] | None = None
 
     @property
     def total_covariance(self) -> FloatArray:
@@ -235,7 +239,8 @@ class RadiometricCalibration:
                 "field_sigma": [[float(x) for x in row] for row in self.field_sigma],
                 "monitor_le_e_s_m2_sr": self.monitor_le, "monitor_sigma": self.monitor_sigma,
                 "session_end_s": self.session_end_s, "drift_per_s": self.drift_per_s,
-                "options": dict(self.options), "provenance": self.provenance}
+                "options": dict(self.options), "provenance": self.provenance,
+                "albedo_exposure": self.albedo_exposure}
 
     @classmethod
     def from_dict(cls, d: Any, source: str = "radiometric") -> RadiometricCalibration:
@@ -259,7 +264,7 @@ class RadiometricCalibration:
                       float(d["monitor_sigma"]), float(d["session_end_s"]),
                       float(d["drift_per_s"]), {str(k): bool(v) for k, v in
                                                 d["options"].items()},
-                      dict(d.get("provenance") or {}))
+                      dict(d.get("provenance") or {}), d.get("albedo_exposure"))
         except KeyError as err:
             raise ConfigError(f"{source}: {err.args[0]}", "missing", "an entry of the "
                               "radiometric calibration") from None
@@ -665,7 +670,15 @@ def radiometric_lab(bench: Bench, detector: DetectorStage | None = None) -> Radi
     inst = ReferenceInstrument(bench, truth)
     cal = calibrate_radiometry(bench, truth, inst)
     val = validate_radiometry(bench, cal, truth, inst, detector)
-    return RadiometricLabResult(cal, val, plausibility(bench, cal, truth), truth, inst)
+    pl = plausibility(bench, cal, truth)
+    cal = replace(cal, albedo_exposure={
+        "k": pl["k"], "albedo": pl["albedo"],
+        "moon_peak_le_e_s_m2_sr": pl["moon_peak_le_e_s_m2_sr"],
+        "peak_count": pl["k_peak_count"]["calibrated"],
+        "peak_count_sigma": pl["k_peak_count"]["sigma"],
+        "screen_too_dim": pl["screen_too_dim"]["calibrated"],
+        "screen_too_dim_sigma": pl["screen_too_dim"]["sigma"]})
+    return RadiometricLabResult(cal, val, pl, truth, inst)
 
 
 __all__ = ["RadiometricCalibration", "RadiometricLabResult", "RadiometricValidation",
