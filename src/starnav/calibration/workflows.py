@@ -36,6 +36,7 @@ from starnav.calibration.geometric import (
     NominalMapping,
     ScreenMapping,
     calibrate_geometry,
+    random_layout_holdout,
 )
 from starnav.calibration.intrinsics import calibrate_camera
 from starnav.calibration.radiometric import compare_stimulus, count_flux_mapping, moon_flux
@@ -128,6 +129,9 @@ def run_geometric(cfg: BenchConfig, *, moon: bool = True,
     intr = calibrate_camera(bench, res.calibration_dots)
     lab = radiometric_lab(bench, bench.chain_detector())
     summary: dict[str, Any] = {"geometric": res.summary(), "camera": intr.summary(),
+                               "random_layout_holdout": random_layout_holdout(
+                                   bench, res.calibration, exposure_time=res.exposure_time,
+                                   dark_dn=res.calibration_dots.dark_dn),
                                "radiometric_lab": lab.summary()}
     figs = {"residuals_pdf_cdf": plots.residual_pdf_cdf(res),
             "dot_displacements": plots.dot_displacements(res)}

@@ -138,7 +138,9 @@ def geometric(
     rows = [("dots matched", f"{g['dots_matched']} / {g['dots_shown']}"),
             ("uncalibrated RMS (arcsec)", g["uncalibrated"]["rms_arcsec"]),
             ("hold-out RMS (arcsec)", g["holdout"].get("rms_arcsec", float("nan"))),
-            ("closed-loop RMS (arcsec)", g["closed_loop"].get("rms_arcsec", float("nan")))]
+            ("closed-loop RMS (arcsec)", g["closed_loop"].get("rms_arcsec", float("nan"))),
+            ("random-layout hold-out RMS (arcsec)",
+             rep.summary["random_layout_holdout"]["rms_arcsec"])]
     lab = rep.summary["radiometric_lab"]
     v, pl = lab["validation"], lab["plausibility"]
     rows += [("radiometric hold-outs: rms error", v["rms_error"]),
