@@ -235,12 +235,31 @@ def test_the_paper_plausibility_numbers_on_the_truth_bench(paper_bench):
 
 def test_validation_refuses_bad_lab_settings():
     with pytest.raises(ConfigError, match="hold-out"):
-        bench_from_dict({"radiometric_lab": {"validation_counts": [13, 64]}})
+        bench_from_dict({"radiometric_lab": {"lut_counts": [0, 64, 255],
+                                             "validation_counts": [13, 64]}})
     with pytest.raises(ConfigError, match="lut_counts"):
         bench_from_dict({"radiometric_lab": {"lut_counts": [4, 8, 255]}})
     b = Bench(bench_from_dict({"radiometric_lab": {"lut_counts": [0, 8, 128]}}))
     with pytest.raises(ConfigError, match="full count 255"):
         calibrate_radiometry(b)
+    b = Bench(bench_from_dict({"radiometric_lab": {"validation_counts": [13, 64]}}))
+    with pytest.raises(ConfigError, match="not calibration counts"):
+        validate_radiometry(b, calibrate_radiometry(b))
+    b = Bench(bench_from_dict({"radiometric_lab": {"validation_counts": [300]}}))
+    with pytest.raises(ConfigError, match="full count 255"):
+        validate_radiometry(b, calibrate_radiometry(b))
+
+
+def test_the_default_counts_follow_the_screen_bit_depth():
+    """8 bit: the documented defaults; 10 bit: the same fractions of the levels, and the lab
+    runs on it."""
+    lab = bench_from_dict({}).radiometric_lab
+    assert lab.counts_for(255) == ((0, 4, 8, 16, 32, 64, 128, 192, 255), (13, 24, 48, 100, 220))
+    lut, val = lab.counts_for(1023)
+    assert lut[-1] == 1023 and 768 in lut and val == (52, 96, 192, 400, 880)
+    b = Bench(bench_from_dict({"screen": {"bit_depth": 10}}))
+    v = validate_radiometry(b, calibrate_radiometry(b))
+    assert v.consistent and sorted({p.count for p in v.points}) == list(val)
 
 
 def test_full_frames_through_the_detector_chain_agree_with_the_patches(paper_bench):

@@ -300,9 +300,7 @@ def calibrate_radiometry(bench: Bench, truth: TruthScreen | None = None,
     cfg = bench.config
     lab = cfg.radiometric_lab
     n_max = cfg.screen.max_count
-    if lab.lut_counts[-1] != n_max:
-        raise ConfigError("radiometric_lab.lut_counts", list(lab.lut_counts),
-                          f"counts ending at the screen's full count {n_max}")
+    lut_counts, _ = lab.counts_for(n_max)
     truth = truth if truth is not None else TruthScreen(bench)
     inst = instrument if instrument is not None else ReferenceInstrument(bench, truth)
     cam = bench.camera
@@ -321,7 +319,7 @@ def calibrate_radiometry(bench: Bench, truth: TruthScreen | None = None,
 
     m0, t0, cls_w, lum_w = point(n_max, centre)
     lut_raw = [point(int(c), centre) if lab.measure_lut or c in (0, n_max) else None
-               for c in lab.lut_counts]
+               for c in lut_counts]
     fu = _grid(lab.flat_grid[0], cam.width, lab.flat_margin_px)
     fv = _grid(lab.flat_grid[1], cam.height, lab.flat_margin_px)
     flat_raw = ([[point(n_max, np.array([u, v])) for u in fu] for v in fv]
@@ -338,7 +336,7 @@ def calibrate_radiometry(bench: Bench, truth: TruthScreen | None = None,
         return carry * (le * (1.0 + rate * (t1 - t)) if lab.monitor else le)
 
     rep_w = inst.relative_sigma(lum_w, n_read)[1]
-    counts = np.asarray(lab.lut_counts, int)
+    counts = np.asarray(lut_counts, int)
     if lab.measure_lut:
         le = np.array([corrected(r[0], r[1]) for r in lut_raw])
         lums = [r[3] for r in lut_raw]
@@ -493,15 +491,12 @@ def validate_radiometry(bench: Bench, cal: RadiometricCalibration,
     Raises
     ------
     ConfigError
-        A validation count above the screen's full count.
+        A validation count above the screen's full count or among the calibration's.
     """
     cfg = bench.config
     lab = cfg.radiometric_lab
     n_max = cfg.screen.max_count
-    bad = [c for c in lab.validation_counts if c > n_max]
-    if bad:
-        raise ConfigError("radiometric_lab.validation_counts", bad,
-                          f"counts <= the screen's full count {n_max}")
+    _, validation_counts = lab.counts_for(n_max)
     truth = truth if truth is not None else TruthScreen(bench)
     inst = instrument if instrument is not None else ReferenceInstrument(bench, truth)
     cam = bench.camera
@@ -540,7 +535,7 @@ def validate_radiometry(bench: Bench, cal: RadiometricCalibration,
         beta = dfc / (1.0 - dfc)
     dark_frames: dict[float, Any] = {}
     points = []
-    for ic, count in enumerate(lab.validation_counts):
+    for ic, count in enumerate(validation_counts):
         le_ax = float(cal.lut(count) - cal.lut(0)) * scale
         t_exp = _exposure_for(lab.validation_exposures_ms, float(cal.lut(count)) * scale,
                               cam.etendue, full_well)

@@ -469,9 +469,10 @@ class RadiometricLabConfig(StrictModel):
     """The lab's radiometric calibration against the reference instrument, and its
     validation (:mod:`starnav.calibration.radiometric_lab`)."""
 
-    lut_counts: tuple[Annotated[int, Field(ge=0)], ...] = Field(
-        (0, 4, 8, 16, 32, 64, 128, 192, 255), description="grey counts read on axis to make "
-        "the screen LUT (must include 0 and the full count)")
+    lut_counts: tuple[Annotated[int, Field(ge=0)], ...] | None = Field(
+        None, description="grey counts read on axis to make the screen LUT, from 0 to the "
+        "full count; null: 0, 4, 8, 16, ... (powers of two up to half the levels), 3/4 of the "
+        "levels and the full count (8 bit: 0 4 8 16 32 64 128 192 255)")
     flat_grid: tuple[Annotated[int, Field(ge=2)], Annotated[int, Field(ge=2)]] = Field(
         (5, 5), description="field points (x, y) read at full white for the field factor")
     flat_margin_px: NonNegativeFloat = Field(
@@ -490,9 +491,9 @@ class RadiometricLabConfig(StrictModel):
                               "scaled by the full-white reading")
     monitor: bool = Field(True, description="re-read full white on axis when the bench is "
                           "used and rescale (tracks warm-up and drift)")
-    validation_counts: tuple[Annotated[int, Field(ge=1)], ...] = Field(
-        (13, 24, 48, 100, 220), description="hold-out grey counts of the validation (not in "
-        "lut_counts)")
+    validation_counts: tuple[Annotated[int, Field(ge=1)], ...] | None = Field(
+        None, description="hold-out grey counts of the validation (not in lut_counts); null: "
+        "13 24 48 100 220 on an 8-bit screen, the same fractions of the levels on another")
     validation_exposures_ms: tuple[PositiveFloat, ...] = Field(
         (0.5, 7.7, 200.0), description="hold-out exposures [ms] (200: the paper's full frame, "
         "7.7: its fictitious exposure); each count is acquired at the longest one that keeps "
@@ -516,14 +517,47 @@ class RadiometricLabConfig(StrictModel):
     @model_validator(mode="after")
     def _counts(self) -> RadiometricLabConfig:
         c = self.lut_counts
-        if len(c) < 3 or 0 not in c or any(b <= a for a, b in zip(c, c[1:], strict=False)):
+        if c is not None and (len(c) < 3 or c[0] != 0
+                              or any(b <= a for a, b in zip(c, c[1:], strict=False))):
             raise ValueError(f"lut_counts {list(c)}: expected >= 3 strictly increasing counts "
                              "starting at 0")
-        if set(self.validation_counts) & set(c):
+        if c is not None and self.validation_counts is not None and \
+                set(self.validation_counts) & set(c):
             raise ValueError(f"validation_counts {list(self.validation_counts)} share "
                              f"{sorted(set(self.validation_counts) & set(c))} with lut_counts: "
                              "a hold-out must not be a calibration point")
         return self
+
+    def counts_for(self, max_count: int) -> tuple[tuple[int, ...], tuple[int, ...]]:
+        """``(lut_counts, validation_counts)`` for a screen whose full count is ``max_count``
+        (the defaults scaled to its levels).
+
+        Raises
+        ------
+        ConfigError
+            The LUT does not end at ``max_count``, a hold-out count is above it, or the
+            derived counts collide.
+        """
+        levels = max_count + 1
+        lut = self.lut_counts
+        if lut is None:
+            pw = [2**k for k in range(2, 64) if 2**k <= levels // 2]
+            lut = tuple(sorted({0, *pw, 3 * levels // 4, max_count}))
+        if lut[-1] != max_count:
+            raise ConfigError("radiometric_lab.lut_counts", list(lut),
+                              f"counts ending at the screen's full count {max_count}")
+        val = self.validation_counts
+        if val is None:
+            val = tuple(sorted({max(1, round(f * levels / 256)) for f in
+                                (13, 24, 48, 100, 220)} - set(lut)))
+        bad = [v for v in val if v > max_count]
+        if bad:
+            raise ConfigError("radiometric_lab.validation_counts", bad,
+                              f"counts <= the screen's full count {max_count}")
+        if set(val) & set(lut):
+            raise ConfigError("radiometric_lab.validation_counts", list(val),
+                              f"hold-outs that are not calibration counts {list(lut)}")
+        return tuple(int(x) for x in lut), tuple(int(x) for x in val)
 
 
 class BenchConfig(StrictModel):
