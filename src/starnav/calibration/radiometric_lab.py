@@ -346,13 +346,22 @@ def calibrate_radiometry(bench: Bench, truth: TruthScreen | None = None,
         hi = corrected(lut_raw[-1][0], lut_raw[-1][1])
         em = cfg.screen.emittance
         assert em is not None
-        w = truth.k_e / truth.k_e.sum()
+        nominal = bench.radiometry.channel_le[:, -1]
+        w = nominal / nominal.sum()
         g = (counts[:, None] / n_max) ** np.asarray(em.gamma)[None, :] @ w
         le = lo + (hi - lo) * g
         lums = [lut_raw[0][3] + (lut_raw[-1][3] - lut_raw[0][3]) * x for x in g]
+    raw_cls = [inst.level_class(x) if x > 0 else -1 for x in lums]
+    # a count the instrument cannot see is not a LUT point (count 0 stays: its floor is known)
+    keep = [i for i, c in enumerate(raw_cls) if c >= 0 or counts[i] == 0]
+    if len(keep) < 3:
+        raise ConfigError("radiometric_lab.lut_counts", counts.tolist(),
+                          ">= 3 counts within the reference instrument's range (lower bound "
+                          f"{inst.config.level_bounds_cd_m2[0]:g} cd/m^2)")
+    counts, le = counts[keep], le[keep]
+    raw_cls = [raw_cls[i] for i in keep]
     # covariance by term
     n = len(counts)
-    raw_cls = [inst.level_class(x) if x > 0 else -1 for x in lums]
     cls = np.array([max(c, 0) for c in raw_cls])
     acc = np.asarray(inst.config.accuracy_2sigma) / 2.0
     rep = np.asarray(inst.config.repeatability_2sigma) / 2.0
