@@ -6,10 +6,15 @@ albedo-exposure KS experiment and the end-to-end k = 13 333 case, and prints one
 document. ``--intrinsics N`` instead calibrates the camera on N seeded benches whose as-built
 departures (screen, mount, collimator, camera) are drawn from the tolerances the calibration
 states, and prints each parameter's error against the truth bench's camera with its stated
-1-sigma, and the NEES against its chi-square band. Usage::
+1-sigma, and the NEES against its chi-square band. ``--radiometric N`` calibrates the screen
+against the reference instrument on N seeded truth benches and prints the calibrated against
+the true full white, k = 13 333 count and too-dim factor with their 1-sigma, the hold-out
+validation's error, budget and coverage, each negative control, and one bench through the
+detector chain. Usage::
 
     .venv/bin/python benchmarks/calibration.py
     .venv/bin/python benchmarks/calibration.py --intrinsics 20
+    .venv/bin/python benchmarks/calibration.py --radiometric 20
 """
 
 from __future__ import annotations
@@ -130,14 +135,106 @@ def intrinsics(n: int) -> None:
     print(json.dumps(out, indent=1))
 
 
+def radiometric(n: int) -> None:
+    """The radiometric calibration against the reference instrument on ``n`` seeded truth
+    benches: estimated against true parameters with their 1-sigma, the validation's error
+    budget and coverage, each negative control, and one bench through the detector chain."""
+    import numpy as np
+
+    from starnav.calibration import Bench, bench_from_dict
+    from starnav.calibration.radiometric_lab import (
+        TERMS,
+        calibrate_radiometry,
+        plausibility,
+        validate_radiometry,
+    )
+    from starnav.calibration.radiometric_truth import ReferenceInstrument, TruthScreen
+    from starnav.seeding import generator
+
+    def run(lab: dict, seeds: range) -> dict:
+        bench = Bench(bench_from_dict({"radiometric_lab": lab}))
+        cache: dict = {}
+        cam = bench.camera
+        rows = []
+        t0 = time.perf_counter()
+        for i in seeds:
+            tr = TruthScreen(bench, generator(5000 + i, 6, 7), cache)
+            inst = ReferenceInstrument(bench, tr, generator(5000 + i, 6, 8))
+            cal = calibrate_radiometry(bench, tr, inst)
+            val = validate_radiometry(bench, cal, tr, inst)
+            pl = plausibility(bench, cal, tr)
+            white_true = float(tr.electron_radiance(255, np.array([[cam.cx, cam.cy]]),
+                                                    cal.session_end_s)[0])
+            rows.append({"white": (cal.le[-1] / white_true - 1.0,
+                                   np.sqrt(cal.total_covariance[-1, -1]) / cal.le[-1]),
+                         "count": (pl["k_peak_count"]["calibrated"] - pl["k_peak_count"]["truth"],
+                                   pl["k_peak_count"]["sigma"]),
+                         "dim": (pl["screen_too_dim"]["calibrated"] - pl["screen_too_dim"]["truth"],
+                                 pl["screen_too_dim"]["sigma"]),
+                         "truth_count": pl["k_peak_count"]["truth"],
+                         "truth_dim": pl["screen_too_dim"]["truth"],
+                         "e": [p.error for p in val.points], "s": [p.sigma for p in val.points],
+                         "budget": val.budget_rms(), "consistent": val.consistent,
+                         "meets": val.meets_use})
+        e = np.array([r["e"] for r in rows])
+        sg = np.array([r["s"] for r in rows])
+        z = e / sg
+
+        def est(key: str) -> dict:
+            d = np.array([r[key][0] for r in rows])
+            s_ = np.array([r[key][1] for r in rows])
+            return {"rms_error": float(np.sqrt(np.mean(d**2))), "median_sigma":
+                    float(np.median(s_)), "within_2_sigma": float(np.mean(np.abs(d) <= 2 * s_))}
+
+        return {"benches": len(rows), "seconds": time.perf_counter() - t0,
+                "full_white_rel": est("white"), "k13333_count": est("count"),
+                "screen_too_dim": est("dim"),
+                "truth_count_range": [float(min(r["truth_count"] for r in rows)),
+                                      float(max(r["truth_count"] for r in rows))],
+                "truth_too_dim_range": [float(min(r["truth_dim"] for r in rows)),
+                                        float(max(r["truth_dim"] for r in rows))],
+                "validation_rms_error": float(np.sqrt(np.mean(e**2))),
+                "validation_sigma_rms": float(np.sqrt(np.mean(sg**2))),
+                "fraction_abs_z_above_2": float(np.mean(np.abs(z) > 2)),
+                "mean_z": float(z.mean()), "mean_z2": float(np.mean(z**2)),
+                "budget_rms": {k: float(np.sqrt(np.mean([r["budget"][k] ** 2 for r in rows])))
+                               for k in TERMS},
+                "fraction_consistent": float(np.mean([r["consistent"] for r in rows])),
+                "fraction_meets_use": float(np.mean([r["meets"] for r in rows]))}
+
+    out = {"calibrated": run({}, range(n))}
+    for name, lab in (("ignores the field (angular emission, non-uniformity)",
+                       {"model_field": False}),
+                      ("ignores the collimator transmission (bare screen, datasheet)",
+                       {"through_collimator": False}),
+                      ("ignores the gamma (datasheet curve)", {"measure_lut": False}),
+                      ("no monitor (warm-up, drift)", {"monitor": False})):
+        r = run(lab, range(n))
+        out[name] = {k: r[k] for k in ("validation_rms_error", "validation_sigma_rms",
+                                       "fraction_abs_z_above_2", "fraction_consistent")}
+    bench = Bench(bench_from_dict({}))
+    tr = TruthScreen(bench)
+    inst = ReferenceInstrument(bench, tr)
+    cal = calibrate_radiometry(bench, tr, inst)
+    t0 = time.perf_counter()
+    val = validate_radiometry(bench, cal, tr, inst, bench.chain_detector())
+    out["one bench, detector chain"] = {"seconds": time.perf_counter() - t0,
+                                       **val.summary()}
+    print(json.dumps(out, indent=1))
+
+
 if __name__ == "__main__":
     import argparse
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--intrinsics", type=int, metavar="N", default=0,
                     help="calibrate the camera on N seeded benches instead")
+    ap.add_argument("--radiometric", type=int, metavar="N", default=0,
+                    help="radiometric calibration against the reference on N seeded benches")
     a = ap.parse_args()
-    if a.intrinsics:
+    if a.radiometric:
+        radiometric(a.radiometric)
+    elif a.intrinsics:
         intrinsics(a.intrinsics)
     else:
         main()

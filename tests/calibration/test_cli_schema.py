@@ -104,6 +104,9 @@ def test_hil_geometric_then_stimulate(app, tmp_path):
     assert r.exit_code == 0, r.output
     s = json.loads((geo / "geometric.json").read_text())
     assert s["geometric"]["holdout"]["rms_arcsec"] < 5.0
+    # a layout no calibration grid has (random point sources), through the calibration
+    rl = s["random_layout_holdout"]
+    assert rl["points_found"] >= 0.9 * rl["points_shown"] and rl["rms_arcsec"] < 5.0
     for f in ("residuals_pdf_cdf.png", "dot_displacements.png", "geometric_calibration.json"):
         assert (geo / f).exists()
     # the camera as the bench estimated it, in the file navigation reads
@@ -112,6 +115,13 @@ def test_hil_geometric_then_stimulate(app, tmp_path):
     cam_cal = read_calibration(geo / "camera_calibration.json")
     assert cam_cal.camera.width == 256 and cam_cal.sigma("focal_length_m") > 0
     assert s["camera"]["parameters"] == list(cam_cal.parameters)
+    # ... with the screen's radiometric calibration against the reference instrument
+    from starnav.calibration.radiometric_lab import RadiometricCalibration
+
+    rad = RadiometricCalibration.from_dict(cam_cal.radiometric)
+    assert rad.counts[-1] == 255 and np.all(np.diff(rad.le) > 0)
+    v = s["radiometric_lab"]["validation"]
+    assert v["points"] > 0 and v["consistent"] and "tracker linearity" in v["budget_rms"]
     # a dataset as `starnav render` writes it: RadianceImage EXRs
     cam = small_camera(256)
     ds = tmp_path / "ds"

@@ -17,6 +17,10 @@ procedures end to end in software:
 * :mod:`~starnav.calibration.radiometric` -- count <-> Moon flux, calibrated stimuli and their
   validation;
 * :mod:`~starnav.calibration.scaling` -- albedo-exposure scaling, KS equivalence, end to end;
+* :mod:`~starnav.calibration.radiometric_truth` -- the screen and collimator as they really are,
+  and the reference instrument that reads them;
+* :mod:`~starnav.calibration.radiometric_lab` -- the radiometric calibration against that
+  instrument, its products with their covariance and its hold-out validation;
 * :mod:`~starnav.calibration.workflows` -- what ``starnav hil`` runs.
 
 Names are imported lazily (nothing heavy at ``import starnav.calibration``).
@@ -48,6 +52,9 @@ _EXPORTS = {
     "compare_stimulus": "radiometric",
     "plan_scaling": "scaling", "albedo_exposure_experiment": "scaling",
     "end_to_end": "scaling", "bench_min_exposure": "scaling",
+    "TruthScreen": "radiometric_truth", "ReferenceInstrument": "radiometric_truth",
+    "calibrate_radiometry": "radiometric_lab", "validate_radiometry": "radiometric_lab",
+    "RadiometricCalibration": "radiometric_lab",
     "run_check": "workflows", "run_geometric": "workflows", "run_radiometric": "workflows",
     "run_stimulate": "workflows", "HilReport": "workflows",
 }

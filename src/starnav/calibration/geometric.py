@@ -66,6 +66,8 @@ log = logging.getLogger(__name__)
 
 #: Frame indices (temporal-noise streams) of the geometric calibration acquisitions.
 FRAME_PREVIEW, FRAME_DARK, FRAME_DOTS, FRAME_VALIDATION = 99, 100, 101, 102
+#: Frame index of the random-layout hold-out (its dark frame: + 1000).
+FRAME_RANDOM_LAYOUT = 103
 #: Smallest connected area of a dot [px] (rejects isolated hot or noisy pixels).
 MIN_DOT_AREA_PX = 4
 #: Smallest dot spacing, in centroid windows (2 h + 1) [-].
@@ -726,6 +728,57 @@ def calibrate_geometry(bench: Bench, detector: DetectorStage | None = None,
     return res
 
 
+def random_layout_holdout(bench: Bench, calibration: ScreenMapping, n_points: int = 60,
+                          rng: np.random.Generator | None = None,
+                          detector: DetectorStage | None = None,
+                          exposure_time: float | None = None,
+                          dark_dn: FloatArray | None = None) -> dict[str, Any]:
+    """Geometric hold-out on a layout no calibration grid has: ``n_points`` point sources at
+    random positions (seeded, a star-field-like pattern, at least 4 centroid windows apart),
+    displayed through ``calibration`` and centroided; their angular error [arcsec].
+    ``exposure_time`` [s] and ``dark_dn`` default to a new preview and dark frame.
+
+    Raises
+    ------
+    CalibrationError
+        Fewer than half the points found.
+    """
+    cam = bench.camera
+    cfg = bench.config.geometric
+    rng = rng if rng is not None else bench_rng(bench.config, "random_layout")
+    det = detector if detector is not None else bench.chain_detector()
+    sep = 4.0 * cfg.centroid_half_window_px
+    lo = np.array([cfg.dot_margin_px, cfg.dot_margin_px])
+    hi = np.array([cam.width - 1 - cfg.dot_margin_px, cam.height - 1 - cfg.dot_margin_px])
+    pts: list[FloatArray] = []
+    for _ in range(100 * n_points):
+        if len(pts) == n_points:
+            break
+        p = lo + rng.random(2) * (hi - lo)
+        if all(np.hypot(*(p - q)) >= sep for q in pts):
+            pts.append(p)
+    des = np.array(pts)
+    t = pixel_to_tangent(cam, des)
+    scr = calibration.screen_for_tangent(t)
+    H, W = bench.screen_shape
+    ok = ((scr[:, 0] >= 0) & (scr[:, 0] <= W - 1) & (scr[:, 1] >= 0) & (scr[:, 1] <= H - 1))
+    des, t, scr = des[ok], t[ok], scr[ok]
+    if exposure_time is None:
+        counts = gaussian_dots(bench.screen_shape, scr, cfg.dot_sigma_screen_px,
+                               bench.radiometry.le_max, bench.radiometry)
+        exposure_time = auto_dot_exposure(bench, counts, det, cfg.dot_peak_fraction)
+    acq = acquire_dots(bench, des, scr, det, exposure_time, FRAME_RANDOM_LAYOUT, des, sep,
+                       dark_dn=dark_dn)
+    f = acq.found
+    if f.sum() < max(3, len(des) // 2):
+        raise CalibrationError(f"random-layout hold-out: {int(f.sum())} of {len(des)} points "
+                               "found (expected at least half)")
+    r = angular_residual_arcsec(t[f], pixel_to_tangent(cam, acq.observed_px[f]))
+    return {"points_shown": int(len(des)), "points_found": int(f.sum()),
+            "rms_arcsec": float(np.sqrt(np.mean(r**2))),
+            "p95_arcsec": float(np.percentile(r, 95)), "max_arcsec": float(r.max())}
+
+
 # =========================================================================== extended object
 def intensity_centroid(image: ArrayLike, mask: ArrayLike) -> FloatArray:
     """Intensity-weighted centroid ``(u, v)`` of ``image`` over ``mask`` [px] (weights not
@@ -742,4 +795,5 @@ __all__ = ["CalibrationError", "DotAcquisition", "GeometricCalibration",
            "GeometricCalibrationResult", "NominalMapping", "Polynomial2D", "ScreenMapping",
            "TrueMapping", "acquire_dots", "angular_residual_arcsec", "calibrate_geometry",
            "detect_dots", "dot_grid", "exponents", "intensity_centroid", "match_points",
-           "pixel_to_tangent", "prewarp", "stimulus_counts", "tangent_to_pixel"]
+           "pixel_to_tangent", "prewarp", "random_layout_holdout", "stimulus_counts",
+           "tangent_to_pixel"]

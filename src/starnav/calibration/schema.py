@@ -366,6 +366,175 @@ class CheckConfig(StrictModel):
         "derived from the camera (null: skip)")
 
 
+class RadiometricTruthConfig(StrictModel):
+    """How the real screen and collimator depart radiometrically from their datasheets (the
+    emulated truth; :mod:`starnav.calibration.radiometric_truth`).
+
+    The magnitudes are declared here; the departures themselves are drawn from the bench seed
+    (``truth_seed`` offsets it), so every seeded bench is a different, reproducible panel.
+    Sources: docs/facts.md section 7.
+    """
+
+    enabled: bool = Field(True, description="false: the truth screen is the datasheet one "
+                          "(every departure below is zero)")
+    angular_exponent: tuple[NonNegativeFloat, NonNegativeFloat, NonNegativeFloat] = Field(
+        (1.6, 2.0, 2.6), description="radiance of red, green, blue falls as cos^n of the "
+        "emission angle from the screen normal [-] (0: Lambertian; assumed values, measure "
+        "them)")
+    smooth_nonuniformity_rms: Annotated[float, Field(ge=0, le=0.2)] = Field(
+        0.03, description="rms of the smooth large-scale luminance field over the screen [-]")
+    pixel_nonuniformity_rms: Annotated[float, Field(ge=0, le=0.2)] = Field(
+        0.01, description="rms of the pixel-to-pixel luminance scatter [-]")
+    warmup_amplitude: Annotated[float, Field(ge=0, le=0.5)] = Field(
+        0.04, description="relative luminance deficit at power-on, relaxing exponentially [-]")
+    warmup_time_constant_min: PositiveFloat = Field(
+        15.0, description="warm-up time constant [min]")
+    drift_per_hour: Annotated[float, Field(ge=0, le=0.1)] = Field(
+        0.002, description="1-sigma linear luminance drift after warm-up [1/h]")
+    gamma_sigma: Annotated[float, Field(ge=0, le=0.5)] = Field(
+        0.05, description="1-sigma departure of each channel's gamma from the nominal [-]")
+    black_level_fraction: Annotated[float, Field(ge=0, lt=0.1)] = Field(
+        1e-3, description="true black level / full white [-] (an LCD of contrast 1000:1)")
+    ambient_fraction: Annotated[float, Field(ge=0, lt=0.1)] = Field(
+        2e-4, description="stray light inside the enclosure reaching the camera / full white "
+        "[-] (assumed)")
+    transmission_tolerance: Annotated[float, Field(ge=0, lt=0.2)] = Field(
+        0.02, description="as-built collimator transmission / collimator.transmission - 1 is "
+        "drawn uniform in +-this [-] (two AR-coated faces at < 1 % reflectance each)")
+    power_on_min: NonNegativeFloat = Field(
+        45.0, description="time from power-on to the start of the radiometric calibration "
+        "[min]")
+    truth_seed: Annotated[int, Field(ge=0)] = Field(
+        0, description="offset of the seed of the drawn departures (seed + truth_seed)")
+
+
+class ReferenceInstrumentConfig(StrictModel):
+    """The calibrated spectroradiometer the radiometric calibration is made against
+    (:class:`~starnav.calibration.radiometric_truth.ReferenceInstrument`).
+
+    Defaults are a display spectroradiometer's published specification (docs/facts.md
+    section 7): luminance accuracy +-2 % (100-5000 cd/m^2), +-3 % (0.2-100), +-4 %
+    (0.05-0.2); repeatability (2 sigma) 0.2 / 0.5 / 0.8 %; wavelength reproducibility +-1 nm;
+    380-780 nm; acceptance +-1 deg. Accuracies are read as 2-sigma bounds.
+    """
+
+    band_nm: tuple[PositiveFloat, PositiveFloat] = Field(
+        (380.0, 780.0), description="wavelength range of the instrument [nm]")
+    level_bounds_cd_m2: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
+        (0.05, 0.2, 100.0), description="luminance class bounds [cd/m^2]: below the first "
+        "the reading is out of range")
+    accuracy_2sigma: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
+        (0.04, 0.03, 0.02), description="absolute accuracy (2 sigma) of the three classes, "
+        "lowest first [-]")
+    repeatability_2sigma: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
+        (0.008, 0.005, 0.002), description="repeatability (2 sigma) of the three classes [-]")
+    wavelength_2sigma_nm: NonNegativeFloat = Field(
+        1.0, description="wavelength-scale error (2 sigma) [nm]")
+    spectral_tilt_2sigma: NonNegativeFloat = Field(
+        0.02, description="relative responsivity error, linear across the band, end to end "
+        "(2 sigma) [-] (assumed)")
+    acceptance_deg: PositiveFloat = Field(
+        1.0, description="half-angle of the measuring field [deg]")
+    aperture_mm: PositiveFloat = Field(
+        10.0, description="diameter of the instrument's entrance aperture [mm] (receptor "
+        "size)")
+
+
+class RadiometricLabConfig(StrictModel):
+    """The lab's radiometric calibration against the reference instrument, and its
+    validation (:mod:`starnav.calibration.radiometric_lab`)."""
+
+    lut_counts: tuple[Annotated[int, Field(ge=0)], ...] | None = Field(
+        None, description="grey counts read on axis to make the screen LUT, from 0 to the "
+        "full count; null: 0, 4, 8, 16, ... (powers of two up to half the levels), 3/4 of the "
+        "levels and the full count (8 bit: 0 4 8 16 32 64 128 192 255)")
+    flat_grid: tuple[Annotated[int, Field(ge=2)], Annotated[int, Field(ge=2)]] = Field(
+        (5, 5), description="field points (x, y) read at full white for the field factor")
+    flat_margin_px: NonNegativeFloat = Field(
+        40.0, description="distance of the outer field points from the detector edge [px]")
+    readings_per_point: Annotated[int, Field(ge=1, le=100)] = Field(
+        3, description="reference readings averaged per calibration point")
+    reading_time_s: PositiveFloat = Field(
+        10.0, description="time one reference reading takes [s] (warm-up drift during the "
+        "session)")
+    model_field: bool = Field(True, description="measure the field factor (angular emission, "
+                              "smooth non-uniformity); false: assume a uniform screen")
+    through_collimator: bool = Field(
+        True, description="read the screen through the collimator; false: read the bare "
+        "screen and apply collimator.transmission (the datasheet)")
+    measure_lut: bool = Field(True, description="read the LUT counts; false: nominal gamma "
+                              "scaled by the full-white reading")
+    monitor: bool = Field(True, description="re-read full white on axis when the bench is "
+                          "used and rescale (tracks warm-up and drift)")
+    validation_counts: tuple[Annotated[int, Field(ge=1)], ...] | None = Field(
+        None, description="hold-out grey counts of the validation (not in lut_counts); null: "
+        "13 24 48 100 220 on an 8-bit screen, the same fractions of the levels on another")
+    validation_exposures_ms: tuple[PositiveFloat, ...] = Field(
+        (0.5, 7.7, 200.0), description="hold-out exposures [ms] (200: the paper's full frame, "
+        "7.7: its fictitious exposure); each count is acquired at the longest one that keeps "
+        "the patch below 90 % of the full well")
+    validation_grid: tuple[Annotated[int, Field(ge=2)], Annotated[int, Field(ge=2)]] = Field(
+        (4, 4), description="hold-out field points (x, y), placed between the flat_grid points")
+    validation_delay_min: NonNegativeFloat = Field(
+        60.0, description="time from the end of the calibration to the validation [min]")
+    patch_half_px: Annotated[int, Field(ge=1, le=64)] = Field(
+        8, description="half size of the tracker patch averaged at each field point [px]")
+    emission_exponent_sigma: NonNegativeFloat = Field(
+        2.0, description="1-sigma of the screen's angular emission exponent (radiance ~ "
+        "cos^p) the lab assumes for an uncharacterised panel [-]: with the reference's "
+        "aperture smaller than the camera's pupil, the two average different emission cones")
+    tolerance: PositiveFraction = Field(
+        0.02, description="the paper's use: bench DN within this share of what the "
+        "calibration predicts [-]")
+    coverage_k: PositiveFloat = Field(
+        2.0, description="coverage factor of the stated expanded uncertainty [-]")
+
+    @model_validator(mode="after")
+    def _counts(self) -> RadiometricLabConfig:
+        c = self.lut_counts
+        if c is not None and (len(c) < 3 or c[0] != 0
+                              or any(b <= a for a, b in zip(c, c[1:], strict=False))):
+            raise ValueError(f"lut_counts {list(c)}: expected >= 3 strictly increasing counts "
+                             "starting at 0")
+        if c is not None and self.validation_counts is not None and \
+                set(self.validation_counts) & set(c):
+            raise ValueError(f"validation_counts {list(self.validation_counts)} share "
+                             f"{sorted(set(self.validation_counts) & set(c))} with lut_counts: "
+                             "a hold-out must not be a calibration point")
+        return self
+
+    def counts_for(self, max_count: int) -> tuple[tuple[int, ...], tuple[int, ...]]:
+        """``(lut_counts, validation_counts)`` for a screen whose full count is ``max_count``
+        (the defaults scaled to its levels).
+
+        Raises
+        ------
+        ConfigError
+            The LUT does not end at ``max_count``, a hold-out count is above it, or the
+            derived counts collide.
+        """
+        levels = max_count + 1
+        lut = self.lut_counts
+        if lut is None:
+            pw = [2**k for k in range(2, 64) if 2**k <= levels // 2]
+            lut = tuple(sorted({0, *pw, 3 * levels // 4, max_count}))
+        if lut[-1] != max_count:
+            raise ConfigError("radiometric_lab.lut_counts", list(lut),
+                              f"counts ending at the screen's full count {max_count}")
+        val = self.validation_counts
+        if val is None:
+            val = tuple(sorted({max(1, round(f * levels / 256)) for f in
+                                (13, 24, 48, 100, 220)} - set(lut)))
+        bad = [v for v in val if v > max_count]
+        if bad:
+            raise ConfigError("radiometric_lab.validation_counts", bad,
+                              f"counts <= the screen's full count {max_count}")
+        if set(val) & set(lut):
+            raise ConfigError("radiometric_lab.validation_counts", list(val),
+                              f"hold-outs that are not calibration counts {list(lut)}")
+        return tuple(int(x) for x in lut), tuple(int(x) for x in val)
+
+
 class BenchConfig(StrictModel):
     """A hardware-in-the-loop bench: screen, collimator, assembly errors, camera, knobs."""
 
@@ -377,6 +546,10 @@ class BenchConfig(StrictModel):
     radiometric: RadiometricConfig = Field(default_factory=RadiometricConfig)
     scaling: ScalingConfig = Field(default_factory=ScalingConfig)
     check: CheckConfig = Field(default_factory=CheckConfig)
+    radiometric_truth: RadiometricTruthConfig = Field(default_factory=RadiometricTruthConfig)
+    reference_instrument: ReferenceInstrumentConfig = Field(
+        default_factory=ReferenceInstrumentConfig)
+    radiometric_lab: RadiometricLabConfig = Field(default_factory=RadiometricLabConfig)
     scenario: Scenario = Field(
         default_factory=Scenario, description="camera, sensor response, detector, Moon and Sun "
         "(a mapping, or a scenario file path relative to the bench file)")

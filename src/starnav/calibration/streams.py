@@ -21,7 +21,8 @@ if TYPE_CHECKING:  # pragma: no cover
 #: Purpose keys (never renumber: results depend on them).
 STREAMS: Registry[int] = Registry("bench random stream", {
     "geometric": 1, "stimulus": 2, "radiometric": 3, "scaling": 4, "end_to_end": 5,
-    "placement": 6})
+    "placement": 6, "truth": 7, "reference": 8, "radiometric_lab": 9,
+    "random_layout": 10})
 
 
 def bench_rng(cfg: BenchConfig, purpose: str) -> np.random.Generator:

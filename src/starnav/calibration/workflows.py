@@ -20,7 +20,7 @@ import json
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -36,9 +36,11 @@ from starnav.calibration.geometric import (
     NominalMapping,
     ScreenMapping,
     calibrate_geometry,
+    random_layout_holdout,
 )
 from starnav.calibration.intrinsics import calibrate_camera
 from starnav.calibration.radiometric import compare_stimulus, count_flux_mapping, moon_flux
+from starnav.calibration.radiometric_lab import radiometric_lab
 from starnav.calibration.scaling import (
     albedo_exposure_experiment,
     bench_min_exposure,
@@ -110,7 +112,10 @@ def run_check(cfg: BenchConfig) -> HilReport:
 # =========================================================================== geometric
 def run_geometric(cfg: BenchConfig, *, moon: bool = True,
                   image: RadianceImage | None = None) -> HilReport:
-    """Dot-pattern calibration, residuals (Fig. 12) and the displayed-Moon check (Fig. 13).
+    """Dot-pattern calibration, residuals (Fig. 12), the displayed-Moon check (Fig. 13), the
+    camera's intrinsics and the radiometric calibration against the reference instrument with
+    its hold-out validation (:mod:`~starnav.calibration.radiometric_lab`); both calibrations
+    go to ``camera_calibration.json``.
 
     Parameters
     ----------
@@ -123,7 +128,12 @@ def run_geometric(cfg: BenchConfig, *, moon: bool = True,
     bench = Bench(cfg)
     res = calibrate_geometry(bench)
     intr = calibrate_camera(bench, res.calibration_dots)
-    summary: dict[str, Any] = {"geometric": res.summary(), "camera": intr.summary()}
+    lab = radiometric_lab(bench, bench.chain_detector())
+    summary: dict[str, Any] = {"geometric": res.summary(), "camera": intr.summary(),
+                               "random_layout_holdout": random_layout_holdout(
+                                   bench, res.calibration, exposure_time=res.exposure_time,
+                                   dark_dn=res.calibration_dots.dark_dn),
+                               "radiometric_lab": lab.summary()}
     figs = {"residuals_pdf_cdf": plots.residual_pdf_cdf(res),
             "dot_displacements": plots.dot_displacements(res)}
     if moon:
@@ -139,8 +149,9 @@ def run_geometric(cfg: BenchConfig, *, moon: bool = True,
         figs["moon_placement"] = plots.moon_placement(cal, unc)
     summary["bench"] = bench_to_dict(cfg)
     return HilReport(summary, figs, {"geometric_calibration.json": res.calibration.to_json(),
-                                     "camera_calibration.json": _json(
-                                         intr.calibration.to_dict())})
+                                     "camera_calibration.json": _json(replace(
+                                         intr.calibration,
+                                         radiometric=lab.calibration.to_dict()).to_dict())})
 
 
 def load_calibration(path: str | Path, bench: Bench) -> GeometricCalibration:

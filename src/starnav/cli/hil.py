@@ -119,8 +119,10 @@ def geometric(
     set_: SetOpt = None,
     overwrite: OverwriteOpt = False,
 ) -> None:
-    """Dot-pattern geometric calibration: residual PDF/CDF, pre-warped Moon placement, and the
-    calibration polynomials (geometric_calibration.json)."""
+    """Dot-pattern geometric calibration: residual PDF/CDF, pre-warped Moon placement, the
+    calibration polynomials (geometric_calibration.json), and camera_calibration.json: the
+    camera's intrinsics and the screen's radiometric calibration against the reference
+    instrument, with their covariance (hold-out validation in geometric.json)."""
     from starnav.calibration.workflows import run_geometric
     from starnav.errors import StarnavError
 
@@ -136,7 +138,18 @@ def geometric(
     rows = [("dots matched", f"{g['dots_matched']} / {g['dots_shown']}"),
             ("uncalibrated RMS (arcsec)", g["uncalibrated"]["rms_arcsec"]),
             ("hold-out RMS (arcsec)", g["holdout"].get("rms_arcsec", float("nan"))),
-            ("closed-loop RMS (arcsec)", g["closed_loop"].get("rms_arcsec", float("nan")))]
+            ("closed-loop RMS (arcsec)", g["closed_loop"].get("rms_arcsec", float("nan"))),
+            ("random-layout hold-out RMS (arcsec)",
+             rep.summary["random_layout_holdout"]["rms_arcsec"])]
+    lab = rep.summary["radiometric_lab"]
+    v, pl = lab["validation"], lab["plausibility"]
+    rows += [("radiometric hold-outs: rms error", v["rms_error"]),
+             ("  stated 1-sigma (rms)", v["sigma_rms"]),
+             ("  max |error| / sigma (limit)", f"{v['max_abs_z']:.3g} ({v['z_crit']:.3g})"),
+             ("  meets the paper's use", f"{v['meets_paper_use']} (tolerance "
+              f"{v['tolerance']:g} at {v['coverage_k']:g} sigma)"),
+             ("screen too dim by (calibrated)", pl["screen_too_dim"]["calibrated"]),
+             ("k = 13 333 peak count (calibrated)", pl["k_peak_count"]["calibrated"])]
     if "moon_placement" in rep.summary:
         m = rep.summary["moon_placement"]
         rows += [("Moon offset, calibrated (px)", m["calibrated_offset_px"]),
