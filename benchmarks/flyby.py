@@ -10,6 +10,7 @@ estimator on synthetic measurements (:func:`bench_filter`). Usage::
     export DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM.so.19.1
     .venv/bin/python benchmarks/flyby.py                 # everything
     .venv/bin/python benchmarks/flyby.py --closed-loop   # the closed loop and the budget
+    .venv/bin/python benchmarks/flyby.py --scoring       # the scoring fly-bys vs targets
 """
 
 from __future__ import annotations
@@ -116,6 +117,9 @@ def main() -> None:
     if "--closed-loop" in sys.argv:
         bench_closed_loop()
         return
+    if "--scoring" in sys.argv:
+        bench_scoring()
+        return
     bench_front_end()
     bench_filter()
     bench_closed_loop()
@@ -146,6 +150,43 @@ def bench_closed_loop(runs: int = 3) -> None:
                                                    for k, v in loop.timings_s.items()},
                       "tracker_budget": tracker_budget(loop.timings_s, mem),
                       "load": os.getloadavg()}, indent=1))
+
+
+def bench_scoring(runs: int = 20) -> None:
+    """The scoring fly-bys (``navigation.trn.scoring.SCORING_FLYBYS``: Itokawa outside the
+    calibration envelope and Eros), ``runs`` dispersed synthetic runs each on the coarse map,
+    against the targets; the packaged record (tools/score_flyby.py) beside each number."""
+    from starnav.navigation.trn.scoring import SCORING_FLYBYS, TARGETS, read_record, score_case
+
+    rec = read_record()["scoring"]
+    lo, hi = TARGETS["epochs_in_band"]
+    rows = (("epochs inside the per-epoch 95 % band", "epochs_in_band", f"{lo:.2f} - {hi:.2f}"),
+            ("time-averaged ANEES (6 states)", "anees_mean", "in band"),
+            ("position NEES (3)", ("position_nees", "mean"), "in band"),
+            ("velocity NEES (3)", ("velocity_nees", "mean"), "in band"),
+            ("CA position error, median [% range]", "ca_position_pct_median",
+             f"<= {TARGETS['ca_position_pct_median']}"),
+            ("CA position error, 95th pct [% range]", "ca_position_pct_p95",
+             f"<= {TARGETS['ca_position_pct_p95']}"),
+            ("CA velocity error, 95th pct [% v_inf]", "ca_velocity_pct_v_inf_p95",
+             f"< {TARGETS['ca_velocity_pct_v_inf']}"),
+            ("filter CPU per frame, desktop [ms]", "filter_cpu_ms_per_frame", "-"),
+            ("filter per frame, MCU estimate [ms]", "filter_mcu_ms_estimate",
+             f"<= {TARGETS['mcu_budget_ms']:.0f} (front end not included)"))
+
+    def get(d, key):
+        return d[key[0]][key[1]] if isinstance(key, tuple) else d[key]
+
+    for case in SCORING_FLYBYS:
+        s = score_case(case, runs)
+        print(f"\n{case.name}: {case.body}, v_inf {case.v_inf_km_s} km/s, CA "
+              f"{case.closest_approach_km} km, phase {case.phase_at_ca_deg} deg, {s['frames']} "
+              f"frames, {runs} runs (ANEES band {s['anees_band'][0]:.2f} - "
+              f"{s['anees_band'][1]:.2f})")
+        print(f"  {'metric':40s} {'now':>9s} {'recorded':>9s}  target")
+        for label, key, target in rows:
+            print(f"  {label:40s} {get(s, key):9.3f} {get(rec[case.name], key):9.3f}  {target}")
+        print(f"  targets met: {s['targets_met']}")
 
 
 if __name__ == "__main__":

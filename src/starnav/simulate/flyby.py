@@ -80,10 +80,12 @@ from numpy.typing import NDArray
 
 from starnav.atomic import atomic_path, atomic_write_text
 from starnav.bodies.base import TargetBody
+from starnav.bodies.small_body import ShapeModelBody
 from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
 from starnav.config_base import set_dotted
 from starnav.errors import ConfigError, GeometryError
 from starnav.geometry import FrameGeometry
+from starnav.navigation.trn.body_model import EstimatorModel, estimator_model
 from starnav.navigation.trn.filter import FlybyRun, TrnFilterOptions, run_filter
 from starnav.navigation.trn.frontend import FlybyFrontEnd
 from starnav.navigation.trn.measurements import FlybyMeasurement
@@ -107,7 +109,7 @@ from starnav.radiance import RadianceImage
 from starnav.seeding import STAGE_NAVIGATION, generator
 from starnav.simulate.build import body_from_scenario
 from starnav.simulate.frames import Simulator
-from starnav.simulate.trn import FlybyStep, flyby_exposures, track_flyby
+from starnav.simulate.trn import FlybyStep, flyby_exposures, flyby_frame_budget, track_flyby
 from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
@@ -118,6 +120,10 @@ INITIAL_ERROR_STREAM = 17
 #: Last key of a run's orientation draw ``(seed, STAGE_NAVIGATION, run, 0, 18)`` under
 #: ``navigation.trn.dispersion: orientation`` (never change).
 DISPERSION_STREAM = 18
+#: Last key of a run's draw of the coarse shape model's scale error ``(seed,
+#: STAGE_NAVIGATION, run, 0, 19)`` under ``navigation.trn.shape_model.kind: coarse`` (never
+#: change).
+SHAPE_SCALE_STREAM = 19
 
 Renders = Sequence[tuple[FrameGeometry, RadianceImage]]
 
@@ -144,6 +150,7 @@ def check_flyby_scenario(sc: Scenario) -> None:
         raise ConfigError("target.kind", None if sc.target is None else sc.target.kind,
                           "'shape_model' (a small body's shape model) for the fly-by "
                           "navigation: the Moon is navigated from its limb")
+    flyby_frame_budget(sc)     # a cadence the readout law refuses, under policy enforce
 
 
 @dataclass
@@ -245,6 +252,16 @@ def render_flyby(sim: Simulator, progress: Callable[[int, int], None] | None = N
     return out, (time.perf_counter() - t0) / max(len(sim), 1)
 
 
+def estimator_body(sc: Scenario, run: int, truth: ShapeModelBody,
+                   options: TrnFilterOptions) -> EstimatorModel:
+    """Run ``run``'s body model (``navigation.trn.shape_model``,
+    :func:`~starnav.navigation.trn.body_model.estimator_model`): the scale error's unit draw
+    is on the stream ``generator(seed, STAGE_NAVIGATION, run, 0, SHAPE_SCALE_STREAM)``."""
+    g = generator(int(sc.seed), STAGE_NAVIGATION, int(run), 0, SHAPE_SCALE_STREAM)
+    return estimator_model(truth, sc.navigation.trn.shape_model, options,
+                           float(g.standard_normal()))
+
+
 def initial_state(truth0: FloatArray, P0: FloatArray, seed: int, run: int) -> FloatArray:
     """Run ``run``'s initial estimate: the first true state plus a draw from ``P0`` (module
     step 2c)."""
@@ -258,9 +275,10 @@ def flyby_run(sim: Simulator, renders: Renders, run: int, *,
               filter_options: TrnFilterOptions | None = None,
               initial_covariance: FloatArray | None = None,
               body: TargetBody | None = None, memory: bool = False) -> FlybyRunResult:
-    """One run of the closed loop on frames already rendered (module step 2); with
-    ``memory`` the peak traced memory of the front end and of the filter (tracemalloc: slower,
-    the run's timings are then not representative)."""
+    """One run of the closed loop on frames already rendered (module step 2); ``body``: the
+    truth's body (default read from the scenario; the estimator's own model is
+    :func:`estimator_body`); with ``memory`` the peak traced memory of the front end and of
+    the filter (tracemalloc: slower, the run's timings are then not representative)."""
     sc = sim.scenario
     check_flyby_scenario(sc)
     trn = sc.navigation.trn
@@ -269,6 +287,8 @@ def flyby_run(sim: Simulator, renders: Renders, run: int, *,
     P0 = (trn.filter.initial_covariance() if initial_covariance is None
           else np.asarray(initial_covariance, float))
     body = body if body is not None else body_from_scenario(sc)
+    assert isinstance(body, ShapeModelBody)  # check_flyby_scenario
+    model = estimator_body(sc, run, body, fo)
     truth = sim.scene.relative_states
     flyby = sim.scene.flyby
     assert flyby is not None  # check_flyby_scenario
@@ -289,7 +309,8 @@ def flyby_run(sim: Simulator, renders: Renders, run: int, *,
     X = truth[idx]
     x0 = initial_state(X[0], P0, sc.seed, run)
     t0 = time.perf_counter()
-    res = run_filter(meas, sim.camera, body, x0, P0, fo)
+    res = run_filter(meas, sim.camera, model.body, x0, P0, model.options)
+    res.info["shape_model"] = model.info
     t_filter = time.perf_counter() - t0
     if memory:
         assert mem is not None
@@ -551,6 +572,7 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
                                      for k, v in loop.timings_s.items()}
     mem = flyby_run(sim, renders, r0.run, memory=True).memory_bytes
     metrics["tracker_budget"] = budget = tracker_budget(loop.timings_s, mem)
+    metrics["frame_budget"] = flyby_frame_budget(sim.scenario).to_dict()
     mc = None
     if runs >= 2:
         mc = {k: v for k, v in loop.summary.items() if k != "nees_per_frame"}
