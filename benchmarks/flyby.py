@@ -18,6 +18,7 @@ from __future__ import annotations
 import datetime
 import json
 import logging
+import math
 import os
 import platform
 import time
@@ -179,8 +180,9 @@ def bench_scoring(runs: int = 20) -> None:
 
     for case in SCORING_FLYBYS:
         s = score_case(case, runs)
-        print(f"\n{case.name}: {case.body}, v_inf {case.v_inf_km_s} km/s, CA "
-              f"{case.closest_approach_km} km, phase {case.phase_at_ca_deg} deg, {s['frames']} "
+        print(f"\n{case.name}: {case.body}, v_inf {case.v_inf / 1e3} km/s, CA "
+              f"{case.closest_approach / 1e3} km, phase {math.degrees(case.phase_at_ca):.0f} "
+              f"deg, {s['frames']} "
               f"frames, {runs} runs (ANEES band {s['anees_band'][0]:.2f} - "
               f"{s['anees_band'][1]:.2f})")
         print(f"  {'metric':40s} {'now':>9s} {'recorded':>9s}  target")

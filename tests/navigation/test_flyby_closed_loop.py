@@ -350,7 +350,11 @@ def test_cli_navigate_a_flyby_scenario(tmp_path):
     out = tmp_path / "out"
     res = cli.invoke(app, ["navigate", str(sc), "--out", str(out), "--runs", "2",
                            "--set", "trajectory.frames=5", "--set",
-                           "trajectory.flyby.start_s=-0.5"], env=env)
+                           "trajectory.flyby.start_s=-0.5",
+                           # the AA-STR's field (20.6 deg) on 256 px: the render is the
+                           # preset's test_flyby_aastr.py renders at 1024 px
+                           "--set", "camera.width=256", "--set", "camera.height=256",
+                           "--set", "camera.focal_length_mm=12.675"], env=env)
     assert res.exit_code == 0, res.output
     m = json.loads((out / "metrics.json").read_text())
     assert m["frames"] == 5 and m["monte_carlo"]["runs"] == 2

@@ -22,6 +22,7 @@ rendered frames: ``benchmarks/flyby.py``).
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -67,28 +68,30 @@ DESKTOP_TO_MCU = 130.0
 
 @dataclass(frozen=True)
 class FlybyCase:
-    """A fly-by geometry of the calibration or the scoring."""
+    """A fly-by geometry of the calibration or the scoring, SI: ``v_inf`` [m/s],
+    ``closest_approach`` [m], ``phase_at_ca`` [rad], ``cadence`` [s]; the first frame
+    ``start_ca_ranges`` CA distances out, the last as far after."""
 
     name: str
     body: str
-    v_inf_km_s: float
-    closest_approach_km: float
-    phase_at_ca_deg: float
-    start_ca_ranges: float     # first frame at this many CA distances out (and as far after)
-    cadence_s: float
+    v_inf: float
+    closest_approach: float
+    phase_at_ca: float
+    start_ca_ranges: float
+    cadence: float
 
 
 #: Where the coarse-map knobs were chosen (the silhouette sigmas, the birth rule).
 CALIBRATION_FLYBYS: tuple[FlybyCase, ...] = (
-    FlybyCase("itokawa-calibration", "itokawa", 1.0, 8.0, 40.0, 6.0, 4.0),
-    FlybyCase("itokawa-development", "itokawa", 0.5, 5.0, 60.0, 10.0, 4.0),
+    FlybyCase("itokawa-calibration", "itokawa", 1.0e3, 8.0e3, math.radians(40.0), 6.0, 4.0),
+    FlybyCase("itokawa-development", "itokawa", 0.5e3, 5.0e3, math.radians(60.0), 10.0, 4.0),
 )
 
 #: Scored once per default, outside the calibration envelope (v_inf 0.5 - 1 km/s, CA 5 - 8 km,
 #: phase 40 - 60 deg, Itokawa).
 SCORING_FLYBYS: tuple[FlybyCase, ...] = (
-    FlybyCase("itokawa-fast-close", "itokawa", 1.5, 3.0, 80.0, 16.0, 1.0),
-    FlybyCase("eros", "eros", 3.0, 150.0, 30.0, 4.0, 4.0),
+    FlybyCase("itokawa-fast-close", "itokawa", 1.5e3, 3.0e3, math.radians(80.0), 16.0, 1.0),
+    FlybyCase("eros", "eros", 3.0e3, 150.0e3, math.radians(30.0), 4.0, 4.0),
 )
 
 
@@ -98,12 +101,12 @@ def case_monte_carlo(case: FlybyCase, runs: int, seed: int = 11
     time of the filter runs per frame and run [s] (the synthetic truth's excluded)."""
     body = ShapeModelBody(ShapeModelConfig(model=case.body))
     cam = Camera.preset("aa-str")
-    fl = flyby_from_config(FlybyConfig(v_inf_km_s=case.v_inf_km_s,
-                                       closest_approach_km=case.closest_approach_km,
-                                       phase_at_ca_deg=case.phase_at_ca_deg),
+    fl = flyby_from_config(FlybyConfig(v_inf_km_s=case.v_inf / 1e3,
+                                       closest_approach_km=case.closest_approach / 1e3,
+                                       phase_at_ca_deg=math.degrees(case.phase_at_ca)),
                            epoch_ca=0.0, gm=body.gm)
-    half = case.start_ca_ranges * case.closest_approach_km / case.v_inf_km_s
-    epochs = np.arange(-half, half + 1e-9, case.cadence_s)
+    half = case.start_ca_ranges * case.closest_approach / case.v_inf
+    epochs = np.arange(-half, half + 1e-9, case.cadence)
     truth = flyby_truth(fl, body, cam, epochs, SYNTHETIC, seed=1)
     cfg = TrnFilterConfig(**SYNTHETIC_FILTER)
     t0 = time.process_time()
@@ -126,7 +129,7 @@ def score(mc: FlybyMonteCarlo, case: FlybyCase, cpu_s_per_frame: float) -> dict[
         blocks[name] = {"mean": b["mean"], "band": b["band"], "verdict": b["verdict"]}
     k = closest_approach_index(mc.truth.epochs, mc.truth.epoch_ca)
     pos = np.array([m.ca_position_error_pct_range for m in mc.metrics])
-    vel = np.array([100.0 * np.linalg.norm(run.errors(X)[k, 3:]) / (case.v_inf_km_s * 1e3)
+    vel = np.array([100.0 * np.linalg.norm(run.errors(X)[k, 3:]) / case.v_inf
                     for run in mc.runs])
     mcu_ms = 1e3 * DESKTOP_TO_MCU * cpu_s_per_frame
     lo, hi = TARGETS["epochs_in_band"]
