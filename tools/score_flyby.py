@@ -40,7 +40,7 @@ def main() -> None:
         "what": "fly-by estimator on the coarse shape model, synthetic measurements on the "
                 "AA-STR (starnav.navigation.trn.scoring); written by tools/score_flyby.py",
         "defaults": {"synthetic_filter": SYNTHETIC_FILTER,
-                     "shape_model": TrnShapeModelConfig(kind="coarse").model_dump(),
+                     "shape_model": TrnShapeModelConfig(map="coarse").model_dump(),
                      "filter": TrnFilterConfig(**SYNTHETIC_FILTER).model_dump()},
         "targets": TARGETS,
         "calibration": {c.name: score_case(c, args.runs) for c in CALIBRATION_FLYBYS},

@@ -129,7 +129,7 @@ def test_the_map_the_filter_uses_is_not_the_truth():
     scale sigma and a landmark height sigma of the model's; fails if the two meshes or their
     scales are identical."""
     sc = preset()
-    assert sc.navigation.trn.shape_model.kind == "coarse"
+    assert sc.navigation.trn.shape_model.map == "coarse"
     truth = body_from_scenario(sc)
     opts = sc.navigation.trn.filter.options()
     m0, m1 = (estimator_body(sc, r, truth, opts) for r in (0, 1))
@@ -160,7 +160,7 @@ def synthetic_pass(body, epochs, runs, *, v=0.5, ca=5.0, phase=60.0):
     c = TrnFilterConfig(**SYNTHETIC_FILTER)
     return truth, flyby_monte_carlo(truth, cam, body, runs, c.initial_covariance(), seed=SEED,
                                     synthetic=SYN, options=c.options(),
-                                    shape_model=TrnShapeModelConfig(kind="coarse"))
+                                    shape_model=TrnShapeModelConfig(map="coarse"))
 
 
 @pytest.fixture(scope="module")
@@ -195,7 +195,7 @@ def test_the_scale_is_carried_not_estimated(short_pass):
     _, mc = short_pass
     for run in mc.runs:
         info = run.info
-        assert info["shape_model"]["kind"] == "coarse"
+        assert info["shape_model"]["map"] == "coarse"
         assert np.all(info["shape_scale"] == 0.0)
         assert np.allclose(info["shape_scale_sigma"], 0.02)
         assert abs(info["shape_model"]["scale_truth"]) < 3 * 0.02
@@ -237,7 +237,7 @@ def test_scoring_record_is_of_the_current_defaults_and_outside_the_envelope():
 
     assert rec["defaults"]["synthetic_filter"] == as_json(SYNTHETIC_FILTER)
     assert rec["defaults"]["shape_model"] == as_json(
-        TrnShapeModelConfig(kind="coarse").model_dump())
+        TrnShapeModelConfig(map="coarse").model_dump())
     assert rec["defaults"]["filter"] == as_json(TrnFilterConfig(**SYNTHETIC_FILTER).model_dump())
     assert {c.name for c in SCORING_FLYBYS} == set(rec["scoring"])
     assert {c.name for c in CALIBRATION_FLYBYS} == set(rec["calibration"])

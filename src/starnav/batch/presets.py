@@ -290,7 +290,7 @@ FLYBY: dict[str, Any] = {
                              "phase_at_ca_deg": 60.0, "start_s": -100.0, "end_s": 100.0}},
     "pointing": {"moon_offset": "fixed", "roll": "fixed"},
     "detector": {"exposure_time_s": 3e-5},
-    "navigation": {"trn": {"front_end": {"n_windows": 16}, "shape_model": {"kind": "coarse"}}},
+    "navigation": {"trn": {"front_end": {"n_windows": 16}, "shape_model": {"map": "coarse"}}},
     "seed": 7}
 
 

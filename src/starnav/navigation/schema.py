@@ -346,7 +346,7 @@ class TrnShapeModelConfig(StrictModel):
     """The body model the fly-by estimator navigates on (the truth always renders the full
     shape model of ``target``)."""
 
-    kind: Literal["exact", "coarse"] = Field(
+    map: Literal["exact", "coarse"] = Field(
         "exact", description="exact: the rendered mesh itself (an idealised map, the former "
         "behaviour); coarse: a decimated, smoothed model of it whose scale is drawn per run "
         "(starnav.bodies.shape.coarse_shape_model): what a mission has before the fly-by")

@@ -121,7 +121,7 @@ INITIAL_ERROR_STREAM = 17
 #: ``navigation.trn.dispersion: orientation`` (never change).
 DISPERSION_STREAM = 18
 #: Last key of a run's draw of the coarse shape model's scale error ``(seed,
-#: STAGE_NAVIGATION, run, 0, 19)`` under ``navigation.trn.shape_model.kind: coarse`` (never
+#: STAGE_NAVIGATION, run, 0, 19)`` under ``navigation.trn.shape_model.map: coarse`` (never
 #: change).
 SHAPE_SCALE_STREAM = 19
 

@@ -53,7 +53,7 @@ class EstimatorModel:
     scale_error : float
         The model's size over the truth's, minus 1 [-] (0 for ``exact``).
     info : dict
-        ``kind``, ``faces``, ``scale_error``, ``scale_truth`` (the filter's scale state at
+        ``map``, ``faces``, ``scale_error``, ``scale_truth`` (the filter's scale state at
         truth, ``1 / (1 + scale_error) - 1``); coarse: ``height_rms_m`` and ``height_max_m``
         of the truth's vertices from the model's surface (before scaling).
     """
@@ -76,12 +76,12 @@ def estimator_model(truth: ShapeModelBody, config: Any, options: TrnFilterOption
     """The model of a run whose scale error is ``config.scale_sigma * unit_draw``
     (``config``: a :class:`~starnav.navigation.schema.TrnShapeModelConfig`; ``unit_draw`` a
     standard normal draw of the run's stream)."""
-    if config.kind == "exact":
+    if config.map == "exact":
         return EstimatorModel(truth, options, 0.0, {
-            "kind": "exact", "faces": truth.shape.n_faces, "scale_error": 0.0,
+            "map": "exact", "faces": truth.shape.n_faces, "scale_error": 0.0,
             "scale_truth": 0.0})
-    if config.kind != "coarse":
-        raise ConfigError("navigation.trn.shape_model.kind", config.kind, "exact or coarse")
+    if config.map != "coarse":
+        raise ConfigError("navigation.trn.shape_model.map", config.map, "exact or coarse")
     coarse = coarse_of(truth, config.faces, config.smoothing_iterations)
     e = float(config.scale_sigma) * float(unit_draw)
     shape = ShapeModel(coarse.shape.vertices * (1.0 + e), coarse.shape.faces,
@@ -93,6 +93,6 @@ def estimator_model(truth: ShapeModelBody, config: Any, options: TrnFilterOption
         birth_position_sigma=(options.birth_position_sigma or
                               float(config.birth_sigma_fraction) * coarse.mean_radius))
     return EstimatorModel(ShapeModelBody(truth.config, shape=shape), opts, e, {
-        "kind": "coarse", "faces": shape.n_faces, "scale_error": e,
+        "map": "coarse", "faces": shape.n_faces, "scale_error": e,
         "scale_truth": 1.0 / (1.0 + e) - 1.0, "height_rms_m": coarse.height_rms,
         "height_max_m": coarse.height_max})

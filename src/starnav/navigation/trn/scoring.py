@@ -112,7 +112,7 @@ def case_monte_carlo(case: FlybyCase, runs: int, seed: int = 11
     t0 = time.process_time()
     mc = flyby_monte_carlo(truth, cam, body, runs, cfg.initial_covariance(), seed=seed,
                            synthetic=SYNTHETIC, options=cfg.options(),
-                           shape_model=TrnShapeModelConfig(kind="coarse"))
+                           shape_model=TrnShapeModelConfig(map="coarse"))
     return mc, (time.process_time() - t0) / (runs * epochs.size)
 
 
