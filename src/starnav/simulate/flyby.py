@@ -104,6 +104,7 @@ from starnav.navigation.trn.metrics import (
 )
 from starnav.navigation.trn.montecarlo import summarise_runs
 from starnav.navigation.trn.options import FrontEndOptions
+from starnav.navigation.trn.truth import BODY_AOVS
 from starnav.navigation.trn.windows import WindowReader
 from starnav.radiance import RadianceImage
 from starnav.seeding import STAGE_NAVIGATION, generator
@@ -126,6 +127,9 @@ DISPERSION_STREAM = 18
 SHAPE_SCALE_STREAM = 19
 
 Renders = Sequence[tuple[FrameGeometry, RadianceImage]]
+#: The render channels the closed loop reads besides the radiance: the body mask and the
+#: body-fixed surface points of the feature truth.
+KEPT_AOVS = ("mask", *BODY_AOVS)
 
 
 def is_flyby_scenario(sc: Scenario) -> bool:
@@ -241,12 +245,16 @@ class FlybyClosedLoop:
 def render_flyby(sim: Simulator, progress: Callable[[int, int], None] | None = None
                  ) -> tuple[list[tuple[FrameGeometry, RadianceImage]], float]:
     """Module step 1: every frame rendered once; returns the renders and the mean render
-    time per frame [s]."""
+    time per frame [s]. Each frame keeps only what the loop reads (the radiance, the mask and
+    the body-fixed points of the truth: :data:`KEPT_AOVS`), 6 of 15 channels: a 1024 x 1024
+    frame takes 25 MB instead of 63 MB, and every frame of the pass is held."""
     check_flyby_scenario(sim.scenario)
     out = []
     t0 = time.perf_counter()
     for i in range(len(sim)):
-        out.append(sim.render(i))
+        geom, img = sim.render(i)
+        out.append((geom, dataclasses.replace(
+            img, aovs={k: v for k, v in img.aovs.items() if k in KEPT_AOVS})))
         if progress is not None:
             progress(i + 1, len(sim))
     return out, (time.perf_counter() - t0) / max(len(sim), 1)
