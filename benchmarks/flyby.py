@@ -11,6 +11,7 @@ estimator on synthetic measurements (:func:`bench_filter`). Usage::
     .venv/bin/python benchmarks/flyby.py                 # everything
     .venv/bin/python benchmarks/flyby.py --closed-loop   # the closed loop and the budget
     .venv/bin/python benchmarks/flyby.py --scoring       # the scoring fly-bys vs targets
+    .venv/bin/python benchmarks/flyby.py --aastr         # the preset about CA, both maps
 """
 
 from __future__ import annotations
@@ -121,6 +122,9 @@ def main() -> None:
     if "--scoring" in sys.argv:
         bench_scoring()
         return
+    if "--aastr" in sys.argv:
+        bench_aastr()
+        return
     bench_front_end()
     bench_filter()
     bench_closed_loop()
@@ -151,6 +155,37 @@ def bench_closed_loop(runs: int = 3) -> None:
                                                    for k, v in loop.timings_s.items()},
                       "tracker_budget": tracker_budget(loop.timings_s, mem),
                       "load": os.getloadavg()}, indent=1))
+
+
+def bench_aastr(runs: int = 4, half_s: float = 5.0) -> None:
+    """The fly-by preset (the AA-STR) cut to ``-half_s .. +half_s`` about CA, rendered once,
+    ``runs`` runs on the exact and on the coarse map: per-frame stage times, the per-epoch
+    and time-averaged ANEES, the CA error per run."""
+    from starnav.batch.presets import flyby_scenario
+    from starnav.config import scenario_from_dict
+    from starnav.navigation.metrics import anees_statistics
+    from starnav.simulate import Simulator
+    from starnav.simulate.flyby import flyby_closed_loop, render_flyby
+
+    renders = None
+    for kind in ("exact", "coarse"):
+        d = flyby_scenario()
+        d["trajectory"]["flyby"].update(start_s=-half_s, end_s=half_s)
+        d["navigation"]["trn"]["shape_model"]["map"] = kind
+        sim = Simulator(scenario_from_dict(d))
+        t_render = float("nan")
+        if renders is None:
+            renders, t_render = render_flyby(sim)
+        loop = flyby_closed_loop(sim, runs, renders=renders)
+        st = anees_statistics(np.array([r.filter.nees(loop.truth) for r in loop.runs]), 6)
+        print(json.dumps({
+            "map": kind, "frames": len(renders), "runs": runs, "render_s": t_render,
+            "ms_per_frame": {k: round(1e3 * v, 1) for k, v in loop.timings_s.items()},
+            "anees": st["mean"], "band": st["band"], "verdict": st["verdict"],
+            "epochs_in_band": st["epochs_in_band"],
+            "ca_error_pct_range": [round(r.metrics.ca_position_error_pct_range, 3)
+                                   for r in loop.runs],
+            "load": os.getloadavg()}, default=float))
 
 
 def bench_scoring(runs: int = 20) -> None:
