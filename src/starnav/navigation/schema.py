@@ -363,7 +363,8 @@ class TrnShapeModelConfig(StrictModel):
     height_sigma_fraction: Annotated[float, Field(ge=0, lt=0.5)] = Field(
         0.015, description="the coarse model's height error at a landmark, 1-sigma, as a "
         "fraction of the body's mean radius [-] (the landmark height sigma is the larger of "
-        "this and filter.landmark_height_sigma_m; 500 faces: Itokawa 0.7 %, Eros 1.3 % rms)")
+        "this and filter.landmark_height_sigma_m; the packaged bodies' at 500 faces: "
+        "docs/navigation.md)")
     birth_sigma_fraction: Annotated[float, Field(ge=0)] = Field(
         0.3, description="no landmark is born on the coarse model while the position's "
         "largest 1-sigma exceeds this fraction of the mean radius [-] (filter step 7a; "

@@ -246,8 +246,8 @@ def render_flyby(sim: Simulator, progress: Callable[[int, int], None] | None = N
                  ) -> tuple[list[tuple[FrameGeometry, RadianceImage]], float]:
     """Module step 1: every frame rendered once; returns the renders and the mean render
     time per frame [s]. Each frame keeps only what the loop reads (the radiance, the mask and
-    the body-fixed points of the truth: :data:`KEPT_AOVS`), 6 of 15 channels: a 1024 x 1024
-    frame takes 25 MB instead of 63 MB, and every frame of the pass is held."""
+    the body-fixed points of the truth: :data:`KEPT_AOVS`), 6 of the render's 15 channels:
+    every frame of the pass is held."""
     check_flyby_scenario(sim.scenario)
     out = []
     t0 = time.perf_counter()

@@ -9,15 +9,14 @@ Itokawa is about 9 % too large in scale against Hayabusa's). The estimator there
 * ``coarse``: :func:`~starnav.bodies.shape.coarse_shape_model` of the truth (quadric
   decimation to ``faces`` triangles, Taubin smoothing, the truth's volume), scaled by
   ``1 + e`` with ``e ~ N(0, scale_sigma^2)`` drawn per Monte Carlo run. The filter carries the
-  scale as a random-constant state of sigma ``scale_sigma``
-  (:data:`~starnav.navigation.trn.filter.SCALE`, filter step 4e) when ``estimate_scale``, and
-  its landmarks' height 1-sigma is at least ``height_sigma_fraction`` of the mean radius (the
-  coarse model's departure from the surface; measured rms for 500 faces: Itokawa 0.7 %, Eros
-  1.3 % of the radius); no landmark is born on it while the position's largest 1-sigma
-  exceeds ``birth_sigma_fraction`` of the mean radius (filter step 7a: a landmark cast from a
-  loose position is a poor linearisation, and with the scale state the filter then gains
-  information along the direction that only the priors fix, the trajectory's scale, and
-  becomes overconfident; the known inconsistency of EKF-SLAM, Huang, Mourikis & Roumeliotis
+  scale as a consider state of sigma ``scale_sigma`` (filter step 4e) when ``estimate_scale``,
+  and its landmarks' height 1-sigma is at least ``height_sigma_fraction`` of the mean radius
+  (the coarse model's departure from the surface, ``CoarseShape.height_rms``; docs/navigation.md
+  gives it for the packaged bodies). No landmark is born on it while the position's largest
+  1-sigma exceeds ``birth_sigma_fraction`` of the mean radius (filter step 7a: a landmark cast
+  from a loose position is a poor linearisation, and with the scale state the filter then
+  gains information along the direction that only the priors fix, the trajectory's scale, and
+  becomes overconfident: the known inconsistency of EKF-SLAM, Huang, Mourikis & Roumeliotis
   2008, "Analysis and improvement of the consistency of extended Kalman filter based SLAM").
 
 :func:`estimator_model` builds it; the coarse shape of a truth is built once

@@ -126,6 +126,18 @@ Technique (per frame)
    factors ``s_k`` (step 4a), ``uv_c + E_b (s_k mu)_{1,2}`` and ``rho (1 + s_k,r mu_r +
    b_r)``; the bias states then carry the scatter about it (their sigmas and correlation
    time calibrated on the deviations from the mean, tools/calibrate_flyby_model_error.py).
+4e. **The shape model's scale** (``scale_sigma``): a model whose size is known to ``sigma``
+   only (a coarse pre-fly-by model, :mod:`~starnav.navigation.trn.body_model`) is the truth
+   times ``1 + s``; ``s`` is a state of prior sigma ``scale_sigma`` in the predicted radius
+   (``k (1 + s) / |r|``), the centroid's frozen point (``D (1 + s)``, D body-centred) and every
+   landmark born on the model (the facet plane's offset ``n . p`` scales with it: ``d / (n.d)
+   n . p / (1 + s)`` per unit of ``s``). With ``scale_consider`` it is a Schmidt consider
+   state: its gain rows are zeroed, so its value stays the model's and its uncertainty and
+   correlations are carried (the Joseph update holds for any gain). Estimated instead, the
+   problem's overall scale (trajectory, landmarks and body together) is fixed only by the
+   priors, and the EKF's linearisation errors give it spurious information (the EKF-SLAM
+   inconsistency, Huang, Mourikis & Roumeliotis 2008): the estimate goes several sigma off
+   (docs/navigation.md).
 5. **Gate** each feature, the centroid and the radius on their own innovation,
    ``nu^T S^-1 nu < chi2.ppf(gate_probability, dof)``; a rejected feature's landmark is
    dropped and its track id ignored from then on (a tracker that jumped keeps the id).
@@ -152,7 +164,13 @@ Technique (per frame)
    ``d / (n.d)`` per metre. The state is augmented with ``l`` and its covariance
    ``J P J^T + G N G^T`` and cross-covariance ``J P`` (EKF-SLAM augmentation, Bar-Shalom et al.
    2001; Davison et al. 2007); rays that miss or meet the surface beyond ``max_incidence``
-   are left for the next frame. The first sighting is spent on the initialisation.
+   are left for the next frame. The first sighting is spent on the initialisation; with a
+   scale state, ``l`` also gets its column ``d / (n.d) n . p / (1 + s)`` (step 4e).
+7a. **No birth while the position is loose** (``birth_position_sigma``): a ray cast from a
+   position whose largest 1-sigma is a sizeable part of the body is a poor linearisation
+   (the ray may meet another facet, or miss); with the scale state it makes the filter
+   overconfident along the scale direction (docs/navigation.md). The silhouette alone brings
+   the position there.
 8. **Marginalise** ``dtheta``; record ``(r, v)``, its covariance, NIS and the counts.
 
 Tuning knobs (:class:`TrnFilterOptions`; scenario keys in
@@ -182,6 +200,9 @@ silhouette_offset        False         predict the silhouette's deterministic of
 centroid_offset_fraction 0.0374        ... the centroid's, over ``rho sin(alpha)``
 bias_mean                (0, 0, 0)     the silhouette model error's mean (4d; calibrated)
 reset_after              0             re-open after this many rejected silhouettes (5a)
+scale_sigma              0             the shape model's scale error, 1-sigma (4e)
+scale_consider           True          ... carried as a consider state, not estimated
+birth_position_sigma     0 m           no landmark birth above this position sigma (7a)
 use_centroid, use_radius True          which silhouette measurements are used
 ======================== ============= =====================================================
 

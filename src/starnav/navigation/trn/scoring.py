@@ -50,7 +50,7 @@ SYNTHETIC = SyntheticOptions(max_features=20)
 #: Filter settings of a synthetic score (the rest: ``TrnFilterConfig`` defaults): synthetic
 #: features are independent draws (no shared error), the silhouette sigmas constant: 1.0 px
 #: and 3 % cover the synthetic noise (0.3 px) and the coarse model's silhouette error on the
-#: calibration fly-by (largest centroid difference 1.0 px, radius 1.2 % rms).
+#: calibration fly-by (docs/navigation.md, "Asteroid fly-by on the AA-STR").
 SYNTHETIC_FILTER: dict[str, Any] = {"feature_correlation": 0.0,
                                     "silhouette_scaling": "constant",
                                     "centroid_model_sigma_px": 1.0,
