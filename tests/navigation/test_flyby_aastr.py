@@ -5,7 +5,8 @@ the consistency of a short dispersed pass under the per-epoch statistic.
 Synthetic passes (``navigation.trn.synthetic``: the truth is the full Itokawa radar mesh, the
 filter navigates on the 500-face coarse model scaled by a per-run draw of 2 % 1-sigma): CA 5 km
 at 0.5 km/s, Sun phase 60 deg at CA, from 50 km out to 50 km out (-100 s .. +100 s), a frame
-every 4 s (the readout law allows 0.25 s: the long pass at that cadence is the slow test). The
+every 4 s (the readout law allows 0.25 s: the long pass at that cadence is the slow test, a
+strict xfail: overconfident). The
 silhouette's model-error sigmas of these runs (``scoring.SYNTHETIC_FILTER``: 1.0 px, 3 % of the
 radius, constant) cover the synthetic noise (0.3 px) and the coarse model's silhouette error
 measured on the calibration pass (1 km/s, CA 8 km, phase 40 deg: largest centroid difference
@@ -215,6 +216,11 @@ def test_short_dispersed_pass_consistent_under_the_per_epoch_statistic(short_pas
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "measured: time-averaged ANEES 16.2 above [3.27, 9.70] (thirds 3.05 / 16.1 / 29.5; 51 % "
+    "of the epochs above their band), CA error 0.87 - 3.31 % of range: at 16 times the "
+    "frames the coarse map's silhouette error, correlated over the pass, is averaged as if "
+    "it decorrelated in 19 s (docs/navigation.md)"))
 def test_long_pass_at_the_readout_cadence(itokawa):
     """Approach to departure at the preset's cadence (0.25 s, 801 frames, 50 km -> 5 km ->
     50 km), 4 runs: CA position error below 2 % of range in every run and the time-averaged
