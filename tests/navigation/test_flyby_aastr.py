@@ -32,6 +32,7 @@ from starnav.bodies.small_body import ShapeModelBody
 from starnav.camera import Camera
 from starnav.config import scenario_from_dict
 from starnav.detector.products import MAX_WINDOWS
+from starnav.errors import ConfigError
 from starnav.navigation.metrics import anees_statistics
 from starnav.navigation.schema import TrnFilterConfig, TrnShapeModelConfig
 from starnav.navigation.trn.montecarlo import flyby_monte_carlo
@@ -48,7 +49,7 @@ from starnav.scenes.flyby import flyby_from_config
 from starnav.scenes.schema import FlybyConfig
 from starnav.simulate import Simulator
 from starnav.simulate.build import body_from_scenario
-from starnav.simulate.flyby import estimator_body, flyby_exposures
+from starnav.simulate.flyby import estimator_body, flyby_closed_loop, flyby_exposures
 from starnav.simulate.trn import flyby_frame_budget, track_flyby
 
 #: The AA-STR's readout law as the seed paper gives it (eq. 1: 8 ms + 0.17 ms per unit of
@@ -144,6 +145,21 @@ def test_the_map_the_filter_uses_is_not_the_truth():
         assert m.options.landmark_height_sigma > m.info["height_rms_m"] > 0
     assert m0.scale_error != m1.scale_error
     assert m0.body.gm == truth.gm and m0.body.spin == truth.spin
+
+
+def test_a_coarse_model_finer_than_the_truth_is_one_error_before_rendering(monkeypatch):
+    """``shape_model.faces`` at or above the truth's faces: a ConfigError naming the key, the
+    value and the bound, raised before any frame is rendered."""
+    d = flyby_scenario()
+    d["trajectory"]["flyby"].update(start_s=-0.25, end_s=0.25)
+    sim = Simulator(scenario_from_dict(d, ["navigation.trn.shape_model.faces=20000"]))
+
+    def no_render(*_a, **_k):
+        raise AssertionError("rendered before the check")
+
+    monkeypatch.setattr(sim, "render", no_render)
+    with pytest.raises(ConfigError, match=r"shape_model\.faces.*20000.*12192"):
+        flyby_closed_loop(sim, 1)
 
 
 # ----------------------------------------------------------------------------- synthetic

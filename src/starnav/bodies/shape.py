@@ -336,10 +336,11 @@ def coarse_shape_model(shape: ShapeModel, faces: int, smoothing_iterations: int
     import pyvista as pv  # lazy: PyVista/VTK (heavy)
 
     if not 4 <= faces < shape.n_faces:
-        raise ConfigError("shape_model.faces", faces,
+        raise ConfigError("navigation.trn.shape_model.faces", faces,
                           f"4 <= faces < the model's {shape.n_faces} faces")
     if smoothing_iterations < 0:
-        raise ConfigError("shape_model.smoothing_iterations", smoothing_iterations, ">= 0")
+        raise ConfigError("navigation.trn.shape_model.smoothing_iterations",
+                          smoothing_iterations, ">= 0")
     volume = shape.volume
     cells = np.c_[np.full(shape.n_faces, 3), shape.faces].ravel()
     full = pv.PolyData(np.asarray(shape.vertices, float), cells)

@@ -270,6 +270,14 @@ def estimator_body(sc: Scenario, run: int, truth: ShapeModelBody,
                            float(g.standard_normal()))
 
 
+def check_estimator_body(sc: Scenario) -> None:
+    """Build the estimator's body model once (``navigation.trn.shape_model``; cached), so that
+    a setting it refuses is one error before any rendering."""
+    truth = body_from_scenario(sc)
+    if isinstance(truth, ShapeModelBody):
+        estimator_body(sc, 0, truth, sc.navigation.trn.filter.options())
+
+
 def initial_state(truth0: FloatArray, P0: FloatArray, seed: int, run: int) -> FloatArray:
     """Run ``run``'s initial estimate: the first true state plus a draw from ``P0`` (module
     step 2c)."""
@@ -364,6 +372,7 @@ def flyby_closed_loop(sim: Simulator, runs: int = 1, *, renders: Renders | None 
     FlybyClosedLoop
     """
     check_flyby_scenario(sim.scenario)
+    check_estimator_body(sim.scenario)
     if runs < 1:
         raise ConfigError("runs", runs, ">= 1 Monte Carlo run")
     if not 0.0 < probability < 1.0:
@@ -552,6 +561,7 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
     :func:`starnav.dataset.flyby.navigate_flyby_dataset`); the render time is then NaN.
     Returns the metrics dict."""
     check_flyby_scenario(sim.scenario)
+    check_estimator_body(sim.scenario)
     dispersed = sim.scenario.navigation.trn.dispersion == "orientation"
     if renders is not None and dispersed:
         raise ConfigError("navigation.trn.dispersion", "orientation",
