@@ -10,6 +10,8 @@ estimator on synthetic measurements (:func:`bench_filter`). Usage::
     export DRJIT_LIBLLVM_PATH=/lib/x86_64-linux-gnu/libLLVM.so.19.1
     .venv/bin/python benchmarks/flyby.py                 # everything
     .venv/bin/python benchmarks/flyby.py --closed-loop   # the closed loop and the budget
+    .venv/bin/python benchmarks/flyby.py --scoring       # the scoring fly-bys vs targets
+    .venv/bin/python benchmarks/flyby.py --aastr         # the preset about CA, both maps
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from __future__ import annotations
 import datetime
 import json
 import logging
+import math
 import os
 import platform
 import time
@@ -116,6 +119,12 @@ def main() -> None:
     if "--closed-loop" in sys.argv:
         bench_closed_loop()
         return
+    if "--scoring" in sys.argv:
+        bench_scoring()
+        return
+    if "--aastr" in sys.argv:
+        bench_aastr()
+        return
     bench_front_end()
     bench_filter()
     bench_closed_loop()
@@ -146,6 +155,75 @@ def bench_closed_loop(runs: int = 3) -> None:
                                                    for k, v in loop.timings_s.items()},
                       "tracker_budget": tracker_budget(loop.timings_s, mem),
                       "load": os.getloadavg()}, indent=1))
+
+
+def bench_aastr(runs: int = 4, half_s: float = 5.0) -> None:
+    """The fly-by preset (the AA-STR) cut to ``-half_s .. +half_s`` about CA, rendered once,
+    ``runs`` runs on the exact and on the coarse map: per-frame stage times, the per-epoch
+    and time-averaged ANEES, the CA error per run."""
+    from starnav.batch.presets import flyby_scenario
+    from starnav.config import scenario_from_dict
+    from starnav.navigation.metrics import anees_statistics
+    from starnav.simulate import Simulator
+    from starnav.simulate.flyby import flyby_closed_loop, render_flyby
+
+    renders = None
+    for kind in ("exact", "coarse"):
+        d = flyby_scenario()
+        d["trajectory"]["flyby"].update(start_s=-half_s, end_s=half_s)
+        d["navigation"]["trn"]["shape_model"]["map"] = kind
+        sim = Simulator(scenario_from_dict(d))
+        t_render = float("nan")
+        if renders is None:
+            renders, t_render = render_flyby(sim)
+        loop = flyby_closed_loop(sim, runs, renders=renders)
+        st = anees_statistics(np.array([r.filter.nees(loop.truth) for r in loop.runs]), 6)
+        print(json.dumps({
+            "map": kind, "frames": len(renders), "runs": runs, "render_s": t_render,
+            "ms_per_frame": {k: round(1e3 * v, 1) for k, v in loop.timings_s.items()},
+            "anees": st["mean"], "band": st["band"], "verdict": st["verdict"],
+            "epochs_in_band": st["epochs_in_band"],
+            "ca_error_pct_range": [round(r.metrics.ca_position_error_pct_range, 3)
+                                   for r in loop.runs],
+            "load": os.getloadavg()}, default=float))
+
+
+def bench_scoring(runs: int = 20) -> None:
+    """The scoring fly-bys (``navigation.trn.scoring.SCORING_FLYBYS``: Itokawa outside the
+    calibration envelope and Eros), ``runs`` dispersed synthetic runs each on the coarse map,
+    against the targets; the packaged record (tools/score_flyby.py) beside each number."""
+    from starnav.navigation.trn.scoring import SCORING_FLYBYS, TARGETS, read_record, score_case
+
+    rec = read_record()["scoring"]
+    lo, hi = TARGETS["epochs_in_band"]
+    rows = (("epochs inside the per-epoch 95 % band", "epochs_in_band", f"{lo:.2f} - {hi:.2f}"),
+            ("time-averaged ANEES (6 states)", "anees_mean", "in band"),
+            ("position NEES (3)", ("position_nees", "mean"), "in band"),
+            ("velocity NEES (3)", ("velocity_nees", "mean"), "in band"),
+            ("CA position error, median [% range]", "ca_position_pct_median",
+             f"<= {TARGETS['ca_position_pct_median']}"),
+            ("CA position error, 95th pct [% range]", "ca_position_pct_p95",
+             f"<= {TARGETS['ca_position_pct_p95']}"),
+            ("CA velocity error, 95th pct [% v_inf]", "ca_velocity_pct_v_inf_p95",
+             f"< {TARGETS['ca_velocity_pct_v_inf']}"),
+            ("filter CPU per frame, desktop [ms]", "filter_cpu_ms_per_frame", "-"),
+            ("filter per frame, MCU estimate [ms]", "filter_mcu_ms_estimate",
+             f"<= {TARGETS['mcu_budget_ms']:.0f} (front end not included)"))
+
+    def get(d, key):
+        return d[key[0]][key[1]] if isinstance(key, tuple) else d[key]
+
+    for case in SCORING_FLYBYS:
+        s = score_case(case, runs)
+        print(f"\n{case.name}: {case.body}, v_inf {case.v_inf / 1e3} km/s, CA "
+              f"{case.closest_approach / 1e3} km, phase {math.degrees(case.phase_at_ca):.0f} "
+              f"deg, {s['frames']} "
+              f"frames, {runs} runs (ANEES band {s['anees_band'][0]:.2f} - "
+              f"{s['anees_band'][1]:.2f})")
+        print(f"  {'metric':40s} {'now':>9s} {'recorded':>9s}  target")
+        for label, key, target in rows:
+            print(f"  {label:40s} {get(s, key):9.3f} {get(rec[case.name], key):9.3f}  {target}")
+        print(f"  targets met: {s['targets_met']}")
 
 
 if __name__ == "__main__":

@@ -335,10 +335,10 @@ def test_a_moon_scenario_is_refused_before_rendering():
 
 
 def test_cli_navigate_a_flyby_scenario(tmp_path):
-    """``starnav init --preset flyby`` then ``starnav navigate SCENARIO.yaml --runs 2`` (cut
-    to 5 frames): metrics.json with FlybyMetrics' flat keys and the Monte Carlo summary, the
-    four figures and the three frame overlays, report.md linking them; a Moon scenario is one
-    error line, exit 2."""
+    """``starnav init --preset flyby`` (the AA-STR pass) then ``starnav navigate SCENARIO.yaml
+    --runs 2`` (cut to the 5 frames about CA): metrics.json with FlybyMetrics' flat keys, the
+    Monte Carlo summary and the frame budget, the four figures and the three frame overlays,
+    report.md linking them; a Moon scenario is one error line, exit 2."""
     from typer.testing import CliRunner
 
     from starnav.cli.main import app
@@ -350,11 +350,17 @@ def test_cli_navigate_a_flyby_scenario(tmp_path):
     out = tmp_path / "out"
     res = cli.invoke(app, ["navigate", str(sc), "--out", str(out), "--runs", "2",
                            "--set", "trajectory.frames=5", "--set",
-                           "trajectory.flyby.start_s=-0.4"], env=env)
+                           "trajectory.flyby.start_s=-0.5",
+                           # the AA-STR's field (20.6 deg) on 256 px: the render is the
+                           # preset's test_flyby_aastr.py renders at 1024 px
+                           "--set", "camera.width=256", "--set", "camera.height=256",
+                           "--set", "camera.focal_length_mm=12.675"], env=env)
     assert res.exit_code == 0, res.output
     m = json.loads((out / "metrics.json").read_text())
     assert m["frames"] == 5 and m["monte_carlo"]["runs"] == 2
     assert m["ca_range_m"] == pytest.approx(5e3, rel=1e-9)
+    fb = m["frame_budget"]       # the preset's cadence fits the readout law
+    assert fb["fits"] and fb["n_windows"] == 16 and fb["cadence_s"] == 0.25
     for name in ("position.png", "velocity.png", "nees.png", "tracks.png", "report.md",
                  "overlay_first.png", "overlay_ca.png", "overlay_last.png"):
         assert (out / name).stat().st_size > 0

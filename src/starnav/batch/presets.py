@@ -273,28 +273,39 @@ def get_preset(name: str) -> SweepPreset:
 
 
 # ============================================================================ fly-by
-#: The asteroid fly-by of ``starnav init --preset flyby``: the closed loop's scoring fly-by
-#: (tests/navigation/test_flyby_closed_loop.py) with 41 frames.
+#: The asteroid fly-by of ``starnav init --preset flyby``: the AA-STR itself (its optics and
+#: detector, :data:`starnav.camera.CAMERA_PRESETS` ``aa-str``: 1024 x 1024 px, 20.6 deg) reading
+#: the segments then at most 16 windows per frame, passing Itokawa from 16 km out to closest
+#: approach at 5 km and out again (0.5 km/s, 60 s, 241 frames: the closed loop holds every
+#: frame's radiance, 25 MB at 1024 x 1024, so 6 GB; the pass from 50 km, 801 frames, needs
+#: 20 GB: ``trajectory.flyby.start_s: -100``, ``end_s: 100``). The cadence, 0.25 s, is the shortest
+#: quarter second the readout law allows for both acquisitions of a frame
+#: (:func:`starnav.simulate.trn.flyby_frame_budget`: 2 x 30 us of exposure, 200 ms for the
+#: segments, at most 19.1 ms for 16 windows of 64 x 64 px); the exposure, 30 us, puts the lit
+#: body's brightest pixels at about half of the ADC's range (well exposed, no saturation).
 FLYBY: dict[str, Any] = {
-    "camera": {"width": 256, "height": 256, "focal_length_mm": 30.0},
+    "camera": {"preset": "aa-str"},
     "render": {"spp": 4},
     "target": {"kind": "shape_model", "model": "itokawa"},
-    "trajectory": {"source": "flyby", "cadence_s": 0.2, "frames": 41,
+    "trajectory": {"source": "flyby", "cadence_s": 0.25,
                    "flyby": {"closest_approach_km": 5.0, "v_inf_km_s": 0.5,
-                             "phase_at_ca_deg": 60.0, "start_s": -4.0, "end_s": 4.0}},
+                             "phase_at_ca_deg": 60.0, "start_s": -30.0, "end_s": 30.0}},
     "pointing": {"moon_offset": "fixed", "roll": "fixed"},
     "detector": {"exposure_time_s": 3e-5},
+    "navigation": {"trn": {"front_end": {"n_windows": 16}, "shape_model": {"map": "coarse"}}},
     "seed": 7}
 
 
 def flyby_header() -> str:
     """The comment block of the fly-by preset."""
-    return ("# preset: asteroid fly-by terrain-relative navigation\n"
-            "# Itokawa (radar shape model, Hapke S-type) passed at 5 km and 0.5 km/s, Sun phase\n"
-            "# 60 deg at closest approach, a 256 x 256 px tracker reading segments then up to 16\n"
-            "# windows, 41 frames 0.2 s apart about CA. Run it end to end (render once, then the\n"
-            "# front end and the estimator per Monte Carlo run):\n"
-            "#   starnav navigate flyby.yaml --out out/flyby --runs 20\n")
+    return ("# preset: asteroid fly-by terrain-relative navigation on the AA-STR\n"
+            "# Itokawa (radar shape model, Hapke S-type) passed at 5 km and 0.5 km/s from 16 km\n"
+            "# out and back (Sun phase 60 deg at CA), the AA-STR (1024 x 1024 px, 20.6 deg)\n"
+            "# reading segments then up to 16 windows, 241 frames 0.25 s apart (the readout\n"
+            "# law's frame budget: docs/navigation.md). The estimator navigates on a coarse\n"
+            "# shape model (navigation.trn.shape_model). 6 GB of frames in memory; ~1 s a frame:\n"
+            "#   starnav navigate flyby.yaml --out out/flyby --runs 20\n"
+            "# a short one: --set trajectory.flyby.start_s=-2 --set trajectory.flyby.end_s=2\n")
 
 
 def flyby_scenario() -> dict[str, Any]:

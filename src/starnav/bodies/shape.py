@@ -288,3 +288,61 @@ def shape_model_path(model: str | Path) -> Path:
         raise ConfigError("target.model", name, f"one of {PACKAGED_SHAPE_MODELS.names()} or a "
                           f"path to a {'/'.join(SHAPE_SUFFIXES)} shape-model file")
     return p
+
+
+# ----------------------------------------------------------------------------- coarse models
+@dataclass(frozen=True)
+class CoarseShape:
+    """A coarse model of a shape (:func:`coarse_shape_model`) and how far it is from it.
+
+    Attributes
+    ----------
+    shape : ShapeModel
+        The coarse model, scaled to the original's volume.
+    height_rms, height_max : float
+        Distance of the original's vertices from the coarse surface, rms and largest [m].
+    mean_radius : float
+        Radius of the sphere of the original's volume [m].
+    """
+
+    shape: ShapeModel
+    height_rms: float
+    height_max: float
+    mean_radius: float
+
+
+def coarse_shape_model(shape: ShapeModel, faces: int, smoothing_iterations: int
+                       ) -> CoarseShape:
+    """A coarse, smoothed model of ``shape``: quadric decimation to about ``faces`` triangles
+    (VTK's ``vtkQuadricDecimation`` through PyVista, Garland & Heckbert 1997), then Taubin
+    smoothing (Taubin 1995; lambda 0.5, mu -0.53: no shrinkage) over ``smoothing_iterations``
+    passes, then scaled to the original's volume (what such a model would be before a fly-by:
+    the shape at a coarser resolution, its size a separate uncertainty). The result is closed
+    and consistently wound."""
+    import pyvista as pv  # lazy: PyVista/VTK (heavy)
+
+    if not 4 <= faces < shape.n_faces:
+        raise ConfigError("navigation.trn.shape_model.faces", faces,
+                          f"4 <= faces < the model's {shape.n_faces} faces")
+    if smoothing_iterations < 0:
+        raise ConfigError("navigation.trn.shape_model.smoothing_iterations",
+                          smoothing_iterations, ">= 0")
+    volume = shape.volume
+    cells = np.c_[np.full(shape.n_faces, 3), shape.faces].ravel()
+    full = pv.PolyData(np.asarray(shape.vertices, float), cells)
+    dec = full.decimate(1.0 - faces / shape.n_faces, volume_preservation=True)
+    mesh = trimesh.Trimesh(np.asarray(dec.points, float),
+                           np.asarray(dec.faces).reshape(-1, 4)[:, 1:], process=False)
+    if smoothing_iterations:
+        trimesh.smoothing.filter_taubin(mesh, lamb=0.5, nu=0.53,
+                                        iterations=int(smoothing_iterations))
+    V = np.asarray(mesh.vertices, float)
+    V *= (volume / abs(float(mesh.volume))) ** (1.0 / 3.0)
+    F = np.asarray(mesh.faces, np.int64)
+    coarse = ShapeModel(V, F, f"{shape.source} (coarse: {F.shape[0]} faces, "
+                        f"{smoothing_iterations} smoothing passes)")
+    coarse._require_closed("use as a coarse model")
+    dist = np.abs(np.asarray(full.compute_implicit_distance(
+        pv.PolyData(V, np.c_[np.full(F.shape[0], 3), F].ravel()))["implicit_distance"]))
+    return CoarseShape(coarse, float(np.sqrt(np.mean(dist**2))), float(dist.max()),
+                       float((3.0 * volume / (4.0 * np.pi)) ** (1.0 / 3.0)))

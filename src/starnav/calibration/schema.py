@@ -30,6 +30,7 @@ from pydantic import Field, field_validator, model_validator
 
 from starnav.config import Scenario, load_scenario
 from starnav.config_base import StrictModel, model_from_mapping, read_yaml_file
+from starnav.errors import ConfigError
 from starnav.fields import FiniteFloat, NonNegativeFloat, PositiveFloat, PositiveFraction
 
 #: Luminous efficacy of radiation at 555 nm [lm/W] (CIE).

@@ -303,6 +303,10 @@ class TrnFilterConfig(StrictModel):
         3, description="frames in a row with the silhouette's centroid or radius rejected by "
         "the gate after which the filter re-opens its relative state (filter step 5a; 0: "
         "never)")
+    birth_position_sigma_m: NonNegativeFloat = Field(
+        0.0, description="no landmark is born while the position's largest 1-sigma exceeds "
+        "this [m] (filter step 7a: a landmark cast from a loose position is a poor "
+        "linearisation, which makes the shape-scale state inconsistent); 0: always")
     use_centroid: bool = Field(True, description="use the lit silhouette's centroid")
     use_radius: bool = Field(True, description="use the lit silhouette's apparent radius")
     initial_position_sigma_km: PositiveFloat = Field(
@@ -330,7 +334,7 @@ class TrnFilterConfig(StrictModel):
             silhouette_offset=si.silhouette_offset,
             centroid_offset_fraction=si.silhouette_centroid_offset_fraction,
             bias_mean=tuple(float(v) for v in si.silhouette_bias_mean),
-            reset_after=si.reset_after)
+            reset_after=si.reset_after, birth_position_sigma=si.birth_position_sigma)
 
     def initial_covariance(self) -> NDArray[np.float64]:
         """The diagonal initial covariance (6, 6) [m^2, m^2/s^2]."""
@@ -338,8 +342,41 @@ class TrnFilterConfig(StrictModel):
         return np.diag([si.initial_position_sigma**2] * 3 + [si.initial_velocity_sigma**2] * 3)
 
 
+class TrnShapeModelConfig(StrictModel):
+    """The body model the fly-by estimator navigates on (the truth always renders the full
+    shape model of ``target``)."""
+
+    map: Literal["exact", "coarse"] = Field(
+        "exact", description="exact: the rendered mesh itself (an idealised map, the former "
+        "behaviour); coarse: a decimated, smoothed model of it whose scale is drawn per run "
+        "(starnav.bodies.shape.coarse_shape_model): what a mission has before the fly-by")
+    faces: Annotated[int, Field(ge=4)] = Field(
+        500, description="triangles of the coarse model (quadric decimation)")
+    smoothing_iterations: Annotated[int, Field(ge=0, le=1000)] = Field(
+        10, description="Taubin smoothing passes of the coarse model")
+    scale_sigma: Annotated[float, Field(ge=0, lt=0.5)] = Field(
+        0.02, description="1-sigma of the coarse model's scale error, drawn per Monte Carlo "
+        "run [-] (the filter's shape-scale state starts with it when estimate_scale)")
+    estimate_scale: bool = Field(
+        True, description="carry the scale error as a filter state (filter step 4e); false: "
+        "the filter takes the drawn model's scale as exact")
+    height_sigma_fraction: Annotated[float, Field(ge=0, lt=0.5)] = Field(
+        0.015, description="the coarse model's height error at a landmark, 1-sigma, as a "
+        "fraction of the body's mean radius [-] (the landmark height sigma is the larger of "
+        "this and filter.landmark_height_sigma_m; the packaged bodies' at 500 faces: "
+        "docs/navigation.md)")
+    birth_sigma_fraction: Annotated[float, Field(ge=0)] = Field(
+        0.3, description="no landmark is born on the coarse model while the position's "
+        "largest 1-sigma exceeds this fraction of the mean radius [-] (filter step 7a; "
+        "filter.birth_position_sigma_m, when set, takes precedence; 0: always)")
+
+
 class TrnConfig(StrictModel):
     """Asteroid fly-by terrain-relative navigation (starnav.navigation.trn)."""
+
+    shape_model: TrnShapeModelConfig = Field(
+        default_factory=TrnShapeModelConfig, description="the body model the estimator "
+        "navigates on")
 
     front_end: TrnFrontEndConfig = Field(
         default_factory=TrnFrontEndConfig, description="windows and feature tracking")

@@ -46,10 +46,12 @@ from numpy.typing import NDArray
 
 from starnav.atomic import atomic_path, atomic_write_text
 from starnav.bodies.base import TargetBody
+from starnav.bodies.small_body import ShapeModelBody
 from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
 from starnav.config_base import set_dotted
 from starnav.errors import ConfigError, GeometryError
 from starnav.geometry import FrameGeometry
+from starnav.navigation.trn.body_model import EstimatorModel, estimator_model
 from starnav.navigation.trn.filter import FlybyRun, TrnFilterOptions, run_filter
 from starnav.navigation.trn.frontend import FlybyFrontEnd
 from starnav.navigation.trn.measurements import FlybyMeasurement
@@ -68,12 +70,13 @@ from starnav.navigation.trn.metrics import (
 )
 from starnav.navigation.trn.montecarlo import summarise_runs
 from starnav.navigation.trn.options import FrontEndOptions
+from starnav.navigation.trn.truth import BODY_AOVS
 from starnav.navigation.trn.windows import WindowReader
 from starnav.radiance import RadianceImage
 from starnav.seeding import STAGE_NAVIGATION, generator
 from starnav.simulate.build import body_from_scenario
 from starnav.simulate.frames import Simulator
-from starnav.simulate.trn import FlybyStep, flyby_exposures, track_flyby
+from starnav.simulate.trn import FlybyStep, flyby_exposures, flyby_frame_budget, track_flyby
 from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
@@ -84,8 +87,15 @@ INITIAL_ERROR_STREAM = 17
 #: Last key of a run's orientation draw ``(seed, STAGE_NAVIGATION, run, 0, 18)`` under
 #: ``navigation.trn.dispersion: orientation`` (never change).
 DISPERSION_STREAM = 18
+#: Last key of a run's draw of the coarse shape model's scale error ``(seed,
+#: STAGE_NAVIGATION, run, 0, 19)`` under ``navigation.trn.shape_model.map: coarse`` (never
+#: change).
+SHAPE_SCALE_STREAM = 19
 
 Renders = Sequence[tuple[FrameGeometry, RadianceImage]]
+#: The render channels the closed loop reads besides the radiance: the body mask and the
+#: body-fixed surface points of the feature truth.
+KEPT_AOVS = ("mask", *BODY_AOVS)
 
 
 def is_flyby_scenario(sc: Scenario) -> bool:
@@ -111,6 +121,7 @@ def check_flyby_scenario(sc: Scenario) -> None:
         raise ConfigError("target.kind", None if sc.target is None else sc.target.kind,
                           "'shape_model' (a small body's shape model) for the fly-by "
                           "navigation: the Moon is navigated from its limb")
+    flyby_frame_budget(sc)     # a cadence the readout law refuses, under policy enforce
 
 
 @dataclass
@@ -201,15 +212,37 @@ class FlybyClosedLoop:
 def render_flyby(sim: Simulator, progress: Callable[[int, int], None] | None = None
                  ) -> tuple[list[tuple[FrameGeometry, RadianceImage]], float]:
     """Module step 1: every frame rendered once; returns the renders and the mean render
-    time per frame [s]."""
+    time per frame [s]. Each frame keeps only what the loop reads (the radiance, the mask and
+    the body-fixed points of the truth: :data:`KEPT_AOVS`), 6 of the render's 15 channels:
+    every frame of the pass is held."""
     check_flyby_scenario(sim.scenario)
     out = []
     t0 = time.perf_counter()
     for i in range(len(sim)):
-        out.append(sim.render(i))
+        geom, img = sim.render(i)
+        out.append((geom, dataclasses.replace(
+            img, aovs={k: v for k, v in img.aovs.items() if k in KEPT_AOVS})))
         if progress is not None:
             progress(i + 1, len(sim))
     return out, (time.perf_counter() - t0) / max(len(sim), 1)
+
+
+def estimator_body(sc: Scenario, run: int, truth: ShapeModelBody,
+                   options: TrnFilterOptions) -> EstimatorModel:
+    """Run ``run``'s body model (``navigation.trn.shape_model``,
+    :func:`~starnav.navigation.trn.body_model.estimator_model`): the scale error's unit draw
+    is on the stream ``generator(seed, STAGE_NAVIGATION, run, 0, SHAPE_SCALE_STREAM)``."""
+    g = generator(int(sc.seed), STAGE_NAVIGATION, int(run), 0, SHAPE_SCALE_STREAM)
+    return estimator_model(truth, sc.navigation.trn.shape_model, options,
+                           float(g.standard_normal()))
+
+
+def check_estimator_body(sc: Scenario) -> None:
+    """Build the estimator's body model once (``navigation.trn.shape_model``; cached), so that
+    a setting it refuses is one error before any rendering."""
+    truth = body_from_scenario(sc)
+    if isinstance(truth, ShapeModelBody):
+        estimator_body(sc, 0, truth, sc.navigation.trn.filter.options())
 
 
 def initial_state(truth0: FloatArray, P0: FloatArray, seed: int, run: int) -> FloatArray:
@@ -225,9 +258,10 @@ def flyby_run(sim: Simulator, renders: Renders, run: int, *,
               filter_options: TrnFilterOptions | None = None,
               initial_covariance: FloatArray | None = None,
               body: TargetBody | None = None, memory: bool = False) -> FlybyRunResult:
-    """One run of the closed loop on frames already rendered (module step 2); with
-    ``memory`` the peak traced memory of the front end and of the filter (tracemalloc: slower,
-    the run's timings are then not representative)."""
+    """One run of the closed loop on frames already rendered (module step 2); ``body``: the
+    truth's body (default read from the scenario; the estimator's own model is
+    :func:`estimator_body`); with ``memory`` the peak traced memory of the front end and of
+    the filter (tracemalloc: slower, the run's timings are then not representative)."""
     sc = sim.scenario
     check_flyby_scenario(sc)
     trn = sc.navigation.trn
@@ -236,6 +270,8 @@ def flyby_run(sim: Simulator, renders: Renders, run: int, *,
     P0 = (trn.filter.initial_covariance() if initial_covariance is None
           else np.asarray(initial_covariance, float))
     body = body if body is not None else body_from_scenario(sc)
+    assert isinstance(body, ShapeModelBody)  # check_flyby_scenario
+    model = estimator_body(sc, run, body, fo)
     truth = sim.scene.relative_states
     flyby = sim.scene.flyby
     assert flyby is not None  # check_flyby_scenario
@@ -256,7 +292,8 @@ def flyby_run(sim: Simulator, renders: Renders, run: int, *,
     X = truth[idx]
     x0 = initial_state(X[0], P0, sc.seed, run)
     t0 = time.perf_counter()
-    res = run_filter(meas, sim.camera, body, x0, P0, fo)
+    res = run_filter(meas, sim.camera, model.body, x0, P0, model.options)
+    res.info["shape_model"] = model.info
     t_filter = time.perf_counter() - t0
     if memory:
         assert mem is not None
@@ -302,6 +339,7 @@ def flyby_closed_loop(sim: Simulator, runs: int = 1, *, renders: Renders | None 
     FlybyClosedLoop
     """
     check_flyby_scenario(sim.scenario)
+    check_estimator_body(sim.scenario)
     if runs < 1:
         raise ConfigError("runs", runs, ">= 1 Monte Carlo run")
     if not 0.0 < probability < 1.0:
@@ -490,6 +528,7 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
     :func:`starnav.dataset.flyby.navigate_flyby_dataset`); the render time is then NaN.
     Returns the metrics dict."""
     check_flyby_scenario(sim.scenario)
+    check_estimator_body(sim.scenario)
     dispersed = sim.scenario.navigation.trn.dispersion == "orientation"
     if renders is not None and dispersed:
         raise ConfigError("navigation.trn.dispersion", "orientation",
@@ -518,6 +557,7 @@ def navigate_flyby(sim: Simulator, out: str | Path, runs: int = 1, *, plots: boo
                                      for k, v in loop.timings_s.items()}
     mem = flyby_run(sim, renders, r0.run, memory=True).memory_bytes
     metrics["tracker_budget"] = budget = tracker_budget(loop.timings_s, mem)
+    metrics["frame_budget"] = flyby_frame_budget(sim.scenario).to_dict()
     mc = None
     if runs >= 2:
         mc = {k: v for k, v in loop.summary.items() if k != "nees_per_frame"}

@@ -13,6 +13,12 @@ For each frame of a fly-by scenario (:class:`~starnav.simulate.frames.Simulator`
    readout *products* (never the full DN frame);
 5. truth attached by :class:`~starnav.navigation.trn.truth.FeatureTruthBook` from the AOVs.
 
+The tracker's frame budget (:func:`flyby_frame_budget`): a frame is two acquisitions, each an
+exposure then its readout by the readout law (seed paper eq. 1: the segments scan the whole
+array, at least 200 ms; the windows ``a + b N`` on their pixels); without overlap of
+integration and readout (the conservative reading), a cadence ``T`` is allowed when
+``2 t_exp + t_segments + t_windows(n_windows x max_window_px^2) <= T``.
+
 Noise streams are those of :func:`starnav.simulate.acquire.acquisition_seed` (acquisitions 0
 and 1 of run ``run``); the RANSAC stream is ``generator(seed, STAGE_NAVIGATION, run, 0,
 TRN_STREAM)`` for the whole sequence (the front end is stateful).
@@ -25,8 +31,10 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from starnav.camera import camera_from_config
 from starnav.detector import Exposure, expose
-from starnav.detector.readout import ReadoutTiming
+from starnav.detector.readout import ReadoutTiming, min_exposure
+from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry
 from starnav.navigation.trn.frontend import FlybyFrontEnd, FrontEndFrame, FrontEndOptions
 from starnav.navigation.trn.truth import FeatureTruthBook
@@ -38,6 +46,69 @@ from starnav.simulate.frames import Simulator
 
 #: Last key of the fly-by front end's RANSAC stream (never change).
 TRN_STREAM = 16
+
+
+@dataclass(frozen=True)
+class FrameBudget:
+    """The tracker's time budget of one fly-by frame (module essay), SI.
+
+    Attributes
+    ----------
+    cadence : float
+        Time between frames [s].
+    exposure : float
+        One acquisition's exposure [s] (both acquisitions use it).
+    segments_readout : float
+        The readout law's time of the segments scan of the whole array [s].
+    windows_readout : float
+        The readout law's time of the largest windows read the front end may plan:
+        ``n_windows`` windows of ``max_window_px`` squared [s].
+    n_windows, max_window_px : int
+    """
+
+    cadence: float
+    exposure: float
+    segments_readout: float
+    windows_readout: float
+    n_windows: int
+    max_window_px: int
+
+    @property
+    def frame_time(self) -> float:
+        """Both acquisitions, exposure then readout each, at the most windows [s]."""
+        return 2.0 * self.exposure + self.segments_readout + self.windows_readout
+
+    @property
+    def fits(self) -> bool:
+        return self.frame_time <= self.cadence * (1.0 + 1e-12)
+
+    def to_dict(self) -> dict[str, float | int | bool]:
+        return {"cadence_s": self.cadence, "exposure_s": self.exposure,
+                "segments_readout_s": self.segments_readout,
+                "windows_readout_max_s": self.windows_readout, "n_windows": self.n_windows,
+                "max_window_px": self.max_window_px, "frame_time_s": self.frame_time,
+                "fits": self.fits}
+
+
+def flyby_frame_budget(sc: Any) -> FrameBudget:
+    """The frame budget of fly-by scenario ``sc`` (module essay); with the readout law's
+    policy ``enforce`` a cadence shorter than the frame time is one :class:`ConfigError`."""
+    det = sc.detector
+    timing = det.readout.timing
+    fe = sc.navigation.trn.front_end
+    cam = camera_from_config(sc.camera)
+    shape = (cam.height, cam.width)
+    budget = FrameBudget(
+        cadence=float(sc.trajectory.cadence_s), exposure=float(det.exposure_time_s),
+        segments_readout=min_exposure(shape[0] * shape[1], timing, full_frame=True),
+        windows_readout=min_exposure(fe.n_windows * fe.max_window_px**2, timing),
+        n_windows=int(fe.n_windows), max_window_px=int(fe.max_window_px))
+    if timing.policy == "enforce" and not budget.fits:
+        raise ConfigError("trajectory.cadence_s", budget.cadence,
+                          f">= {budget.frame_time:.4g} s, the tracker's frame time (2 exposures "
+                          f"of {budget.exposure:.3g} s, segments {budget.segments_readout:.4g} "
+                          f"s, {budget.n_windows} windows {budget.windows_readout:.4g} s)")
+    return budget
 
 
 @dataclass(frozen=True)

@@ -15,12 +15,14 @@ Technique, per frame
 3. Append the frame's attitude error ``dtheta`` (camera axes) to the state.
 4. Measurements: each feature, the lit centroid and the apparent radius, with their analytic
    Jacobians; 4a the bias sigmas follow the geometry, 4b features share part of their error,
-   4c the silhouette's deterministic offset, 4d the bias's calibrated mean.
+   4c the silhouette's deterministic offset, 4d the bias's calibrated mean, 4e the shape
+   model's scale as a Schmidt consider state (a coarse model known to ``scale_sigma``).
 5. Gate each measurement on its own innovation; 5a re-open the state after ``reset_after``
    rejected silhouettes in a row.
 6. Update with every accepted measurement at once (Joseph form); record the NIS.
 7. Birth new landmarks by casting their pixel rays onto the shape model (EKF-SLAM
-   augmentation).
+   augmentation); 7a none while the position's largest 1-sigma exceeds
+   ``birth_position_sigma``.
 8. Marginalise ``dtheta``; record the state, covariance, NIS and counts.
 
 The knobs are :class:`TrnFilterOptions` (scenario keys:
@@ -68,9 +70,11 @@ ITERATION_TOLERANCE = 1e-3
 #: Orthonormality tolerance of a measured attitude matrix [-].
 ROTATION_TOLERANCE = 1e-6
 #: States before the landmarks: ``r`` (3), ``v`` (3), the centroid's model-error state
-#: (along and across the Sun's image direction, 2) [px] and the radius's (1) [-].
-CORE = 9
+#: (along and across the Sun's image direction, 2) [px], the radius's (1) [-] and the shape
+#: model's scale correction (1) [-]: the body is the model times ``1 + s``.
+CORE = 10
 BIAS = slice(6, 9)
+SCALE = 9
 
 
 #: Names of the silhouette model-error scalings (:func:`silhouette_scale`).
@@ -263,6 +267,16 @@ class TrnFilterOptions:
     reset_after : int
         Frames in a row with the silhouette rejected after which the relative state is
         re-opened (step 5a); 0: never.
+    scale_sigma : float
+        1-sigma of the shape model's scale error [-] (step 4e): a random-constant state
+        ``s`` (the body is the model times ``1 + s``) in the silhouette's size and centroid
+        and in every landmark born on the model; 0: the model's scale is taken as exact.
+    scale_consider : bool
+        Keep the scale state out of the update (a Schmidt consider state: its uncertainty
+        and correlations are carried, its value stays at the model's); False: estimated.
+    birth_position_sigma : float
+        No landmark is born while the position's largest 1-sigma exceeds this [m] (step 7a);
+        0: always.
     """
 
     accel_psd: float = 1e-8
@@ -288,6 +302,9 @@ class TrnFilterOptions:
     centroid_offset_fraction: float = 0.0374
     bias_mean: tuple[float, float, float] = (0.0, 0.0, 0.0)
     reset_after: int = 0
+    scale_sigma: float = 0.0
+    scale_consider: bool = True
+    birth_position_sigma: float = 0.0
 
     def __post_init__(self) -> None:
         mean = np.asarray(self.bias_mean, float)
@@ -315,6 +332,8 @@ class TrnFilterOptions:
                   ("feature_correlation", 0 <= self.feature_correlation < 1, "in [0, 1)"),
                   ("terminator_shift", self.terminator_shift >= 0, ">= 0 [rad]"),
                   ("reset_after", self.reset_after >= 0, ">= 0 frames (0: never)"),
+                  ("scale_sigma", 0 <= self.scale_sigma < 0.5, "in [0, 0.5) [-]"),
+                  ("birth_position_sigma", self.birth_position_sigma >= 0, ">= 0 [m]"),
                   ("centroid_offset_fraction", math.isfinite(self.centroid_offset_fraction)
                    and abs(self.centroid_offset_fraction) < 0.5, "finite, |value| < 0.5 [-]"),
                   ("limb_blur_px + terminator_shift",
@@ -344,6 +363,11 @@ class FlybyRun:
         Feature updates accepted / rejected by the gate, landmark states after the frame,
         landmarks initialised in the frame.
     centroid_used, radius_used : (K,) bool arrays
+    info : dict
+        Diagnostics: ``bias``/``bias_sigma`` (K, 3), ``shape_scale``/``shape_scale_sigma``
+        (K,) (step 4e), ``landmark_first``/``landmark_last`` (track id -> body-fixed
+        estimate (3,) [m] and covariance (3, 3) after its first / latest frame), ``resets``,
+        ``nis_by_kind``.
     """
 
     epochs: FloatArray
@@ -545,6 +569,8 @@ class LandmarkBirth:
         With respect to the pixel.
     J_h : (3,) array
         Per metre of shape-model height error along the facet normal.
+    normal_body : (3,) array
+        The facet's unit normal, body-fixed.
     cos_incidence : float
         Cosine of the angle between the ray and the facet normal.
     """
@@ -554,6 +580,7 @@ class LandmarkBirth:
     J_theta: FloatArray
     J_uv: FloatArray
     J_h: FloatArray
+    normal_body: FloatArray
     cos_incidence: float
 
 
@@ -583,7 +610,7 @@ def landmark_births(camera: Camera, r: FloatArray, R_true: FloatArray, R_bi: Flo
         out.append(LandmarkBirth(
             point_body=R_bi.T @ (r + float(t[i]) * d_i), J_r=R_bi.T @ A,
             J_theta=tA @ (-R_true @ skew(d_c[i])), J_uv=tA @ R_true @ Ju[i],
-            J_h=R_bi.T @ d_i / nd, cos_incidence=-nd))
+            J_h=R_bi.T @ d_i / nd, normal_body=R_bi.T @ n_i, cos_incidence=-nd))
     return out
 
 
@@ -638,9 +665,13 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
     sig_b = (np.r_[opt.centroid_model_sigma_px * np.sqrt(2.0 * share),
                    opt.radius_model_fraction] if tau > 0 else np.zeros(3))
     mu = np.asarray(opt.bias_mean, float)    # the bias's calibrated mean (step 4d)
-    x = np.r_[x0, np.zeros(3)]
+    x = np.r_[x0, np.zeros(CORE - 6)]
     P = np.zeros((CORE, CORE))
     P[:6, :6], P[BIAS, BIAS] = P0, np.diag(sig_b**2)
+    P[SCALE, SCALE] = opt.scale_sigma**2
+    out.info["shape_scale"] = np.zeros(K)
+    out.info["landmark_first"], out.info["landmark_last"] = {}, {}
+    out.info["shape_scale_sigma"] = np.zeros(K)
     streak = 0                                # frames in a row whose silhouette was rejected
     out.info["resets"] = []
     out.info["bias"] = np.zeros((K, 3))
@@ -780,7 +811,10 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
                     good = bool(front[fi])
                     fi += 1
                 elif kind == "centroid":
-                    h, Hc, Htc = centroid_model(camera, xi[:3], par[0], R_m, xi[th])
+                    # 4e the frozen point of the model scaled by 1 + s about the centre
+                    h, Hc, Htc = centroid_model(camera, xi[:3], par[0] * (1.0 + xi[SCALE]),
+                                                R_m, xi[th])
+                    H[:, SCALE] = -Hc @ par[0]
                     h = h + par[1] @ (mu_k[:2] + xi[6:8])
                     if opt.silhouette_offset:   # 4c the deterministic offset
                         off = silhouette_offset(xi[:3], s_k, par[2], opt)
@@ -788,13 +822,15 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
                         Hc = Hc + np.outer(par[1][:, 0], off.centroid_grad)
                     H[:, :3], H[:, th], H[:, 6:8] = Hc, Htc, par[1]
                 else:
-                    rho, Hrr = radius_model(xi[:3], par[2])
+                    rho, Hrr = radius_model(xi[:3], par[2] * (1.0 + xi[SCALE]))
+                    H[0, SCALE] = par[2] / float(np.linalg.norm(xi[:3]))
                     if opt.silhouette_offset:
                         off = silhouette_offset(xi[:3], s_k, par[2], opt)
                         rho, Hrr = rho + off.radius_px, Hrr + off.radius_grad[None, :]
                     g = 1.0 + mu_k[2] + xi[8]
                     h = np.array([rho * g])
                     H[:, :3], H[0, 8] = Hrr * g, rho
+                    H[0, SCALE] *= g
                 hs.append(h)
                 Hs.append(H)
                 ok.append(good)
@@ -850,6 +886,8 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
                 if it == 0:
                     nu0, S0 = z - h, S
                 Kg = np.linalg.solve(S, H @ P).T
+                if opt.scale_consider:
+                    Kg[SCALE] = 0.0           # 4e Schmidt: the scale is considered, not updated
                 step = x + Kg @ (z - h - H @ (x - xi))
                 done = np.max(np.abs(step[:3] - xi[:3])) < ITERATION_TOLERANCE
                 xi = step
@@ -872,11 +910,15 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             th = slice(n - 3, n)
         # 7 new landmarks
         room = opt.max_landmarks - len(ids)
+        if (opt.birth_position_sigma > 0 and np.linalg.eigvalsh(P[:3, :3])[-1]
+                > opt.birth_position_sigma**2):
+            room = 0                          # 7a no births while the position is this loose
         new = [f for f in m.features if f.track_id not in ids and f.track_id not in banned]
         if room > 0 and new:
             r = x[:3]
             R_true = R_m @ rotation_vector_matrix(x[th])
-            placed = BodyInCamera.place(shape.vertices, shape.faces, R_true.T @ R_bi,
+            s_est = 1.0 + float(x[SCALE])
+            placed = BodyInCamera.place(shape.vertices * s_est, shape.faces, R_true.T @ R_bi,
                                         R_true.T @ (-r))
             Js, Gs, Ns, ls, born = [], [], [], [], []
             cands = new[:room]
@@ -892,6 +934,9 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
                     continue
                 J = np.zeros((3, n))
                 J[:, :3], J[:, th] = b.J_r, b.J_theta
+                # 4e the facet plane's offset scales with the model: a height of
+                # n . p / (1 + s) per unit of s
+                J[:, SCALE] = b.J_h * float(b.normal_body @ b.point_body) / s_est
                 Js.append(J)
                 Gs.append(np.column_stack([b.J_uv, b.J_h]))
                 Ns.append(np.diag([f.sigma_px**2, f.sigma_px**2, opt.landmark_height_sigma**2]))
@@ -912,6 +957,13 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
         out.states[k] = x[:6]
         out.info["bias"][k] = x[BIAS]
         out.info["bias_sigma"][k] = np.sqrt(np.diag(P)[BIAS])
+        for j, tid in enumerate(ids):     # each landmark's estimate: first and latest
+            blk = slice(CORE + 3 * j, CORE + 3 * j + 3)
+            est = (x[blk].copy(), P[blk, blk].copy())
+            out.info["landmark_first"].setdefault(tid, est)
+            out.info["landmark_last"][tid] = est
+        out.info["shape_scale"][k] = x[SCALE]
+        out.info["shape_scale_sigma"][k] = math.sqrt(max(P[SCALE, SCALE], 0.0))
         out.covariances[k] = P[:6, :6]
         out.landmarks[k] = len(ids)
     return out

@@ -34,9 +34,11 @@ from numpy.typing import ArrayLike
 from starnav.camera import Camera
 from starnav.errors import ConfigError
 from starnav.navigation.metrics import anees_statistics, chi2_band
+from starnav.navigation.trn.body_model import estimator_model
 from starnav.navigation.trn.filter import FlybyRun, ShapeBodyLike, TrnFilterOptions, run_filter
 from starnav.navigation.trn.metrics import FlybyMetrics, closest_approach_index
 from starnav.navigation.trn.synthetic import (
+    STREAM_SHAPE_SCALE,
     FlybyTruth,
     SyntheticOptions,
     flyby_truth,
@@ -45,6 +47,7 @@ from starnav.navigation.trn.synthetic import (
 )
 from starnav.scenes.flyby import flyby_from_config
 from starnav.scenes.schema import FlybyConfig
+from starnav.seeding import STAGE_FLYBY_SYNTHETIC, generator
 from starnav.typing import FloatArray
 
 
@@ -76,8 +79,12 @@ def flyby_monte_carlo(truth: FlybyTruth, camera: Camera, body: ShapeBodyLike, ru
                       initial_covariance: ArrayLike, *, seed: int = 0,
                       synthetic: SyntheticOptions | None = None,
                       options: TrnFilterOptions | None = None,
-                      probability: float = 0.99) -> FlybyMonteCarlo:
-    """``runs`` filter runs on synthetic measurements of ``truth`` (module essay)."""
+                      probability: float = 0.99, shape_model: Any = None) -> FlybyMonteCarlo:
+    """``runs`` filter runs on synthetic measurements of ``truth`` (module essay).
+    ``shape_model``: a :class:`~starnav.navigation.schema.TrnShapeModelConfig`; the filter of
+    run ``r`` then navigates on :func:`~starnav.navigation.trn.body_model.estimator_model`
+    of ``body`` with the unit draw of stream ``(seed, STAGE_FLYBY_SYNTHETIC, r,
+    STREAM_SHAPE_SCALE)`` (``run.info["shape_model"]``); default the truth's own shape."""
     if runs < 2:
         raise ConfigError("runs", runs, ">= 2 Monte Carlo runs (consistency needs several)")
     P0 = np.asarray(initial_covariance, float)
@@ -85,8 +92,17 @@ def flyby_monte_carlo(truth: FlybyTruth, camera: Camera, body: ShapeBodyLike, ru
     for r in range(runs):
         meas = run_measurements(truth, seed, r, synthetic)
         x0 = initial_estimate(truth, P0, seed, r)
-        res = run_filter(meas, camera, body, x0, P0, options,
+        model_body, opts, info = body, options, None
+        if shape_model is not None:
+            draw = generator(seed, STAGE_FLYBY_SYNTHETIC, r, STREAM_SHAPE_SCALE).standard_normal()
+            model = estimator_model(body, shape_model,  # type: ignore[arg-type]
+                                    options if options is not None else TrnFilterOptions(),
+                                    float(draw))
+            model_body, opts, info = model.body, model.options, model.info
+        res = run_filter(meas, camera, model_body, x0, P0, opts,
                          sun_direction=truth.sun_direction)
+        if info is not None:
+            res.info["shape_model"] = info
         out_runs.append(res)
         out_metrics.append(FlybyMetrics.of(res, meas, truth.states, truth.epoch_ca))
     summary = summarise_runs(out_runs, out_metrics, truth.states, truth.epochs,

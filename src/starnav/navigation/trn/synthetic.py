@@ -48,6 +48,8 @@ from starnav.typing import FloatArray
 STREAM_MEASUREMENTS = 0
 STREAM_INITIAL_ERROR = 1
 STREAM_CANDIDATES = 2
+#: A run's draw of the estimator's shape-model scale error (trn.body_model; never change).
+STREAM_SHAPE_SCALE = 3
 
 ARCSEC = math.pi / 180.0 / 3600.0
 

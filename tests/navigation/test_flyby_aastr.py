@@ -1,0 +1,278 @@
+"""The fly-by on the AA-STR without the true map: the frame budget against the tracker's readout
+law, the estimator's coarse shape model (not the truth), its landmarks against the truth, and
+the consistency of a short dispersed pass under the per-epoch statistic.
+
+Synthetic passes (``navigation.trn.synthetic``: the truth is the full Itokawa radar mesh, the
+filter navigates on the 500-face coarse model scaled by a per-run draw of 2 % 1-sigma): CA 5 km
+at 0.5 km/s, Sun phase 60 deg at CA, from 50 km out to 50 km out (-100 s .. +100 s), a frame
+every 4 s (the readout law allows 0.25 s: the long pass at that cadence is the slow test, a
+strict xfail: overconfident). The
+silhouette's model-error sigmas of these runs (``scoring.SYNTHETIC_FILTER``: 1.0 px, 3 % of the
+radius, constant) cover the synthetic noise (0.3 px) and the coarse model's silhouette error
+measured on the calibration pass (1 km/s, CA 8 km, phase 40 deg: largest centroid difference
+1.0 px, radius 1.2 % rms); this pass is the development fly-by (in sample: with the exact map's
+0.3 px and 1 % the mean NEES was 10.6, above its band; docs/navigation.md, "Asteroid fly-by on
+the AA-STR"). The out-of-sample score is the record of ``tools/score_flyby.py``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19.1")
+
+from starnav.batch.presets import flyby_scenario
+from starnav.bodies.small_body import ShapeModelBody
+from starnav.camera import Camera
+from starnav.config import scenario_from_dict
+from starnav.detector.products import MAX_WINDOWS
+from starnav.errors import ConfigError
+from starnav.navigation.metrics import anees_statistics
+from starnav.navigation.schema import TrnFilterConfig, TrnShapeModelConfig
+from starnav.navigation.trn.montecarlo import flyby_monte_carlo
+from starnav.navigation.trn.scoring import (
+    CALIBRATION_FLYBYS,
+    SCORING_FLYBYS,
+    SYNTHETIC,
+    SYNTHETIC_FILTER,
+    TARGETS,
+    read_record,
+)
+from starnav.navigation.trn.synthetic import flyby_truth, run_measurements
+from starnav.scenes.flyby import flyby_from_config
+from starnav.scenes.schema import FlybyConfig
+from starnav.simulate import Simulator
+from starnav.simulate.build import body_from_scenario
+from starnav.simulate.flyby import estimator_body, flyby_closed_loop, flyby_exposures
+from starnav.simulate.trn import flyby_frame_budget, track_flyby
+
+#: The AA-STR's readout law as the seed paper gives it (eq. 1: 8 ms + 0.17 ms per unit of
+#: N_pix, a unit of 1000 px; a full-array scan at least 200 ms) [s]; written out here, not
+#: read from the code under test.
+LAW_A, LAW_B, LAW_UNIT, LAW_FULL = 8e-3, 0.17e-3, 1000.0, 0.2
+SEED = 11
+RUNS = 4
+SYN = SYNTHETIC
+
+
+def preset(**trajectory):
+    d = flyby_scenario()
+    d["trajectory"]["flyby"].update(trajectory)
+    return scenario_from_dict(d)
+
+
+# ----------------------------------------------------------------------------- frame budget
+@pytest.fixture(scope="module")
+def near_ca():
+    """Three frames of the preset about CA (the body largest: most pixels, most windows)."""
+    sim = Simulator(preset(start_s=-0.25, end_s=0.25))
+    renders = [sim.render(i) for i in range(len(sim))]
+    return sim, renders
+
+
+def test_frame_budget_fits_the_readout_law_at_the_preset_cadence(near_ca):
+    """Per frame at CA: at most 16 windows; the pixels read are the windows' areas; the two
+    acquisitions (exposure + the paper's readout law on the segments scan and on the windows
+    actually read) fit in the preset's 0.25 s cadence, and so does the budget's worst case (16
+    windows of the largest size), which bounds every frame."""
+    sim, renders = near_ca
+    sc = sim.scenario
+    budget = flyby_frame_budget(sc)
+    assert budget.n_windows <= MAX_WINDOWS == 16
+    cam = sim.camera
+    assert (cam.width, cam.height) == (1024, 1024)
+    assert math.degrees(cam.fov_x) == pytest.approx(20.6, abs=0.05)   # the AA-STR's 20.6 deg
+    t_exp = sc.detector.exposure_time_s
+    t_seg = max(LAW_A + LAW_B * cam.width * cam.height / LAW_UNIT, LAW_FULL)
+    steps = track_flyby(sim, renders=renders)
+    for s in steps:
+        m = s.frame.measurement
+        assert 0 < len(m.windows) <= MAX_WINDOWS
+        n_win = sum(h * w for _, _, h, w in m.windows)
+        seg, win = s.readout
+        assert (seg.mode, seg.n_pixels) == ("segments", cam.width * cam.height)
+        assert (win.mode, win.n_pixels) == ("windows", n_win)
+        t_win = LAW_A + LAW_B * n_win / LAW_UNIT
+        assert win.min_exposure == pytest.approx(t_win) and seg.min_exposure == pytest.approx(
+            t_seg)
+        frame_time = 2 * t_exp + t_seg + t_win
+        assert frame_time <= budget.frame_time <= sc.trajectory.cadence_s
+    assert budget.fits
+
+
+def test_the_preset_exposure_is_well_exposed(near_ca):
+    """The lit asteroid well exposed (the paper: well-exposed images only): at CA its
+    brightest 0.1 % of pixels between a quarter of the 12-bit range and below saturation."""
+    sim, renders = near_ca
+    fe = sim.scenario.navigation.trn.front_end.options()
+    from starnav.navigation.trn.frontend import FlybyFrontEnd
+
+    geom, img = renders[1]
+    e0, _, _, _ = flyby_exposures(sim, img, geom, FlybyFrontEnd(sim.camera, fe))
+    dn = np.asarray(e0.dn, float)
+    full = 2 ** sim.scenario.detector.adc.bits - 1
+    body = dn[dn > 0.05 * full]
+    assert body.size > 10_000
+    top = float(np.percentile(body, 99.9))
+    assert 0.25 * full < top < full, top
+    assert np.count_nonzero(dn >= full) == 0
+
+
+# ----------------------------------------------------------------------------- the map
+def test_the_map_the_filter_uses_is_not_the_truth():
+    """The estimator's body is the coarse model (fewer faces, other vertices), its scale drawn
+    per run (different runs, different scales; volume ratio (1 + e)^3), and the filter gets the
+    scale sigma and a landmark height sigma of the model's; fails if the two meshes or their
+    scales are identical."""
+    sc = preset()
+    assert sc.navigation.trn.shape_model.map == "coarse"
+    truth = body_from_scenario(sc)
+    opts = sc.navigation.trn.filter.options()
+    m0, m1 = (estimator_body(sc, r, truth, opts) for r in (0, 1))
+    for m in (m0, m1):
+        assert m.body.shape.n_faces < truth.shape.n_faces
+        assert m.body.shape.n_vertices != truth.shape.n_vertices
+        assert m.scale_error != 0.0
+        assert m.body.shape.volume / truth.shape.volume == pytest.approx(
+            (1 + m.scale_error) ** 3, rel=1e-9)
+        assert m.options.scale_sigma == 0.02
+        assert m.options.landmark_height_sigma > m.info["height_rms_m"] > 0
+    assert m0.scale_error != m1.scale_error
+    assert m0.body.gm == truth.gm and m0.body.spin == truth.spin
+
+
+def test_a_coarse_model_finer_than_the_truth_is_one_error_before_rendering(monkeypatch):
+    """``shape_model.faces`` at or above the truth's faces: a ConfigError naming the key, the
+    value and the bound, raised before any frame is rendered."""
+    d = flyby_scenario()
+    d["trajectory"]["flyby"].update(start_s=-0.25, end_s=0.25)
+    sim = Simulator(scenario_from_dict(d, ["navigation.trn.shape_model.faces=20000"]))
+
+    def no_render(*_a, **_k):
+        raise AssertionError("rendered before the check")
+
+    monkeypatch.setattr(sim, "render", no_render)
+    with pytest.raises(ConfigError, match=r"shape_model\.faces.*20000.*12192"):
+        flyby_closed_loop(sim, 1)
+
+
+# ----------------------------------------------------------------------------- synthetic
+@pytest.fixture(scope="module")
+def itokawa():
+    return ShapeModelBody()
+
+
+def synthetic_pass(body, epochs, runs, *, v=0.5, ca=5.0, phase=60.0):
+    """The development fly-by of ``scoring.CALIBRATION_FLYBYS`` at ``epochs``."""
+    cam = Camera.preset("aa-str")
+    fl = flyby_from_config(FlybyConfig(v_inf_km_s=v, closest_approach_km=ca,
+                                       phase_at_ca_deg=phase), epoch_ca=0.0, gm=body.gm)
+    truth = flyby_truth(fl, body, cam, epochs, SYN, seed=1)
+    c = TrnFilterConfig(**SYNTHETIC_FILTER)
+    return truth, flyby_monte_carlo(truth, cam, body, runs, c.initial_covariance(), seed=SEED,
+                                    synthetic=SYN, options=c.options(),
+                                    shape_model=TrnShapeModelConfig(map="coarse"))
+
+
+@pytest.fixture(scope="module")
+def short_pass(itokawa):
+    return synthetic_pass(itokawa, np.arange(-100.0, 100.01, 4.0), RUNS)
+
+
+def test_coarse_map_landmarks_converge_to_the_truth_within_their_covariance(short_pass):
+    """Every landmark's last estimate against the true surface point of its track: NEES mean
+    over the landmarks inside the two-sided 99 % band of one independent landmark per run (the
+    landmarks of a run share its scale error, so they are not independent of each other), and
+    the median error smaller at the last estimate than at birth."""
+    truth, mc = short_pass
+    nees, first, last = [], [], []
+    for r, run in enumerate(mc.runs):
+        points = {f.track_id: f.point_body
+                  for m in run_measurements(truth, SEED, r, SYN) for f in m.truth}
+        for tid, (x, P) in run.info["landmark_last"].items():
+            d = x - points[tid]
+            nees.append(float(d @ np.linalg.solve(P, d)))
+            last.append(float(np.linalg.norm(d)))
+            first.append(float(np.linalg.norm(run.info["landmark_first"][tid][0] - points[tid])))
+    assert len(nees) > 50
+    lo, hi = (chi2.ppf(p, 3 * RUNS) / RUNS for p in (0.005, 0.995))
+    assert lo <= np.mean(nees) <= hi, np.mean(nees)
+    assert np.median(last) < np.median(first)
+
+
+def test_the_scale_is_carried_not_estimated(short_pass):
+    """The model's scale error is a consider state: its sigma stays the prior's 2 %, its value
+    the model's; the truth of every run (``-e / (1 + e)``) lies within 3 sigma of it."""
+    _, mc = short_pass
+    for run in mc.runs:
+        info = run.info
+        assert info["shape_model"]["map"] == "coarse"
+        assert np.all(info["shape_scale"] == 0.0)
+        assert np.allclose(info["shape_scale_sigma"], 0.02)
+        assert abs(info["shape_model"]["scale_truth"]) < 3 * 0.02
+
+
+def test_short_dispersed_pass_consistent_under_the_per_epoch_statistic(short_pass):
+    """Runs that differ in their measurements, initial error and model scale: the time-averaged
+    ANEES inside its band (effective samples from the autocorrelation time, 1 % false alarm)
+    and no epoch above its per-epoch 95 % band in more than 10 % of the epochs (a consistent
+    filter: 2.5 % expected above). Measured: mean 5.04 in [2.92, 10.38] (5.7 effective
+    samples), 80 % of the epochs inside their band, none above, 20 % below (pessimistic: the
+    constant 1 px / 3 % sigmas are large for the approach's small apparent size)."""
+    _, mc = short_pass
+    st = anees_statistics(mc.nees, 6)
+    assert st["verdict"] == "consistent", (st["mean"], st["band"])
+    assert st["epochs_above"] <= 0.10, st["epochs_above"]
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "measured: time-averaged ANEES 16.2 above [3.27, 9.70] (thirds 3.05 / 16.1 / 29.5; 51 % "
+    "of the epochs above their band), CA error 0.87 - 3.31 % of range: at 16 times the "
+    "frames the coarse map's silhouette error, correlated over the pass, is averaged as if "
+    "it decorrelated in 19 s (docs/navigation.md)"))
+def test_long_pass_at_the_readout_cadence(itokawa):
+    """Approach to departure at the preset's cadence (0.25 s, 801 frames, 50 km -> 5 km ->
+    50 km), 4 runs: CA position error below 2 % of range in every run and the time-averaged
+    ANEES not above its band."""
+    _, mc = synthetic_pass(itokawa, np.arange(-100.0, 100.01, 0.25), RUNS)
+    st = anees_statistics(mc.nees, 6)
+    assert st["mean"] <= st["band"][1], st["mean"]
+    assert max(m.ca_position_error_pct_range for m in mc.metrics) < 2.0
+
+
+# ----------------------------------------------------------------------------- the record
+def test_scoring_record_is_of_the_current_defaults_and_outside_the_envelope():
+    """The packaged score (tools/score_flyby.py) was made with today's settings (a changed
+    default makes it stale: re-score), its scoring fly-bys lie outside the calibration
+    envelope (v_inf, CA distance and phase each outside the calibration's range, or another
+    body), 20 dispersed runs each, and each recorded verdict follows from its numbers."""
+    rec = read_record()
+    def as_json(d):
+        return json.loads(json.dumps(d))
+
+    assert rec["defaults"]["synthetic_filter"] == as_json(SYNTHETIC_FILTER)
+    assert rec["defaults"]["shape_model"] == as_json(
+        TrnShapeModelConfig(map="coarse").model_dump())
+    assert rec["defaults"]["filter"] == as_json(TrnFilterConfig(**SYNTHETIC_FILTER).model_dump())
+    assert {c.name for c in SCORING_FLYBYS} == set(rec["scoring"])
+    assert {c.name for c in CALIBRATION_FLYBYS} == set(rec["calibration"])
+    cal = CALIBRATION_FLYBYS
+    for c in SCORING_FLYBYS:
+        outside = [not min(getattr(k, f) for k in cal) <= getattr(c, f)
+                   <= max(getattr(k, f) for k in cal)
+                   for f in ("v_inf", "closest_approach", "phase_at_ca")]
+        assert all(outside) or c.body not in {k.body for k in cal}, c
+        s = rec["scoring"][c.name]
+        assert s["runs"] >= 20 and s["case"]["name"] == c.name
+        lo, hi = TARGETS["epochs_in_band"]
+        assert s["targets_met"]["epochs_in_band"] == (lo <= s["epochs_in_band"] <= hi)
+        assert s["targets_met"]["ca_position_pct_p95"] == (
+            s["ca_position_pct_p95"] <= TARGETS["ca_position_pct_p95"])
+    assert any(c.body == "eros" for c in SCORING_FLYBYS)
