@@ -1,0 +1,94 @@
+#!/usr/bin/env python
+"""Score the released navigation defaults once, on arcs and seeds that tuned nothing.
+
+The protocol (docs/navigation.md, "Tuning apart from scoring"):
+
+- **Tuning set** (what calibrated the defaults; never scored): the refinement's model errors on
+  the five arcs of ``tools/calibrate_refine_model_error.py`` (halo phases 60, 240, 120, 300 and
+  30 deg, March to May 2027, seeds 4242-4246), the bias states on the two arcs of
+  ``tools/tune_bias_states.py`` (phases 60 and 240 deg, seeds 4242-4243), the PSF estimate on the
+  star frames of ``tools/estimate_psf.py`` (seeds 9100-9103), the process noise from the
+  computed accelerations (``starnav.scenes.forces.unmodelled_acceleration_psd``).
+- **Scoring set** (:data:`SCORING_ARCS`): another season (August to October 2027), halo phases
+  (150 and 330 deg) outside the tuning phases, seeds 9301-9302; the truth with every mismatch on
+  (planets, solar radiation pressure with eclipses and J2 in the truth only; PSF estimated from
+  stars; terrain statistics from a coarser DEM than the rendered one), each run on its own
+  terrain, detector noise, attitude knowledge error and initial error.
+
+The record (``src/starnav/data/navigation/scores.json``) keeps the scores, the scoring set, the
+commit scored and the fingerprint of every default the score depends on
+(``starnav.navigation.scores.defaults_fingerprint``); ``tests/navigation/test_scores.py`` fails
+when a default changes after its score, and then it is scored again on a new scoring set
+(change :data:`SCORING_ARCS`' seeds and season; the note of the commit says so).
+
+Usage::
+
+    .venv/bin/python tools/score_navigation.py            # score, print, write the record
+    .venv/bin/python tools/score_navigation.py --runs 4 --dry-run
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import subprocess
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "src/starnav/data/navigation/scores.json"
+SCORING_ARCS = (["trajectory.halo_phase_deg=150", "trajectory.epoch=2027-08-10T00:00:00 TDB",
+                 "seed=9301"],
+                ["trajectory.halo_phase_deg=330", "trajectory.epoch=2027-10-05T00:00:00 TDB",
+                 "seed=9302"])
+SHORT_ARC = ["trajectory.duration_days=0.25", "trajectory.cadence_s=7200", "render.spp=8"]
+RUNS = 20
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=RUNS)
+    ap.add_argument("--dry-run", action="store_true")
+    args = ap.parse_args()
+    from starnav.batch.consistency import filter_consistency, noise_monte_carlo, terrain_renders
+    from starnav.batch.presets import DEMO_EXPOSURE_OVERRIDES, demo_scenario
+    from starnav.config import scenario_from_dict, scenario_to_dict
+    from starnav.navigation.scores import EXPOSURES, defaults_fingerprint
+
+    t0 = time.perf_counter()
+    scores = []
+    for arc in SCORING_ARCS:
+        cfg = scenario_to_dict(scenario_from_dict(demo_scenario(), arc + SHORT_ARC))
+        per_run = terrain_renders(cfg, args.runs)
+        for exposure in EXPOSURES:
+            over = [f"detector.exposure_time_s={exposure!r}",
+                    *dict(DEMO_EXPOSURE_OVERRIDES).get(exposure, ())]
+            c = scenario_to_dict(scenario_from_dict(cfg, over))
+            r = filter_consistency(noise_monte_carlo(c, args.runs, per_run=per_run))
+            st = r["nees"]
+            row = {"arc": arc, "exposure_s": exposure, "runs": args.runs,
+                   "epochs": st["epochs"],
+                   "epochs_in_band": st["epochs_in_band"],
+                   "epochs_above": st["epochs_above"],
+                   "nees_mean": r["nees_mean"], "nees_band": list(r["nees_band"]),
+                   "verdict": r["verdict"],
+                   "nees_position_mean": r["nees_position"]["mean"],
+                   "nees_velocity_mean": r["nees_velocity"]["mean"],
+                   "final_position_error_pct_range":
+                       r["final_position_error_pct_range"]["median"]}
+            scores.append(row)
+            print(json.dumps(row), flush=True)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                            capture_output=True, text=True).stdout.strip()
+    doc = {"tool": "tools/score_navigation.py", "commit": commit,
+           "date": _dt.date.today().isoformat(), "scoring_arcs": [list(a) for a in SCORING_ARCS],
+           "arc": SHORT_ARC, "defaults_fingerprint": defaults_fingerprint(), "scores": scores}
+    print(f"wall time {time.perf_counter() - t0:.0f} s")
+    if not args.dry_run:
+        OUT.write_text(json.dumps(doc, indent=1) + "\n")
+        print(f"wrote {OUT}")
+
+
+if __name__ == "__main__":
+    main()
