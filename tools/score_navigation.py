@@ -42,7 +42,7 @@ SCORING_ARCS = (["trajectory.halo_phase_deg=150", "trajectory.epoch=2027-08-10T0
                  "seed=9301"],
                 ["trajectory.halo_phase_deg=330", "trajectory.epoch=2027-10-05T00:00:00 TDB",
                  "seed=9302"])
-SHORT_ARC = ["trajectory.duration_days=0.25", "trajectory.cadence_s=7200", "render.spp=8"]
+ARC = ["trajectory.duration_days=1.0", "trajectory.cadence_s=7200", "render.spp=8"]
 RUNS = 20
 
 
@@ -59,7 +59,7 @@ def main() -> None:
     t0 = time.perf_counter()
     scores = []
     for arc in SCORING_ARCS:
-        cfg = scenario_to_dict(scenario_from_dict(demo_scenario(), arc + SHORT_ARC))
+        cfg = scenario_to_dict(scenario_from_dict(demo_scenario(), arc + ARC))
         per_run = terrain_renders(cfg, args.runs)
         for exposure in EXPOSURES:
             over = [f"detector.exposure_time_s={exposure!r}",
@@ -83,7 +83,7 @@ def main() -> None:
                             capture_output=True, text=True).stdout.strip()
     doc = {"tool": "tools/score_navigation.py", "commit": commit,
            "date": _dt.date.today().isoformat(), "scoring_arcs": [list(a) for a in SCORING_ARCS],
-           "arc": SHORT_ARC, "defaults_fingerprint": defaults_fingerprint(), "scores": scores}
+           "arc": ARC, "defaults_fingerprint": defaults_fingerprint(), "scores": scores}
     print(f"wall time {time.perf_counter() - t0:.0f} s")
     if not args.dry_run:
         OUT.write_text(json.dumps(doc, indent=1) + "\n")

@@ -192,7 +192,10 @@ class FilterConfig(StrictModel):
         "accepted regardless (recovery from a diverged filter)")
     initial_position_sigma_km: PositiveFloat = Field(100.0, description="initial 1-sigma [km]")
     initial_velocity_sigma_m_s: PositiveFloat = Field(1.0, description="initial 1-sigma [m/s]")
-    rk4_step_s: PositiveFloat = Field(300.0, description="RK4 step of the filter dynamics [s]")
+    rk4_step_s: PositiveFloat = Field(
+        1800.0, description="longest RK4 step of the filter dynamics [s] (an interval is split "
+        "into equal steps no longer than this; 1800 s near L2: under a millimetre per day from "
+        "the converged integration, one step per frame at the demo's cadence)")
 
 
 class TrnFrontEndConfig(StrictModel):
