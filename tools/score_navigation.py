@@ -38,6 +38,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "src/starnav/data/navigation/scores.json"
+FIGURE = ROOT / "docs/figures/anees_scoring.png"
 SCORING_ARCS = (["trajectory.halo_phase_deg=150", "trajectory.epoch=2027-08-10T00:00:00 TDB",
                  "seed=9301"],
                 ["trajectory.halo_phase_deg=330", "trajectory.epoch=2027-10-05T00:00:00 TDB",
@@ -76,9 +77,11 @@ def main() -> None:
                    "nees_position_mean": r["nees_position"]["mean"],
                    "nees_velocity_mean": r["nees_velocity"]["mean"],
                    "final_position_error_pct_range":
-                       r["final_position_error_pct_range"]["median"]}
+                       r["final_position_error_pct_range"]["median"],
+                   "per_epoch_nees": st["per_epoch"], "per_epoch_band": st["per_epoch_band"]}
             scores.append(row)
-            print(json.dumps(row), flush=True)
+            print(json.dumps({k: v for k, v in row.items() if not k.startswith("per_")}),
+                  flush=True)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
                             capture_output=True, text=True).stdout.strip()
     doc = {"tool": "tools/score_navigation.py", "commit": commit,
@@ -88,6 +91,36 @@ def main() -> None:
     if not args.dry_run:
         OUT.write_text(json.dumps(doc, indent=1) + "\n")
         print(f"wrote {OUT}")
+        figure(doc, FIGURE)
+        print(f"wrote {FIGURE}")
+
+
+def figure(doc: dict, path: Path) -> None:
+    """Per-epoch ANEES of every scored arc and exposure against its 95 % band."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    rows = doc["scores"]
+    fig, axes = plt.subplots(len(rows), 1, figsize=(7.0, 1.9 * len(rows)), sharex=True)
+    for ax, r in zip(np.atleast_1d(axes), rows, strict=True):
+        v = np.array(r["per_epoch_nees"], float)
+        b = np.array(r["per_epoch_band"], float)
+        t = np.arange(v.size) * 2.0
+        ax.fill_between(t, b[:, 0], b[:, 1], color="C0", alpha=0.2, lw=0)
+        ax.axhline(6.0, color="C2", lw=0.8)
+        ax.plot(t, v, "o-", ms=3, color="k")
+        ax.set_ylabel("ANEES")
+        ax.set_title(f"{r['arc'][1].split('=')[1][:10]}, halo {r['arc'][0].split('=')[1]} deg, "
+                     f"{r['exposure_s'] * 1e3:g} ms: {100 * r['epochs_in_band']:.0f} % of "
+                     f"epochs in the 95 % band", fontsize=8)
+    np.atleast_1d(axes)[-1].set_xlabel("hours from the first frame")
+    fig.suptitle(f"Scoring set, {rows[0]['runs']} runs, every mismatch on", fontsize=9)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
 
 
 if __name__ == "__main__":
