@@ -52,6 +52,8 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=RUNS)
     ap.add_argument("--dry-run", action="store_true")
     args = ap.parse_args()
+    from scipy.stats import chi2
+
     from starnav.batch.consistency import filter_consistency, noise_monte_carlo, terrain_renders
     from starnav.batch.presets import DEMO_EXPOSURE_OVERRIDES, demo_scenario
     from starnav.config import scenario_from_dict, scenario_to_dict
@@ -78,7 +80,9 @@ def main() -> None:
                    "nees_velocity_mean": r["nees_velocity"]["mean"],
                    "final_position_error_pct_range":
                        r["final_position_error_pct_range"]["median"],
-                   "per_epoch_nees": st["per_epoch"], "per_epoch_band": st["per_epoch_band"]}
+                   "per_epoch_nees": r["nees_per_step"],
+                   "per_epoch_band": [list(chi2.ppf([0.025, 0.975], 6 * args.runs) / args.runs)]
+                   * len(r["nees_per_step"])}
             scores.append(row)
             print(json.dumps({k: v for k, v in row.items() if not k.startswith("per_")}),
                   flush=True)

@@ -33,13 +33,15 @@ _CALIBRATIONS = ("navigation/refine_model_error.json", "navigation/bias_tuning.j
 
 def defaults_fingerprint() -> str:
     """A short SHA-256 of everything a score depends on: the demo scenario's navigation
-    section (with its tuned bias states), its truth forces and spacecraft, and the packaged
-    calibrations the navigation reads."""
+    section (with its tuned bias states; the fly-by's ``trn`` part aside), its truth forces
+    and spacecraft, and the packaged calibrations the navigation reads."""
     from starnav.batch.presets import demo_scenario
     from starnav.config import scenario_from_dict
 
     sc = scenario_from_dict(demo_scenario(), [])
-    doc = {"navigation": sc.navigation.model_dump(mode="json"),
+    nav = sc.navigation.model_dump(mode="json")
+    nav.pop("trn", None)  # the fly-by's settings: scored on their own
+    doc = {"navigation": nav,
            "forces": sc.trajectory.forces.model_dump(mode="json"),
            "spacecraft": sc.spacecraft.model_dump(mode="json") if hasattr(sc, "spacecraft")
            else None,
