@@ -1,4 +1,4 @@
-"""Navigation consistency on rendered frames: the numbers docs/navigation.md quotes (issue 13).
+"""Navigation consistency on rendered frames: the numbers docs/navigation.md quotes.
 
 Prints, on arcs never used by the calibration or the tuning (the CI tests in
 tests/navigation/test_consistency.py check the same quantities against their criteria):
@@ -6,14 +6,16 @@ tests/navigation/test_consistency.py check the same quantities against their cri
 1. refined limb points: rms(error / sigma) at 0.015 ms and 0.18 ms, bias and spread, on three
    test arcs (30 frames 1.5 days apart, real Moon, 8 spp);
 2. fixes: mean NEES (3 dof) against the truth on the same frames;
-3. the filter on the demo's arc (4 frames 2 h apart), 20 Monte Carlo runs each on its own
-   terrain, detector noise, attitude knowledge error and initial error: the time-averaged NEES
-   against its 99 % band of effective samples (starnav.navigation.metrics.anees_statistics),
-   the fraction of epochs whose run-averaged NEES is inside its 95 % band, position and
-   velocity NEES, NIS, errors inside the 3-sigma bounds, final position error, at 0.015 ms
-   (limb-common states) and 7.7 ms (range scale + 3-axis shift), also with the truth's extra
-   forces on (planets, SRP, J2: trajectory.forces); the same filter without states; and a
-   smooth Moon at 0.015 ms without states (noise runs only).
+3. the filter on the demo's arc (4 frames 2 h apart) and on the first scoring arc of
+   tools/score_navigation.py (13 frames 2 h apart), 20 Monte Carlo runs each on its own
+   terrain, detector noise, attitude knowledge error and initial error, every mismatch on
+   (the defaults: the truth's planets, SRP and J2, the PSF estimated from stars, the terrain
+   statistics from a coarser DEM): the time-averaged NEES against its 99 % band of effective
+   samples (starnav.navigation.metrics.anees_statistics), the fraction of epochs whose
+   run-averaged NEES is inside its 95 % band, position and velocity NEES, NIS, errors inside
+   the 3-sigma bounds, final position error, at 0.015 ms (limb-common states) and 7.7 ms
+   (range scale + 3-axis shift); the demo arc's filter without states; and a smooth Moon at
+   0.015 ms without states (noise runs only).
 
 Run::
 
@@ -36,9 +38,9 @@ TEST_ARCS = ([], ["trajectory.halo_phase_deg=180", "trajectory.epoch=2027-06-15T
 ARC = ["trajectory.duration_days=13.5", "trajectory.cadence_s=129600", "render.spp=8"]
 SHORT_ARC = ["trajectory.duration_days=0.25", "trajectory.cadence_s=7200", "render.spp=8"]
 RUNS = 20
-#: What the truth feels beyond the filter's point masses (starnav.scenes.forces).
-FORCES = ["trajectory.forces.planets=[venus,mars,jupiter,saturn]", "trajectory.forces.srp=true",
-          "trajectory.forces.j2=true"]
+#: The first scoring arc of tools/score_navigation.py (another season, halo phase and seed).
+SCORING_ARC = ["trajectory.halo_phase_deg=150", "trajectory.epoch=2027-08-10T00:00:00 TDB",
+               "seed=9301"]
 
 
 def main() -> None:
@@ -67,23 +69,26 @@ def main() -> None:
               f"{a['bias_px']:+.3f} px, std {a['std_px']:.3f} px (saturated windows: "
               f"{res['saturated']['points']}); fixes: {nees.size}, mean NEES "
               f"{nees.mean():.2f} (99 % band {lo:.2f}-{hi:.2f})")
-    print("== filter, demo arc, 20 runs (terrain, noise, attitude, initial error)")
-    cfg = scenario_to_dict(scenario_from_dict(demo_scenario(), SHORT_ARC))
-    per_run = terrain_renders(cfg, RUNS)
+    # the demo arc and the first scoring arc (tools/score_navigation.py), every mismatch on
+    # (the defaults: truth forces, estimated PSF, coarser terrain statistics)
+    arcs = {"demo arc": SHORT_ARC,
+            "scoring arc 1": SCORING_ARC + ["trajectory.duration_days=1.0",
+                                            "trajectory.cadence_s=7200", "render.spp=8"]}
     cases = {"0.015 ms, limb-common": [],
-             "0.015 ms, no states": ["navigation.filter.bias_model=none"],
              "7.7 ms, range scale + shift": ["detector.exposure_time_s=0.0077",
                                              *dict(DEMO_EXPOSURE_OVERRIDES)[7.7e-3]]}
-    for name, over in cases.items():
-        c = scenario_to_dict(scenario_from_dict(cfg, over))
-        r = filter_consistency(noise_monte_carlo(c, RUNS, per_run=per_run))
-        _report(name, r)
-    cfg_f = scenario_to_dict(scenario_from_dict(demo_scenario(), SHORT_ARC + FORCES))
-    per_run_f = terrain_renders(cfg_f, RUNS)
-    for name in ("0.015 ms, limb-common", "7.7 ms, range scale + shift"):
-        c = scenario_to_dict(scenario_from_dict(cfg_f, cases[name]))
-        _report(f"{name}, truth forces on",
-                filter_consistency(noise_monte_carlo(c, RUNS, per_run=per_run_f)))
+    for arc_name, arc in arcs.items():
+        print(f"== filter, {arc_name}, {RUNS} runs (terrain, noise, attitude, initial error)")
+        cfg = scenario_to_dict(scenario_from_dict(demo_scenario(), arc))
+        per_run = terrain_renders(cfg, RUNS)
+        for name, over in cases.items():
+            c = scenario_to_dict(scenario_from_dict(cfg, over))
+            _report(f"{arc_name}, {name}",
+                    filter_consistency(noise_monte_carlo(c, RUNS, per_run=per_run)))
+    c = scenario_to_dict(scenario_from_dict(demo_scenario(), SHORT_ARC + [
+        "navigation.filter.bias_model=none"]))
+    _report("demo arc, 0.015 ms, no states", filter_consistency(noise_monte_carlo(
+        c, RUNS, per_run=terrain_renders(c, RUNS))))
     smooth = scenario_to_dict(scenario_from_dict(demo_scenario(), [
         "trajectory.duration_days=0.3", "trajectory.cadence_s=3600", "render.spp=8",
         "moon.shape=sphere", "navigation.filter.bias_model=none"]))

@@ -346,11 +346,13 @@ class EdgeSpread:
     cell_px: float = 4.0
 
     @classmethod
-    def from_detector(cls, detector: object) -> EdgeSpread:
-        """From a :class:`~starnav.detector.schema.DetectorConfig`."""
+    def from_detector(cls, detector: object, aberration: object | None = None) -> EdgeSpread:
+        """From a :class:`~starnav.detector.schema.DetectorConfig`; ``aberration`` replaces
+        its PSF section (e.g. an estimate, :func:`starnav.navigation.psf.estimated_psf`)."""
         d = detector
         ipc = d.signal.ipc  # type: ignore[attr-defined]
-        return cls(aberration=d.optics.aberration,  # type: ignore[attr-defined]
+        ab = d.optics.aberration if aberration is None else aberration  # type: ignore[attr-defined]
+        return cls(aberration=ab,
                    ipc=(float(ipc.nearest_fraction), float(ipc.diagonal_fraction))
                    if ipc.enabled else (0.0, 0.0))
 

@@ -36,6 +36,7 @@ from starnav.navigation.christian_robinson import ChristianRobinsonOptions
 from starnav.navigation.ekf import EkfOptions
 from starnav.navigation.limb import LimbScanOptions
 from starnav.navigation.pipeline import ChainOptions
+from starnav.navigation.psf import estimated_psf
 from starnav.navigation.ransac import RansacOptions
 from starnav.navigation.refine import (
     EdgeSpread,
@@ -77,6 +78,10 @@ class RefineConfig(StrictModel):
         "when the scenario is known and its aberration PSF is on, else blurred-limb")
     psf_sigma_px: NonNegativeFloat | None = Field(
         None, description="Gaussian PSF sigma [px]; null: fitted per window")
+    psf_knowledge: Literal["estimated", "detector"] = Field(
+        "estimated", description="the PSF of the detector-psf edge model: estimated (fitted "
+        "to star images exposed through the detector, starnav.navigation.psf) or detector "
+        "(the simulator's own setting: perfect knowledge, an analysis option)")
     saturation_dn: PositiveFloat = Field(4095.0, description="pixels at or above are ignored [DN]")
     min_sigma_px: PositiveFloat = Field(0.02, description="floor of a refined point's sigma [px]")
     noise_model: bool = Field(
@@ -85,6 +90,10 @@ class RefineConfig(StrictModel):
     terrain_model_error: bool = Field(
         True, description="add the DEM's limb-height spread (starnav.dem.limb) to each refined "
         "point's sigma when the Moon has terrain")
+    terrain_model_ppd: PositiveFloat | None = Field(
+        1.0, description="resolution of the DEM the navigation's limb-height statistics come "
+        "from [px/deg] (area-averaged from the scenario's DEM): a terrain model coarser than "
+        "the one that renders; null: the rendered DEM itself (perfect knowledge)")
     outlier_px: PositiveFloat = Field(0.5, description="refined points farther from the first "
                                                        "fix are dropped [px]")
     model_error_px: NonNegativeFloat | None = Field(
@@ -183,7 +192,10 @@ class FilterConfig(StrictModel):
         "accepted regardless (recovery from a diverged filter)")
     initial_position_sigma_km: PositiveFloat = Field(100.0, description="initial 1-sigma [km]")
     initial_velocity_sigma_m_s: PositiveFloat = Field(1.0, description="initial 1-sigma [m/s]")
-    rk4_step_s: PositiveFloat = Field(300.0, description="RK4 step of the filter dynamics [s]")
+    rk4_step_s: PositiveFloat = Field(
+        1800.0, description="longest RK4 step of the filter dynamics [s] (an interval is split "
+        "into equal steps no longer than this; 1800 s near L2: under a millimetre per day from "
+        "the converged integration, one step per frame at the demo's cadence)")
 
 
 class TrnFrontEndConfig(StrictModel):
@@ -461,11 +473,15 @@ class NavigationConfig(StrictModel):
                 noise = PixelNoise.from_detector(scenario.detector)
             if (Rf.edge_model in ("auto", "detector-psf")
                     and scenario.detector.optics.aberration.enabled):
-                spread = EdgeSpread.from_detector(scenario.detector)
+                aberration = None
+                if Rf.psf_knowledge == "estimated":
+                    aberration = estimated_psf(scenario.detector,
+                                               camera_from_config(scenario.camera)).aberration
+                spread = EdgeSpread.from_detector(scenario.detector, aberration=aberration)
                 edge_model = "detector-psf"
             on_moon = getattr(scenario, "target", None) is None or scenario.target.kind == "moon"
             if Rf.terrain_model_error and on_moon and scenario.moon.shape == "dem":
-                terrain = limb_topography_for(scenario.moon.dem)
+                terrain = limb_topography_for(_coarser(scenario.moon.dem, Rf.terrain_model_ppd))
             if Fsi.attitude_sigma is None:
                 att = scenario.pointing.knowledge_sigma
         table = packaged_model_error() if edge_model == "detector-psf" else None
@@ -544,3 +560,12 @@ class NavigationConfig(StrictModel):
         si = self.filter.to_si()
         sp, sv = si.initial_position_sigma, si.initial_velocity_sigma
         return np.diag([sp * sp] * 3 + [sv * sv] * 3)
+
+
+def _coarser(dem: Any, ppd: float | None) -> Any:
+    """The DEM section ``dem`` area-averaged to at most ``ppd`` [px/deg] (None: as it is)."""
+    if ppd is None:
+        return dem
+    cap = dem.max_pixels_per_degree
+    return dem.model_copy(update={"max_pixels_per_degree": ppd if cap is None else min(cap, ppd)})
+

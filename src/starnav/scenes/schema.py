@@ -95,13 +95,13 @@ class TruthForcesConfig(StrictModel):
 
     planets: tuple[Literal["mercury", "venus", "mars", "jupiter", "saturn", "uranus",
                            "neptune"], ...] = Field(
-        (), description="DE421 planet barycentres added as point masses (e.g. [venus, mars, "
-        "jupiter, saturn]); empty: none")
-    srp: bool = Field(False, description="cannonball solar radiation pressure of the "
+        ("venus", "mars", "jupiter", "saturn"), description="DE421 planet barycentres added "
+        "as point masses; empty: none (the filter's own model)")
+    srp: bool = Field(True, description="cannonball solar radiation pressure of the "
                       "spacecraft section")
     eclipses: bool = Field(True, description="Earth and Moon shadows (conical, with "
                            "penumbra) on the solar radiation pressure")
-    j2: bool = Field(False, description="Earth and Moon J2")
+    j2: bool = Field(True, description="Earth and Moon J2")
 
 
 class TrajectoryConfig(StrictModel):
