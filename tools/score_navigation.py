@@ -17,7 +17,7 @@ The protocol (docs/navigation.md, "Tuning apart from scoring"):
 
 The record (``src/starnav/data/navigation/scores.json``) keeps the scores, the scoring set, the
 commit scored and the fingerprint of every default the score depends on
-(``starnav.navigation.scores.defaults_fingerprint``); ``tests/navigation/test_scores.py`` fails
+(``starnav.batch.scores.defaults_fingerprint``); ``tests/navigation/test_scores.py`` fails
 when a default changes after its score, and then it is scored again on a new scoring set
 (change :data:`SCORING_ARCS`' seeds and season; the note of the commit says so).
 
@@ -56,8 +56,8 @@ def main() -> None:
 
     from starnav.batch.consistency import filter_consistency, noise_monte_carlo, terrain_renders
     from starnav.batch.presets import DEMO_EXPOSURE_OVERRIDES, demo_scenario
+    from starnav.batch.scores import EXPOSURES, defaults_fingerprint
     from starnav.config import scenario_from_dict, scenario_to_dict
-    from starnav.navigation.scores import EXPOSURES, defaults_fingerprint
 
     t0 = time.perf_counter()
     scores = []

@@ -8,13 +8,13 @@ import json
 
 from scipy.stats import binom
 
-from starnav.data import packaged_path
-from starnav.navigation.scores import (
+from starnav.batch.scores import (
     EXPOSURES,
     TARGETS,
     defaults_fingerprint,
     recorded_scores,
 )
+from starnav.data import packaged_path
 from starnav.scenes.ephemeris import parse_epoch
 
 #: Two-sided false-alarm rate of the binomial test on the epochs inside their 95 % band.

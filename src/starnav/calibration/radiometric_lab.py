@@ -1,68 +1,37 @@
 """Radiometric calibration of the bench against a reference instrument, its products with their
 covariance, and a validation of the tracker's DN that can fail.
 
+Each step in full: docs/methods.md, "starnav.calibration.radiometric_lab".
+
 Technique
 ---------
-1. **Session** (:func:`calibrate_radiometry`). ``radiometric_truth.power_on_min`` after the
-   screen is switched on, the lab reads, with the reference spectroradiometer
-   (:class:`~starnav.calibration.radiometric_truth.ReferenceInstrument`) placed where the
-   camera's pupil will be, looking into the collimator: full white on axis (monitor), the grey
-   ``lut_counts`` on axis, full white at a ``flat_grid`` of field points, full white on axis
-   again. Each point is the mean of ``readings_per_point`` readings; every reading is corrected
-   for the screen's drift by the monitor readings interpolated linearly in time, so all refer
-   to the end of the session.
-2. **Products** (:class:`RadiometricCalibration`): the on-axis screen LUT (electron radiance
-   per count at the camera, interpolated as a power law between measured counts) with its
-   covariance split into terms (the instrument's absolute scale per luminance class, fully
-   correlated within a class; repeatability; the spectral consider parameters -- wavelength
-   scale and responsivity tilt -- propagated through the screen's nominal spectrum); the field
-   factor (full white at a field point / on axis: non-Lambertian emission, non-uniformity,
-   vignetting) with its sigma; the monitor reading; the albedo-exposure plan of the paper's
-   case (:func:`plausibility`).
-3. **Validation** (:func:`validate_radiometry`), ``validation_delay_min`` later, at hold-out
-   counts, exposures and field points (between the calibration's): the monitor is read again
-   and the prediction rescaled; the tracker acquires the uniform grey and a black frame; the
-   dark-subtracted DN of a patch is compared with ``(LUT(n) - LUT(0)) F(u, v) t A Omega
-   cos^4 / gain``. Each point carries an uncertainty budget, one line per term of
-   :data:`TERMS` (relative 1-sigma): the reference's absolute scale, repeatability and spectral
-   errors through the LUT; its aperture (smaller than the camera's pupil, it averages a
-   narrower cone of a panel whose angular exponent is only known to
-   ``emission_exponent_sigma``: ``sigma_p |R_cam^2 - R_ref^2| / (4 f^2)``); the LUT's
-   interpolation; the field factor and its interpolation; the monitor (or, without it, the
-   session's drift extrapolated); the tracker's patch noise and its non-linearity on the
-   screen's black-level pedestal. The budget is **consistent** when no point's error exceeds
-   ``z_crit`` of its sigma (``z_crit`` the Bonferroni bound over the points at a 1 % family
-   false-alarm rate); the bench **meets the paper's use** when it is consistent and
-   ``coverage_k`` sigma is within ``tolerance`` at every point.
+1. Session (:func:`calibrate_radiometry`): the reference spectroradiometer
+   (:class:`~starnav.calibration.radiometric_truth.ReferenceInstrument`) at the camera's pupil
+   reads full white on axis (monitor), the grey ``lut_counts``, full white over a field grid and
+   the monitor again; readings are drift-corrected by the monitor.
+2. Products (:class:`RadiometricCalibration`): the screen LUT with its covariance split into
+   terms (absolute scale per luminance class, repeatability, spectral consider parameters),
+   the field factor with its sigma, the monitor reading, the albedo-exposure plan
+   (:func:`plausibility`).
+3. Validation (:func:`validate_radiometry`) at hold-out counts, exposures and field points: the
+   tracker's dark-subtracted DN against the prediction, one budget line per term of
+   :data:`TERMS`; **consistent** when no point exceeds the Bonferroni bound at a 1 % family
+   false-alarm rate, **meets the paper's use** when ``coverage_k`` sigma is within
+   ``tolerance`` everywhere.
 
-Tuning knobs (``radiometric_lab``)
-----------------------------------
-=========================== ======================= ==========================================
-knob                        default                 effect
-=========================== ======================= ==========================================
-``lut_counts``              0 4 8 ... 192 255       read counts; finer near the counts you use
-``flat_grid``               5 x 5                   field points of the field factor
-``readings_per_point``      3                       repeatability / sqrt(n), session length
-``validation_counts``       13 24 48 100 220        hold-outs (never calibration counts)
-``validation_exposures_ms`` 0.5 7.7 200             hold-out exposures
-``emission_exponent_sigma`` 2                       the reference-aperture term
-``tolerance``               2 %                     the paper's use ...
-``coverage_k``              2                       ... at this many sigma
-=========================== ======================= ==========================================
+The knobs are the ``radiometric_lab`` section (:mod:`starnav.calibration.schema`); its switches
+(``model_field``, ``through_collimator``, ``measure_lut``, ``monitor``) turn a term off, as a lab
+that ignores it would: the negative controls of the tests.
 
-Switches turn a term off, as a lab that ignores it would (``model_field``,
-``through_collimator``, ``measure_lut``, ``monitor``): the negative controls of the tests.
+References
+----------
+Seed paper, "Radiometric Calibration"; JCGM 100:2008 (GUM) for the combination of the budget
+(first order, uncorrelated terms within a point).
 
 Index
 -----
-:func:`calibrate_radiometry`    the session against the reference -> RadiometricCalibration
-:func:`validate_radiometry`     hold-out DN vs prediction, budget, verdicts
-:func:`plausibility`            the paper's too-dim factor and k = 13 333 peak count, calibrated
-                                and true
-:func:`radiometric_lab`         all three, for ``starnav hil`` and the benchmark
-
-Reference: seed paper, "Radiometric Calibration"; JCGM 100:2008 (GUM) for the combination of
-the budget (first order, uncorrelated terms within a point).
+:func:`calibrate_radiometry`, :func:`validate_radiometry`, :func:`plausibility`,
+:func:`radiometric_lab`, :class:`RadiometricCalibration`, :data:`TERMS`.
 """
 
 from __future__ import annotations

@@ -16,6 +16,8 @@ from __future__ import annotations
 import hashlib
 import json
 
+from starnav.batch.presets import demo_scenario
+from starnav.config import scenario_from_dict
 from starnav.data import packaged_path
 
 #: The record (written by ``tools/score_navigation.py``).
@@ -35,9 +37,6 @@ def defaults_fingerprint() -> str:
     """A short SHA-256 of everything a score depends on: the demo scenario's navigation
     section (with its tuned bias states; the fly-by's ``trn`` part aside), its truth forces
     and spacecraft, and the packaged calibrations the navigation reads."""
-    from starnav.batch.presets import demo_scenario
-    from starnav.config import scenario_from_dict
-
     sc = scenario_from_dict(demo_scenario(), [])
     nav = sc.navigation.model_dump(mode="json")
     nav.pop("trn", None)  # the fly-by's settings: scored on their own
