@@ -199,7 +199,10 @@ def test_star_field_holdout_passes_with_the_calibrated_camera(bench, result, sta
 
 def test_star_field_holdout_negative_control_focal_length(bench, result, star_field):
     """Negative control: the calibrated camera with its focal length 0.5 % off (4.7 sigma of
-    its stated uncertainty) fails the parameter test, and the stars ask for the -0.5 % back."""
+    its stated uncertainty) fails the parameter test, and the stars ask for the -0.5 % back.
+    The margin is thin on this bench (chi-square 25.3 against 24.3) and over 20 seeded benches
+    the error is rejected on 14 (docs/calibration.md): the correction asked for is the firm
+    part."""
     from dataclasses import replace
 
     from starnav.camera_calibration import with_parameters
