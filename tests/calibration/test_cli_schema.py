@@ -107,6 +107,9 @@ def test_hil_geometric_then_stimulate(app, tmp_path):
     # a layout no calibration grid has (random point sources), through the calibration
     rl = s["random_layout_holdout"]
     assert rl["points_found"] >= 0.9 * rl["points_shown"] and rl["rms_arcsec"] < 5.0
+    # the star-field stimulus, predicted through the calibrated camera
+    sf = s["star_field_holdout"]
+    assert sf["stars"] >= 4 and sf["passes"], sf
     for f in ("residuals_pdf_cdf.png", "dot_displacements.png", "geometric_calibration.json"):
         assert (geo / f).exists()
     # the camera as the bench estimated it, in the file navigation reads

@@ -14,6 +14,7 @@ procedures end to end in software:
 * :mod:`~starnav.calibration.geometric` -- dot-pattern calibration, pre-warping;
 * :mod:`~starnav.calibration.intrinsics` -- the camera's focal length, principal point and
   distortion with their covariance (the file navigation reads);
+* :mod:`~starnav.calibration.star_field` -- that camera's hold-out on the star-field stimulus;
 * :mod:`~starnav.calibration.radiometric` -- count <-> Moon flux, calibrated stimuli and their
   validation;
 * :mod:`~starnav.calibration.scaling` -- albedo-exposure scaling, KS equivalence, end to end;
@@ -48,6 +49,7 @@ _EXPORTS = {
     "CalibrationError": "geometric",
     "estimate_camera": "intrinsics", "calibrate_camera": "intrinsics",
     "IntrinsicsResult": "intrinsics", "as_built_camera": "bench",
+    "run_star_field_holdout": "star_field", "star_field_holdout": "star_field",
     "moon_flux": "radiometric", "count_flux_mapping": "radiometric",
     "compare_stimulus": "radiometric",
     "plan_scaling": "scaling", "albedo_exposure_experiment": "scaling",

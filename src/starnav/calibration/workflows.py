@@ -48,6 +48,7 @@ from starnav.calibration.scaling import (
     plan_scaling,
 )
 from starnav.calibration.schema import BenchConfig, bench_to_dict
+from starnav.calibration.star_field import run_star_field_holdout
 from starnav.config_base import read_json_file
 from starnav.errors import ConfigError, DataFileError
 from starnav.radiance import RadianceImage, read_exr
@@ -114,7 +115,8 @@ def run_geometric(cfg: BenchConfig, *, moon: bool = True,
                   image: RadianceImage | None = None) -> HilReport:
     """Dot-pattern calibration, residuals (Fig. 12), the displayed-Moon check (Fig. 13), the
     camera's intrinsics and the radiometric calibration against the reference instrument with
-    its hold-out validation (:mod:`~starnav.calibration.radiometric_lab`); both calibrations
+    its hold-out validation (:mod:`~starnav.calibration.radiometric_lab`), the camera's
+    hold-out on the star-field stimulus (:mod:`~starnav.calibration.star_field`); both calibrations
     go to ``camera_calibration.json``.
 
     Parameters
@@ -132,6 +134,9 @@ def run_geometric(cfg: BenchConfig, *, moon: bool = True,
     summary: dict[str, Any] = {"geometric": res.summary(), "camera": intr.summary(),
                                "random_layout_holdout": random_layout_holdout(
                                    bench, res.calibration, exposure_time=res.exposure_time,
+                                   dark_dn=res.calibration_dots.dark_dn),
+                               "star_field_holdout": run_star_field_holdout(
+                                   bench, intr, exposure_time=res.exposure_time,
                                    dark_dn=res.calibration_dots.dark_dn),
                                "radiometric_lab": lab.summary()}
     figs = {"residuals_pdf_cdf": plots.residual_pdf_cdf(res),
