@@ -50,7 +50,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
-from scipy.stats import poisson
+from scipy.special import pdtrc
 
 from starnav.atomic import atomic_write_bytes
 from starnav.cache import BoundedCache
@@ -383,17 +383,21 @@ def _match_px(uv_det: FloatArray, uv_cat: FloatArray, radius_px: float | FloatAr
 def _required(n_det: int, n_cat: int, omega_match: float, omega_field: float,
               n_hyp: int, alpha: float) -> tuple[int, float]:
     lam = max(n_det, 0) * min(1.0, n_cat * omega_match / omega_field)
-    # smallest k with P(X >= k) = sf(k - 1) <= alpha / n_hyp (isf: smallest j, sf(j) <= q)
-    k = int(poisson.isf(alpha / n_hyp, lam)) + 1 if lam > 0 else 1
-    # isf's float rounding: the exact smallest k among its neighbours, in one call
-    ks = np.arange(max(k - 3, 1), k + 4)
-    ok = n_hyp * poisson.sf(ks - 1, lam) <= alpha
-    if ok.any():
-        k = int(ks[np.argmax(ok)])
-    else:
-        while n_hyp * poisson.sf(k - 1, lam) > alpha:
-            k += 1
-    return max(k, 3), lam
+    return _poisson_count(lam, alpha / n_hyp), lam
+
+
+def _poisson_count(lam: float, q: float) -> int:
+    """Smallest ``k >= 3`` with ``P(X >= k) <= q`` for ``X`` Poisson of mean ``lam``
+    (``P(X >= k) = pdtrc(k - 1, lam)``, the Poisson upper tail)."""
+    if lam <= 0:
+        return 3
+    hi = int(lam + 12.0 * math.sqrt(lam) + 60.0)
+    while True:
+        ks = np.arange(1, hi + 1)
+        ok = pdtrc(ks - 1, lam) <= q
+        if ok.any():
+            return max(int(ks[np.argmax(ok)]), 3)
+        hi *= 2
 
 
 # --------------------------------------------------------------------------- index
@@ -495,24 +499,35 @@ def _scaled_triangles(idx: StarIndex, b: FloatArray, i: int, j: int, k: int, tol
     kpos = np.repeat(lo - start, cnt) + np.arange(n)
     # the scales the two joined sides allow, m / c +- tol / c, must overlap (a necessary
     # condition of the common-scale test below, on the table's stored angles)
-    cij = cij_w[oj][rep]
-    cik = cik_w[ok_][kpos]
+    jrow = oj[rep]
+    krow = ok_[kpos]
+    cij = cij_w[jrow]
+    cik = cik_w[krow]
     keep = np.abs(m[0] / cij - m[1] / cik) <= tol[0] / cij + tol[1] / cik
-    si = sa_j[rep][keep].astype(np.int64)
-    sj = bij[oj][rep][keep].astype(np.int64)
-    sk = bik[ok_][kpos][keep].astype(np.int64)
+    jrow, krow = jrow[keep], krow[keep]
+    si = aij[jrow].astype(np.int64)
+    sj = bij[jrow].astype(np.int64)
+    sk = bik[krow].astype(np.int64)
     cij, cik = cij[keep], cik[keep]
     keep = sj != sk
     si, sj, sk, cij, cik = si[keep], sj[keep], sk[keep], cij[keep], cik[keep]
     d = idx.directions
-    cjk = np.arccos(np.minimum(1.0, np.einsum("ij,ij->i", d[sj], d[sk])))
+    # the third side within its window (a necessary condition, on cosines: no arccos for
+    # the many that fail)
+    cos_jk = np.einsum("ij,ij->i", d[sj], d[sk])
+    lo_a = max((m[2] - tol[2]) / (1.0 + t), 0.0)
+    hi_a = min((m[2] + tol[2]) / (1.0 - t), math.pi)
+    keep = (cos_jk <= math.cos(lo_a) + 1e-12) & (cos_jk >= math.cos(hi_a) - 1e-12)
+    si, sj, sk, cij, cik = si[keep], sj[keep], sk[keep], cij[keep], cik[keep]
+    cjk = np.arccos(np.minimum(1.0, cos_jk[keep]))
     s = m.sum() / np.maximum(cij + cik + cjk, 1e-12)
     keep = np.abs(s - 1.0) <= t + 1e-12
     keep &= np.abs(m[0] - s * cij) <= tol[0]
     keep &= np.abs(m[1] - s * cik) <= tol[1]
     keep &= np.abs(m[2] - s * cjk) <= tol[2]
+    si, sj, sk, s = si[keep], sj[keep], sk[keep], s[keep]
     sense = float(b[i] @ np.cross(b[j], b[k]))
-    keep &= np.einsum("ij,ij->i", d[si], np.cross(d[sj], d[sk])) * sense > 0
+    keep = np.einsum("ij,ij->i", d[si], np.cross(d[sj], d[sk])) * sense > 0
     return si[keep], sj[keep], sk[keep], s[keep]
 
 
