@@ -564,18 +564,16 @@ def _fit_plate(uv: FloatArray, dirs: FloatArray, R: FloatArray, cam: Camera, fit
         xd = cam.distort(xy) if cam.has_distortion else xy
         f = np.array([cam.fx, cam.fy])
         res = uv - (xd * f + np.array([cam.cx, cam.cy]))
-        # d(x, y)/dc, dc/dw = [c]_x, d(xd, yd)/d(x, y)
-        iz = 1.0 / c[:, 2]
-        dxy_dc = np.zeros((c.shape[0], 2, 3))
-        dxy_dc[:, 0, 0] = iz
-        dxy_dc[:, 0, 2] = -x * iz
-        dxy_dc[:, 1, 1] = iz
-        dxy_dc[:, 1, 2] = -y * iz
-        cx_ = np.zeros((c.shape[0], 3, 3))
-        cx_[:, 0, 1], cx_[:, 0, 2] = -c[:, 2], c[:, 1]
-        cx_[:, 1, 0], cx_[:, 1, 2] = c[:, 2], -c[:, 0]
-        cx_[:, 2, 0], cx_[:, 2, 1] = -c[:, 1], c[:, 0]
-        dxy_dw = dxy_dc @ cx_
+        # d(x, y)/dw of the pinhole through dc/dw = [c]_x, in closed form:
+        # dx/dw = (x y, -(1 + x^2), y), dy/dw = (1 + y^2, -x y, -x)
+        dxy_dw = np.empty((c.shape[0], 2, 3))
+        xy_ = x * y
+        dxy_dw[:, 0, 0] = xy_
+        dxy_dw[:, 0, 1] = -1.0 - x * x
+        dxy_dw[:, 0, 2] = y
+        dxy_dw[:, 1, 0] = 1.0 + y * y
+        dxy_dw[:, 1, 1] = -xy_
+        dxy_dw[:, 1, 2] = -x
         if cam.has_distortion:
             dxy_dw = cam.distortion_jacobian(xy) @ dxy_dw
         J = np.empty((c.shape[0], 2, n_p))
@@ -591,16 +589,23 @@ def _fit_plate(uv: FloatArray, dirs: FloatArray, R: FloatArray, cam: Camera, fit
         cam = dataclasses.replace(cam, focal_length=cam.focal_length * math.exp(step[3]),
                                   k1=cam.k1 + (float(step[4]) if fit_k1 else 0.0))
         # converged: one more pass for the residuals and the Jacobian at the solution
-        last = bool(np.all(np.abs(step[:4]) < 1e-10) and (not fit_k1 or abs(step[4]) < 1e-8))
+        # (quadratic convergence: the step after one below 1e-8 rad is some 1e-11 rad)
+        last = bool(np.all(np.abs(step[:4]) < 1e-8) and (not fit_k1 or abs(step[4]) < 1e-6))
     return R, cam, res, J
 
 
 # --------------------------------------------------------------------------- step 5
 def _refine(uv: FloatArray, A: FloatArray, scale: float, camera: Camera, cat: StarCatalogue,
-            epoch: float, opt: PlateOptions, n_cat: int, radius_px: float):
+            epoch: float, opt: PlateOptions, n_cat: int, radius_px: float,
+            verified: tuple | None = None):
     """Least squares over attitude, focal length (and k1); returns the refined camera, the
-    attitude, the matches and the covariance pieces (module steps 5-6)."""
-    rows, dirs, _ = _field_stars(cat, A, camera, scale, epoch, opt.verify_v_limit, n_cat)
+    attitude, the matches and the covariance pieces (module steps 5-6). ``verified``: the
+    verification's field stars (rows, directions) and matches at ``A``, ``scale`` and
+    ``radius_px`` (the first pass's own), not recomputed."""
+    if verified is None:
+        rows, dirs, _ = _field_stars(cat, A, camera, scale, epoch, opt.verify_v_limit, n_cat)
+    else:
+        rows, dirs, det0, ci0 = verified
     cam = dataclasses.replace(camera, focal_length=camera.focal_length * scale)
     R0 = A.T  # camera -> inertial
     half_diag = 0.5 * math.hypot(camera.width, camera.height)
@@ -610,11 +615,13 @@ def _refine(uv: FloatArray, A: FloatArray, scale: float, camera: Camera, cat: St
     fit_k1 = False
     result = None
     radius = radius_px
-    for _ in range(3):
-        A_now = R0.T
-        uvc, inside = _project(A_now, dirs, cam)
+    for it in range(3):
         prev = (det, ci)
-        det, ci = _match_px(uv, np.where(inside[:, None], uvc, 1e9), radius)
+        if it == 0 and verified is not None:
+            det, ci = det0, ci0
+        else:
+            uvc, inside = _project(R0.T, dirs, cam)
+            det, ci = _match_px(uv, np.where(inside[:, None], uvc, 1e9), radius)
         if det.size < 3:
             break
         if result is not None and np.array_equal(det, prev[0]) and np.array_equal(ci, prev[1]):
@@ -780,11 +787,12 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
             sc = float(mu.sum() / cu.sum())
             A = _svd_batch(_vectors(xy[used], sc)[None], ru[None])[0]
             s_fit = float(tol.max()) / max(float(cu.max()), 1e-6) / math.sqrt(len(used) - 2)
-            rows, _, uvc = _field_stars(cat, A, camera, sc, epoch_jyear, opt.verify_v_limit, n)
+            rows, dirs, uvc = _field_stars(cat, A, camera, sc, epoch_jyear,
+                                           opt.verify_v_limit, n)
             if rows.size < 3:
                 continue
             r_px = opt.match_px + 2.0 * s_fit * r_edge * camera.fx
-            det, _ = _match_px(cents.uv, uvc, r_px)
+            det, ci = _match_px(cents.uv, uvc, r_px)
             omega_match = math.pi * (r_px / camera.fx) ** 2
             k_req, lam = _required(n - len(used), int(rows.size), omega_match,
                                    settings.field_solid_angle_sr, opt.max_hypotheses,
@@ -794,7 +802,8 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
                 best = (extra, k_req)
             if extra < k_req:
                 continue
-            ref = _refine(cents.uv, A, sc, camera, cat, epoch_jyear, opt, n, r_px)
+            ref = _refine(cents.uv, A, sc, camera, cat, epoch_jyear, opt, n, r_px,
+                          (rows, dirs, det, ci))
             if ref is None:
                 continue
             if not accepted:
