@@ -70,8 +70,9 @@ ARCSEC = math.pi / (180.0 * 3600.0)
 INDEX_FORMAT = 1
 #: Pattern indexes kept in memory (one per camera field, catalogue and epoch year).
 _INDEXES: BoundedCache[tuple, StarIndex] = BoundedCache(4)
-#: k-d trees of the indexes' star directions (keyed by the array's id, checked by identity).
-_TREES: BoundedCache[int, tuple] = BoundedCache(4)
+#: k-d trees of the indexes' star directions and catalogue magnitude quantiles (keyed by the
+#: array's id, checked by identity).
+_TREES: BoundedCache[object, tuple] = BoundedCache(8)
 
 
 @dataclass(frozen=True)
@@ -172,13 +173,24 @@ def field_solid_angle(camera: Camera) -> float:
     return 4.0 * math.asin(math.sin(a) * math.sin(b))
 
 
+def _nth_brightest_v(catalogue: StarCatalogue, n: int) -> float:
+    """V of the catalogue's ``n``-th brightest star (from 0), the partition kept per
+    catalogue and ``n``."""
+    key = ("v", id(catalogue.v), n)
+    hit = _TREES.get(key)
+    if hit is None or hit[0] is not catalogue.v:
+        hit = (catalogue.v, float(np.partition(catalogue.v, n)[n]))
+        _TREES.put(key, hit)
+    return hit[1]
+
+
 def plate_settings(camera: Camera, catalogue: StarCatalogue,
                    options: PlateOptions | None = None) -> PlateSettings:
     """Index depth and tolerances of ``camera`` (module step 2)."""
     opt = options or PlateOptions()
     omega = field_solid_angle(camera)
     n_sky = int(min(len(catalogue) - 1, opt.stars_per_field * 4.0 * math.pi / omega))
-    v_lim = round(min(float(np.partition(catalogue.v, n_sky)[n_sky]), opt.index_v_max), 2)
+    v_lim = round(min(_nth_brightest_v(catalogue, n_sky), opt.index_v_max), 2)
     pix = 1.0 / camera.fx
     return PlateSettings(omega, v_lim, pix, opt.match_px * pix,
                          opt.n_sigma * math.sqrt(2.0) * opt.floor_px * pix
