@@ -767,9 +767,12 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
         if others.size:
             r_scr = settings.match_radius_rad + 2.0 * s_err * r_edge
             bo = _vectors_batch(xy[others], s)  # (c, o, 3)
-            sky = np.einsum("coi,cij->coj", bo, As)  # A^T b
-            dist, near = idx_tree.query(sky.reshape(-1, 3), k=1)
-            hit = dist.reshape(len(s), -1) <= 2.0 * math.sin(0.5 * r_scr)
+            sky = bo @ As  # A^T b
+            chord = 2.0 * math.sin(0.5 * r_scr)
+            # beyond the screening radius no nearest star is needed (a distance of inf)
+            dist, near = idx_tree.query(sky.reshape(-1, 3), k=1,
+                                        distance_upper_bound=chord * (1.0 + 1e-9))
+            hit = dist.reshape(len(s), -1) <= chord
             near = near.reshape(len(s), -1)
             hits = hit.sum(axis=1)
         else:
