@@ -501,16 +501,27 @@ def _scaled_triangles(idx: StarIndex, b: FloatArray, i: int, j: int, k: int, tol
     oj = np.argsort(aij.astype(key), kind="stable")
     ok_ = np.argsort(aik.astype(key), kind="stable")
     sa_j, sa_k = aij[oj], aik[ok_]
-    lo = np.searchsorted(sa_k, sa_j, "left")
-    cnt = np.searchsorted(sa_k, sa_j, "right") - lo
+    # the scales the two joined sides allow, m / c +- tol / c, must overlap (a necessary
+    # condition of the common-scale test below, on the table's stored angles): for a first
+    # side of angle c_ij the second's angle lies in [(m1 - tol1) c_ij / (m0 + tol0),
+    # (m1 + tol1) c_ij / (m0 - tol0)], searched within each star's block of the second
+    # window (sorted by star, then angle) on the key star + angle / span
+    cs_k = cik_w[ok_]
+    span = 2.0 * float(cik_w.max()) + 1e-12  # angle / span <= 0.5
+    key_k = sa_k + cs_k / span
+    cj = cij_w[oj]
+    lo_c = (m[1] - tol[1]) * cj / (m[0] + tol[0]) * (1.0 - 1e-9)
+    hi_c = (np.where(m[0] > tol[0], (m[1] + tol[1]) * cj / max(m[0] - tol[0], 1e-300),
+                     np.inf) * (1.0 + 1e-9))
+    lo = np.searchsorted(key_k, sa_j + np.clip(lo_c / span, 0.0, 0.75), "left")
+    hi = np.searchsorted(key_k, sa_j + np.clip(hi_c / span, 0.0, 0.75), "right")
+    cnt = np.maximum(hi - lo, 0)
     n = int(cnt.sum())
     if n == 0:
         return z, z, z, np.zeros(0)
     rep = np.repeat(np.arange(cnt.size), cnt)
     start = np.cumsum(cnt) - cnt
     kpos = np.repeat(lo - start, cnt) + np.arange(n)
-    # the scales the two joined sides allow, m / c +- tol / c, must overlap (a necessary
-    # condition of the common-scale test below, on the table's stored angles)
     jrow = oj[rep]
     krow = ok_[kpos]
     cij = cij_w[jrow]
