@@ -607,7 +607,11 @@ def _fit_plate(uv: FloatArray, dirs: FloatArray, R: FloatArray, cam: Camera, fit
         J = J.reshape(-1, n_p)
         if last:
             break
-        step = np.linalg.lstsq(J, res.ravel(), rcond=None)[0]
+        # normal equations (a handful of parameters); least squares if they are singular
+        try:
+            step = np.linalg.solve(J.T @ J, J.T @ res.ravel())
+        except np.linalg.LinAlgError:
+            step = np.linalg.lstsq(J, res.ravel(), rcond=None)[0]
         R = R @ _rotvec_matrix(step[:3])
         cam = dataclasses.replace(cam, focal_length=cam.focal_length * math.exp(step[3]),
                                   k1=cam.k1 + (float(step[4]) if fit_k1 else 0.0))
