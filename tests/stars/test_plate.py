@@ -315,3 +315,20 @@ def test_binned_detection_finds_the_stars_and_rejects_hot_pixels():
     assert len(c) == len(truth) and c.rejected["hot_pixel"] == 3
     d = np.hypot(*(c.uv[:, None] - truth[None]).transpose(2, 0, 1)).min(axis=1)
     assert np.all(d < 0.05), d
+
+
+def test_count_rule_is_the_smallest_k_of_the_poisson_tail_summed_term_by_term():
+    """The count rule's ``k`` against the Poisson upper tail summed from its terms
+    (``P(X >= k) = sum_{j >= k} e^-lam lam^j / j!``), for small and large means."""
+    from starnav.stars.plate import _required
+
+    def tail(kk: int, lam: float) -> float:
+        return sum(math.exp(-lam + j * math.log(lam) - math.lgamma(j + 1))
+                   for j in range(kk, kk + 400))
+
+    for n_det, n_cat, n_hyp, alpha in [(10, 20, 100, 1e-9), (200, 232, 2000, 1e-9),
+                                       (239, 2000, 2000, 1e-6), (3, 5, 1, 1e-2)]:
+        k, lam = _required(n_det, n_cat, 2.8e-6, 0.0303, n_hyp, alpha)
+        assert lam == pytest.approx(n_det * min(1.0, n_cat * 2.8e-6 / 0.0303))
+        k_ref = next(kk for kk in range(1, 300) if n_hyp * tail(kk, lam) <= alpha * (1 + 1e-9))
+        assert k == max(k_ref, 3)

@@ -50,7 +50,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
-from scipy.stats import poisson
+from scipy.special import pdtrc
 
 from starnav.atomic import atomic_write_bytes
 from starnav.cache import BoundedCache
@@ -70,8 +70,9 @@ ARCSEC = math.pi / (180.0 * 3600.0)
 INDEX_FORMAT = 1
 #: Pattern indexes kept in memory (one per camera field, catalogue and epoch year).
 _INDEXES: BoundedCache[tuple, StarIndex] = BoundedCache(4)
-#: k-d trees of the indexes' star directions (keyed by the array's id, checked by identity).
-_TREES: BoundedCache[int, tuple] = BoundedCache(4)
+#: k-d trees of the indexes' star directions and catalogue magnitude quantiles (keyed by the
+#: array's id, checked by identity).
+_TREES: BoundedCache[object, tuple] = BoundedCache(8)
 
 
 @dataclass(frozen=True)
@@ -172,13 +173,24 @@ def field_solid_angle(camera: Camera) -> float:
     return 4.0 * math.asin(math.sin(a) * math.sin(b))
 
 
+def _nth_brightest_v(catalogue: StarCatalogue, n: int) -> float:
+    """V of the catalogue's ``n``-th brightest star (from 0), the partition kept per
+    catalogue and ``n``."""
+    key = ("v", id(catalogue.v), n)
+    hit = _TREES.get(key)
+    if hit is None or hit[0] is not catalogue.v:
+        hit = (catalogue.v, float(np.partition(catalogue.v, n)[n]))
+        _TREES.put(key, hit)
+    return hit[1]
+
+
 def plate_settings(camera: Camera, catalogue: StarCatalogue,
                    options: PlateOptions | None = None) -> PlateSettings:
     """Index depth and tolerances of ``camera`` (module step 2)."""
     opt = options or PlateOptions()
     omega = field_solid_angle(camera)
     n_sky = int(min(len(catalogue) - 1, opt.stars_per_field * 4.0 * math.pi / omega))
-    v_lim = round(min(float(np.partition(catalogue.v, n_sky)[n_sky]), opt.index_v_max), 2)
+    v_lim = round(min(_nth_brightest_v(catalogue, n_sky), opt.index_v_max), 2)
     pix = 1.0 / camera.fx
     return PlateSettings(omega, v_lim, pix, opt.match_px * pix,
                          opt.n_sigma * math.sqrt(2.0) * opt.floor_px * pix
@@ -383,17 +395,21 @@ def _match_px(uv_det: FloatArray, uv_cat: FloatArray, radius_px: float | FloatAr
 def _required(n_det: int, n_cat: int, omega_match: float, omega_field: float,
               n_hyp: int, alpha: float) -> tuple[int, float]:
     lam = max(n_det, 0) * min(1.0, n_cat * omega_match / omega_field)
-    # smallest k with P(X >= k) = sf(k - 1) <= alpha / n_hyp (isf: smallest j, sf(j) <= q)
-    k = int(poisson.isf(alpha / n_hyp, lam)) + 1 if lam > 0 else 1
-    # isf's float rounding: the exact smallest k among its neighbours, in one call
-    ks = np.arange(max(k - 3, 1), k + 4)
-    ok = n_hyp * poisson.sf(ks - 1, lam) <= alpha
-    if ok.any():
-        k = int(ks[np.argmax(ok)])
-    else:
-        while n_hyp * poisson.sf(k - 1, lam) > alpha:
-            k += 1
-    return max(k, 3), lam
+    return _poisson_count(lam, alpha / n_hyp), lam
+
+
+def _poisson_count(lam: float, q: float) -> int:
+    """Smallest ``k >= 3`` with ``P(X >= k) <= q`` for ``X`` Poisson of mean ``lam``
+    (``P(X >= k) = pdtrc(k - 1, lam)``, the Poisson upper tail)."""
+    if lam <= 0:
+        return 3
+    hi = int(lam + 12.0 * math.sqrt(lam) + 60.0)
+    while True:
+        ks = np.arange(1, hi + 1)
+        ok = pdtrc(ks - 1, lam) <= q
+        if ok.any():
+            return max(int(ks[np.argmax(ok)]), 3)
+        hi *= 2
 
 
 # --------------------------------------------------------------------------- index
@@ -485,34 +501,56 @@ def _scaled_triangles(idx: StarIndex, b: FloatArray, i: int, j: int, k: int, tol
     oj = np.argsort(aij.astype(key), kind="stable")
     ok_ = np.argsort(aik.astype(key), kind="stable")
     sa_j, sa_k = aij[oj], aik[ok_]
-    lo = np.searchsorted(sa_k, sa_j, "left")
-    cnt = np.searchsorted(sa_k, sa_j, "right") - lo
+    # the scales the two joined sides allow, m / c +- tol / c, must overlap (a necessary
+    # condition of the common-scale test below, on the table's stored angles): for a first
+    # side of angle c_ij the second's angle lies in [(m1 - tol1) c_ij / (m0 + tol0),
+    # (m1 + tol1) c_ij / (m0 - tol0)], searched within each star's block of the second
+    # window (sorted by star, then angle) on the key star + angle / span
+    cs_k = cik_w[ok_]
+    span = 2.0 * float(cik_w.max()) + 1e-12  # angle / span <= 0.5
+    key_k = sa_k + cs_k / span
+    cj = cij_w[oj]
+    lo_c = (m[1] - tol[1]) * cj / (m[0] + tol[0]) * (1.0 - 1e-9)
+    hi_c = (np.where(m[0] > tol[0], (m[1] + tol[1]) * cj / max(m[0] - tol[0], 1e-300),
+                     np.inf) * (1.0 + 1e-9))
+    lo = np.searchsorted(key_k, sa_j + np.clip(lo_c / span, 0.0, 0.75), "left")
+    hi = np.searchsorted(key_k, sa_j + np.clip(hi_c / span, 0.0, 0.75), "right")
+    cnt = np.maximum(hi - lo, 0)
     n = int(cnt.sum())
     if n == 0:
         return z, z, z, np.zeros(0)
     rep = np.repeat(np.arange(cnt.size), cnt)
     start = np.cumsum(cnt) - cnt
     kpos = np.repeat(lo - start, cnt) + np.arange(n)
-    # the scales the two joined sides allow, m / c +- tol / c, must overlap (a necessary
-    # condition of the common-scale test below, on the table's stored angles)
-    cij = cij_w[oj][rep]
-    cik = cik_w[ok_][kpos]
+    jrow = oj[rep]
+    krow = ok_[kpos]
+    cij = cij_w[jrow]
+    cik = cik_w[krow]
     keep = np.abs(m[0] / cij - m[1] / cik) <= tol[0] / cij + tol[1] / cik
-    si = sa_j[rep][keep].astype(np.int64)
-    sj = bij[oj][rep][keep].astype(np.int64)
-    sk = bik[ok_][kpos][keep].astype(np.int64)
+    jrow, krow = jrow[keep], krow[keep]
+    si = aij[jrow].astype(np.int64)
+    sj = bij[jrow].astype(np.int64)
+    sk = bik[krow].astype(np.int64)
     cij, cik = cij[keep], cik[keep]
     keep = sj != sk
     si, sj, sk, cij, cik = si[keep], sj[keep], sk[keep], cij[keep], cik[keep]
     d = idx.directions
-    cjk = np.arccos(np.minimum(1.0, np.einsum("ij,ij->i", d[sj], d[sk])))
+    # the third side within its window (a necessary condition, on cosines: no arccos for
+    # the many that fail)
+    cos_jk = np.einsum("ij,ij->i", d[sj], d[sk])
+    lo_a = max((m[2] - tol[2]) / (1.0 + t), 0.0)
+    hi_a = min((m[2] + tol[2]) / (1.0 - t), math.pi)
+    keep = (cos_jk <= math.cos(lo_a) + 1e-12) & (cos_jk >= math.cos(hi_a) - 1e-12)
+    si, sj, sk, cij, cik = si[keep], sj[keep], sk[keep], cij[keep], cik[keep]
+    cjk = np.arccos(np.minimum(1.0, cos_jk[keep]))
     s = m.sum() / np.maximum(cij + cik + cjk, 1e-12)
     keep = np.abs(s - 1.0) <= t + 1e-12
     keep &= np.abs(m[0] - s * cij) <= tol[0]
     keep &= np.abs(m[1] - s * cik) <= tol[1]
     keep &= np.abs(m[2] - s * cjk) <= tol[2]
+    si, sj, sk, s = si[keep], sj[keep], sk[keep], s[keep]
     sense = float(b[i] @ np.cross(b[j], b[k]))
-    keep &= np.einsum("ij,ij->i", d[si], np.cross(d[sj], d[sk])) * sense > 0
+    keep = np.einsum("ij,ij->i", d[si], np.cross(d[sj], d[sk])) * sense > 0
     return si[keep], sj[keep], sk[keep], s[keep]
 
 
@@ -549,18 +587,16 @@ def _fit_plate(uv: FloatArray, dirs: FloatArray, R: FloatArray, cam: Camera, fit
         xd = cam.distort(xy) if cam.has_distortion else xy
         f = np.array([cam.fx, cam.fy])
         res = uv - (xd * f + np.array([cam.cx, cam.cy]))
-        # d(x, y)/dc, dc/dw = [c]_x, d(xd, yd)/d(x, y)
-        iz = 1.0 / c[:, 2]
-        dxy_dc = np.zeros((c.shape[0], 2, 3))
-        dxy_dc[:, 0, 0] = iz
-        dxy_dc[:, 0, 2] = -x * iz
-        dxy_dc[:, 1, 1] = iz
-        dxy_dc[:, 1, 2] = -y * iz
-        cx_ = np.zeros((c.shape[0], 3, 3))
-        cx_[:, 0, 1], cx_[:, 0, 2] = -c[:, 2], c[:, 1]
-        cx_[:, 1, 0], cx_[:, 1, 2] = c[:, 2], -c[:, 0]
-        cx_[:, 2, 0], cx_[:, 2, 1] = -c[:, 1], c[:, 0]
-        dxy_dw = dxy_dc @ cx_
+        # d(x, y)/dw of the pinhole through dc/dw = [c]_x, in closed form:
+        # dx/dw = (x y, -(1 + x^2), y), dy/dw = (1 + y^2, -x y, -x)
+        dxy_dw = np.empty((c.shape[0], 2, 3))
+        xy_ = x * y
+        dxy_dw[:, 0, 0] = xy_
+        dxy_dw[:, 0, 1] = -1.0 - x * x
+        dxy_dw[:, 0, 2] = y
+        dxy_dw[:, 1, 0] = 1.0 + y * y
+        dxy_dw[:, 1, 1] = -xy_
+        dxy_dw[:, 1, 2] = -x
         if cam.has_distortion:
             dxy_dw = cam.distortion_jacobian(xy) @ dxy_dw
         J = np.empty((c.shape[0], 2, n_p))
@@ -571,21 +607,32 @@ def _fit_plate(uv: FloatArray, dirs: FloatArray, R: FloatArray, cam: Camera, fit
         J = J.reshape(-1, n_p)
         if last:
             break
-        step = np.linalg.lstsq(J, res.ravel(), rcond=None)[0]
+        # normal equations (a handful of parameters); least squares if they are singular
+        try:
+            step = np.linalg.solve(J.T @ J, J.T @ res.ravel())
+        except np.linalg.LinAlgError:
+            step = np.linalg.lstsq(J, res.ravel(), rcond=None)[0]
         R = R @ _rotvec_matrix(step[:3])
         cam = dataclasses.replace(cam, focal_length=cam.focal_length * math.exp(step[3]),
                                   k1=cam.k1 + (float(step[4]) if fit_k1 else 0.0))
         # converged: one more pass for the residuals and the Jacobian at the solution
-        last = bool(np.all(np.abs(step[:4]) < 1e-10) and (not fit_k1 or abs(step[4]) < 1e-8))
+        # (quadratic convergence: the step after one below 1e-8 rad is some 1e-11 rad)
+        last = bool(np.all(np.abs(step[:4]) < 1e-8) and (not fit_k1 or abs(step[4]) < 1e-6))
     return R, cam, res, J
 
 
 # --------------------------------------------------------------------------- step 5
 def _refine(uv: FloatArray, A: FloatArray, scale: float, camera: Camera, cat: StarCatalogue,
-            epoch: float, opt: PlateOptions, n_cat: int, radius_px: float):
+            epoch: float, opt: PlateOptions, n_cat: int, radius_px: float,
+            verified: tuple | None = None):
     """Least squares over attitude, focal length (and k1); returns the refined camera, the
-    attitude, the matches and the covariance pieces (module steps 5-6)."""
-    rows, dirs, _ = _field_stars(cat, A, camera, scale, epoch, opt.verify_v_limit, n_cat)
+    attitude, the matches and the covariance pieces (module steps 5-6). ``verified``: the
+    verification's field stars (rows, directions) and matches at ``A``, ``scale`` and
+    ``radius_px`` (the first pass's own), not recomputed."""
+    if verified is None:
+        rows, dirs, _ = _field_stars(cat, A, camera, scale, epoch, opt.verify_v_limit, n_cat)
+    else:
+        rows, dirs, det0, ci0 = verified
     cam = dataclasses.replace(camera, focal_length=camera.focal_length * scale)
     R0 = A.T  # camera -> inertial
     half_diag = 0.5 * math.hypot(camera.width, camera.height)
@@ -595,11 +642,13 @@ def _refine(uv: FloatArray, A: FloatArray, scale: float, camera: Camera, cat: St
     fit_k1 = False
     result = None
     radius = radius_px
-    for _ in range(3):
-        A_now = R0.T
-        uvc, inside = _project(A_now, dirs, cam)
+    for it in range(3):
         prev = (det, ci)
-        det, ci = _match_px(uv, np.where(inside[:, None], uvc, 1e9), radius)
+        if it == 0 and verified is not None:
+            det, ci = det0, ci0
+        else:
+            uvc, inside = _project(R0.T, dirs, cam)
+            det, ci = _match_px(uv, np.where(inside[:, None], uvc, 1e9), radius)
         if det.size < 3:
             break
         if result is not None and np.array_equal(det, prev[0]) and np.array_equal(ci, prev[1]):
@@ -733,9 +782,12 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
         if others.size:
             r_scr = settings.match_radius_rad + 2.0 * s_err * r_edge
             bo = _vectors_batch(xy[others], s)  # (c, o, 3)
-            sky = np.einsum("coi,cij->coj", bo, As)  # A^T b
-            dist, near = idx_tree.query(sky.reshape(-1, 3), k=1)
-            hit = dist.reshape(len(s), -1) <= 2.0 * math.sin(0.5 * r_scr)
+            sky = bo @ As  # A^T b
+            chord = 2.0 * math.sin(0.5 * r_scr)
+            # beyond the screening radius no nearest star is needed (a distance of inf)
+            dist, near = idx_tree.query(sky.reshape(-1, 3), k=1,
+                                        distance_upper_bound=chord * (1.0 + 1e-9))
+            hit = dist.reshape(len(s), -1) <= chord
             near = near.reshape(len(s), -1)
             hits = hit.sum(axis=1)
         else:
@@ -765,11 +817,12 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
             sc = float(mu.sum() / cu.sum())
             A = _svd_batch(_vectors(xy[used], sc)[None], ru[None])[0]
             s_fit = float(tol.max()) / max(float(cu.max()), 1e-6) / math.sqrt(len(used) - 2)
-            rows, _, uvc = _field_stars(cat, A, camera, sc, epoch_jyear, opt.verify_v_limit, n)
+            rows, dirs, uvc = _field_stars(cat, A, camera, sc, epoch_jyear,
+                                           opt.verify_v_limit, n)
             if rows.size < 3:
                 continue
             r_px = opt.match_px + 2.0 * s_fit * r_edge * camera.fx
-            det, _ = _match_px(cents.uv, uvc, r_px)
+            det, ci = _match_px(cents.uv, uvc, r_px)
             omega_match = math.pi * (r_px / camera.fx) ** 2
             k_req, lam = _required(n - len(used), int(rows.size), omega_match,
                                    settings.field_solid_angle_sr, opt.max_hypotheses,
@@ -779,7 +832,8 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
                 best = (extra, k_req)
             if extra < k_req:
                 continue
-            ref = _refine(cents.uv, A, sc, camera, cat, epoch_jyear, opt, n, r_px)
+            ref = _refine(cents.uv, A, sc, camera, cat, epoch_jyear, opt, n, r_px,
+                          (rows, dirs, det, ci))
             if ref is None:
                 continue
             if not accepted:
