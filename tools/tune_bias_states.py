@@ -7,21 +7,21 @@ Why: on the real Moon the fixes' errors are not white. The lit limb is the highe
 terrain, standing out towards the Sun and eaten by shadows towards the cusps, so every fix's
 disc looks a little smaller or larger and its centre is pulled towards the Sun, by amounts
 (calibrated per fix: ``tools/calibrate_refine_model_error.py``) that change slowly with the
-stretch of limb in view; the camera's focal length is known only to its bench calibration (one
-constant range scale); at 7.7 ms saturation pushes the limb out by pixels. A white-noise
+stretch of limb in view; at 7.7 ms saturation pushes the limb out by pixels. A white-noise
 filter is then overconfident although each fix is consistent. The filter carries
 Gauss-Markov states (``limb-common`` at 0.015 ms: the three shared limb modes with their
-calibrated covariance plus the calibration's focal-length variance; ``range-scale+additive``
+calibrated covariance; ``range-scale+additive``
 at 7.7 ms) and a white acceleration noise for the forces its point-mass model leaves out;
 their sigmas, correlation time and density are chosen here.
 
 Protocol (docs/navigation.md, "Tuning apart from scoring"): the demo scenario with every
 mismatch on (the truth's planets, SRP with eclipses and J2; the estimated PSF; the coarser
-terrain statistics; the camera as one emulated bench calibrated it, per run) on two
+terrain statistics; the camera known exactly, ``navigation.camera_calibration`` being off
+by default: docs/navigation.md, "Camera knowledge") on two
 calibration arcs inside the chain's envelope of Sun phase (:data:`ARCS`: halo phases 60 and
 240 deg, March 2027, seeds 4242-4243), each 1 day, 13 frames 2 h apart, 8 spp, 20 runs each on
 its own terrain (the DEM and its albedo turned about the pole), detector noise, attitude
-knowledge error, initial error and bench (:mod:`starnav.batch.consistency`). Every setting of
+knowledge error and initial error (:mod:`starnav.batch.consistency`). Every setting of
 the grid is run on the same acquisitions. The criterion is the scoring statistic: the
 fraction of epochs whose 20-run ANEES (6 states) lies inside its 95 % band, maximised on the
 worse arc; ties go to the time-averaged ANEES nearer 6 on the worse arc, then to the smaller
@@ -108,8 +108,8 @@ def main() -> None:
                  "criterion": "maximise the worse arc's fraction of epochs whose ANEES (6 "
                               "states) lies inside its 95 % band; ties: the worse arc's "
                               "|ln(time-averaged ANEES / 6)|, then the smaller settings",
-                 "mismatch": "every mismatch on (truth forces, estimated PSF, coarser terrain "
-                             "statistics, camera from the emulated bench per run)",
+                 "mismatch": "truth forces, estimated PSF, coarser terrain statistics (the "
+                             "camera known exactly: navigation.camera_calibration null)",
                  "written": _dt.date.today().isoformat(), "tool": "tools/tune_bias_states.py",
                  "commit": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
                                           capture_output=True, text=True).stdout.strip(),

@@ -429,7 +429,7 @@ class NavigationConfig(StrictModel):
         default_factory=TrnConfig, description="asteroid fly-by terrain-relative navigation "
         "from windows (front end and estimator)")
     camera_calibration: Literal["bench"] | Path | None = Field(
-        "bench", description="the camera the chain navigates with (the truth still renders "
+        None, description="the camera the chain navigates with (the truth still renders "
         "with the camera section's): bench: the default tracker as an emulated HIL bench "
         "calibrated it, one seeded bench per run (starnav.camera_calibration."
         "bench_calibration; other cameras are known exactly); a path: a camera calibration "
