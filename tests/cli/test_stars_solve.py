@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -249,3 +250,37 @@ def test_amie_vega_frame_from_the_command_line(app, tmp_path, monkeypatch):
     assert abs(row["epoch_jyear"] - 2004.23) < 0.01
     assert 3.0 < row["limiting_v"] < 6.0
     assert f"among the {row['n_detections']} detections verified" in row["reason"]
+
+
+def shell_commands(text: str, start: str) -> list[list[str]]:
+    """The shell lines of ``text`` beginning with ``start`` (continuations joined, comments
+    dropped), split into words."""
+    import shlex
+
+    joined = re.sub(r"\\\n\s*", " ", text)
+    return [shlex.split(ln.split("#")[0]) for ln in joined.splitlines()
+            if ln.strip().startswith(start)]
+
+
+def test_the_documented_command_on_the_repository_frames_runs(app, solved, tmp_path,
+                                                              monkeypatch):
+    """The README's and docs/stars.md's ``starnav stars solve tests/data/stars/*.tiff`` line
+    (the same in both), run as written from the repository's root (only ``--out`` moved to a
+    temporary directory): both frames solved, exit 0."""
+    monkeypatch.setenv("STARNAV_CACHE_DIR", str(tmp_path / "cache"))
+    root = DATA.parents[2]
+    cmds = [c[c.index("stars"):] for doc in ("README.md", "docs/stars.md")
+            for c in shell_commands((root / doc).read_text(encoding="utf-8"),
+                                    (".venv/bin/starnav stars solve", "starnav stars solve"))
+            if "tests/data/stars/*.tiff" in c]
+    assert len(cmds) == 2 and cmds[0] == cmds[1], cmds
+    args = cmds[0][2:]
+    k = args.index("--out")
+    args[k + 1] = str(tmp_path / "o")
+    files = sorted(root.glob("tests/data/stars/*.tiff"))
+    assert [f.name for f in files] == sorted(REF)
+    i = args.index("tests/data/stars/*.tiff")
+    r = run(app, [*args[:i], *files, *args[i + 1:]])
+    assert r.exit_code == 0, r.output
+    rows = json.loads((tmp_path / "o" / "results.json").read_text())["images"]
+    assert [x["status"] for x in rows] == ["ok", "ok"]
