@@ -233,7 +233,6 @@ def test_bad_options_are_one_line_errors(app, tmp_path, args, needle):
         assert not out.exists()
 
 
-@pytest.mark.slow
 def test_amie_vega_frame_from_the_command_line(app, tmp_path, monkeypatch):
     """The raw SMART-1 AMIE Vega frame (.IMG) with the amie preset: read, no attitude, the
     one-line verdict "too few stars" with the camera's reach and the counts, exit 2."""
