@@ -275,7 +275,7 @@ def write_overlay(path: Path, image: StarImage, result: dict[str, Any]) -> None:
                 f"{result['roll_deg']:.3f} deg  FOV {result['fov_x_deg']:.4f} deg  "
                 f"{result['n_matched']} stars, rms {result['rms_arcsec']:.1f} arcsec",
                 fill=(255, 255, 255))
-        dr.rectangle([4, h - 32, min(w - 1, 8 + 6 * max(map(len, LEGEND))), h - 4],
+        dr.rectangle([4, h - 32, min(w - 1, 12 + max(map(dr.textlength, LEGEND))), h - 4],
                      fill=(0, 0, 0))
         for k, line in enumerate(LEGEND):
             dr.text((8, h - 30 + 13 * k), line, fill=(255, 255, 255))
