@@ -208,6 +208,30 @@ def test_output_directory_convention(app, solved, tmp_path):
     assert (d / "results.json").is_file()
 
 
+def test_a_frame_not_identified_reports_no_attitude(app, solved, tmp_path, monkeypatch):
+    """Six point sources in no sky pattern, on the real frames' camera: "not solved
+    (unidentified)" with the counts, exit 1, no attitude in results.json, the overlay without
+    circles."""
+    monkeypatch.setenv("STARNAV_CACHE_DIR", str(tmp_path / "cache"))
+    rng = np.random.default_rng(3)
+    frame = rng.normal(100.0, 2.0, (768, 1024))
+    for u, v in rng.uniform(100, 600, (6, 2)):
+        yy, xx = np.mgrid[int(v) - 8:int(v) + 9, int(u) - 8:int(u) + 9]
+        frame[yy, xx] += 400.0 * np.exp(-0.5 * ((xx - u) ** 2 + (yy - v) ** 2) / 0.8**2)
+    path = tmp_path / "six.png"
+    Image.fromarray(np.round(frame).astype(np.uint16)).save(path)
+    # the real frames' epoch: the pattern index the solves above built is reused
+    r = run(app, [path, "--out", tmp_path / "o", "--epoch", "2019-07-29T20:47:26", *CAMERA])
+    assert r.exit_code == 1 and not error_lines(r), r.output
+    assert "six.png: not solved (unidentified): no triangle of the 6 brightest of 6 " \
+        "detections verified" in r.output
+    row = json.loads((tmp_path / "o" / "results.json").read_text())["images"][0]
+    assert row["status"] == "unidentified" and row["n_detections"] == 6
+    assert not {"ra_deg", "quaternion_xyzw", "R_cam_to_inertial", "matched"} & set(row)
+    green, magenta = colour_alpha(tmp_path / "o" / row["overlay"])
+    assert not green.any() and not magenta.any()
+
+
 def test_no_stars_is_a_one_line_error(app, tmp_path):
     blank = tmp_path / "blank.png"
     Image.fromarray(np.full((96, 128), 20, np.uint8)).save(blank)
