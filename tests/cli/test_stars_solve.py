@@ -168,14 +168,18 @@ def test_overlay_circles_lie_on_the_detections_and_crosses_on_the_catalogue_star
         rgb = np.asarray(im, int)
         clean = 0
         for j, (pu, pv) in enumerate(pred):
-            win = rgb[int(pv - reach):int(pv + reach) + 1, int(pu - reach):int(pu + reach) + 1]
+            v0, u0 = int(pv - reach), int(pu - reach)
+            v1, u1 = int(pv + reach) + 1, int(pu + reach) + 1
+            if min(v0, u0) < 0 or v1 > rgb.shape[0] or u1 > rgb.shape[1]:
+                continue  # clipped by the frame's edge
+            win = rgb[v0:v1, u0:u1]
             if (np.any(win[..., 0] != win[..., 2])
                     or np.sort(np.hypot(*(pred - pred[j]).T))[1] < 2 * reach):
                 continue
             clean += 1
             centre = np.average(p[k == j], axis=0, weights=magenta[v, u][k == j])
             assert np.hypot(*(centre - pred[j])) < 0.05
-        assert clean >= 0.5 * len(pred)  # 118 of 162 and 73 of 92 here
+        assert clean >= 0.5 * len(pred)  # 117 of 162 and 71 of 92 here
         # crosses on the detections: the residual of a correct match is the centroid's noise
         # (its predicted sigma per axis) plus the 0.1 px per-axis floor the bright stars show;
         # for a 2-D Gaussian P(|r| > 4 sigma_total) = exp(-16) ~ 1e-7 per star (~3e-5 over
@@ -184,6 +188,7 @@ def test_overlay_circles_lie_on_the_detections_and_crosses_on_the_catalogue_star
         r = np.hypot(*(pred - det).T)
         bound = 4.0 * np.sqrt((sig**2).sum(axis=1) + 2 * 0.1**2)
         assert np.all(r <= bound), (r.max(), bound[np.argmax(r / bound)])
+        assert np.median(r) < 0.3
         np.testing.assert_allclose(pred - det, -np.array([m["residual_px"] for m in
                                                           x["matched"]]), atol=1e-3)
 
