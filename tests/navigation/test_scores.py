@@ -65,26 +65,32 @@ def test_scoring_set_is_apart_from_every_tuning_set():
         assert all(t1 < s0 - 86400.0 or t0 > s1 + 86400.0 for s0, s1 in spans)
 
 
-@pytest.mark.xfail(strict=True, reason="the released defaults miss the per-epoch target on "
-                   "their scoring set (the record, docs/navigation.md 'Tuning apart from "
-                   "scoring'): overconfident epochs at 0.015 ms, pessimistic ones at 7.7 ms")
-def test_released_defaults_meet_their_targets_on_the_scoring_set():
+#: Exposures whose released defaults miss their targets on the scoring set (the record;
+#: docs/navigation.md, "Tuning apart from scoring"): strict xfails until scored again.
+MISSED = {1.5e-5: "overconfident epochs at 0.015 ms on the high-phase scoring arc (Sun phase "
+                  "106-131 deg, outside the tuning arcs' 52-100 deg)",
+          7.7e-3: "pessimistic epochs at 7.7 ms: the range-scale and shift states stay wider "
+                  "than the saturated fixes' errors once converged"}
+
+
+@pytest.mark.parametrize("exposure", [
+    pytest.param(e, marks=pytest.mark.xfail(strict=True, reason=MISSED[e])) if e in MISSED
+    else e for e in EXPOSURES])
+def test_released_defaults_meet_their_targets_on_the_scoring_set(exposure):
     """Per exposure, pooled over the scoring arcs: the epochs inside their 95 % band are as
     many as a consistent filter gives (binomial, two-sided 1 %, and at least the target's
     90 %), no arc is overconfident, and at 0.015 ms the final position error is under 0.5 % of
     range (the paper's HIL figure)."""
     rows = recorded_scores()["scores"]
     assert {r["exposure_s"] for r in rows} == set(EXPOSURES)
-    for e in EXPOSURES:
-        mine = [r for r in rows if r["exposure_s"] == e]
-        n = sum(r["epochs"] for r in mine)
-        k = round(sum(r["epochs_in_band"] * r["epochs"] for r in mine))
-        assert k >= TARGETS["epochs_in_band"][0] * n, (e, k, n)
-        # P(X <= k) and P(X >= k) of binomial(n, 0.95) both above ALPHA / 2
-        assert binom.cdf(k, n, 0.95) > ALPHA / 2 and binom.sf(k - 1, n, 0.95) > ALPHA / 2, \
-            (e, k, n)
-        assert all(r["verdict"] != "overconfident" for r in mine), mine
-    for r in rows:
-        if r["exposure_s"] == 1.5e-5:
-            assert r["final_position_error_pct_range"] < \
-                TARGETS["final_position_error_pct_range_0.015ms"]
+    mine = [r for r in rows if r["exposure_s"] == exposure]
+    n = sum(r["epochs"] for r in mine)
+    k = round(sum(r["epochs_in_band"] * r["epochs"] for r in mine))
+    assert k >= TARGETS["epochs_in_band"][0] * n, (exposure, k, n)
+    # P(X <= k) and P(X >= k) of binomial(n, 0.95) both above ALPHA / 2
+    assert binom.cdf(k, n, 0.95) > ALPHA / 2 and binom.sf(k - 1, n, 0.95) > ALPHA / 2, \
+        (exposure, k, n)
+    assert all(r["verdict"] != "overconfident" for r in mine), mine
+    if exposure == 1.5e-5:
+        assert all(r["final_position_error_pct_range"]
+                   < TARGETS["final_position_error_pct_range_0.015ms"] for r in mine)
