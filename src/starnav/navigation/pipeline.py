@@ -212,7 +212,7 @@ def process_frame(
     rng = rng if rng is not None else np.random.default_rng(int(frame.index))
     tm: dict[str, float] = {}
     R_ci = np.asarray(frame.R_cam_to_inertial_measured, float)
-    R_mi = getattr(frame, "R_moon_to_inertial", None)
+    R_mi = getattr(frame, "R_body_to_inertial", None)
     R_body_to_cam = None if R_mi is None else R_ci.T @ np.asarray(R_mi, float)
 
     t = time.perf_counter()
