@@ -23,7 +23,7 @@ from starnav.photometry import PHOTOMETRIC_MODELS, get_model, hapke_preset
 
 
 class PhotometryConfig(StrictModel):
-    """Photometric model of the lunar surface and its parameters.
+    """Photometric model of a body's surface and its parameters.
 
     ``model``: ``hapke`` (Hapke 2012, the default), ``lambert``, ``lommel_seeliger`` or
     ``lunar_lambert`` (McEwen). ``preset`` picks Hapke's parameter set: ``rolo-calibrated`` (the

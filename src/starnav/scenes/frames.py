@@ -140,7 +140,7 @@ class Scene:
     static : StaticGeometryConfig, optional
         The one frame without a trajectory (default its defaults).
     body_radius : float
-        Reference radius of the Moon [m].
+        Reference radius of the target body [m] (its bounding sphere for a small body).
     seed : int
         Scenario seed (per-frame pointing streams, :func:`frame_generators`).
     ephemeris : Ephemeris, optional
