@@ -76,12 +76,6 @@ def main() -> None:
     print(json.dumps(out, indent=1, default=float))
 
 
-#: Spread of the camera's own departures from its datasheet in the seeded benches (what the
-#: calibration must find; not a tolerance the calibration assumes).
-CAMERA_SPREAD = {"camera_focal_length_error": 0.005, "camera_principal_point_offset_px": 5.0,
-                 "camera_k1_error": 0.005}
-
-
 def intrinsics(n: int) -> None:
     from dataclasses import replace
 
@@ -89,7 +83,7 @@ def intrinsics(n: int) -> None:
     from scipy.stats import chi2
 
     from starnav.calibration import Bench, bench_from_dict
-    from starnav.calibration.intrinsics import calibrate_camera
+    from starnav.calibration.intrinsics import calibrate_camera, draw_as_built
     from starnav.calibration.star_field import (
         acquire_star_field,
         star_field_holdout,
@@ -103,20 +97,7 @@ def intrinsics(n: int) -> None:
     t0 = time.perf_counter()
     for seed in range(n):
         r = np.random.default_rng(seed)
-        mis = {"screen_shift_mm": list(r.normal(0, g.screen_shift_sigma_mm, 2)),
-               "screen_tilt_deg": list(r.normal(0, g.screen_tilt_sigma_deg, 2)),
-               "screen_roll_deg": float(r.normal(0, 0.3)),
-               "screen_defocus_mm": float(r.normal(0, g.screen_defocus_sigma_mm)),
-               "camera_tilt_deg": list(r.normal(0, g.mount_tilt_sigma_deg, 2)),
-               "camera_roll_deg": float(r.normal(0, 0.3)),
-               "collimator_focal_length_error": float(r.normal(
-                   0, g.collimator_focal_length_sigma)),
-               "collimator_k1_error": float(r.normal(0, g.collimator_k1_sigma)),
-               "camera_focal_length_error": float(r.normal(
-                   0, CAMERA_SPREAD["camera_focal_length_error"])),
-               "camera_principal_point_offset_px": list(r.normal(
-                   0, CAMERA_SPREAD["camera_principal_point_offset_px"], 2)),
-               "camera_k1_error": float(r.normal(0, CAMERA_SPREAD["camera_k1_error"]))}
+        mis = draw_as_built(r, g)
         bench = Bench(bench_from_dict({"misalignment": mis, "seed": seed}))
         intr = calibrate_camera(bench)
         cal = intr.calibration

@@ -5,15 +5,17 @@ The protocol (docs/navigation.md, "Tuning apart from scoring"):
 
 - **Tuning set** (what calibrated the defaults; never scored): the refinement's model errors on
   the five arcs of ``tools/calibrate_refine_model_error.py`` (halo phases 60, 240, 120, 300 and
-  30 deg, March to May 2027, seeds 4242-4246), the bias states on the two arcs of
-  ``tools/tune_bias_states.py`` (phases 60 and 240 deg, seeds 4242-4243), the PSF estimate on the
-  star frames of ``tools/estimate_psf.py`` (seeds 9100-9103), the process noise from the
-  computed accelerations (``starnav.scenes.forces.unmodelled_acceleration_psd``).
-- **Scoring set** (:data:`SCORING_ARCS`): another season (August to October 2027), halo phases
-  (150 and 330 deg) outside the tuning phases, seeds 9301-9302; the truth with every mismatch on
-  (planets, solar radiation pressure with eclipses and J2 in the truth only; PSF estimated from
-  stars; terrain statistics from a coarser DEM than the rendered one), each run on its own
-  terrain, detector noise, attitude knowledge error and initial error.
+  30 deg, March to May 2027, seeds 4242-4246), the bias states and process noise on the two
+  arcs of ``tools/tune_bias_states.py`` (phases 60 and 240 deg, March 2027, seeds 4242-4243),
+  the PSF estimate on the star frames of ``tools/estimate_psf.py`` (seeds 9100-9103), the
+  camera's bench calibrations (``tools/calibrate_camera_bench.py``, bench seeds 9500-9519).
+- **Scoring set** (:data:`SCORING_ARCS`): another season (December 2027 to January 2028),
+  halo phases (100 and 200 deg) outside the tuning phases and the spent scoring sets
+  (:data:`SPENT`), seeds 9401-9402; the truth with every mismatch on (planets, solar radiation
+  pressure with eclipses and J2 in the truth only; PSF estimated from stars; terrain
+  statistics from a coarser DEM than the rendered one; the camera known as one emulated bench
+  calibrated it), each run on its own terrain, detector noise, attitude knowledge error,
+  initial error and bench.
 
 The record (``src/starnav/data/navigation/scores.json``) keeps the scores, the scoring set, the
 commit scored and the fingerprint of every default the score depends on
@@ -39,10 +41,15 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "src/starnav/data/navigation/scores.json"
 FIGURE = ROOT / "docs/figures/anees_scoring.png"
-SCORING_ARCS = (["trajectory.halo_phase_deg=150", "trajectory.epoch=2027-08-10T00:00:00 TDB",
-                 "seed=9301"],
-                ["trajectory.halo_phase_deg=330", "trajectory.epoch=2027-10-05T00:00:00 TDB",
-                 "seed=9302"])
+SCORING_ARCS = (["trajectory.halo_phase_deg=100", "trajectory.epoch=2027-12-08T00:00:00 TDB",
+                 "seed=9401"],                  # Sun phase 74-86 deg, 61 000-68 000 km
+                ["trajectory.halo_phase_deg=200", "trajectory.epoch=2028-01-05T00:00:00 TDB",
+                 "seed=9402"])                  # Sun phase 106-131 deg, 52 000-57 000 km
+#: Scoring sets already spent (each saw a released default once; never scored again).
+SPENT = ((["trajectory.halo_phase_deg=150", "trajectory.epoch=2027-08-10T00:00:00 TDB",
+           "seed=9301"],
+          ["trajectory.halo_phase_deg=330", "trajectory.epoch=2027-10-05T00:00:00 TDB",
+           "seed=9302"]),)
 ARC = ["trajectory.duration_days=1.0", "trajectory.cadence_s=7200", "render.spp=8"]
 RUNS = 20
 
@@ -54,6 +61,7 @@ def main() -> None:
     args = ap.parse_args()
     from scipy.stats import chi2
 
+    from starnav.atomic import atomic_write_text
     from starnav.batch.consistency import filter_consistency, noise_monte_carlo, terrain_renders
     from starnav.batch.presets import DEMO_EXPOSURE_OVERRIDES, demo_scenario
     from starnav.batch.scores import EXPOSURES, defaults_fingerprint
@@ -90,10 +98,11 @@ def main() -> None:
                             capture_output=True, text=True).stdout.strip()
     doc = {"tool": "tools/score_navigation.py", "commit": commit,
            "date": _dt.date.today().isoformat(), "scoring_arcs": [list(a) for a in SCORING_ARCS],
+           "spent_scoring_sets": [[list(a) for a in sset] for sset in SPENT],
            "arc": ARC, "defaults_fingerprint": defaults_fingerprint(), "scores": scores}
     print(f"wall time {time.perf_counter() - t0:.0f} s")
     if not args.dry_run:
-        OUT.write_text(json.dumps(doc, indent=1) + "\n")
+        atomic_write_text(OUT, json.dumps(doc, indent=1) + "\n")
         print(f"wrote {OUT}")
         figure(doc, FIGURE)
         print(f"wrote {FIGURE}")

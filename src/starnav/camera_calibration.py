@@ -30,10 +30,14 @@ Index
 :class:`CameraCalibration`    estimate + covariance; ``camera``, ``sigma``, ``sample``
 :func:`with_parameters`       a camera with some parameters set (Jacobians, dispersions)
 :func:`read_calibration`, :func:`write_calibration`
+:func:`star_alignment`        the rotation a star solve through a calibrated camera absorbs
+:func:`bench_calibration`     a run's camera knowledge from the packaged bench emulations
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
 import math
 from dataclasses import dataclass, field, replace
@@ -45,7 +49,9 @@ import numpy as np
 from starnav.atomic import atomic_write_text
 from starnav.camera import Camera
 from starnav.config_base import read_json_file
-from starnav.errors import ConfigError
+from starnav.data import packaged_path
+from starnav.errors import ConfigError, DataFileError
+from starnav.seeding import STAGE_CAMERA_CALIBRATION, generator
 from starnav.typing import FloatArray
 
 FORMAT = "starnav-camera-calibration"
@@ -247,3 +253,71 @@ def read_calibration(path: str | Path) -> CameraCalibration:
         if isinstance(err, ConfigError):
             raise
         raise ConfigError(f"{p}: covariance", "malformed", f"an n x n matrix ({err})") from None
+
+
+def camera_fingerprint(camera: Camera) -> str:
+    """A short SHA-256 of the camera's geometry (detector, focal length, principal point,
+    distortion): which camera a packaged calibration was made for."""
+    doc = [camera.width, camera.height, camera.pitch_x, camera.pitch_y, camera.focal_length,
+           camera.cx, camera.cy, camera.k1, camera.k2, camera.k3, camera.p1, camera.p2]
+    return hashlib.sha256(json.dumps([float(x) for x in doc]).encode()).hexdigest()[:16]
+
+
+@functools.lru_cache(maxsize=256)
+def star_alignment(camera: Camera, known: Camera, n: int = 9) -> FloatArray:
+    """The rotation ``A`` (frame of ``camera`` -> frame of ``known``) that a star solve made
+    through the model ``known`` absorbs when the optics are ``camera``.
+
+    A star at direction ``c`` lands at pixel ``p = camera.project(c)``; the flight software
+    reads it back as ``known.unproject(p)``. Over stars spread across the field, the attitude
+    it solves is the true one turned by the rotation that best maps the one set of directions
+    onto the other (least squares over an ``n x n`` grid of pixels): ``R_ci' = R_ci A^T``. A
+    principal-point error is therefore common to the stars and to the Moon and cancels in the
+    Moon's inertial direction; what stays is the field's scale (focal length) and shape
+    (distortion)."""
+    u = (np.arange(n) + 0.5) * camera.width / n
+    v = (np.arange(n) + 0.5) * camera.height / n
+    uv = np.stack(np.meshgrid(u, v), -1).reshape(-1, 2)
+    from scipy.spatial.transform import Rotation
+
+    rot, _ = Rotation.align_vectors(known.unproject(uv), camera.unproject(uv))
+    A = rot.as_matrix()
+    A.setflags(write=False)
+    return A
+
+
+#: The packaged pool of emulated bench calibrations of the default tracker
+#: (``tools/calibrate_camera_bench.py``).
+BENCH_POOL_FILE = "navigation/camera_bench.json"
+
+
+@functools.lru_cache(maxsize=1)
+def _bench_pool() -> dict[str, Any] | None:
+    try:
+        return json.loads(packaged_path(BENCH_POOL_FILE).read_text())
+    except DataFileError:
+        return None
+
+
+def bench_calibration(camera: Camera, seed: int, run: int = 0) -> CameraCalibration | None:
+    """How run ``run`` of a scenario of ``seed`` knows ``camera`` (the truth) from the bench.
+
+    One emulated bench of the packaged pool (:data:`BENCH_POOL_FILE`: seeded benches with their
+    screen, mount, collimator and camera departures drawn from the stated tolerances, each
+    calibrated by :func:`starnav.calibration.intrinsics.calibrate_camera`) is picked by the
+    run's own random stream; the knowledge is ``camera`` plus that bench's realised estimation
+    error, with that bench's stated covariance. None when the pool was not made for ``camera``
+    (its :func:`camera_fingerprint`) or is not installed."""
+    pool = _bench_pool()
+    if pool is None or pool.get("camera_fingerprint") != camera_fingerprint(camera):
+        return None
+    benches = pool["benches"]
+    b = benches[int(generator(int(seed), STAGE_CAMERA_CALIBRATION, int(run)).integers(
+        len(benches)))]
+    names = tuple(pool["parameters"])
+    values = parameter_values(camera, names) + np.asarray(b["error"], float)
+    return CameraCalibration(
+        camera=with_parameters(camera, dict(zip(names, values, strict=True))),
+        parameters=names, covariance=np.asarray(b["covariance"], float),
+        provenance={"method": "emulated bench (pool)", "bench_seed": b["seed"],
+                    "tool": pool.get("tool", "")})

@@ -27,6 +27,7 @@ STAGE_NAVIGATION = 5
 STAGE_HIL = 6
 STAGE_TERRAIN = 7
 STAGE_FLYBY_SYNTHETIC = 8   # synthetic fly-by measurements and initial errors (trn.synthetic)
+STAGE_CAMERA_CALIBRATION = 9  # a run's bench calibration of the camera (camera_calibration)
 
 #: Stream keys under a procedural world's own seed (never renumber: worlds depend on them).
 WORLD_CRATERS = 1

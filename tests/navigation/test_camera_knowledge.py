@@ -6,6 +6,7 @@ covariance enters the fix's as consider parameters (range 1-sigma ~ range x sigm
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -92,3 +93,57 @@ def test_a_calibration_of_another_detector_is_refused(tmp_path, truth_camera):
     nav = NavigationConfig.model_validate({"camera_calibration": str(p)})
     with pytest.raises(ConfigError, match="navigation.camera_calibration"):
         nav.calibration(_Sc())
+
+
+def test_a_principal_point_error_cancels_through_the_star_attitude(frame, truth_camera):
+    """A calibrated principal point (8, -5) px off: the attitude a star solve through that
+    camera gives turns with it (star_alignment), so the Moon's fix keeps its direction to
+    5 % of the offset's angle; used with the frame's attitude as it is, the same camera
+    moves the fix by the whole offset. With a 5 px principal-point sigma the consider term
+    adds almost nothing across the line of sight (the stars move as the Moon does)."""
+    fr, _ = frame
+    base = NavigationConfig.model_validate(
+        {"camera_calibration": None, "refine": {"enabled": False}}).chain_options()
+    off = with_parameters(truth_camera, {"cx_px": truth_camera.cx + 8.0,
+                                         "cy_px": truth_camera.cy - 5.0})
+    cal = CameraCalibration(camera=off, parameters=("cx_px", "cy_px"),
+                            covariance=np.diag([25.0, 25.0]))
+
+    def angle(a, b):
+        return math.acos(min(float(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b)), 1.0))
+
+    known = process_frame(fr, truth_camera, options=base, rng=np.random.default_rng(1))
+    calib = process_frame(fr, truth_camera, options=replace(base, calibration=cal),
+                          rng=np.random.default_rng(1))
+    naive = process_frame(fr, off, options=base, rng=np.random.default_rng(1))
+    assert known.status == calib.status == naive.status == "ok"
+    offset = math.hypot(8.0, 5.0) * truth_camera.ifov
+    assert angle(known.position, naive.position) > 0.8 * offset
+    assert angle(known.position, calib.position) < 0.05 * offset
+    r = np.linalg.norm(calib.position)
+    u = calib.position / r
+    extra = calib.covariance - known.covariance
+    across = np.eye(3) - np.outer(u, u)
+    assert math.sqrt(np.trace(across @ extra @ across) / 2) < 0.05 * r * 5 * truth_camera.ifov
+
+
+def test_bench_knowledge_is_one_emulated_bench_per_run(truth_camera):
+    """navigation.camera_calibration: bench: each run knows the default tracker
+    as one seeded emulated bench calibrated it (the truth plus that bench's realised error,
+    with its stated covariance), reproducibly per (seed, run); the runs sample several
+    benches; another camera is not given the default tracker's benches."""
+    from starnav.camera_calibration import _bench_pool, bench_calibration, parameter_values
+    from starnav.config import Scenario
+
+    sc = Scenario()
+    assert sc.navigation.camera_calibration is None and sc.navigation.calibration(sc) is None
+    nav = sc.navigation.model_copy(update={"camera_calibration": "bench"})
+    cal = nav.calibration(sc, 3)
+    assert cal is not None and cal.camera == nav.calibration(sc, 3).camera
+    seeds = {nav.calibration(sc, r).provenance["bench_seed"] for r in range(12)}
+    assert len(seeds) >= 4
+    pool = {b["seed"]: b for b in _bench_pool()["benches"]}
+    e = cal.estimate - parameter_values(truth_camera, cal.parameters)
+    assert np.allclose(e, pool[cal.provenance["bench_seed"]]["error"], rtol=0, atol=1e-12)
+    assert bench_calibration(Camera.preset("aa-str", width=512, height=512), 1, 0) is None
+    assert nav.calibration(None) is None

@@ -39,7 +39,8 @@ def test_record_scores_the_defaults_as_released():
 
 
 def test_scoring_set_is_apart_from_every_tuning_set():
-    """No scoring arc shares a seed, a halo phase or a day with an arc that tuned a default."""
+    """No scoring arc shares a seed, a halo phase or a day with an arc that tuned a default,
+    nor a seed or an epoch with a scoring set already spent on an earlier default."""
     rec = recorded_scores()
     tuning = _arcs("navigation/refine_model_error.json") + _arcs("navigation/bias_tuning.json")
     spans = []
@@ -47,10 +48,16 @@ def test_scoring_set_is_apart_from_every_tuning_set():
         t0 = parse_epoch(_key(a, "trajectory.epoch"), "epoch")
         spans.append((t0, t0 + 86400.0 * float(_key(a, "trajectory.duration_days"))))
     psf_seed = json.loads(packaged_path("navigation/psf_estimate.json").read_text())["seed"]
+    bench_seeds = {b["seed"] for b in json.loads(packaged_path(
+        "navigation/camera_bench.json").read_text())["benches"]}
+    spent = [a for s in rec.get("spent_scoring_sets", []) for a in s]
+    assert spent, "the record lists the scoring sets already spent"
     for arc in rec["scoring_arcs"]:
         full = arc + rec["arc"]
-        assert _key(full, "seed") not in {_key(a, "seed") for a in tuning}
+        assert _key(full, "seed") not in {_key(a, "seed") for a in tuning + spent}
         assert int(_key(full, "seed")) not in range(psf_seed, psf_seed + 16)
+        assert int(_key(full, "seed")) not in bench_seeds
+        assert _key(full, "trajectory.epoch") not in {_key(a, "trajectory.epoch") for a in spent}
         assert _key(full, "trajectory.halo_phase_deg") not in {
             _key(a, "trajectory.halo_phase_deg") for a in tuning}
         t0 = parse_epoch(_key(full, "trajectory.epoch"), "epoch")

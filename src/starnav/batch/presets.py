@@ -210,7 +210,7 @@ def tuned_filter(exposure_time: float) -> dict[str, Any]:
     for key, v in doc["exposures"].items():
         if math.isclose(float(key), exposure_time, rel_tol=1e-6):
             return {k: v[k] for k in ("bias_model", "range_scale_sigma", "bias_sigma_km",
-                                      "bias_tau_days")}
+                                      "bias_tau_days", "accel_psd_m2_s3") if k in v}
     return {"bias_model": "none"}
 
 

@@ -30,7 +30,7 @@ EXPOSURES = (1.5e-5, 7.7e-3)
 TARGETS = {"epochs_in_band": (0.90, 0.99), "final_position_error_pct_range_0.015ms": 0.5}
 #: Packaged files the scores depend on (the calibrations the navigation reads).
 _CALIBRATIONS = ("navigation/refine_model_error.json", "navigation/bias_tuning.json",
-                 "navigation/psf_estimate.json")
+                 "navigation/psf_estimate.json", "navigation/camera_bench.json")
 
 
 def defaults_fingerprint() -> str:

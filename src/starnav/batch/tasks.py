@@ -379,12 +379,16 @@ class _Exposer:
         self.chain = dataclasses.replace(chain,
                                          use_windows=chain.use_windows and windows != "none")
         self.solver = StarSolver(self.sim.camera, sc) if sc.stars.enabled else None
+        # an emulated bench calibration per run (navigation.camera_calibration: bench)
+        self.bench = sc.navigation.camera_calibration == "bench"
 
     def frame(self, le: NDArray[np.float32], rendered: RenderedFrame, r: int,
               tracker: StarAttitudeTracker | None = None) -> FrameResult:
         sc, sim, cam, g = self.sc, self.sim, self.sim.camera, rendered.geometry
         acq, frame = sim.observe(le, g, run=r, windows=self.windows)
         chain, att = self.chain, None
+        if self.bench:
+            chain = dataclasses.replace(chain, calibration=sc.navigation.calibration(sc, r))
         t0 = time.perf_counter()
         if tracker is not None:
             rec = tracker.step(le, g, acq, chain)
@@ -541,7 +545,7 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
             x0 = truth[0] + L0 @ initial_error_normal(sc.seed, r)
             with quiet_logger("starnav.navigation.ekf"):
                 res = run_filter(meas, dynamics=dyn, moon=dyn, t0=float(epochs[0]), x0=x0,
-                                 P0=P0, options=nav.ekf_options())
+                                 P0=P0, options=nav.ekf_options(nav.calibration(sc, r)))
             e = res.errors(truth)
             errs_all.append(e)
             s3_all.append(res.sigma3())

@@ -25,7 +25,7 @@ ch. 6.3 (consider covariance).
 Index
 -----
 :func:`estimate_camera`, :func:`calibrate_camera`, :class:`IntrinsicsResult`,
-:data:`ESTIMATED`, :data:`CONSIDER`.
+:func:`draw_as_built`, :data:`ESTIMATED`, :data:`CONSIDER`, :data:`CAMERA_SPREAD`.
 """
 
 from __future__ import annotations
@@ -264,4 +264,32 @@ def calibrate_camera(bench: Bench, dots: DotAcquisition | None = None) -> Intrin
         provenance={"bench_seed": bench.config.seed})
 
 
-__all__ = ["CONSIDER", "ESTIMATED", "IntrinsicsResult", "calibrate_camera", "estimate_camera"]
+#: 1-sigma of the flight camera's departures from its datasheet that the bench must find
+#: (an assumption of the order of a star tracker's build tolerances).
+CAMERA_SPREAD = {"camera_focal_length_error": 0.005, "camera_principal_point_offset_px": 5.0,
+                 "camera_k1_error": 0.005}
+
+
+def draw_as_built(rng: np.random.Generator, geometric: Any) -> dict[str, Any]:
+    """A truth bench's ``misalignment`` section: screen, mount, collimator and camera
+    departures drawn from the tolerances of ``geometric`` (a bench config's ``geometric``
+    section) and :data:`CAMERA_SPREAD`."""
+    g, r = geometric, rng
+    return {"screen_shift_mm": list(r.normal(0, g.screen_shift_sigma_mm, 2)),
+            "screen_tilt_deg": list(r.normal(0, g.screen_tilt_sigma_deg, 2)),
+            "screen_roll_deg": float(r.normal(0, 0.3)),
+            "screen_defocus_mm": float(r.normal(0, g.screen_defocus_sigma_mm)),
+            "camera_tilt_deg": list(r.normal(0, g.mount_tilt_sigma_deg, 2)),
+            "camera_roll_deg": float(r.normal(0, 0.3)),
+            "collimator_focal_length_error": float(r.normal(
+                0, g.collimator_focal_length_sigma)),
+            "collimator_k1_error": float(r.normal(0, g.collimator_k1_sigma)),
+            "camera_focal_length_error": float(r.normal(
+                0, CAMERA_SPREAD["camera_focal_length_error"])),
+            "camera_principal_point_offset_px": list(r.normal(
+                0, CAMERA_SPREAD["camera_principal_point_offset_px"], 2)),
+            "camera_k1_error": float(r.normal(0, CAMERA_SPREAD["camera_k1_error"]))}
+
+
+__all__ = ["CAMERA_SPREAD", "CONSIDER", "ESTIMATED", "IntrinsicsResult", "calibrate_camera",
+           "draw_as_built", "estimate_camera"]

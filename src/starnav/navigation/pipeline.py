@@ -15,7 +15,7 @@
 Index
 -----
 :func:`process_frame`, :class:`FrameMeasurement`, :class:`ChainOptions`,
-:func:`camera_consider_covariance`, :func:`run_filter`, :class:`FilterResult`,
+:func:`camera_consider_jacobian`, :func:`run_filter`, :class:`FilterResult`,
 :func:`navigate`, :class:`NavigationRun`, :func:`monte_carlo`, :func:`initial_error_normal`,
 :func:`truth_states`, :data:`STAGES`.
 """
@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from starnav.camera import Camera
-from starnav.camera_calibration import CameraCalibration
+from starnav.camera_calibration import CameraCalibration, star_alignment
 from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry
 from starnav.navigation.christian_robinson import (
@@ -85,7 +85,7 @@ class ChainOptions:
     calibration : CameraCalibration, optional
         The camera as a calibration estimated it: the chain navigates with its camera
         (whatever camera the caller passes) and adds its covariance to each fix as consider
-        parameters, ``J C J^T`` (:func:`camera_consider_covariance`). None: the caller's
+        parameters, ``J C J^T`` (:func:`camera_consider_jacobian`). None: the caller's
         camera, known exactly.
     """
 
@@ -207,11 +207,14 @@ def process_frame(
         reason there is none. Never raises for bad frame content.
     """
     opt = options or ChainOptions()
-    if opt.calibration is not None:
-        camera = opt.calibration.camera
     rng = rng if rng is not None else np.random.default_rng(int(frame.index))
     tm: dict[str, float] = {}
-    R_ci = np.asarray(frame.R_cam_to_inertial_measured, float)
+    R_ci = R_measured = np.asarray(frame.R_cam_to_inertial_measured, float)
+    declared = camera
+    if opt.calibration is not None:
+        # the attitude a star solve through the calibrated camera gives (star_alignment)
+        camera = opt.calibration.camera
+        R_ci = R_ci @ star_alignment(declared, camera).T
     R_mi = getattr(frame, "R_body_to_inertial", None)
     R_body_to_cam = None if R_mi is None else R_ci.T @ np.asarray(R_mi, float)
 
@@ -305,29 +308,37 @@ def process_frame(
                                       opt.fix.radius_sigma_fraction)
     if opt.calibration is not None and opt.calibration.parameters:
         used = refined.uv if refined is not None else limb.uv[inl]
-        cov = cov + camera_consider_covariance(opt.calibration, used, pos, R_ci, R_body_to_cam,
-                                               opt.fix)
+        J = camera_consider_jacobian(opt.calibration, used, pos, R_measured, R_mi, declared,
+                                     opt.fix)
+        C = np.asarray(opt.calibration.covariance, float)
+        cov = cov + J @ C @ J.T
+        if white is not None:
+            # with limb-common states the focal length is a state (a constant range scale,
+            # NavigationConfig.ekf_options); the rest stays in the fix's own noise
+            keep = np.array([n != "focal_length_m" for n in opt.calibration.parameters])
+            white = white + J[:, keep] @ C[np.ix_(keep, keep)] @ J[:, keep].T
     tm["fix"] = time.perf_counter() - t
     return FrameMeasurement(int(frame.index), float(frame.epoch_tdb), "ok", "", limb, inl,
                             refined, fix, pos, cov, tm, G, noise, white)
 
 
-def camera_consider_covariance(calibration: CameraCalibration, uv: FloatArray,
-                               position: FloatArray, R_ci: FloatArray,
-                               R_body_to_cam: FloatArray | None,
-                               options: ChristianRobinsonOptions) -> FloatArray:
-    """The fix's covariance from the camera calibration's, ``J C J^T`` [m^2, J2000], with
-    ``J = d position / d theta`` of the calibrated parameters ``theta``.
+def camera_consider_jacobian(calibration: CameraCalibration, uv: FloatArray,
+                             position: FloatArray, R_measured: FloatArray,
+                             R_body_to_inertial: FloatArray | None, declared: Camera,
+                             options: ChristianRobinsonOptions) -> FloatArray:
+    """``J = d position / d theta`` [m per unit, J2000] of the calibrated parameters
+    ``theta``: the fix's covariance gains ``J C J^T`` of the calibration's ``C``.
 
     The parameters are *considered*, not estimated: a limb fix cannot tell a focal-length
-    error from a range error (both scale the disc), nor the principal point from a pointing
-    error, so states for them would stay at their prior while costing the tracker a larger
-    filter; their uncertainty still belongs in the fix's. ``J`` is a one-sided difference of
-    the fix re-solved from the same points with each parameter moved by its 1-sigma (the fix
-    is linear in them at that size). Within one frame this is exact to first order; across
-    frames the calibration error is one constant, which a per-fix term treats as independent
-    (the filter's range-scale and limb-common bias states are what carry a common error over
-    time)."""
+    error from a range error (both scale the disc), so states for them would stay at their
+    prior while costing the tracker a larger filter; their uncertainty still belongs in the
+    fix's. ``J`` is a one-sided difference of the fix re-solved from the same points with each
+    parameter moved by its 1-sigma, the attitude re-solved through the moved camera too
+    (:func:`~starnav.camera_calibration.star_alignment` from ``declared``, the camera of the
+    frame's attitude ``R_measured``): a principal-point error moves the stars as it moves the
+    Moon. Within one frame this is exact to first order; across frames the calibration error
+    is one constant, which a per-fix term treats as independent (the filter's bias states are
+    what carry a common error over time)."""
     J = np.zeros((3, len(calibration.parameters)))
     for i, name in enumerate(calibration.parameters):
         h = calibration.sigma(name)
@@ -335,10 +346,13 @@ def camera_consider_covariance(calibration: CameraCalibration, uv: FloatArray,
             continue
         d = np.zeros(len(calibration.parameters))
         d[i] = h
-        moved = christian_robinson(uv, calibration.camera_with(d), R_body_to_cam=R_body_to_cam,
-                                   options=options)
+        cam = calibration.camera_with(d)
+        R_ci = R_measured @ star_alignment(declared, cam).T
+        R_bc = None if R_body_to_inertial is None else R_ci.T @ np.asarray(R_body_to_inertial,
+                                                                           float)
+        moved = christian_robinson(uv, cam, R_body_to_cam=R_bc, options=options)
         J[:, i] = (moved.position_inertial(R_ci) - position) / h
-    return J @ np.asarray(calibration.covariance, float) @ J.T
+    return J
 
 
 def _common_jacobian(fix: LimbFix, refined: LimbPoints, camera: Camera, R_ci: FloatArray,

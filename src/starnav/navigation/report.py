@@ -322,15 +322,15 @@ def navigate_dataset(
     if (frames is None) != (chains is None) or (frames is not None and chains is not None
                                                  and len(frames) != len(chains)):
         raise ConfigError("frames/chains", None, "both or neither, one chain per frame")
+    chain = cfg.chain_options(scenario=scenario)
+    ekf = cfg.ekf_options(chain.calibration)
     run = navigate(dataset if frames is None else frames, camera=dataset.camera,
-                   dynamics=dyn, moon=dyn, P0=P0,
-                   chain=cfg.chain_options(scenario=scenario), chains=chains,
-                   ekf=cfg.ekf_options(), seed=seed, measure_memory=measure_memory)
+                   dynamics=dyn, moon=dyn, P0=P0, chain=chain, chains=chains, ekf=ekf,
+                   seed=seed, measure_memory=measure_memory)
     mc: list[FilterResult] = []
     if n_runs > 1 and run.truth is not None:
         mc = monte_carlo(run.measurements, run.truth, dynamics=dyn, moon=dyn, P0=P0,
-                         runs=n_runs, seed=seed, options=cfg.ekf_options())
-    chain = cfg.chain_options(scenario=scenario)
+                         runs=n_runs, seed=seed, options=ekf)
     shown = list(dataset) if plots else []
     paths = write_outputs(run, out_dir, mc, plots=plots, frames=shown,
                           camera=dataset.camera, radii_m=chain.fix.radii_m)

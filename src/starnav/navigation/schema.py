@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from pydantic import Field
 
 from starnav.camera import camera_from_config
-from starnav.camera_calibration import CameraCalibration, read_calibration
+from starnav.camera_calibration import CameraCalibration, bench_calibration, read_calibration
 from starnav.config_base import StrictModel
 from starnav.constants import MOON_RADIUS
 from starnav.dem.limb import limb_topography_for
@@ -428,11 +428,15 @@ class NavigationConfig(StrictModel):
     trn: TrnConfig = Field(
         default_factory=TrnConfig, description="asteroid fly-by terrain-relative navigation "
         "from windows (front end and estimator)")
-    camera_calibration: Path | None = Field(
-        None, description="a camera calibration file (starnav.camera_calibration, e.g. from "
-        "the HIL bench): the chain navigates with its camera, the truth still renders with "
-        "the camera section's, and each fix's covariance gains the calibration's as consider "
-        "parameters; null: the camera section's camera, known exactly")
+    camera_calibration: Literal["bench"] | Path | None = Field(
+        None, description="the camera the chain navigates with (the truth still renders "
+        "with the camera section's): bench: the default tracker as an emulated HIL bench "
+        "calibrated it, one seeded bench per run (starnav.camera_calibration."
+        "bench_calibration; other cameras are known exactly); a path: a camera calibration "
+        "file (e.g. `starnav hil geometric`'s camera_calibration.json); null: the camera "
+        "section's camera, known exactly. With a calibration, the attitude is the one a star "
+        "solve through the calibrated camera gives and each fix's covariance gains the "
+        "calibration's as consider parameters")
     runs: Annotated[int, Field(ge=1, le=MAX_RUNS)] = Field(
         1, description="Monte Carlo runs of `starnav navigate` (>= 2: each over its own "
         "detector noise, attitude knowledge error and initial error, with the consistency "
@@ -520,11 +524,19 @@ class NavigationConfig(StrictModel):
             calibration=self.calibration(scenario),
         )
 
-    def calibration(self, scenario: Any | None = None) -> CameraCalibration | None:
-        """The camera calibration file of ``camera_calibration`` (None without one); with
-        ``scenario``, checked against its camera's detector (size and pixel pitch)."""
+    def calibration(self, scenario: Any | None = None, run: int = 0) -> CameraCalibration | None:
+        """The camera as the chain knows it (None: the camera section's, exactly): the file of
+        ``camera_calibration``, checked against ``scenario``'s detector (size and pixel
+        pitch); for ``bench``, run ``run``'s emulated bench calibration of ``scenario``'s
+        camera (None without a scenario, or for a camera the packaged benches were not made
+        for)."""
         if self.camera_calibration is None:
             return None
+        if self.camera_calibration == "bench":
+            if scenario is None:
+                return None
+            return bench_calibration(camera_from_config(scenario.camera), int(scenario.seed),
+                                     int(run))
         cal = read_calibration(self.camera_calibration)
         if scenario is not None:
             cam = camera_from_config(scenario.camera)
@@ -535,8 +547,11 @@ class NavigationConfig(StrictModel):
                                   f"{cam.height} px detector with its pixel pitch")
         return cal
 
-    def ekf_options(self) -> EkfOptions:
-        """The SI :class:`~starnav.navigation.ekf.EkfOptions` of this section."""
+    def ekf_options(self, calibration: CameraCalibration | None = None) -> EkfOptions:
+        """The SI :class:`~starnav.navigation.ekf.EkfOptions` of this section; with the
+        chain's camera ``calibration`` the ``limb-common`` states also carry its focal-length
+        error (a constant range scale: the disc-radius mode's variance gains
+        ``(sigma_f / f)^2``)."""
         f = self.filter
         fsi = f.to_si()
         common = None
@@ -546,7 +561,11 @@ class NavigationConfig(StrictModel):
             # (ModelErrorCalibration.fix_covariance), not the points' shared error
             # (common_covariance, half of it: the filter was overconfident wherever the
             # attitude's sigma no longer hid the difference, docs/stars.md)
-            common = packaged_model_error().fix_covariance
+            common = np.array(packaged_model_error().fix_covariance, float)
+            if calibration is not None:
+                common[0, 0] += (calibration.sigma("focal_length_m")
+                                 / calibration.camera.focal_length) ** 2
+            common = tuple(tuple(float(x) for x in r) for r in common)
         return EkfOptions(bias_model=f.bias_model, bias_sigma_m=fsi.bias_sigma,
                           common_covariance=common,
                           range_scale_sigma=f.range_scale_sigma,

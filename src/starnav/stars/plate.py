@@ -7,7 +7,8 @@ Technique
 ---------
 1. Detections (:func:`starnav.stars.centroid.find_stars`, in DN).
 2. Settings from the camera (:func:`plate_settings`): index depth from the field's solid
-   angle, tolerances from the pixel scale.
+   angle (and, when the frame states it, no deeper than the camera can reach), tolerances
+   from the pixel scale.
 3. Scale-free triangles matched to catalogue pairs within the focal-length tolerance.
 4. Screening and verification: a count rule with a false acceptance below ``alpha`` per frame;
    two verified attitudes: ambiguous.
@@ -185,12 +186,16 @@ def _nth_brightest_v(catalogue: StarCatalogue, n: int) -> float:
 
 
 def plate_settings(camera: Camera, catalogue: StarCatalogue,
-                   options: PlateOptions | None = None) -> PlateSettings:
-    """Index depth and tolerances of ``camera`` (module step 2)."""
+                   options: PlateOptions | None = None,
+                   limiting_v: float | None = None) -> PlateSettings:
+    """Index depth and tolerances of ``camera`` (module step 2); ``limiting_v``: the faintest
+    V the camera can show in the frame (an upper bound, :func:`solve_plate`), which caps the
+    index (fainter stars cannot be among the detections)."""
     opt = options or PlateOptions()
     omega = field_solid_angle(camera)
     n_sky = int(min(len(catalogue) - 1, opt.stars_per_field * 4.0 * math.pi / omega))
-    v_lim = round(min(_nth_brightest_v(catalogue, n_sky), opt.index_v_max), 2)
+    v_lim = round(min(_nth_brightest_v(catalogue, n_sky), opt.index_v_max,
+                      math.inf if limiting_v is None else limiting_v), 2)
     pix = 1.0 / camera.fx
     return PlateSettings(omega, v_lim, pix, opt.match_px * pix,
                          opt.n_sigma * math.sqrt(2.0) * opt.floor_px * pix
@@ -704,10 +709,10 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
         Where the pattern index is cached on disk (:func:`pattern_index`); False: memory only.
     limiting_v : float, optional
         Faintest V the camera can show in this exposure, when its radiometry is known
-        (:class:`~starnav.stars.images.StarImage`). A frame that is not identified while a
-        field of this size holds on average fewer than ``min_stars`` catalogue stars that
-        bright is reported ``"too-few-stars"`` (the camera cannot see a pattern there), not
-        ``"unidentified"``.
+        (:class:`~starnav.stars.images.StarImage`; an upper bound). The index and the
+        verification go no fainter. A frame that is not identified while a field of this size
+        holds on average fewer than ``min_stars`` catalogue stars that bright is reported
+        ``"too-few-stars"`` (the camera cannot see a pattern there), not ``"unidentified"``.
 
     Returns
     -------
@@ -730,7 +735,8 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
     if saturation_dn is None:
         saturation_dn = (float(np.iinfo(a.dtype).max) if np.issubdtype(a.dtype, np.integer)
                          else math.inf)
-    settings = plate_settings(camera, cat, opt)
+    settings = plate_settings(camera, cat, opt, limiting_v)
+    verify_v = opt.verify_v_limit if limiting_v is None else min(opt.verify_v_limit, limiting_v)
     t0 = time.perf_counter()
     cents = _dedupe(find_stars(a, gain_e_per_dn=1.0, saturation_dn=saturation_dn,
                                options=opt.centroid))
@@ -817,8 +823,7 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
             sc = float(mu.sum() / cu.sum())
             A = _svd_batch(_vectors(xy[used], sc)[None], ru[None])[0]
             s_fit = float(tol.max()) / max(float(cu.max()), 1e-6) / math.sqrt(len(used) - 2)
-            rows, dirs, uvc = _field_stars(cat, A, camera, sc, epoch_jyear,
-                                           opt.verify_v_limit, n)
+            rows, dirs, uvc = _field_stars(cat, A, camera, sc, epoch_jyear, verify_v, n)
             if rows.size < 3:
                 continue
             r_px = opt.match_px + 2.0 * s_fit * r_edge * camera.fx
@@ -850,12 +855,13 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
         n_sky = int(np.count_nonzero(cat.v <= limiting_v))
         mean = n_sky * settings.field_solid_angle_sr / (4.0 * math.pi)
         if mean < opt.min_stars:
+            tried = f"none of the {hyp} candidate patterns" if hyp else "no candidate pattern"
             return fail("too-few-stars",
                         f"the camera reaches V {limiting_v:.1f} at most in this exposure: the "
                         f"sky holds {n_sky} stars that bright, {mean:.2f} per field of "
                         f"{math.degrees(camera.fov_x):.2f} x {math.degrees(camera.fov_y):.2f} "
-                        f"deg on average, {opt.min_stars} needed; none of the {hyp} "
-                        f"candidate patterns among the {n} detections verified",
+                        f"deg on average, {opt.min_stars} needed; {tried} among the {n} "
+                        "detections verified",
                         hypotheses=hyp)
     if not accepted:
         return fail("unidentified",

@@ -6,11 +6,13 @@ For each image: read it (:mod:`starnav.stars.images`), describe the camera (a pr
 covariance), the refined focal length, field of view and ``k1``, and the matched stars. One bad
 image is recorded with its one-line reason and does not stop the others.
 
-Outputs in the output directory: ``results.json`` (every image; the overlay centres of the
-matched stars are the solved camera's projection of the catalogue stars, written beside the
-detections), ``report.md`` and ``overlay_<image stem>.png`` (the frame asinh-stretched;
-detections as small squares, identified stars circled at their projected place and labelled
-with their Hipparcos number, the boresight as a cross and an arrow towards celestial north).
+Outputs in the output directory: ``results.json`` (every image; each matched star with its
+detection's centroid and the catalogue star projected through the solved attitude and camera),
+``report.md`` and ``overlay_<image stem>.png`` on the frame's pixel grid (the frame
+asinh-stretched; an identified detection circled at its centroid and labelled with its
+Hipparcos number, its catalogue star's projection as a small cross, so the residuals show;
+other detections as small squares; the boresight and an arrow towards celestial north; a
+legend).
 
 Output directory: a non-empty directory is refused unless ``overwrite``; then the earlier run's
 files (``results.json``, ``report.md``, ``overlay_*.png``) are replaced and nothing else is
@@ -151,7 +153,7 @@ def _result_dict(r: ImageResult, cat: StarCatalogue) -> dict[str, Any]:
     cam = s.camera
     d = cat.directions(r.epoch_jyear, s.catalogue_row)
     c = d @ s.R_cam_to_inertial
-    drawn = cam.project(c / c[:, 2:], distort=True)
+    predicted = cam.project(c / c[:, 2:], distort=True)
     det = s.centroids.uv[s.detection_index]
     out.update(
         ra_deg=ra, dec_deg=dec, roll_deg=roll,
@@ -168,18 +170,72 @@ def _result_dict(r: ImageResult, cat: StarCatalogue) -> dict[str, Any]:
         matched=[{"hip": int(h), "v_mag": round(float(v), 3),
                   "detection_uv_px": [round(float(x), 4) for x in du],
                   "detection_sigma_px": [round(float(x), 4) for x in sd],
-                  "drawn_uv_px": [round(float(x), 4) for x in cu],
+                  "predicted_uv_px": [round(float(x), 4) for x in cu],
                   "residual_px": [round(float(x), 4) for x in rp],
                   "residual_arcsec": round(float(ra_), 3)}
                  for h, v, du, sd, cu, rp, ra_ in zip(
-                     s.hip, s.v_mag, det, s.centroids.sigma_px[s.detection_index], drawn,
+                     s.hip, s.v_mag, det, s.centroids.sigma_px[s.detection_index], predicted,
                      s.residual_px, s.residual_arcsec, strict=True)],
     )
     return out
 
 
+#: Overlay marks [px of the frame; the overlay is drawn on the frame's own pixel grid, pixel
+#: (row v, column u) centred at (u, v)]: the identified detection's circle radius and line
+#: width, the catalogue star's diagonal cross half-length and line width.
+CIRCLE_RADIUS_PX = 7.0
+CIRCLE_WIDTH_PX = 1.5
+CROSS_HALF_PX = 3.5
+CROSS_WIDTH_PX = 1.2
+#: Overlay colours (RGB). The circle and cross colours are drawn last, anti-aliased, and are
+#: the only pure green and pure magenta in the picture (the frame is grey, labels and other
+#: marks have other hues), so their places can be measured back from the PNG.
+CIRCLE_RGB = (0, 255, 0)
+CROSS_RGB = (255, 0, 255)
+LABEL_RGB = (130, 255, 255)
+DETECTION_RGB = (255, 200, 0)
+BORESIGHT_RGB = (255, 60, 60)
+LEGEND = ("green circle: detection identified (centred on its centroid; Hipparcos number)   "
+          "magenta x: the catalogue star through the solved attitude and camera",
+          "yellow square: detection not identified   red +: boresight, arrow to north")
+
+
+def _paint(rgb: np.ndarray, cu: float, cv: float, reach: float, colour: tuple[int, int, int],
+           alpha_of: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> None:
+    """Blend ``colour`` into ``rgb`` (float, H x W x 3) with the coverage ``alpha_of(du, dv)``
+    of the pixels within ``reach`` of (cu, cv); ``du, dv``: pixel centre minus (cu, cv)."""
+    h, w = rgb.shape[:2]
+    u0, u1 = max(int(math.floor(cu - reach)), 0), min(int(math.ceil(cu + reach)) + 1, w)
+    v0, v1 = max(int(math.floor(cv - reach)), 0), min(int(math.ceil(cv + reach)) + 1, h)
+    if u0 >= u1 or v0 >= v1:
+        return
+    dv, du = np.mgrid[v0:v1, u0:u1].astype(float)
+    a = alpha_of(du - cu, dv - cv)[..., None]
+    win = rgb[v0:v1, u0:u1]
+    win *= 1.0 - a
+    win += a * np.asarray(colour, float)
+
+
+def _ring_alpha(du: np.ndarray, dv: np.ndarray) -> np.ndarray:
+    """Coverage of the circle's line: 1 within its half width, a 1 px linear edge."""
+    return np.clip(0.5 * CIRCLE_WIDTH_PX + 0.5 - np.abs(np.hypot(du, dv) - CIRCLE_RADIUS_PX),
+                   0.0, 1.0)
+
+
+def _cross_alpha(du: np.ndarray, dv: np.ndarray) -> np.ndarray:
+    """Coverage of a diagonal cross (two segments of half-length ``CROSS_HALF_PX``)."""
+    c = math.sqrt(0.5)
+    d = np.full(du.shape, np.inf)
+    for ax, ay in ((c, c), (c, -c)):
+        t = np.clip(du * ax + dv * ay, -CROSS_HALF_PX, CROSS_HALF_PX)
+        d = np.minimum(d, np.hypot(du - t * ax, dv - t * ay))
+    return np.clip(0.5 * CROSS_WIDTH_PX + 0.5 - d, 0.0, 1.0)
+
+
 def write_overlay(path: Path, image: StarImage, result: dict[str, Any]) -> None:
-    """The overlay picture of one solved or unsolved frame (module docstring)."""
+    """The overlay picture of one solved or unsolved frame (module docstring): the identified
+    detections' circles centred on their centroids (``detection_uv_px``) and the catalogue
+    stars' crosses at ``predicted_uv_px`` of ``result["matched"]``."""
     from PIL import Image, ImageDraw
 
     a = np.asarray(image.data, float)
@@ -191,33 +247,47 @@ def write_overlay(path: Path, image: StarImage, result: dict[str, Any]) -> None:
     rgb = np.repeat((255 * np.clip(g, 0, 1)).astype(np.uint8)[..., None], 3, axis=2)
     im = Image.fromarray(rgb, "RGB")
     dr = ImageDraw.Draw(im)
-    for u, v in result.get("detections_uv_px", []):
-        dr.rectangle([u - 2, v - 2, u + 2, v + 2], outline=(255, 200, 0))
-    for m in result.get("matched", []):
-        u, v = m["drawn_uv_px"]
-        dr.ellipse([u - 7, v - 7, u + 7, v + 7], outline=(0, 255, 0), width=1)
-        dr.text((u + 9, v - 6), f"HIP {m['hip']}", fill=(0, 255, 0))
+    matched = result.get("matched", [])
+    circles = np.array([m["detection_uv_px"] for m in matched], float).reshape(-1, 2)
+    crosses = np.array([m["predicted_uv_px"] for m in matched], float).reshape(-1, 2)
+    # the pixel-grid marks and text first, the anti-aliased circles and crosses over them
+    dets = np.array(result.get("detections_uv_px", []), float).reshape(-1, 2)
+    for u, v in dets:
+        if circles.size and np.min(np.hypot(*(circles - (u, v)).T)) < 1e-6:
+            continue  # identified: circled instead
+        dr.rectangle([u - 2, v - 2, u + 2, v + 2], outline=DETECTION_RGB)
+    for m, (u, v) in zip(matched, circles, strict=True):
+        dr.text((u + CIRCLE_RADIUS_PX + 2, v - 6), f"HIP {m['hip']}", fill=LABEL_RGB)
+    h, w = a.shape
     if result.get("status") == "ok":
         R = np.asarray(result["R_cam_to_inertial"])
-        h, w = a.shape
         cu, cv = (w - 1) / 2.0, (h - 1) / 2.0
-        dr.line([cu - 12, cv, cu + 12, cv], fill=(255, 60, 60))
-        dr.line([cu, cv - 12, cu, cv + 12], fill=(255, 60, 60))
+        dr.line([cu - 12, cv, cu + 12, cv], fill=BORESIGHT_RGB)
+        dr.line([cu, cv - 12, cu, cv + 12], fill=BORESIGHT_RGB)
         n_cam = R.T @ np.array([0.0, 0.0, 1.0])
         nx, ny = n_cam[0], n_cam[1]
         norm = math.hypot(nx, ny) or 1.0
         L = 0.12 * min(w, h)
         tip = (cu + L * nx / norm, cv + L * ny / norm)
-        dr.line([cu, cv, *tip], fill=(255, 60, 60), width=2)
-        dr.text((tip[0] + 4, tip[1] + 4), "N", fill=(255, 60, 60))
+        dr.line([cu, cv, *tip], fill=BORESIGHT_RGB, width=2)
+        dr.text((tip[0] + 4, tip[1] + 4), "N", fill=BORESIGHT_RGB)
         dr.text((8, 8), f"RA {result['ra_deg']:.4f}  Dec {result['dec_deg']:+.4f}  roll "
                 f"{result['roll_deg']:.3f} deg  FOV {result['fov_x_deg']:.4f} deg  "
                 f"{result['n_matched']} stars, rms {result['rms_arcsec']:.1f} arcsec",
                 fill=(255, 255, 255))
+        dr.rectangle([4, h - 32, min(w - 1, 12 + max(map(dr.textlength, LEGEND))), h - 4],
+                     fill=(0, 0, 0))
+        for k, line in enumerate(LEGEND):
+            dr.text((8, h - 30 + 13 * k), line, fill=(255, 255, 255))
     else:
         dr.text((8, 8), f"not solved: {result.get('reason', '')}", fill=(255, 80, 80))
+    canvas = np.asarray(im, float).copy()
+    for u, v in circles:
+        _paint(canvas, u, v, CIRCLE_RADIUS_PX + CIRCLE_WIDTH_PX, CIRCLE_RGB, _ring_alpha)
+    for u, v in crosses:
+        _paint(canvas, u, v, CROSS_HALF_PX + CROSS_WIDTH_PX, CROSS_RGB, _cross_alpha)
     with atomic_path(path) as tmp:
-        im.save(tmp, format="PNG")
+        Image.fromarray(np.round(canvas).astype(np.uint8), "RGB").save(tmp, format="PNG")
 
 
 def _report(rows: list[dict[str, Any]]) -> str:
