@@ -121,6 +121,8 @@ def intrinsics(n: int) -> None:
     lo, hi = chi2.ppf([0.025, 0.975], k * n) / n
     out = {"benches": n, "seconds": time.perf_counter() - t0,
            "parameters": {name: {"rms_error": float(np.sqrt(np.mean(err[:, i] ** 2))),
+                                 "rms_error_over_sigma": float(np.sqrt(np.mean(
+                                     (err[:, i] / sig[:, i]) ** 2))),
                                  "median_sigma": float(np.median(sig[:, i])),
                                  "within_1_sigma": float(np.mean(np.abs(err[:, i])
                                                                  <= sig[:, i])),

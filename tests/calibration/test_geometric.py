@@ -170,3 +170,30 @@ def test_rendered_moon_lands_within_half_a_pixel(calibration_result, misaligned_
     m = comp.metrics()
     assert m["centroid_offset_px"] < MOON_PLACEMENT_GOAL_PX
     assert m["saturated_pixels_orbit"] == 0 and m["saturated_pixels_bench"] == 0
+
+
+def test_matching_a_rotated_distorted_grid_keeps_each_dot_its_own():
+    """The dots of an as-built bench (screen and camera rolled by ~1 deg together, collimator
+    distortion, shifts) land 2-27 px from where the nominal bench predicts them: each lattice
+    peak of the offset vote is spread over a third of a spacing. The vote must count each peak
+    whole, or it picks a neighbouring lattice offset and every dot is paired with its
+    neighbour (a principal point off by whole grid spacings)."""
+    from starnav.calibration.geometric import NominalMapping, dot_grid, fit_dot_grid
+    from starnav.calibration.intrinsics import draw_as_built
+
+    g = bench_from_dict({}).geometric
+    bench = Bench(bench_from_dict({"misalignment": draw_as_built(np.random.default_rng(9500),
+                                                                 g)}))
+    cam = bench.camera
+    grid = fit_dot_grid(cam, g.dot_grid, g.dot_margin_px, g.centroid_half_window_px)
+    desired = dot_grid(cam, grid, g.dot_margin_px)
+    screen = NominalMapping(bench.geometry.nominal()).screen_for_tangent(
+        pixel_to_tangent(cam, desired))
+    seen = bench.geometry.screen_to_pixel(screen)
+    inside = np.all((seen > 10) & (seen < cam.width - 10), axis=1)
+    spread = np.ptp(seen[inside] - desired[inside], axis=0)
+    assert np.all(spread > 20.0)
+    spacing = (cam.width - 2 * g.dot_margin_px) / (grid[0] - 1)
+    io, ip = match_points(seen[inside], desired, spacing)
+    assert len(io) == inside.sum()
+    assert np.array_equal(np.nonzero(inside)[0][io], ip)

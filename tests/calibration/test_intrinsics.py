@@ -198,22 +198,22 @@ def test_star_field_holdout_passes_with_the_calibrated_camera(bench, result, sta
 
 
 def test_star_field_holdout_negative_control_focal_length(bench, result, star_field):
-    """Negative control: the calibrated camera with its focal length 0.5 % off (4.7 sigma of
-    its stated uncertainty) fails the parameter test, and the stars ask for the -0.5 % back.
-    The margin is thin on this bench (chi-square 25.3 against 24.3) and over 20 seeded benches
-    the error is rejected on 14 (docs/calibration.md): the correction asked for is the firm
-    part."""
+    """Negative control: the calibrated camera with its focal length 0.7 % off (6.6 sigma of
+    its stated 0.1 %) fails the parameter test, and the stars ask for the -0.7 % back. At 0.5 %
+    (4.7 sigma, chi-square about 4.7^2 + the rest against 24.3) a 7-dof test at 0.1 % rejects
+    about half the time (14 of 20 seeded benches, docs/calibration.md): the margin of this
+    control is taken where the test has power."""
     from dataclasses import replace
 
     from starnav.camera_calibration import with_parameters
 
     cal = result.calibration
     f = cal.camera.focal_length
-    bad = replace(cal, camera=with_parameters(cal.camera, {"focal_length_m": f * 1.005}))
+    bad = replace(cal, camera=with_parameters(cal.camera, {"focal_length_m": f * 1.007}))
     out = _star_holdout(bench, result, star_field, bad)
     assert not out["passes"]
     corr = out["parameter_test"]["correction"]["focal_length_m"] / f
-    assert corr == pytest.approx(-0.005, abs=5e-4)
+    assert corr == pytest.approx(-0.007, abs=5e-4)
 
 
 def test_star_field_holdout_rejects_bad_input(bench, result, star_field):
@@ -223,3 +223,100 @@ def test_star_field_holdout_rejects_bad_input(bench, result, star_field):
 
         star_field_holdout(result.calibration, result.mount_rotation_rad,
                            bench.geometry.design(), scr, obs, 0.0)
+
+
+# ------------------------------------------------------------------ over seeded benches
+def _exact_dots(bench: Bench, sigma_px: float, rng: np.random.Generator):
+    """The calibration grid's dots where the truth bench puts them (full as-built geometry and
+    camera, no image chain) plus Gaussian centroid noise ``sigma_px``."""
+    from starnav.calibration.geometric import (
+        NominalMapping,
+        dot_grid,
+        fit_dot_grid,
+        pixel_to_tangent,
+    )
+
+    g, cam = bench.config.geometric, bench.camera
+    grid = fit_dot_grid(cam, g.dot_grid, g.dot_margin_px, g.centroid_half_window_px)
+    desired = dot_grid(cam, grid, g.dot_margin_px)
+    screen = NominalMapping(bench.geometry.nominal()).screen_for_tangent(
+        pixel_to_tangent(cam, desired))
+    uv = bench.geometry.screen_to_pixel(screen)
+    seen = np.all((uv > g.centroid_half_window_px)
+                  & (uv < np.array([cam.width, cam.height]) - 1 - g.centroid_half_window_px), 1)
+    return screen[seen], uv[seen] + rng.normal(0.0, sigma_px, uv[seen].shape)
+
+
+def _fit_exact(seed: int, ignore: str = ""):
+    """One seeded as-built bench (every departure drawn from its tolerance), calibrated from
+    exact dots: the realised error and the stated covariance (the consider parameters whose
+    name starts with ``ignore`` left out, if given)."""
+    from starnav.calibration.intrinsics import draw_as_built
+
+    g = bench_from_dict({}).geometric
+    mis = draw_as_built(np.random.default_rng(seed), g)
+    bench = Bench(bench_from_dict({"misalignment": mis, "seed": seed}))
+    scr, obs = _exact_dots(bench, 0.05, np.random.default_rng(seed + 1))
+    r = estimate_camera(build_camera(bench.config.scenario.camera), bench.geometry.design(),
+                        scr, obs, mount_tilt_sigma_rad=math.radians(g.mount_tilt_sigma_deg),
+                        consider={k: v for k, v in _consider_sigmas(g).items()
+                                  if not (ignore and k.startswith(ignore))})
+    cal = r.calibration
+    return cal.estimate - parameter_values(bench.camera, cal.parameters), cal.covariance
+
+
+def _consider_sigmas(g) -> dict[str, float]:
+    return {"collimator_focal_length": g.collimator_focal_length_sigma,
+            "collimator_k1": g.collimator_k1_sigma,
+            "screen_shift_x": g.screen_shift_sigma_mm * 1e-3,
+            "screen_shift_y": g.screen_shift_sigma_mm * 1e-3,
+            "screen_tilt_x": math.radians(g.screen_tilt_sigma_deg),
+            "screen_tilt_y": math.radians(g.screen_tilt_sigma_deg),
+            "screen_defocus": g.screen_defocus_sigma_mm * 1e-3}
+
+
+def _mean_nees_in_band(seeds, fit) -> tuple[float, float, float]:
+    nees = []
+    for s in seeds:
+        e, P = fit(s)
+        nees.append(float(e @ np.linalg.solve(P, e)))
+    n, k = len(nees), len(ESTIMATED)
+    lo, hi = chi2.ppf([0.025, 0.975], k * n) / n
+    return float(np.mean(nees)), float(lo), float(hi)
+
+
+def test_covariance_covers_the_as_built_geometry_over_seeded_benches():
+    """Over 10 seeded benches with every departure drawn from its stated tolerance (screen
+    roll, camera roll and tilt and the camera's own departures included, which have no consider
+    counterpart), the mean NEES of the calibration error (7 dof) lies in its two-sided 95 %
+    chi-square band (false alarm 5 %). The dots are where the full nonlinear bench geometry
+    puts them, with Gaussian centroid noise: this checks the linear consider analysis and the
+    estimator against the truth geometry, not the image chain (the slow test below does).
+    Negative control: the same benches calibrated as if the collimator's focal length were
+    exact (left out of the consider parameters) are overconfident beyond the band (the focal
+    length is then known to the centroid noise, 0.01 %, and is off by the collimator's 0.1 %)."""
+    seeds = range(9600, 9610)
+    mean, lo, hi = _mean_nees_in_band(seeds, _fit_exact)
+    assert lo <= mean <= hi, (mean, lo, hi)
+    bad, _, _ = _mean_nees_in_band(seeds, lambda s: _fit_exact(s, ignore="collimator_focal"))
+    assert bad > hi, (bad, hi)
+
+
+def _fit_image(seed: int):
+    """One seeded as-built bench calibrated through the whole image chain (dots displayed,
+    acquired with the detector's noise, centroided and matched)."""
+    from starnav.calibration.intrinsics import draw_as_built
+
+    g = bench_from_dict({}).geometric
+    bench = Bench(bench_from_dict({"misalignment": draw_as_built(np.random.default_rng(seed), g),
+                                   "seed": seed}))
+    cal = calibrate_camera(bench).calibration
+    return cal.estimate - parameter_values(bench.camera, cal.parameters), cal.covariance
+
+
+@pytest.mark.slow
+def test_covariance_covers_the_error_through_the_image_chain_over_seeded_benches():
+    """As the seeded-bench test above, through the whole image chain (about 10 s a bench): the
+    mean NEES (7 dof) of 8 benches lies in its two-sided 95 % band (false alarm 5 %)."""
+    mean, lo, hi = _mean_nees_in_band(range(9610, 9618), _fit_image)
+    assert lo <= mean <= hi, (mean, lo, hi)

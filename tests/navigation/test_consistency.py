@@ -278,6 +278,10 @@ SHORT_ARC = ["trajectory.duration_days=0.25", "trajectory.cadence_s=7200", "rend
              "trajectory.forces.planets=[venus,mars,jupiter,saturn]",
              "trajectory.forces.srp=true", "trajectory.forces.j2=true"]
 RUNS = 20
+#: The per-epoch statistic on the short arc's 4 epochs: at least 3 inside their 95 % band (a
+#: consistent filter has 2 or fewer with probability 1 - 0.95^4 - 4 0.95^3 0.05 = 1.4 %, for
+#: independent epochs; correlated ones make it looser).
+PER_EPOCH_MIN = 0.75
 
 
 @pytest.fixture(scope="module")
@@ -324,13 +328,15 @@ def test_filter_with_tuned_bias_states_is_consistent_on_the_real_moon(demo_arc):
     planets, SRP and J2 the filter does not model), 20 runs over the terrain in view, detector
     noise, attitude knowledge and initial error, the bias states tuned on *other* arcs
     (tools/tune_bias_states.py -> the demo preset): NEES (time-averaged, effective-sample band)
-    and NIS inside their two-sided 99 % bands, no epoch above its per-epoch band; the paper's
+    and NIS inside their two-sided 99 % bands, no epoch above its per-epoch band and at least
+    3 of the 4 inside it (PER_EPOCH_MIN); the paper's
     HIL accuracy (final position error < 0.5 % of range, seed paper, HIL 0.015 ms); the
     3-sigma bounds hold the errors at their rate (99.73 % for a consistent filter; >= 97 %
     asked of 480 time-correlated samples)."""
     res = _consistency(*demo_arc, [])
     assert res["consistent"], (res["nees_mean"], res["band"])
     assert res["nees"]["epochs_above"] == 0.0, res["nees_per_step"]
+    assert res["nees"]["epochs_in_band"] >= PER_EPOCH_MIN, res["nees_per_step"]
     assert res["nees_position"]["verdict"] == "consistent", res["nees_position"]
     assert res["nis_band"][0] <= res["nis_mean"] <= res["nis_band"][1], res["nis_mean"]
     assert res["final_position_error_pct_range"]["median"] < 0.5
@@ -341,13 +347,15 @@ def test_filter_with_tuned_bias_states_is_consistent_on_the_real_moon(demo_arc):
 def test_filter_with_tuned_bias_states_is_consistent_at_7_7_ms(demo_arc):
     """Issue 13 (CI): the paper's saturated 7.7 ms case on the same rendered frames (the demo's
     2048 DN segment threshold and its bias states, tuned on other arcs): consistent over 20
-    runs, and the paper's HIL result for it, final errors < 1 % (seed paper, 7.7 ms)."""
+    runs (time-averaged, and at least 3 of the 4 epochs inside their 95 % band), and the
+    paper's HIL result for it, final errors < 1 % (seed paper, 7.7 ms)."""
     from starnav.batch.presets import DEMO_EXPOSURE_OVERRIDES
 
     over = dict(DEMO_EXPOSURE_OVERRIDES)[7.7e-3]
     res = _consistency(*demo_arc, ["detector.exposure_time_s=0.0077", *over])
     assert res["consistent"], (res["nees_mean"], res["band"])
     assert res["nees"]["epochs_above"] == 0.0, res["nees_per_step"]
+    assert res["nees"]["epochs_in_band"] >= PER_EPOCH_MIN, res["nees_per_step"]
     assert res["final_position_error_pct_range"]["p90"] < 1.0
     assert res["within_3sigma"]["all"] >= 0.97, res["within_3sigma"]
 

@@ -207,20 +207,16 @@ class BenchGeometry:
         return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
     def screen_to_pixel(self, ji: ArrayLike) -> FloatArray:
-        """Pinhole pixel ``(..., 2)`` (no camera distortion) where screen pixels appear."""
-        v = self.screen_to_los(ji)
-        cam = self.camera
-        return np.stack([cam.fx * v[..., 0] / v[..., 2] + cam.cx,
-                         cam.fy * v[..., 1] / v[..., 2] + cam.cy], -1)
+        """Detector pixel ``(..., 2)`` where screen pixels appear, through the camera's own
+        distortion (the pinhole pixel for a camera without distortion)."""
+        return self.camera.project(self.screen_to_los(ji))
 
     def pixel_to_screen(self, uv: ArrayLike) -> FloatArray:
-        """Screen pixel ``(..., 2)`` seen at pinhole pixels ``uv`` (Newton inverse of
+        """Screen pixel ``(..., 2)`` seen at detector pixels ``uv`` (Newton inverse of
         :meth:`screen_to_pixel`; converges to :data:`INVERSE_TOL_PX`)."""
         uv = np.asarray(uv, float)
-        cam = self.camera
-        x = (uv[..., 0] - cam.cx) / cam.fx
-        y = (uv[..., 1] - cam.cy) / cam.fy
-        v = np.stack([x, y, np.ones_like(x)], -1) @ self.R_cam  # camera -> collimator
+        xy = self.camera.pixel_to_normalized(uv)
+        v = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], -1) @ self.R_cam  # -> collimator
         t = v[..., :2] / v[..., 2:3]
         r2 = (t * t).sum(-1)
         t = t / (1.0 + r2 * (self.k1 + self.k2 * r2))[..., None]
@@ -549,7 +545,8 @@ class Bench:
         """Per-axis sigma of the collimator spot + screen defocus at each pixel [camera px]."""
         cam = self.camera
         u, v = cam.pixel_grid()
-        los = np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones_like(u)], -1)
+        xy = cam.pixel_to_normalized(np.stack([u, v], -1))
+        los = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], -1)
         b = los @ self.geometry.R_cam
         theta = np.arctan2(np.hypot(b[..., 0], b[..., 1]), b[..., 2])
         s_spot = self.spot.sigma_at(theta)

@@ -184,9 +184,8 @@ class TrueMapping:
     geometry: BenchGeometry
 
     def screen_for_tangent(self, t: FloatArray) -> FloatArray:
-        cam = self.geometry.camera
         t = np.asarray(t, float)
-        uv = np.stack([cam.fx * t[..., 0] + cam.cx, cam.fy * t[..., 1] + cam.cy], -1)
+        uv = self.geometry.camera.project(np.concatenate([t, np.ones(t.shape[:-1] + (1,))], -1))
         return self.geometry.pixel_to_screen(uv)
 
     def tangent_for_screen(self, ji: FloatArray) -> FloatArray:
@@ -379,7 +378,11 @@ def match_points(observed: ArrayLike, predicted: ArrayLike, spacing: float,
     pred = np.asarray(predicted, float).reshape(-1, 2)
     if len(obs) == 0 or len(pred) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    # 1. global shift by a vote over every pairwise offset
+    # 1. global shift by a vote over every pairwise offset. The offsets of a periodic grid pile
+    # up at every lattice vector; the right one has the most pairs (a wrong one loses a row or
+    # a column at the grid's edge), but only if each peak is counted whole: a rotation or a
+    # distortion spreads a peak over a good part of a spacing, so the vote sums boxes half a
+    # spacing wide, not a few bins (which picks a lattice neighbour at random)
     d = (obs[:, None, :] - pred[None, :, :]).reshape(-1, 2)
     d = d[np.all(np.abs(d) <= max_shift, axis=1)]
     shift = np.zeros(2)
@@ -388,10 +391,11 @@ def match_points(observed: ArrayLike, predicted: ArrayLike, spacing: float,
         nb = int(math.ceil(2 * max_shift / b))
         hist, xe, ye = np.histogram2d(d[:, 0], d[:, 1], bins=nb,
                                       range=[[-max_shift, max_shift]] * 2)
-        hist = ndimage.uniform_filter(hist, 3, mode="constant")
+        box = 2 * max(1, int(round(spacing / (4.0 * b)))) + 1
+        hist = ndimage.uniform_filter(hist, box, mode="constant")
         ix, iy = np.unravel_index(int(np.argmax(hist)), hist.shape)
         centre = np.array([(xe[ix] + xe[ix + 1]) / 2, (ye[iy] + ye[iy + 1]) / 2])
-        near = np.linalg.norm(d - centre, axis=1) < 2.0 * b
+        near = np.all(np.abs(d - centre) < spacing / 4.0, axis=1)
         shift = np.median(d[near], axis=0) if np.any(near) else centre
 
     def mutual(p: FloatArray, gate: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:

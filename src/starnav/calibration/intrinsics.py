@@ -15,12 +15,17 @@ Technique
    estimate.
 4. Covariance ``(J^T W J)^-1``.
 5. Consider parameters (:data:`CONSIDER`: the collimator's focal length and distortion, the
-   screen's shift, tilt and defocus) added as ``S C S^T``, not estimated.
+   screen's shift, tilt and defocus), not estimated: the estimate's response to them, from
+   the bench model moved by each (and each pair) at 1 sigma, is fitted as a quadratic (a
+   tilted screen's is not linear at its tolerance) whose second moment over Gaussian
+   departures is added to the covariance.
 
 References
 ----------
 B. D. Tapley, B. E. Schutz and G. H. Born, *Statistical Orbit Determination*, Elsevier (2004),
 ch. 6.3 (consider covariance).
+A. M. Mathai and S. B. Provost, *Quadratic Forms in Random Variables*, Dekker (1992), ch. 3
+(moments of quadratic forms in Gaussian variables).
 
 Index
 -----
@@ -215,15 +220,35 @@ def estimate_camera(nominal: Camera, geometry: BenchGeometry, screen_px: FloatAr
     J = jac(lambda q: residual(q, d_nom, sigma_px), z)          # whitened, scaled
     info = J.T @ J
     cov_z = np.linalg.inv(info)
-    # consider parameters: collimator focal length (relative) and radial distortion
-    sens = [np.zeros(n_par)]
-    for name, sig in consider.items():
-        h = 1e-3 * sig
-        dr = (residual(z, _directions(_perturbed(geometry, name, h), s), sigma_px)
-              - residual(z, _directions(_perturbed(geometry, name, -h), s), sigma_px)) / 2e-3
-        sens.append(-cov_z @ J.T @ dr)                            # dz per 1-sigma
-    S = np.stack(sens, -1)
-    cov_c_z = S @ S.T
+    # consider parameters (step 5): the estimate's response to the bench's departures, through
+    # the full bench model at 1 sigma, as a quadratic in the standardised departures u (a
+    # tilted screen's response is not linear at its tolerance, and two tilts interact):
+    # dz(u) = L u + u^T Q u / 2, from dz at +-u_i and at u_i + u_j
+    r0 = residual(z, d_nom, sigma_px)
+    names = list(consider)
+
+    def response(u: dict[str, float]) -> FloatArray:
+        g = geometry
+        for name, ui in u.items():
+            g = _perturbed(g, name, ui * consider[name])
+        return -cov_z @ J.T @ (residual(z, _directions(g, s), sigma_px) - r0)
+
+    m = len(names)
+    L = np.zeros((n_par, m))
+    Q = np.zeros((m, m, n_par))
+    for i, a in enumerate(names):
+        plus, minus = response({a: 1.0}), response({a: -1.0})
+        L[:, i] = (plus - minus) / 2.0
+        Q[i, i] = plus + minus
+    for i, a in enumerate(names):
+        for j in range(i + 1, m):
+            both = response({a: 1.0, names[j]: 1.0})
+            Q[i, j] = Q[j, i] = both - L[:, i] - L[:, j] - (Q[i, i] + Q[j, j]) / 2.0
+    # second moment over Gaussian departures u ~ N(0, I): L L^T + mean mean^T + the variance
+    # of the quadratic part, Var(u^T A u / 2, u^T B u / 2) = tr(A B) / 2
+    mean = 0.5 * np.einsum("iik->k", Q)
+    q = Q.reshape(m * m, n_par)
+    cov_c_z = L @ L.T + np.outer(mean, mean) + 0.5 * q.T @ q
     D = np.diag(scale)
     k = len(ESTIMATED)
     cov_noise = (D @ (0.5 * (cov_z + cov_z.T)) @ D)[:k, :k]
