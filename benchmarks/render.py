@@ -62,11 +62,12 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from starnav.bodies.mesh import icosphere_mesh
+from starnav.bodies.model import TargetModel
 from starnav.camera import Camera
 from starnav.config import scenario_from_dict
 from starnav.geometry import static_geometry
-from starnav.renderer.render import MoonModel, MoonRenderer, RenderSettings, moon_bounding_box
-from starnav.renderer.scene import icosphere_mesh
+from starnav.renderer.render import MoonRenderer, RenderSettings, moon_bounding_box
 from starnav.simulate import renderer_from_scenario
 from starnav.spectra import sensor_response, solar_spectrum
 
@@ -87,7 +88,7 @@ def make_renderer(shape: str, fused: bool, quantum_px: float | None = None) -> M
         r.settings = dataclasses.replace(r.settings, **extra)
         return r
     mesh = icosphere_mesh(1737.4e3, 7) if shape == "mesh" else None
-    moon = MoonModel(shape=shape, mesh=mesh, model="hapke")
+    moon = TargetModel(shape=shape, mesh=mesh, model="hapke")
     return MoonRenderer(cam, sensor_response(), solar_spectrum(), moon,
                         RenderSettings(spp=16, **extra))
 
@@ -232,10 +233,10 @@ def cycles_scene(res: dict, path: str, spp: int = 16) -> None:
     mesh, albedo = surf
     poses, positions, suns = [], [], []
     for g in res["geoms"]:
-        R_moon = g.R_moon_to_inertial
-        poses.append(R_moon.T @ g.R_cam_to_inertial)
-        positions.append(R_moon.T @ g.camera_position / 1e3)
-        suns.append(R_moon.T @ g.sun_direction)  # the frame is Moon-centred
+        R_body = g.R_body_to_inertial
+        poses.append(R_body.T @ g.R_cam_to_inertial)
+        positions.append(R_body.T @ g.camera_position / 1e3)
+        suns.append(R_body.T @ g.sun_direction)  # the frame is Moon-centred
     ox, oy = principal_point_offsets(cam)
     # Blender's shift moves the frustum (units: the wider side); its y axis points up
     np.savez(path, vertices_km=mesh.vertices / 1e3, faces=mesh.faces, normals=mesh.normals,
@@ -271,7 +272,7 @@ def miss_cost(frames: int, place: tuple[float, float]) -> None:
     for crop in (True, False):
         cam = Camera.preset("aa-str")
         r = MoonRenderer(cam, sensor_response(), solar_spectrum(),
-                         MoonModel(shape="sphere", model="hapke"),
+                         TargetModel(shape="sphere", model="hapke"),
                          RenderSettings(spp=16, crop=crop,
                                         **({"adaptive": False} if _HAS_ADAPTIVE else {})))
         ts = []

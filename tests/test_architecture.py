@@ -120,6 +120,25 @@ def test_cli_is_imported_by_nothing():
     assert not users, f"starnav.cli imported by {users}"
 
 
+#: Units that stay below others within a layer: never import them, directly or through a third
+#: unit. The target body is the data model the renderer draws (shape, photometry, spin).
+BELOW = {"bodies": {"renderer"}}
+
+
+def _above_reached(g: Graph) -> list[tuple[str, str]]:
+    """``(unit, unit above it)`` for every :data:`BELOW` pair the graph reaches upwards."""
+    return sorted((a, b) for a, above in BELOW.items() for b in above if b in g.descendants(a))
+
+
+def test_the_body_is_below_the_renderer():
+    g = _graph()
+    assert g.has_edge("renderer", "bodies"), "the renderer draws the body's model"
+    assert not _above_reached(g), f"imports that run back up: {_above_reached(g)}"
+    # the check sees a direct import of the renderer from bodies, and one through a third unit
+    assert _above_reached(Graph(g.edges | {("bodies", "renderer")}, set(g.nodes)))
+    assert _above_reached(Graph(g.edges | {("bodies", "show")}, set(g.nodes)))
+
+
 def test_the_graph_is_read():
     """The checks above see real edges, and the cycle finder finds a cycle that is there (a
     parser that found nothing would pass them)."""

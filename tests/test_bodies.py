@@ -47,7 +47,7 @@ def test_ellipsoid_mesh_is_on_the_ellipsoid_with_exact_normals():
 
 
 def test_the_moon_body_matches_its_section():
-    from starnav.renderer.schema import MoonConfig
+    from starnav.bodies.schema import MoonConfig
 
     moon = Moon(MoonConfig(shape="sphere", radius_km=1737.4))
     assert moon.radii_m == (1737400.0,) * 3 and moon.reference_radius_m == 1737400.0
@@ -78,7 +78,7 @@ def test_a_rotated_triaxial_body_renders_with_its_exact_limb():
     pos = 4000.0 * view
     geom = FrameGeometry(camera_position=pos, R_cam_to_inertial=look_rotation(
         np.array([0.0, 0.0, 1.0]), -view), sun_position=1.496e11 * view,
-        R_moon_to_inertial=R_body, moon_radius=body.reference_radius_m)
+        R_body_to_inertial=R_body, body_radius=body.reference_radius_m)
     renderer = MoonRenderer(cam, sensor_response_from_config(SensorResponseConfig()),
                             solar_spectrum_from_config(SunConfig()), body.render_model(),
                             RenderSettings(spp=4))
@@ -124,7 +124,7 @@ def test_a_small_body_scenario_goes_through_the_same_chain():
     assert isinstance(body, TriaxialBody) and body.radii_m == (267.5, 147.0, 104.5)
     sim = Simulator(sc)
     geom, img = sim.render(0)
-    assert geom.moon_radius == 267.5 and 3000 < img.mask.sum() < 6000
+    assert geom.body_radius == 267.5 and 3000 < img.mask.sum() < 6000
     acq, frame = sim.observe(img, geom)
     assert acq.plan_status == "ok" and 0 < acq.segments_exposure.dn.max() < 4095
     chain = chain_options(sc)

@@ -90,7 +90,7 @@ def test_a_map_whose_quantity_does_not_fit_the_model_is_an_error():
 
 
 def test_hapke_map_above_the_reachable_albedo_is_refused_before_rendering(tmp_path):
-    from starnav.simulate import moon_model_from_scenario
+    from starnav.simulate import target_model_from_scenario
 
     path = tmp_path / "a.npy"
     np.save(path, np.full((8, 16), 0.9))
@@ -99,4 +99,4 @@ def test_hapke_map_above_the_reachable_albedo_is_refused_before_rendering(tmp_pa
     a_max = ph.normal_albedo("hapke", 1.0, **sc.moon.photometry.resolved_params())
     assert a_max < 1.8  # no Hapke surface with these parameters is that bright
     with pytest.raises(ConfigError, match=r"moon\.albedo\.path.*hapke_w > 1"):
-        moon_model_from_scenario(sc)
+        target_model_from_scenario(sc)

@@ -176,8 +176,8 @@ def _view(distance, view, R_body, phase_deg, sun_axis, radius):
     sun = math.cos(g) * view + math.sin(g) * np.cross(axis, view)
     return FrameGeometry(camera_position=distance * view,
                          R_cam_to_inertial=look_rotation(np.array([0.0, 0.0, 1.0]), -view),
-                         sun_position=1.496e11 * sun, R_moon_to_inertial=R_body,
-                         moon_radius=radius)
+                         sun_position=1.496e11 * sun, R_body_to_inertial=R_body,
+                         body_radius=radius)
 
 
 def test_lambert_ellipsoid_mesh_body_matches_the_exact_ellipsoid(tmp_path):
@@ -250,7 +250,7 @@ def test_lambert_ellipsoid_mesh_body_matches_the_exact_ellipsoid(tmp_path):
 def _projected_facets_mask(cam, geom, shape):
     """Pixel centres covered by any projected facet of ``shape`` (point-in-triangle on the
     undistorted pinhole projection): the silhouette of the mesh, computed without Mitsuba."""
-    R_cb = geom.R_cam_to_inertial.T @ geom.R_moon_to_inertial
+    R_cb = geom.R_cam_to_inertial.T @ geom.R_body_to_inertial
     v_cam = (R_cb @ shape.vertices.T).T + geom.moon_centre_camera()
     uv = cam.project(v_cam, distort=False)
     mask = np.zeros((cam.height, cam.width), bool)

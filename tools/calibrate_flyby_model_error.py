@@ -179,7 +179,7 @@ def silhouette_truth(sim: Simulator, body
         g = sim.geometry(i)
         R = g.R_cam_to_inertial
         placed = BodyInCamera.place(body.shape.vertices, body.shape.faces,
-                                    R.T @ g.R_moon_to_inertial, R.T @ (-g.camera_position))
+                                    R.T @ g.R_body_to_inertial, R.T @ (-g.camera_position))
         s = lit_silhouette(placed, R.T @ sun, sim.camera)
         cen.append(s.centroid_uv)
         rad.append(s.radius_px)

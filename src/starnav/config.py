@@ -27,18 +27,13 @@ import yaml
 from pydantic import Field
 
 from starnav.atomic import atomic_write_text
-from starnav.bodies.schema import TargetConfig
+from starnav.bodies.schema import AlbedoMapConfig, MoonConfig, PhotometryConfig, TargetConfig
 from starnav.camera import CameraConfig, camera_from_config
 from starnav.config_base import StrictModel, apply_overrides, model_from_mapping, read_yaml_file
 from starnav.detector.schema import DetectorConfig
 from starnav.geometry import StaticGeometryConfig
 from starnav.navigation.schema import NavigationConfig
-from starnav.renderer.schema import (
-    AlbedoMapConfig,
-    MoonConfig,
-    PhotometryConfig,
-    RenderConfig,
-)
+from starnav.renderer.schema import RenderConfig
 from starnav.scenes.schema import PointingConfig, SpacecraftConfig, TrajectoryConfig
 from starnav.spectra import SensorResponseConfig, SunConfig
 from starnav.stars.schema import StarsConfig

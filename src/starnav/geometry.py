@@ -8,8 +8,10 @@ Frames and units
   ``v_inertial = R_cam_to_inertial @ v_camera``. Attitudes are stored as rotation matrices;
   where a quaternion is needed, :func:`quat_xyzw_from_matrix` gives it **scalar-last**
   ``(x, y, z, w)`` (the type name says so).
-* ``R_moon_to_inertial`` maps Moon body-fixed vectors (selenographic: +x towards lon 0 on the
-  equator, +z north pole) to inertial.
+* ``R_body_to_inertial`` maps the target body's body-fixed vectors to inertial (the Moon's:
+  selenographic, +x towards lon 0 on the equator, +z north pole).
+* ``body_radius`` is the target body's reference sphere (the Moon's, or a small body's largest
+  semi-axis).
 
 :func:`static_geometry` builds one frame from a range, a phase angle and the Moon's offset in the
 field (the ``geometry`` section of a scenario), with no trajectory or ephemeris.
@@ -48,16 +50,16 @@ class FrameGeometry:
         True attitude, camera to inertial.
     sun_position : (3,) array
         Sun position relative to the Moon centre [m].
-    R_moon_to_inertial : (3, 3) array
-        Moon body-fixed to inertial.
+    R_body_to_inertial : (3, 3) array
+        Target body-fixed to inertial.
     epoch_tdb : float
         Epoch [TDB s past J2000] (0 for static frames).
     camera_velocity : (3,) array
         Camera velocity relative to the Moon [m/s].
     R_cam_to_inertial_measured : (3, 3) array or None
         Attitude as known on board (true attitude plus knowledge error), for navigation.
-    moon_radius : float
-        Reference sphere radius [m].
+    body_radius : float
+        Reference sphere radius of the target body [m].
     index : int
         Frame number in its sequence.
     camera_state_emb : (6,) array or None
@@ -71,11 +73,11 @@ class FrameGeometry:
     camera_position: FloatArray
     R_cam_to_inertial: FloatArray
     sun_position: FloatArray
-    R_moon_to_inertial: FloatArray = field(default_factory=lambda: np.eye(3))
+    R_body_to_inertial: FloatArray = field(default_factory=lambda: np.eye(3))
     epoch_tdb: float = 0.0
     camera_velocity: FloatArray = field(default_factory=lambda: np.zeros(3))
     R_cam_to_inertial_measured: FloatArray | None = None
-    moon_radius: float = MOON_RADIUS
+    body_radius: float = MOON_RADIUS
     index: int = 0
     camera_state_emb: FloatArray | None = None
     earth_position: FloatArray | None = None
@@ -96,7 +98,7 @@ class FrameGeometry:
             if a.shape != (3,) or not np.all(np.isfinite(a)):
                 raise GeometryError(f"{name} must be a finite 3-vector, got {a!r}")
             object.__setattr__(self, name, a)
-        for name in ("R_cam_to_inertial", "R_moon_to_inertial", "R_cam_to_inertial_measured"):
+        for name in ("R_cam_to_inertial", "R_body_to_inertial", "R_cam_to_inertial_measured"):
             R = getattr(self, name)
             if R is None:
                 continue
@@ -106,10 +108,10 @@ class FrameGeometry:
                 raise GeometryError(f"{name} must be a proper rotation matrix, got {R!r}")
             object.__setattr__(self, name, R)
         r = float(np.linalg.norm(self.camera_position))
-        if r <= self.moon_radius:
+        if r <= self.body_radius:
             raise GeometryError(
                 f"geometry.camera_position: observer at {r / 1e3:.3f} km from the Moon centre is "
-                f"inside the Moon (radius {self.moon_radius / 1e3:.1f} km); expected a range > "
+                f"inside the Moon (radius {self.body_radius / 1e3:.1f} km); expected a range > "
                 "the Moon radius"
             )
 
@@ -145,7 +147,7 @@ class FrameGeometry:
     @property
     def apparent_radius(self) -> float:
         """Angular radius of the Moon seen from the camera, ``asin(R / d)`` [rad]."""
-        return math.asin(self.moon_radius / self.range)
+        return math.asin(self.body_radius / self.range)
 
     def moon_centre_camera(self) -> FloatArray:
         """Moon centre in the camera frame [m]."""
@@ -167,7 +169,7 @@ class FrameGeometry:
         """
         c = -self.camera_position  # Moon centre relative to camera (inertial)
         d = np.linalg.norm(c)
-        R = self.moon_radius
+        R = self.body_radius
         ch = c / d
         # tangency circle: centre at distance (d^2 - R^2)/d along ch, radius R sqrt(d^2-R^2)/d
         a = _unit(np.cross(ch, [0.0, 0.0, 1.0] if abs(ch[2]) < 0.9 else [1.0, 0.0, 0.0]))
@@ -255,7 +257,7 @@ def static_geometry(
     sub_observer_lat: float = 0.0,
     sub_observer_lon: float = 0.0,
     sun_distance: float = AU,
-    moon_radius: float = MOON_RADIUS,
+    body_radius: float = MOON_RADIUS,
 ) -> FrameGeometry:
     """One frame from a range [m], a phase angle [rad] and the Moon centre's pixel offset.
 
@@ -265,10 +267,10 @@ def static_geometry(
     towards north. The attitude puts the Moon centre at ``(cx + du, cy + dv)`` in the pinhole
     image, north up before ``roll``.
     """
-    if not (math.isfinite(range_m) and range_m > moon_radius):
+    if not (math.isfinite(range_m) and range_m > body_radius):
         raise GeometryError(
             f"geometry.range_km = {range_m / 1e3!r}: the observer is inside the Moon; expected "
-            f"a range > {moon_radius / 1e3:.1f} km"
+            f"a range > {body_radius / 1e3:.1f} km"
         )
     if not (0.0 <= phase_angle <= math.pi):
         raise GeometryError(
@@ -289,7 +291,7 @@ def static_geometry(
         camera_position=cam_pos,
         R_cam_to_inertial=R,
         sun_position=sun_distance * s_hat,
-        moon_radius=moon_radius,
+        body_radius=body_radius,
     )
     return geom
 
@@ -321,7 +323,7 @@ class StaticGeometryConfig(StrictModel):
 
 
 def static_geometry_from_config(camera: Camera, cfg: StaticGeometryConfig,
-                                moon_radius: float) -> FrameGeometry:
+                                body_radius: float) -> FrameGeometry:
     """:func:`static_geometry` from a :class:`StaticGeometryConfig`."""
     si = cfg.to_si()
     return static_geometry(
@@ -334,12 +336,16 @@ def static_geometry_from_config(camera: Camera, cfg: StaticGeometryConfig,
         sub_observer_lat=si.sub_observer_lat,
         sub_observer_lon=si.sub_observer_lon,
         sun_distance=si.sun_distance,
-        moon_radius=moon_radius,
+        body_radius=body_radius,
     )
 
 
 def geometry_to_dict(g: FrameGeometry) -> dict:
-    """JSON-safe dict of a frame's geometry and derived truth (SI, Moon-centred inertial)."""
+    """JSON-safe dict of a frame's geometry and derived truth (SI, Moon-centred inertial).
+
+    The keys are the file format's (dataset ``truth.json``, EXR metadata): ``R_moon_to_inertial``
+    and ``moon_radius_m`` hold :attr:`FrameGeometry.R_body_to_inertial` and
+    :attr:`FrameGeometry.body_radius`, whatever the body."""
     d = {
         "index": g.index,
         "epoch_tdb_s": g.epoch_tdb,
@@ -348,8 +354,8 @@ def geometry_to_dict(g: FrameGeometry) -> dict:
         "R_cam_to_inertial": g.R_cam_to_inertial.tolist(),
         "q_cam_to_inertial_xyzw": quat_xyzw_from_matrix(g.R_cam_to_inertial).tolist(),
         "sun_position_m": g.sun_position.tolist(),
-        "R_moon_to_inertial": g.R_moon_to_inertial.tolist(),
-        "moon_radius_m": g.moon_radius,
+        "R_moon_to_inertial": g.R_body_to_inertial.tolist(),
+        "moon_radius_m": g.body_radius,
         "range_m": g.range,
         "phase_angle_rad": g.phase_angle,
         "apparent_radius_rad": g.apparent_radius,
@@ -372,11 +378,11 @@ def geometry_from_dict(d: dict) -> FrameGeometry:
         camera_position=np.array(d["camera_position_m"]),
         R_cam_to_inertial=np.array(d["R_cam_to_inertial"]),
         sun_position=np.array(d["sun_position_m"]),
-        R_moon_to_inertial=np.array(d["R_moon_to_inertial"]),
+        R_body_to_inertial=np.array(d["R_moon_to_inertial"]),
         epoch_tdb=float(d["epoch_tdb_s"]),
         camera_velocity=np.array(d["camera_velocity_m_s"]),
         R_cam_to_inertial_measured=None if meas is None else np.array(meas),
-        moon_radius=float(d["moon_radius_m"]),
+        body_radius=float(d["moon_radius_m"]),
         index=int(d["index"]),
         camera_state_emb=None if emb is None else np.array(emb),
         earth_position=None if earth is None else np.array(earth),

@@ -13,7 +13,7 @@ channel    unit                    meaning
 ``incidence emission phase`` rad   photometric angles at the pixel-centre surface point
 ``mask``   -                       1 where the pixel-centre ray hits the Moon, else 0
 ``x_body y_body z_body`` m         surface point in the body-fixed frame (shape-model
-                                   bodies only: ``MoonModel.body_fixed_aovs``)
+                                   bodies only: ``TargetModel.body_fixed_aovs``)
 ========== ======================= =====================================================
 
 AOV channels hold the values at the pixel-centre ray (no averaging across the limb). Header

@@ -34,8 +34,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from starnav.atomic import atomic_path
+from starnav.bodies.mesh import icosphere_mesh
 from starnav.errors import ConfigError, StarnavError
-from starnav.renderer.scene import icosphere_mesh
 from starnav.simulate import scene_from_scenario
 from starnav.typing import FloatArray
 
@@ -309,7 +309,7 @@ def layout_scene(scene: Any, *, frusta: int = 8, frustum_fraction: float = 1.0,
     idx = sorted({int(round(k)) for k in np.linspace(0, n - 1, min(frusta, n))})
     geoms = [scene.geometry(i) for i in idx]
     mid = scene.geometry(n // 2)
-    R = mid.moon_radius / 1e3
+    R = mid.body_radius / 1e3
     fr = [frustum_corners(g, scene.camera, g.range / 1e3 * frustum_fraction) for g in geoms]
     observers = np.array([g.camera_position for g in geoms]) / 1e3
     path = earth = None

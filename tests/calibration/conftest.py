@@ -75,12 +75,13 @@ def calibration_result(misaligned_bench):
 
 def _render(camera: Camera, range_m: float, albedo_scale: float = 1.0, seed: int = 1,
             offset=(0.0, 0.0)):
+    from starnav.bodies.model import TargetModel
     from starnav.geometry import static_geometry
-    from starnav.renderer.render import MoonModel, MoonRenderer, RenderSettings
+    from starnav.renderer.render import MoonRenderer, RenderSettings
     from starnav.spectra import sensor_response, solar_spectrum
 
     r = MoonRenderer(camera, sensor_response(), solar_spectrum(),
-                     MoonModel(model="lambert", albedo=0.12, albedo_scale=albedo_scale),
+                     TargetModel(model="lambert", albedo=0.12, albedo_scale=albedo_scale),
                      RenderSettings(spp=16, variants=("llvm_ad_spectral", "scalar_spectral")))
     g = static_geometry(camera, range_m, math.radians(30.0), offset)
     return r.render(g, seed=seed), g

@@ -41,7 +41,7 @@ def test_drawn_limbs_lie_on_the_conic(small_dataset):
     r = (MOON_RADIUS,) * 3
     for frame in ds:
         g = frame.truth
-        R_b2c = g.R_cam_to_inertial.T @ g.R_moon_to_inertial
+        R_b2c = g.R_cam_to_inertial.T @ g.R_body_to_inertial
         Q = limb_conic_pixels(cam, g.moon_centre_camera(), shape_transform(r, R_b2c))
         tru = true_limb_polyline(cam, g, r)
         d = conic_signed_distance(Q, undistorted_pixels(cam, tru))

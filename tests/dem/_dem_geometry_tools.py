@@ -25,7 +25,7 @@ from starnav.dem.grid import body_to_selenographic
 
 
 def _project(camera, geom, pts_body):
-    pc = (geom.R_cam_to_inertial.T @ (pts_body @ geom.R_moon_to_inertial.T
+    pc = (geom.R_cam_to_inertial.T @ (pts_body @ geom.R_body_to_inertial.T
                                       - geom.camera_position).T).T
     return camera.project(pc, distort=False)
 
@@ -33,13 +33,13 @@ def _project(camera, geom, pts_body):
 def pixel_rays_body(camera, geom, uv):
     """Unit ray directions in the body frame for pixels ``uv`` (pinhole)."""
     rc = camera.unproject(uv, undistort=False)
-    return rc @ geom.R_cam_to_inertial.T @ geom.R_moon_to_inertial
+    return rc @ geom.R_cam_to_inertial.T @ geom.R_body_to_inertial
 
 
 def sphere_limb_radius(camera, geom, az, radius):
     """Exact limb distance [px] from the projected centre along azimuths ``az`` [rad]."""
     c_uv = geom.moon_centre_pixel(camera)
-    C = geom.R_moon_to_inertial.T @ geom.camera_position
+    C = geom.R_body_to_inertial.T @ geom.camera_position
     d = np.linalg.norm(C)
     cos_lim = math.sqrt(d * d - radius * radius) / d
     lo = np.zeros_like(az)
@@ -106,7 +106,7 @@ def heightfield_hits(dem, camera, geom, uv, step_m=200.0, height_offset=0.0):
     R = dem.reference_radius
     h_lo, h_hi = dem.height_range
     r_top = R + h_hi + max(height_offset, 0.0)
-    C = geom.R_moon_to_inertial.T @ geom.camera_position
+    C = geom.R_body_to_inertial.T @ geom.camera_position
     rays = pixel_rays_body(camera, geom, uv)
     b = rays @ C
     cc = C @ C - r_top * r_top

@@ -218,10 +218,10 @@ def _predicted_mask(cam: Camera, geom) -> np.ndarray:
     m = geom.moon_centre_camera()
     s = geom.sun_direction_camera()
     b = rays @ m
-    disc = b * b - (m @ m - geom.moon_radius**2)
+    disc = b * b - (m @ m - geom.body_radius**2)
     hit = disc > 0
     n = (rays * np.where(hit, b - np.sqrt(np.maximum(disc, 0.0)), 0.0)[..., None] - m)
-    n /= geom.moon_radius
+    n /= geom.body_radius
     mu0, mu = n @ s, -np.einsum("ijk,ijk->ij", rays, n)
     img = np.where(hit & (mu0 > 0) & (mu > 0), mu0 / np.maximum(mu0 + mu, 1e-12), 0.0)
     img[:DARK_TOP_ROWS] = 0.0
@@ -390,12 +390,12 @@ def test_frame_geometry_assembles_de421():
     g = frame_geometry(t, sc, R, index=3)
     np.testing.assert_array_equal(g.camera_position, -sc)
     np.testing.assert_allclose(g.sun_position, eph.state("sun", t, center="moon")[:3], rtol=1e-15)
-    np.testing.assert_allclose(g.R_moon_to_inertial, eph.moon_orientation(t, frame="ME"),
+    np.testing.assert_allclose(g.R_body_to_inertial, eph.moon_orientation(t, frame="ME"),
                                atol=1e-15)
-    assert g.epoch_tdb == t and g.index == 3 and g.moon_radius == 1737.4e3
+    assert g.epoch_tdb == t and g.index == 3 and g.body_radius == 1737.4e3
     gp = frame_geometry(t, sc, R, moon_frame="PA")
     # ME vs PA for DE421: (67.92", 78.56", 0.30") about z, y, x -> ~104" in all
-    assert _rotation_angle(g.R_moon_to_inertial, gp.R_moon_to_inertial) == pytest.approx(
+    assert _rotation_angle(g.R_body_to_inertial, gp.R_body_to_inertial) == pytest.approx(
         104.0 * ARCSEC, rel=0.01)
 
 

@@ -217,7 +217,7 @@ def test_inside_the_fit_range_is_silent(caplog):
 # --------------------------------------------------------------------------- geometry
 def _frame(camera_body, sun_body, R):
     return FrameGeometry(camera_position=R @ camera_body, R_cam_to_inertial=np.eye(3),
-                         sun_position=R @ sun_body, R_moon_to_inertial=R)
+                         sun_position=R @ sun_body, R_body_to_inertial=R)
 
 
 def _unit(lat, lon):
@@ -251,7 +251,7 @@ def test_geometry_with_a_rotated_moon():
     s = math.radians(30.0)
     geom = FrameGeometry(camera_position=[D_REF, 0.0, 0.0], R_cam_to_inertial=np.eye(3),
                          sun_position=[AU * math.cos(s), AU * math.sin(s), 0.0],
-                         R_moon_to_inertial=Rz)
+                         R_body_to_inertial=Rz)
     rg = rolo_geometry(geom)
     assert rg.obs_lon == pytest.approx(math.radians(-40.0), abs=ANGLE_TOL)
     assert rg.sun_lon == pytest.approx(math.radians(-10.0), abs=ANGLE_TOL)

@@ -7,9 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from starnav.bodies.model import TargetModel
 from starnav.camera import Camera
 from starnav.geometry import static_geometry
-from starnav.renderer.render import MoonModel, MoonRenderer, RenderSettings
+from starnav.renderer.render import MoonRenderer, RenderSettings
 from starnav.spectra import sensor_response, solar_spectrum
 
 LLVM_FIRST = ("llvm_ad_spectral", "scalar_spectral")
@@ -34,7 +35,7 @@ def require_jit(ran_jit: bool, what: str) -> None:
 
 def make_renderer(camera: Camera | None = None, spp: int = 16, variants=LLVM_FIRST, **moon):
     camera = camera or Camera.preset("aa-str")
-    return MoonRenderer(camera, sensor_response(), solar_spectrum(), MoonModel(**moon),
+    return MoonRenderer(camera, sensor_response(), solar_spectrum(), TargetModel(**moon),
                         RenderSettings(spp=spp, variants=tuple(variants)))
 
 

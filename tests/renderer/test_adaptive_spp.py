@@ -24,13 +24,13 @@ import numpy as np
 import pytest
 from scipy import ndimage, stats
 
+from starnav.bodies.model import TargetModel
 from starnav.camera import Camera
 from starnav.config import scenario_from_dict
 from starnav.errors import ConfigError
 from starnav.geometry import static_geometry
 from starnav.renderer.render import (
     ADAPTIVE_SPREAD,
-    MoonModel,
     MoonRenderer,
     RenderSettings,
     adaptive_sample_counts,
@@ -105,7 +105,7 @@ def test_sample_map_of_a_rendered_sphere():
     samples and exactly zero radiance; the metadata summarises the map."""
     cam = Camera.preset("aa-str", width=128, height=128)
     r = MoonRenderer(cam, sensor_response(), solar_spectrum(),
-                     MoonModel(model="lambert", albedo=0.12),
+                     TargetModel(model="lambert", albedo=0.12),
                      RenderSettings(spp=8, adaptive=True, interior_spp=2, variants=LLVM_FIRST))
     img = r.render(static_geometry(cam, 1.0e8, math.radians(60.0), (3.0, -2.0)), seed=3)
     require_jit(not img.meta["render"]["variant"].startswith("scalar"), "the adaptive render")
@@ -244,7 +244,7 @@ def test_the_scalar_variant_renders_spp_everywhere():
     accepted and every pixel of the crop gets ``spp``; the metadata has no ``adaptive`` summary."""
     cam = Camera.preset("aa-str", width=24, height=24)
     r = MoonRenderer(cam, sensor_response(), solar_spectrum(),
-                     MoonModel(model="lambert", albedo=0.12),
+                     TargetModel(model="lambert", albedo=0.12),
                      RenderSettings(spp=2, adaptive=True, interior_spp=1,
                                     variants=("scalar_spectral",)))
     img = r.render(static_geometry(cam, 4.0e8, math.radians(30.0), (0.0, 0.0)), seed=1)

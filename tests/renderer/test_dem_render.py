@@ -8,11 +8,11 @@ import math
 import numpy as np
 import pytest
 
+from starnav.bodies.mesh import BodyMesh
 from starnav.config import scenario_from_dict
 from starnav.dem.grid import DemGrid
 from starnav.dem.mesh import view_mesh
 from starnav.geometry import static_geometry
-from starnav.renderer.scene import MoonMesh
 
 from .conftest import exact_solid_angles, make_renderer
 
@@ -20,10 +20,10 @@ R_MOON = 1.7374e6
 
 
 def zero_dem_provider(camera, geom):
-    Rb = geom.R_moon_to_inertial.T
+    Rb = geom.R_body_to_inertial.T
     tm = view_mesh(DemGrid.zeros(1.0), camera, Rb @ geom.camera_position,
                    camera_to_body=Rb @ geom.R_cam_to_inertial)
-    return MoonMesh.from_trimesh(tm, key=tm)
+    return BodyMesh.from_trimesh(tm, key=tm)
 
 
 @pytest.mark.parametrize("offset", [(0.0, 0.0), (310.0, -260.0)])

@@ -20,10 +20,10 @@ import math
 import numpy as np
 import pytest
 
+from starnav.bodies.mesh import icosphere_mesh
 from starnav.camera import Camera
 from starnav.geometry import static_geometry
 from starnav.photometry import sphere_irradiance_quadrature
-from starnav.renderer.scene import icosphere_mesh
 
 from .conftest import exact_solid_angles, make_renderer
 

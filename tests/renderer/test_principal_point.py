@@ -59,7 +59,7 @@ def reference_radiance(camera: Camera, geom, n: int = SUPERSAMPLE) -> np.ndarray
     for dv in off:
         for du in off:
             rays = camera.unproject(np.stack([u + du, v + dv], -1), undistort=False)
-            hit, nrm = ray_sphere(rays, c, geom.moon_radius)
+            hit, nrm = ray_sphere(rays, c, geom.body_radius)
             out += np.where(hit, np.maximum(nrm @ s, 0.0), 0.0)
     return out / n**2
 
@@ -78,7 +78,7 @@ def test_off_centre_principal_point_puts_the_moon_where_the_camera_model_does(
 
     # pixel-centre rays of the camera model against the sphere: the AOV mask's definition
     rays = cam.unproject(np.stack(cam.pixel_grid(), -1), undistort=False)
-    exact_mask, _ = ray_sphere(rays, g.moon_centre_camera(), g.moon_radius)
+    exact_mask, _ = ray_sphere(rays, g.moon_centre_camera(), g.body_radius)
     assert 4000 < exact_mask.sum() < 6500 and not exact_mask[[0, -1]].any()
     assert int(np.sum(img.mask ^ exact_mask)) <= 2
     np.testing.assert_allclose(centroid(img.mask), centroid(exact_mask), atol=CENTROID_TOL_PX)

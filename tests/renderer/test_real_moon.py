@@ -121,7 +121,7 @@ def test_render_correlates_with_the_albedo_map(full_moon):
 def _project(sc, geom, lat_deg: float, lon_deg: float) -> np.ndarray:
     cam = build_camera(sc.camera)
     p_body = selenographic_to_body(math.radians(lat_deg), math.radians(lon_deg))
-    p_in = geom.R_moon_to_inertial @ p_body
+    p_in = geom.R_body_to_inertial @ p_body
     ray = geom.R_cam_to_inertial.T @ (p_in - geom.camera_position)
     return cam.project(ray[None, :])[0]
 

@@ -8,12 +8,13 @@ import math
 import numpy as np
 import pytest
 
+from starnav.bodies.mesh import icosphere_mesh
+from starnav.bodies.model import AlbedoMap
 from starnav.camera import Camera
 from starnav.config import scenario_from_dict
 from starnav.errors import ConfigError, DataFileError, GeometryError
 from starnav.geometry import static_geometry
-from starnav.renderer.render import AlbedoMap, moon_bounding_box
-from starnav.renderer.scene import icosphere_mesh
+from starnav.renderer.render import moon_bounding_box
 
 from .conftest import exact_solid_angles, make_renderer
 
@@ -187,7 +188,7 @@ def test_negative_albedo_and_unknown_model_rejected():
 def test_albedo_map_file_round_trip(tmp_path, aa_str):
     import imageio.v3 as iio
 
-    from starnav.renderer.render import load_albedo_map
+    from starnav.bodies.model import load_albedo_map
 
     arr = (np.linspace(0, 1, 64 * 32).reshape(32, 64) * 65535).astype(np.uint16)
     iio.imwrite(tmp_path / "a.png", arr)

@@ -43,11 +43,12 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from starnav.bodies.mesh import icosphere_mesh
+from starnav.bodies.model import AlbedoMap, TargetModel
 from starnav.camera import Camera
 from starnav.geometry import static_geometry
 from starnav.lunar_calibration import lunar_calibration
-from starnav.renderer.render import AlbedoMap, MoonModel, MoonRenderer, RenderSettings
-from starnav.renderer.scene import icosphere_mesh
+from starnav.renderer.render import MoonRenderer, RenderSettings
 from starnav.spectra import sensor_response, solar_spectrum
 
 from .conftest import require_jit
@@ -86,20 +87,20 @@ def _albedo_map() -> AlbedoMap:
                       + 0.02 * np.sin(2 * lat)).astype(np.float32), "synthetic")
 
 
-def _cases() -> dict[str, MoonModel]:
+def _cases() -> dict[str, TargetModel]:
     cal = lunar_calibration()
     return {
-        "lambert": MoonModel(shape="sphere", model="lambert", albedo=0.12),
-        "lommel_seeliger": MoonModel(shape="sphere", model="lommel_seeliger", albedo=0.25),
-        "lunar_lambert": MoonModel(shape="sphere", model="lunar_lambert", albedo=0.25),
-        "hapke": MoonModel(shape="sphere", model="hapke", albedo=0.25),
-        "hapke_smooth": MoonModel(shape="sphere", model="hapke", albedo=0.25,
+        "lambert": TargetModel(shape="sphere", model="lambert", albedo=0.12),
+        "lommel_seeliger": TargetModel(shape="sphere", model="lommel_seeliger", albedo=0.25),
+        "lunar_lambert": TargetModel(shape="sphere", model="lunar_lambert", albedo=0.25),
+        "hapke": TargetModel(shape="sphere", model="hapke", albedo=0.25),
+        "hapke_smooth": TargetModel(shape="sphere", model="hapke", albedo=0.25,
                                   params={"theta_bar_deg": 0.0, "bs0": 0.0}),
         # the real Moon's ingredients: calibrated Hapke, an albedo map, the ROLO colour
-        "hapke_map_colour": MoonModel(shape="sphere", model="hapke", albedo=_albedo_map(),
+        "hapke_map_colour": TargetModel(shape="sphere", model="hapke", albedo=_albedo_map(),
                                       params=dict(cal.hapke), spectral_shape=cal.spectral_shape(),
                                       calibrated=True),
-        "hapke_mesh": MoonModel(shape="mesh", model="hapke", albedo=0.25,
+        "hapke_mesh": TargetModel(shape="mesh", model="hapke", albedo=0.25,
                                 mesh=icosphere_mesh(1.7374e6, 5)),
     }
 
@@ -211,7 +212,7 @@ def _pair(shape: str, spp: int):
 
     def one(fused: bool) -> MoonRenderer:
         return MoonRenderer(cam, sensor_response(), solar_spectrum(),
-                            MoonModel(shape=shape, model="hapke", albedo=0.25, mesh=mesh),
+                            TargetModel(shape=shape, model="hapke", albedo=0.25, mesh=mesh),
                             RenderSettings(spp=spp, fused_loop=fused, adaptive=False,
                                            variants=("llvm_ad_spectral", "scalar_spectral")))
     return cam, one(True), one(False)

@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
+from starnav.bodies.mesh import icosphere_mesh
+from starnav.bodies.model import AlbedoMap
 from starnav.camera import Camera
 from starnav.config import build_camera, scenario_from_dict
 from starnav.geometry import static_geometry
-from starnav.renderer.render import AlbedoMap
-from starnav.renderer.scene import icosphere_mesh
 from starnav.simulate import frame_geometries, renderer_from_scenario
 
 from .conftest import make_renderer
@@ -61,7 +61,7 @@ def _cast(origin, dirs, v, f):
 def _pixel_rays(cam: Camera, g, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pixel-centre rays ``uv`` (n, 2) of frame ``g`` in the Moon's body frame: the camera
     centre and the unit directions (n, 3)."""
-    Rb = g.R_moon_to_inertial.T
+    Rb = g.R_body_to_inertial.T
     dirs = cam.unproject(uv, undistort=False) @ (Rb @ g.R_cam_to_inertial).T
     return Rb @ g.camera_position, dirs
 
@@ -120,7 +120,7 @@ def test_exported_albedo_renders_the_lambert_closed_form(exported):
     a = np.einsum("rk,rk->r", w, albedo[f])
     n = np.einsum("rk,rkj->rj", w, mesh.normals[f])
     n /= np.linalg.norm(n, axis=1, keepdims=True)
-    cos_i = n @ (g.R_moon_to_inertial.T @ g.sun_direction)
+    cos_i = n @ (g.R_body_to_inertial.T @ g.sun_direction)
     sel = inner.ravel() & (cos_i > 0.2)
     assert sel.sum() > 1000
     ref = a[sel] * img.meta["sun"]["band_irradiance_w_m2"] * cos_i[sel] / math.pi
@@ -149,8 +149,8 @@ def test_real_moon_view_mesh_export_is_the_rendered_surface():
     assert mesh.n_triangles > 5000 and albedo.shape == (len(mesh.vertices),)
     assert np.all(np.isfinite(albedo)) and 0.02 < np.median(albedo) < 0.5
 
-    R_cb = g.R_moon_to_inertial.T @ g.R_cam_to_inertial  # camera -> body
-    cam_b = g.R_moon_to_inertial.T @ g.camera_position  # camera centre, body frame
+    R_cb = g.R_body_to_inertial.T @ g.R_cam_to_inertial  # camera -> body
+    cam_b = g.R_body_to_inertial.T @ g.camera_position  # camera centre, body frame
     p_cam = (mesh.vertices - cam_b) @ R_cb  # vertices in the camera frame
     assert np.all(p_cam[:, 2] > 0)
     uv = cam.project(p_cam, distort=False)[mesh.faces]  # (faces, 3, 2)

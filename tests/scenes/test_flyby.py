@@ -129,7 +129,7 @@ def test_flyby_scene_truth_and_pointing():
         assert boresight @ to_body == pytest.approx(1.0, abs=1e-12)
         assert g.camera_state_emb is None
     R_ref = body_from_scenario(sc).orientation(scene.epochs)
-    assert np.allclose([g0.R_moon_to_inertial, g1.R_moon_to_inertial], R_ref)
+    assert np.allclose([g0.R_body_to_inertial, g1.R_body_to_inertial], R_ref)
     with pytest.raises(ConfigError, match="EMB-centred"):
         _ = scene.states_emb
 

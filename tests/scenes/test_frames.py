@@ -43,8 +43,8 @@ def test_frame_epochs_and_truth(scene, arc, eph):
         assert np.allclose(g.sun_position, sun[:3] - moon[:3], atol=1e-3)
         assert abs(g.sun_distance / AU - 1) < 0.035  # Earth orbit eccentricity 0.0167 + Moon
         assert 35_000 * KM < g.range < 90_000 * KM
-        assert np.allclose(g.R_moon_to_inertial, eph.moon_orientation(g.epoch_tdb), atol=0)
-        assert g.moon_radius == MOON_RADIUS
+        assert np.allclose(g.R_body_to_inertial, eph.moon_orientation(g.epoch_tdb), atol=0)
+        assert g.body_radius == MOON_RADIUS
         # measured attitude: true one off by a few tens of arcsec at most (5", 5", 40" 1-sigma)
         dR = g.R_cam_to_inertial.T @ g.R_cam_to_inertial_measured
         ang = math.acos(min(1.0, (np.trace(dR) - 1) / 2))
@@ -92,7 +92,7 @@ def test_static_scenario_gives_one_frame():
     scene = scene_from_scenario(sc)
     assert len(scene) == 1
     g = scene.geometry(0)
-    ref = static_geometry_from_config(scene.camera, sc.geometry, scene.moon_radius)
+    ref = static_geometry_from_config(scene.camera, sc.geometry, scene.body_radius)
     assert np.array_equal(g.camera_position, ref.camera_position)
     assert np.array_equal(g.R_cam_to_inertial, ref.R_cam_to_inertial)
     assert g.R_cam_to_inertial_measured is not None

@@ -1,11 +1,13 @@
-"""starnav.bodies: the target body a frame looks at, behind one interface.
+"""starnav.bodies: the target body a frame looks at, behind one interface, and the data model
+the renderer draws (:mod:`~starnav.bodies.model`, :mod:`~starnav.bodies.mesh`; the renderer
+imports this package, never the reverse).
 
 A :class:`~starnav.bodies.base.TargetBody` answers what the rest of starnav asks of the body:
 
 * **geometry** - its reference ellipsoid (``radii_m``: the navigation fix's shape and the limb
   truth), a bounding radius, and its orientation (body-fixed -> J2000) at given epochs;
 * **rendering** - :meth:`~starnav.bodies.base.TargetBody.render_model`: the renderer's
-  :class:`~starnav.renderer.render.MoonModel` (shape, photometric model and its albedo
+  :class:`~starnav.bodies.model.TargetModel` (shape, photometric model and its albedo
   parameter, colour), with every file it needs read before any frame is rendered;
 * **truth** - the limb of the reference ellipsoid (the navigation metrics' conic) and, for
   shape models, the surface points the renderer's AOVs report per pixel.
@@ -22,12 +24,22 @@ from __future__ import annotations
 
 from starnav.bodies.base import TargetBody, iau_orientation
 from starnav.bodies.ellipsoid import TriaxialBody, ellipsoid_mesh
+from starnav.bodies.mesh import BodyMesh, icosphere_mesh
+from starnav.bodies.model import AlbedoMap, TargetModel, load_albedo_map
 from starnav.bodies.moon import Moon, mean_normal_albedo
-from starnav.bodies.schema import EllipsoidConfig, ShapeModelConfig, TargetConfig
+from starnav.bodies.schema import (
+    AlbedoMapConfig,
+    EllipsoidConfig,
+    MoonConfig,
+    PhotometryConfig,
+    ShapeModelConfig,
+    TargetConfig,
+)
 from starnav.bodies.shape import ShapeModel, ShapeModelError, read_shape_model, shape_model_path
 from starnav.bodies.small_body import SMALL_BODY_FACTS, ShapeModelBody
 
-__all__ = ["SMALL_BODY_FACTS", "EllipsoidConfig", "Moon", "ShapeModel", "ShapeModelBody",
-           "ShapeModelConfig", "ShapeModelError", "TargetBody", "TargetConfig", "TriaxialBody",
-           "ellipsoid_mesh", "iau_orientation", "mean_normal_albedo", "read_shape_model",
-           "shape_model_path"]
+__all__ = ["SMALL_BODY_FACTS", "AlbedoMap", "AlbedoMapConfig", "BodyMesh", "EllipsoidConfig",
+           "Moon", "MoonConfig", "PhotometryConfig", "ShapeModel", "ShapeModelBody",
+           "ShapeModelConfig", "ShapeModelError", "TargetBody", "TargetConfig", "TargetModel",
+           "TriaxialBody", "ellipsoid_mesh", "icosphere_mesh", "iau_orientation",
+           "load_albedo_map", "mean_normal_albedo", "read_shape_model", "shape_model_path"]

@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from starnav.bodies.mesh import BodyMesh
+from starnav.bodies.model import TargetModel
 from starnav.constants import DAY
 from starnav.geometry import frame_rotation_x, frame_rotation_z
 from starnav.photometry import albedo_parameter
-from starnav.renderer.render import MoonModel
-from starnav.renderer.scene import MoonMesh
 from starnav.typing import FloatArray
 
 
@@ -79,8 +79,8 @@ class TargetBody(ABC):
         scene's :class:`~starnav.scenes.ephemeris.Ephemeris` where the body needs one."""
 
     @abstractmethod
-    def render_model(self) -> Any:
-        """The renderer's :class:`~starnav.renderer.render.MoonModel` of this body (files read
+    def render_model(self) -> TargetModel:
+        """The renderer's :class:`~starnav.bodies.model.TargetModel` of this body (files read
         here, so that a bad one is reported before any frame is rendered)."""
 
     def describe(self) -> dict[str, Any]:
@@ -88,8 +88,8 @@ class TargetBody(ABC):
         return {"name": self.name, "radii_m": list(self.radii_m)}
 
 
-def mesh_render_model(photometry: Any, normal_albedo: float, radius: float, mesh: MoonMesh,
-                      body_fixed_aovs: bool = False) -> MoonModel:
+def mesh_render_model(photometry: Any, normal_albedo: float, radius: float, mesh: BodyMesh,
+                      body_fixed_aovs: bool = False) -> TargetModel:
     """The renderer's model of a body given as a mesh: its photometric model (a
     ``PhotometryConfig``) with the model's albedo parameter reached from the body's normal
     albedo (``target.albedo``), a bounding ``radius`` [m] and the facets."""
@@ -97,5 +97,5 @@ def mesh_render_model(photometry: Any, normal_albedo: float, radius: float, mesh
     params = photometry.resolved_params()
     albedo = float(albedo_parameter(normal_albedo, "normal_albedo", model, params,
                                     "target.albedo"))
-    return MoonModel("mesh", radius=radius, model=model, params=params, albedo=albedo,
+    return TargetModel("mesh", radius=radius, model=model, params=params, albedo=albedo,
                      mesh=mesh, body_fixed_aovs=body_fixed_aovs)

@@ -18,19 +18,19 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from starnav.bodies.base import FloatArray, TargetBody, iau_orientation, mesh_render_model
+from starnav.bodies.mesh import BodyMesh, icosphere_mesh
+from starnav.bodies.model import TargetModel
 from starnav.bodies.schema import EllipsoidConfig
-from starnav.renderer.render import MoonModel
-from starnav.renderer.scene import MoonMesh, icosphere_mesh
 
 
-def ellipsoid_mesh(radii_m: tuple[float, float, float], subdivisions: int) -> MoonMesh:
+def ellipsoid_mesh(radii_m: tuple[float, float, float], subdivisions: int) -> BodyMesh:
     """Geodesic mesh of the ellipsoid ``radii_m`` [m] with its exact surface normals."""
     unit = icosphere_mesh(1.0, subdivisions)
     r = np.asarray(radii_m, float)
     v = unit.vertices * r
     n = v / r**2
     n /= np.linalg.norm(n, axis=1, keepdims=True)
-    return MoonMesh(v, unit.faces, n, None)
+    return BodyMesh(v, unit.faces, n, None)
 
 
 class TriaxialBody(TargetBody):
@@ -52,7 +52,7 @@ class TriaxialBody(TargetBody):
                             math.radians(c.rotation_deg_per_day))
         return np.asarray(R)
 
-    def render_model(self) -> MoonModel:
+    def render_model(self) -> TargetModel:
         c = self.config
         return mesh_render_model(c.photometry, c.albedo, self.reference_radius_m,
                                  ellipsoid_mesh(self.radii_m, c.mesh_subdivisions))

@@ -36,6 +36,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from starnav.bodies.base import FloatArray, TargetBody, iau_orientation, mesh_render_model
+from starnav.bodies.mesh import BodyMesh
+from starnav.bodies.model import TargetModel
 from starnav.bodies.schema import ShapeModelConfig
 from starnav.bodies.shape import (
     PACKAGED_SHAPE_MODELS,
@@ -45,8 +47,6 @@ from starnav.bodies.shape import (
 )
 from starnav.errors import ConfigError
 from starnav.registry import Registry
-from starnav.renderer.render import MoonModel
-from starnav.renderer.scene import MoonMesh
 
 
 @dataclass(frozen=True)
@@ -149,11 +149,11 @@ class ShapeModelBody(TargetBody):
         ra, dec, w0, wd = (math.radians(x) for x in self.spin)
         return np.asarray(iau_orientation(epochs_tdb, ra, dec, w0, wd))
 
-    def render_mesh(self) -> MoonMesh:
+    def render_mesh(self) -> BodyMesh:
         """The facets with their area-weighted vertex normals, body-fixed metres."""
-        return MoonMesh(self.shape.vertices, self.shape.faces, self.shape.vertex_normals, None)
+        return BodyMesh(self.shape.vertices, self.shape.faces, self.shape.vertex_normals, None)
 
-    def render_model(self) -> MoonModel:
+    def render_model(self) -> TargetModel:
         return mesh_render_model(self.config.photometry, self.normal_albedo,
                                  self.bounding_radius_m, self.render_mesh(), body_fixed_aovs=True)
 

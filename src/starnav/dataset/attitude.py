@@ -86,7 +86,7 @@ def star_attitude_frames(dataset: Any, scenario: Any) -> tuple[list[Frame], list
         frame = Frame(index=f.index, epoch_tdb=f.epoch_tdb,
                       R_cam_to_inertial_measured=f.R_cam_to_inertial_measured,
                       sun_direction_inertial=f.sun_direction_inertial, segments=f.segments,
-                      windows=f.windows, truth=geom, R_moon_to_inertial=f.R_moon_to_inertial)
+                      windows=f.windows, truth=geom, R_body_to_inertial=f.R_body_to_inertial)
         fr, ch = with_attitude(frame, chain, rec)
         out_f.append(fr)
         out_c.append(ch)

@@ -329,8 +329,8 @@ def truth_to_dict(geom: Any, camera: Any, limb_points: int = 360) -> dict[str, A
             "distance_m": g.sun_distance,
         },
         "moon": {
-            "radius_m": g.moon_radius,
-            "R_moon_to_inertial": g.R_moon_to_inertial,
+            "radius_m": g.body_radius,
+            "R_moon_to_inertial": g.R_body_to_inertial,
             "centre_camera_m": centre_cam,
             "centre_pixel_px": g.moon_centre_pixel(camera, distort=True),
             "centre_pixel_pinhole_px": g.moon_centre_pixel(camera, distort=False),
@@ -346,7 +346,7 @@ def truth_to_dict(geom: Any, camera: Any, limb_points: int = 360) -> dict[str, A
         },
         "eclipse": None if g.earth_position is None else {
             "disc_mean_sunlit_fraction": disc_mean_sunlit_fraction(
-                g.camera_position, g.moon_radius, g.sun_position, g.earth_position),
+                g.camera_position, g.body_radius, g.sun_position, g.earth_position),
             "description": "fraction of the solar disc the Earth does not hide, averaged over "
                            "the visible disc (uniform in projected area; uniform solar disc, "
                            "the Earth's radius + 1/85): 1 outside the penumbra, 0 in the "

@@ -5,7 +5,7 @@ does not depend on the scenario schema) and one selected exposure; iterating it 
 :class:`DatasetFrame` objects in time order. A frame implements the navigation chain's
 ``NavFrame`` protocol (:mod:`starnav.navigation.frames`): ``index``, ``epoch_tdb``,
 ``R_cam_to_inertial_measured``, ``sun_direction_inertial``, ``segments``, ``windows``,
-``truth`` and ``R_moon_to_inertial``; files are read on first access and cached. It also gives
+``truth`` and ``R_body_to_inertial``; files are read on first access and cached. It also gives
 the DN image, the radiance image and the raw JSON documents.
 
 :func:`verify` re-hashes every file of every frame against the manifest, and says what is
@@ -154,7 +154,7 @@ class DatasetFrame:
         return self._truth("sun.direction_from_moon", (3,))
 
     @property
-    def R_moon_to_inertial(self) -> FloatArray:
+    def R_body_to_inertial(self) -> FloatArray:
         """Moon body-fixed -> J2000."""
         return self._truth("moon.R_moon_to_inertial", (3, 3))
 

@@ -430,7 +430,7 @@ def view_mesh(dem: DemGrid, camera: Camera, camera_position_body_m: ArrayLike,
     albedo : AlbedoGrid, optional
         If given, ``vertex_attributes['albedo']`` is sampled from it.
     camera_to_body : (3, 3) array_like, optional
-        Rotation camera frame -> Moon body-fixed (``R_moon_to_inertial.T @
+        Rotation camera frame -> Moon body-fixed (``R_body_to_inertial.T @
         R_cam_to_inertial``). If given, only the part in the field of view (plus margins) is
         built.
     options : MeshOptions, optional

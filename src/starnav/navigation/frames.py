@@ -18,7 +18,7 @@ attribute                       type                  meaning
 ``truth``                       FrameGeometry / None  true pose (Moon-centred), for metrics only
 ==============================  ====================  ==========================================
 
-Optional: ``R_moon_to_inertial`` ((3, 3) array) for a triaxial Moon model (a sphere needs none).
+Optional: ``R_body_to_inertial`` ((3, 3) array) for a triaxial body (a sphere needs none).
 
 :class:`NavDataset` - a sequence of frames with its camera: ``camera`` (a
 :class:`~starnav.camera.Camera`), ``len()`` and iteration in time order.
@@ -73,7 +73,7 @@ class Frame:
     segments: Segments | None
     windows: Sequence[Window] = ()
     truth: FrameGeometry | None = None
-    R_moon_to_inertial: FloatArray | None = None
+    R_body_to_inertial: FloatArray | None = None
 
 
 @dataclass

@@ -104,10 +104,10 @@ def limb_point_errors(uv: ArrayLike, camera: Camera, truth: FrameGeometry,
     truth : FrameGeometry
         True pose (camera position, true attitude, Moon orientation and radius).
     radii_m : (3,) array, optional
-        Body semi-axes [m]; default the sphere ``truth.moon_radius``.
+        Body semi-axes [m]; default the sphere ``truth.body_radius``.
     """
-    r = (truth.moon_radius,) * 3 if radii_m is None else tuple(radii_m)
-    R_body_to_cam = truth.R_cam_to_inertial.T @ truth.R_moon_to_inertial
+    r = (truth.body_radius,) * 3 if radii_m is None else tuple(radii_m)
+    R_body_to_cam = truth.R_cam_to_inertial.T @ truth.R_body_to_inertial
     B = shape_transform(r, R_body_to_cam)
     Q = limb_conic_pixels(camera, truth.moon_centre_camera(), B)
     return conic_signed_distance(Q, undistorted_pixels(camera, uv))

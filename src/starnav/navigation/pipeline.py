@@ -215,7 +215,7 @@ def process_frame(
         # the attitude a star solve through the calibrated camera gives (star_alignment)
         camera = opt.calibration.camera
         R_ci = R_ci @ star_alignment(declared, camera).T
-    R_mi = getattr(frame, "R_moon_to_inertial", None)
+    R_mi = getattr(frame, "R_body_to_inertial", None)
     R_body_to_cam = None if R_mi is None else R_ci.T @ np.asarray(R_mi, float)
 
     t = time.perf_counter()
@@ -324,7 +324,7 @@ def process_frame(
 
 def camera_consider_jacobian(calibration: CameraCalibration, uv: FloatArray,
                              position: FloatArray, R_measured: FloatArray,
-                             R_moon_to_inertial: FloatArray | None, declared: Camera,
+                             R_body_to_inertial: FloatArray | None, declared: Camera,
                              options: ChristianRobinsonOptions) -> FloatArray:
     """``J = d position / d theta`` [m per unit, J2000] of the calibrated parameters
     ``theta``: the fix's covariance gains ``J C J^T`` of the calibration's ``C``.
@@ -348,7 +348,7 @@ def camera_consider_jacobian(calibration: CameraCalibration, uv: FloatArray,
         d[i] = h
         cam = calibration.camera_with(d)
         R_ci = R_measured @ star_alignment(declared, cam).T
-        R_bc = None if R_moon_to_inertial is None else R_ci.T @ np.asarray(R_moon_to_inertial,
+        R_bc = None if R_body_to_inertial is None else R_ci.T @ np.asarray(R_body_to_inertial,
                                                                            float)
         moved = christian_robinson(uv, cam, R_body_to_cam=R_bc, options=options)
         J[:, i] = (moved.position_inertial(R_ci) - position) / h

@@ -183,7 +183,7 @@ def true_limb_polyline(camera: Camera, truth: FrameGeometry, radii_m: ArrayLike,
                        n: int = 720) -> FloatArray:
     """The true limb of a frame, distorted pixels [px] (:func:`fitted_limb_polyline` at the
     true centre, in the true camera frame)."""
-    R_b2c = truth.R_cam_to_inertial.T @ truth.R_moon_to_inertial
+    R_b2c = truth.R_cam_to_inertial.T @ truth.R_body_to_inertial
     return fitted_limb_polyline(camera, truth.moon_centre_camera(), radii_m, R_b2c, n)
 
 
@@ -229,7 +229,7 @@ def plot_limb_overlay(frame: NavFrame, measurement: FrameMeasurement, camera: Ca
                label="refined points (windows)")
     if m.fix is not None:
         R_ci = np.asarray(frame.R_cam_to_inertial_measured, float)
-        R_mi = getattr(frame, "R_moon_to_inertial", None)
+        R_mi = getattr(frame, "R_body_to_inertial", None)
         R_b2c = None if R_mi is None else R_ci.T @ np.asarray(R_mi, float)
         fit = fitted_limb_polyline(camera, m.fix.centre_camera, radii_m, R_b2c)
         a.plot(fit[:, 0], fit[:, 1], "-", lw=1.0, color="C0", label="fitted limb (fix)")

@@ -97,7 +97,7 @@ def draw_moon(
     H, W = camera.height, camera.width
     img = np.zeros((H, W))
     c = geometry.moon_centre_camera()
-    R = geometry.moon_radius
+    R = geometry.body_radius
     s = geometry.sun_direction_camera()
     uv = camera.project(c, distort=True)
     d = float(np.linalg.norm(c))
@@ -176,7 +176,7 @@ def pointing_geometry(
     moon_offset_px: tuple[float, float] = (0.0, 0.0),
     roll: float = 0.0,
     attitude_error_rad: NDArray | None = None,
-    moon_radius: float | None = None,
+    body_radius: float | None = None,
 ) -> FrameGeometry:
     """A frame whose camera points at the Moon (centre at ``moon_offset_px`` from the principal
     point), from Moon-centred J2000 positions [m].
@@ -198,7 +198,7 @@ def pointing_geometry(
         epoch_tdb=float(epoch_tdb),
         camera_velocity=np.zeros(3) if camera_velocity is None else np.asarray(camera_velocity),
         R_cam_to_inertial_measured=Rm, index=int(index),
-        moon_radius=MOON_RADIUS if moon_radius is None else float(moon_radius))
+        body_radius=MOON_RADIUS if body_radius is None else float(body_radius))
 
 
 def synthetic_frame(
@@ -237,4 +237,4 @@ def synthetic_frame(
     return Frame(index=geometry.index, epoch_tdb=geometry.epoch_tdb,
                  R_cam_to_inertial_measured=R_meas, sun_direction_inertial=geometry.sun_direction,
                  segments=seg, windows=tuple(wins), truth=geometry,
-                 R_moon_to_inertial=geometry.R_moon_to_inertial)
+                 R_body_to_inertial=geometry.R_body_to_inertial)

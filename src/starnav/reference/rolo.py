@@ -505,7 +505,7 @@ def rolo_geometry(geom: FrameGeometry) -> RoloGeometry:
 
     The Sun and camera positions of :class:`~starnav.geometry.FrameGeometry` are Moon-centred
     inertial; they are rotated into the Moon body-fixed (selenographic) frame with
-    ``R_moon_to_inertial.T`` (+x at (0, 0), +y at 90 deg E, +z north).
+    ``R_body_to_inertial.T`` (+x at (0, 0), +y at 90 deg E, +z north).
 
     Parameters
     ----------
@@ -516,7 +516,7 @@ def rolo_geometry(geom: FrameGeometry) -> RoloGeometry:
     -------
     RoloGeometry
     """
-    R = np.asarray(geom.R_moon_to_inertial, float)
+    R = np.asarray(geom.R_body_to_inertial, float)
     sun_body = R.T @ np.asarray(geom.sun_position, float)
     obs_body = R.T @ np.asarray(geom.camera_position, float)
     sun_lat, sun_lon = _lat_lon(sun_body)

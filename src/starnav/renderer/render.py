@@ -20,13 +20,14 @@ Technique
 9. The Earth's shadow multiplies each pixel by the visible fraction of the solar disc
    (:mod:`starnav.eclipse`).
 
-The knobs are :class:`RenderSettings` (scenario: ``renderer.schema.RenderConfig``).
+The knobs are :class:`RenderSettings` (scenario: ``renderer.schema.RenderConfig``); what is
+drawn is the body's :class:`~starnav.bodies.model.TargetModel`.
 
 Index
 -----
-:class:`MoonRenderer`, :class:`RenderSettings`, :class:`MoonModel`, :class:`AlbedoMap`,
-:func:`load_albedo_map`, :func:`moon_bounding_box`, :func:`adaptive_sample_counts`,
-:class:`AdaptivePlan`, :class:`AovFrame`, :data:`SAMPLERS`, :data:`SPECTRAL_SAMPLINGS`.
+:class:`MoonRenderer`, :class:`RenderSettings`, :func:`moon_bounding_box`,
+:func:`adaptive_sample_counts`, :class:`AdaptivePlan`, :class:`AovFrame`, :data:`SAMPLERS`,
+:data:`SPECTRAL_SAMPLINGS`.
 """
 
 from __future__ import annotations
@@ -35,19 +36,20 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from starnav.bodies.mesh import BodyMesh
+from starnav.bodies.model import AlbedoMap, TargetModel
 from starnav.camera import Camera
-from starnav.constants import AU, MOON_RADIUS
+from starnav.constants import AU
 from starnav.eclipse import could_be_eclipsed, disc_mean_sunlit_fraction, sunlit_fraction
-from starnav.errors import ConfigError, not_a_file_error
+from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry, geometry_to_dict
-from starnav.photometry import get_model, validity_warning
+from starnav.photometry import validity_warning
 from starnav.radiance import AOV_CHANNELS, BODY_FIXED_AOV_CHANNELS, RadianceImage
 from starnav.renderer import backend
 from starnav.renderer.scene import (
@@ -55,7 +57,6 @@ from starnav.renderer.scene import (
     KM,
     NEAR_CLIP_MIN_KM,
     FilmChannels,
-    MoonMesh,
     check_camera_for_render,
     clip_planes,
     film_channels,
@@ -70,128 +71,6 @@ from starnav.renderer.schema import DEFAULT_INTERIOR_SPP
 from starnav.spectra import SensorResponse, Spectrum, band_integrals, product
 
 log = logging.getLogger(__name__)
-
-
-# ---------------------------------------------------------------------------- albedo maps
-@dataclass(frozen=True)
-class AlbedoMap:
-    """Equirectangular single-channel albedo: row 0 at latitude +90 deg, column 0 at
-    longitude -180 deg, pixel-area convention (cell edges at the borders) [-]."""
-
-    values: NDArray[np.float32]
-    source: str = "array"
-
-    def sample(self, lat: NDArray[np.float64], lon: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Bilinear value at selenographic ``lat``, ``lon`` [rad] (longitude wraps)."""
-        h, w = self.values.shape
-        x = (np.mod(lon + math.pi, 2 * math.pi) / (2 * math.pi)) * w - 0.5
-        y = np.clip((math.pi / 2 - lat) / math.pi * h - 0.5, 0, h - 1)
-        x0 = np.floor(x).astype(int)
-        y0 = np.clip(np.floor(y).astype(int), 0, h - 1)
-        fx, fy = x - x0, y - y0
-        x0m, x1m = np.mod(x0, w), np.mod(x0 + 1, w)
-        y1 = np.clip(y0 + 1, 0, h - 1)
-        v = self.values
-        return ((1 - fy) * ((1 - fx) * v[y0, x0m] + fx * v[y0, x1m])
-                + fy * ((1 - fx) * v[y1, x0m] + fx * v[y1, x1m]))
-
-
-def load_albedo_map(path: str | Path, scale: float = 1.0) -> AlbedoMap:
-    """Read a single-channel albedo map: ``.npy`` (float reflectance), 8/16-bit PNG/TIFF
-    (linear, full scale = 1) or float TIFF/EXR; multiplied by ``scale``.
-
-    For the NASA SVS Moon-kit colour maps (gamma-encoded) use :mod:`starnav.dem`'s readers.
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise not_a_file_error(p, "moon.albedo.path")
-    if p.suffix.lower() == ".npy":
-        arr = np.load(p)
-    else:
-        import imageio.v3 as iio
-
-        arr = iio.imread(p)
-        if np.issubdtype(arr.dtype, np.integer):
-            arr = arr.astype(np.float64) / np.iinfo(arr.dtype).max
-    arr = np.asarray(arr, dtype=np.float64)
-    if arr.ndim == 3:
-        if arr.shape[2] != 1:
-            raise ConfigError("moon.albedo.path", str(p),
-                              f"a single-channel map, got {arr.shape[2]} channels")
-        arr = arr[:, :, 0]
-    if arr.ndim != 2 or min(arr.shape) < 2:
-        raise ConfigError("moon.albedo.path", str(p), "a 2-D map of at least 2 x 2 pixels")
-    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
-        raise ConfigError("moon.albedo.path", str(p), "finite, non-negative albedo values")
-    return AlbedoMap((arr * scale).astype(np.float32), str(p))
-
-
-# ---------------------------------------------------------------------------- the Moon model
-@dataclass
-class MoonModel:
-    """What the renderer needs to know about the Moon.
-
-    Parameters
-    ----------
-    shape : {"sphere", "mesh"}
-        Exact sphere of ``radius``, or a triangle mesh (``mesh`` or ``mesh_provider``).
-    radius : float
-        Reference radius [m].
-    model : str
-        Photometric model name (:data:`starnav.photometry.PHOTOMETRIC_MODELS`).
-    params : dict
-        Model parameters (defaults filled in and checked).
-    albedo : float or AlbedoMap
-        Constant albedo or a map: the **model's own parameter** (rho, w, A or Hapke w), which
-        :func:`starnav.photometry.model_albedo_parameter` derives from the normal albedo.
-    albedo_scale : float
-        Global multiplier of the reflectance (albedo-exposure scaling): radiance is exactly
-        proportional to it, for every model.
-    spectral_shape : Spectrum, optional
-        Reflectance factor versus wavelength (1 at the normal albedo's reference wavelength);
-        ``None`` is grey.
-    mesh : MoonMesh, optional
-        Fixed body-fixed mesh (e.g. an icosphere).
-    mesh_provider : callable, optional
-        ``f(camera, geometry) -> MoonMesh`` for view-adapted meshes (DEMs).
-    max_height : float
-        Highest terrain above ``radius`` [m] (bounds the crop window).
-    body_fixed_aovs : bool
-        Add the body-fixed surface point of each pixel-centre ray to the AOVs (channels
-        :data:`starnav.radiance.BODY_FIXED_AOV_CHANNELS`, metres): the per-pixel truth of
-        shape-model bodies (feature truth); off for the Moon (its files stay as pinned).
-    """
-
-    shape: str = "sphere"
-    radius: float = MOON_RADIUS
-    model: str = "lambert"
-    params: dict[str, float] = field(default_factory=dict)
-    albedo: float | AlbedoMap = 0.12
-    albedo_scale: float = 1.0
-    mesh: MoonMesh | None = None
-    mesh_provider: Any = None
-    max_height: float = 0.0
-    spectral_shape: Spectrum | None = None
-    calibrated: bool = False
-    body_fixed_aovs: bool = False
-
-    def __post_init__(self) -> None:
-        if self.shape not in ("sphere", "mesh"):
-            raise ConfigError("moon.shape", self.shape, "'sphere' or 'mesh'")
-        self.params = get_model(self.model).check_params(self.params)
-        if isinstance(self.albedo, int | float):
-            if not (math.isfinite(self.albedo) and self.albedo >= 0):
-                raise ConfigError("moon.albedo", self.albedo, "a finite albedo >= 0")
-        if not (math.isfinite(self.albedo_scale) and self.albedo_scale > 0):
-            raise ConfigError("moon.albedo_scale", self.albedo_scale, "a finite factor > 0")
-        if self.shape == "mesh" and self.mesh is None and self.mesh_provider is None:
-            raise ConfigError("moon.shape", "mesh", "a mesh or a mesh provider")
-
-    def albedo_key(self) -> Any:
-        spec = None if self.spectral_shape is None else id(self.spectral_shape)
-        if isinstance(self.albedo, AlbedoMap):
-            return ("map", id(self.albedo), self.albedo_scale, spec)
-        return ("const", float(self.albedo), self.albedo_scale, spec)
 
 
 #: Mitsuba samplers allowed for the radiance pass. Jittered strata (``multijitter``,
@@ -328,14 +207,14 @@ class MoonRenderer:
         QE x T of the sensor.
     sun_1au : Spectrum
         Solar spectral irradiance at 1 AU [W m^-2 nm^-1].
-    moon : MoonModel
+    moon : TargetModel
         Shape, photometry and albedo.
     settings : RenderSettings
         Samples per pixel, crop, AOVs, variant preference.
     """
 
     def __init__(self, camera: Camera, response: SensorResponse, sun_1au: Spectrum,
-                 moon: MoonModel, settings: RenderSettings | None = None) -> None:
+                 moon: TargetModel, settings: RenderSettings | None = None) -> None:
         check_camera_for_render(camera)
         self.camera = camera
         self.response = response
@@ -397,7 +276,7 @@ class MoonRenderer:
     def _activate(self):
         return backend.activate(self.settings.variants)
 
-    def _albedo_texture(self, mesh: MoonMesh | None) -> dict:
+    def _albedo_texture(self, mesh: BodyMesh | None) -> dict:
         import mitsuba as mi
 
         moon = self.moon
@@ -417,7 +296,7 @@ class MoonRenderer:
             }
         return {"type": "uniform", "value": float(moon.albedo)}
 
-    def _mitsuba_mesh(self, mesh: MoonMesh, bsdf: dict):
+    def _mitsuba_mesh(self, mesh: BodyMesh, bsdf: dict):
         import drjit as dr
         import mitsuba as mi
 
@@ -436,7 +315,7 @@ class MoonRenderer:
                             mi.Float(self._vertex_albedo(mesh).astype(np.float32)))
         return m
 
-    def surface(self, geom: FrameGeometry) -> tuple[MoonMesh, NDArray[np.float64]] | None:
+    def surface(self, geom: FrameGeometry) -> tuple[BodyMesh, NDArray[np.float64]] | None:
         """The triangle surface this renderer puts in frame ``geom``'s scene, to export it to
         another engine (``benchmarks/render.py --cycles-python`` hands it to Blender Cycles).
 
@@ -460,7 +339,7 @@ class MoonRenderer:
             albedo = np.full(len(mesh.vertices), float(moon.albedo))
         return mesh, albedo * float(moon.albedo_scale)
 
-    def _vertex_albedo(self, mesh: MoonMesh) -> NDArray[np.float64]:
+    def _vertex_albedo(self, mesh: BodyMesh) -> NDArray[np.float64]:
         """The albedo parameter per vertex: the mesh's own, or the map's at the vertices."""
         if mesh.albedo is not None:
             return np.asarray(mesh.albedo, float)
@@ -470,7 +349,7 @@ class MoonRenderer:
         lon = np.arctan2(v[:, 1], v[:, 0])
         return self.moon.albedo.sample(lat, lon)
 
-    def _build_scene(self, mesh: MoonMesh | None):
+    def _build_scene(self, mesh: BodyMesh | None):
         import mitsuba as mi
 
         from starnav.renderer.bsdfs import PLUGIN_NAMES  # lazy: mitsuba (bsdfs imports it)
@@ -543,7 +422,7 @@ class MoonRenderer:
             self._spectra[key] = (sp, regular_spectrum_dict(sp, self.settings.wavelength_step_nm))
         return dict(self._spectra[key][1])
 
-    def _scene_for(self, mesh: MoonMesh | None, mesh_key: Any):
+    def _scene_for(self, mesh: BodyMesh | None, mesh_key: Any):
         info = self._activate()
         key = (info.variant, mesh_key, self.moon.model, tuple(sorted(self.moon.params.items())),
                self.moon.albedo_key(), self.settings.spp, self.settings.sampler,
@@ -557,7 +436,7 @@ class MoonRenderer:
         return self._scene, info
 
     # .................................................................. mesh choice
-    def _mesh(self, geom: FrameGeometry) -> tuple[MoonMesh | None, Any]:
+    def _mesh(self, geom: FrameGeometry) -> tuple[BodyMesh | None, Any]:
         moon = self.moon
         if moon.shape == "sphere":
             return None, "sphere"
@@ -605,12 +484,12 @@ class MoonRenderer:
         sun_scale = (AU / geom.sun_distance) ** 2
         if box is not None:
             u0, v0, bw, bh = box
-            R_moon = geom.R_moon_to_inertial
+            R_body = geom.R_body_to_inertial
             # everything in the Moon body-fixed frame
-            pos_b = R_moon.T @ geom.camera_position
-            R_cam_b = R_moon.T @ geom.R_cam_to_inertial
-            body_geom = FrameGeometry(pos_b, R_cam_b, R_moon.T @ geom.sun_position,
-                                      moon_radius=geom.moon_radius)
+            pos_b = R_body.T @ geom.camera_position
+            R_cam_b = R_body.T @ geom.R_cam_to_inertial
+            body_geom = FrameGeometry(pos_b, R_cam_b, R_body.T @ geom.sun_position,
+                                      body_radius=geom.body_radius)
             M = to_world_matrix(body_geom)
             T = mi.ScalarTransform4f(M)
             sun_dir_b = body_geom.sun_direction
@@ -652,7 +531,7 @@ class MoonRenderer:
             if fused:
                 frame = None
                 if self.settings.aovs:
-                    frame = AovFrame(R_moon, pos_b, body_geom.sun_position,
+                    frame = AovFrame(R_body, pos_b, body_geom.sun_position,
                                      self.moon.body_fixed_aovs)
                 plan = None
                 if self.settings.adaptive:
@@ -827,7 +706,7 @@ class AovFrame:
     """What the geometric channels need besides the hit points: the Moon's attitude
     (body-fixed to inertial), the camera and the Sun in the body-fixed frame [m]."""
 
-    R_moon_to_inertial: NDArray[np.float64]
+    R_body_to_inertial: NDArray[np.float64]
     camera_body: NDArray[np.float64]
     sun_body: NDArray[np.float64]
     body_fixed: bool = False
@@ -1314,7 +1193,7 @@ def _aov_kernel(si, frame: AovFrame) -> dict:
     import mitsuba as mi
 
     hit = si.is_valid()
-    f = _uniforms(mi.Float, [*frame.R_moon_to_inertial.ravel().tolist(),
+    f = _uniforms(mi.Float, [*frame.R_body_to_inertial.ravel().tolist(),
                              *frame.camera_body.tolist(), *frame.sun_body.tolist()])
     R = [f[3 * i:3 * i + 3] for i in range(3)]
     cam = mi.Vector3f(*f[9:12])
@@ -1370,10 +1249,10 @@ def _aov_channels(raw: NDArray[np.float64], geom: FrameGeometry,
     pos_all = raw[:, :, 0:3].astype(np.float64)
     # a miss reports the origin; any surface point of a star-shaped body is far from it (a
     # fraction of the reference radius would drop the ends of a triaxial body's short axis)
-    hit = np.einsum("ijk,ijk->ij", pos_all, pos_all) > (1e-3 * geom.moon_radius / KM) ** 2
+    hit = np.einsum("ijk,ijk->ij", pos_all, pos_all) > (1e-3 * geom.body_radius / KM) ** 2
     sel = raw[hit].astype(f32, copy=False)  # (n, 6) float32: ample for image channels
     pos_b = sel[:, 0:3] * f32(KM)
-    R = geom.R_moon_to_inertial.astype(f32)
+    R = geom.R_body_to_inertial.astype(f32)
     pos_i = pos_b @ R.T
     n_i = sel[:, 3:6] @ R.T
     n_i /= np.maximum(np.linalg.norm(n_i, axis=1, keepdims=True), f32(1e-30))

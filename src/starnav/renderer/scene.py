@@ -9,7 +9,7 @@ in docs/methods.md, "starnav.renderer.scene". Only this subpackage imports Mitsu
 
 Index
 -----
-:class:`MoonMesh`, :func:`icosphere_mesh`, :func:`to_world_matrix`, :func:`clip_planes`,
+:func:`to_world_matrix`, :func:`clip_planes`,
 :func:`sensor_fov_deg`, :func:`principal_point_offsets`, :func:`check_camera_for_render`,
 :func:`regular_spectrum_dict`, :func:`film_channels`, :class:`FilmChannels`,
 :func:`flat_irradiance_in_band`, :func:`sun_irradiance_in_band`.
@@ -20,7 +20,6 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from functools import cached_property, lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,67 +40,6 @@ NEAR_CLIP_MIN_KM = 1e-3
 FAR_CLIP_KM = 1e9
 #: Gap left between the near clip plane and the Moon's bounding sphere [bounding radii].
 NEAR_CLIP_MARGIN = 0.05
-
-
-@dataclass(frozen=True)
-class MoonMesh:
-    """A triangle mesh of the Moon in **body-fixed** coordinates [m].
-
-    Attributes
-    ----------
-    vertices : (n, 3) float
-        Vertex positions [m].
-    faces : (m, 3) int
-        Triangles, counter-clockwise seen from outside.
-    normals : (n, 3) float
-        Unit vertex normals.
-    albedo : (n,) float or None
-        Per-vertex albedo (model's meaning), or ``None`` to use the scenario's albedo.
-    """
-
-    vertices: NDArray[np.float64]
-    faces: NDArray[np.int64]
-    normals: NDArray[np.float64]
-    albedo: NDArray[np.float64] | None = None
-    key: object = None
-
-    @property
-    def n_triangles(self) -> int:
-        return int(self.faces.shape[0])
-
-    @cached_property
-    def bounding_radius(self) -> float:
-        """Largest vertex distance from the Moon centre [m]."""
-        v = self.vertices
-        return float(np.sqrt(np.max(np.einsum("ij,ij->i", v, v)))) if len(v) else 0.0
-
-    @classmethod
-    def from_trimesh(cls, tm, albedo: NDArray[np.float64] | None = None,
-                     key: object = None) -> MoonMesh:
-        """From a ``trimesh.Trimesh`` in body-fixed metres (its vertex normals are used;
-        ``vertex_attributes['albedo']`` is used when ``albedo`` is not given). ``key``
-        identifies the mesh for the renderer's scene cache (the same key: the same mesh)."""
-        if albedo is None:
-            albedo = tm.vertex_attributes.get("albedo") if hasattr(tm, "vertex_attributes") \
-                else None
-        return cls(np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64),
-                   np.asarray(tm.vertex_normals, float),
-                   None if albedo is None else np.asarray(albedo, float), key)
-
-
-@lru_cache(maxsize=4)
-def _icosphere(subdivisions: int) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    import trimesh
-
-    tm = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
-    return np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64)
-
-
-def icosphere_mesh(radius: float, subdivisions: int) -> MoonMesh:
-    """A geodesic sphere of ``20 * 4**subdivisions`` triangles with vertices on the sphere of
-    ``radius`` [m] and exact radial normals."""
-    v, f = _icosphere(int(subdivisions))
-    return MoonMesh(v * radius, f, v.copy(), None)
 
 
 def to_world_matrix(geom: FrameGeometry) -> NDArray[np.float64]:

@@ -139,8 +139,8 @@ class Scene:
         The arc and the frame cadence; ``None`` (and no ``arc``) gives one frame of ``static``.
     static : StaticGeometryConfig, optional
         The one frame without a trajectory (default its defaults).
-    moon_radius : float
-        Reference radius of the Moon [m].
+    body_radius : float
+        Reference radius of the target body [m] (its bounding sphere for a small body).
     seed : int
         Scenario seed (per-frame pointing streams, :func:`frame_generators`).
     ephemeris : Ephemeris, optional
@@ -162,7 +162,7 @@ class Scene:
     def __init__(self, camera: Camera, pointing: PointingConfig, *,
                  trajectory: TrajectoryConfig | None = None,
                  static: StaticGeometryConfig | None = None,
-                 moon_radius: float = MOON_RADIUS, seed: int = 0,
+                 body_radius: float = MOON_RADIUS, seed: int = 0,
                  ephemeris: Ephemeris | None = None, arc: Trajectory | None = None,
                  cache_dir: str | Path | None = None,
                  orientation: Callable[[FloatArray], FloatArray] | None = None,
@@ -170,7 +170,7 @@ class Scene:
         self.camera = camera
         self.pointing = pointing
         self.static_config = static if static is not None else StaticGeometryConfig()
-        self.moon_radius = float(moon_radius)
+        self.body_radius = float(body_radius)
         self.seed = int(seed)
         self.ephemeris = ephemeris or Ephemeris.default()
         cfg = trajectory
@@ -197,18 +197,18 @@ class Scene:
         self._moon = self.ephemeris.state("moon", self.epochs, center="emb")
         self._sun = self.ephemeris.state("sun", self.epochs, center="emb")
         self._earth = self.ephemeris.state("earth", self.epochs, center="emb")
-        self._R_moon = (orientation(self.epochs) if orientation is not None else
+        self._R_body = (orientation(self.epochs) if orientation is not None else
                         self.ephemeris.moon_orientation(self.epochs, frame=cfg.moon_frame))
         # between the arc's nodes too: no frame is taken from inside the target
         r = np.linalg.norm(self._states[:, :3] - self._moon[:, :3], axis=1)
-        bad = np.flatnonzero(r < self.moon_radius)
+        bad = np.flatnonzero(r < self.body_radius)
         if bad.size:
             k = int(bad[0])
             raise GeometryError(
                 f"trajectory ({self.trajectory.meta.get('source', cfg.source)}): frame {k} at "
                 f"{tdb_to_iso(float(self.epochs[k]), 3)} TDB is {r[k] / 1e3:.0f} km from the "
                 f"target's centre, inside it: expected every frame at least its radius "
-                f"({self.moon_radius / 1e3:.1f} km) from its centre")
+                f"({self.body_radius / 1e3:.1f} km) from its centre")
 
     def _init_flyby(self, cfg: TrajectoryConfig, orientation, gm: float) -> None:
         """Epochs, relative states, Sun and body orientation of a fly-by (step 5)."""
@@ -221,17 +221,17 @@ class Scene:
         self.flyby = flyby_from_config(fc, t_ca, gm)
         self.epochs = self.flyby.frame_epochs(fc.start_s, fc.end_s, cfg.cadence_s, cfg.frames)
         rel = self.flyby.states(self.epochs)
-        if self.flyby.closest_approach <= self.moon_radius:
+        if self.flyby.closest_approach <= self.body_radius:
             raise ConfigError("trajectory.flyby.closest_approach_km",
                               fc.closest_approach_km,  # unit: the user's value, quoted
                               f"a closest approach outside the body's bounding sphere "
-                              f"({self.moon_radius / 1e3:.4g} km)")
+                              f"({self.body_radius / 1e3:.4g} km)")
         self._states = None
         self._relative = rel
         n = self.epochs.size
         self._moon = np.zeros((n, 6))
         self._sun = np.tile(np.concatenate([self.flyby.sun_position, np.zeros(3)]), (n, 1))
-        self._R_moon = np.asarray(orientation(self.epochs))
+        self._R_body = np.asarray(orientation(self.epochs))
 
     def __len__(self) -> int:
         return int(self.epochs.size)
@@ -270,27 +270,27 @@ class Scene:
         i = int(index)
         pc = self.pointing
         if self.static:
-            g = static_geometry_from_config(self.camera, self.static_config, self.moon_radius)
+            g = static_geometry_from_config(self.camera, self.static_config, self.body_radius)
             _, krng = frame_generators(self.seed, i)
             err = krng.standard_normal(3) * np.array(pc.knowledge_sigma)
             return FrameGeometry(
                 camera_position=g.camera_position, R_cam_to_inertial=g.R_cam_to_inertial,
-                sun_position=g.sun_position, R_moon_to_inertial=g.R_moon_to_inertial,
+                sun_position=g.sun_position, R_body_to_inertial=g.R_body_to_inertial,
                 epoch_tdb=g.epoch_tdb, camera_velocity=g.camera_velocity,
                 R_cam_to_inertial_measured=g.R_cam_to_inertial @ rotation_from_vector(err),
-                moon_radius=g.moon_radius, index=i)
+                body_radius=g.body_radius, index=i)
         rel = self.relative_states[i]
         sun = self._sun[i, :3] - self._moon[i, :3]
         # a fly-by rolls about its plane's normal: north-up flips where the line of sight
         # passes the pole (starnav.scenes.pointing, step 3)
         p = pointing_from_config(self.camera, rel[:3], pc, self.seed, i,
-                                 moon_radius=self.moon_radius, sun_position=sun,
+                                 body_radius=self.body_radius, sun_position=sun,
                                  down_hint=None if self.flyby is None else self.flyby.z_hat)
         return FrameGeometry(
             camera_position=rel[:3], R_cam_to_inertial=p.R_true, sun_position=sun,
-            R_moon_to_inertial=self._R_moon[i], epoch_tdb=float(self.epochs[i]),
+            R_body_to_inertial=self._R_body[i], epoch_tdb=float(self.epochs[i]),
             camera_velocity=rel[3:], R_cam_to_inertial_measured=p.R_measured,
-            moon_radius=self.moon_radius, index=i,
+            body_radius=self.body_radius, index=i,
             camera_state_emb=None if self._states is None else self._states[i],
             earth_position=(None if self._earth is None
                             else self._earth[i, :3] - self._moon[i, :3]))

@@ -157,9 +157,9 @@ def disc_inside(geom: FrameGeometry, camera: Camera, margin: float) -> bool:
                 and np.all(pts[:, 1] >= lo) and np.all(pts[:, 1] <= camera.height - 0.5 - margin))
 
 
-def disc_radius_px(camera: Camera, range_m: float, moon_radius: float = MOON_RADIUS) -> float:
+def disc_radius_px(camera: Camera, range_m: float, body_radius: float = MOON_RADIUS) -> float:
     """On-axis apparent radius of the Moon ``fx tan(asin(R/d))`` [px]."""
-    s = moon_radius / range_m
+    s = body_radius / range_m
     return camera.fx * s / math.sqrt(1.0 - s * s)
 
 
@@ -168,7 +168,7 @@ def sample_pointing(camera: Camera, camera_position: ArrayLike, rng: np.random.G
                     moon_offset_px: tuple[float, float] = (0.0, 0.0),
                     max_offset: float = 512.0, margin: float = 8.0, roll: str = "random",
                     roll_angle: float = 0.0, knowledge_sigma: ArrayLike = (0.0, 0.0, 0.0),
-                    moon_radius: float = MOON_RADIUS,
+                    body_radius: float = MOON_RADIUS,
                     sun_position: ArrayLike | None = None,
                     down_hint: ArrayLike | None = None) -> Pointing:
     """Draw one frame's attitude (module docstring).
@@ -194,7 +194,7 @@ def sample_pointing(camera: Camera, camera_position: ArrayLike, rng: np.random.G
         Roll for ``fixed`` [rad].
     knowledge_sigma : (3,) array
         1-sigma knowledge error about camera x, y, z [rad].
-    moon_radius : float
+    body_radius : float
         [m].
     sun_position : (3,) array, optional
         Sun relative to the Moon [m] (only to build the trial geometry; any far point works).
@@ -224,7 +224,7 @@ def sample_pointing(camera: Camera, camera_position: ArrayLike, rng: np.random.G
     def trial(pixel: FloatArray, phi: float) -> tuple[FloatArray, bool]:
         R = moon_pointing(camera, pos, pixel, phi, down_hint)
         g = FrameGeometry(camera_position=pos, R_cam_to_inertial=R, sun_position=sun,
-                          moon_radius=moon_radius)
+                          body_radius=body_radius)
         return R, disc_inside(g, camera, margin)
 
     phi = float(rng.uniform(0.0, 2.0 * math.pi)) if roll == "random" else float(roll_angle)
@@ -235,10 +235,10 @@ def sample_pointing(camera: Camera, camera_position: ArrayLike, rng: np.random.G
         if not ok:
             raise GeometryError(
                 f"pointing.moon_offset_px = {tuple(moon_offset_px)}: the Moon disc (radius "
-                f"{disc_radius_px(camera, rng_m, moon_radius):.1f} px at {rng_m / 1e3:.0f} km) "
+                f"{disc_radius_px(camera, rng_m, body_radius):.1f} px at {rng_m / 1e3:.0f} km) "
                 f"is not {margin} px inside the detector; expected a smaller offset")
     else:
-        r_px = disc_radius_px(camera, rng_m, moon_radius)
+        r_px = disc_radius_px(camera, rng_m, body_radius)
         lo_u, hi_u = r_px + margin - 0.5, camera.width - 0.5 - r_px - margin
         lo_v, hi_v = r_px + margin - 0.5, camera.height - 0.5 - r_px - margin
         lo_u, hi_u = max(lo_u, camera.cx - max_offset), min(hi_u, camera.cx + max_offset)
@@ -266,7 +266,7 @@ def sample_pointing(camera: Camera, camera_position: ArrayLike, rng: np.random.G
 
 
 def pointing_from_config(camera: Camera, camera_position: ArrayLike, cfg, seed: int, index: int,
-                         moon_radius: float = MOON_RADIUS,
+                         body_radius: float = MOON_RADIUS,
                          sun_position: ArrayLike | None = None,
                          down_hint: ArrayLike | None = None) -> Pointing:
     """:func:`sample_pointing` for frame ``index`` from a
@@ -278,4 +278,4 @@ def pointing_from_config(camera: Camera, camera_position: ArrayLike, cfg, seed: 
         moon_offset=cfg.moon_offset, moon_offset_px=tuple(cfg.moon_offset_px),
         max_offset=cfg.moon_offset_max_px, margin=cfg.edge_margin_px, roll=cfg.roll,
         roll_angle=cfg.to_si().roll_angle, knowledge_sigma=cfg.knowledge_sigma,
-        moon_radius=moon_radius, sun_position=sun_position, down_hint=down_hint)
+        body_radius=body_radius, sun_position=sun_position, down_hint=down_hint)

@@ -6,7 +6,7 @@ them into the SI objects the physics packages work with, and is the only place t
 * :func:`camera_from_config` -> :class:`~starnav.camera.Camera` (one per process, passed down);
 * :func:`scene_from_scenario` -> :class:`~starnav.scenes.frames.Scene` (epochs, truth and
   :class:`~starnav.geometry.FrameGeometry` of each frame, static or along a trajectory);
-* :func:`moon_model_from_scenario` -> :class:`~starnav.renderer.render.MoonModel` (the albedo
+* :func:`target_model_from_scenario` -> :class:`~starnav.bodies.model.TargetModel` (the albedo
   converted to the photometric model's parameter, maps and DEMs read here so that a missing
   file is reported before any rendering);
 * :func:`renderer_from_scenario` -> :class:`~starnav.renderer.render.MoonRenderer` (camera,
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from starnav.bodies import Moon, ShapeModelBody, TargetBody, TriaxialBody
+from starnav.bodies import Moon, ShapeModelBody, TargetBody, TargetModel, TriaxialBody
 from starnav.bodies.moon import mean_normal_albedo as moon_mean_normal_albedo
 from starnav.camera import Camera, camera_from_config
 from starnav.config import Scenario
@@ -35,11 +35,7 @@ from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry, static_geometry_from_config
 from starnav.navigation.pipeline import ChainOptions
 from starnav.radiance import RadianceImage
-from starnav.renderer.render import (
-    MoonModel,
-    MoonRenderer,
-    RenderSettings,
-)
+from starnav.renderer.render import MoonRenderer, RenderSettings
 from starnav.renderer.scene import check_camera_for_render
 from starnav.scenes.ephemeris import Ephemeris
 from starnav.scenes.frames import Scene
@@ -70,7 +66,7 @@ def body_from_scenario(sc: Scenario) -> TargetBody:
     return TriaxialBody(t)
 
 
-def moon_model_from_scenario(sc: Scenario) -> MoonModel:
+def target_model_from_scenario(sc: Scenario) -> TargetModel:
     """The renderer's model of the scenario's target body (:meth:`TargetBody.render_model`):
     the normal albedo converted to the photometric model's own parameter, maps and DEMs read
     here, so that a missing file is reported before any rendering."""
@@ -117,7 +113,7 @@ def scene_from_scenario(sc: Scenario, ephemeris: Ephemeris | None = None, *,
     body = body_from_scenario(sc)
     eph = ephemeris or Ephemeris.default()
     return Scene(camera, sc.pointing, trajectory=sc.trajectory, static=sc.geometry,
-                 moon_radius=body.reference_radius_m, seed=sc.seed, ephemeris=eph,
+                 body_radius=body.reference_radius_m, seed=sc.seed, ephemeris=eph,
                  arc=arc, cache_dir=cache_dir,
                  orientation=lambda t: body.orientation(t, eph),
                  gm=body.gm, spacecraft=sc.spacecraft)
@@ -143,10 +139,10 @@ def frame_mesh(sc: Scenario, dem: DemGrid | None = None, albedo: AlbedoGrid | No
     ``dem``/``albedo``: grids already loaded (default: read ``moon.dem``'s)."""
     cfg = as_dem_config(sc.moon.dem)
     camera = camera_from_config(sc.camera)
-    geom = static_geometry_from_config(camera, sc.geometry, moon_radius=Moon(sc.moon).radii_m[0])
+    geom = static_geometry_from_config(camera, sc.geometry, body_radius=Moon(sc.moon).radii_m[0])
     dem = load_dem(cfg) if dem is None else dem
     albedo = load_albedo(cfg) if albedo is None else albedo
-    Rb = geom.R_moon_to_inertial.T
+    Rb = geom.R_body_to_inertial.T
     return view_mesh(dem, camera, Rb @ geom.camera_position, albedo,
                      camera_to_body=Rb @ geom.R_cam_to_inertial,
                      options=MeshOptions.from_config(cfg.mesh), cache=cache,

@@ -131,7 +131,7 @@ class Simulator:
         R = self.measured_attitude(geom, run, sc.seed)
         frame = Frame(index=geom.index, epoch_tdb=geom.epoch_tdb, R_cam_to_inertial_measured=R,
                       sun_direction_inertial=geom.sun_position, segments=acq.segments,
-                      windows=acq.windows, truth=geom, R_moon_to_inertial=geom.R_moon_to_inertial)
+                      windows=acq.windows, truth=geom, R_body_to_inertial=geom.R_body_to_inertial)
         return Observation(acq, frame)
 
 

@@ -137,7 +137,7 @@ def _occulted(dirs_cam: FloatArray, pinhole: FloatArray, geom: FrameGeometry,
         return out
     centre = geom.moon_centre_camera()
     d = float(np.linalg.norm(centre))
-    cos_limb = math.sqrt(max(0.0, 1.0 - (geom.moon_radius / d) ** 2))
+    cos_limb = math.sqrt(max(0.0, 1.0 - (geom.body_radius / d) ** 2))
     return dirs_cam @ (centre / d) > cos_limb
 
 

@@ -223,7 +223,7 @@ def identification_survey(
             xy = cam.pixel_to_normalized(uv[None], undistort=False)[0]
             los = R @ (np.r_[xy, 1.0] / np.linalg.norm(np.r_[xy, 1.0]))
             geom = FrameGeometry(camera_position=-d * los, R_cam_to_inertial=R,
-                                 sun_position=SUN_POSITION, moon_radius=MOON_RADIUS)
+                                 sun_position=SUN_POSITION, body_radius=MOON_RADIUS)
             r_px = cam.fx * math.tan(geom.apparent_radius)
             yy, xx = np.mgrid[:cam.height, :cam.width]
             le = np.where(np.hypot(xx - uv[0], yy - uv[1]) < r_px, MOON_LE, 0.0).astype(

@@ -58,7 +58,7 @@ def surface_point(aovs: Mapping[str, NDArray], mask: NDArray[np.bool_], uv: Floa
 def project_body_point(point_body: FloatArray, geom: FrameGeometry, camera: Camera
                        ) -> FloatArray:
     """Pixel ``(u, v)`` (distorted) of a body-fixed point with the frame's true pose."""
-    p_cam = geom.R_cam_to_inertial.T @ (geom.R_moon_to_inertial @ point_body) \
+    p_cam = geom.R_cam_to_inertial.T @ (geom.R_body_to_inertial @ point_body) \
         + geom.moon_centre_camera()
     return camera.project(p_cam, distort=True)
 

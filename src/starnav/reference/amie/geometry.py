@@ -357,7 +357,7 @@ def frame_geometry(
         Moon velocity relative to the spacecraft [m/s] (label ``SC_TARGET_VELOCITY_VECTOR`` x
         1e3); the camera velocity is its negative. Default zero.
     moon_frame : {"ME", "PA"}
-        Moon body-fixed frame of ``R_moon_to_inertial``: DE421 mean-Earth/polar axes (default,
+        Moon body-fixed frame of ``R_body_to_inertial``: DE421 mean-Earth/polar axes (default,
         the frame of the lunar maps) or principal axes.
     ephemeris : Ephemeris, optional
         Default :meth:`starnav.scenes.ephemeris.Ephemeris.default` (DE421).
@@ -368,7 +368,7 @@ def frame_geometry(
     -------
     FrameGeometry
         Camera at ``-sc_to_moon`` and the Sun and the Earth (DE421, geometric) relative to the
-        Moon centre, J2000/ICRF axes [m]; ``R_moon_to_inertial`` from the DE421 librations.
+        Moon centre, J2000/ICRF axes [m]; ``R_body_to_inertial`` from the DE421 librations.
     """
     eph = ephemeris or Ephemeris.default()
     t = float(epoch_tdb)
@@ -386,10 +386,10 @@ def frame_geometry(
         camera_position=-v,
         R_cam_to_inertial=np.asarray(R_cam_to_inertial, float),
         sun_position=sun,
-        R_moon_to_inertial=R_moon,
+        R_body_to_inertial=R_moon,
         epoch_tdb=t,
         camera_velocity=vel,
-        moon_radius=float(moon_radius),
+        body_radius=float(moon_radius),
         index=int(index),
         earth_position=earth,
     )
@@ -405,7 +405,7 @@ class SurfacePoint:
         The point relative to the Moon centre, inertial axes [m].
     latitude, longitude : float
         Selenographic planetocentric latitude and east longitude in the frame of
-        ``R_moon_to_inertial`` [rad], longitude in ``[-pi, pi)``.
+        ``R_body_to_inertial`` [rad], longitude in ``[-pi, pi)``.
     incidence, emission, phase : float
         Sun-normal, camera-normal and Sun-point-camera angles [rad] (label
         ``INCIDENCE_ANGLE``, ``EMISSION_ANGLE``, ``PHASE_ANGLE``).
@@ -450,21 +450,21 @@ def surface_point(geom: FrameGeometry, direction_inertial: ArrayLike) -> Surface
     d = d / np.linalg.norm(d)
     o = geom.camera_position
     b = float(np.dot(o, d))
-    disc = b * b - (float(np.dot(o, o)) - geom.moon_radius**2)
+    disc = b * b - (float(np.dot(o, o)) - geom.body_radius**2)
     if disc < 0.0 or -b - math.sqrt(disc) <= 0.0:
         return None
     p = o + (-b - math.sqrt(disc)) * d
     to_sun = geom.sun_position - p
     to_cam = o - p
-    lat, lon = _latlon(geom.R_moon_to_inertial, p)
+    lat, lon = _latlon(geom.R_body_to_inertial, p)
     return SurfacePoint(position=p, latitude=lat, longitude=lon, incidence=_angle(p, to_sun),
                         emission=_angle(p, to_cam), phase=_angle(to_sun, to_cam))
 
 
 def subsolar_point(geom: FrameGeometry) -> tuple[float, float]:
     """Selenographic latitude and east longitude of the subsolar point [rad] (label
-    ``SUB_SOLAR_LATITUDE``, ``SUB_SOLAR_LONGITUDE``), in the frame of ``R_moon_to_inertial``."""
-    return _latlon(geom.R_moon_to_inertial, geom.sun_position)
+    ``SUB_SOLAR_LATITUDE``, ``SUB_SOLAR_LONGITUDE``), in the frame of ``R_body_to_inertial``."""
+    return _latlon(geom.R_body_to_inertial, geom.sun_position)
 
 
 def solar_elongation(geom: FrameGeometry, direction_inertial: ArrayLike) -> float:

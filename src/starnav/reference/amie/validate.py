@@ -536,7 +536,7 @@ def analyse_frame(path: str | Path, options: AmieOptions | None = None
     # the angular radius the label's range gives), on the limb points inside the valid area
     predicted = g0.moon_centre_camera()
     label_range = fix.label_range_m
-    rho = math.asin(g0.moon_radius / label_range)
+    rho = math.asin(g0.body_radius / label_range)
     real_dir, reason = limb_in_valid_area(real_limb, cal.valid, camera, rho, opt)
     if reason:
         return not_compared(frame, reason, fix), None
@@ -605,7 +605,7 @@ def analyse_frame(path: str | Path, options: AmieOptions | None = None
     # the limb's apparent size, independent of the chain: circle through the half-maximum
     # edges on 120 rays along the lit limb, against the label range and the nominal camera
     rays = np.linspace(ang.min() + 0.05, ang.max() - 0.05, 120)
-    pred_px = math.tan(math.asin(g0.moon_radius / label_range)) * camera.fx
+    pred_px = math.tan(math.asin(g0.body_radius / label_range)) * camera.fx
     ratio_real = edge_circle_radius(real_e, c, rays, real_limb.radius_px) / pred_px
     ratio_sim = edge_circle_radius(sim_reg, c, rays, real_limb.radius_px) / pred_px
     # the same navigation chain on the simulated frame: a control for the algorithm
@@ -624,7 +624,7 @@ def analyse_frame(path: str | Path, options: AmieOptions | None = None
     plate = amie_plate_scale()
     scale = float(plate["focal_scale"])
     if abs(nav_err) > 5.0 and math.isfinite(nav_sim) and abs(nav_sim) < 1.0:
-        pred_px = math.asin(g0.moon_radius / label_range) / camera.ifov
+        pred_px = math.asin(g0.body_radius / label_range) / camera.ifov
         notes.append(
             f"label geometry inconsistent with the image: the real limb gives a range "
             f"{nav_err:+.1f} % from the label's (apparent radius {real_limb.radius_px:.1f} px "
@@ -632,7 +632,7 @@ def analyse_frame(path: str | Path, options: AmieOptions | None = None
             f"is within {abs(nav_sim):.2f} %: the frame's spacecraft position (and its pointing) "
             "are off, so its comparison is not a test of the model")
     sunlit = (1.0 if geom.earth_position is None else disc_mean_sunlit_fraction(
-        geom.camera_position, geom.moon_radius, geom.sun_position, geom.earth_position))
+        geom.camera_position, geom.body_radius, geom.sun_position, geom.earth_position))
     if sunlit < 1.0:
         notes.append(f"in the Earth's shadow: {sunlit:.4f} of the sunlight on the visible disc "
                      "(DE421; the simulation includes it, the umbra's refracted light not)")
