@@ -63,13 +63,6 @@ from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
 
-try:   # numpy.linalg.solve's generalised ufunc (module-private in NumPy 1.26 and 2.x)
-    from numpy.linalg import _umath_linalg
-
-    _GESV = _umath_linalg.solve
-except (ImportError, AttributeError):  # pragma: no cover - another NumPy layout
-    _GESV = None
-
 #: Variance of a unit pixel's box response projected on any direction [px^2].
 PIXEL_BOX_VARIANCE = 1.0 / 12.0
 _TABLE_T = (-10.0, 30.0, 0.01)
@@ -680,32 +673,20 @@ class _StackedTables:
 
 def _solve(A: FloatArray, b: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
     """Batched ``A x = b`` (``(K, n, n)``, ``(K, n)`` or ``(K, n, m)``); windows whose matrix
-    is singular get the minimum-norm least-squares solution and ``False`` in the mask.
-
-    The solve is LAPACK's ``gesv`` through NumPy's own generalised ufunc, the one
-    ``numpy.linalg.solve`` calls, without that wrapper's checks (a few solves of tiny
-    matrices per iteration: the wrapper cost more than the solve); a singular matrix gives
-    non-finite rows, which are solved again one by one as ``numpy.linalg.solve`` would."""
+    is singular get the minimum-norm least-squares solution and ``False`` in the mask."""
     vec = b.ndim == A.ndim - 1
-    if _GESV is not None:
-        with np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore"):
-            x = _GESV(A, b[..., None] if vec else b, signature="dd->d")
-        if np.isfinite(x).all():
-            return (x[..., 0] if vec else x), np.ones(len(A), bool)
-    else:
-        try:
-            x = np.linalg.solve(A, b[..., None] if vec else b)
-            return (x[..., 0] if vec else x), np.ones(len(A), bool)
-        except np.linalg.LinAlgError:
-            pass
-    out, ok = np.empty(b.shape), np.ones(len(A), bool)
-    for i in range(len(A)):
-        try:
-            out[i] = np.linalg.solve(A[i], b[i])
-        except np.linalg.LinAlgError:
-            out[i] = np.linalg.lstsq(A[i], b[i], rcond=None)[0]
-            ok[i] = False
-    return out, ok
+    try:
+        x = np.linalg.solve(A, b[..., None] if vec else b)
+        return (x[..., 0] if vec else x), np.ones(len(A), bool)
+    except np.linalg.LinAlgError:
+        out, ok = np.empty(b.shape), np.ones(len(A), bool)
+        for i in range(len(A)):
+            try:
+                out[i] = np.linalg.solve(A[i], b[i])
+            except np.linalg.LinAlgError:
+                out[i] = np.linalg.lstsq(A[i], b[i], rcond=None)[0]
+                ok[i] = False
+        return out, ok
 
 
 _ALL = slice(None)
