@@ -44,7 +44,7 @@ from starnav.typing import FloatArray
 log = logging.getLogger(__name__)
 
 #: Up to this many epochs per call the Chebyshev recurrence runs on Python floats (faster
-#: than NumPy's per-call overhead on tiny arrays; the same result bit for bit).
+#: than NumPy's per-call overhead on tiny arrays; the array form's result to rounding).
 _SCALAR_EPOCHS = 8
 #: Epochs memoised per series by the few-epoch path (cleared when full).
 _MEMO_EPOCHS = 64
@@ -277,9 +277,10 @@ class Ephemeris:
                        span: float) -> tuple[FloatArray, FloatArray]:
         """:meth:`_chebyshev` for a few epochs (the stages of one RK4 step, one fix's epoch):
         the set index, the scaled time and the recurrence on Python floats, the same
-        operations in the same order as the array form (bit for bit equal), without its ~5
-        NumPy calls per coefficient; each epoch's values memoised (a filter step starts where
-        the last one ended, and its fix asks for the Moon at that epoch again)."""
+        operations in the same order as the array form, without its ~5 NumPy calls per
+        coefficient; each epoch's values memoised (a filter step starts where the last one
+        ended, and its fix asks for the Moon at that epoch again), so computed one epoch at a
+        time: the same bits whichever call asked first, the array form's to rounding."""
         memo = self._memo.setdefault(name, {})
         n_sets, _, n_coef = sets.shape
         tl = t.ravel().tolist()
@@ -288,7 +289,8 @@ class Ephemeris:
         if new:
             if not all(self.t_min <= tj <= self.t_max for tj in new):
                 self.check_span(np.array(new))
-            idx, Tc, dTc = [], [], []
+            if len(memo) + len(new) > _MEMO_EPOCHS:
+                memo.clear()
             for tj in new:
                 i = min(max(math.floor((tj - start0) / span), 0), n_sets - 1)
                 xj = 2.0 * (tj - (start0 + i * span)) / span - 1.0
@@ -296,18 +298,11 @@ class Ephemeris:
                 for k in range(2, n_coef):
                     tk.append(2.0 * xj * tk[k - 1] - tk[k - 2])
                     dk.append(2.0 * xj * dk[k - 1] - dk[k - 2] + 2.0 * tk[k - 1])
-                idx.append(i)
-                Tc.append(tk)
-                dTc.append(dk)
-            # the array form's contraction on the same layouts (a row does not depend on how
-            # many epochs there are)
-            coef = sets[idx]
-            val = np.einsum("nck,kn->nc", coef, np.array(Tc).T.copy())
-            der = np.einsum("nck,kn->nc", coef, np.array(dTc).T.copy())
-            if len(memo) + len(new) > _MEMO_EPOCHS:
-                memo.clear()
-            for j, tj in enumerate(new):
-                memo[tj] = got[tj] = (val[j], der[j])
+                # the array form's contraction, one epoch at a time (NumPy's sum for a row
+                # depends on how many rows it is given: its vector paths)
+                coef = sets[i:i + 1]
+                memo[tj] = got[tj] = (np.einsum("nck,kn->nc", coef, np.array([tk]).T.copy())[0],
+                                      np.einsum("nck,kn->nc", coef, np.array([dk]).T.copy())[0])
         rows = [got[tj] for tj in tl]
         return (np.array([r[0] for r in rows]), np.array([r[1] for r in rows]))
 
