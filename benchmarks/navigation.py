@@ -39,7 +39,7 @@ of one frame, from ``navigate``'s own traced pass (``measure_memory``).
 at git revision ``REF`` (``src/starnav`` extracted to a temporary directory) interleaved: the
 two run alternately, ``--rounds`` times each, ``--repeat`` frames per run in a fresh process,
 so both see the same load; the medians and 90th percentiles are of all their frames
-(``navigate``'s CPU clock, and the wall time of the call).
+(``navigate``'s CPU clock).
 """
 
 from __future__ import annotations
@@ -227,20 +227,15 @@ RANGES_KM = (20_000.0, 60_000.0)
 
 def chain_times(repeat: int) -> dict:
     """``navigate``'s CPU clock of each of ``repeat`` whole chains with refinement and the
-    filter's step (after a warm-up of 5), per range; ``wall`` the wall time of the call."""
+    filter's step (after a warm-up of 5), per range [ms]."""
     product = Product()
     out = {}
     for r in RANGES_KM:
         *_, full, chain_step = _case(r, product)
         for _ in range(5):
             chain_step(full)
-        wall, cpu = [], []
-        for _ in range(repeat):
-            t = time.perf_counter()
-            run = chain_step(full)
-            wall.append((time.perf_counter() - t) * 1e3)
-            cpu.append(float(run.cpu_times_s[0]) * 1e3)
-        out[f"{r:.0f}"] = {"wall": wall, "cpu": cpu}
+        out[f"{r:.0f}"] = {"cpu": [float(chain_step(full).cpu_times_s[0]) * 1e3
+                                   for _ in range(repeat)]}
     return out
 
 
@@ -255,7 +250,7 @@ def compare_against(ref: str, rounds: int, repeat: int) -> dict:
             tar.extractall(d, filter="data")
         srcs = {ref: str(Path(d) / "src"), "this checkout": str(root / "src")}
         runs: dict[str, dict[str, dict[str, list[float]]]] = {
-            k: {f"{r:.0f}": {"wall": [], "cpu": []} for r in RANGES_KM} for k in srcs}
+            k: {f"{r:.0f}": {"cpu": []} for r in RANGES_KM} for k in srcs}
         load0 = os.getloadavg()
         for i in range(rounds):
             for label in (list(srcs) if i % 2 == 0 else list(srcs)[::-1]):
@@ -264,8 +259,7 @@ def compare_against(ref: str, rounds: int, repeat: int) -> dict:
                     [sys.executable, __file__, "--chain-times", "--repeat", str(repeat)],
                     env=env, capture_output=True, text=True, check=True).stdout)
                 for r, v in got.items():
-                    for k in ("wall", "cpu"):
-                        runs[label][r][k] += v[k]
+                    runs[label][r]["cpu"] += v["cpu"]
         load1 = os.getloadavg()
     return {"load_before": load0, "load_after": load1, "runs": runs}
 
@@ -315,14 +309,13 @@ def main() -> None:
         print(f"load average before: {' '.join(f'{x:.2f}' for x in res['load_before'])}, "
               f"after: {' '.join(f'{x:.2f}' for x in res['load_after'])} "
               f"on {os.cpu_count()} cores")
-        print(f"whole chain with refinement + EKF step, {args.rounds} x {args.repeat} frames "
-              "each, interleaved [ms]:")
+        print(f"whole chain with refinement + EKF step, navigate's CPU clock, {args.rounds} x "
+              f"{args.repeat} frames each, interleaved [ms]:")
         for label, per in res["runs"].items():
             for r, v in per.items():
-                w, c = np.asarray(v["wall"]), np.asarray(v["cpu"])
-                print(f"  {label:14s} {r:>6s} km: median {np.median(w):6.2f}  p90 "
-                      f"{np.percentile(w, 90):6.2f}  CPU median {np.median(c):6.2f}  min "
-                      f"{c.min():6.2f}")
+                c = np.asarray(v["cpu"])
+                print(f"  {label:14s} {r:>6s} km: median {np.median(c):6.2f}  p90 "
+                      f"{np.percentile(c, 90):6.2f}  min {c.min():6.2f}")
         if args.json:
             with open(args.json, "w", encoding="utf-8") as fh:
                 json.dump(res, fh, indent=1)
