@@ -181,3 +181,25 @@ def test_filter_rk4_step_default_is_converged_near_l2():
     x, P = propagate(m, t0, x0, t0 + 86400.0, step=step, with_stm=True)
     assert np.linalg.norm(x[:3] - ref[:3]) < 0.01
     assert np.abs(P - Pr).max() / np.abs(Pr).max() < 1e-6
+
+
+def test_single_trajectory_kernel_is_the_grid_kernel(model, eph):
+    # regression test of rk4_stm (the filter's step) against rk4_grid with the STM, the same
+    # RK4 on the same stages: equal to rounding (1e-12 relative), forwards, backwards, one and
+    # several steps; a subclass's forces are refused, not silently dropped
+    from starnav.navigation.dynamics import PointMassDynamics
+    from starnav.scenes.dynamics import rk4_grid, rk4_stm, step_grid
+    from starnav.scenes.forces import TruthForceModel
+
+    for x0 in _states(eph, T0):
+        for span, step in ((1800.0, 1800.0), (-3000.0, 1800.0), (7200.0, 1000.0)):
+            grid = step_grid(T0, T0 + span, step)
+            x1, Phi = rk4_stm(model, grid, x0)
+            x_ref, Phi_ref = rk4_grid(model, grid, x0, with_stm=True)
+            assert np.allclose(x1, x_ref, rtol=1e-12, atol=1e-6)
+            assert np.allclose(Phi, Phi_ref, rtol=1e-12, atol=1e-12 * np.abs(Phi_ref).max())
+            dyn = PointMassDynamics(model, step_s=step)
+            xd, Pd = dyn.propagate(T0, x0, T0 + span)
+            assert np.array_equal(xd, x1) and np.array_equal(Pd, Phi)
+    with pytest.raises(ConfigError, match="PointMassModel"):
+        rk4_stm(TruthForceModel.__new__(TruthForceModel), step_grid(T0, T0 + 60.0), x0)

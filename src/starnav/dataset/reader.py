@@ -84,6 +84,11 @@ def checked_file(frame_dir: Path, entry: dict[str, Any], rel: str, *,
     return p
 
 
+def _read_only(a: FloatArray) -> FloatArray:
+    a.flags.writeable = False
+    return a
+
+
 class DatasetFrame:
     """One frame of a dataset at one exposure (a ``NavFrame``; files read lazily).
 
@@ -139,24 +144,26 @@ class DatasetFrame:
         """True pose: :class:`~starnav.geometry.FrameGeometry` (Moon-centred, SI)."""
         return F.geometry_of_truth(self.truth_dict, self.directory / F.TRUTH)
 
-    @property
+    # the frame's attitude and Sun: read once (the chain asks for them at every stage),
+    # read-only so that no caller changes what the next one reads
+    @functools.cached_property
     def R_cam_to_inertial_measured(self) -> FloatArray:
         """On-board attitude, camera -> J2000 (true attitude if none was stored)."""
         a = self._truth("attitude")
         key = ("attitude.R_cam_to_inertial_measured"
                if isinstance(a, dict) and a.get("R_cam_to_inertial_measured") is not None
                else "attitude.R_cam_to_inertial_true")
-        return self._truth(key, (3, 3))
+        return _read_only(self._truth(key, (3, 3)))
 
-    @property
+    @functools.cached_property
     def sun_direction_inertial(self) -> FloatArray:
         """Unit vector from the Moon to the Sun, J2000."""
-        return self._truth("sun.direction_from_moon", (3,))
+        return _read_only(self._truth("sun.direction_from_moon", (3,)))
 
-    @property
+    @functools.cached_property
     def R_body_to_inertial(self) -> FloatArray:
         """Moon body-fixed -> J2000."""
-        return self._truth("moon.R_moon_to_inertial", (3, 3))
+        return _read_only(self._truth("moon.R_moon_to_inertial", (3, 3)))
 
     @functools.cached_property
     def segments(self) -> Any:

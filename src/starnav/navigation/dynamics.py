@@ -26,7 +26,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike
 
-from starnav.scenes.dynamics import PointMassModel, propagate
+from starnav.scenes.dynamics import PointMassModel, propagate, rk4_stm, step_grid
 from starnav.typing import FloatArray
 
 
@@ -64,6 +64,11 @@ class PointMassDynamics:
         self.step_s = float(step_s)
 
     def propagate(self, t0: float, x0: ArrayLike, t1: float) -> tuple[FloatArray, FloatArray]:
+        if type(self.model) is PointMassModel and float(t1) != float(t0):
+            x = np.asarray(x0, float)
+            if x.shape == (6,) and np.isfinite(x).all():
+                # the point masses themselves: the single-trajectory kernel (a filter step)
+                return rk4_stm(self.model, step_grid(t0, t1, self.step_s), x)
         x1, Phi = propagate(self.model, float(t0), np.asarray(x0, float), float(t1),
                             step=self.step_s, with_stm=True)
         assert Phi is not None

@@ -138,8 +138,15 @@ def gauss_markov_discrete(dt: float, sigma: float, tau: float) -> tuple[float, f
 def white_acceleration_q(dt: float, psd: float) -> FloatArray:
     """Discrete process noise (6 x 6) of white acceleration of density ``psd`` [m^2/s^3]."""
     dt = abs(dt)
-    I3 = np.eye(3)
-    return psd * np.block([[dt**3 / 3.0 * I3, dt**2 / 2.0 * I3], [dt**2 / 2.0 * I3, dt * I3]])
+    Q = np.zeros((6, 6))
+    i = _AXES
+    Q[i, i] = psd * (dt**3 / 3.0)
+    Q[i, i + 3] = Q[i + 3, i] = psd * (dt**2 / 2.0)
+    Q[i + 3, i + 3] = psd * dt
+    return Q
+
+
+_AXES = np.arange(3)
 
 
 def measurement_model(x: ArrayLike, moon_position: ArrayLike, bias_model: str,

@@ -16,7 +16,7 @@ indirect terms) and 7.2 (variational equations).
 Index
 -----
 :class:`PointMassModel`, :func:`propagate`, :func:`propagate_many`, :func:`rk4_grid`,
-:func:`step_grid`, :data:`DEFAULT_STEP`.
+:func:`rk4_stm`, :func:`step_grid`, :data:`DEFAULT_STEP`.
 """
 
 from __future__ import annotations
@@ -279,6 +279,81 @@ def rk4_grid(model: PointMassModel, tgrid: ArrayLike, x0: ArrayLike, with_stm: b
         out_x = out_x[0]
         out_p = out_p[0] if out_p is not None else None
     return out_x, out_p
+
+
+def rk4_stm(model: PointMassModel, tgrid: ArrayLike, x0: ArrayLike
+            ) -> tuple[FloatArray, FloatArray]:
+    """:func:`rk4_grid` with the STM for one trajectory of the point-mass model itself: the
+    same stages and operations on plain ``(3,)`` and ``(3, 6)`` arrays (a filter's step:
+    its per-call cost is NumPy's, so batch axes and ``einsum`` parsing are left out).
+
+    Parameters
+    ----------
+    model : PointMassModel
+        Exactly this class (a subclass's forces are not these).
+    tgrid : (n + 1,) array
+        Epochs [TDB s] of the nodes.
+    x0 : (6,) array
+        State at ``tgrid[0]`` [m, m/s].
+
+    Returns
+    -------
+    x1 : (6,) array
+        State at ``tgrid[-1]`` [m, m/s].
+    Phi : (6, 6) array
+        STM from the first node to the last.
+    """
+    if type(model) is not PointMassModel:
+        raise ConfigError("model", type(model).__name__, "a PointMassModel (not a subclass)")
+    tg = np.asarray(tgrid, dtype=float)
+    nsteps = tg.size - 1
+    stage_t = np.empty(2 * nsteps + 1)
+    stage_t[0::2] = tg
+    h = np.diff(tg)
+    stage_t[1::2] = tg[:-1] + 0.5 * h
+    B, AF = model.environment(stage_t)   # (2n+1, 3, 3), (2n+1, 3)
+    gm = model._gm
+    eye3 = np.eye(3)
+
+    def jac(r: FloatArray, b: FloatArray, af: FloatArray) -> tuple[FloatArray, FloatArray]:
+        d = r - b                          # (3 bodies, 3)
+        n2 = (d * d).sum(axis=1)
+        w = gm / (n2 * np.sqrt(n2))
+        a = -(w @ d) - af
+        J = (3.0 * (w / n2)[:, None] * d).T @ d
+        J -= w.sum() * eye3
+        return a, J
+
+    x0 = np.asarray(x0, dtype=float)
+    r, v = x0[:3].copy(), x0[3:].copy()
+    Pr = np.zeros((3, 6))
+    Pv = np.zeros((3, 6))
+    Pr[:, :3] = eye3
+    Pv[:, 3:] = eye3
+    for i, hh in enumerate(h.tolist()):
+        b0, bh, b1 = B[2 * i], B[2 * i + 1], B[2 * i + 2]
+        f0, fh, f1 = AF[2 * i], AF[2 * i + 1], AF[2 * i + 2]
+        h2 = 0.5 * hh
+        k1v, J1 = jac(r, b0, f0)
+        k1Pv = J1 @ Pr
+        k2v, J2 = jac(r + h2 * v, bh, fh)
+        k2r = v + h2 * k1v
+        k2Pr = Pv + h2 * k1Pv
+        k2Pv = J2 @ (Pr + h2 * Pv)
+        k3v, J3 = jac(r + h2 * k2r, bh, fh)
+        k3r = v + h2 * k2v
+        k3Pr = Pv + h2 * k2Pv
+        k3Pv = J3 @ (Pr + h2 * k2Pr)
+        k4v, J4 = jac(r + hh * k3r, b1, f1)
+        k4r = v + hh * k3v
+        k4Pr = Pv + hh * k3Pv
+        k4Pv = J4 @ (Pr + hh * k3Pr)
+        h6 = hh / 6.0
+        r = r + h6 * (v + 2.0 * k2r + 2.0 * k3r + k4r)
+        v = v + h6 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
+        Pr = Pr + h6 * (Pv + 2.0 * k2Pr + 2.0 * k3Pr + k4Pr)
+        Pv = Pv + h6 * (k1Pv + 2.0 * k2Pv + 2.0 * k3Pv + k4Pv)
+    return np.concatenate([r, v]), np.concatenate([Pr, Pv])
 
 
 def step_grid(t0: float, t1: float, step: float = DEFAULT_STEP) -> FloatArray:

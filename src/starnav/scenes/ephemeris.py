@@ -44,8 +44,10 @@ from starnav.typing import FloatArray
 log = logging.getLogger(__name__)
 
 #: Up to this many epochs per call the Chebyshev recurrence runs on Python floats (faster
-#: than NumPy's per-call overhead on tiny arrays; the same result bit for bit).
+#: than NumPy's per-call overhead on tiny arrays; the array form's result to rounding).
 _SCALAR_EPOCHS = 8
+#: Epochs memoised per series by the few-epoch path (cleared when full).
+_MEMO_EPOCHS = 64
 
 #: Julian date of J2000 (2000-01-01T12:00:00 TDB).
 J2000_JD = 2451545.0
@@ -198,6 +200,7 @@ class Ephemeris:
         self.t_min = (self._jd_alpha - J2000_JD) * DAY
         self.t_max = (self._jd_omega - J2000_JD) * DAY
         self._sets: dict[str, FloatArray] = {}
+        self._memo: dict[str, dict[float, FloatArray]] = {}
         self._pa_to_me = pa_to_me_matrix()
 
     @classmethod
@@ -242,7 +245,6 @@ class Ephemeris:
         """Series ``name`` and its time derivative at epochs ``t`` [TDB s]: native units
         (km or rad) and per day; shapes ``(..., n_comp)``."""
         t = np.asarray(t, dtype=float)
-        self.check_span(t)
         sets = self._load(name)
         n_sets, n_comp, n_coef = sets.shape
         dps = (self._jd_omega - self._jd_alpha) / n_sets  # days per set
@@ -250,32 +252,59 @@ class Ephemeris:
         # the subtraction keeps the full resolution of t
         start0 = (self._jd_alpha - J2000_JD) * DAY
         span = dps * DAY
-        tf = t.ravel()
-        idx = np.clip(np.floor((tf - start0) / span).astype(np.int64), 0, n_sets - 1)
-        x = 2.0 * (tf - (start0 + idx * span)) / span - 1.0
-        T = np.empty((n_coef, x.size))
-        dT = np.empty((n_coef, x.size))
-        if x.size <= _SCALAR_EPOCHS:
-            # a few epochs (the stages of one RK4 step): the recurrence on Python floats,
-            # the same operations in the same order as the array form (bit for bit equal),
-            # without its ~5 NumPy calls per coefficient
-            for j, xj in enumerate(x.tolist()):
-                tk, dk = [1.0, xj], [0.0, 1.0]
-                for k in range(2, n_coef):
-                    tk.append(2.0 * xj * tk[k - 1] - tk[k - 2])
-                    dk.append(2.0 * xj * dk[k - 1] - dk[k - 2] + 2.0 * tk[k - 1])
-                T[:, j], dT[:, j] = tk, dk
+        if t.size <= _SCALAR_EPOCHS:
+            val, der = self._chebyshev_few(name, sets, t, start0, span)
         else:
+            self.check_span(t)
+            tf = t.ravel()
+            idx = np.clip(np.floor((tf - start0) / span).astype(np.int64), 0, n_sets - 1)
+            x = 2.0 * (tf - (start0 + idx * span)) / span - 1.0
+            T = np.empty((n_coef, x.size))
+            dT = np.empty((n_coef, x.size))
             T[0], T[1] = 1.0, x
             dT[0], dT[1] = 0.0, 1.0
             for k in range(2, n_coef):
                 T[k] = 2.0 * x * T[k - 1] - T[k - 2]
                 dT[k] = 2.0 * x * dT[k - 1] - dT[k - 2] + 2.0 * T[k - 1]
-        coef = sets[idx]  # (n, comp, coef)
-        val = np.einsum("nck,kn->nc", coef, T)
-        der = np.einsum("nck,kn->nc", coef, dT) * (2.0 / dps)
+            coef = sets[idx]  # (n, comp, coef)
+            val = np.einsum("nck,kn->nc", coef, T)
+            der = np.einsum("nck,kn->nc", coef, dT)
+        der = der * (2.0 / dps)
         shape = t.shape + (n_comp,)
         return val.reshape(shape), der.reshape(shape)
+
+    def _chebyshev_few(self, name: str, sets: FloatArray, t: FloatArray, start0: float,
+                       span: float) -> tuple[FloatArray, FloatArray]:
+        """:meth:`_chebyshev` for a few epochs (the stages of one RK4 step, one fix's epoch):
+        the set index, the scaled time and the recurrence on Python floats, the same
+        operations in the same order as the array form, without its ~5 NumPy calls per
+        coefficient; each epoch's values memoised (a filter step starts where the last one
+        ended, and its fix asks for the Moon at that epoch again), so computed one epoch at a
+        time: the same bits whichever call asked first, the array form's to rounding."""
+        memo = self._memo.setdefault(name, {})
+        n_sets, _, n_coef = sets.shape
+        tl = t.ravel().tolist()
+        got = {tj: memo.get(tj) for tj in tl}
+        new = [tj for tj, v in got.items() if v is None]
+        if new:
+            if not all(self.t_min <= tj <= self.t_max for tj in new):
+                self.check_span(np.array(new))
+            if len(memo) + len(new) > _MEMO_EPOCHS:
+                memo.clear()
+            for tj in new:
+                i = min(max(math.floor((tj - start0) / span), 0), n_sets - 1)
+                xj = 2.0 * (tj - (start0 + i * span)) / span - 1.0
+                tk, dk = [1.0, xj], [0.0, 1.0]
+                for k in range(2, n_coef):
+                    tk.append(2.0 * xj * tk[k - 1] - tk[k - 2])
+                    dk.append(2.0 * xj * dk[k - 1] - dk[k - 2] + 2.0 * tk[k - 1])
+                # the array form's contraction, one epoch at a time (NumPy's sum for a row
+                # depends on how many rows it is given: its vector paths)
+                coef = sets[i:i + 1]
+                memo[tj] = got[tj] = (np.einsum("nck,kn->nc", coef, np.array([tk]).T.copy())[0],
+                                      np.einsum("nck,kn->nc", coef, np.array([dk]).T.copy())[0])
+        rows = [got[tj] for tj in tl]
+        return (np.array([r[0] for r in rows]), np.array([r[1] for r in rows]))
 
     # ------------------------------------------------------------------ states
     def moon_geocentric(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
