@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from starnav.atomic import atomic_write_text
 from starnav.camera import Camera
@@ -278,8 +279,6 @@ def star_alignment(camera: Camera, known: Camera, n: int = 9) -> FloatArray:
     u = (np.arange(n) + 0.5) * camera.width / n
     v = (np.arange(n) + 0.5) * camera.height / n
     uv = np.stack(np.meshgrid(u, v), -1).reshape(-1, 2)
-    from scipy.spatial.transform import Rotation
-
     rot, _ = Rotation.align_vectors(known.unproject(uv), camera.unproject(uv))
     A = rot.as_matrix()
     A.setflags(write=False)
