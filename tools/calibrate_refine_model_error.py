@@ -26,10 +26,16 @@ varying (all but the pixels' noise and the attitude).
 The tests score the result on three other arcs (tests/navigation/test_consistency.py: the
 demo arc, halo phase 0, 2027-03-01, seed 20250101, and two more).
 
+``--phase-scales`` runs the second pass alone on the real-Moon arcs with the packaged terms
+and writes only the factors per bin of phase on the pooled fix covariance
+(``starnav.batch.consistency.fix_phase_scales``): the shared limb errors grow towards the
+crescent, and one pooled covariance is too small there and too large near full.
+
 Usage::
 
     .venv/bin/python tools/calibrate_refine_model_error.py            # calibrate, write
     .venv/bin/python tools/calibrate_refine_model_error.py --dry-run  # print only
+    .venv/bin/python tools/calibrate_refine_model_error.py --phase-scales
 """
 
 from __future__ import annotations
@@ -93,7 +99,12 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--dry-run", action="store_true", help="print, restore the packaged file")
+    ap.add_argument("--phase-scales", action="store_true",
+                    help="the fix covariance's factors per bin of phase alone (second pass)")
     args = ap.parse_args()
+    if args.phase_scales:
+        phase_scales(args.dry_run)
+        return
     before = OUT.read_text() if OUT.exists() else None
     base = demo_scenario()
     sc = scenario_from_dict(base)
@@ -160,6 +171,45 @@ def main() -> None:
     print(json.dumps({k: doc[k] for k in ("edge_model_error_px", "saturated_model_error_px",
                                           "terrain_scale", "moments")}, indent=1))
     if not args.dry_run:
+        _use(doc, OUT)
+        print("wrote", OUT)
+
+
+def phase_scales(dry_run: bool) -> None:
+    """The second pass on the real-Moon arcs with the packaged terms: the factors per bin of
+    phase on its pooled fix covariances."""
+    from starnav.batch.consistency import fix_phase_scales, limb_point_records
+    from starnav.batch.presets import demo_scenario
+    from starnav.config import scenario_from_dict, scenario_to_dict
+    from starnav.navigation.refine import ModelErrorCalibration
+
+    doc = json.loads(OUT.read_text())
+    doc.pop("fix_scale_by_phase", None)
+    doc.pop("fix_scale_saturated_by_phase", None)
+    _use(doc, OUT)     # the pooled covariance alone while the fixes are made
+    cal = ModelErrorCalibration.from_dict(doc)
+    fixes = []
+    for arc in ARCS:
+        cfg = scenario_to_dict(scenario_from_dict(demo_scenario(), [*arc, *COMMON]))
+        rec = limb_point_records(cfg, RUNS, (WELL_EXPOSED, SATURATED))
+        fixes += [rec[WELL_EXPOSED[0]]["fixes"], rec[SATURATED[0]]["fixes"]]
+        print("arc", arc, "done", flush=True)
+    tab = _merge(fixes)
+    sat = tab["saturated"].astype(bool)
+    edges = np.asarray(cal.phase_edges_deg)
+    b = np.clip(np.searchsorted(edges, np.degrees(tab["phase"]), "right") - 1, 0,
+                edges.size - 2)
+    doc["fix_scale_by_phase"] = fix_phase_scales(tab, np.asarray(cal.fix_covariance), False,
+                                                 tuple(edges))
+    doc["fix_scale_saturated_by_phase"] = fix_phase_scales(
+        tab, np.asarray(cal.fix_covariance_saturated), True, tuple(edges))
+    doc["fix_scale_fixes_per_bin"] = {
+        "well_exposed": [int(((b == k) & ~sat).sum()) for k in range(edges.size - 1)],
+        "saturated": [int(((b == k) & sat).sum()) for k in range(edges.size - 1)]}
+    doc["fix_scale_written"] = _dt.date.today().isoformat()
+    print(json.dumps({k: doc[k] for k in ("fix_scale_by_phase", "fix_scale_saturated_by_phase",
+                                          "fix_scale_fixes_per_bin")}), flush=True)
+    if not dry_run:
         _use(doc, OUT)
         print("wrote", OUT)
 

@@ -16,8 +16,8 @@ their sigmas, correlation time and density are chosen here.
 
 Protocol (docs/navigation.md, "Tuning apart from scoring"): the demo scenario with every
 mismatch on (the truth's planets, SRP with eclipses and J2; the estimated PSF; the coarser
-terrain statistics; the camera known exactly, ``navigation.camera_calibration`` being off
-by default: docs/navigation.md, "Camera knowledge") on two
+terrain statistics; the camera as one emulated bench calibrated it, one bench per run, its
+parameters the filter's consider states: docs/navigation.md, "Camera knowledge") on two
 calibration arcs inside the chain's envelope of Sun phase (:data:`ARCS`: halo phases 60 and
 240 deg, March 2027, seeds 4242-4243), each 1 day, 13 frames 2 h apart, 8 spp, 20 runs each on
 its own terrain (the DEM and its albedo turned about the pole), detector noise, attitude
@@ -149,8 +149,8 @@ def main() -> None:
                               "states) lies inside its 95 % band; ties: the worse arc's larger "
                               "of |ln(ANEES / 6)| and |ln(NIS / 3)| to 0.01, then the smaller "
                               "settings",
-                 "mismatch": "truth forces, estimated PSF, coarser terrain statistics (the "
-                             "camera known exactly: navigation.camera_calibration null)",
+                 "mismatch": "truth forces, estimated PSF, coarser terrain statistics, the "
+                             "camera from an emulated bench per run (consider states)",
                  "written": _dt.date.today().isoformat(), "tool": "tools/tune_bias_states.py",
                  "commit": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
                                           capture_output=True, text=True).stdout.strip(),

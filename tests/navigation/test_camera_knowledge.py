@@ -128,7 +128,7 @@ def test_a_principal_point_error_cancels_through_the_star_attitude(frame, truth_
 
 
 def test_bench_knowledge_is_one_emulated_bench_per_run(truth_camera):
-    """navigation.camera_calibration: bench: each run knows the default tracker
+    """navigation.camera_calibration: bench (the default): each run knows the default tracker
     as one seeded emulated bench calibrated it (the truth plus that bench's realised error,
     with its stated covariance), reproducibly per (seed, run); the runs sample several
     benches; another camera is not given the default tracker's benches."""
@@ -136,8 +136,10 @@ def test_bench_knowledge_is_one_emulated_bench_per_run(truth_camera):
     from starnav.config import Scenario
 
     sc = Scenario()
-    assert sc.navigation.camera_calibration is None and sc.navigation.calibration(sc) is None
-    nav = sc.navigation.model_copy(update={"camera_calibration": "bench"})
+    assert sc.navigation.camera_calibration == "bench"
+    exact = sc.navigation.model_copy(update={"camera_calibration": None})
+    assert exact.calibration(sc) is None
+    nav = sc.navigation
     cal = nav.calibration(sc, 3)
     assert cal is not None and cal.camera == nav.calibration(sc, 3).camera
     seeds = {nav.calibration(sc, r).provenance["bench_seed"] for r in range(12)}

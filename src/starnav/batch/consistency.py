@@ -228,7 +228,7 @@ def fix_mode_table(frames: list[list[FrameResult]]) -> dict[str, np.ndarray]:
     """Per fix made from refined points: ``error`` ``(F, 3)``, ``noise`` and ``white``
     ``(F, 3, 3)`` in the three shared modes [units of the disc radius]
     (:class:`~starnav.batch.tasks.LimbPointRecord`), ``radius`` [px], ``saturated`` (any
-    window saturated), ``frame``, ``run``."""
+    window saturated), ``phase`` [rad], ``frame``, ``run``."""
     rows = [fr for per in frames for fr in per if fr.points is not None
             and fr.points.mode_error is not None]
     nan3 = np.full((3, 3), np.nan)
@@ -238,6 +238,7 @@ def fix_mode_table(frames: list[list[FrameResult]]) -> dict[str, np.ndarray]:
                                for r in rows]).reshape(-1, 3, 3),
             "radius": np.array([r.points.radius_px for r in rows]),
             "saturated": np.array([bool(np.any(r.points.saturated)) for r in rows]),
+            "phase": np.array([r.points.phase_rad for r in rows]),
             "frame": np.array([r.index for r in rows]), "run": np.array([r.run for r in rows])}
 
 
@@ -433,6 +434,31 @@ def _nees_scaled(C: np.ndarray, fixes: dict[str, np.ndarray], sel: np.ndarray) -
     return hi * C
 
 
+def fix_phase_scales(fixes: dict[str, np.ndarray], C: np.ndarray, saturated: bool,
+                     phase_edges_deg: tuple[float, ...] = PHASE_EDGES_DEG) -> list[float]:
+    """Per bin of phase, the factor ``s`` on the slowly varying fix covariance ``C`` (its
+    shape pooled over all phases) that makes the bin's calibration fixes' mean NEES (3 dof)
+    with ``white + s C`` equal 3 (:func:`_nees_scaled`): the shared limb errors grow towards
+    the crescent, where shadows eat the lit limb. A bin with fewer than
+    :data:`MIN_FRAMES_PER_BIN` fixes takes its nearest calibrated neighbour's factor."""
+    edges = np.asarray(phase_edges_deg, float)
+    nb = edges.size - 1
+    b = np.clip(np.searchsorted(edges, np.degrees(fixes["phase"]), "right") - 1, 0, nb - 1)
+    sat = fixes["saturated"].astype(bool) == saturated
+    C = np.asarray(C, float)
+    out = [math.nan] * nb
+    for k in range(nb):
+        sel = sat & (b == k) & np.isfinite(fixes["phase"])
+        if int(sel.sum()) >= MIN_FRAMES_PER_BIN and np.any(C):
+            out[k] = float(_nees_scaled(C, fixes, sel)[np.unravel_index(
+                np.argmax(np.abs(C)), C.shape)] / C.flat[np.argmax(np.abs(C))])
+    ok = [i for i, x in enumerate(out) if math.isfinite(x)]
+    if not ok:
+        return [1.0] * nb
+    return [out[i] if math.isfinite(out[i]) else out[min(ok, key=lambda j: abs(j - i))]
+            for i in range(nb)]
+
+
 def modelled_sigma(table: dict[str, np.ndarray], calibration: Any, topography: Any,
                    window_px: int) -> np.ndarray:
     """Each point's whole 1-sigma [px] under a model-error ``calibration``
@@ -467,7 +493,12 @@ def limb_point_records(config: dict[str, Any], runs: int = 1,
     ``rendered``) and, for each ``(exposure_time, overrides)`` (default: the scenario's exposure
     alone), expose and process it ``runs`` times. Per exposure: ``points``
     (:func:`limb_point_table`), ``fixes`` (:func:`fix_mode_table`) and ``fix_nees``, the NEES
-    (3 dof) of every fix against the true Moon-relative position."""
+    (3 dof) of every fix against the true Moon-relative position.
+
+    The chain knows the camera exactly here (``navigation.camera_calibration`` null): these
+    are the image's errors against the points' and fixes' own error model; the camera's
+    calibration error is one constant per arc, which the filter carries as consider states."""
+    config = scenario_to_dict(scenario_from_dict(config, ["navigation.camera_calibration=null"]))
     sc = scenario_from_dict(config)
     rendered = render_arc(config) if rendered is None else rendered
     cases = exposures or ((float(sc.detector.exposure_time_s), ()),)

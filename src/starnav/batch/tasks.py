@@ -134,6 +134,10 @@ class FrameResult:
         The fix's sensitivity to the errors its points share [m per unit of disc radius] and
         its covariance from the pixels' noise and the attitude alone [m^2] (the
         ``limb-common`` bias model).
+    consider_jacobian, consider_covariance : arrays or None
+        The fix's sensitivity to the camera calibration's parameters and its share of
+        ``covariance``, and the factor on the slowly varying limb errors at the frame's
+        phase, ``common_scale`` (:class:`~starnav.navigation.pipeline.FrameMeasurement`).
     attitude : dict or None
         With ``stars.enabled``: the attitude the fix used (``source``: assumed, star-frame,
         navigation-frame, propagated; its error ``error_x/y/roll`` against the truth and
@@ -161,6 +165,9 @@ class FrameResult:
     common_jacobian: FloatArray | None = None
     white_covariance: FloatArray | None = None
     attitude: dict[str, Any] | None = None
+    consider_jacobian: FloatArray | None = None
+    consider_covariance: FloatArray | None = None
+    common_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -430,7 +437,8 @@ class _Exposer:
             range_m=float(g.range), timings_s=tm,
             points=LimbPointRecord.of(m, float(g.phase_angle), g.camera_position),
             common_jacobian=m.common_jacobian, white_covariance=m.white_covariance,
-            attitude=att)
+            attitude=att, consider_jacobian=m.consider_jacobian,
+            consider_covariance=m.consider_covariance, common_scale=m.common_scale)
 
 
 def attitude_columns(fr: list[FrameResult]) -> dict[str, Any]:
@@ -541,7 +549,10 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
         if has_truth and dyn is not None and truth is not None and K:
             meas = [FrameMeasurement(f.index, f.epoch_tdb, f.status, position=f.position,
                                      covariance=f.covariance, common_jacobian=f.common_jacobian,
-                                     white_covariance=f.white_covariance) for f in fr_r]
+                                     white_covariance=f.white_covariance,
+                                     consider_jacobian=f.consider_jacobian,
+                                     consider_covariance=f.consider_covariance,
+                                     common_scale=f.common_scale) for f in fr_r]
             x0 = truth[0] + L0 @ initial_error_normal(sc.seed, r)
             with quiet_logger("starnav.navigation.ekf"):
                 res = run_filter(meas, dynamics=dyn, moon=dyn, t0=float(epochs[0]), x0=x0,

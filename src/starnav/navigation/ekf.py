@@ -17,6 +17,11 @@ Technique
    forced in.
 5. Update in Joseph form.
 6. A frame without a usable limb only propagates.
+7. Considered parameters (the camera's calibration: focal length, principal point,
+   distortion): Schmidt states, constant over the arc, with the calibration's covariance and
+   never updated. Their error is one constant for every fix of an arc, which a per-fix
+   covariance would treat as new at each frame; estimating them is not possible either, since
+   a limb fix cannot tell a focal-length error from a range error.
 
 The knobs are :class:`EkfOptions`.
 
@@ -26,7 +31,9 @@ Seed paper (STAR Nav), step 5 of the pixel-accuracy algorithm and its reference 
 navigation). R. G. Brown and P. Y. C. Hwang, "Introduction to random signals and applied Kalman
 filtering", 4th ed., Wiley (2012): 4.2 (Gauss-Markov discretisation), 4.7 (Joseph form).
 B. D. Tapley, B. E. Schutz and G. H. Born, "Statistical orbit determination", Elsevier (2004),
-4.7 (EKF with the STM).
+4.7 (EKF with the STM), ch. 6 (consider covariance analysis). S. F. Schmidt, "Application of
+state-space methods to navigation problems", Advances in Control Systems 3 (1966) 293-340 (the
+Schmidt-Kalman consider filter).
 
 Index
 -----
@@ -70,9 +77,18 @@ class EkfOptions:
     gate_probability: float | None = 0.9999
     max_consecutive_rejections: int = 5
     common_covariance: tuple[tuple[float, float, float], ...] | None = None
+    consider_covariance: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:
         BIAS_MODELS.check(self.bias_model)
+        if self.consider_covariance is not None:
+            C = np.asarray(self.consider_covariance, float)
+            if C.ndim != 2 or C.shape[0] != C.shape[1] or not np.all(np.isfinite(C)) \
+                    or np.any(np.diag(C) < 0) \
+                    or np.min(np.linalg.eigvalsh(0.5 * (C + C.T))) < -1e-9 * np.max(np.diag(C)):
+                raise ConfigError("filter.consider_covariance", np.shape(C),
+                                  "a square positive semi-definite covariance of the considered "
+                                  "camera parameters")
         if self.bias_model == "limb-common":
             C = np.asarray(self.common_covariance if self.common_covariance is not None
                            else np.zeros((3, 3)), float)
@@ -97,6 +113,11 @@ class EkfOptions:
     @property
     def n_bias(self) -> int:
         return BIAS_MODELS[self.bias_model]
+
+    @property
+    def n_consider(self) -> int:
+        """Number of considered parameters (Schmidt states, module step 7)."""
+        return 0 if self.consider_covariance is None else len(self.consider_covariance)
 
     @property
     def bias_sigma(self) -> float:
@@ -258,15 +279,15 @@ class NavigationEkf:
         except np.linalg.LinAlgError:
             raise ConfigError("filter.P0", "not positive definite",
                               "a positive-definite 6 x 6 covariance") from None
-        nb = opt.n_bias
+        nb, nc = opt.n_bias, opt.n_consider
         self.dynamics = dynamics
         self.moon = moon
         self.t = float(t0)
-        self.x = np.zeros(6 + nb)
+        self.x = np.zeros(6 + nb + nc)
         self.x[:6] = x0
         if nb:
-            self.x[6:] = 0.0 if bias0 is None else np.asarray(bias0, float)
-        self.P = np.zeros((6 + nb, 6 + nb))
+            self.x[6:6 + nb] = 0.0 if bias0 is None else np.asarray(bias0, float)
+        self.P = np.zeros((6 + nb + nc, 6 + nb + nc))
         self.P[:6, :6] = 0.5 * (P0 + P0.T)
         if nb:
             sb = opt.bias_sigmas
@@ -275,7 +296,10 @@ class NavigationEkf:
                     "range-scale") else "bias_sigma_m"
                 raise ConfigError(f"filter.{name}", float(np.min(sb)),
                                   f"a bias 1-sigma > 0 for bias_model={opt.bias_model!r}")
-            self.P[6:, 6:] = opt.bias_covariance
+            self.P[6:6 + nb, 6:6 + nb] = opt.bias_covariance
+        if nc:
+            C = np.asarray(opt.consider_covariance, float)
+            self.P[6 + nb:, 6 + nb:] = 0.5 * (C + C.T)
         self.rejections_in_a_row = 0
         self._gate = math.inf
         if opt.gate_probability is not None:
@@ -299,6 +323,8 @@ class NavigationEkf:
         n, nb = self.n, opt.n_bias
         F = np.zeros((n, n))
         F[:6, :6] = Phi
+        # the considered parameters are constants (no process noise)
+        F[6 + nb:, 6 + nb:] = np.eye(opt.n_consider)
         Q = np.zeros((n, n))
         if opt.accel_psd_m2_s3 > 0:
             Q[:6, :6] = white_acceleration_q(dt, opt.accel_psd_m2_s3)
@@ -306,9 +332,9 @@ class NavigationEkf:
             # every bias a first-order Gauss-Markov process of the same time constant:
             # Q = (1 - phi^2) times the steady-state covariance (exact)
             phi_b, q1 = gauss_markov_discrete(dt, 1.0, opt.bias_tau_s)
-            F[6:, 6:] = phi_b * np.eye(nb)
-            Q[6:, 6:] = q1 * opt.bias_covariance
-            self.x[6:] *= phi_b
+            F[6:6 + nb, 6:6 + nb] = phi_b * np.eye(nb)
+            Q[6:6 + nb, 6:6 + nb] = q1 * opt.bias_covariance
+            self.x[6:6 + nb] *= phi_b
         self.x[:6] = x6
         P = F @ self.P @ F.T + Q
         self.P = 0.5 * (P + P.T)
@@ -321,7 +347,8 @@ class NavigationEkf:
         return measurement_model(self.x, moon[:3], self.options.bias_model, common_jacobian)
 
     def update(self, z: ArrayLike, R: ArrayLike,
-               common_jacobian: ArrayLike | None = None) -> UpdateInfo:
+               common_jacobian: ArrayLike | None = None,
+               consider_jacobian: ArrayLike | None = None) -> UpdateInfo:
         """Process a fix at the current epoch (module steps 3-5).
 
         Parameters
@@ -332,10 +359,20 @@ class NavigationEkf:
             Its covariance [m^2] (with ``limb-common``: without the shared limb errors).
         common_jacobian : (3, 3) array, optional
             ``G`` of the ``limb-common`` model [m per unit of disc radius].
+        consider_jacobian : (3, n_consider) array, optional
+            ``J = d z / d theta`` of the considered parameters [m per unit] (module step 7);
+            None: the fix does not depend on them (``R`` then carries their share).
         """
         z = np.asarray(z, float)
         R = np.asarray(R, float)
         h, H = self.predicted_measurement(common_jacobian)
+        nc = self.options.n_consider
+        if consider_jacobian is not None:
+            J = np.asarray(consider_jacobian, float)
+            if J.shape != (3, nc):
+                raise ConfigError("consider_jacobian", J.shape,
+                                  f"(3, {nc}): one column per considered parameter")
+            H[:, self.n - nc:] = J
         nu = z - h
         S = H @ self.P @ H.T + R
         S = 0.5 * (S + S.T)
@@ -355,6 +392,10 @@ class NavigationEkf:
                             "(NIS %.1f)", self.rejections_in_a_row, self.t, nis)
         self.rejections_in_a_row = 0
         K = np.linalg.solve(S, H @ self.P).T
+        if nc:
+            # Schmidt: the considered parameters are never estimated (Joseph form below is
+            # exact for this suboptimal gain)
+            K[self.n - nc:] = 0.0
         self.x = self.x + K @ nu
         IKH = np.eye(self.n) - K @ H
         P = IKH @ self.P @ IKH.T + K @ R @ K.T

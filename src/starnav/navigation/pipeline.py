@@ -137,7 +137,19 @@ class FrameMeasurement:
     white_covariance : (3, 3) array or None
         From the pixels' noise and the attitude alone: what changes from frame to frame
         (the ``limb-common`` filter's measurement noise) [m^2]; ``covariance`` is this plus
-        ``G C G^T``, ``C`` the calibrated slowly varying part.
+        ``s G C G^T``, ``C`` the calibrated slowly varying part and ``s`` its factor at the
+        frame's phase (``common_scale``), and the camera calibration's share.
+    consider_jacobian : (3, n) array or None
+        ``J = d position / d theta`` of the camera calibration's parameters [m per unit]
+        (:func:`camera_consider_jacobian`); None without a calibration.
+    consider_covariance : (3, 3) array or None
+        ``J C J^T`` of the calibration's covariance ``C`` [m^2], included in ``covariance``
+        (the fix on its own); a filter with the parameters as consider states takes it out.
+    common_scale : float
+        ``s``: the factor at this frame's phase on the slowly varying limb errors'
+        covariance (:meth:`~starnav.navigation.refine.RefineOptions.fix_scale`); the
+        ``limb-common`` filter's states are those errors over ``sqrt(s)``, seen through
+        ``sqrt(s) G``.
     timings_s : dict
         Wall time of each stage [s].
     """
@@ -156,6 +168,9 @@ class FrameMeasurement:
     common_jacobian: FloatArray | None = None
     noise_covariance: FloatArray | None = None
     white_covariance: FloatArray | None = None
+    consider_jacobian: FloatArray | None = None
+    consider_covariance: FloatArray | None = None
+    common_scale: float = 1.0
 
     @property
     def usable(self) -> bool:
@@ -291,10 +306,13 @@ def process_frame(
     # the errors the points share (the terrain's half-circle mean, the lit limb's pull towards
     # the Sun): the refinement's own estimate for this frame, else the configured radius error
     G = noise = white = None
+    scale = 1.0
     if refined is not None and refined.common_covariance_px2 is not None:
         noise = fix.covariance_inertial(R_ci, opt.fix.attitude_sigma_rad)
         Gpx = _common_jacobian(fix, refined, camera, R_ci, R_body_to_cam, opt.fix)
         G = Gpx * float(refined.radius_px)
+        scale = opt.refine.fix_scale(phase, bool(refined.saturated is not None
+                                                  and np.any(refined.saturated)))
         if refined.fix_covariance_px2 is not None and refined.fit_sigma_px is not None:
             # the pixels' noise and the attitude, and the calibrated slowly varying rest
             # the same points as the fix: its Jacobian with the fit's own sigmas
@@ -306,20 +324,17 @@ def process_frame(
     else:
         cov = fix.covariance_inertial(R_ci, opt.fix.attitude_sigma_rad,
                                       opt.fix.radius_sigma_fraction)
+    J = JCJ = None
     if opt.calibration is not None and opt.calibration.parameters:
         used = refined.uv if refined is not None else limb.uv[inl]
         J = camera_consider_jacobian(opt.calibration, used, pos, R_measured, R_mi, declared,
                                      opt.fix)
         C = np.asarray(opt.calibration.covariance, float)
-        cov = cov + J @ C @ J.T
-        if white is not None:
-            # with limb-common states the focal length is a state (a constant range scale,
-            # NavigationConfig.ekf_options); the rest stays in the fix's own noise
-            keep = np.array([n != "focal_length_m" for n in opt.calibration.parameters])
-            white = white + J[:, keep] @ C[np.ix_(keep, keep)] @ J[:, keep].T
+        JCJ = J @ C @ J.T
+        cov = cov + JCJ
     tm["fix"] = time.perf_counter() - t
     return FrameMeasurement(int(frame.index), float(frame.epoch_tdb), "ok", "", limb, inl,
-                            refined, fix, pos, cov, tm, G, noise, white)
+                            refined, fix, pos, cov, tm, G, noise, white, J, JCJ, scale)
 
 
 def camera_consider_jacobian(calibration: CameraCalibration, uv: FloatArray,
@@ -330,15 +345,13 @@ def camera_consider_jacobian(calibration: CameraCalibration, uv: FloatArray,
     ``theta``: the fix's covariance gains ``J C J^T`` of the calibration's ``C``.
 
     The parameters are *considered*, not estimated: a limb fix cannot tell a focal-length
-    error from a range error (both scale the disc), so states for them would stay at their
-    prior while costing the tracker a larger filter; their uncertainty still belongs in the
-    fix's. ``J`` is a one-sided difference of the fix re-solved from the same points with each
-    parameter moved by its 1-sigma, the attitude re-solved through the moved camera too
-    (:func:`~starnav.camera_calibration.star_alignment` from ``declared``, the camera of the
-    frame's attitude ``R_measured``): a principal-point error moves the stars as it moves the
-    Moon. Within one frame this is exact to first order; across frames the calibration error
-    is one constant, which a per-fix term treats as independent (the filter's bias states are
-    what carry a common error over time)."""
+    error from a range error (both scale the disc). The filter carries them as Schmidt
+    states (:class:`~starnav.navigation.ekf.NavigationEkf`, step 7), one constant error for
+    every fix of the arc. ``J`` is a one-sided difference of the fix re-solved from the same
+    points with each parameter moved by its 1-sigma, the attitude re-solved through the moved
+    camera too (:func:`~starnav.camera_calibration.star_alignment` from ``declared``, the
+    camera of the frame's attitude ``R_measured``): a principal-point error moves the stars
+    as it moves the Moon. It is exact to first order."""
     J = np.zeros((3, len(calibration.parameters)))
     for i, name in enumerate(calibration.parameters):
         h = calibration.sigma(name)
@@ -491,13 +504,22 @@ class _FilterRecorder:
         ekf.predict(m.epoch_tdb)
         if m.usable and m.position is not None and m.covariance is not None:
             self.has[k] = True
-            if (ekf.options.bias_model == "limb-common" and m.common_jacobian is not None
-                    and m.white_covariance is not None):
-                # the slowly varying limb errors are states: the fix's pixel noise and
-                # attitude alone are its measurement noise
-                info = ekf.update(m.position, m.white_covariance, m.common_jacobian)
+            lc = (ekf.options.bias_model == "limb-common" and m.common_jacobian is not None
+                  and m.white_covariance is not None)
+            # with limb-common states the slowly varying limb errors are states: the fix's
+            # pixel noise and attitude alone are its measurement noise
+            R = m.white_covariance if lc else m.covariance
+            G = m.common_jacobian * math.sqrt(m.common_scale) if lc else None
+            J = m.consider_jacobian
+            if J is not None and ekf.options.n_consider:
+                # the calibration's error is a consider state: constant over the arc
+                if not lc:
+                    R = R - m.consider_covariance
+                info = ekf.update(m.position, R, G, J)
             else:
-                info = ekf.update(m.position, m.covariance)
+                if J is not None and lc:
+                    R = R + m.consider_covariance
+                info = ekf.update(m.position, R, G)
             self.acc[k] = info.accepted
             self.nis[k] = info.nis
         self.times[k] = dt = time.perf_counter() - t

@@ -171,18 +171,27 @@ class RefineOptions:
         out[0, 0] = (k * topo.common_fraction * radius_px) ** 2
         return out
 
-    def fix_covariance(self, radius_px: float, saturated: bool) -> FloatArray | None:
+    def fix_covariance(self, radius_px: float, saturated: bool,
+                       phase_rad: float | None = None) -> FloatArray | None:
         """Covariance [px^2] of a fix's slowly varying error in the three limb modes
-        (:attr:`ModelErrorCalibration.fix_covariance`, or its smooth-Moon value without
-        terrain) at a disc radius ``radius_px``; None without a calibration."""
+        (:attr:`ModelErrorCalibration.fix_covariance` times its factor at ``phase_rad``,
+        or its smooth-Moon value without terrain) at a disc radius ``radius_px``; None
+        without a calibration."""
         t = self.model_error_table
         if t is None or self.terrain_scale is not None:
             return None
         if self.limb_topography is None:
-            C = t.fix_covariance_smooth
-        else:
-            C = t.fix_covariance_saturated if saturated else t.fix_covariance
-        return np.asarray(C, float) * radius_px**2
+            return np.asarray(t.fix_covariance_smooth, float) * radius_px**2
+        C = t.fix_covariance_saturated if saturated else t.fix_covariance
+        return np.asarray(C, float) * (radius_px**2 * self.fix_scale(phase_rad, saturated))
+
+    def fix_scale(self, phase_rad: float | None, saturated: bool) -> float:
+        """The calibration's factor on the slowly varying fix covariance at ``phase_rad``
+        (:meth:`ModelErrorCalibration.fix_scale`; 1 without one, or without terrain)."""
+        t = self.model_error_table
+        if t is None or self.terrain_scale is not None or self.limb_topography is None:
+            return 1.0
+        return t.fix_scale(phase_rad, saturated)
 
     def __post_init__(self) -> None:
         if not 1 <= self.n_windows <= MAX_WINDOWS:
@@ -409,6 +418,10 @@ class ModelErrorCalibration:
         pixels: what the fix's covariance and the filter's ``limb-common`` states carry.
     fix_covariance_smooth : 3 x 3 tuple of float
         The same for a Moon without terrain (the edge model's error alone; a sphere scenario).
+    fix_scale_by_phase, fix_scale_saturated_by_phase : tuple of float or None
+        Per bin of phase, the factor on ``fix_covariance`` (``fix_covariance_saturated``):
+        its shape is pooled over all phases, its size follows the phase (the shadows near
+        the terminator eat more of the lit limb towards the crescent); None: 1 in every bin.
     """
 
     phase_edges_deg: tuple[float, ...]
@@ -419,12 +432,34 @@ class ModelErrorCalibration:
     fix_covariance: tuple[tuple[float, float, float], ...] = ((0.0,) * 3,) * 3
     fix_covariance_saturated: tuple[tuple[float, float, float], ...] = ((0.0,) * 3,) * 3
     fix_covariance_smooth: tuple[tuple[float, float, float], ...] = ((0.0,) * 3,) * 3
+    fix_scale_by_phase: tuple[float, ...] | None = None
+    fix_scale_saturated_by_phase: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.phase_edges_deg) - 1
         if n < 1 or any(len(t) != n for t in (self.edge_model_error_px,
                                               self.saturated_model_error_px)):
             raise ConfigError("model error calibration", n, "one value per phase bin")
+        for name in ("fix_scale_by_phase", "fix_scale_saturated_by_phase"):
+            v = getattr(self, name)
+            if v is not None and (len(v) != n or not all(math.isfinite(x) and x > 0
+                                                          for x in v)):
+                raise ConfigError(f"model error calibration: {name}", v,
+                                  f"{n} factors > 0, one per phase bin")
+
+    def _bin(self, phase_rad: float) -> int:
+        k = bisect.bisect_right(self.phase_edges_deg, math.degrees(phase_rad)) - 1
+        return min(max(k, 0), len(self.edge_model_error_px) - 1)
+
+    def fix_scale(self, phase_rad: float | None, saturated: bool) -> float:
+        """The factor on the slowly varying fix covariance at a phase angle [rad] (None:
+        the largest)."""
+        v = self.fix_scale_saturated_by_phase if saturated else self.fix_scale_by_phase
+        if v is None:
+            return 1.0
+        if phase_rad is None or not math.isfinite(phase_rad):
+            return max(v)
+        return float(v[self._bin(phase_rad)])
 
     def at(self, phase_rad: float | None) -> tuple[float, float, float]:
         """``(edge model error, saturated extra, terrain scale)`` in the bin of ``phase_rad``
@@ -432,8 +467,7 @@ class ModelErrorCalibration:
         if phase_rad is None or not math.isfinite(phase_rad):
             return (max(self.edge_model_error_px), max(self.saturated_model_error_px),
                     self.terrain_scale)
-        k = bisect.bisect_right(self.phase_edges_deg, math.degrees(phase_rad)) - 1
-        k = min(max(k, 0), len(self.edge_model_error_px) - 1)
+        k = self._bin(phase_rad)
         return self.edge_model_error_px[k], self.saturated_model_error_px[k], self.terrain_scale
 
     @classmethod
@@ -442,10 +476,15 @@ class ModelErrorCalibration:
             return tuple(tuple(float(x) for x in row)  # type: ignore[misc]
                          for row in doc.get(key, [[0.0] * 3] * 3))
 
+        def scales(key: str) -> tuple[float, ...] | None:
+            v = doc.get(key)
+            return None if v is None else tuple(float(x) for x in v)
+
         return cls(tuple(doc["phase_edges_deg"]), tuple(doc["edge_model_error_px"]),
                    tuple(doc["saturated_model_error_px"]), float(doc["terrain_scale"]),
                    mat("common_covariance"), mat("fix_covariance"),
-                   mat("fix_covariance_saturated"), mat("fix_covariance_smooth"))
+                   mat("fix_covariance_saturated"), mat("fix_covariance_smooth"),
+                   scales("fix_scale_by_phase"), scales("fix_scale_saturated_by_phase"))
 
 
 @functools.lru_cache(maxsize=1)
@@ -1215,5 +1254,6 @@ def refine_limb(
     return LimbPoints(uv=pts, sigma_px=sig, centre_px=c, radius_px=R,
                       sun_dir_image=d, n_candidates=len(windows), source="windows",
                       common_covariance_px2=common,
-                      fix_covariance_px2=opt.fix_covariance(R, bool(sat_flags.any())),
+                      fix_covariance_px2=opt.fix_covariance(R, bool(sat_flags.any()),
+                                                            phase_rad),
                       fit_sigma_px=sd[i], saturated=sat_flags)

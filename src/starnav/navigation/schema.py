@@ -429,14 +429,14 @@ class NavigationConfig(StrictModel):
         default_factory=TrnConfig, description="asteroid fly-by terrain-relative navigation "
         "from windows (front end and estimator)")
     camera_calibration: Literal["bench"] | Path | None = Field(
-        None, description="the camera the chain navigates with (the truth still renders "
+        "bench", description="the camera the chain navigates with (the truth still renders "
         "with the camera section's): bench: the default tracker as an emulated HIL bench "
         "calibrated it, one seeded bench per run (starnav.camera_calibration."
         "bench_calibration; other cameras are known exactly); a path: a camera calibration "
         "file (e.g. `starnav hil geometric`'s camera_calibration.json); null: the camera "
-        "section's camera, known exactly. With a calibration, the attitude is the one a star "
-        "solve through the calibrated camera gives and each fix's covariance gains the "
-        "calibration's as consider parameters")
+        "section's camera, known exactly (perfect knowledge, an analysis option). With a "
+        "calibration, the attitude is the one a star solve through the calibrated camera "
+        "gives, and the calibration's parameters are the filter's consider states")
     runs: Annotated[int, Field(ge=1, le=MAX_RUNS)] = Field(
         1, description="Monte Carlo runs of `starnav navigate` (>= 2: each over its own "
         "detector noise, attitude knowledge error and initial error, with the consistency "
@@ -549,25 +549,24 @@ class NavigationConfig(StrictModel):
 
     def ekf_options(self, calibration: CameraCalibration | None = None) -> EkfOptions:
         """The SI :class:`~starnav.navigation.ekf.EkfOptions` of this section; with the
-        chain's camera ``calibration`` the ``limb-common`` states also carry its focal-length
-        error (a constant range scale: the disc-radius mode's variance gains
-        ``(sigma_f / f)^2``)."""
+        chain's camera ``calibration`` its parameters are the filter's consider states, with
+        the calibration's covariance."""
         f = self.filter
         fsi = f.to_si()
-        common = None
+        common = consider = None
         if f.bias_model == "limb-common":
             # the states carry what the fix's own covariance carries besides its pixels and
             # the attitude: the calibrated slowly varying fix error in the three limb modes
             # (ModelErrorCalibration.fix_covariance), not the points' shared error
             # (common_covariance, half of it: the filter was overconfident wherever the
             # attitude's sigma no longer hid the difference, docs/stars.md)
-            common = np.array(packaged_model_error().fix_covariance, float)
-            if calibration is not None:
-                common[0, 0] += (calibration.sigma("focal_length_m")
-                                 / calibration.camera.focal_length) ** 2
-            common = tuple(tuple(float(x) for x in r) for r in common)
+            common = tuple(tuple(float(x) for x in r)
+                           for r in packaged_model_error().fix_covariance)
+        if calibration is not None and calibration.parameters:
+            consider = tuple(tuple(float(x) for x in r)
+                             for r in np.asarray(calibration.covariance, float))
         return EkfOptions(bias_model=f.bias_model, bias_sigma_m=fsi.bias_sigma,
-                          common_covariance=common,
+                          common_covariance=common, consider_covariance=consider,
                           range_scale_sigma=f.range_scale_sigma,
                           bias_tau_s=fsi.bias_tau,
                           accel_psd_m2_s3=f.accel_psd_m2_s3,
