@@ -330,3 +330,24 @@ def test_a_frame_in_the_blooming_regime_drops_its_saturated_windows():
     strict = dataclasses.replace(base, max_overexposure=1.5)   # 20000 / ~4000 = 5 > 1.5
     with pytest.raises(LimbNotFoundError):
         refine_limb(wins, c, R, options=strict, camera=cam)
+
+
+def test_model_error_calibration_phase_factors():
+    """The fix covariance's factor per bin of phase: read from the packaged file, applied by
+    bin (the largest without a phase), 1 when the file has none; a wrong count is a clear
+    error naming the field."""
+    from starnav.errors import ConfigError
+    from starnav.navigation.refine import ModelErrorCalibration, packaged_model_error
+
+    doc = {"phase_edges_deg": [0, 90, 120, 180], "edge_model_error_px": [0.1] * 3,
+           "saturated_model_error_px": [0.1] * 3, "terrain_scale": 1.0,
+           "fix_scale_by_phase": [0.5, 1.0, 3.0]}
+    cal = ModelErrorCalibration.from_dict(doc)
+    assert cal.fix_scale(math.radians(30), False) == 0.5
+    assert cal.fix_scale(math.radians(130), False) == 3.0
+    assert cal.fix_scale(None, False) == 3.0
+    assert cal.fix_scale(math.radians(130), True) == 1.0
+    with pytest.raises(ConfigError, match="fix_scale_by_phase"):
+        ModelErrorCalibration.from_dict({**doc, "fix_scale_by_phase": [1.0, 2.0]})
+    pk = packaged_model_error()
+    assert pk.fix_scale_by_phase is not None and len(pk.fix_scale_by_phase) == 3
