@@ -388,6 +388,7 @@ class _Exposer:
         self.solver = StarSolver(self.sim.camera, sc) if sc.stars.enabled else None
         # an emulated bench calibration per run (navigation.camera_calibration: bench)
         self.bench = sc.navigation.camera_calibration == "bench"
+        self._calibrations: dict[int, Any] = {}
 
     def frame(self, le: NDArray[np.float32], rendered: RenderedFrame, r: int,
               tracker: StarAttitudeTracker | None = None) -> FrameResult:
@@ -395,7 +396,9 @@ class _Exposer:
         acq, frame = sim.observe(le, g, run=r, windows=self.windows)
         chain, att = self.chain, None
         if self.bench:
-            chain = dataclasses.replace(chain, calibration=sc.navigation.calibration(sc, r))
+            if r not in self._calibrations:
+                self._calibrations[r] = sc.navigation.calibration(sc, r)
+            chain = dataclasses.replace(chain, calibration=self._calibrations[r])
         t0 = time.perf_counter()
         if tracker is not None:
             rec = tracker.step(le, g, acq, chain)

@@ -229,7 +229,7 @@ def process_frame(
     if opt.calibration is not None:
         # the attitude a star solve through the calibrated camera gives (star_alignment)
         camera = opt.calibration.camera
-        R_ci = R_ci @ star_alignment(declared, camera).T
+        R_ci = R_ci @ _alignment(declared, camera).T
     R_mi = getattr(frame, "R_body_to_inertial", None)
     R_body_to_cam = None if R_mi is None else R_ci.T @ np.asarray(R_mi, float)
 
@@ -353,6 +353,41 @@ def camera_consider_jacobian(calibration: CameraCalibration, uv: FloatArray,
     camera of the frame's attitude ``R_measured``): a principal-point error moves the stars
     as it moves the Moon. It is exact to first order."""
     J = np.zeros((3, len(calibration.parameters)))
+    for i, h, cam, A in _moved_cameras(calibration, declared):
+        R_ci = R_measured @ A.T
+        R_bc = None if R_body_to_inertial is None else R_ci.T @ np.asarray(R_body_to_inertial,
+                                                                           float)
+        moved = christian_robinson(uv, cam, R_body_to_cam=R_bc, options=options)
+        J[:, i] = (moved.position_inertial(R_ci) - position) / h
+    return J
+
+
+_MOVED: dict[tuple[int, int], tuple[object, ...]] = {}
+
+
+def _alignment(declared: Camera, known: Camera) -> FloatArray:
+    """:func:`~starnav.camera_calibration.star_alignment`, made once per pair of cameras."""
+    key = (id(declared), -id(known))
+    hit = _MOVED.get(key)
+    if hit is not None and hit[0] is declared and hit[1] is known:
+        return hit[2]  # type: ignore[return-value]
+    A = star_alignment(declared, known)
+    if len(_MOVED) >= 16:
+        _MOVED.clear()
+    _MOVED[key] = (declared, known, A)
+    return A
+
+
+def _moved_cameras(calibration: CameraCalibration, declared: Camera
+                   ) -> list[tuple[int, float, Camera, FloatArray]]:
+    """Per calibrated parameter with a 1-sigma ``h > 0``: ``(index, h, the camera with it
+    moved by h, its star alignment from declared)``. The same for every frame of a
+    calibration, so made once per (calibration, declared camera) pair."""
+    key = (id(calibration), id(declared))
+    hit = _MOVED.get(key)
+    if hit is not None and hit[0] is calibration and hit[1] is declared:
+        return hit[2]  # type: ignore[return-value]
+    out = []
     for i, name in enumerate(calibration.parameters):
         h = calibration.sigma(name)
         if h <= 0:
@@ -360,12 +395,11 @@ def camera_consider_jacobian(calibration: CameraCalibration, uv: FloatArray,
         d = np.zeros(len(calibration.parameters))
         d[i] = h
         cam = calibration.camera_with(d)
-        R_ci = R_measured @ star_alignment(declared, cam).T
-        R_bc = None if R_body_to_inertial is None else R_ci.T @ np.asarray(R_body_to_inertial,
-                                                                           float)
-        moved = christian_robinson(uv, cam, R_body_to_cam=R_bc, options=options)
-        J[:, i] = (moved.position_inertial(R_ci) - position) / h
-    return J
+        out.append((i, h, cam, star_alignment(declared, cam)))
+    if len(_MOVED) >= 16:
+        _MOVED.clear()
+    _MOVED[key] = (calibration, declared, out)
+    return out
 
 
 def _common_jacobian(fix: LimbFix, refined: LimbPoints, camera: Camera, R_ci: FloatArray,
