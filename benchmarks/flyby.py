@@ -192,7 +192,8 @@ def bench_scoring(runs: int = 20) -> None:
     """The scoring fly-bys (``navigation.trn.scoring.SCORING_FLYBYS``: Itokawa outside the
     calibration envelope and Eros), ``runs`` dispersed synthetic runs each on the coarse map,
     against the targets; the packaged record (tools/score_flyby.py) beside each number."""
-    from starnav.navigation.trn.scoring import SCORING_FLYBYS, TARGETS, read_record, score_case
+    from starnav.batch.flyby_synthetic import score_case
+    from starnav.navigation.trn.scoring import SCORING_FLYBYS, TARGETS, read_record
 
     rec = read_record()["scoring"]
     lo, hi = TARGETS["epochs_in_band"]

@@ -27,6 +27,7 @@ from scipy.stats import chi2
 
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 
+from starnav.batch.flyby_synthetic import flyby_monte_carlo
 from starnav.batch.presets import flyby_scenario
 from starnav.bodies.small_body import ShapeModelBody
 from starnav.camera import Camera
@@ -35,7 +36,6 @@ from starnav.detector.products import MAX_WINDOWS
 from starnav.errors import ConfigError
 from starnav.navigation.metrics import anees_statistics
 from starnav.navigation.schema import TrnFilterConfig, TrnShapeModelConfig
-from starnav.navigation.trn.montecarlo import flyby_monte_carlo
 from starnav.navigation.trn.scoring import (
     CALIBRATION_FLYBYS,
     SCORING_FLYBYS,

@@ -18,8 +18,7 @@ os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19
 
 from starnav.config import scenario_from_dict, scenario_to_dict
 from starnav.errors import ConfigError
-from starnav.navigation.trn.metrics import errors_in_flyby_frame
-from starnav.navigation.trn.montecarlo import summarise_runs
+from starnav.navigation.trn.metrics import errors_in_flyby_frame, summarise_runs
 from starnav.scenes.flyby import flyby_from_config
 from starnav.simulate import Simulator
 from starnav.simulate.build import body_from_scenario

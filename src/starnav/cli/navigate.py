@@ -213,7 +213,7 @@ def register(app: typer.Typer) -> None:
                 typer.echo("attitude from the stars: " + ", ".join(
                     f"{k} {v}" for k, v in summary["attitude"].items()) + " frames")
             else:
-                summary = navigate_dataset(ds, out, config=scenario.navigation, runs=1,
+                summary = navigate_dataset(ds, out, config=scenario.navigation,
                                            seed=int(scenario.seed), plots=not no_plots,
                                            scenario=scenario)
         except StarnavError as err:
