@@ -6,17 +6,18 @@ their envelope (another ``v_inf``, CA distance and phase, and another body: Eros
 once per released default by ``tools/score_flyby.py``, which writes
 ``data/navigation/flyby_scoring.json`` (:data:`RECORD`); the tests read that record.
 
-One scoring fly-by (its runs: :func:`starnav.batch.flyby_synthetic.score_case`): synthetic measurements (:mod:`.synthetic`: the truth
-is the full shape model) on the AA-STR from ``approach_ranges`` CA distances out to as far
-out, ``runs`` Monte Carlo runs that each draw their measurement noise, initial error and the
-coarse model's scale (:mod:`.body_model`); per run the filter on the coarse model. Reported
-against :data:`TARGETS`: the fraction of epochs whose ANEES lies inside its per-epoch 95 % band
-(:func:`starnav.navigation.metrics.anees_statistics`), the position and velocity NEES
-(time-averaged, dof 3 each), the CA position error in % of range (median, 95th percentile),
-the velocity error at CA in % of ``v_inf`` (median, 95th percentile) and the filter's CPU time
-per frame scaled to the tracker's MCU (:data:`starnav.navigation.trn.metrics` factor) against
-its 650 ms budget. The front end is not part of a synthetic score (its per-frame time on
-rendered frames: ``benchmarks/flyby.py``).
+One scoring fly-by (its runs: :func:`starnav.batch.flyby_synthetic.score_case`): synthetic
+measurements (:mod:`.synthetic`: the truth is the full shape model) on the AA-STR from
+``approach_ranges`` CA distances out to as far out, ``runs`` Monte Carlo runs that each draw
+their measurement noise, initial error and the coarse model's scale (:mod:`.body_model`); per
+run the filter on the coarse model. Reported against :data:`TARGETS`: the fraction of epochs
+whose ANEES lies inside its per-epoch 95 % band
+(:func:`starnav.navigation.metrics.anees_statistics`), the position and velocity NEES (time-
+averaged, dof 3 each), the CA position error in % of range (median, 95th percentile), the
+velocity error at CA in % of ``v_inf`` (median, 95th percentile) and the filter's CPU time per
+frame scaled to the tracker's MCU (:data:`starnav.navigation.trn.metrics` factor) against its
+650 ms budget. The front end is not part of a synthetic score (its per-frame time on rendered
+frames: ``benchmarks/flyby.py``).
 """
 
 from __future__ import annotations
