@@ -339,7 +339,7 @@ def flyby_dispersed_runs(base: Scenario, runs: range, *,
     for ``navigation.trn.dispersion: orientation``. Every run's scenario is built before the
     first render (a bad draw is one error naming the run)."""
     check_flyby_scenario(base)
-    scenarios = {r: dispersed_flyby(base, r) for r in runs}
+    scenarios = dict(zip(runs, over_runs(lambda r: dispersed_flyby(base, r), runs), strict=True))
 
     kept: list[tuple[Simulator, Renders]] = []  # the first run's frames only
 
