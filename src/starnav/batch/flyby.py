@@ -310,18 +310,28 @@ def flyby_closed_loop(sim: Simulator, runs: int = 1, *, renders: Renders | None 
                                         filter_options=filter_options,
                                         initial_covariance=initial_covariance, body=body),
                     ids, progress=runs_progress)
+    return _closed_loop(sim, len(renders), out, sim.scene.relative_states, t_render,
+                        probability)
+
+
+def _closed_loop(sim: Simulator, K: int, out: list[FlybyRunResult],
+                 truth: FloatArray | list[FloatArray], t_render: float, probability: float,
+                 **dispersed: Any) -> FlybyClosedLoop:
+    """The runs ``out`` of ``sim``'s fly-by (``K`` frames each; ``truth`` shared or one per
+    run) as a :class:`FlybyClosedLoop`: the verdict (module step 3) and the per-frame timings
+    (``t_render`` per frame [s]); ``dispersed``: the dispersed runs' fields."""
     flyby = sim.scene.flyby
-    assert flyby is not None
-    X = sim.scene.relative_states
+    assert flyby is not None  # check_flyby_scenario
     epochs = np.asarray(sim.scene.epochs, float)
-    summary = summarise_runs([r.filter for r in out], [r.metrics for r in out], X, epochs,
+    summary = summarise_runs([r.filter for r in out], [r.metrics for r in out], truth, epochs,
                              float(flyby.epoch_ca), probability)
-    summary["dispersion"] = "none"
-    K = len(renders)
+    summary["dispersion"] = dispersed.get("dispersion", "none")
     timings = {"render": t_render}
     for stage in ("detector", "front_end", "filter"):
         timings[stage] = float(np.mean([r.timings_s[stage] for r in out])) / K
-    return FlybyClosedLoop(epochs, float(flyby.epoch_ca), X, out, summary, timings)
+    X = truth[0] if dispersed else truth
+    return FlybyClosedLoop(epochs, float(flyby.epoch_ca), X, out, summary,  # type: ignore[arg-type]
+                           timings, **dispersed)
 
 
 def flyby_dispersed_runs(base: Scenario, runs: range, *,
@@ -360,23 +370,10 @@ def flyby_dispersed_runs(base: Scenario, runs: range, *,
     truths = [d[1] for d in done]
     axes = [d[2] for d in done]
     draws = [scenarios[r][1] for r in runs]
-    t_render = sum(d[3] for d in done)
-    n_frames = sum(d[4] for d in done)
-    first = kept[0]
-    sim0 = first[0]
-    fb0 = sim0.scene.flyby
-    assert fb0 is not None
-    epochs = np.asarray(sim0.scene.epochs, float)
-    summary = summarise_runs([r.filter for r in out], [r.metrics for r in out], truths,
-                             epochs, float(fb0.epoch_ca), probability)
-    summary["dispersion"] = "orientation"
-    K = len(first[1])
-    timings = {"render": t_render / max(n_frames, 1)}
-    for stage in ("detector", "front_end", "filter"):
-        timings[stage] = float(np.mean([r.timings_s[stage] for r in out])) / K
-    return FlybyClosedLoop(epochs, float(fb0.epoch_ca), truths[0], out, summary, timings,
-                           dispersion="orientation", run_truths=truths, draws=draws,
-                           run_axes=axes, first=first)
+    t_render = sum(d[3] for d in done) / max(sum(d[4] for d in done), 1)
+    return _closed_loop(kept[0][0], len(kept[0][1]), out, truths, t_render, probability,
+                        dispersion="orientation", run_truths=truths, draws=draws,
+                        run_axes=axes, first=kept[0])
 
 
 #: Frames of the overlay figures: ``(file label, title)``; the frame is the first, the one
