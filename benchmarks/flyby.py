@@ -135,10 +135,11 @@ def bench_closed_loop(runs: int = 3) -> None:
     (segments + windows exposures), front end, filter (mean over the runs); then the tracker's
     budget (front end + filter scaled desktop -> MCU against 650 ms; peak traced memory of a
     re-run of run 0 under tracemalloc against 900 kB)."""
+    from starnav.batch.flyby import flyby_closed_loop, flyby_run
     from starnav.config import scenario_from_dict
     from starnav.navigation.trn.metrics import tracker_budget
     from starnav.simulate import Simulator
-    from starnav.simulate.flyby import flyby_closed_loop, flyby_run, render_flyby
+    from starnav.simulate.flyby import render_flyby
 
     sc = scenario(256, 30.0, 21)
     sc["trajectory"].update({"cadence_s": 0.2})
@@ -161,11 +162,12 @@ def bench_aastr(runs: int = 4, half_s: float = 5.0) -> None:
     """The fly-by preset (the AA-STR) cut to ``-half_s .. +half_s`` about CA, rendered once,
     ``runs`` runs on the exact and on the coarse map: per-frame stage times, the per-epoch
     and time-averaged ANEES, the CA error per run."""
+    from starnav.batch.flyby import flyby_closed_loop
     from starnav.batch.presets import flyby_scenario
     from starnav.config import scenario_from_dict
     from starnav.navigation.metrics import anees_statistics
     from starnav.simulate import Simulator
-    from starnav.simulate.flyby import flyby_closed_loop, render_flyby
+    from starnav.simulate.flyby import render_flyby
 
     renders = None
     for kind in ("exact", "coarse"):
@@ -192,7 +194,8 @@ def bench_scoring(runs: int = 20) -> None:
     """The scoring fly-bys (``navigation.trn.scoring.SCORING_FLYBYS``: Itokawa outside the
     calibration envelope and Eros), ``runs`` dispersed synthetic runs each on the coarse map,
     against the targets; the packaged record (tools/score_flyby.py) beside each number."""
-    from starnav.navigation.trn.scoring import SCORING_FLYBYS, TARGETS, read_record, score_case
+    from starnav.batch.flyby_synthetic import score_case
+    from starnav.navigation.trn.scoring import SCORING_FLYBYS, TARGETS, read_record
 
     rec = read_record()["scoring"]
     lo, hi = TARGETS["epochs_in_band"]

@@ -360,3 +360,79 @@ def test_module_docstrings_are_short():
     assert float(np.median(list(lengths.values()))) <= MODULE_DOCSTRING_MEDIAN_LINES, longest
     too_long = {k: n for k, n in lengths.items() if n > MODULE_DOCSTRING_MAX_LINES}
     assert not too_long, f"module docstrings over {MODULE_DOCSTRING_MAX_LINES} lines: {too_long}"
+
+
+# ------------------------------------------------------------------ one driver of the runs
+#: A name that counts or numbers Monte Carlo runs (``runs``, ``n_runs``, ``first_run``,
+#: ``run_ids``, ``self.runs``).
+RUN_NAME = re.compile(r"(?:^|_)runs?(?:$|_)")
+
+
+def _names(node: ast.AST) -> set[str]:
+    return {n.id if isinstance(n, ast.Name) else n.attr for n in ast.walk(node)
+            if isinstance(n, ast.Name | ast.Attribute)}
+
+
+def run_loops(source: str) -> list[tuple[int, str]]:
+    """``(line, source line)`` of every loop over Monte Carlo runs: a ``for`` statement or a
+    comprehension whose iterable is, or contains, ``range(...)`` of a run count or number
+    (:data:`RUN_NAME`), a call of ``run_ids(...)``, or the run numbers themselves
+    (``for r in run_ids``). A loop over the runs' results (``for res in loop.runs``) is not
+    one: it repeats no run."""
+    lines = source.splitlines()
+    out = set()
+    for node in ast.walk(ast.parse(source)):
+        if not isinstance(node, ast.For | ast.AsyncFor | ast.comprehension):
+            continue
+        it = node.iter
+        calls = [c for c in ast.walk(it) if isinstance(c, ast.Call)
+                 and isinstance(c.func, ast.Name) and c.func.id in ("range", "run_ids")]
+        hit = any(c.func.id == "run_ids"  # type: ignore[union-attr]
+                  or any(RUN_NAME.search(n) for a in c.args for n in _names(a))
+                  for c in calls)
+        if hit or (isinstance(it, ast.Name) and it.id == "run_ids"):
+            out.add((it.lineno, lines[it.lineno - 1].strip()))
+    return sorted(out)
+
+
+def test_the_run_loop_check_catches_what_it_names():
+    """The check below: loops over a range of runs (statement, comprehension, enumerate) and
+    over run numbers are caught; loops over other ranges, over the runs' results and the
+    driver's call are not."""
+    src = ("for r in range(runs):\n"                                   # 1
+           "    pass\n"
+           "out = [f(r) for r in range(1, n_runs + 1)]\n"              # 3
+           "for k, r in enumerate(range(first_run, first_run + runs)):\n"  # 4
+           "    pass\n"
+           "for r in run_ids:\n"                                       # 6
+           "    pass\n"
+           "x = {r: g(r) for r in range(self.runs)}\n"                 # 8
+           "for j in range(6):\n"
+           "    pass\n"
+           "for res in loop.runs:\n"
+           "    pass\n"
+           "nees = [r.nees(x) for r in results]\n"
+           "for k in range(len(frames)):\n"
+           "    pass\n"
+           "done = over_runs(one_run, runs)\n"
+           "for runs in (2, 4):\n"
+           "    pass\n"
+           "y = [h(r) for r in run_ids(4, 1)]\n")                      # 19
+    assert [line for line, _ in run_loops(src)] == [1, 3, 4, 6, 8, 19]
+
+
+#: The one driver of the runs.
+RUN_DRIVER = "batch/runs.py"
+
+
+def test_runs_are_looped_over_by_the_batch_driver_only():
+    """Every loop over Monte Carlo runs goes through the one driver in ``starnav.batch``
+    (:mod:`starnav.batch.runs`): ``simulate`` makes a run's frames and ``navigation``
+    estimates on them; neither repeats them, and no other batch module loops on its own."""
+    texts = {f: f.read_text() for f in sorted(SRC.rglob("*.py"))
+             if f.relative_to(SRC).as_posix() != RUN_DRIVER}
+    found = [f"{f.relative_to(SRC)}:{line}: {text}" for f, src in texts.items()
+             if "range(" in src or "run_ids" in src  # no loop over runs without either
+             for line, text in run_loops(src)]
+    assert not found, f"loop over runs outside {RUN_DRIVER} (map a per-run function with " \
+        "starnav.batch.runs.over_runs):\n" + "\n".join(found)

@@ -122,12 +122,13 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from starnav.atomic import atomic_write_text
+from starnav.batch.flyby import flyby_closed_loop
 from starnav.config import scenario_from_dict, scenario_to_dict
 from starnav.navigation.metrics import chi2_band
 from starnav.navigation.trn.body_view import BodyInCamera, lit_silhouette
 from starnav.navigation.trn.filter import TrnFilterOptions, silhouette_scale
 from starnav.simulate import Simulator, body_from_scenario
-from starnav.simulate.flyby import dispersed_flyby, flyby_closed_loop, render_flyby
+from starnav.simulate.flyby import dispersed_flyby, render_flyby
 
 OUT = Path(__file__).resolve().parents[1] / "src/starnav/data/navigation/flyby_model_error.json"
 #: Feature errors beyond this are gross (a jump the estimator's gate removes), not fitted [px].

@@ -20,13 +20,13 @@ import argparse
 import json
 from pathlib import Path
 
+from starnav.batch.flyby_synthetic import score_case
 from starnav.navigation.schema import TrnFilterConfig, TrnShapeModelConfig
 from starnav.navigation.trn.scoring import (
     CALIBRATION_FLYBYS,
     SCORING_FLYBYS,
     SYNTHETIC_FILTER,
     TARGETS,
-    score_case,
 )
 
 OUT = Path(__file__).resolve().parents[1] / "src/starnav/data/navigation/flyby_scoring.json"

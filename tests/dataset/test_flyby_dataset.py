@@ -21,6 +21,7 @@ from typer.testing import CliRunner
 
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 
+from starnav.batch.flyby import flyby_closed_loop
 from starnav.cli.main import app
 from starnav.config import scenario_to_dict
 from starnav.dataset import open as open_dataset
@@ -28,7 +29,7 @@ from starnav.dataset import read_manifest
 from starnav.dataset.flyby import read_flyby
 from starnav.errors import DataFileError
 from starnav.simulate import Simulator
-from starnav.simulate.flyby import KEPT_AOVS, flyby_closed_loop, render_flyby
+from starnav.simulate.flyby import KEPT_AOVS, render_flyby
 from tests.flyby_scenarios import tiny_flyby
 
 ENV = {"COLUMNS": "50"}
@@ -149,7 +150,7 @@ def test_limb_options_of_dataset_are_refused_for_a_fly_by_before_writing(made):
 def test_navigate_dataset_renders_nothing(made, monkeypatch):
     """The closed loop runs on the stored frames: with the renderer disabled it still runs
     and gives the metrics of the scenario's own renders."""
-    from starnav.dataset.flyby import navigate_flyby_dataset
+    from starnav.batch.flyby import navigate_flyby_dataset
 
     root, _, ds, _ = made
     ref = flyby_closed_loop(Simulator(tiny_flyby()), 1).runs[0].metrics

@@ -19,7 +19,7 @@ def test_navigate_on_a_dataset_equals_the_sweeps_run_0(small_dataset, tmp_path):
 
     ds = open_dataset(small_dataset).select(1.5e-5)
     nav = navigate_dataset(ds, tmp_path / "nav", config=ds.scenario().navigation,
-                           runs=1, plots=False, measure_memory=False)
+                           plots=False, measure_memory=False)
     res = run_sweep(small_scenario(), ["detector.exposure_time_s=1.5e-5"], tmp_path / "sweep",
                     runs=1, workers=0, figures=False)
     row = res.rows[0]

@@ -23,7 +23,7 @@ POLYLINE_TOL_PX = 0.1
 @pytest.mark.slow
 def test_overlay_figures_exist_and_the_report_links_them(small_dataset, tmp_path):
     ds = open_dataset(small_dataset, exposure=1.5e-5)
-    s = navigate_dataset(ds, tmp_path / "nav", runs=1, measure_memory=False, plots=True)
+    s = navigate_dataset(ds, tmp_path / "nav", measure_memory=False, plots=True)
     over = sorted(k for k in s["paths"] if k.startswith("overlay_"))
     # first, middle and last of the 4 frames with a limb: 0, 2, 3
     assert over == ["overlay_000000", "overlay_000002", "overlay_000003"]

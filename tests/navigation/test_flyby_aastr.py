@@ -27,6 +27,8 @@ from scipy.stats import chi2
 
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 
+from starnav.batch.flyby import estimator_body, flyby_closed_loop
+from starnav.batch.flyby_synthetic import flyby_monte_carlo
 from starnav.batch.presets import flyby_scenario
 from starnav.bodies.small_body import ShapeModelBody
 from starnav.camera import Camera
@@ -35,7 +37,6 @@ from starnav.detector.products import MAX_WINDOWS
 from starnav.errors import ConfigError
 from starnav.navigation.metrics import anees_statistics
 from starnav.navigation.schema import TrnFilterConfig, TrnShapeModelConfig
-from starnav.navigation.trn.montecarlo import flyby_monte_carlo
 from starnav.navigation.trn.scoring import (
     CALIBRATION_FLYBYS,
     SCORING_FLYBYS,
@@ -49,7 +50,7 @@ from starnav.scenes.flyby import flyby_from_config
 from starnav.scenes.schema import FlybyConfig
 from starnav.simulate import Simulator
 from starnav.simulate.build import body_from_scenario
-from starnav.simulate.flyby import estimator_body, flyby_closed_loop, flyby_exposures
+from starnav.simulate.flyby import flyby_exposures
 from starnav.simulate.trn import flyby_frame_budget, track_flyby
 
 #: The AA-STR's readout law as the seed paper gives it (eq. 1: 8 ms + 0.17 ms per unit of

@@ -57,6 +57,7 @@ import pytest
 
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 
+from starnav.batch.flyby import flyby_closed_loop, initial_state
 from starnav.config import scenario_from_dict, scenario_to_dict
 from starnav.data import packaged_path
 from starnav.errors import ConfigError
@@ -64,12 +65,7 @@ from starnav.navigation.metrics import chi2_band
 from starnav.navigation.schema import TrnFilterConfig, TrnFrontEndConfig
 from starnav.navigation.trn.filter import TrnFilterOptions
 from starnav.simulate import Simulator
-from starnav.simulate.flyby import (
-    check_flyby_scenario,
-    flyby_closed_loop,
-    initial_state,
-    render_flyby,
-)
+from starnav.simulate.flyby import check_flyby_scenario, render_flyby
 
 #: Monte Carlo runs of the default suite / of the slow test.
 RUNS = 4
@@ -171,7 +167,7 @@ def dispersed_loop():
 def test_monte_carlo_over_orientations_nees_inside_its_band(dispersed_loop):
     """The consistency verdict of issue 16: 20 runs, each its own fly-by orientation (the
     silhouette's model error, a function of the aspect, drawn afresh per run, as the band
-    assumes; module essay of starnav.simulate.flyby), detector noise, attitude and initial
+    assumes; module essay of starnav.batch.flyby), detector noise, attitude and initial
     error: mean NEES of the 6 states over frames and runs inside its two-sided 99 % band of
     R K / tau effective samples (false alarm 1 %; inside the 20-run band [4.19, 8.18]).
     Measured 6.26 (2026-11-27, the calibration over 40 orientations and geometries with the

@@ -1,5 +1,5 @@
 """The fly-by Monte Carlo with the orientation dispersed (``navigation.trn.dispersion:
-orientation``, ``starnav.simulate.flyby``, module step 2e): what a run draws, that each run
+orientation``, ``starnav.batch.flyby``, module step 2e): what a run draws, that each run
 is its own fly-by judged against its own truth, the fly-by frame of the error figures, and
 the refusals. The consistency verdicts on rendered fly-bys are in
 ``test_flyby_closed_loop.py``."""
@@ -16,19 +16,14 @@ from scipy.stats import kstest
 
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 
+from starnav.batch.flyby import flyby_closed_loop, navigate_flyby
 from starnav.config import scenario_from_dict, scenario_to_dict
 from starnav.errors import ConfigError
-from starnav.navigation.trn.metrics import errors_in_flyby_frame
-from starnav.navigation.trn.montecarlo import summarise_runs
+from starnav.navigation.trn.metrics import errors_in_flyby_frame, summarise_runs
 from starnav.scenes.flyby import flyby_from_config
 from starnav.simulate import Simulator
 from starnav.simulate.build import body_from_scenario
-from starnav.simulate.flyby import (
-    dispersed_flyby,
-    flyby_closed_loop,
-    navigate_flyby,
-    render_flyby,
-)
+from starnav.simulate.flyby import dispersed_flyby, render_flyby
 from tests.flyby_scenarios import tiny_flyby
 
 #: Draws of the uniformity test and its per-component false-alarm rate (three components:

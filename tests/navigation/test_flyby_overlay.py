@@ -21,17 +21,13 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
+from starnav.batch.flyby import flyby_closed_loop, plot_overlays
 from starnav.config import scenario_from_dict
 from starnav.navigation.trn.metrics import draw_frame_overlay, predicted_silhouette
 from starnav.navigation.trn.windows import analyse_segments
 from starnav.simulate import Simulator
 from starnav.simulate.build import body_from_scenario
-from starnav.simulate.flyby import (
-    flyby_closed_loop,
-    plot_overlays,
-    render_flyby,
-    segments_image,
-)
+from starnav.simulate.flyby import render_flyby, segments_image
 
 FRAMES = 5
 

@@ -16,15 +16,11 @@ import pytest
 
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 
-from starnav.batch.flyby_sweep import parse_sweep_axes
+from starnav.batch.flyby import flyby_closed_loop
+from starnav.batch.flyby_sweep import flyby_rendered_sweep, parse_sweep_axes, write_flyby_sweep
 from starnav.errors import ConfigError
 from starnav.navigation.metrics import chi2_band
 from starnav.simulate import Simulator
-from starnav.simulate.flyby import (
-    flyby_closed_loop,
-    flyby_rendered_sweep,
-    write_flyby_sweep,
-)
 from tests.flyby_scenarios import tiny_flyby
 
 PHASES = [40.0, 70.0]
@@ -113,7 +109,7 @@ def test_cli_navigate_sweep(tmp_path):
 
 def test_cli_sweep_of_a_flyby_runs_the_points_on_the_batch_runner(rows, tmp_path):
     """``starnav sweep FLYBY.yaml --grid phase_at_ca_deg=40,70 --runs 2 --workers 0`` runs
-    one batch task per point (:func:`starnav.simulate.flyby.flyby_sweep_row`, the function
+    one batch task per point (:func:`starnav.batch.flyby_sweep.flyby_sweep_row`, the function
     the in-process sweep maps): its sweep.csv equals the in-process rows, with the tracker's
     per-frame stage costs; sweep.md, sweep.png, sweep.json and the resolved scenario are
     written; a second run into the same directory needs --overwrite; a bad axis is one error

@@ -64,6 +64,6 @@ def test_unmodified_tracker_exposure_destroys_the_limb(tmp_path):
                                               "trajectory.cadence_s=3600"])
     generate(sc, tmp_path / "d", options=DatasetOptions(exposures_s=(0.2,)))
     m = navigate_dataset(open_dataset(tmp_path / "d"), tmp_path / "n", config=sc.navigation,
-                         runs=1, measure_memory=False, plots=False)
+                         measure_memory=False, plots=False)
     # the paper's MIL saturated case: ~10 px; its HIL at 200 ms: no usable limb
     assert m["limb_error_px"]["bias"] > 5.0

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from starnav.batch.flyby_synthetic import flyby_monte_carlo, flyby_sweep
 from starnav.bodies.small_body import ShapeModelBody
 from starnav.camera import Camera
 from starnav.errors import ConfigError, StarnavError
@@ -38,7 +39,6 @@ from starnav.navigation.trn.metrics import (
     track_lengths,
     write_report,
 )
-from starnav.navigation.trn.montecarlo import flyby_monte_carlo, flyby_sweep
 from starnav.navigation.trn.synthetic import (
     SyntheticOptions,
     flyby_truth,

@@ -4,6 +4,7 @@ Public API (imports are lazy: importing :mod:`starnav.batch` loads neither Dask 
 
     run_sweep(scenario, grid, out, runs=..., workers=..., scheduler=...) -> SweepResult
     run_flyby_sweep(scenario, grid, out, runs=..., workers=...) -> FlybySweepResult
+    over_runs(per_run, runs), over_points(per_point, points, runner=None)  # starnav.batch.runs
     parse_grid, expand, GridAxis, GridPoint       # starnav.batch.grid
     open_runner(workers, scheduler), ClusterError # starnav.batch.cluster
     COLUMNS, read_table                           # starnav.batch.table (documented columns)
@@ -29,6 +30,7 @@ _EXPORTS = {
     "PAPER_CASES": "presets", "PAPER_EXPOSURES_S": "presets",
     "main_job": "mainjob",
     "run_flyby_sweep": "flyby_sweep", "FlybySweepResult": "flyby_sweep",
+    "over_runs": "runs", "over_points": "runs", "run_ids": "runs",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -30,6 +30,7 @@ from scipy.stats import chi2
 
 from starnav.batch.consistency import terrain_offsets_deg
 from starnav.batch.presets import DEMO_EXPOSURE_OVERRIDES, DEMO_EXPOSURES_S, demo_scenario
+from starnav.batch.runs import over_runs
 from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
 from starnav.config_base import apply_overrides
 from starnav.errors import ConfigError
@@ -377,19 +378,19 @@ def attitude_monte_carlo(
     base = scenario_to_dict(sc)
     offsets = terrain_offsets_deg(int(sc.seed), runs) if terrain else [0.0] * runs
     t_start = time.perf_counter()
-    results, walls = [], []
-    for r in range(runs):
+
+    def one_run(r: int) -> dict[str, Any]:
         d = (base if offsets[r] == 0.0 else
              apply_overrides(base, [f"moon.dem.longitude_offset_deg={offsets[r]!r}"]))
         res = attitude_comparison(d, exposures_s=exposures_s,
                                   exposure_overrides=exposure_overrides, attitude=attitude,
                                   run=r)
-        results.append(res)
-        walls.append(float(res["wall_time_s"]))
         log.info("attitude Monte Carlo: run %d/%d (terrain %+.1f deg) in %.1f s", r + 1, runs,
-                 offsets[r], walls[-1])
-        if progress is not None:
-            progress(r + 1, runs)
+                 offsets[r], float(res["wall_time_s"]))
+        return res
+
+    results = over_runs(one_run, runs, progress=progress)
+    walls = [float(res["wall_time_s"]) for res in results]
     band6 = chi2_band(6, runs, probability)
     band3 = chi2_band(3, runs, probability)
     cases = []

@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from starnav.batch.runs import over_runs, run_ids
 from starnav.batch.tasks import (
     FrameResult,
     PointResult,
@@ -62,8 +63,9 @@ def terrain_offsets_deg(seed: int, runs: int) -> list[float]:
     """The terrain realisation of each run: run 0 the Moon as it is, run ``r`` the terrain
     turned by a uniform random angle about the pole (``moon.dem.longitude_offset_deg``, from
     the stream ``(STAGE_TERRAIN, r)`` of ``seed``) [deg]."""
-    return [0.0] + [float(generator(int(seed), STAGE_TERRAIN, r).uniform(0.0, 360.0))
-                    for r in range(1, int(runs))]
+    return [0.0] + over_runs(
+        lambda r: float(generator(int(seed), STAGE_TERRAIN, r).uniform(0.0, 360.0)),
+        run_ids(int(runs) - 1, 1, minimum=0))
 
 
 def terrain_renders(config: dict[str, Any], runs: int,
@@ -73,11 +75,11 @@ def terrain_renders(config: dict[str, Any], runs: int,
     sc = scenario_from_dict(config)
     if sc.moon.shape != "dem":
         raise ConfigError("moon.shape", sc.moon.shape, "'dem' for terrain realisations")
-    out = [render_arc(config) if rendered is None else rendered]
-    for off in terrain_offsets_deg(sc.seed, runs)[1:]:
-        out.append(render_arc(scenario_to_dict(scenario_from_dict(
-            config, [f"moon.dem.longitude_offset_deg={off!r}"]))))
-    return out
+    offsets = terrain_offsets_deg(sc.seed, runs)
+    return [render_arc(config) if rendered is None else rendered] + over_runs(
+        lambda r: render_arc(scenario_to_dict(scenario_from_dict(
+            config, [f"moon.dem.longitude_offset_deg={offsets[r]!r}"]))),
+        run_ids(int(runs) - 1, 1, minimum=0))
 
 
 def noise_monte_carlo(config: dict[str, Any], runs: int,
@@ -107,8 +109,10 @@ def noise_monte_carlo(config: dict[str, Any], runs: int,
         per_run = terrain_renders(config, runs, rendered)
     if len(per_run) != int(runs):
         raise ConfigError("per_run", len(per_run), f"{runs} rendered arcs, one per run")
-    frames = [[expose_task(config, per_run[r][k], 1, "second", 1.0, first_run=r)[0]
-               for r in range(int(runs))] for k in range(len(rendered))]
+    arcs = per_run
+    frames = [over_runs(lambda r, k=k: expose_task(config, arcs[r][k], 1, "second", 1.0,
+                                                   first_run=r)[0], int(runs))
+              for k in range(len(rendered))]
     return NoiseMonteCarlo(config, int(runs), rendered, frames)
 
 

@@ -143,7 +143,7 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
         data = open_dataset(out / "dataset", exposure=t)
         with _quiet("starnav.navigation.ekf"):
             nav[t] = navigate_dataset(data, out / "navigation" / exposure_dirname(t),
-                                      config=opts.scenario_for(sc, t).navigation, runs=1,
+                                      config=opts.scenario_for(sc, t).navigation,
                                       seed=sc.seed, measure_memory=False, plots=True)
         if progress:
             progress(n + j + 1, total)

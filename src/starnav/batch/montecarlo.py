@@ -16,7 +16,8 @@ Outputs (:func:`write`): ``metrics.json``, ``runs.csv``, ``consistency.png``,
 
 Index
 -----
-:func:`navigate_runs`, :func:`rendered_from_dataset`, :func:`verdict_line`, :func:`write`.
+:func:`navigate_runs`, :func:`rendered_from_dataset`, :func:`filter_runs` (the filter alone
+re-run on one run's measurements), :func:`verdict_line`, :func:`write`.
 """
 
 from __future__ import annotations
@@ -25,18 +26,29 @@ import json
 import math
 import os
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from starnav.atomic import atomic_write_text
 from starnav.batch.consistency import consistency_metrics
+from starnav.batch.runs import over_runs, run_ids
 from starnav.batch.table import to_csv
 from starnav.batch.tasks import RenderedFrame, expose_sequence_task, expose_task, filter_task
 from starnav.config import scenario_to_dict
 from starnav.errors import ConfigError, DataFileError
 from starnav.navigation import plots as P
+from starnav.navigation.dynamics import Dynamics, MoonEphemeris
+from starnav.navigation.ekf import EkfOptions
+from starnav.navigation.pipeline import (
+    FilterResult,
+    FrameMeasurement,
+    initial_error_normal,
+    run_filter,
+)
 from starnav.simulate.attitude import uses_star_attitude
 
 
@@ -102,6 +114,24 @@ def navigate_runs(dataset: Any, runs: int, *, scenario: Any | None = None,
     m["frames"] = len(rendered)
     m["wall_time_s"] = time.perf_counter() - t0
     return {"metrics": m, "result": res, "epochs": res.epochs}
+
+
+def filter_runs(measurements: Sequence[FrameMeasurement], truth: ArrayLike, *,
+                dynamics: Dynamics, moon: MoonEphemeris, P0: ArrayLike, runs: int,
+                seed: int = 0, options: EkfOptions | None = None) -> list[FilterResult]:
+    """The filter re-run ``runs`` times (runs 1..runs) on the same measurements from
+    ``x0 ~ N(truth[0], P0)``, run ``r``'s initial error from
+    :func:`~starnav.navigation.pipeline.initial_error_normal` ``(seed, r)``: the Monte Carlo of
+    the filter alone (what :func:`~starnav.navigation.report.write_outputs` reports as
+    ``monte_carlo``). ``truth``: EMB-centred ``(K, 6)`` at the measurement epochs [m, m/s]."""
+    ids = run_ids(runs, 1)
+    X = np.asarray(truth, float)
+    P = np.asarray(P0, float)
+    L = np.linalg.cholesky(P)
+    t0 = float(measurements[0].epoch_tdb)
+    return over_runs(lambda r: run_filter(
+        measurements, dynamics=dynamics, moon=moon, t0=t0,
+        x0=X[0] + L @ initial_error_normal(seed, r), P0=P, options=options), ids)
 
 
 def verdict_line(m: dict[str, Any]) -> str:

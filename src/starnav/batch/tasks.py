@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.batch.cluster import quiet_logger
+from starnav.batch.runs import over_runs, run_ids
 from starnav.cache import BoundedCache
 from starnav.config import scenario_from_dict
 from starnav.errors import ConfigError
@@ -346,7 +347,7 @@ def expose_task(config: dict[str, Any], rendered: RenderedFrame, runs: int, wind
         raise ConfigError("navigation.attitude.source", "stars", "expose_sequence_task (the "
                           "attitude of a frame depends on the frames before it)")
     le = rendered.electron_radiance(albedo_factor)
-    return [x.frame(le, rendered, r) for r in range(int(first_run), int(first_run) + int(runs))]
+    return over_runs(lambda r: x.frame(le, rendered, r), run_ids(int(runs), int(first_run)))
 
 
 def expose_sequence_task(config: dict[str, Any], rendered: list[RenderedFrame], runs: int,
@@ -364,14 +365,15 @@ def expose_sequence_task(config: dict[str, Any], rendered: list[RenderedFrame], 
     list (frames, in ``rendered`` order) of list (runs) of FrameResult
     """
     x = _Exposer(config, windows)
-    run_ids = range(int(first_run), int(first_run) + int(runs))
-    trackers = {r: StarAttitudeTracker(x.sim, r, x.sc) for r in run_ids} \
-        if uses_star_attitude(x.sc) else {}
+    ids = run_ids(int(runs), int(first_run))
+    trackers = dict(zip(ids, over_runs(lambda r: StarAttitudeTracker(x.sim, r, x.sc), ids),
+                        strict=True)) if uses_star_attitude(x.sc) else {}
     order = sorted(range(len(rendered)), key=lambda i: rendered[i].index)
     out: list[list[FrameResult]] = [[] for _ in rendered]
     for i in order:
         le = rendered[i].electron_radiance(albedo_factor)
-        out[i] = [x.frame(le, rendered[i], r, trackers.get(r)) for r in run_ids]
+        out[i] = over_runs(lambda r, i=i, le=le: x.frame(le, rendered[i], r, trackers.get(r)),
+                           ids)
     return out
 
 
@@ -523,13 +525,12 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
     dyn = PointMassDynamics(step_s=nav.filter.rk4_step_s) if has_truth else None
     P0 = nav.initial_covariance()
     L0 = np.linalg.cholesky(P0)
-    rows: list[dict[str, Any]] = []
-    errs_all, s3_all, limb_all, nees_all, nis_all = [], [], [], [], []
-    nees_p_all, nees_v_all = [], []
-    for r in range(int(runs)):
+
+    def one_run(r: int) -> tuple[dict[str, Any], NDArray[np.float32], list[FloatArray] | None]:
+        """Run ``r``'s row, limb-point errors and filter series (errors, 3-sigma, NEES, NIS,
+        position and velocity NEES; None without truth)."""
         fr_r = [fr[r] for fr in frames]
         limb = np.concatenate([f.limb_errors_px for f in fr_r]) if fr_r else np.empty(0)
-        limb_all.append(limb.astype(np.float32))
         bias, std, rms, n_pts = _stats(limb)
         row: dict[str, Any] = {
             "point": int(point), "run": r, "frames": K,
@@ -549,6 +550,7 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
              "final_velocity_3sigma_m_s", "nees_mean", "nees_position_mean",
              "nees_velocity_mean"), math.nan)
         ekf_times: list[float] = []
+        series = None
         if has_truth and dyn is not None and truth is not None and K:
             meas = [FrameMeasurement(f.index, f.epoch_tdb, f.status, position=f.position,
                                      covariance=f.covariance, common_jacobian=f.common_jacobian,
@@ -560,13 +562,8 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
             with quiet_logger("starnav.navigation.ekf"):
                 res = run_filter(meas, dynamics=dyn, moon=dyn, t0=float(epochs[0]), x0=x0,
                                  P0=P0, options=nav.ekf_options(nav.calibration(sc, r)))
-            e = res.errors(truth)
-            errs_all.append(e)
-            s3_all.append(res.sigma3())
-            nees_all.append(res.nees(truth))
-            nis_all.append(res.nis)
-            nees_p_all.append(res.nees_position(truth))
-            nees_v_all.append(res.nees_velocity(truth))
+            series = [res.errors(truth), res.sigma3(), res.nees(truth), res.nis,
+                      res.nees_position(truth), res.nees_velocity(truth)]
             ekf_times = [float(t) for t in res.timings_s]
             nm = NavMetrics.of(res, truth, fr_r[-1].range_m)
             nav_cols.update({k: getattr(nm, k) for k in nav_cols})
@@ -576,7 +573,13 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
             vals = ekf_times if stage == "ekf" else [f.timings_s.get(stage, math.nan)
                                                      for f in fr_r]
             row[f"time_{stage}_s"] = _median(vals)
-        rows.append(row)
+        return row, limb.astype(np.float32), series
+
+    done = over_runs(one_run, run_ids(int(runs)))
+    rows = [d[0] for d in done]
+    limb_all = [d[1] for d in done]
+    errs_all, s3_all, nees_all, nis_all, nees_p_all, nees_v_all = (
+        [d[2][j] for d in done if d[2] is not None] for j in range(6))
     return PointResult(
         point=int(point), rows=rows, epochs=epochs,
         errors=np.array(errs_all) if errs_all else None,

@@ -64,15 +64,11 @@ def _navigate_flyby(path: Path, out: Path, runs: int | None, set_: list[str] | N
     (the front end places this frame's windows from the last frame's tracks), so the closed
     loop renders the scenario once and runs the front end and the estimator per run.
     ``--sweep``: the closed loop over a grid of v_inf, CA distance and phase instead."""
-    from starnav.batch.flyby_sweep import parse_sweep_axes
+    from starnav.batch.flyby import navigate_flyby
+    from starnav.batch.flyby_sweep import flyby_rendered_sweep, parse_sweep_axes, write_flyby_sweep
     from starnav.config import load_scenario
     from starnav.simulate import Simulator
-    from starnav.simulate.flyby import (
-        check_flyby_scenario,
-        flyby_rendered_sweep,
-        navigate_flyby,
-        write_flyby_sweep,
-    )
+    from starnav.simulate.flyby import check_flyby_scenario
 
     overrides = tuple(set_ or ()) + ((f"seed={seed}",) if seed is not None else ())
     axes = parse_sweep_axes(sweep or ())
@@ -119,7 +115,7 @@ def _navigate_flyby_dataset(path: Path, out: Path, runs: int | None, set_: list[
     """``navigate DATASET`` for a fly-by dataset: the closed loop on its stored radiance
     (:func:`starnav.dataset.flyby.navigate_flyby_dataset`); the limb chain's options that
     select an exposure or another scenario are refused."""
-    from starnav.dataset.flyby import navigate_flyby_dataset
+    from starnav.batch.flyby import navigate_flyby_dataset
     from starnav.errors import ConfigError
 
     if exposure is not None:
@@ -213,7 +209,7 @@ def register(app: typer.Typer) -> None:
                 typer.echo("attitude from the stars: " + ", ".join(
                     f"{k} {v}" for k, v in summary["attitude"].items()) + " frames")
             else:
-                summary = navigate_dataset(ds, out, config=scenario.navigation, runs=1,
+                summary = navigate_dataset(ds, out, config=scenario.navigation,
                                            seed=int(scenario.seed), plots=not no_plots,
                                            scenario=scenario)
         except StarnavError as err:

@@ -107,7 +107,7 @@ def navigate_with_star_attitude(dataset: Any, out_dir: str | os.PathLike[str], s
         The navigation summary with ``attitude``: the count of frames per attitude source.
     """
     frames, chains, recs = star_attitude_frames(dataset, scenario)
-    summary = navigate_dataset(dataset, out_dir, config=scenario.navigation, runs=1,
+    summary = navigate_dataset(dataset, out_dir, config=scenario.navigation,
                                seed=int(scenario.seed), plots=plots, scenario=scenario,
                                frames=frames, chains=chains, measure_memory=measure_memory)
     p = Path(out_dir) / "attitude.json"

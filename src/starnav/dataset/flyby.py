@@ -7,21 +7,19 @@ starts from: the radiance with the renderer's AOVs and ``truth.json`` (docs/data
 1. :func:`read_flyby`: the manifest, the dataset's scenario with the ``navigation.*`` /
    ``seed`` overrides (:data:`NAVIGATE_KEYS`), and every frame as the ``(FrameGeometry,
    RadianceImage)`` pair the closed loop renders (geometry checked against the scenario's).
-2. :func:`navigate_flyby_dataset`: :func:`starnav.simulate.flyby.navigate_flyby` on those
-   frames; its runs equal those of ``starnav navigate SCENARIO.yaml`` with the same seed.
+2. Navigated by :func:`starnav.batch.flyby.navigate_flyby_dataset`: its runs equal those of
+   ``starnav navigate SCENARIO.yaml`` with the same seed.
 
 Index
 -----
-:func:`navigate_flyby_dataset`, :func:`read_flyby`, :func:`is_flyby_dataset`,
-:data:`NAVIGATE_KEYS`.
+:func:`read_flyby`, :func:`is_flyby_dataset`, :data:`NAVIGATE_KEYS`.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 from starnav.config import scenario_from_dict
 from starnav.dataset import format as F
@@ -29,7 +27,7 @@ from starnav.dataset.reader import check_layout, checked_file, read_manifest
 from starnav.errors import ConfigError, DataFileError
 from starnav.geometry import FrameGeometry
 from starnav.radiance import RadianceImage, read_exr
-from starnav.simulate.flyby import check_flyby_scenario, navigate_flyby
+from starnav.simulate.flyby import check_flyby_scenario
 from starnav.simulate.frames import Simulator
 
 #: ``--set`` keys a fly-by dataset's navigation may change (the frames are already rendered).
@@ -97,18 +95,3 @@ def read_flyby(path: str | os.PathLike[str], overrides: Sequence[str] = ()
                          "radiance")
         renders.append((geom, read_exr(p)))
     return sim, renders
-
-
-def navigate_flyby_dataset(path: str | os.PathLike[str], out: str | os.PathLike[str],
-                           runs: int | None = None, *, overrides: Sequence[str] = (),
-                           plots: bool = True, probability: float = 0.99,
-                           progress: Callable[[str, int, int], None] | None = None
-                           ) -> dict[str, Any]:
-    """``starnav navigate DATASET`` for a fly-by dataset (module step 2): the closed loop of
-    :func:`starnav.simulate.flyby.navigate_flyby` over ``runs`` runs (default
-    ``navigation.runs``) on the stored frames; writes its ``metrics.json``, figures and
-    ``report.md`` in ``out`` and returns the metrics dict."""
-    sim, renders = read_flyby(path, overrides)
-    n = sim.scenario.navigation.runs if runs is None else int(runs)
-    return navigate_flyby(sim, out, n, plots=plots, probability=probability, renders=renders,
-                          progress=progress)

@@ -297,7 +297,7 @@ def dataset_head(scenario: Scenario, options: DatasetOptions, n_frames: int) -> 
         head["flyby"] = {"epoch_ca_tdb_s": float(flyby.epoch_ca),
                          "sun_direction_j2000": np.asarray(flyby.sun_direction, float),
                          "navigate": "starnav navigate DATASET: the closed loop of "
-                                     "starnav.simulate.flyby on the stored radiance"}
+                                     "starnav.batch.flyby on the stored radiance"}
         head["layout"]["per_exposure"] = []
     return head
 

@@ -9,15 +9,14 @@
    measurement with a ``status`` and a message instead of raising, so a sequence goes on.
 2. :func:`run_filter`: the EKF (:mod:`~starnav.navigation.ekf`) over the measurements.
 3. :func:`navigate`: both over a dataset, timing each stage and, on request, the peak heap.
-4. :func:`monte_carlo`: the filter re-run from initial states drawn from ``P0``, on the same
-   measurements.
+   Monte Carlo runs repeat these in :mod:`starnav.batch` (:mod:`starnav.batch.runs`).
 
 Index
 -----
 :func:`process_frame`, :class:`FrameMeasurement`, :class:`ChainOptions`,
 :func:`camera_consider_jacobian`, :func:`run_filter`, :class:`FilterResult`,
-:func:`navigate`, :class:`NavigationRun`, :func:`monte_carlo`, :func:`initial_error_normal`,
-:func:`truth_states`, :data:`STAGES`.
+:func:`navigate`, :class:`NavigationRun`, :func:`initial_error_normal`, :func:`truth_states`,
+:data:`STAGES`.
 """
 
 from __future__ import annotations
@@ -568,7 +567,7 @@ class _FilterRecorder:
 def initial_error_normal(seed: int, run: int) -> FloatArray:
     """Standard normal 6-vector of run ``run``'s initial state error (``x0 = truth + L z``,
     ``L L^T = P0``): stream ``generator(seed, STAGE_NAVIGATION, run)``, the same for
-    :func:`navigate`, :func:`monte_carlo` and the sweeps."""
+    :func:`navigate` and the Monte Carlo runs of :mod:`starnav.batch`."""
     return generator(int(seed), STAGE_NAVIGATION, int(run)).standard_normal(6)
 
 
@@ -739,39 +738,3 @@ def navigate(
     ranges = np.array([f.truth.range if f.truth is not None else np.nan for f in frames])
     return NavigationRun(meas, res, truth, errs, stage, cpu, peak, ranges)
 
-
-def monte_carlo(
-    measurements: Sequence[FrameMeasurement],
-    truth: ArrayLike,
-    *,
-    dynamics: Dynamics,
-    moon: MoonEphemeris,
-    P0: ArrayLike,
-    runs: int,
-    seed: int = 0,
-    options: EkfOptions | None = None,
-) -> list[FilterResult]:
-    """The filter re-run ``runs`` times (runs 1..runs) from ``x0 ~ N(truth[0], P0)``, run
-    ``r``'s initial error from ``generator(seed, STAGE_NAVIGATION, r)`` (module step 4).
-
-    Parameters
-    ----------
-    measurements : sequence of FrameMeasurement
-    truth : (K, 6) array
-        EMB-centred truth at the measurement epochs [m, m/s]; ``truth[0]`` is the mean initial
-        state at the first epoch.
-    runs : int
-        Number of runs (>= 1).
-    """
-    if runs < 1:
-        raise ConfigError("runs", runs, "an integer >= 1")
-    truth = np.asarray(truth, float)
-    P0 = np.asarray(P0, float)
-    L = np.linalg.cholesky(P0)
-    t0 = float(measurements[0].epoch_tdb)
-    out = []
-    for r in range(1, runs + 1):
-        x0 = truth[0] + L @ initial_error_normal(seed, r)
-        out.append(run_filter(measurements, dynamics=dynamics, moon=moon, t0=t0, x0=x0, P0=P0,
-                              options=options))
-    return out

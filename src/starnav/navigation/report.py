@@ -42,7 +42,7 @@ from starnav.navigation import plots as P
 from starnav.navigation.dynamics import MoonEphemeris, PointMassDynamics
 from starnav.navigation.frames import NavDataset
 from starnav.navigation.metrics import ErrorSummary, anees_statistics
-from starnav.navigation.pipeline import STAGES, FilterResult, NavigationRun, monte_carlo, navigate
+from starnav.navigation.pipeline import STAGES, FilterResult, NavigationRun, navigate
 from starnav.navigation.schema import NavigationConfig
 
 #: The tracker's processing budgets (the seed paper's processor-in-the-loop figures).
@@ -57,7 +57,8 @@ def _finite(x: float) -> float | None:
 def summarize(run: NavigationRun, mc: Sequence[FilterResult] = ()) -> dict[str, Any]:
     """Plain-number summary of a run: :class:`~starnav.navigation.metrics.NavMetrics` (the
     vocabulary shared with the sweep table) plus statuses, limb-point errors, the Monte Carlo
-    re-runs of the filter, timings and memory (module docstring)."""
+    re-runs of the filter ``mc`` (:func:`starnav.batch.montecarlo.filter_runs`), timings and
+    memory (module docstring)."""
     f = run.filter
     statuses: dict[str, int] = {}
     for m in run.measurements:
@@ -258,7 +259,6 @@ def navigate_dataset(
     out_dir: str | os.PathLike[str],
     *,
     config: Any | None = None,
-    runs: int | None = None,
     seed: int | None = None,
     dynamics: Any | None = None,
     measure_memory: bool = True,
@@ -267,7 +267,10 @@ def navigate_dataset(
     frames: Sequence[Any] | None = None,
     chains: Sequence[Any] | None = None,
 ) -> dict[str, Any]:
-    """Navigate over a dataset and write every output (the library side of ``starnav navigate``).
+    """Navigate over a dataset and write every output (the library side of ``starnav navigate``):
+    the nominal run (run 0). Its Monte Carlo runs are :mod:`starnav.batch.montecarlo`'s:
+    ``navigate_runs`` re-exposes the frames, ``filter_runs`` re-runs the filter on this run's
+    measurements (:func:`write_outputs` takes those).
 
     Parameters
     ----------
@@ -278,8 +281,6 @@ def navigate_dataset(
         Output directory (created).
     config : NavigationConfig, optional
         The ``navigation`` section; default its defaults.
-    runs : int, optional
-        Monte Carlo runs of the filter (overrides ``config.runs``); 1 = the nominal run only.
     seed : int, optional
         Seed of the initial errors and of RANSAC (:func:`~starnav.navigation.pipeline.navigate`);
         default the scenario's.
@@ -310,7 +311,6 @@ def navigate_dataset(
                           "a NavDataset (camera, len(), iteration over NavFrame); missing "
                           + ", ".join(missing))
     cfg = config if config is not None else NavigationConfig()
-    n_runs = cfg.runs if runs is None else int(runs)
     dyn = dynamics if dynamics is not None else PointMassDynamics(step_s=cfg.filter.rk4_step_s)
     if not isinstance(dyn, MoonEphemeris):
         raise ConfigError("dynamics", type(dyn).__name__, "an object with moon_state(t)")
@@ -327,18 +327,14 @@ def navigate_dataset(
     run = navigate(dataset if frames is None else frames, camera=dataset.camera,
                    dynamics=dyn, moon=dyn, P0=P0, chain=chain, chains=chains, ekf=ekf,
                    seed=seed, measure_memory=measure_memory)
-    mc: list[FilterResult] = []
-    if n_runs > 1 and run.truth is not None:
-        mc = monte_carlo(run.measurements, run.truth, dynamics=dyn, moon=dyn, P0=P0,
-                         runs=n_runs, seed=seed, options=ekf)
     shown = list(dataset) if plots else []
-    paths = write_outputs(run, out_dir, mc, plots=plots, frames=shown,
+    paths = write_outputs(run, out_dir, plots=plots, frames=shown,
                           camera=dataset.camera, radii_m=chain.fix.radii_m)
     out = Path(out_dir)
     atomic_write_text(out / "navigation_config.json",
                        json.dumps(cfg.model_dump(mode="json"), indent=2) + "\n")
     paths["config"] = out / "navigation_config.json"
-    summary = summarize(run, mc)
+    summary = summarize(run)
     paths["report"] = write_report(out, summary, paths)
     summary["paths"] = {k: str(v) for k, v in paths.items()}
     return summary

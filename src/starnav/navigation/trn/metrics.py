@@ -35,10 +35,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from starnav.atomic import atomic_path, atomic_write_text
 from starnav.camera import Camera
-from starnav.navigation.metrics import chi2_band, consistency_fraction
+from starnav.errors import ConfigError
+from starnav.navigation.metrics import anees_statistics, chi2_band, consistency_fraction
 from starnav.navigation.trn.body_view import BodyInCamera, LitSilhouette, lit_silhouette
 from starnav.navigation.trn.filter import FlybyRun, ShapeBodyLike
 from starnav.navigation.trn.measurements import FlybyMeasurement
+from starnav.navigation.trn.synthetic import FlybyTruth
 from starnav.typing import FloatArray
 
 
@@ -169,6 +171,65 @@ class FlybyMetrics:
 
 
 # ----------------------------------------------------------------------------- figures
+@dataclass
+class FlybyMonteCarlo:
+    """Runs of one fly-by and their verdict.
+
+    Attributes
+    ----------
+    truth : FlybyTruth
+    runs : list of FlybyRun
+    metrics : list of FlybyMetrics
+        One per run.
+    nees : (R, K) array
+    summary : dict
+        ``runs``, ``probability``, ``nees_mean``, ``nees_band``, ``verdict``
+        (``consistent`` / ``overconfident`` / ``pessimistic``), ``nees_ca``,
+        ``nees_ca_band``, ``ca_error_pct_range_median`` / ``_max``, ``nees_per_frame``.
+    """
+
+    truth: FlybyTruth
+    runs: list[FlybyRun]
+    metrics: list[FlybyMetrics]
+    nees: FloatArray
+    summary: dict[str, Any]
+
+
+def summarise_runs(runs: Sequence[FlybyRun], metrics: Sequence[FlybyMetrics],
+                   truth: ArrayLike | Sequence[ArrayLike], epochs: ArrayLike, epoch_ca: float,
+                   probability: float = 0.99) -> dict[str, Any]:
+    """The Monte Carlo verdict of ``runs`` of one fly-by (module steps 3-4): the per-frame
+    NEES averaged over the runs, its mean against the two-sided ``probability`` band of its
+    effective samples (module step 3), the NEES at CA, the CA position error over range (median,
+    max), the filter's divergence resets summed over the runs. ``truth``: the (K, 6) true
+    states shared by every run, or one (K, 6) per run (runs of dispersed fly-bys, same
+    epochs); ``epochs`` (K,) [TDB s]."""
+    X = np.asarray(truth, float)
+    if X.ndim == 3:
+        if X.shape[0] != len(runs):
+            raise ConfigError("truth", X.shape, f"one (K, 6) array per run ({len(runs)})")
+        nees = np.array([res.nees(x) for res, x in zip(runs, X, strict=True)])
+    else:
+        nees = np.array([res.nees(X) for res in runs])
+    st = anees_statistics(nees, 6, probability)
+    per_frame = np.asarray(st["per_epoch"], float)
+    R = len(runs)
+    ca_band = chi2_band(6, R, probability)
+    k = closest_approach_index(epochs, epoch_ca)
+    ca = np.array([x.ca_position_error_pct_range for x in metrics])
+    return {
+        "runs": R, "probability": probability, "nees_mean": st["mean"],
+        "nees_band": st["band"], "verdict": st["verdict"],
+        "nees_band_independent": st["band_independent"],
+        "nees_autocorrelation_time": st["autocorrelation_time"],
+        "nees_frames_in_band": st["epochs_in_band"],
+        "nees_ca": float(per_frame[k]), "nees_ca_band": list(ca_band),
+        "ca_error_pct_range_median": float(np.median(ca)),
+        "ca_error_pct_range_max": float(np.max(ca)),
+        "resets": int(sum(len(res.info.get("resets", ())) for res in runs)),
+        "nees_per_frame": per_frame.tolist()}
+
+
 def _figure(nrows: int, size: tuple[float, float]):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure

@@ -6,40 +6,33 @@ their envelope (another ``v_inf``, CA distance and phase, and another body: Eros
 once per released default by ``tools/score_flyby.py``, which writes
 ``data/navigation/flyby_scoring.json`` (:data:`RECORD`); the tests read that record.
 
-One scoring fly-by (:func:`score_flyby`): synthetic measurements (:mod:`.synthetic`: the truth
-is the full shape model) on the AA-STR from ``approach_ranges`` CA distances out to as far
-out, ``runs`` Monte Carlo runs that each draw their measurement noise, initial error and the
-coarse model's scale (:mod:`.body_model`); per run the filter on the coarse model. Reported
-against :data:`TARGETS`: the fraction of epochs whose ANEES lies inside its per-epoch 95 % band
-(:func:`starnav.navigation.metrics.anees_statistics`), the position and velocity NEES
-(time-averaged, dof 3 each), the CA position error in % of range (median, 95th percentile),
-the velocity error at CA in % of ``v_inf`` (median, 95th percentile) and the filter's CPU time
-per frame scaled to the tracker's MCU (:data:`starnav.navigation.trn.metrics` factor) against
-its 650 ms budget. The front end is not part of a synthetic score (its per-frame time on
-rendered frames: ``benchmarks/flyby.py``).
+One scoring fly-by (its runs: :func:`starnav.batch.flyby_synthetic.score_case`): synthetic
+measurements (:mod:`.synthetic`: the truth is the full shape model) on the AA-STR from
+``approach_ranges`` CA distances out to as far out, ``runs`` Monte Carlo runs that each draw
+their measurement noise, initial error and the coarse model's scale (:mod:`.body_model`); per
+run the filter on the coarse model. Reported against :data:`TARGETS`: the fraction of epochs
+whose ANEES lies inside its per-epoch 95 % band
+(:func:`starnav.navigation.metrics.anees_statistics`), the position and velocity NEES (time-
+averaged, dof 3 each), the CA position error in % of range (median, 95th percentile), the
+velocity error at CA in % of ``v_inf`` (median, 95th percentile) and the filter's CPU time per
+frame scaled to the tracker's MCU (:data:`starnav.navigation.trn.metrics` factor) against its
+650 ms budget. The front end is not part of a synthetic score (its per-frame time on rendered
+frames: ``benchmarks/flyby.py``).
 """
 
 from __future__ import annotations
 
 import json
 import math
-import time
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 
-from starnav.bodies.schema import ShapeModelConfig
-from starnav.bodies.small_body import ShapeModelBody
-from starnav.camera import Camera
 from starnav.data import packaged_path
 from starnav.navigation.metrics import anees_statistics
-from starnav.navigation.schema import TrnFilterConfig, TrnShapeModelConfig
-from starnav.navigation.trn.metrics import closest_approach_index
-from starnav.navigation.trn.montecarlo import FlybyMonteCarlo, flyby_monte_carlo
-from starnav.navigation.trn.synthetic import SyntheticOptions, flyby_truth
-from starnav.scenes.flyby import flyby_from_config
-from starnav.scenes.schema import FlybyConfig
+from starnav.navigation.trn.metrics import FlybyMonteCarlo, closest_approach_index
+from starnav.navigation.trn.synthetic import SyntheticOptions
 
 #: The packaged record of the last scoring (``tools/score_flyby.py``).
 RECORD = "navigation/flyby_scoring.json"
@@ -95,27 +88,6 @@ SCORING_FLYBYS: tuple[FlybyCase, ...] = (
 )
 
 
-def case_monte_carlo(case: FlybyCase, runs: int, seed: int = 11
-                     ) -> tuple[FlybyMonteCarlo, float]:
-    """``runs`` synthetic runs of ``case`` on the coarse model (module essay), and the CPU
-    time of the filter runs per frame and run [s] (the synthetic truth's excluded)."""
-    body = ShapeModelBody(ShapeModelConfig(model=case.body))
-    cam = Camera.preset("aa-str")
-    fl = flyby_from_config(FlybyConfig(v_inf_km_s=case.v_inf / 1e3,
-                                       closest_approach_km=case.closest_approach / 1e3,
-                                       phase_at_ca_deg=math.degrees(case.phase_at_ca)),
-                           epoch_ca=0.0, gm=body.gm)
-    half = case.start_ca_ranges * case.closest_approach / case.v_inf
-    epochs = np.arange(-half, half + 1e-9, case.cadence)
-    truth = flyby_truth(fl, body, cam, epochs, SYNTHETIC, seed=1)
-    cfg = TrnFilterConfig(**SYNTHETIC_FILTER)
-    t0 = time.process_time()
-    mc = flyby_monte_carlo(truth, cam, body, runs, cfg.initial_covariance(), seed=seed,
-                           synthetic=SYNTHETIC, options=cfg.options(),
-                           shape_model=TrnShapeModelConfig(map="coarse"))
-    return mc, (time.process_time() - t0) / (runs * epochs.size)
-
-
 def score(mc: FlybyMonteCarlo, case: FlybyCase, cpu_s_per_frame: float) -> dict[str, Any]:
     """The scoring metrics of a Monte Carlo (module essay) with the verdict per target."""
     X = mc.truth.states
@@ -155,12 +127,6 @@ def score(mc: FlybyMonteCarlo, case: FlybyCase, cpu_s_per_frame: float) -> dict[
         < TARGETS["ca_velocity_pct_v_inf"],
         "filter_time": mcu_ms <= TARGETS["mcu_budget_ms"]}
     return out
-
-
-def score_case(case: FlybyCase, runs: int = 20, seed: int = 11) -> dict[str, Any]:
-    """Run and score one case."""
-    mc, cpu = case_monte_carlo(case, runs, seed)
-    return score(mc, case, cpu)
 
 
 def read_record() -> dict[str, Any]:

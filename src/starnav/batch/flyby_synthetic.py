@@ -1,42 +1,45 @@
-"""Monte Carlo of the fly-by estimator on synthetic measurements, and a sweep over the fly-by.
+"""Monte Carlo of the fly-by estimator on synthetic measurements: one fly-by, a grid, a score.
 
-Technique
----------
 1. The truth geometry of the fly-by is computed once
    (:func:`~starnav.navigation.trn.synthetic.flyby_truth`).
-2. Run ``r`` of ``runs`` draws its own measurements (pixel noise, track births and lifetimes,
-   attitude errors, centroid and radius noise) and its own initial error from ``P0``, from the
-   streams of :mod:`starnav.navigation.trn.synthetic` keyed by ``(seed, r)``: a run is the same
-   whatever the number of runs.
-3. Consistency (Bar-Shalom et al. 2001, 5.4.2; the limb case's
-   :func:`starnav.batch.consistency.consistency_metrics`): the NEES of the 6 states averaged
-   over the ``R`` runs is, for a consistent filter, ``chi2(6 R) / R`` at each frame (the
-   fraction of frames inside its 95 % band is reported). The verdict is its mean over the
-   frames against the two-sided ``probability`` band of ``R K / tau`` effective samples, ``tau``
-   the NEES series' integrated autocorrelation time
-   (:func:`~starnav.navigation.metrics.anees_statistics`); the NEES at CA alone has the exact
-   band of an ``R``-run mean.
-4. Accuracy: the position error at CA over the range, per run (median, max).
+2. Run ``r`` of ``runs`` (:func:`starnav.batch.runs.over_runs`) draws its own measurements
+   (pixel noise, track births and lifetimes, attitude errors, centroid and radius noise) and
+   its own initial error from ``P0``, from the streams of
+   :mod:`starnav.navigation.trn.synthetic` keyed by ``(seed, r)``: a run is the same whatever
+   the number of runs.
+3. The verdict over the runs: :func:`starnav.navigation.trn.metrics.summarise_runs`
+   (Bar-Shalom et al. 2001, 5.4.2).
 
-:func:`flyby_sweep` runs this over a grid of v_inf, CA distance and Sun phase.
+:func:`flyby_sweep` runs this at every point of a grid of v_inf, CA distance and Sun phase;
+:func:`case_monte_carlo` and :func:`score_case` on the calibration and scoring fly-bys of
+:mod:`starnav.navigation.trn.scoring`.
+
+Index
+-----
+:func:`flyby_monte_carlo`, :func:`flyby_sweep`, :func:`case_monte_carlo`, :func:`score_case`.
 """
 
 from __future__ import annotations
 
 import itertools
+import math
+import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from starnav.batch.runs import over_points, over_runs, run_ids
+from starnav.bodies.schema import ShapeModelConfig
+from starnav.bodies.small_body import ShapeModelBody
 from starnav.camera import Camera
 from starnav.errors import ConfigError
-from starnav.navigation.metrics import anees_statistics, chi2_band
+from starnav.navigation.schema import TrnFilterConfig, TrnShapeModelConfig
 from starnav.navigation.trn.body_model import estimator_model
 from starnav.navigation.trn.filter import FlybyRun, ShapeBodyLike, TrnFilterOptions, run_filter
-from starnav.navigation.trn.metrics import FlybyMetrics, closest_approach_index
+from starnav.navigation.trn.metrics import FlybyMetrics, FlybyMonteCarlo, summarise_runs
+from starnav.navigation.trn.scoring import SYNTHETIC, SYNTHETIC_FILTER, FlybyCase, score
 from starnav.navigation.trn.synthetic import (
     STREAM_SHAPE_SCALE,
     FlybyTruth,
@@ -48,31 +51,6 @@ from starnav.navigation.trn.synthetic import (
 from starnav.scenes.flyby import flyby_from_config
 from starnav.scenes.schema import FlybyConfig
 from starnav.seeding import STAGE_FLYBY_SYNTHETIC, generator
-from starnav.typing import FloatArray
-
-
-@dataclass
-class FlybyMonteCarlo:
-    """Runs of one fly-by and their verdict.
-
-    Attributes
-    ----------
-    truth : FlybyTruth
-    runs : list of FlybyRun
-    metrics : list of FlybyMetrics
-        One per run.
-    nees : (R, K) array
-    summary : dict
-        ``runs``, ``probability``, ``nees_mean``, ``nees_band``, ``verdict``
-        (``consistent`` / ``overconfident`` / ``pessimistic``), ``nees_ca``,
-        ``nees_ca_band``, ``ca_error_pct_range_median`` / ``_max``, ``nees_per_frame``.
-    """
-
-    truth: FlybyTruth
-    runs: list[FlybyRun]
-    metrics: list[FlybyMetrics]
-    nees: FloatArray
-    summary: dict[str, Any]
 
 
 def flyby_monte_carlo(truth: FlybyTruth, camera: Camera, body: ShapeBodyLike, runs: int,
@@ -80,16 +58,15 @@ def flyby_monte_carlo(truth: FlybyTruth, camera: Camera, body: ShapeBodyLike, ru
                       synthetic: SyntheticOptions | None = None,
                       options: TrnFilterOptions | None = None,
                       probability: float = 0.99, shape_model: Any = None) -> FlybyMonteCarlo:
-    """``runs`` filter runs on synthetic measurements of ``truth`` (module essay).
+    """``runs`` filter runs on synthetic measurements of ``truth`` (module steps 1-3).
     ``shape_model``: a :class:`~starnav.navigation.schema.TrnShapeModelConfig`; the filter of
     run ``r`` then navigates on :func:`~starnav.navigation.trn.body_model.estimator_model`
     of ``body`` with the unit draw of stream ``(seed, STAGE_FLYBY_SYNTHETIC, r,
     STREAM_SHAPE_SCALE)`` (``run.info["shape_model"]``); default the truth's own shape."""
-    if runs < 2:
-        raise ConfigError("runs", runs, ">= 2 Monte Carlo runs (consistency needs several)")
+    ids = run_ids(runs, minimum=2)
     P0 = np.asarray(initial_covariance, float)
-    out_runs, out_metrics = [], []
-    for r in range(runs):
+
+    def one_run(r: int) -> tuple[FlybyRun, FlybyMetrics]:
         meas = run_measurements(truth, seed, r, synthetic)
         x0 = initial_estimate(truth, P0, seed, r)
         model_body, opts, info = body, options, None
@@ -103,47 +80,15 @@ def flyby_monte_carlo(truth: FlybyTruth, camera: Camera, body: ShapeBodyLike, ru
                          sun_direction=truth.sun_direction)
         if info is not None:
             res.info["shape_model"] = info
-        out_runs.append(res)
-        out_metrics.append(FlybyMetrics.of(res, meas, truth.states, truth.epoch_ca))
+        return res, FlybyMetrics.of(res, meas, truth.states, truth.epoch_ca)
+
+    done = over_runs(one_run, ids)
+    out_runs = [res for res, _ in done]
+    out_metrics = [m for _, m in done]
     summary = summarise_runs(out_runs, out_metrics, truth.states, truth.epochs,
                              truth.epoch_ca, probability)
     nees = np.array([res.nees(truth.states) for res in out_runs])
     return FlybyMonteCarlo(truth, out_runs, out_metrics, nees, summary)
-
-
-def summarise_runs(runs: Sequence[FlybyRun], metrics: Sequence[FlybyMetrics],
-                   truth: ArrayLike | Sequence[ArrayLike], epochs: ArrayLike, epoch_ca: float,
-                   probability: float = 0.99) -> dict[str, Any]:
-    """The Monte Carlo verdict of ``runs`` of one fly-by (module steps 3-4): the per-frame
-    NEES averaged over the runs, its mean against the two-sided ``probability`` band of its
-    effective samples (module step 3), the NEES at CA, the CA position error over range (median,
-    max), the filter's divergence resets summed over the runs. ``truth``: the (K, 6) true
-    states shared by every run, or one (K, 6) per run (runs of dispersed fly-bys, same
-    epochs); ``epochs`` (K,) [TDB s]."""
-    X = np.asarray(truth, float)
-    if X.ndim == 3:
-        if X.shape[0] != len(runs):
-            raise ConfigError("truth", X.shape, f"one (K, 6) array per run ({len(runs)})")
-        nees = np.array([res.nees(x) for res, x in zip(runs, X, strict=True)])
-    else:
-        nees = np.array([res.nees(X) for res in runs])
-    st = anees_statistics(nees, 6, probability)
-    per_frame = np.asarray(st["per_epoch"], float)
-    R = len(runs)
-    ca_band = chi2_band(6, R, probability)
-    k = closest_approach_index(epochs, epoch_ca)
-    ca = np.array([x.ca_position_error_pct_range for x in metrics])
-    return {
-        "runs": R, "probability": probability, "nees_mean": st["mean"],
-        "nees_band": st["band"], "verdict": st["verdict"],
-        "nees_band_independent": st["band_independent"],
-        "nees_autocorrelation_time": st["autocorrelation_time"],
-        "nees_frames_in_band": st["epochs_in_band"],
-        "nees_ca": float(per_frame[k]), "nees_ca_band": list(ca_band),
-        "ca_error_pct_range_median": float(np.median(ca)),
-        "ca_error_pct_range_max": float(np.max(ca)),
-        "resets": int(sum(len(res.info.get("resets", ())) for res in runs)),
-        "nees_per_frame": per_frame.tolist()}
 
 
 def flyby_sweep(body: ShapeBodyLike, camera: Camera, *, v_inf_km_s: Sequence[float],
@@ -164,8 +109,8 @@ def flyby_sweep(body: ShapeBodyLike, camera: Camera, *, v_inf_km_s: Sequence[flo
             raise ConfigError(name, list(vals), "at least one value")
     base = base if base is not None else FlybyConfig()
     epochs = np.arange(-span_s, span_s + 1e-9 * span_s, cadence_s)
-    rows = []
-    for v, d, ph in itertools.product(v_inf_km_s, closest_approach_km, phase_deg):
+
+    def point(v: float, d: float, ph: float) -> dict[str, Any]:
         cfg = base.model_copy(update={"v_inf_km_s": float(v), "closest_approach_km": float(d),
                                       "phase_at_ca_deg": float(ph)})
         cfg = FlybyConfig.model_validate(cfg.model_dump())
@@ -179,5 +124,35 @@ def flyby_sweep(body: ShapeBodyLike, camera: Camera, *, v_inf_km_s: Sequence[flo
         for key, val in FlybyMetrics.__dataclass_fields__.items():
             if val.type in ("float", "int"):
                 row[f"median_{key}"] = float(np.nanmedian([getattr(x, key) for x in mc.metrics]))
-        rows.append(row)
-    return rows
+        return row
+
+    return over_points(point, list(itertools.product(v_inf_km_s, closest_approach_km,
+                                                     phase_deg)))
+
+
+def case_monte_carlo(case: FlybyCase, runs: int, seed: int = 11
+                     ) -> tuple[FlybyMonteCarlo, float]:
+    """``runs`` synthetic runs of ``case`` on the coarse model
+    (:mod:`starnav.navigation.trn.scoring`), and the CPU time of the filter runs per frame and
+    run [s] (the synthetic truth's excluded)."""
+    body = ShapeModelBody(ShapeModelConfig(model=case.body))
+    cam = Camera.preset("aa-str")
+    fl = flyby_from_config(FlybyConfig(v_inf_km_s=case.v_inf / 1e3,
+                                       closest_approach_km=case.closest_approach / 1e3,
+                                       phase_at_ca_deg=math.degrees(case.phase_at_ca)),
+                           epoch_ca=0.0, gm=body.gm)
+    half = case.start_ca_ranges * case.closest_approach / case.v_inf
+    epochs = np.arange(-half, half + 1e-9, case.cadence)
+    truth = flyby_truth(fl, body, cam, epochs, SYNTHETIC, seed=1)
+    cfg = TrnFilterConfig(**SYNTHETIC_FILTER)
+    t0 = time.process_time()
+    mc = flyby_monte_carlo(truth, cam, body, runs, cfg.initial_covariance(), seed=seed,
+                           synthetic=SYNTHETIC, options=cfg.options(),
+                           shape_model=TrnShapeModelConfig(map="coarse"))
+    return mc, (time.process_time() - t0) / (runs * epochs.size)
+
+
+def score_case(case: FlybyCase, runs: int = 20, seed: int = 11) -> dict[str, Any]:
+    """Run and score one case."""
+    mc, cpu = case_monte_carlo(case, runs, seed)
+    return score(mc, case, cpu)
