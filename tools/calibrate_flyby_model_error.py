@@ -337,6 +337,11 @@ def third_criterion(thirds: list[float]) -> float:
     return float(max(abs(math.log(t / 6.0)) for t in thirds))
 
 
+def _with(section, **keys):
+    """``section`` (a scenario section) with ``keys`` changed, validated."""
+    return type(section)(**{**section.model_dump(), **keys})
+
+
 def calibrate(dry_run: bool = False, scaling: str = "geometry",
               orientations: int = ORIENTATIONS, geometries: bool = True,
               cache: Path | None = None, offset_navigation: bool = True) -> dict:
@@ -344,7 +349,7 @@ def calibrate(dry_run: bool = False, scaling: str = "geometry",
     base_sc = scenario_from_dict({**CALIBRATION, "navigation": {"trn": {
         "dispersion": "orientation", "filter": {"silhouette_scaling": "constant"}}}})
     base = base_sc.navigation.trn
-    fe0 = dataclasses.replace(base.front_end.options(), max_track_turn=math.pi)
+    fe0 = _with(base.front_end, max_track_turn_deg=180.0).to_si()
     series, draws, scs = [], [], []
     for k in range(orientations):
         sc, draw = calibration_draw(base_sc, k, geometries)
@@ -488,9 +493,8 @@ def calibrate(dry_run: bool = False, scaling: str = "geometry",
     print(json.dumps({k: v for k, v in out.items() if k != "per_orientation"}, indent=1))
     # 4 the calibration fly-by navigated with these values over the same orientations
     # (in sample: reported, and the bias prior chosen on it)
-    fe = dataclasses.replace(base.front_end.options(), centroid_sigma_fraction=noise_c,
-                             radius_sigma_fraction=noise_r, sigma_detect_px=detect,
-                             drift_px_per_rad=drift)
+    fe = _with(base.front_end, centroid_sigma_fraction=noise_c, radius_sigma_fraction=noise_r,
+               sigma_detect_px=detect, drift_px_per_rad=drift).to_si()
 
     def with_prior(prior: dict, reset_after: int = 0) -> TrnFilterOptions:
         return dataclasses.replace(

@@ -110,7 +110,7 @@ def test_the_preset_exposure_is_well_exposed(near_ca):
     """The lit asteroid well exposed (the paper: well-exposed images only): at CA its
     brightest 0.1 % of pixels between a quarter of the 12-bit range and below saturation."""
     sim, renders = near_ca
-    fe = sim.scenario.navigation.trn.front_end.options()
+    fe = sim.scenario.navigation.trn.front_end.to_si()
     from starnav.navigation.trn.frontend import FlybyFrontEnd
 
     geom, img = renders[1]

@@ -34,10 +34,10 @@ from starnav.errors import ConfigError
 from starnav.fields import NonNegativeFloat, PositiveFloat
 from starnav.navigation.christian_robinson import ChristianRobinsonOptions
 from starnav.navigation.ekf import EkfOptions
-from starnav.navigation.limb import LimbScanOptions
+from starnav.navigation.limb import LimbConfig
 from starnav.navigation.pipeline import ChainOptions
 from starnav.navigation.psf import estimated_psf
-from starnav.navigation.ransac import RansacOptions
+from starnav.navigation.ransac import RansacConfig
 from starnav.navigation.refine import (
     EdgeSpread,
     PixelNoise,
@@ -45,24 +45,7 @@ from starnav.navigation.refine import (
     packaged_model_error,
 )
 from starnav.navigation.trn.filter import TrnFilterOptions
-from starnav.navigation.trn.options import FrontEndOptions
-
-
-class LimbConfig(StrictModel):
-    """Pixel-level limb points from segments (starnav.navigation.limb)."""
-
-    max_points: Annotated[int, Field(ge=3)] = Field(600, description="cap on limb points")
-    min_level: Annotated[int, Field(ge=0)] = Field(0, description="lowest threshold level used")
-    min_run_length_px: Annotated[int, Field(ge=1)] = Field(1, description="shortest run used [px]")
-    min_sun_cos: Annotated[float, Field(ge=-1, lt=1)] = Field(
-        0.1, description="lit-side margin: cos of the largest limb-normal to Sun angle [-]")
-    drop_border_px: Annotated[int, Field(ge=0)] = Field(1, description="border margin [px]")
-    point_sigma_px: PositiveFloat = Field(0.5, description="1-sigma of a pixel-level point [px]")
-    point_offset_px: float = Field(0.0, allow_inf_nan=False,
-                                   description="inward shift of every point [px]")
-    max_phase_deg: Annotated[float, Field(gt=0, le=180)] = Field(
-        145.0, description="no fix past this Sun phase angle [deg]: a thinner crescent's lit "
-        "limb is too short for a trustworthy fix (the model errors are calibrated to ~145)")
+from starnav.navigation.trn.options import TrnFrontEndConfig
 
 
 class RefineConfig(StrictModel):
@@ -110,23 +93,6 @@ class RefineConfig(StrictModel):
     max_overexposure: Annotated[float, Field(gt=1, allow_inf_nan=False)] = Field(
         20.0, description="saturated windows whose fitted step exceeds this many times the "
         "headroom to saturation are dropped (blooming, not the optics, shapes that edge)")
-
-
-class RansacConfig(StrictModel):
-    """Outlier rejection (starnav.navigation.ransac)."""
-
-    model: Literal["circle", "christian-robinson"] = Field(
-        "circle", description="model fitted to each sample: circle (3 points, fast) or "
-        "christian-robinson (the limb ellipse of the Moon seen from a position)")
-    threshold_px: PositiveFloat = Field(2.0, description="inlier threshold [px]")
-    max_iterations: Annotated[int, Field(ge=1)] = Field(
-        200, description="upper bound on the hypotheses drawn")
-    confidence: Annotated[float, Field(gt=0, lt=1)] = Field(
-        0.999, description="probability of drawing at least one all-inlier sample, sets the "
-        "number of hypotheses [-]")
-    min_inlier_fraction: Annotated[float, Field(gt=0, le=1)] = Field(
-        0.3, description="fewer inliers than this fraction of the points: no fix for the frame "
-        "[-]")
 
 
 class FixConfig(StrictModel):
@@ -196,59 +162,6 @@ class FilterConfig(StrictModel):
         1800.0, description="longest RK4 step of the filter dynamics [s] (an interval is split "
         "into equal steps no longer than this; 1800 s near L2: under a millimetre per day from "
         "the converged integration, one step per frame at the demo's cadence)")
-
-
-class TrnFrontEndConfig(StrictModel):
-    """Fly-by front end: windows and feature tracking (starnav.navigation.trn.frontend)."""
-
-    n_windows: Annotated[int, Field(ge=1, le=16)] = Field(
-        8, description="windows read per frame (AA-STR: at most 16)")
-    core_px: Annotated[int, Field(ge=1)] = Field(
-        16, description="side of the region a new window detects features in [px]")
-    template_half_px: Annotated[int, Field(ge=1)] = Field(
-        7, description="half side of the Lucas-Kanade template [px]")
-    search_margin_px: Annotated[int, Field(ge=0)] = Field(
-        5, description="room for the motion-prediction error around the template [px]")
-    max_window_px: Annotated[int, Field(ge=1)] = Field(64, description="largest window side [px]")
-    limb_margin_px: NonNegativeFloat = Field(
-        6.0, description="clearance of features from the lit mask's edge (limb, terminator) [px]")
-    min_tracks_per_window: Annotated[int, Field(ge=1)] = Field(
-        3, description="a window with fewer tracks detects new features")
-    max_tracks_per_window: Annotated[int, Field(ge=1)] = Field(
-        6, description="tracks per window at most")
-    quality: Annotated[float, Field(gt=0, lt=1)] = Field(
-        0.05, description="Shi-Tomasi quality level (fraction of the window's best corner) [-]")
-    min_distance_px: PositiveFloat = Field(5.0, description="distance between features [px]")
-    fb_max_px: PositiveFloat = Field(0.3, description="forward-backward tracking limit [px]")
-    epipolar_px: PositiveFloat = Field(
-        1.0, description="epipolar RANSAC threshold (known attitude) [px]")
-    sigma_detect_px: NonNegativeFloat = Field(
-        1.51, description="1-sigma of a feature at its first detection [px] (calibrated on "
-        "rendered frames: tools/calibrate_flyby_model_error.py)")
-    drift_px_per_rad: NonNegativeFloat = Field(
-        3.75, description="growth of a feature's 1-sigma with the camera rotation summed "
-        "along its track [px/rad] (the shading moves on the surface as the view turns)")
-
-    correlation_factor: Annotated[float, Field(ge=1)] = Field(
-        3.0, description="factor on every feature's 1-sigma for its error's correlation "
-        "along a track (chosen on rendered frames by the pass's thirds: "
-        "tools/calibrate_flyby_model_error.py) [-]")
-    max_track_turn_deg: PositiveFloat = Field(
-        5.0, description="a track ends once the view has turned this much along it (bounds "
-        "its drift; the point is found again under a new id) [deg]")
-    centroid_sigma_fraction: NonNegativeFloat = Field(
-        0.000326, description="1-sigma of the segments' lit centroid per coordinate, times the "
-        "apparent radius (its noise; calibrated) [-]")
-    radius_sigma_fraction: NonNegativeFloat = Field(
-        0.000208, description="1-sigma of the segments' apparent radius, times the radius (its "
-        "noise; calibrated) [-]")
-
-    def options(self) -> FrontEndOptions:
-        """The :class:`~starnav.navigation.trn.frontend.FrontEndOptions` of this section."""
-        si = self.to_si()
-        d = self.model_dump()
-        d.pop("max_track_turn_deg")
-        return FrontEndOptions(**d, max_track_turn=float(si.max_track_turn))
 
 
 class TrnFilterConfig(StrictModel):
@@ -457,7 +370,7 @@ class NavigationConfig(StrictModel):
         ellipsoid (``starnav.simulate.chain_options`` passes it), used when
         ``fix.moon_radii_km`` is null.
         """
-        L, Rf, Rs, F = self.limb, self.refine, self.ransac, self.fix
+        Rf, F = self.refine, self.fix
         Fsi = F.to_si()
         r = MOON_RADIUS if moon_radius_m is None else float(moon_radius_m)
         if Fsi.moon_radii is not None:
@@ -498,15 +411,8 @@ class NavigationConfig(StrictModel):
             k = 1.0 if Rf.terrain_error_scale is None else Rf.terrain_error_scale
             radius_fraction = k * terrain.common_fraction
         return ChainOptions(
-            limb=LimbScanOptions(max_points=L.max_points, min_level=L.min_level,
-                                 min_run_length_px=L.min_run_length_px,
-                                 min_sun_cos=L.min_sun_cos, drop_border_px=L.drop_border_px,
-                                 point_sigma_px=L.point_sigma_px,
-                                 point_offset_px=L.point_offset_px,
-                                 max_phase_rad=L.to_si().max_phase),
-            ransac=RansacOptions(model=Rs.model, threshold_px=Rs.threshold_px,
-                                 max_iterations=Rs.max_iterations, confidence=Rs.confidence,
-                                 min_inlier_fraction=Rs.min_inlier_fraction),
+            limb=self.limb.to_si(),
+            ransac=self.ransac.to_si(),
             refine=RefineOptions(n_windows=Rf.n_windows, size_px=Rf.window_size_px,
                                  edge_model=edge_model, psf_sigma_px=Rf.psf_sigma_px,
                                  saturation_dn=Rf.saturation_dn, min_sigma_px=Rf.min_sigma_px,

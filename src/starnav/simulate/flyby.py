@@ -48,7 +48,7 @@ from starnav.atomic import atomic_path, atomic_write_text
 from starnav.bodies.base import TargetBody
 from starnav.bodies.small_body import ShapeModelBody
 from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
-from starnav.config_base import set_dotted
+from starnav.config_base import SIView, set_dotted
 from starnav.errors import ConfigError, GeometryError
 from starnav.geometry import FrameGeometry
 from starnav.navigation.trn.body_model import EstimatorModel, estimator_model
@@ -69,7 +69,6 @@ from starnav.navigation.trn.metrics import (
     write_report,
 )
 from starnav.navigation.trn.montecarlo import summarise_runs
-from starnav.navigation.trn.options import FrontEndOptions
 from starnav.navigation.trn.truth import BODY_AOVS
 from starnav.navigation.trn.windows import WindowReader
 from starnav.radiance import RadianceImage
@@ -254,7 +253,7 @@ def initial_state(truth0: FloatArray, P0: FloatArray, seed: int, run: int) -> Fl
 
 
 def flyby_run(sim: Simulator, renders: Renders, run: int, *,
-              front_end: FrontEndOptions | None = None,
+              front_end: SIView | None = None,
               filter_options: TrnFilterOptions | None = None,
               initial_covariance: FloatArray | None = None,
               body: TargetBody | None = None, memory: bool = False) -> FlybyRunResult:
@@ -265,7 +264,7 @@ def flyby_run(sim: Simulator, renders: Renders, run: int, *,
     sc = sim.scenario
     check_flyby_scenario(sc)
     trn = sc.navigation.trn
-    fe = front_end if front_end is not None else trn.front_end.options()
+    fe = front_end if front_end is not None else trn.front_end.to_si()
     fo = filter_options if filter_options is not None else trn.filter.options()
     P0 = (trn.filter.initial_covariance() if initial_covariance is None
           else np.asarray(initial_covariance, float))
@@ -307,7 +306,7 @@ def flyby_run(sim: Simulator, renders: Renders, run: int, *,
 
 
 def flyby_closed_loop(sim: Simulator, runs: int = 1, *, renders: Renders | None = None,
-                      front_end: FrontEndOptions | None = None,
+                      front_end: SIView | None = None,
                       filter_options: TrnFilterOptions | None = None,
                       initial_covariance: FloatArray | None = None,
                       probability: float = 0.99, first_run: int = 0,
@@ -410,7 +409,7 @@ def dispersed_flyby(base: Scenario, run: int) -> tuple[Scenario, dict[str, float
 
 
 def flyby_dispersed_runs(base: Scenario, runs: int, *,
-                         front_end: FrontEndOptions | None = None,
+                         front_end: SIView | None = None,
                          filter_options: TrnFilterOptions | None = None,
                          initial_covariance: FloatArray | None = None,
                          probability: float = 0.99, first_run: int = 0,
@@ -464,13 +463,13 @@ def flyby_dispersed_runs(base: Scenario, runs: int, *,
 
 
 def segments_image(sim: Simulator, render: tuple[FrameGeometry, RadianceImage], run: int = 0,
-                   front_end: FrontEndOptions | None = None) -> NDArray[np.float32]:
+                   front_end: SIView | None = None) -> NDArray[np.float32]:
     """The segments DN of one frame of run ``run`` (0 where no run was read): the first
     acquisition again, with the same noise stream as the closed loop's, so the very image its
     front end read (the runs keep no image)."""
     geom, img = render
     fe = FlybyFrontEnd(sim.camera, front_end if front_end is not None
-                       else sim.scenario.navigation.trn.front_end.options())
+                       else sim.scenario.navigation.trn.front_end.to_si())
     e0, _, _, _ = flyby_exposures(sim, img, geom, fe, run=run)
     return WindowReader.from_exposures(e0).segments_image()
 
