@@ -105,7 +105,7 @@ def bench_filter(runs: int = 3) -> None:
         meas = run_measurements(truth, 0, r, syn)
         x0 = initial_estimate(truth, P0, 0, r)
         t0 = time.process_time()
-        run = run_filter(meas, cam, body, x0, P0, cfg.options(),
+        run = run_filter(meas, cam, body, x0, P0, cfg.to_si(),
                          sun_direction=truth.sun_direction)
         per_frame.append((time.process_time() - t0) / epochs.size)
     print(f"synthetic truth geometry: {1e3 * t_truth:.1f} ms CPU per frame")

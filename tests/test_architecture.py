@@ -375,7 +375,6 @@ REPEATS_PENDING = {
     # the window fit's hot path reads these fields; its knobs and the objects the builder
     # resolves (noise, PSF, terrain, calibration table) are to be split in one step
     "starnav.navigation.refine.RefineOptions",
-    "starnav.navigation.trn.filter.TrnFilterOptions",
     "starnav.navigation.christian_robinson.ChristianRobinsonOptions",
 }
 

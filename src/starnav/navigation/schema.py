@@ -44,7 +44,7 @@ from starnav.navigation.refine import (
     RefineOptions,
     packaged_model_error,
 )
-from starnav.navigation.trn.filter import TrnFilterOptions
+from starnav.navigation.trn.filter import TrnFilterConfig
 from starnav.navigation.trn.options import TrnFrontEndConfig
 
 
@@ -162,109 +162,6 @@ class FilterConfig(StrictModel):
         1800.0, description="longest RK4 step of the filter dynamics [s] (an interval is split "
         "into equal steps no longer than this; 1800 s near L2: under a millimetre per day from "
         "the converged integration, one step per frame at the demo's cadence)")
-
-
-class TrnFilterConfig(StrictModel):
-    """The fly-by estimator (starnav.navigation.trn.filter): an EKF with body-fixed landmark
-    states."""
-
-    accel_psd_m2_s3: NonNegativeFloat = Field(
-        1e-8, description="white-acceleration PSD of the relative motion [m^2/s^3]")
-    gravity: bool = Field(True, description="the body's point-mass gravity in the prediction")
-    gate_probability: Annotated[float, Field(gt=0, lt=1)] = Field(
-        0.9999, description="chi-square gate of each feature, centroid and radius [-]")
-    max_landmarks: Annotated[int, Field(ge=0)] = Field(
-        40, description="most landmark (feature) states at once")
-    max_incidence_deg: Annotated[float, Field(gt=0, lt=90)] = Field(
-        75.0, description="steepest angle between a new landmark's ray and the surface normal "
-        "[deg]")
-    landmark_height_sigma_m: NonNegativeFloat = Field(
-        1.0, description="shape-model height error at a new landmark, 1-sigma [m]")
-    centroid_model_sigma_px: NonNegativeFloat = Field(
-        1.27, description="lit-centroid model error added in quadrature [px] (calibrated on "
-        "rendered frames: tools/calibrate_flyby_model_error.py)")
-    radius_model_fraction: NonNegativeFloat = Field(
-        0.025, description="apparent-radius model error as a fraction of the radius [-] "
-        "(calibrated)")
-    silhouette_bias_time_s: NonNegativeFloat = Field(
-        19.0, description="correlation time of the silhouette's model errors, first-order "
-        "Gauss-Markov bias states [s] (calibrated; 0: white, added to each frame's noise)")
-    centroid_sun_share: Annotated[float, Field(ge=0, le=1)] = Field(
-        0.962, description="share of the centroid model error's variance along the Sun's "
-        "image direction [-] (calibrated; 0.5: isotropic)")
-    silhouette_scaling: Literal["geometry", "constant"] = Field(
-        "geometry", description="how the silhouette model-error sigmas follow the geometry: "
-        "geometry (centroid ~ apparent radius x sin(phase); radius fraction: limb blur and "
-        "terminator shift, filter.silhouette_scale; relative to the reference below; chosen "
-        "by the calibration, tools/calibrate_flyby_model_error.py) or constant")
-    silhouette_reference_radius_px: PositiveFloat = Field(
-        48.95, description="apparent radius at which the model-error sigmas were calibrated "
-        "[px] (the calibration fly-by's CA)")
-    silhouette_reference_phase_deg: Annotated[float, Field(ge=0, lt=180)] = Field(
-        50.0, description="Sun phase at which the model-error sigmas were calibrated [deg]")
-    silhouette_limb_blur_px: NonNegativeFloat = Field(
-        1.85, description="outward spread of the lit limb above the segments threshold [px] "
-        "(the radius model error's limb term; calibrated)")
-    silhouette_terminator_shift_deg: NonNegativeFloat = Field(
-        4.12, description="shift of the effective terminator against the lit-facet model "
-        "[deg] (the radius model error's terminator term; calibrated)")
-    feature_correlation: Annotated[float, Field(ge=0, lt=1)] = Field(
-        0.25, description="correlation of the tracked features' errors within a frame [-]: N "
-        "features count as N / (1 + (N - 1) c) independent ones (calibrated)")
-    silhouette_offset: bool = Field(
-        False, description="put the deterministic part of the silhouette's model error (the "
-        "centroid offset law below, the radius's limb-blur and terminator terms) into the "
-        "predicted measurement; the bias states then carry the residual (filter step 4c; off: "
-        "measured worse at phase 70 deg, docs/navigation.md)")
-    silhouette_centroid_offset_fraction: Annotated[float, Field(gt=-0.5, lt=0.5)] = Field(
-        0.0374, description="lit-centroid offset along the Sun's image direction over apparent "
-        "radius x sin(phase) [-] (calibrated; used with silhouette_offset)")
-    silhouette_bias_mean: tuple[float, float, float] = Field(
-        (0.0, 0.0, 0.0), description="mean of the silhouette's model errors at the reference "
-        "geometry: centroid along and across the Sun's image direction [px], radius fraction "
-        "[-]; scaled with the geometry like the sigmas, which are then the scatter about it "
-        "(filter step 4d; calibrated)")
-    reset_after: Annotated[int, Field(ge=0)] = Field(
-        3, description="frames in a row with the silhouette's centroid or radius rejected by "
-        "the gate after which the filter re-opens its relative state (filter step 5a; 0: "
-        "never)")
-    birth_position_sigma_m: NonNegativeFloat = Field(
-        0.0, description="no landmark is born while the position's largest 1-sigma exceeds "
-        "this [m] (filter step 7a: a landmark cast from a loose position is a poor "
-        "linearisation, which makes the shape-scale state inconsistent); 0: always")
-    use_centroid: bool = Field(True, description="use the lit silhouette's centroid")
-    use_radius: bool = Field(True, description="use the lit silhouette's apparent radius")
-    initial_position_sigma_km: PositiveFloat = Field(
-        1.0, description="initial 1-sigma of the relative position, per axis [km]")
-    initial_velocity_sigma_m_s: PositiveFloat = Field(
-        5.0, description="initial 1-sigma of the relative velocity, per axis [m/s]")
-
-    def options(self) -> TrnFilterOptions:
-        """The SI :class:`~starnav.navigation.trn.filter.TrnFilterOptions`."""
-        si = self.to_si()
-        return TrnFilterOptions(
-            accel_psd=si.accel_psd, gravity=si.gravity, gate_probability=si.gate_probability,
-            max_landmarks=si.max_landmarks, max_incidence=si.max_incidence,
-            landmark_height_sigma=si.landmark_height_sigma,
-            centroid_model_sigma_px=si.centroid_model_sigma_px,
-            radius_model_fraction=si.radius_model_fraction, use_centroid=si.use_centroid,
-            use_radius=si.use_radius, silhouette_bias_time=si.silhouette_bias_time,
-            centroid_sun_share=si.centroid_sun_share,
-            silhouette_scaling=si.silhouette_scaling,
-            reference_radius_px=si.silhouette_reference_radius_px,
-            reference_phase=si.silhouette_reference_phase,
-            limb_blur_px=si.silhouette_limb_blur_px,
-            terminator_shift=si.silhouette_terminator_shift,
-            feature_correlation=si.feature_correlation,
-            silhouette_offset=si.silhouette_offset,
-            centroid_offset_fraction=si.silhouette_centroid_offset_fraction,
-            bias_mean=tuple(float(v) for v in si.silhouette_bias_mean),
-            reset_after=si.reset_after, birth_position_sigma=si.birth_position_sigma)
-
-    def initial_covariance(self) -> NDArray[np.float64]:
-        """The diagonal initial covariance (6, 6) [m^2, m^2/s^2]."""
-        si = self.to_si()
-        return np.diag([si.initial_position_sigma**2] * 3 + [si.initial_velocity_sigma**2] * 3)
 
 
 class TrnShapeModelConfig(StrictModel):

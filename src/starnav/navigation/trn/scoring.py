@@ -111,7 +111,7 @@ def case_monte_carlo(case: FlybyCase, runs: int, seed: int = 11
     cfg = TrnFilterConfig(**SYNTHETIC_FILTER)
     t0 = time.process_time()
     mc = flyby_monte_carlo(truth, cam, body, runs, cfg.initial_covariance(), seed=seed,
-                           synthetic=SYNTHETIC, options=cfg.options(),
+                           synthetic=SYNTHETIC, options=cfg.to_si(),
                            shape_model=TrnShapeModelConfig(map="coarse"))
     return mc, (time.process_time() - t0) / (runs * epochs.size)
 
