@@ -1,7 +1,14 @@
 """Scenario section ``navigation`` (owned by :mod:`starnav.navigation`).
 
-Units are in the key names (``_px``, ``_km``, ``_arcsec``, ``_days``); :meth:`NavigationConfig.
-chain_options` and friends convert to the SI option dataclasses of the algorithm modules.
+Units are in the key names (``_px``, ``_km``, ``_arcsec``, ``_days``). Each knob is declared
+once, on its field (description, unit, range); a section whose algorithm reads it as it is is
+declared beside that algorithm and reads its SI view (``to_si()``): ``limb``
+(:class:`~starnav.navigation.limb.LimbConfig`), ``ransac``
+(:class:`~starnav.navigation.ransac.RansacConfig`), ``trn.front_end``
+(:class:`~starnav.navigation.trn.options.TrnFrontEndConfig`) and ``trn.filter``
+(:class:`~starnav.navigation.trn.filter.TrnFilterConfig`). :meth:`NavigationConfig.
+chain_options` and :meth:`NavigationConfig.ekf_options` resolve the rest with the scenario (the
+detector's noise and blur, the terrain, the attitude knowledge, the calibrations).
 
 Example (YAML)::
 
