@@ -223,8 +223,8 @@ def _solve_limb(dn: NDArray[np.integer], camera: Camera, R_cam_to_inertial: Floa
     StarnavError
         No limb points at all (no Moon above the threshold).
     """
-    chain = ChainOptions(limb=LimbConfig(min_run_length_px=2, max_points=2000,
-                                         max_phase_deg=options.max_phase_deg).to_si(),
+    limb = {"min_run_length_px": 2, "max_points": 2000}
+    chain = ChainOptions(limb=LimbConfig(**limb, max_phase_deg=options.max_phase_deg).to_si(),
                          refine=RefineOptions(size_px=options.window_px,
                                               saturation_dn=float(saturation_dn),
                                               min_contrast_dn=5.0))
@@ -239,7 +239,7 @@ def _solve_limb(dn: NDArray[np.integer], camera: Camera, R_cam_to_inertial: Floa
             raise StarnavError(f"no limb on the frame: {status}: {message}")
         # the points only, for the comparison: the fix stays withheld
         relaxed = replace(chain, use_windows=False,
-                          limb=replace(chain.limb, max_phase_rad=math.pi))
+                          limb=LimbConfig(**limb, max_phase_deg=180.0).to_si())
         first = process_frame(frame, camera, options=relaxed,
                               rng=np.random.default_rng(options.seed))
         if first.limb is None:
