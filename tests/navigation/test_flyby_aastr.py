@@ -111,7 +111,7 @@ def test_the_preset_exposure_is_well_exposed(near_ca):
     """The lit asteroid well exposed (the paper: well-exposed images only): at CA its
     brightest 0.1 % of pixels between a quarter of the 12-bit range and below saturation."""
     sim, renders = near_ca
-    fe = sim.scenario.navigation.trn.front_end.options()
+    fe = sim.scenario.navigation.trn.front_end.to_si()
     from starnav.navigation.trn.frontend import FlybyFrontEnd
 
     geom, img = renders[1]
@@ -134,16 +134,15 @@ def test_the_map_the_filter_uses_is_not_the_truth():
     sc = preset()
     assert sc.navigation.trn.shape_model.map == "coarse"
     truth = body_from_scenario(sc)
-    opts = sc.navigation.trn.filter.options()
-    m0, m1 = (estimator_body(sc, r, truth, opts) for r in (0, 1))
+    m0, m1 = (estimator_body(sc, r, truth) for r in (0, 1))
     for m in (m0, m1):
         assert m.body.shape.n_faces < truth.shape.n_faces
         assert m.body.shape.n_vertices != truth.shape.n_vertices
         assert m.scale_error != 0.0
         assert m.body.shape.volume / truth.shape.volume == pytest.approx(
             (1 + m.scale_error) ** 3, rel=1e-9)
-        assert m.options.scale_sigma == 0.02
-        assert m.options.landmark_height_sigma > m.info["height_rms_m"] > 0
+        assert m.prior.scale_sigma == 0.02
+        assert m.prior.height_sigma > m.info["height_rms_m"] > 0
     assert m0.scale_error != m1.scale_error
     assert m0.body.gm == truth.gm and m0.body.spin == truth.spin
 
@@ -177,7 +176,7 @@ def synthetic_pass(body, epochs, runs, *, v=0.5, ca=5.0, phase=60.0):
     truth = flyby_truth(fl, body, cam, epochs, SYN, seed=1)
     c = TrnFilterConfig(**SYNTHETIC_FILTER)
     return truth, flyby_monte_carlo(truth, cam, body, runs, c.initial_covariance(), seed=SEED,
-                                    synthetic=SYN, options=c.options(),
+                                    synthetic=SYN, options=c.to_si(),
                                     shape_model=TrnShapeModelConfig(map="coarse"))
 
 
