@@ -31,14 +31,17 @@ from starnav.batch.presets import flyby_scenario
 from starnav.bodies.small_body import ShapeModelBody
 from starnav.camera import Camera
 from starnav.config import scenario_from_dict
+from starnav.data import packaged_path
 from starnav.detector.products import MAX_WINDOWS
 from starnav.errors import ConfigError
 from starnav.navigation.metrics import anees_statistics
 from starnav.navigation.schema import TrnFilterConfig, TrnShapeModelConfig
+from starnav.navigation.trn.filter import TrnFilterOptions, aspect_change, silhouette_scale
 from starnav.navigation.trn.montecarlo import flyby_monte_carlo
 from starnav.navigation.trn.scoring import (
     CALIBRATION_FLYBYS,
     SCORING_FLYBYS,
+    SPENT_FLYBYS,
     SYNTHETIC,
     SYNTHETIC_FILTER,
     TARGETS,
@@ -276,3 +279,71 @@ def test_scoring_record_is_of_the_current_defaults_and_outside_the_envelope():
         assert s["targets_met"]["ca_position_pct_p95"] == (
             s["ca_position_pct_p95"] <= TARGETS["ca_position_pct_p95"])
     assert any(c.body == "eros" for c in SCORING_FLYBYS)
+
+
+def geometry(c):
+    return (c.body, c.v_inf, c.closest_approach, c.phase_at_ca, c.start_ca_ranges, c.cadence)
+
+
+def test_the_scoring_set_is_new_and_the_spent_ones_are_recorded():
+    """The scoring fly-bys share neither a name nor a geometry with the calibration fly-bys
+    or the spent scoring fly-bys (a fly-by whose score was seen never scores again), and each
+    spent fly-by's old score stays in the record with the defaults it was scored with."""
+    rec = read_record()
+    used = {geometry(c) for c in CALIBRATION_FLYBYS + SPENT_FLYBYS}
+    names = {c.name for c in CALIBRATION_FLYBYS + SPENT_FLYBYS}
+    for c in SCORING_FLYBYS:
+        assert geometry(c) not in used and c.name not in names, c
+        assert all(not (c.body == k.body and (c.v_inf, c.closest_approach, c.phase_at_ca)
+                        == (k.v_inf, k.closest_approach, k.phase_at_ca))
+                   for k in CALIBRATION_FLYBYS + SPENT_FLYBYS), c
+    assert set(rec["spent"]) == {c.name for c in SPENT_FLYBYS}
+    for c in SPENT_FLYBYS:
+        old = rec["spent"][c.name]
+        assert old["case"]["name"] == c.name and old["runs"] >= 20
+        assert old["defaults"]["synthetic_filter"] != rec["defaults"]["synthetic_filter"]
+
+
+# ----------------------------------------------------------------------------- the map's error
+def test_the_scoring_silhouette_settings_are_the_coarse_map_calibration():
+    """The synthetic score's silhouette settings are the calibration's values
+    (tools/calibrate_flyby_coarse_map.py on the calibration fly-bys only, rounded to 2
+    significant figures); a regression check of the record against the settings."""
+    cal = json.loads(packaged_path("navigation/flyby_coarse_map_error.json").read_text())
+    assert cal["calibration_flybys"] == [c.name for c in CALIBRATION_FLYBYS]
+    assert set(cal["calibration_flybys"]).isdisjoint(c.name for c in SCORING_FLYBYS)
+    for key, value in cal["filter"].items():
+        if isinstance(value, str):
+            assert SYNTHETIC_FILTER[key] == value
+        else:
+            assert SYNTHETIC_FILTER[key] == pytest.approx(value, rel=0.02, abs=0.005), key
+
+
+def test_aspect_change_against_rotations():
+    """The aspect change of a view turned by 30 deg with the Sun held is 30 deg; of a body
+    spun by 10 deg (view and Sun both turn by 10 deg in the body frame) hypot(10, 10) deg;
+    zero for the same view."""
+    def rz(a):
+        c, s = math.cos(a), math.sin(a)
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+    u, s = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.6, 0.8])
+    assert aspect_change(u, s, u, s) == 0.0
+    assert aspect_change(u, s, rz(math.radians(30)) @ u, s) == pytest.approx(math.radians(30))
+    R, s1 = rz(math.radians(10)), np.array([0.0, 1.0, 0.0])
+    assert aspect_change(u, s1, R @ u, R @ s1) == pytest.approx(
+        math.hypot(math.radians(10), math.radians(10)))
+
+
+def test_shape_law_scales_the_centroid_with_size_and_both_with_phase():
+    """``silhouette_scaling: shape``: at the reference geometry the factors are one; the
+    centroid's doubles with the apparent radius, the radius fraction's does not; both follow
+    ``hypot(q, sin(phase / 2))`` (closed form at phase 0 and 180 deg)."""
+    o = TrnFilterOptions(silhouette_scaling="shape", shape_error_floor=0.1,
+                         reference_radius_px=50.0, reference_phase=math.radians(60.0))
+    assert silhouette_scale(50.0, math.radians(60.0), o) == pytest.approx(np.ones(3))
+    f = silhouette_scale(100.0, math.radians(60.0), o)
+    assert f == pytest.approx([2.0, 2.0, 1.0])
+    m0 = math.hypot(0.1, 0.5)
+    assert silhouette_scale(50.0, 0.0, o)[2] == pytest.approx(0.1 / m0)
+    assert silhouette_scale(50.0, math.pi, o)[2] == pytest.approx(math.hypot(0.1, 1.0) / m0)

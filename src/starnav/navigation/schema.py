@@ -275,15 +275,26 @@ class TrnFilterConfig(StrictModel):
         "(calibrated)")
     silhouette_bias_time_s: NonNegativeFloat = Field(
         19.0, description="correlation time of the silhouette's model errors, first-order "
-        "Gauss-Markov bias states [s] (calibrated; 0: white, added to each frame's noise)")
+        "Gauss-Markov bias states [s] (calibrated; 0 with silhouette_bias_angle_deg 0: white, "
+        "added to each frame's noise)")
+    silhouette_bias_angle_deg: Annotated[float, Field(ge=0, le=180)] = Field(
+        0.0, description="correlation angle of the silhouette's model errors in the aspect "
+        "(the rotation of the view and of the Sun relative to the body, filter step 1a) "
+        "[deg]; > 0 replaces silhouette_bias_time_s (a shape model's error follows the "
+        "aspect, not the time)")
     centroid_sun_share: Annotated[float, Field(ge=0, le=1)] = Field(
         0.962, description="share of the centroid model error's variance along the Sun's "
         "image direction [-] (calibrated; 0.5: isotropic)")
-    silhouette_scaling: Literal["geometry", "constant"] = Field(
+    silhouette_scaling: Literal["geometry", "shape", "constant"] = Field(
         "geometry", description="how the silhouette model-error sigmas follow the geometry: "
         "geometry (centroid ~ apparent radius x sin(phase); radius fraction: limb blur and "
         "terminator shift, filter.silhouette_scale; relative to the reference below; chosen "
-        "by the calibration, tools/calibrate_flyby_model_error.py) or constant")
+        "by the calibration, tools/calibrate_flyby_model_error.py), shape (a shape model's "
+        "own error: centroid ~ apparent radius x hypot(q, sin(phase / 2)), radius fraction ~ "
+        "hypot(q, sin(phase / 2)); filter.shape_error_term) or constant")
+    silhouette_shape_error_floor: PositiveFloat = Field(
+        0.2, description="q of the shape law: the limb's share of a shape model's silhouette "
+        "error, left at phase 0 [-] (silhouette_scaling: shape; calibrated)")
     silhouette_reference_radius_px: PositiveFloat = Field(
         48.95, description="apparent radius at which the model-error sigmas were calibrated "
         "[px] (the calibration fly-by's CA)")
@@ -336,6 +347,8 @@ class TrnFilterConfig(StrictModel):
             centroid_model_sigma_px=si.centroid_model_sigma_px,
             radius_model_fraction=si.radius_model_fraction, use_centroid=si.use_centroid,
             use_radius=si.use_radius, silhouette_bias_time=si.silhouette_bias_time,
+            silhouette_bias_angle=si.silhouette_bias_angle,
+            shape_error_floor=si.silhouette_shape_error_floor,
             centroid_sun_share=si.centroid_sun_share,
             silhouette_scaling=si.silhouette_scaling,
             reference_radius_px=si.silhouette_reference_radius_px,

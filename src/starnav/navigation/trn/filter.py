@@ -10,7 +10,9 @@ not an MSCKF, the observability argument and each step in full: docs/methods.md,
 Technique, per frame
 --------------------
 1. Predict ``(r, v)``: constant velocity plus the body's point-mass gravity, white-acceleration
-   process noise; the silhouette bias states decay as first-order Gauss-Markov processes.
+   process noise; the silhouette bias states decay as first-order Gauss-Markov processes, in
+   time or (1a) in the aspect: the rotation of the view and of the Sun relative to the body
+   (:func:`aspect_change`), which is what a shape model's silhouette error follows.
 2. Drop the landmarks whose track is absent from the frame (marginalised).
 3. Append the frame's attitude error ``dtheta`` (camera axes) to the state.
 4. Measurements: each feature, the lit centroid and the apparent radius, with their analytic
@@ -78,7 +80,7 @@ SCALE = 9
 
 
 #: Names of the silhouette model-error scalings (:func:`silhouette_scale`).
-SILHOUETTE_SCALINGS = ("geometry", "constant")
+SILHOUETTE_SCALINGS = ("geometry", "shape", "constant")
 #: Phase below which the terminator-shift law is held at its value [rad]: near zero phase the
 #: terminator leaves the view and what remains (the limb's threshold) is not phase-driven.
 PHASE_FLOOR = math.radians(15.0)
@@ -88,7 +90,8 @@ def silhouette_scale(radius_px: float, phase: float, options: TrnFilterOptions) 
     """Factors ``(centroid along, centroid across, radius)`` by which the silhouette's
     model-error sigmas at the calibration geometry (``options.reference_radius_px``,
     ``reference_phase``) scale at apparent radius ``radius_px`` [px] and Sun phase ``phase``
-    [rad] (module step 4a); ones for ``silhouette_scaling = "constant"``.
+    [rad] (module step 4a); ones for ``silhouette_scaling = "constant"``; for ``"shape"`` the
+    law of a shape model's own error (:func:`shape_error_term`).
 
     Two mechanisms, each a closed form on a sphere of apparent radius ``rho`` at phase
     ``alpha``, whose lit area is ``A = pi rho^2 (1 + cos alpha) / 2`` with its centroid
@@ -118,12 +121,43 @@ def silhouette_scale(radius_px: float, phase: float, options: TrnFilterOptions) 
     """
     if options.silhouette_scaling == "constant":
         return np.ones(3)
+    if options.silhouette_scaling == "shape":
+        m = shape_error_term(phase, options) / shape_error_term(options.reference_phase, options)
+        return np.array([m * radius_px / options.reference_radius_px] * 2 + [m])
     a = max(float(phase), PHASE_FLOOR)
     a0 = max(float(options.reference_phase), PHASE_FLOOR)
     rho, rho0 = float(radius_px), options.reference_radius_px
     c = (rho / rho0) * (math.sin(a) / math.sin(a0))
     r = radius_model_term(rho, a, options) / radius_model_term(rho0, a0, options)
     return np.array([c, c, r])
+
+
+def shape_error_term(phase: float, options: TrnFilterOptions) -> float:
+    """The phase law of a shape model's silhouette error, ``hypot(q, sin(alpha / 2))`` [-]
+    (``q = options.shape_error_floor``), for ``silhouette_scaling = "shape"``.
+
+    An empirical form. A model whose surface departs from the truth by heights ``dh`` moves
+    the lit outline by about ``dh`` where the outline is the limb (at every phase: ``q``, what
+    is left at phase 0) and by more where it is the terminator, where a height error also
+    moves the shading boundary; the terminator's share of the lit outline grows with the
+    phase (its half-ellipse departs from the limb by ``rho (1 - cos alpha) = 2 rho
+    sin^2(alpha / 2)``). The centroid's error [px] is the law times the apparent radius
+    ``rho`` (the same shape error, magnified), the radius's fraction the law alone. Its
+    constants are fitted on the calibration fly-bys (tools/calibrate_flyby_coarse_map.py).
+    """
+    return math.hypot(options.shape_error_floor, math.sin(0.5 * float(phase)))
+
+
+def aspect_change(u0: ArrayLike, s0: ArrayLike, u1: ArrayLike, s1: ArrayLike) -> float:
+    """The aspect change [rad] between two views (module step 1a): ``hypot`` of the angle
+    between the body-fixed view directions ``u0, u1`` (body centre -> spacecraft, unit) and of
+    the angle between the body-fixed Sun directions ``s0, s1`` (unit; the body's spin turns
+    its illumination). A silhouette computed from a shape model differs from the truth's by a
+    function of these two directions only (and of the apparent size, which scales it), so its
+    error decorrelates with the aspect, not with time."""
+    a = math.acos(min(max(float(np.dot(u0, u1)), -1.0), 1.0))
+    b = math.acos(min(max(float(np.dot(s0, s1)), -1.0), 1.0))
+    return math.hypot(a, b)
 
 
 def radius_model_term(radius_px: float, phase: float, options: TrnFilterOptions) -> float:
@@ -236,13 +270,20 @@ class TrnFilterOptions:
         Most relinearisations of the iterated update (1: the plain EKF).
     silhouette_bias_time : float
         Correlation time [s] of the silhouette's model errors, first-order Gauss-Markov
-        states (module step 4); 0: white, added to each frame's measurement noise.
+        states (module step 4); 0 (with ``silhouette_bias_angle`` 0): white, added to each
+        frame's measurement noise.
+    silhouette_bias_angle : float
+        Correlation angle [rad] of the silhouette's model errors in the aspect (module step
+        1a, :func:`aspect_change`); when > 0 it replaces ``silhouette_bias_time``.
     centroid_sun_share : float
         Share of the centroid model error's variance (``2 centroid_model_sigma_px^2``) along
         the Sun's image direction [-]; the rest is across it (0.5: isotropic).
     silhouette_scaling : str
         How the model-error sigmas follow the geometry (:func:`silhouette_scale`):
-        ``"geometry"`` (the terminator-shift law) or ``"constant"`` (as calibrated).
+        ``"geometry"`` (the terminator-shift law), ``"shape"`` (a shape model's own error,
+        :func:`shape_error_term`) or ``"constant"`` (as calibrated).
+    shape_error_floor : float
+        ``q`` of :func:`shape_error_term`: the limb's share of the shape-model law [-].
     reference_radius_px, reference_phase : float
         The geometry at which ``centroid_model_sigma_px`` and ``radius_model_fraction`` hold
         (the calibration fly-by's apparent radius [px] and Sun phase [rad] at CA).
@@ -291,8 +332,10 @@ class TrnFilterOptions:
     use_radius: bool = True
     iterations: int = 4
     silhouette_bias_time: float = 19.0
+    silhouette_bias_angle: float = 0.0
     centroid_sun_share: float = 0.962
     silhouette_scaling: str = "constant"
+    shape_error_floor: float = 0.2
     reference_radius_px: float = 48.95
     reference_phase: float = math.radians(50.0)
     limb_blur_px: float = 1.85
@@ -322,6 +365,10 @@ class TrnFilterOptions:
                   ("radius_model_fraction", self.radius_model_fraction >= 0, ">= 0"),
                   ("silhouette_bias_time", self.silhouette_bias_time >= 0
                    and math.isfinite(self.silhouette_bias_time), ">= 0 [s], finite"),
+                  ("silhouette_bias_angle", 0 <= self.silhouette_bias_angle <= math.pi,
+                   "in [0, pi] rad"),
+                  ("shape_error_floor", 0 < self.shape_error_floor
+                   and math.isfinite(self.shape_error_floor), "> 0 [-], finite"),
                   ("centroid_sun_share", 0 <= self.centroid_sun_share <= 1, "in [0, 1]"),
                   ("silhouette_scaling", self.silhouette_scaling in SILHOUETTE_SCALINGS,
                    f"one of {', '.join(SILHOUETTE_SCALINGS)}"),
@@ -661,9 +708,11 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
     dof_kind = {kd: np.zeros(K, np.int64) for kd in ("feature", "centroid", "radius")}
     out.info["nis_by_kind"], out.info["nis_dof_by_kind"] = nis_kind, dof_kind
     tau = opt.silhouette_bias_time
+    angle = opt.silhouette_bias_angle
+    bias_on = tau > 0 or angle > 0           # bias states (else white model error)
     share = np.array([opt.centroid_sun_share, 1.0 - opt.centroid_sun_share])
     sig_b = (np.r_[opt.centroid_model_sigma_px * np.sqrt(2.0 * share),
-                   opt.radius_model_fraction] if tau > 0 else np.zeros(3))
+                   opt.radius_model_fraction] if bias_on else np.zeros(3))
     mu = np.asarray(opt.bias_mean, float)    # the bias's calibrated mean (step 4d)
     x = np.r_[x0, np.zeros(CORE - 6)]
     P = np.zeros((CORE, CORE))
@@ -681,6 +730,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
     ids: list[int] = []                       # track id of each landmark, in state order
     banned: set[int] = set()
     t_prev = measurements[0].epoch_tdb
+    aspect_prev: tuple[FloatArray, FloatArray] | None = None   # (view, Sun), body-fixed
 
     for k, m in enumerate(measurements):
         # 1 predict
@@ -692,12 +742,22 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             P[:6, :] = Phi @ P[:6, :]
             P[:, :6] = P[:, :6] @ Phi.T
             P[:6, :6] += Q
-            if tau > 0:
-                a = math.exp(-dt / tau)
+            if bias_on:
+                if angle > 0:                 # 1a the aspect's change, not the time's
+                    view = aspect_of(x[:3], body, m.epoch_tdb,
+                                     frame_sun[k] if frame_sun[k] is not None else sun)
+                    d_asp = aspect_change(*aspect_prev, *view) if aspect_prev else 0.0
+                    aspect_prev = view
+                    a = math.exp(-d_asp / angle)
+                else:
+                    a = math.exp(-dt / tau)
                 x[BIAS] *= a
                 P[BIAS, :] *= a
                 P[:, BIAS] *= a
                 P[BIAS, BIAS] += np.diag((sig_b * scale) ** 2 * (1.0 - a * a))
+        if angle > 0 and aspect_prev is None:  # 1a the first frame's aspect
+            aspect_prev = aspect_of(x[:3], body, m.epoch_tdb,
+                                    frame_sun[k] if frame_sun[k] is not None else sun)
         # 2 drop the landmarks whose track ended
         seen = {f.track_id for f in m.features}
         keep = [j for j, tid in enumerate(ids) if tid in seen]
@@ -759,7 +819,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
 
         sil0 = silhouette_at(r.copy()) if need_sil else None
         # 4a the bias states follow the geometry: b <- (s_k / s_k-1) b (silhouette_scale)
-        if sil0 is not None and tau > 0:
+        if sil0 is not None and bias_on:
             rn = float(np.linalg.norm(r))
             phase = (math.acos(min(max(float(r @ s_k) / rn, -1.0), 1.0)) if s_k is not None
                      else 0.0)
@@ -771,11 +831,12 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             scale = s_new
         out.info["silhouette_scale"][k] = scale
         if sil0 is not None and opt.use_centroid and m.centroid_uv is not None:
-            var = m.centroid_sigma_px**2 + (0.0 if tau > 0 else opt.centroid_model_sigma_px**2)
+            var = m.centroid_sigma_px**2 + (0.0 if bias_on else
+                                            opt.centroid_model_sigma_px**2)
             rows.append(("centroid", np.asarray(m.centroid_uv, float), np.eye(2) * var, -1,
                          sil0))
         if sil0 is not None and opt.use_radius and m.apparent_radius_px is not None:
-            var = m.apparent_radius_sigma_px**2 + (0.0 if tau > 0 else (
+            var = m.apparent_radius_sigma_px**2 + (0.0 if bias_on else (
                 opt.radius_model_fraction * sil0[2] / float(np.linalg.norm(r))) ** 2)
             rows.append(("radius", np.array([m.apparent_radius_px]), np.array([[var]]), -1,
                          sil0))
@@ -967,6 +1028,15 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
         out.covariances[k] = P[:6, :6]
         out.landmarks[k] = len(ids)
     return out
+
+
+def aspect_of(r: FloatArray, body: ShapeBodyLike, epoch: float, sun: FloatArray | None
+              ) -> tuple[FloatArray, FloatArray]:
+    """The body-fixed view direction (centre -> spacecraft at ``r``, J2000 [m]) and Sun
+    direction at ``epoch`` [TDB s] (module step 1a; no Sun: the view's, phase 0)."""
+    R_bi = np.asarray(body.orientation(epoch), float).reshape(3, 3)
+    u = R_bi.T @ (np.asarray(r, float) / float(np.linalg.norm(r)))
+    return u, (R_bi.T @ sun if sun is not None else u)
 
 
 def gate_rows(rows: list, predicted: tuple[list[FloatArray], list[FloatArray], list[bool]],
