@@ -347,3 +347,22 @@ def test_shape_law_scales_the_centroid_with_size_and_both_with_phase():
     m0 = math.hypot(0.1, 0.5)
     assert silhouette_scale(50.0, 0.0, o)[2] == pytest.approx(0.1 / m0)
     assert silhouette_scale(50.0, math.pi, o)[2] == pytest.approx(math.hypot(0.1, 1.0) / m0)
+
+
+def test_the_map_error_keys_reach_the_filter_and_bad_values_are_refused():
+    """``silhouette_bias_angle_deg`` / ``silhouette_scaling: shape`` /
+    ``silhouette_shape_error_floor`` of a scenario are the estimator's ``silhouette_bias_angle``
+    [rad] / ``silhouette_scaling`` / ``shape_error_floor``; out of range is a ConfigError
+    naming the key."""
+    sc = scenario_from_dict({"navigation": {"trn": {"filter": {
+        "silhouette_bias_angle_deg": 30.0, "silhouette_scaling": "shape",
+        "silhouette_shape_error_floor": 0.1}}}})
+    opt = sc.navigation.trn.filter.options()
+    assert opt.silhouette_bias_angle == pytest.approx(math.radians(30.0))
+    assert (opt.silhouette_scaling, opt.shape_error_floor) == ("shape", 0.1)
+    for key, bad in (("silhouette_bias_angle_deg", 200.0), ("silhouette_shape_error_floor", 0.0),
+                     ("silhouette_scaling", "aspect")):
+        with pytest.raises(ConfigError, match=key):
+            scenario_from_dict({"navigation": {"trn": {"filter": {key: bad}}}})
+    with pytest.raises(ConfigError, match="silhouette_bias_angle"):
+        TrnFilterOptions(silhouette_bias_angle=-0.1)
