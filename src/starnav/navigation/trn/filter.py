@@ -10,7 +10,9 @@ not an MSCKF, the observability argument and each step in full: docs/methods.md,
 Technique, per frame
 --------------------
 1. Predict ``(r, v)``: constant velocity plus the body's point-mass gravity, white-acceleration
-   process noise; the silhouette bias states decay as first-order Gauss-Markov processes.
+   process noise; the silhouette bias states decay as first-order Gauss-Markov processes, in
+   time or (1a) in the aspect: the rotation of the view and of the Sun relative to the body
+   (:func:`aspect_change`), which is what a shape model's silhouette error follows.
 2. Drop the landmarks whose track is absent from the frame (marginalised).
 3. Append the frame's attitude error ``dtheta`` (camera axes) to the state.
 4. Measurements: each feature, the lit centroid and the apparent radius, with their analytic
@@ -92,7 +94,8 @@ def silhouette_scale(radius_px: float, phase: float, options: SIView) -> FloatAr
     """Factors ``(centroid along, centroid across, radius)`` by which the silhouette's
     model-error sigmas at the calibration geometry (``options.silhouette_reference_radius_px``,
     ``reference_phase``) scale at apparent radius ``radius_px`` [px] and Sun phase ``phase``
-    [rad] (module step 4a); ones for ``silhouette_scaling = "constant"``.
+    [rad] (module step 4a); ones for ``silhouette_scaling = "constant"``; for ``"shape"`` the
+    law of a shape model's own error (:func:`shape_error_term`).
 
     Two mechanisms, each a closed form on a sphere of apparent radius ``rho`` at phase
     ``alpha``, whose lit area is ``A = pi rho^2 (1 + cos alpha) / 2`` with its centroid
@@ -123,12 +126,44 @@ def silhouette_scale(radius_px: float, phase: float, options: SIView) -> FloatAr
     """
     if options.silhouette_scaling == "constant":
         return np.ones(3)
+    if options.silhouette_scaling == "shape":
+        m = (shape_error_term(phase, options)
+             / shape_error_term(options.silhouette_reference_phase, options))
+        return np.array([m * radius_px / options.silhouette_reference_radius_px] * 2 + [m])
     a = max(float(phase), PHASE_FLOOR)
     a0 = max(float(options.silhouette_reference_phase), PHASE_FLOOR)
     rho, rho0 = float(radius_px), options.silhouette_reference_radius_px
     c = (rho / rho0) * (math.sin(a) / math.sin(a0))
     r = radius_model_term(rho, a, options) / radius_model_term(rho0, a0, options)
     return np.array([c, c, r])
+
+
+def shape_error_term(phase: float, options: SIView) -> float:
+    """The phase law of a shape model's silhouette error, ``hypot(q, sin(alpha / 2))`` [-]
+    (``q = options.silhouette_shape_error_floor``), for ``silhouette_scaling = "shape"``.
+
+    An empirical form. A model whose surface departs from the truth by heights ``dh`` moves
+    the lit outline by about ``dh`` where the outline is the limb (at every phase: ``q``, what
+    is left at phase 0) and by more where it is the terminator, where a height error also
+    moves the shading boundary; the terminator's share of the lit outline grows with the
+    phase (its half-ellipse departs from the limb by ``rho (1 - cos alpha) = 2 rho
+    sin^2(alpha / 2)``). The centroid's error [px] is the law times the apparent radius
+    ``rho`` (the same shape error, magnified), the radius's fraction the law alone. Its
+    constants are fitted on the calibration fly-bys (tools/calibrate_flyby_coarse_map.py).
+    """
+    return math.hypot(options.silhouette_shape_error_floor, math.sin(0.5 * float(phase)))
+
+
+def aspect_change(u0: ArrayLike, s0: ArrayLike, u1: ArrayLike, s1: ArrayLike) -> float:
+    """The aspect change [rad] between two views (module step 1a): ``hypot`` of the angle
+    between the body-fixed view directions ``u0, u1`` (body centre -> spacecraft, unit) and of
+    the angle between the body-fixed Sun directions ``s0, s1`` (unit; the body's spin turns
+    its illumination). A silhouette computed from a shape model differs from the truth's by a
+    function of these two directions only (and of the apparent size, which scales it), so its
+    error decorrelates with the aspect, not with time."""
+    a = math.acos(min(max(float(np.dot(u0, u1)), -1.0), 1.0))
+    b = math.acos(min(max(float(np.dot(s0, s1)), -1.0), 1.0))
+    return math.hypot(a, b)
 
 
 def radius_model_term(radius_px: float, phase: float, options: SIView) -> float:
@@ -239,15 +274,26 @@ class TrnFilterConfig(StrictModel):
         "(calibrated)")
     silhouette_bias_time_s: NonNegativeFloat = Field(
         19.0, description="correlation time of the silhouette's model errors, first-order "
-        "Gauss-Markov bias states [s] (calibrated; 0: white, added to each frame's noise)")
+        "Gauss-Markov bias states [s] (calibrated; 0 with silhouette_bias_angle_deg 0: white, "
+        "added to each frame's noise)")
+    silhouette_bias_angle_deg: Annotated[float, Field(ge=0, le=180)] = Field(
+        0.0, description="correlation angle of the silhouette's model errors in the aspect "
+        "(the rotation of the view and of the Sun relative to the body, filter step 1a) "
+        "[deg]; > 0 replaces silhouette_bias_time_s (a shape model's error follows the "
+        "aspect, not the time)")
     centroid_sun_share: Annotated[float, Field(ge=0, le=1)] = Field(
         0.962, description="share of the centroid model error's variance along the Sun's "
         "image direction [-] (calibrated; 0.5: isotropic)")
-    silhouette_scaling: Literal["geometry", "constant"] = Field(
+    silhouette_scaling: Literal["geometry", "shape", "constant"] = Field(
         "geometry", description="how the silhouette model-error sigmas follow the geometry: "
         "geometry (centroid ~ apparent radius x sin(phase); radius fraction: limb blur and "
         "terminator shift, filter.silhouette_scale; relative to the reference below; chosen "
-        "by the calibration, tools/calibrate_flyby_model_error.py) or constant")
+        "by the calibration, tools/calibrate_flyby_model_error.py), shape (a shape model's "
+        "own error: centroid ~ apparent radius x hypot(q, sin(phase / 2)), radius fraction ~ "
+        "hypot(q, sin(phase / 2)); filter.shape_error_term) or constant")
+    silhouette_shape_error_floor: PositiveFloat = Field(
+        0.2, description="q of the shape law: the limb's share of a shape model's silhouette "
+        "error, left at phase 0 [-] (silhouette_scaling: shape; calibrated)")
     silhouette_reference_radius_px: PositiveFloat = Field(
         48.95, description="apparent radius at which the model-error sigmas were calibrated "
         "[px] (the calibration fly-by's CA)")
@@ -668,6 +714,8 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
     dof_kind = {kd: np.zeros(K, np.int64) for kd in ("feature", "centroid", "radius")}
     out.info["nis_by_kind"], out.info["nis_dof_by_kind"] = nis_kind, dof_kind
     tau = opt.silhouette_bias_time
+    angle = opt.silhouette_bias_angle
+    bias_on = tau > 0 or angle > 0           # bias states (else white model error)
     share = np.array([opt.centroid_sun_share, 1.0 - opt.centroid_sun_share])
     sig_b = (np.r_[opt.centroid_model_sigma_px * np.sqrt(2.0 * share),
                    opt.radius_model_fraction] if tau > 0 else np.zeros(3))
@@ -688,6 +736,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
     ids: list[int] = []                       # track id of each landmark, in state order
     banned: set[int] = set()
     t_prev = measurements[0].epoch_tdb
+    aspect_prev: tuple[FloatArray, FloatArray] | None = None   # (view, Sun), body-fixed
 
     for k, m in enumerate(measurements):
         # 1 predict
@@ -699,12 +748,22 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             P[:6, :] = Phi @ P[:6, :]
             P[:, :6] = P[:, :6] @ Phi.T
             P[:6, :6] += Q
-            if tau > 0:
-                a = math.exp(-dt / tau)
+            if bias_on:
+                if angle > 0:                 # 1a the aspect's change, not the time's
+                    view = aspect_of(x[:3], body, m.epoch_tdb,
+                                     frame_sun[k] if frame_sun[k] is not None else sun)
+                    d_asp = aspect_change(*aspect_prev, *view) if aspect_prev else 0.0
+                    aspect_prev = view
+                    a = math.exp(-d_asp / angle)
+                else:
+                    a = math.exp(-dt / tau)
                 x[BIAS] *= a
                 P[BIAS, :] *= a
                 P[:, BIAS] *= a
                 P[BIAS, BIAS] += np.diag((sig_b * scale) ** 2 * (1.0 - a * a))
+        if angle > 0 and aspect_prev is None:  # 1a the first frame's aspect
+            aspect_prev = aspect_of(x[:3], body, m.epoch_tdb,
+                                    frame_sun[k] if frame_sun[k] is not None else sun)
         # 2 drop the landmarks whose track ended
         seen = {f.track_id for f in m.features}
         keep = [j for j, tid in enumerate(ids) if tid in seen]
@@ -766,7 +825,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
 
         sil0 = silhouette_at(r.copy()) if need_sil else None
         # 4a the bias states follow the geometry: b <- (s_k / s_k-1) b (silhouette_scale)
-        if sil0 is not None and tau > 0:
+        if sil0 is not None and bias_on:
             rn = float(np.linalg.norm(r))
             phase = (math.acos(min(max(float(r @ s_k) / rn, -1.0), 1.0)) if s_k is not None
                      else 0.0)
@@ -778,11 +837,12 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             scale = s_new
         out.info["silhouette_scale"][k] = scale
         if sil0 is not None and opt.use_centroid and m.centroid_uv is not None:
-            var = m.centroid_sigma_px**2 + (0.0 if tau > 0 else opt.centroid_model_sigma_px**2)
+            var = m.centroid_sigma_px**2 + (0.0 if bias_on else
+                                            opt.centroid_model_sigma_px**2)
             rows.append(("centroid", np.asarray(m.centroid_uv, float), np.eye(2) * var, -1,
                          sil0))
         if sil0 is not None and opt.use_radius and m.apparent_radius_px is not None:
-            var = m.apparent_radius_sigma_px**2 + (0.0 if tau > 0 else (
+            var = m.apparent_radius_sigma_px**2 + (0.0 if bias_on else (
                 opt.radius_model_fraction * sil0[2] / float(np.linalg.norm(r))) ** 2)
             rows.append(("radius", np.array([m.apparent_radius_px]), np.array([[var]]), -1,
                          sil0))
@@ -974,6 +1034,15 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
         out.covariances[k] = P[:6, :6]
         out.landmarks[k] = len(ids)
     return out
+
+
+def aspect_of(r: FloatArray, body: ShapeBodyLike, epoch: float, sun: FloatArray | None
+              ) -> tuple[FloatArray, FloatArray]:
+    """The body-fixed view direction (centre -> spacecraft at ``r``, J2000 [m]) and Sun
+    direction at ``epoch`` [TDB s] (module step 1a; no Sun: the view's, phase 0)."""
+    R_bi = np.asarray(body.orientation(epoch), float).reshape(3, 3)
+    u = R_bi.T @ (np.asarray(r, float) / float(np.linalg.norm(r)))
+    return u, (R_bi.T @ sun if sun is not None else u)
 
 
 def gate_rows(rows: list, predicted: tuple[list[FloatArray], list[FloatArray], list[bool]],
