@@ -41,7 +41,7 @@ def scenario(width: int, focal_mm: float, frames: int) -> dict:
 def bench_front_end() -> None:
     from starnav.config import scenario_from_dict
     from starnav.navigation.trn.frontend import STAGES
-    from starnav.navigation.trn.options import FrontEndOptions
+    from starnav.navigation.trn.options import TrnFrontEndConfig
     from starnav.simulate import Simulator
     from starnav.simulate.trn import track_flyby
 
@@ -55,7 +55,8 @@ def bench_front_end() -> None:
         renders = [sim.render(i) for i in range(len(sim))]
         t_render = (time.perf_counter() - t0) / len(renders)
         t0 = time.perf_counter()
-        steps = track_flyby(sim, renders=renders, options=FrontEndOptions(n_windows=n_win))
+        steps = track_flyby(sim, renders=renders,
+                            options=TrnFrontEndConfig(n_windows=n_win).to_si())
         t_total = (time.perf_counter() - t0) / len(steps)
         per = {s: np.array([st.frame.timings_s[s] for st in steps[1:]]) * 1e3 for s in STAGES}
         fe = np.sum([per[s] for s in STAGES], axis=0)
@@ -104,7 +105,7 @@ def bench_filter(runs: int = 3) -> None:
         meas = run_measurements(truth, 0, r, syn)
         x0 = initial_estimate(truth, P0, 0, r)
         t0 = time.process_time()
-        run = run_filter(meas, cam, body, x0, P0, cfg.options(),
+        run = run_filter(meas, cam, body, x0, P0, cfg.to_si(),
                          sun_direction=truth.sun_direction)
         per_frame.append((time.process_time() - t0) / epochs.size)
     print(f"synthetic truth geometry: {1e3 * t_truth:.1f} ms CPU per frame")

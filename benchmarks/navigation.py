@@ -71,7 +71,7 @@ from starnav.navigation.limb import (
     sun_direction_in_image,
 )
 from starnav.navigation.pipeline import STAGES, ChainOptions, navigate
-from starnav.navigation.ransac import RansacOptions, ransac_limb
+from starnav.navigation.ransac import RansacConfig, ransac_limb
 from starnav.navigation.refine import refine_limb
 from starnav.navigation.synthetic import pointing_geometry, synthetic_frame
 
@@ -188,8 +188,8 @@ def bench_case(range_km: float, repeat: int, product: Product) -> dict:
         "limb": limb,
         "ransac_circle": lambda: ransac_limb(lp.uv, cam, rng=rng),
         "ransac_christian_robinson": lambda: ransac_limb(
-            lp.uv, cam, rng=rng, options=RansacOptions(model="christian-robinson",
-                                                       threshold_px=1.0)),
+            lp.uv, cam, rng=rng, options=RansacConfig(model="christian-robinson",
+                                                      threshold_px=1.0).to_si()),
         "fix_with_covariance": lambda: christian_robinson(lp.uv[rr.inliers], cam, sigma_px=0.5),
     }
     if frame.windows:

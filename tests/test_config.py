@@ -173,3 +173,12 @@ def test_the_si_view_drops_suffixes_and_converts():
         si.detector.smear.rolling_shutter.row_time_us  # noqa: B018
     with pytest.raises(AttributeError, match="read-only"):
         si.detector.exposure_time = 1.0
+    # a view travels to worker processes: pickled and copied whole, equal and read-only after
+    import copy
+    import pickle
+
+    for back in (pickle.loads(pickle.dumps(si)), copy.deepcopy(si)):
+        assert back == si
+        assert back.detector.readout.timing.a == si.detector.readout.timing.a
+        with pytest.raises(AttributeError, match="read-only"):
+            back.detector.exposure_time = 1.0

@@ -110,7 +110,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime as _dt
 import hashlib
 import json
@@ -126,7 +125,7 @@ from starnav.batch.flyby import flyby_closed_loop
 from starnav.config import scenario_from_dict, scenario_to_dict
 from starnav.navigation.metrics import chi2_band
 from starnav.navigation.trn.body_view import BodyInCamera, lit_silhouette
-from starnav.navigation.trn.filter import TrnFilterOptions, silhouette_scale
+from starnav.navigation.trn.filter import silhouette_scale
 from starnav.simulate import Simulator, body_from_scenario
 from starnav.simulate.flyby import dispersed_flyby, render_flyby
 
@@ -145,7 +144,7 @@ GEOMETRY_RANGES = {"v_inf_km_s": (0.4, 1.0), "closest_approach_km": (4.0, 8.0),
 #: Stream of the geometry draws (``numpy.random.default_rng((seed, GEOMETRY_STREAM, k))``).
 GEOMETRY_STREAM = 19
 #: Frames in a row with the silhouette rejected after which the filter re-opens its state
-#: (``TrnFilterOptions.reset_after``, filter step 5a): with a consistent filter a silhouette
+#: (``navigation.trn.filter.reset_after``, filter step 5a): with a consistent filter a silhouette
 #: is rejected with probability ~2e-4 a frame (two measurements, gate 0.9999), three in a row
 #: far less often even with the bias states' correlation.
 RESET_AFTER = 3
@@ -338,6 +337,11 @@ def third_criterion(thirds: list[float]) -> float:
     return float(max(abs(math.log(t / 6.0)) for t in thirds))
 
 
+def _with(section, **keys):
+    """``section`` (a scenario section) with ``keys`` changed, validated."""
+    return type(section)(**{**section.model_dump(), **keys})
+
+
 def calibrate(dry_run: bool = False, scaling: str = "geometry",
               orientations: int = ORIENTATIONS, geometries: bool = True,
               cache: Path | None = None, offset_navigation: bool = True) -> dict:
@@ -345,7 +349,7 @@ def calibrate(dry_run: bool = False, scaling: str = "geometry",
     base_sc = scenario_from_dict({**CALIBRATION, "navigation": {"trn": {
         "dispersion": "orientation", "filter": {"silhouette_scaling": "constant"}}}})
     base = base_sc.navigation.trn
-    fe0 = dataclasses.replace(base.front_end.options(), max_track_turn=math.pi)
+    fe0 = _with(base.front_end, max_track_turn_deg=180.0).to_si()
     series, draws, scs = [], [], []
     for k in range(orientations):
         sc, draw = calibration_draw(base_sc, k, geometries)
@@ -380,10 +384,12 @@ def calibrate(dry_run: bool = False, scaling: str = "geometry",
     ca_r = [x["r_true"][x["ca"]] * ca_km[i] / NOMINAL["closest_approach_km"]
             for i, x in enumerate(series)]
     table = phase_table(phase, along_px / r_true, across_px / r_true, dr_raw)
-    ref = TrnFilterOptions(reference_radius_px=float(np.median(ca_r)),
-                           reference_phase=math.radians(NOMINAL["phase_at_ca_deg"]),
-                           limb_blur_px=max(w_fit, 0.0), terminator_shift=max(d_fit, 0.0),
-                           silhouette_scaling=scaling)
+    ref_keys = {"silhouette_reference_radius_px": float(np.median(ca_r)),
+                "silhouette_reference_phase_deg": float(NOMINAL["phase_at_ca_deg"]),
+                "silhouette_limb_blur_px": max(w_fit, 0.0),
+                "silhouette_terminator_shift_deg": math.degrees(max(d_fit, 0.0)),
+                "silhouette_scaling": scaling}
+    ref = _with(base.filter, **ref_keys).to_si()
     scale = np.array([silhouette_scale(r_true[k], phase[k], ref) for k in range(len(phase))])
     along, across, dr = along_px / scale[:, 0], across_px / scale[:, 1], dr_raw / scale[:, 2]
     model_c = float(np.sqrt(np.mean(along**2 + across**2) / 2))
@@ -437,10 +443,10 @@ def calibrate(dry_run: bool = False, scaling: str = "geometry",
                                 "bin_edges_deg": list(TABLE_EDGES_DEG)},
            "centroid_over_rho_sin_phase": [float(x) for x in np.percentile(
                along_px / (r_true * np.sin(phase)), [0, 50, 100])],
-           "reference_radius_px": ref.reference_radius_px,
-           "reference_phase_deg": math.degrees(ref.reference_phase),
-           "limb_blur_px": ref.limb_blur_px,
-           "terminator_shift_deg": math.degrees(ref.terminator_shift),
+           "reference_radius_px": ref.silhouette_reference_radius_px,
+           "reference_phase_deg": math.degrees(ref.silhouette_reference_phase),
+           "limb_blur_px": ref.silhouette_limb_blur_px,
+           "terminator_shift_deg": math.degrees(ref.silhouette_terminator_shift),
            "radius_two_term_fit_rms": fit_rms,
            "centroid_terminator_shift_deg": math.degrees(d_centroid),
            "phase_range_deg": [math.degrees(phase.min()), math.degrees(phase.max())],
@@ -456,7 +462,7 @@ def calibrate(dry_run: bool = False, scaling: str = "geometry",
     # 3a the residual after the deterministic offset (silhouette_offset: the fitted laws put
     # into the predicted measurement); the bias states then carry only this
     along_o = along_px - c_fit * x_c
-    dr_o = dr_raw - A2 @ [ref.limb_blur_px, ref.terminator_shift]
+    dr_o = dr_raw - A2 @ [ref.silhouette_limb_blur_px, ref.silhouette_terminator_shift]
     taus_o = {"along": gauss_markov_time(np.split(along_o, len(series)), dt),
               "radius": gauss_markov_time(np.split(dr_o, len(series)), dt)}
     offset = {"centroid_offset_fraction": c_fit,
@@ -489,20 +495,21 @@ def calibrate(dry_run: bool = False, scaling: str = "geometry",
     print(json.dumps({k: v for k, v in out.items() if k != "per_orientation"}, indent=1))
     # 4 the calibration fly-by navigated with these values over the same orientations
     # (in sample: reported, and the bias prior chosen on it)
-    fe = dataclasses.replace(base.front_end.options(), centroid_sigma_fraction=noise_c,
-                             radius_sigma_fraction=noise_r, sigma_detect_px=detect,
-                             drift_px_per_rad=drift)
+    fe_cfg = _with(base.front_end, centroid_sigma_fraction=noise_c,
+                   radius_sigma_fraction=noise_r, sigma_detect_px=detect, drift_px_per_rad=drift)
+    fe = fe_cfg.to_si()
 
-    def with_prior(prior: dict, reset_after: int = 0) -> TrnFilterOptions:
-        return dataclasses.replace(
-            base.filter.options(), centroid_model_sigma_px=prior["centroid_model_sigma_px"],
+    def prior_config(prior: dict, reset_after: int = 0):
+        return _with(
+            base.filter, centroid_model_sigma_px=prior["centroid_model_sigma_px"],
             radius_model_fraction=prior["radius_model_fraction"],
             centroid_sun_share=prior["centroid_sun_share"],
-            silhouette_bias_time=prior["silhouette_bias_time_s"],
-            bias_mean=tuple(prior["bias_mean"]), reset_after=reset_after,
-            reference_radius_px=ref.reference_radius_px, reference_phase=ref.reference_phase,
-            limb_blur_px=ref.limb_blur_px, terminator_shift=ref.terminator_shift,
-            silhouette_scaling=scaling, feature_correlation=feature_corr)
+            silhouette_bias_time_s=prior["silhouette_bias_time_s"],
+            silhouette_bias_mean=tuple(prior["bias_mean"]), reset_after=reset_after,
+            **ref_keys, feature_correlation=feature_corr)
+
+    def with_prior(prior: dict, reset_after: int = 0):
+        return prior_config(prior, reset_after).to_si()
 
     # ... over the pass (thirds: approach at low phase, CA, departure at high phase), where a
     # constant sigma that does not follow the geometry would show. The bias prior packaged:
@@ -527,7 +534,7 @@ def calibrate(dry_run: bool = False, scaling: str = "geometry",
     grid, navs = {}, {}
     for cf in CORRELATION_FACTORS:
         nav = (priors[chosen]["calibration"] if cf == 1.0 else navigate_draws(
-            scs, dataclasses.replace(fe, correlation_factor=cf), with_prior(priors[chosen]),
+            scs, _with(fe_cfg, correlation_factor=cf).to_si(), with_prior(priors[chosen]),
             cache))
         navs[cf] = nav
         grid[cf] = {"nees_mean": nav["nees_mean"], "nees_thirds": nav["nees_thirds"],
@@ -537,7 +544,7 @@ def calibrate(dry_run: bool = False, scaling: str = "geometry",
     cf_best = min(grid, key=lambda c: (round(grid[c]["third_criterion"], 6), c))
     out["correlation_factor"] = cf_best
     out["correlation_factor_grid"] = [{"correlation_factor": c, **v} for c, v in grid.items()]
-    fe = dataclasses.replace(fe, correlation_factor=cf_best)
+    fe = _with(fe_cfg, correlation_factor=cf_best).to_si()
     nav_c = navs[cf_best]
     nav_r = navigate_draws(scs, fe, with_prior(priors[chosen], RESET_AFTER), cache)
     reset_ok = nav_r["nees_band"][0] <= nav_r["nees_mean"] <= nav_r["nees_band"][1]
@@ -556,17 +563,17 @@ def calibrate(dry_run: bool = False, scaling: str = "geometry",
     out["calibration_nees_band"] = c["nees_band"]
     out["calibration_nees_thirds"] = c["nees_thirds"]
     out["calibration_ca_error_pct_range_median"] = c["ca_error_pct_range_median"]
-    fo = with_prior(zero_prior)
+    fo = prior_config(zero_prior)
     # ... and with the offset in the measurement model, the residual sigmas on the states
     for label, res in (("in_sample", offset), ("cross_validated", offset["cross_validated"])):
         if not offset_navigation:
             break
-        fo_o = dataclasses.replace(
-            fo, silhouette_offset=True, centroid_offset_fraction=c_fit,
+        fo_o = _with(
+            fo, silhouette_offset=True, silhouette_centroid_offset_fraction=c_fit,
             centroid_model_sigma_px=res["centroid_model_sigma_px"],
             radius_model_fraction=res["radius_model_fraction"],
             centroid_sun_share=res["centroid_sun_share"],
-            silhouette_bias_time=res["silhouette_bias_time_s"])
+            silhouette_bias_time_s=res["silhouette_bias_time_s"]).to_si()
         lo = navigate_draws(scs, fe, fo_o, cache)
         res["calibration_nees_mean"] = lo["nees_mean"]
         res["calibration_ca_error_pct_range_median"] = lo["ca_error_pct_range_median"]

@@ -7,7 +7,8 @@ The calibration fly-bys (``starnav.navigation.trn.scoring.CALIBRATION_FLYBYS``) 
 coarse-map knobs were chosen; they are run here for their in-sample numbers only. The scoring
 fly-bys (``SCORING_FLYBYS``: another v_inf, CA distance and phase, and Eros) are run once, 20
 dispersed synthetic runs each, and recorded as they come out, verdicts included: nothing is
-re-tuned on them.
+re-tuned on them. The records of spent scoring fly-bys (``SPENT_FLYBYS``) are carried over
+from the previous record under ``spent``, with the defaults they were scored with.
 
 Usage::
 
@@ -25,6 +26,7 @@ from starnav.navigation.schema import TrnFilterConfig, TrnShapeModelConfig
 from starnav.navigation.trn.scoring import (
     CALIBRATION_FLYBYS,
     SCORING_FLYBYS,
+    SPENT_FLYBYS,
     SYNTHETIC_FILTER,
     TARGETS,
 )
@@ -36,6 +38,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=20)
     args = ap.parse_args()
+    old = json.loads(OUT.read_text()) if OUT.exists() else {}
+    spent = dict(old.get("spent", {}))
+    for c in SPENT_FLYBYS:
+        if c.name not in spent and c.name in old.get("scoring", {}):
+            spent[c.name] = {**old["scoring"][c.name], "defaults": old["defaults"]}
     record = {
         "what": "fly-by estimator on the coarse shape model, synthetic measurements on the "
                 "AA-STR (starnav.navigation.trn.scoring); written by tools/score_flyby.py",
@@ -45,6 +52,7 @@ def main() -> None:
         "targets": TARGETS,
         "calibration": {c.name: score_case(c, args.runs) for c in CALIBRATION_FLYBYS},
         "scoring": {c.name: score_case(c, args.runs) for c in SCORING_FLYBYS},
+        "spent": spent,
     }
     OUT.write_text(json.dumps(record, indent=1, default=float) + "\n")
     for part in ("calibration", "scoring"):

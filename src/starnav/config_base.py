@@ -105,6 +105,10 @@ class SIView:
     def __hash__(self) -> int:
         return hash(tuple(self._values.items()))
 
+    def __reduce__(self) -> tuple[type[SIView], tuple[dict[str, Any]]]:
+        """Pickled (and copied) through its values: a view travels to worker processes."""
+        return (SIView, (self._values,))
+
     def __repr__(self) -> str:
         return f"SIView({', '.join(f'{k}={v!r}' for k, v in self._values.items())})"
 

@@ -41,7 +41,7 @@ from starnav.navigation.limb import (
     sun_direction_in_image,
 )
 from starnav.navigation.pipeline import ChainOptions, process_frame
-from starnav.navigation.ransac import RansacOptions, ransac_limb
+from starnav.navigation.ransac import RansacConfig, ransac_limb
 from starnav.navigation.refine import EdgeSpread, PixelNoise, RefineOptions, packaged_model_error
 from starnav.navigation.synthetic import pointing_geometry, synthetic_frame
 
@@ -82,7 +82,7 @@ def _measure_case(range_km: float, dyn: PointMassDynamics) -> dict:
     lp = limb_points_from_segments(seg, sdir, options=ChainOptions().limb)
     rr = ransac_limb(lp.uv, cam, rng=np.random.default_rng(1))
     rcr = ransac_limb(lp.uv, cam, rng=np.random.default_rng(2),
-                      options=RansacOptions(model="christian-robinson", threshold_px=1.0))
+                      options=RansacConfig(model="christian-robinson", threshold_px=1.0).to_si())
     fix = christian_robinson(lp.uv[rr.inliers], cam, sigma_px=0.5)
     plain = process_frame(frame, cam, options=ChainOptions(use_windows=False),
                           rng=np.random.default_rng(1))

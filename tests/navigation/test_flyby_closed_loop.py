@@ -63,7 +63,6 @@ from starnav.data import packaged_path
 from starnav.errors import ConfigError
 from starnav.navigation.metrics import chi2_band
 from starnav.navigation.schema import TrnFilterConfig, TrnFrontEndConfig
-from starnav.navigation.trn.filter import TrnFilterOptions
 from starnav.simulate import Simulator
 from starnav.simulate.flyby import check_flyby_scenario, render_flyby
 
@@ -271,34 +270,24 @@ def test_defaults_are_the_packaged_calibration():
     assert fo.silhouette_limb_blur_px == pytest.approx(cal["limb_blur_px"], rel=0.01)
     assert fo.silhouette_terminator_shift_deg == pytest.approx(cal["terminator_shift_deg"],
                                                                rel=0.01)
-    fd = TrnFilterOptions()
-    assert fo.options().feature_correlation == fo.feature_correlation
-    assert fd.feature_correlation == 0.0   # the algorithm's default: independent features
-    assert (fd.reference_radius_px, fd.limb_blur_px) == (
-        fo.silhouette_reference_radius_px, fo.silhouette_limb_blur_px)
-    assert fd.terminator_shift == pytest.approx(math.radians(fo.silhouette_terminator_shift_deg))
-    assert fd.silhouette_bias_time == pytest.approx(cal["silhouette_bias_time_s"], rel=0.05)
-    assert fd.centroid_sun_share == pytest.approx(cal["centroid_sun_share"], abs=1e-3)
-    si = fo.options()
+    si = fo.to_si()
+    assert si.silhouette_terminator_shift == pytest.approx(
+        math.radians(fo.silhouette_terminator_shift_deg))
     assert (si.silhouette_bias_time, si.centroid_sun_share) == (
-        fd.silhouette_bias_time, fd.centroid_sun_share)
+        fo.silhouette_bias_time_s, fo.centroid_sun_share)
     assert cal["calibration_flyby"]["seed"] != scoring_scenario().seed
     # the deterministic silhouette offset (filter step 4c): its centroid law fitted on the same
     # pass, the radius's terms the ones above; default off (docs/navigation.md)
     off = cal["silhouette_offset"]
     assert fo.silhouette_centroid_offset_fraction == pytest.approx(
         off["centroid_offset_fraction"], rel=0.05)
-    assert fo.options().centroid_offset_fraction == fo.silhouette_centroid_offset_fraction
-    assert not fo.silhouette_offset and not fd.silhouette_offset
+    assert not fo.silhouette_offset
     # the bias prior (filter step 4d) and the divergence rule (step 5a) as chosen by the
     # calibration's in-sample navigation
     assert list(fo.silhouette_bias_mean) == pytest.approx(cal["bias_mean"])
     assert cal["bias_prior"] in ("zero", "mean")
     assert fo.reset_after == cal["reset_after"]
     assert fe.correlation_factor == pytest.approx(cal["correlation_factor"])
-    assert fe.options().correlation_factor == fe.correlation_factor
-    assert fo.options().reset_after == fo.reset_after
-    assert fd.reset_after == 0 and fd.bias_mean == (0.0, 0.0, 0.0)
 
 
 def test_silhouette_bias_keys_reach_the_filter_options():
@@ -308,12 +297,12 @@ def test_silhouette_bias_keys_reach_the_filter_options():
     ``centroid_offset_fraction``; out of range is a ConfigError naming the key."""
     sc = scenario_from_dict({"navigation": {"trn": {"filter": {
         "silhouette_bias_time_s": 0.0, "centroid_sun_share": 0.5}}}})
-    opt = sc.navigation.trn.filter.options()
+    opt = sc.navigation.trn.filter.to_si()
     assert opt.silhouette_bias_time == 0.0 and opt.centroid_sun_share == 0.5
     on = scenario_from_dict({"navigation": {"trn": {"filter": {
         "silhouette_offset": True, "silhouette_centroid_offset_fraction": 0.04}}}})
-    opt = on.navigation.trn.filter.options()
-    assert opt.silhouette_offset and opt.centroid_offset_fraction == 0.04
+    opt = on.navigation.trn.filter.to_si()
+    assert opt.silhouette_offset and opt.silhouette_centroid_offset_fraction == 0.04
     for key, bad in (("silhouette_bias_time_s", -1.0), ("centroid_sun_share", 1.5),
                      ("silhouette_centroid_offset_fraction", 0.7)):
         with pytest.raises(ConfigError, match=key):

@@ -24,6 +24,7 @@ from matplotlib.patches import Rectangle
 from starnav.batch.flyby import flyby_closed_loop, plot_overlays
 from starnav.config import scenario_from_dict
 from starnav.navigation.trn.metrics import draw_frame_overlay, predicted_silhouette
+from starnav.navigation.trn.options import BLOCK_PX, MIN_BODY_AREA_PX
 from starnav.navigation.trn.windows import analyse_segments
 from starnav.simulate import Simulator
 from starnav.simulate.build import body_from_scenario
@@ -52,11 +53,10 @@ def test_segments_image_is_the_one_the_front_end_read(setup):
     """Re-exposed with the run's noise stream, the segments give the front end's own lit
     centroid and radius, to the last bit (run 1: not the frame's default stream)."""
     sim, renders, loop = setup
-    fe = sim.scenario.navigation.trn.front_end.options()
     for k in (0, FRAMES - 1):
         img = segments_image(sim, renders[k], run=1)
         reader = SimpleNamespace(segments_image=lambda img=img: img)
-        fix = analyse_segments(reader, block_px=fe.block_px, min_area_px=fe.min_body_area_px)
+        fix = analyse_segments(reader, block_px=BLOCK_PX, min_area_px=MIN_BODY_AREA_PX)
         m = loop.runs[0].measurements[k]
         assert np.array_equal(fix.centroid_uv, m.centroid_uv)
         assert fix.radius_px == m.apparent_radius_px

@@ -10,8 +10,8 @@ import pytest
 from starnav.detector.products import Segments
 from starnav.geometry import static_geometry
 from starnav.navigation.limb import (
+    LimbConfig,
     LimbNotFoundError,
-    LimbScanOptions,
     _column_scan,
     limb_points_from_segments,
     segments_centroid,
@@ -31,7 +31,7 @@ PIXEL_LEVEL_MAX_ERROR_PX = 1.5
 def _limb(cam, g, seg, **kw):
     c0 = segments_centroid(seg)
     d = sun_direction_in_image(cam, g.R_cam_to_inertial, g.sun_direction, c0)
-    return limb_points_from_segments(seg, d, options=LimbScanOptions(**kw)), d
+    return limb_points_from_segments(seg, d, options=LimbConfig(**kw).to_si()), d
 
 
 def test_sun_direction_in_image_matches_projection(cam):
@@ -135,11 +135,11 @@ def test_bad_input_messages():
     # runs shorter than min_run_length_px are ignored
     with pytest.raises(LimbNotFoundError, match="length >= 3"):
         limb_points_from_segments(_segments([500, 501], [600, 600], [2, 2]), d,
-                                  options=LimbScanOptions(min_run_length_px=3))
-    from starnav.errors import ConfigError
+                                  options=LimbConfig(min_run_length_px=3).to_si())
+    from pydantic import ValidationError
 
-    with pytest.raises(ConfigError, match="limb.max_points"):
-        LimbScanOptions(max_points=2)
+    with pytest.raises(ValidationError, match=r"max_points\n.*greater than or equal to 3"):
+        LimbConfig(max_points=2)
 
 
 def test_multi_threshold_segments_of_the_detector_readout(cam, disc_frame):

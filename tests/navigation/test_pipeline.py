@@ -99,11 +99,10 @@ def test_bad_frames_give_reasons_not_exceptions(cam, sequence):
         assert m.status == status and not m.usable
         assert len(m.message) > 20
     # a thin crescent (phase past limb.max_phase_deg): no fix, and why
-    import dataclasses
     import math
 
     from starnav.navigation.limb import (
-        LimbScanOptions,
+        LimbConfig,
         phase_angle_from_image,
         segments_centroid,
     )
@@ -112,10 +111,10 @@ def test_bad_frames_give_reasons_not_exceptions(cam, sequence):
     phase = phase_angle_from_image(cam, f.R_cam_to_inertial_measured, f.sun_direction_inertial,
                                    segments_centroid(f.segments))
     assert phase == pytest.approx(f.truth.phase_angle, abs=math.radians(1.0))
-    tight = ChainOptions(limb=LimbScanOptions(max_phase_rad=phase - 0.05))
+    tight = ChainOptions(limb=LimbConfig(max_phase_deg=math.degrees(phase - 0.05)).to_si())
     m = process_frame(f, cam, options=tight)
     assert m.status == "thin-crescent" and "phase angle" in m.message
-    ok = ChainOptions(limb=dataclasses.replace(tight.limb, max_phase_rad=phase + 0.05))
+    ok = ChainOptions(limb=LimbConfig(max_phase_deg=math.degrees(phase + 0.05)).to_si())
     assert process_frame(f, cam, options=ok).usable
     # windows without a limb: refinement fails, the pixel-level fix is used
     junk = tuple(Window(row0=0, col0=11 * k, dn=np.full((11, 11), 5, np.uint16))

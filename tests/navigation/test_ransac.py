@@ -7,11 +7,11 @@ import math
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
-from starnav.errors import UnknownNameError
 from starnav.geometry import static_geometry
 from starnav.navigation.limb import fit_circle_kasa
-from starnav.navigation.ransac import RansacError, RansacOptions, ransac_limb
+from starnav.navigation.ransac import RansacConfig, RansacError, ransac_limb
 
 
 def _limb_with_outliers(cam, offset, n=300, frac=0.3, seed=1, noise=0.2):
@@ -34,7 +34,7 @@ def _limb_with_outliers(cam, offset, n=300, frac=0.3, seed=1, noise=0.2):
 def test_outliers_are_rejected(cam, model, thr):
     g, pts, is_out = _limb_with_outliers(cam, (100.0, -50.0))
     res = ransac_limb(pts, cam, rng=np.random.default_rng(0),
-                      options=RansacOptions(model=model, threshold_px=thr))
+                      options=RansacConfig(model=model, threshold_px=thr).to_si())
     assert not np.any(res.inliers & is_out), "an outlier survived"
     assert np.mean(res.inliers[~is_out]) > 0.99
     assert res.iterations < 200  # adaptive stop at 70 % inliers
@@ -50,10 +50,10 @@ def test_conic_model_keeps_the_off_axis_limb_where_the_circle_cannot(cam):
     misfit = np.max(np.abs(np.linalg.norm(pts - c, axis=1) - r))
     assert misfit > 0.5
     circ = ransac_limb(pts, cam, rng=np.random.default_rng(0),
-                       options=RansacOptions(model="circle", threshold_px=0.5,
-                                             min_inlier_fraction=0.05))
+                       options=RansacConfig(model="circle", threshold_px=0.5,
+                                             min_inlier_fraction=0.05).to_si())
     cr = ransac_limb(pts, cam, rng=np.random.default_rng(0),
-                     options=RansacOptions(model="christian-robinson", threshold_px=0.05))
+                     options=RansacConfig(model="christian-robinson", threshold_px=0.05).to_si())
     assert circ.n_inliers < 0.9 * len(pts)
     assert cr.n_inliers == len(pts)
     assert np.max(np.abs(cr.residual_px)) < 1e-6
@@ -66,7 +66,7 @@ def test_bad_input_messages(cam):
     # scattered points: no consensus
     pts = rng.uniform(0, 1000, (50, 2))
     with pytest.raises(RansacError, match="consistent with one limb"):
-        ransac_limb(pts, cam, rng=rng, options=RansacOptions(threshold_px=0.5,
-                                                             min_inlier_fraction=0.5))
-    with pytest.raises(UnknownNameError, match="known: christian-robinson, circle"):
-        RansacOptions(model="ellipse")
+        ransac_limb(pts, cam, rng=rng, options=RansacConfig(threshold_px=0.5,
+                                                            min_inlier_fraction=0.5).to_si())
+    with pytest.raises(ValidationError, match="model\n.*'circle' or 'christian-robinson'"):
+        RansacConfig(model="ellipse")

@@ -10,6 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import trimesh
+from pydantic import ValidationError
 
 from starnav.batch.flyby_synthetic import flyby_monte_carlo, flyby_sweep
 from starnav.bodies.small_body import ShapeModelBody
@@ -19,7 +20,6 @@ from starnav.navigation.metrics import chi2_band
 from starnav.navigation.schema import NavigationConfig, TrnConfig, TrnFilterConfig
 from starnav.navigation.trn.body_view import BodyInCamera, lit_silhouette, raycast, visible
 from starnav.navigation.trn.filter import (
-    TrnFilterOptions,
     centroid_model,
     features_model,
     landmark_births,
@@ -59,6 +59,17 @@ EPOCHS = np.arange(-40.0, 40.01, 4.0)
 #: x 10 km = 1.4 m across the line of sight and the apparent radius (56 px +- 0.3 px) 0.5 %
 #: along it, so 1 % is met with margin once the features tie the motion together.
 CA_FRACTION = 0.01
+#: The filter's settings for synthetic measurements, whose features are independent draws and
+#: whose silhouette is the lit-facet model itself: a small model error (0.3 px, 1 %,
+#: unscaled), no divergence reset (the scenario's values are the rendered frames'
+#: calibration).
+SMALL = {"feature_correlation": 0.0, "silhouette_scaling": "constant",
+         "centroid_model_sigma_px": 0.3, "radius_model_fraction": 0.01, "reset_after": 0}
+
+
+def _opt(**keys):
+    """The SI filter settings of SMALL with ``keys`` (scenario keys) changed."""
+    return TrnFilterConfig(**{**SMALL, **keys}).to_si()
 ZERO3 = np.zeros(3)
 
 
@@ -205,7 +216,7 @@ def test_noise_free_run_converges_to_truth(truth, camera, body):
     meas = run_measurements(truth, 0, 0, _noise_free(truth))
     P0 = TrnFilterConfig().initial_covariance()
     x0 = truth.states[0] + np.array([600.0, -500.0, 200.0, 3.0, -2.0, 1.0])
-    opt = replace(TrnFilterOptions(), centroid_model_sigma_px=0.02, radius_model_fraction=1e-3)
+    opt = _opt(centroid_model_sigma_px=0.02, radius_model_fraction=1e-3)
     run = run_filter(meas, camera, body, x0, P0, opt, sun_direction=truth.sun_direction)
     e = run.errors(truth.states)
     k = int(np.argmin(np.abs(EPOCHS)))
@@ -219,14 +230,13 @@ def test_noise_free_run_converges_to_truth(truth, camera, body):
 def mc(truth, camera, body):
     # the synthetic features' errors are independent draws: no shared part, and the
     # synthetic silhouette is the lit-facet model itself: no model error beyond the
-    # algorithm's own small default (TrnFilterOptions: 0.3 px, 1 %, unscaled); the scenario's
-    # values are the rendered frames' calibration (tools/calibrate_flyby_model_error.py)
-    d = TrnFilterOptions()
+    # small model error (SMALL: 0.3 px, 1 %, unscaled); the scenario's values are the
+    # rendered frames' calibration (tools/calibrate_flyby_model_error.py)
     c = TrnFilterConfig(feature_correlation=0.0, silhouette_scaling="constant",
-                        centroid_model_sigma_px=d.centroid_model_sigma_px,
-                        radius_model_fraction=d.radius_model_fraction)
+                        centroid_model_sigma_px=SMALL["centroid_model_sigma_px"],
+                        radius_model_fraction=SMALL["radius_model_fraction"])
     return flyby_monte_carlo(truth, camera, body, RUNS, c.initial_covariance(), seed=11,
-                             synthetic=SyntheticOptions(max_features=20), options=c.options())
+                             synthetic=SyntheticOptions(max_features=20), options=c.to_si())
 
 
 def test_monte_carlo_mean_nees_inside_its_chi2_band(mc):
@@ -261,7 +271,7 @@ def test_gate_rejects_tracker_jumps(truth, camera, body):
     jumps = sum(np.linalg.norm(f.uv - t.uv_true) > 5 for m in meas
                 for f, t in zip(m.features, m.truth, strict=True))
     c = TrnFilterConfig(feature_correlation=0.0)   # independent synthetic features
-    run = run_filter(meas, camera, body, truth.states[0], c.initial_covariance(), c.options(),
+    run = run_filter(meas, camera, body, truth.states[0], c.initial_covariance(), c.to_si(),
                      sun_direction=truth.sun_direction)
     assert jumps > 10
     # a jump of a track not yet a landmark is spent on its birth, so rejections <= jumps
@@ -298,7 +308,8 @@ def test_sweep_over_closest_approach_scales_the_ca_uncertainty(body, camera):
     P0 = TrnFilterConfig().initial_covariance()
     rows = flyby_sweep(body, camera, v_inf_km_s=[1.0], closest_approach_km=[10.0, 20.0],
                        phase_deg=[45.0], span_s=20.0, cadence_s=5.0, runs=2,
-                       initial_covariance=P0, synthetic=SyntheticOptions(max_features=15))
+                       initial_covariance=P0, synthetic=SyntheticOptions(max_features=15),
+                       options=_opt())
     assert [r["closest_approach_km"] for r in rows] == [10.0, 20.0]
     assert rows[1]["median_ca_position_3sigma_m"] > rows[0]["median_ca_position_3sigma_m"]
     assert rows[0]["median_ca_range_m"] == pytest.approx(10_000.0)
@@ -339,7 +350,7 @@ def test_config_is_read_in_si():
     c = NavigationConfig.model_validate(
         {"trn": {"filter": {"max_incidence_deg": 60, "initial_position_sigma_km": 2}}})
     assert isinstance(c.trn, TrnConfig)
-    o = c.trn.filter.options()
+    o = c.trn.filter.to_si()
     assert o.max_incidence == pytest.approx(math.radians(60))
     assert c.trn.filter.initial_covariance()[0, 0] == pytest.approx(2000.0**2)
     with pytest.raises(ValueError, match="max_incidence_deg"):
@@ -357,7 +368,7 @@ def _biased_runs(truth, camera, body, options, seed=5, offset=None, mean=(0.0, 0
     Sun's image direction N(0, sa), across it N(0, sx), the radius scale N(0, sr), with the
     filter's default sigmas (the calibrated ones), plus ``mean`` (along, across [px], radius
     fraction). Returns the NEES (runs, frames)."""
-    o = TrnFilterOptions()
+    o = _opt()
     sa = o.centroid_model_sigma_px * math.sqrt(2 * o.centroid_sun_share)
     sx = o.centroid_model_sigma_px * math.sqrt(2 * (1 - o.centroid_sun_share))
     P0 = TrnFilterConfig().initial_covariance()
@@ -392,8 +403,8 @@ def test_silhouette_bias_states_keep_a_shared_model_error_consistent(truth, came
     to each frame as white noise (``silhouette_bias_time = 0``, the old model) make the filter
     overconfident: above the band."""
     lo, hi = chi2_band(6, BIAS_RUNS, 0.99)
-    gm = _biased_runs(truth, camera, body, TrnFilterOptions())
-    white = _biased_runs(truth, camera, body, replace(TrnFilterOptions(), silhouette_bias_time=0.0))
+    gm = _biased_runs(truth, camera, body, _opt())
+    white = _biased_runs(truth, camera, body, _opt(silhouette_bias_time_s=0.0))
     assert lo <= gm.mean() <= hi, gm.mean()
     assert white.mean() > hi, white.mean()
 
@@ -403,8 +414,8 @@ def test_silhouette_offset_closed_forms_and_gradients(truth):
     ``c rho sin(alpha)``, the radius ``w / (1 + cos alpha) - rho tan(alpha / 2) delta / 2``
     (at phase 0 only the limb blur's ``w / 2`` px; the same without a Sun), and its gradients
     with respect to ``r`` by central differences."""
-    opt = TrnFilterOptions(centroid_offset_fraction=0.032, limb_blur_px=3.95,
-                           terminator_shift=math.radians(8.23))
+    opt = _opt(silhouette_centroid_offset_fraction=0.032, silhouette_limb_blur_px=3.95,
+               silhouette_terminator_shift_deg=8.23)
     r = truth.states[10, :3]
     sun = truth.sun_direction
     k = 56.0 * float(np.linalg.norm(r))            # 56 px at this range
@@ -423,8 +434,8 @@ def test_silhouette_offset_closed_forms_and_gradients(truth):
     bare = silhouette_offset(r, None, k, opt)
     for o in (zero, bare):
         assert (o.centroid_px, o.radius_px) == pytest.approx((0.0, 3.95 / 2))
-    with pytest.raises(ConfigError, match="centroid_offset_fraction"):
-        TrnFilterOptions(centroid_offset_fraction=0.7)
+    with pytest.raises(ValidationError, match="silhouette_centroid_offset_fraction"):
+        _opt(silhouette_centroid_offset_fraction=0.7)
 
 
 @pytest.mark.slow
@@ -438,9 +449,9 @@ def test_silhouette_offset_in_the_prediction_removes_the_deterministic_error(tru
     bias sigmas leave the offset (up to 1.3 px, and +0.6 to +1.9 px of radius at 56 to 14 px)
     unexplained and the NEES is above the band (measured 13.4)."""
     lo, hi = chi2_band(6, BIAS_RUNS, 0.99)
-    law = TrnFilterOptions(silhouette_offset=True)
+    law = _opt(silhouette_offset=True)
     on = _biased_runs(truth, camera, body, law, offset=law)
-    off = _biased_runs(truth, camera, body, TrnFilterOptions(), offset=law)
+    off = _biased_runs(truth, camera, body, _opt(), offset=law)
     assert lo <= on.mean() <= hi, on.mean()
     assert off.mean() > hi, off.mean()
 
@@ -458,9 +469,9 @@ def test_bias_mean_in_the_prediction_removes_a_systematic_error(truth, camera, b
     two-sided 99 % band of chi2(6), [3.55, 9.20]; with a zero-mean prior and the same sigmas
     the offset is an error the filter does not know it makes: above the band."""
     lo, hi = chi2_band(6, BIAS_RUNS, 0.99)
-    known = _biased_runs(truth, camera, body, TrnFilterOptions(bias_mean=SYSTEMATIC),
+    known = _biased_runs(truth, camera, body, _opt(silhouette_bias_mean=SYSTEMATIC),
                          mean=SYSTEMATIC)
-    unknown = _biased_runs(truth, camera, body, TrnFilterOptions(), mean=SYSTEMATIC)
+    unknown = _biased_runs(truth, camera, body, _opt(), mean=SYSTEMATIC)
     assert lo <= known.mean() <= hi, known.mean()
     assert unknown.mean() > hi, unknown.mean()
 
@@ -481,10 +492,10 @@ def test_divergence_reset_recovers_a_locked_out_run(truth, camera, body):
     P0 = TrnFilterConfig().initial_covariance()
     k = int(np.argmin(np.abs(EPOCHS)))
     rng = np.linalg.norm(truth.states[k, :3])
-    stuck = run_filter(meas, camera, body, truth.states[0], P0, TrnFilterOptions(),
+    stuck = run_filter(meas, camera, body, truth.states[0], P0, _opt(),
                        sun_direction=truth.sun_direction)
     reset = run_filter(meas, camera, body, truth.states[0], P0,
-                       TrnFilterOptions(reset_after=3), sun_direction=truth.sun_direction)
+                       _opt(reset_after=3), sun_direction=truth.sun_direction)
     assert stuck.info["resets"] == [] and stuck.centroid_used[2:].sum() <= 3
     assert np.linalg.norm(stuck.errors(truth.states)[k, :3]) > 2 * CA_FRACTION * rng
     assert reset.info["resets"] == [4], reset.info["resets"]
@@ -492,10 +503,10 @@ def test_divergence_reset_recovers_a_locked_out_run(truth, camera, body):
     e = reset.errors(truth.states)[k]
     assert np.linalg.norm(e[:3]) < CA_FRACTION * rng, e
     assert np.all(np.abs(e) <= reset.sigma3()[k])
-    with pytest.raises(ConfigError, match="reset_after"):
-        TrnFilterOptions(reset_after=-1)
-    with pytest.raises(ConfigError, match="bias_mean"):
-        TrnFilterOptions(bias_mean=(0.0, 0.0, 0.7))
+    with pytest.raises(ValidationError, match="reset_after"):
+        _opt(reset_after=-1)
+    with pytest.raises(ValidationError, match="silhouette_bias_mean"):
+        _opt(silhouette_bias_mean=(0.0, 0.0, 0.7))
 
 
 @pytest.mark.slow
@@ -503,12 +514,11 @@ def test_no_reset_on_consistent_runs(truth, camera, body):
     """The divergence rule's false alarm: 20 consistent synthetic runs (the Monte Carlo of
     ``test_monte_carlo_mean_nees_inside_its_chi2_band``'s settings) with ``reset_after = 3``
     never reset."""
-    d = TrnFilterOptions()
     c = TrnFilterConfig(feature_correlation=0.0, silhouette_scaling="constant",
-                        centroid_model_sigma_px=d.centroid_model_sigma_px,
-                        radius_model_fraction=d.radius_model_fraction, reset_after=3)
+                        centroid_model_sigma_px=SMALL["centroid_model_sigma_px"],
+                        radius_model_fraction=SMALL["radius_model_fraction"], reset_after=3)
     mc = flyby_monte_carlo(truth, camera, body, RUNS, c.initial_covariance(), seed=11,
-                           synthetic=SyntheticOptions(max_features=20), options=c.options())
+                           synthetic=SyntheticOptions(max_features=20), options=c.to_si())
     assert mc.summary["resets"] == 0
 
 
@@ -545,9 +555,10 @@ def test_silhouette_scale_is_the_sphere_terminator_shift_law():
         cp, rp, _ = _sphere_lit(a + h, camera)
         cm, rm, _ = _sphere_lit(a - h, camera)
         deriv[deg] = ((cp - cm) / (2 * h), (math.log(rp) - math.log(rm)) / (2 * h), rho)
-    opt = TrnFilterOptions(reference_radius_px=deriv[50.0][2],
-                           reference_phase=math.radians(50.0), limb_blur_px=0.0,
-                           silhouette_scaling="geometry")
+    law = {"silhouette_reference_radius_px": deriv[50.0][2],
+           "silhouette_reference_phase_deg": 50.0, "silhouette_limb_blur_px": 0.0,
+           "silhouette_scaling": "geometry"}
+    opt = _opt(**law)
     for deg in (30.0, 70.0):
         s = silhouette_scale(deriv[deg][2], math.radians(deg), opt)
         assert s[0] == pytest.approx(s[1])
@@ -557,11 +568,12 @@ def test_silhouette_scale_is_the_sphere_terminator_shift_law():
     s2 = silhouette_scale(2 * deriv[50.0][2], math.radians(50.0), opt)
     assert s2 == pytest.approx([2.0, 2.0, 1.0])
     # the limb-blur term alone: dA = pi rho w over A = pi rho^2 (1 + cos a) / 2, halved
-    limb = replace(opt, limb_blur_px=2.0, terminator_shift=0.0)
+    limb = _opt(**{**law, "silhouette_limb_blur_px": 2.0,
+                   "silhouette_terminator_shift_deg": 0.0})
     s3 = silhouette_scale(30.0, math.radians(70.0), limb)
     assert s3[2] == pytest.approx(deriv[50.0][2] * (1 + math.cos(math.radians(50.0)))
                                   / (30.0 * (1 + math.cos(math.radians(70.0)))))
-    flat = replace(opt, silhouette_scaling="constant")
+    flat = _opt(**{**law, "silhouette_scaling": "constant"})
     assert silhouette_scale(10.0, 1.2, flat) == pytest.approx([1.0, 1.0, 1.0])
-    with pytest.raises(ConfigError, match="silhouette_scaling.*geometry"):
-        TrnFilterOptions(silhouette_scaling="phase")
+    with pytest.raises(ValidationError, match="silhouette_scaling\n.*'geometry'"):
+        _opt(silhouette_scaling="phase")

@@ -16,6 +16,7 @@ import os
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 
@@ -27,7 +28,6 @@ from starnav.errors import ConfigError
 from starnav.navigation.schema import TrnFrontEndConfig
 from starnav.navigation.trn.features import epipolar_ransac
 from starnav.navigation.trn.frontend import FlybyFrontEnd
-from starnav.navigation.trn.options import FrontEndOptions
 from starnav.navigation.trn.windows import WindowAccessError, WindowReader, plan_windows
 from starnav.simulate import Simulator
 from starnav.simulate.trn import flyby_exposures, track_flyby
@@ -153,7 +153,7 @@ def test_no_stage_reads_a_pixel_outside_the_windows_and_the_segments(rendered, m
         assert np.array_equal([f.uv for f in ma.features], [f.uv for f in mb.features])
         assert np.array_equal(ma.centroid_uv, mb.centroid_uv)
     monkeypatch.undo()
-    fe = FlybyFrontEnd(sim.camera, FrontEndOptions())
+    fe = FlybyFrontEnd(sim.camera, TrnFrontEndConfig().to_si())
     for geom, img in renders[:3]:
         e0, e1, plan, reader = flyby_exposures(sim, img, geom, fe)
         fe.track(reader, plan)
@@ -194,13 +194,14 @@ def test_bad_inputs_and_a_frame_without_a_lit_body(rendered):
     """More than 16 windows is refused by the settings, the reader and the planner (naming
     the field); a frame whose segments hold no lit body gives an empty measurement (no
     centroid, no features) and ends every track."""
-    with pytest.raises(ConfigError, match="n_windows"):
-        FrontEndOptions(n_windows=17)
+    with pytest.raises(ValidationError, match="n_windows"):
+        TrnFrontEndConfig(n_windows=17)
     with pytest.raises(ConfigError, match=r"navigation\.trn\.front_end\.n_windows"):
         scenario_from_dict({"navigation": {"trn": {"front_end": {"n_windows": 17}}}})
-    assert TrnFrontEndConfig(n_windows=12).options() == FrontEndOptions(n_windows=12)
-    with pytest.raises(ConfigError, match="max_window_px"):
-        FrontEndOptions(max_window_px=20)
+    with pytest.raises(ValidationError, match="max_window_px"):
+        TrnFrontEndConfig(max_window_px=20)
+    with pytest.raises(ConfigError, match="max_tracks_per_window"):
+        scenario_from_dict({"navigation": {"trn": {"front_end": {"max_tracks_per_window": 2}}}})
     seg = extract_segments(np.zeros((32, 32), np.uint16), (200,))
     with pytest.raises(ConfigError, match="at most 16"):
         WindowReader(seg, [Window(0, 0, np.zeros((2, 2), np.uint16))] * 17)

@@ -44,10 +44,11 @@ from starnav.batch.runs import over_runs, run_ids
 from starnav.bodies.base import TargetBody
 from starnav.bodies.small_body import ShapeModelBody
 from starnav.config import Scenario
+from starnav.config_base import SIView
 from starnav.dataset.flyby import read_flyby
 from starnav.errors import ConfigError, GeometryError
 from starnav.navigation.trn.body_model import EstimatorModel, estimator_model
-from starnav.navigation.trn.filter import FlybyRun, TrnFilterOptions, run_filter
+from starnav.navigation.trn.filter import FlybyRun, run_filter
 from starnav.navigation.trn.measurements import FlybyMeasurement
 from starnav.navigation.trn.metrics import (
     FLYBY_AXES,
@@ -63,7 +64,6 @@ from starnav.navigation.trn.metrics import (
     tracker_budget,
     write_report,
 )
-from starnav.navigation.trn.options import FrontEndOptions
 from starnav.seeding import STAGE_NAVIGATION, generator
 from starnav.simulate.build import body_from_scenario
 from starnav.simulate.flyby import (
@@ -173,14 +173,12 @@ class FlybyClosedLoop:
         return self.truth if self.run_truths is None else self.run_truths[k]
 
 
-def estimator_body(sc: Scenario, run: int, truth: ShapeModelBody,
-                   options: TrnFilterOptions) -> EstimatorModel:
+def estimator_body(sc: Scenario, run: int, truth: ShapeModelBody) -> EstimatorModel:
     """Run ``run``'s body model (``navigation.trn.shape_model``,
     :func:`~starnav.navigation.trn.body_model.estimator_model`): the scale error's unit draw
     is on the stream ``generator(seed, STAGE_NAVIGATION, run, 0, SHAPE_SCALE_STREAM)``."""
     g = generator(int(sc.seed), STAGE_NAVIGATION, int(run), 0, SHAPE_SCALE_STREAM)
-    return estimator_model(truth, sc.navigation.trn.shape_model, options,
-                           float(g.standard_normal()))
+    return estimator_model(truth, sc.navigation.trn.shape_model, float(g.standard_normal()))
 
 
 def check_estimator_body(sc: Scenario) -> None:
@@ -188,7 +186,7 @@ def check_estimator_body(sc: Scenario) -> None:
     a setting it refuses is one error before any rendering."""
     truth = body_from_scenario(sc)
     if isinstance(truth, ShapeModelBody):
-        estimator_body(sc, 0, truth, sc.navigation.trn.filter.options())
+        estimator_body(sc, 0, truth)
 
 
 def initial_state(truth0: FloatArray, P0: FloatArray, seed: int, run: int) -> FloatArray:
@@ -200,8 +198,8 @@ def initial_state(truth0: FloatArray, P0: FloatArray, seed: int, run: int) -> Fl
 
 
 def flyby_run(sim: Simulator, renders: Renders, run: int, *,
-              front_end: FrontEndOptions | None = None,
-              filter_options: TrnFilterOptions | None = None,
+              front_end: SIView | None = None,
+              filter_options: SIView | None = None,
               initial_covariance: FloatArray | None = None,
               body: TargetBody | None = None, memory: bool = False) -> FlybyRunResult:
     """One run of the closed loop on frames already rendered (module step 2); ``body``: the
@@ -211,13 +209,13 @@ def flyby_run(sim: Simulator, renders: Renders, run: int, *,
     sc = sim.scenario
     check_flyby_scenario(sc)
     trn = sc.navigation.trn
-    fe = front_end if front_end is not None else trn.front_end.options()
-    fo = filter_options if filter_options is not None else trn.filter.options()
+    fe = front_end if front_end is not None else trn.front_end.to_si()
+    fo = filter_options if filter_options is not None else trn.filter.to_si()
     P0 = (trn.filter.initial_covariance() if initial_covariance is None
           else np.asarray(initial_covariance, float))
     body = body if body is not None else body_from_scenario(sc)
     assert isinstance(body, ShapeModelBody)  # check_flyby_scenario
-    model = estimator_body(sc, run, body, fo)
+    model = estimator_body(sc, run, body)
     truth = sim.scene.relative_states
     flyby = sim.scene.flyby
     assert flyby is not None  # check_flyby_scenario
@@ -238,7 +236,7 @@ def flyby_run(sim: Simulator, renders: Renders, run: int, *,
     X = truth[idx]
     x0 = initial_state(X[0], P0, sc.seed, run)
     t0 = time.perf_counter()
-    res = run_filter(meas, sim.camera, model.body, x0, P0, model.options)
+    res = run_filter(meas, sim.camera, model.body, x0, P0, fo, prior=model.prior)
     res.info["shape_model"] = model.info
     t_filter = time.perf_counter() - t0
     if memory:
@@ -253,8 +251,8 @@ def flyby_run(sim: Simulator, renders: Renders, run: int, *,
 
 
 def flyby_closed_loop(sim: Simulator, runs: int = 1, *, renders: Renders | None = None,
-                      front_end: FrontEndOptions | None = None,
-                      filter_options: TrnFilterOptions | None = None,
+                      front_end: SIView | None = None,
+                      filter_options: SIView | None = None,
                       initial_covariance: FloatArray | None = None,
                       probability: float = 0.99, first_run: int = 0,
                       progress: Callable[[str, int, int], None] | None = None
@@ -335,8 +333,8 @@ def _closed_loop(sim: Simulator, K: int, out: list[FlybyRunResult],
 
 
 def flyby_dispersed_runs(base: Scenario, runs: range, *,
-                         front_end: FrontEndOptions | None = None,
-                         filter_options: TrnFilterOptions | None = None,
+                         front_end: SIView | None = None,
+                         filter_options: SIView | None = None,
                          initial_covariance: FloatArray | None = None,
                          probability: float = 0.99,
                          progress: Callable[[int, int], None] | None = None

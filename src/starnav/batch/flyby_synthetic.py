@@ -34,10 +34,11 @@ from starnav.batch.runs import over_points, over_runs, run_ids
 from starnav.bodies.schema import ShapeModelConfig
 from starnav.bodies.small_body import ShapeModelBody
 from starnav.camera import Camera
+from starnav.config_base import SIView
 from starnav.errors import ConfigError
 from starnav.navigation.schema import TrnFilterConfig, TrnShapeModelConfig
 from starnav.navigation.trn.body_model import estimator_model
-from starnav.navigation.trn.filter import FlybyRun, ShapeBodyLike, TrnFilterOptions, run_filter
+from starnav.navigation.trn.filter import FlybyRun, ShapeBodyLike, run_filter
 from starnav.navigation.trn.metrics import FlybyMetrics, FlybyMonteCarlo, summarise_runs
 from starnav.navigation.trn.scoring import SYNTHETIC, SYNTHETIC_FILTER, FlybyCase, score
 from starnav.navigation.trn.synthetic import (
@@ -56,7 +57,7 @@ from starnav.seeding import STAGE_FLYBY_SYNTHETIC, generator
 def flyby_monte_carlo(truth: FlybyTruth, camera: Camera, body: ShapeBodyLike, runs: int,
                       initial_covariance: ArrayLike, *, seed: int = 0,
                       synthetic: SyntheticOptions | None = None,
-                      options: TrnFilterOptions | None = None,
+                      options: SIView | None = None,
                       probability: float = 0.99, shape_model: Any = None) -> FlybyMonteCarlo:
     """``runs`` filter runs on synthetic measurements of ``truth`` (module steps 1-3).
     ``shape_model``: a :class:`~starnav.navigation.schema.TrnShapeModelConfig`; the filter of
@@ -69,15 +70,13 @@ def flyby_monte_carlo(truth: FlybyTruth, camera: Camera, body: ShapeBodyLike, ru
     def one_run(r: int) -> tuple[FlybyRun, FlybyMetrics]:
         meas = run_measurements(truth, seed, r, synthetic)
         x0 = initial_estimate(truth, P0, seed, r)
-        model_body, opts, info = body, options, None
+        model_body, prior, info = body, None, None
         if shape_model is not None:
             draw = generator(seed, STAGE_FLYBY_SYNTHETIC, r, STREAM_SHAPE_SCALE).standard_normal()
-            model = estimator_model(body, shape_model,  # type: ignore[arg-type]
-                                    options if options is not None else TrnFilterOptions(),
-                                    float(draw))
-            model_body, opts, info = model.body, model.options, model.info
-        res = run_filter(meas, camera, model_body, x0, P0, opts,
-                         sun_direction=truth.sun_direction)
+            model = estimator_model(body, shape_model, float(draw))  # type: ignore[arg-type]
+            model_body, prior, info = model.body, model.prior, model.info
+        res = run_filter(meas, camera, model_body, x0, P0, options,
+                         sun_direction=truth.sun_direction, prior=prior)
         if info is not None:
             res.info["shape_model"] = info
         return res, FlybyMetrics.of(res, meas, truth.states, truth.epoch_ca)
@@ -95,7 +94,7 @@ def flyby_sweep(body: ShapeBodyLike, camera: Camera, *, v_inf_km_s: Sequence[flo
                 closest_approach_km: Sequence[float], phase_deg: Sequence[float],
                 span_s: float, cadence_s: float, runs: int, initial_covariance: ArrayLike,
                 seed: int = 0, synthetic: SyntheticOptions | None = None,
-                options: TrnFilterOptions | None = None,
+                options: SIView | None = None,
                 base: FlybyConfig | None = None) -> list[dict[str, Any]]:
     """A Monte Carlo at every point of the grid ``v_inf x CA distance x phase`` on synthetic
     measurements, frames every ``cadence_s`` from ``-span_s`` to ``+span_s`` about CA; one row
@@ -147,7 +146,7 @@ def case_monte_carlo(case: FlybyCase, runs: int, seed: int = 11
     cfg = TrnFilterConfig(**SYNTHETIC_FILTER)
     t0 = time.process_time()
     mc = flyby_monte_carlo(truth, cam, body, runs, cfg.initial_covariance(), seed=seed,
-                           synthetic=SYNTHETIC, options=cfg.options(),
+                           synthetic=SYNTHETIC, options=cfg.to_si(),
                            shape_model=TrnShapeModelConfig(map="coarse"))
     return mc, (time.process_time() - t0) / (runs * epochs.size)
 

@@ -25,9 +25,9 @@ from starnav.navigation.dynamics import Dynamics, MoonEphemeris, PointMassDynami
 from starnav.navigation.ekf import EkfOptions, NavigationEkf
 from starnav.navigation.frames import Frame, FrameList, NavDataset, NavFrame
 from starnav.navigation.limb import (
+    LimbConfig,
     LimbNotFoundError,
     LimbPoints,
-    LimbScanOptions,
     limb_points_from_segments,
     sun_direction_in_image,
 )
@@ -40,7 +40,7 @@ from starnav.navigation.pipeline import (
     process_frame,
     run_filter,
 )
-from starnav.navigation.ransac import RansacError, RansacOptions, ransac_limb
+from starnav.navigation.ransac import RansacConfig, RansacError, ransac_limb
 from starnav.navigation.refine import RefineOptions, plan_windows, refine_limb
 
 __all__ = [
@@ -56,7 +56,7 @@ __all__ = [
     "LimbFix",
     "LimbNotFoundError",
     "LimbPoints",
-    "LimbScanOptions",
+    "LimbConfig",
     "MoonEphemeris",
     "NavDataset",
     "NavFrame",
@@ -64,7 +64,7 @@ __all__ = [
     "NavigationRun",
     "PointMassDynamics",
     "RansacError",
-    "RansacOptions",
+    "RansacConfig",
     "RefineOptions",
     "christian_robinson",
     "limb_points_from_segments",

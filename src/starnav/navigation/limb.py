@@ -18,7 +18,7 @@ Technique
 7. Points ordered by angle and thinned to ``max_points``.
 
 A limb point is the centre of the lit-side end pixel: pixel accuracy, plus the threshold's
-bias. The knobs are :class:`LimbScanOptions`.
+bias. The knobs are the scenario section :class:`LimbConfig`.
 
 References
 ----------
@@ -29,7 +29,7 @@ I. Kasa, "A circle fitting procedure and its error analysis", IEEE Trans. Instru
 
 Index
 -----
-:func:`limb_points_from_segments`, :class:`LimbPoints`, :class:`LimbScanOptions`,
+:func:`limb_points_from_segments`, :class:`LimbPoints`, :class:`LimbConfig`,
 :class:`LimbNotFoundError`, :func:`segments_centroid`, :func:`sun_direction_in_image`,
 :func:`phase_angle_from_image`, :func:`fit_circle_kasa`.
 """
@@ -40,19 +40,25 @@ import dataclasses
 import logging
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from pydantic import Field
 
 from starnav.camera import Camera
+from starnav.config_base import SIView, StrictModel
 from starnav.detector.products import Segments
-from starnav.errors import ConfigError, StarnavError
+from starnav.errors import StarnavError
+from starnav.fields import PositiveFloat
 from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
 
 #: Default cap on the number of limb points, as on the AA-STR processor (seed paper, PIL).
 MAX_LIMB_POINTS = 600
+#: Fewest limb points of a frame (three fix a circle).
+MIN_POINTS = 3
 
 
 class LimbNotFoundError(StarnavError, ValueError):
@@ -67,39 +73,27 @@ class LimbNotFoundError(StarnavError, ValueError):
         self.reason = reason
 
 
-@dataclass(frozen=True)
-class LimbScanOptions:
-    """Knobs of :func:`limb_points_from_segments` (units in the names; meanings:
-    :class:`~starnav.navigation.schema.LimbConfig`)."""
+class LimbConfig(StrictModel):
+    """Scenario section ``navigation.limb``: pixel-level limb points from segments
+    (:func:`limb_points_from_segments` reads its SI view, ``to_si()``)."""
 
-    max_points: int = MAX_LIMB_POINTS
-    min_level: int = 0
-    min_run_length_px: int = 1
-    min_sun_cos: float = 0.1
-    drop_border_px: int = 1
-    point_sigma_px: float = 0.5
-    point_offset_px: float = 0.0
-    min_points: int = 3
-    max_phase_rad: float = math.radians(145.0)
+    max_points: Annotated[int, Field(ge=MIN_POINTS)] = Field(
+        MAX_LIMB_POINTS, description="cap on limb points")
+    min_level: Annotated[int, Field(ge=0)] = Field(0, description="lowest threshold level used")
+    min_run_length_px: Annotated[int, Field(ge=1)] = Field(1, description="shortest run used [px]")
+    min_sun_cos: Annotated[float, Field(ge=-1, lt=1)] = Field(
+        0.1, description="lit-side margin: cos of the largest limb-normal to Sun angle [-]")
+    drop_border_px: Annotated[int, Field(ge=0)] = Field(1, description="border margin [px]")
+    point_sigma_px: PositiveFloat = Field(0.5, description="1-sigma of a pixel-level point [px]")
+    point_offset_px: float = Field(0.0, allow_inf_nan=False,
+                                   description="inward shift of every point [px]")
+    max_phase_deg: Annotated[float, Field(gt=0, le=180)] = Field(
+        145.0, description="no fix past this Sun phase angle [deg]: a thinner crescent's lit "
+        "limb is too short for a trustworthy fix (the model errors are calibrated to ~145)")
 
-    def __post_init__(self) -> None:
-        if not 0.0 < self.max_phase_rad <= math.pi:
-            raise ConfigError("limb.max_phase_deg", math.degrees(self.max_phase_rad),
-                              "a phase angle in (0, 180] deg")
-        if self.max_points < 3:
-            raise ConfigError("limb.max_points", self.max_points, "an integer >= 3")
-        if self.min_points < 3:
-            raise ConfigError("limb.min_points", self.min_points, "an integer >= 3")
-        if not -1.0 <= self.min_sun_cos < 1.0:
-            raise ConfigError("limb.min_sun_cos", self.min_sun_cos, "a cosine in [-1, 1)")
-        if not math.isfinite(self.point_offset_px):
-            raise ConfigError("limb.point_offset_px", self.point_offset_px, "a finite shift [px]")
-        if not (self.point_sigma_px > 0 and math.isfinite(self.point_sigma_px)):
-            raise ConfigError("limb.point_sigma_px", self.point_sigma_px, "a finite value > 0 px")
-        if self.min_run_length_px < 1 or self.drop_border_px < 0:
-            raise ConfigError("limb.min_run_length_px/drop_border_px",
-                              (self.min_run_length_px, self.drop_border_px),
-                              "min_run_length_px >= 1 and drop_border_px >= 0")
+
+#: The defaults' SI view.
+_DEFAULT = LimbConfig().to_si()
 
 
 @dataclass(frozen=True)
@@ -335,7 +329,7 @@ def limb_points_from_segments(
     segments: Segments,
     sun_dir_image: ArrayLike,
     *,
-    options: LimbScanOptions | None = None,
+    options: SIView | None = None,
 ) -> LimbPoints:
     """Pixel-accuracy limb points from segments (steps 3-7 of the module docstring).
 
@@ -345,8 +339,9 @@ def limb_points_from_segments(
         The full-image-compressed readout of one frame.
     sun_dir_image : (2,) array
         Direction of the Sun in the image at the Moon (:func:`sun_direction_in_image`) [-].
-    options : LimbScanOptions, optional
-        Tuning (:class:`LimbScanOptions`).
+    options : SIView, optional
+        The SI view of a :class:`LimbConfig` (``LimbConfig(...).to_si()``); default its
+        defaults.
 
     Returns
     -------
@@ -356,10 +351,10 @@ def limb_points_from_segments(
     Raises
     ------
     LimbNotFoundError
-        No run survives the filters, or fewer than ``options.min_points`` limb points remain
+        No run survives the filters, or fewer than :data:`MIN_POINTS` limb points remain
         (a degenerate arc). The message says which.
     """
-    opt = options or LimbScanOptions()
+    opt = options if options is not None else _DEFAULT
     if segments is None or len(segments) == 0:
         raise LimbNotFoundError("segments: the readout has no run above threshold (no Moon in "
                                 "the frame, or an exposure too short for the threshold)",
@@ -397,12 +392,12 @@ def limb_points_from_segments(
     # first centre: the scans facing the Sun (limb points, a few terminator points trimmed)
     facing = (scan == (0 if d[0] >= 0 else 1)) | (scan == (2 if d[1] >= 0 else 3))
     n_cand = int(facing.sum())
-    if n_cand < opt.min_points:
+    if n_cand < MIN_POINTS:
         raise LimbNotFoundError(f"degenerate arc: {n_cand} limb candidates (< "
-                                f"{opt.min_points}) in {len(segments)} runs", "degenerate-arc")
+                                f"{MIN_POINTS}) in {len(segments)} runs", "degenerate-arc")
     centre, radius = _robust_circle(cand[facing])
     ok = _sector_and_lit(cand, scan, centre, d, opt.min_sun_cos)
-    if ok.sum() >= opt.min_points:  # second pass with the centre of the lit limb alone
+    if ok.sum() >= MIN_POINTS:  # second pass with the centre of the lit limb alone
         centre, radius = fit_circle_kasa(cand[ok])
         ok = _sector_and_lit(cand, scan, centre, d, opt.min_sun_cos)
     # a corner pixel can end a row and a column: unique pixels, sorted by (u, v) as
@@ -413,9 +408,9 @@ def limb_points_from_segments(
     np.not_equal(key[1:], key[:-1], out=first[1:])
     key = key[first]
     pts = np.column_stack([key // (int(H) + 1), key % (int(H) + 1)]).astype(float)
-    if pts.shape[0] < opt.min_points:
+    if pts.shape[0] < MIN_POINTS:
         raise LimbNotFoundError(
-            f"degenerate arc: {pts.shape[0]} lit limb points (< {opt.min_points}) out of "
+            f"degenerate arc: {pts.shape[0]} lit limb points (< {MIN_POINTS}) out of "
             f"{n_cand} candidates; the lit limb is too short or outside the field",
             "degenerate-arc")
     ang = np.arctan2(pts[:, 1] - centre[1], pts[:, 0] - centre[0])

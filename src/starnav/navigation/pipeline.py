@@ -34,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from starnav.camera import Camera
 from starnav.camera_calibration import CameraCalibration, star_alignment
+from starnav.config_base import SIView
 from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry
 from starnav.navigation.christian_robinson import (
@@ -47,9 +48,9 @@ from starnav.navigation.dynamics import Dynamics, MoonEphemeris
 from starnav.navigation.ekf import EkfOptions, NavigationEkf
 from starnav.navigation.frames import NavDataset, NavFrame
 from starnav.navigation.limb import (
+    LimbConfig,
     LimbNotFoundError,
     LimbPoints,
-    LimbScanOptions,
     fit_circle_kasa,
     limb_points_from_segments,
     phase_angle_from_image,
@@ -57,7 +58,7 @@ from starnav.navigation.limb import (
     sun_direction_in_image,
 )
 from starnav.navigation.metrics import NavMetrics, limb_point_errors, nees
-from starnav.navigation.ransac import RansacError, RansacOptions, ransac_limb
+from starnav.navigation.ransac import RansacConfig, RansacError, ransac_limb
 from starnav.navigation.refine import RefineOptions, refine_limb
 from starnav.navigation.refine import warm_up as refine_warm_up
 from starnav.seeding import STAGE_NAVIGATION, generator
@@ -88,8 +89,8 @@ class ChainOptions:
         camera, known exactly.
     """
 
-    limb: LimbScanOptions = field(default_factory=LimbScanOptions)
-    ransac: RansacOptions = field(default_factory=RansacOptions)
+    limb: SIView = field(default_factory=lambda: LimbConfig().to_si())
+    ransac: SIView = field(default_factory=lambda: RansacConfig().to_si())
     refine: RefineOptions = field(default_factory=RefineOptions)
     fix: ChristianRobinsonOptions = field(default_factory=ChristianRobinsonOptions)
     use_windows: bool = True
@@ -245,10 +246,10 @@ def process_frame(
                                     "no-moon")
         sdir = sun_direction_in_image(camera, R_ci, frame.sun_direction_inertial, centre0)
         phase0 = phase_angle_from_image(camera, R_ci, frame.sun_direction_inertial, centre0)
-        if phase0 > opt.limb.max_phase_rad:
+        if phase0 > opt.limb.max_phase:
             raise LimbNotFoundError(
                 f"phase angle {math.degrees(phase0):.0f} deg > limb.max_phase_deg "
-                f"{math.degrees(opt.limb.max_phase_rad):.0f} deg: a crescent this thin shows "
+                f"{math.degrees(opt.limb.max_phase):.0f} deg: a crescent this thin shows "
                 "too short a lit limb for a trustworthy fix (its errors are beyond the "
                 "calibrated model)", "thin-crescent")
         limb = limb_points_from_segments(seg, sdir, options=opt.limb)

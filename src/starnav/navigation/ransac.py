@@ -7,7 +7,7 @@ test, stars and hot pixels at the end of a row, blooming columns, the image bord
 Technique
 ---------
 1. **Hypotheses.** Draw minimal samples of 3 points with the caller's random generator, in
-   batches of ``batch`` hypotheses evaluated at once with numpy.
+   batches of :data:`BATCH` hypotheses evaluated at once with numpy.
 2. **Model per sample.**
 
    * ``"circle"`` (the STAR Nav model): the circle through the 3 points; a point's residual is
@@ -24,7 +24,7 @@ Technique
    inlier ratio ``w`` is ``log(1 - p) / log(1 - w^3)``; stop when it is reached or at
    ``max_iterations``.
 5. **Refit.** The model is refitted by least squares on the consensus set (Kasa circle, or
-   Christian-Robinson on all inliers) and the inliers recomputed, ``refits`` times.
+   Christian-Robinson on all inliers) and the inliers recomputed, :data:`REFITS` times.
 
 Reference
 ---------
@@ -34,7 +34,7 @@ image geometry", Comput. Vis. Image Underst. 78 (2000) 138-156.
 
 Index
 -----
-:func:`ransac_limb`, :class:`RansacOptions`, :class:`RansacResult`, :class:`RansacError`,
+:func:`ransac_limb`, :class:`RansacConfig`, :class:`RansacResult`, :class:`RansacError`,
 :data:`RANSAC_MODELS`.
 """
 
@@ -44,12 +44,16 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Annotated, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from pydantic import Field
 
 from starnav.camera import Camera
+from starnav.config_base import SIView, StrictModel
 from starnav.errors import ConfigError, StarnavError
+from starnav.fields import PositiveFloat
 from starnav.navigation.christian_robinson import (
     ChristianRobinsonOptions,
     cone_residual_px,
@@ -67,31 +71,32 @@ class RansacError(StarnavError, ValueError):
     """RANSAC found no consistent limb."""
 
 
-@dataclass(frozen=True)
-class RansacOptions:
-    """Knobs of :func:`ransac_limb` (their meanings:
-    :class:`~starnav.navigation.schema.RansacConfig`)."""
+#: Hypotheses drawn and scored at once (module step 1).
+BATCH = 32
+#: Least-squares refits on the consensus set (module step 5).
+REFITS = 2
 
-    model: str = "circle"
-    threshold_px: float = 2.0
-    max_iterations: int = 200
-    batch: int = 32
-    confidence: float = 0.999
-    refits: int = 2
-    min_inlier_fraction: float = 0.3
 
-    def __post_init__(self) -> None:
-        RANSAC_MODELS.check(self.model)
-        if not (self.threshold_px > 0 and math.isfinite(self.threshold_px)):
-            raise ConfigError("ransac.threshold_px", self.threshold_px, "a finite value > 0 px")
-        if self.max_iterations < 1 or self.batch < 1:
-            raise ConfigError("ransac.max_iterations/batch", (self.max_iterations, self.batch),
-                              "positive integers")
-        if not 0.0 < self.confidence < 1.0:
-            raise ConfigError("ransac.confidence", self.confidence, "a probability in (0, 1)")
-        if not 0.0 < self.min_inlier_fraction <= 1.0:
-            raise ConfigError("ransac.min_inlier_fraction", self.min_inlier_fraction,
-                              "a fraction in (0, 1]")
+class RansacConfig(StrictModel):
+    """Scenario section ``navigation.ransac``: outlier rejection among the limb points
+    (:func:`ransac_limb` reads its SI view, ``to_si()``)."""
+
+    model: Literal["circle", "christian-robinson"] = Field(
+        "circle", description="model fitted to each sample: circle (3 points, fast) or "
+        "christian-robinson (the limb ellipse of the Moon seen from a position)")
+    threshold_px: PositiveFloat = Field(2.0, description="inlier threshold [px]")
+    max_iterations: Annotated[int, Field(ge=1)] = Field(
+        200, description="upper bound on the hypotheses drawn")
+    confidence: Annotated[float, Field(gt=0, lt=1)] = Field(
+        0.999, description="probability of drawing at least one all-inlier sample, sets the "
+        "number of hypotheses [-]")
+    min_inlier_fraction: Annotated[float, Field(gt=0, le=1)] = Field(
+        0.3, description="fewer inliers than this fraction of the points: no fix for the frame "
+        "[-]")
+
+
+#: The defaults' SI view.
+_DEFAULT = RansacConfig().to_si()
 
 
 @dataclass(frozen=True)
@@ -199,7 +204,7 @@ def ransac_limb(
     camera: Camera | None = None,
     *,
     rng: np.random.Generator,
-    options: RansacOptions | None = None,
+    options: SIView | None = None,
     fix_options: ChristianRobinsonOptions | None = None,
     R_body_to_cam: ArrayLike | None = None,
 ) -> RansacResult:
@@ -213,8 +218,9 @@ def ransac_limb(
         Needed by the ``christian-robinson`` model.
     rng : numpy.random.Generator
         Source of the random samples.
-    options : RansacOptions, optional
-        Model, threshold and limits.
+    options : SIView, optional
+        The SI view of a :class:`RansacConfig` (model, threshold and limits); default its
+        defaults.
     fix_options : ChristianRobinsonOptions, optional
         Body shape for the ``christian-robinson`` model.
     R_body_to_cam : (3, 3) array, optional
@@ -229,7 +235,7 @@ def ransac_limb(
     RansacError
         Fewer than 3 points, or no consensus of at least ``min_inlier_fraction`` of them.
     """
-    opt = options or RansacOptions()
+    opt = options if options is not None else _DEFAULT
     uv = np.asarray(uv, float).reshape(-1, 2)
     N = uv.shape[0]
     if N < 3:
@@ -243,7 +249,7 @@ def ransac_limb(
     best_score, best_h = math.inf, None
     done, needed = 0, opt.max_iterations
     while done < min(needed, opt.max_iterations):
-        K = min(opt.batch, opt.max_iterations - done)
+        K = min(BATCH, opt.max_iterations - done)
         # three distinct indices per hypothesis
         i0 = rng.integers(0, N, K)
         i1 = (i0 + 1 + rng.integers(0, N - 1, K)) % N
@@ -270,7 +276,7 @@ def ransac_limb(
     res = model.residuals(best_h[None])[:, 0]
     inl = res <= opt.threshold_px
     params = best_h
-    for _ in range(opt.refits):
+    for _ in range(REFITS):
         if inl.sum() < 3:
             break
         try:

@@ -122,7 +122,8 @@ class PixelNoise:
 
 @dataclass(frozen=True)
 class RefineOptions:
-    """Knobs of :func:`plan_windows` and :func:`refine_limb` (module table)."""
+    """Knobs of :func:`plan_windows` and :func:`refine_limb` (their meanings:
+    :class:`~starnav.navigation.schema.RefineConfig`)."""
 
     n_windows: int = MAX_WINDOWS
     size_px: int = 11

@@ -1,7 +1,14 @@
 """Scenario section ``navigation`` (owned by :mod:`starnav.navigation`).
 
-Units are in the key names (``_px``, ``_km``, ``_arcsec``, ``_days``); :meth:`NavigationConfig.
-chain_options` and friends convert to the SI option dataclasses of the algorithm modules.
+Units are in the key names (``_px``, ``_km``, ``_arcsec``, ``_days``). Each knob is declared
+once, on its field (description, unit, range); a section whose algorithm reads it as it is is
+declared beside that algorithm and reads its SI view (``to_si()``): ``limb``
+(:class:`~starnav.navigation.limb.LimbConfig`), ``ransac``
+(:class:`~starnav.navigation.ransac.RansacConfig`), ``trn.front_end``
+(:class:`~starnav.navigation.trn.options.TrnFrontEndConfig`) and ``trn.filter``
+(:class:`~starnav.navigation.trn.filter.TrnFilterConfig`). :meth:`NavigationConfig.
+chain_options` and :meth:`NavigationConfig.ekf_options` resolve the rest with the scenario (the
+detector's noise and blur, the terrain, the attitude knowledge, the calibrations).
 
 Example (YAML)::
 
@@ -34,35 +41,18 @@ from starnav.errors import ConfigError
 from starnav.fields import NonNegativeFloat, PositiveFloat
 from starnav.navigation.christian_robinson import ChristianRobinsonOptions
 from starnav.navigation.ekf import EkfOptions
-from starnav.navigation.limb import LimbScanOptions
+from starnav.navigation.limb import LimbConfig
 from starnav.navigation.pipeline import ChainOptions
 from starnav.navigation.psf import estimated_psf
-from starnav.navigation.ransac import RansacOptions
+from starnav.navigation.ransac import RansacConfig
 from starnav.navigation.refine import (
     EdgeSpread,
     PixelNoise,
     RefineOptions,
     packaged_model_error,
 )
-from starnav.navigation.trn.filter import TrnFilterOptions
-from starnav.navigation.trn.options import FrontEndOptions
-
-
-class LimbConfig(StrictModel):
-    """Pixel-level limb points from segments (starnav.navigation.limb)."""
-
-    max_points: Annotated[int, Field(ge=3)] = Field(600, description="cap on limb points")
-    min_level: Annotated[int, Field(ge=0)] = Field(0, description="lowest threshold level used")
-    min_run_length_px: Annotated[int, Field(ge=1)] = Field(1, description="shortest run used [px]")
-    min_sun_cos: Annotated[float, Field(ge=-1, lt=1)] = Field(
-        0.1, description="lit-side margin: cos of the largest limb-normal to Sun angle [-]")
-    drop_border_px: Annotated[int, Field(ge=0)] = Field(1, description="border margin [px]")
-    point_sigma_px: PositiveFloat = Field(0.5, description="1-sigma of a pixel-level point [px]")
-    point_offset_px: float = Field(0.0, allow_inf_nan=False,
-                                   description="inward shift of every point [px]")
-    max_phase_deg: Annotated[float, Field(gt=0, le=180)] = Field(
-        145.0, description="no fix past this Sun phase angle [deg]: a thinner crescent's lit "
-        "limb is too short for a trustworthy fix (the model errors are calibrated to ~145)")
+from starnav.navigation.trn.filter import TrnFilterConfig
+from starnav.navigation.trn.options import TrnFrontEndConfig
 
 
 class RefineConfig(StrictModel):
@@ -110,23 +100,6 @@ class RefineConfig(StrictModel):
     max_overexposure: Annotated[float, Field(gt=1, allow_inf_nan=False)] = Field(
         20.0, description="saturated windows whose fitted step exceeds this many times the "
         "headroom to saturation are dropped (blooming, not the optics, shapes that edge)")
-
-
-class RansacConfig(StrictModel):
-    """Outlier rejection (starnav.navigation.ransac)."""
-
-    model: Literal["circle", "christian-robinson"] = Field(
-        "circle", description="model fitted to each sample: circle (3 points, fast) or "
-        "christian-robinson (the limb ellipse of the Moon seen from a position)")
-    threshold_px: PositiveFloat = Field(2.0, description="inlier threshold [px]")
-    max_iterations: Annotated[int, Field(ge=1)] = Field(
-        200, description="upper bound on the hypotheses drawn")
-    confidence: Annotated[float, Field(gt=0, lt=1)] = Field(
-        0.999, description="probability of drawing at least one all-inlier sample, sets the "
-        "number of hypotheses [-]")
-    min_inlier_fraction: Annotated[float, Field(gt=0, le=1)] = Field(
-        0.3, description="fewer inliers than this fraction of the points: no fix for the frame "
-        "[-]")
 
 
 class FixConfig(StrictModel):
@@ -196,162 +169,6 @@ class FilterConfig(StrictModel):
         1800.0, description="longest RK4 step of the filter dynamics [s] (an interval is split "
         "into equal steps no longer than this; 1800 s near L2: under a millimetre per day from "
         "the converged integration, one step per frame at the demo's cadence)")
-
-
-class TrnFrontEndConfig(StrictModel):
-    """Fly-by front end: windows and feature tracking (starnav.navigation.trn.frontend)."""
-
-    n_windows: Annotated[int, Field(ge=1, le=16)] = Field(
-        8, description="windows read per frame (AA-STR: at most 16)")
-    core_px: Annotated[int, Field(ge=1)] = Field(
-        16, description="side of the region a new window detects features in [px]")
-    template_half_px: Annotated[int, Field(ge=1)] = Field(
-        7, description="half side of the Lucas-Kanade template [px]")
-    search_margin_px: Annotated[int, Field(ge=0)] = Field(
-        5, description="room for the motion-prediction error around the template [px]")
-    max_window_px: Annotated[int, Field(ge=1)] = Field(64, description="largest window side [px]")
-    limb_margin_px: NonNegativeFloat = Field(
-        6.0, description="clearance of features from the lit mask's edge (limb, terminator) [px]")
-    min_tracks_per_window: Annotated[int, Field(ge=1)] = Field(
-        3, description="a window with fewer tracks detects new features")
-    max_tracks_per_window: Annotated[int, Field(ge=1)] = Field(
-        6, description="tracks per window at most")
-    quality: Annotated[float, Field(gt=0, lt=1)] = Field(
-        0.05, description="Shi-Tomasi quality level (fraction of the window's best corner) [-]")
-    min_distance_px: PositiveFloat = Field(5.0, description="distance between features [px]")
-    fb_max_px: PositiveFloat = Field(0.3, description="forward-backward tracking limit [px]")
-    epipolar_px: PositiveFloat = Field(
-        1.0, description="epipolar RANSAC threshold (known attitude) [px]")
-    sigma_detect_px: NonNegativeFloat = Field(
-        1.51, description="1-sigma of a feature at its first detection [px] (calibrated on "
-        "rendered frames: tools/calibrate_flyby_model_error.py)")
-    drift_px_per_rad: NonNegativeFloat = Field(
-        3.75, description="growth of a feature's 1-sigma with the camera rotation summed "
-        "along its track [px/rad] (the shading moves on the surface as the view turns)")
-
-    correlation_factor: Annotated[float, Field(ge=1)] = Field(
-        3.0, description="factor on every feature's 1-sigma for its error's correlation "
-        "along a track (chosen on rendered frames by the pass's thirds: "
-        "tools/calibrate_flyby_model_error.py) [-]")
-    max_track_turn_deg: PositiveFloat = Field(
-        5.0, description="a track ends once the view has turned this much along it (bounds "
-        "its drift; the point is found again under a new id) [deg]")
-    centroid_sigma_fraction: NonNegativeFloat = Field(
-        0.000326, description="1-sigma of the segments' lit centroid per coordinate, times the "
-        "apparent radius (its noise; calibrated) [-]")
-    radius_sigma_fraction: NonNegativeFloat = Field(
-        0.000208, description="1-sigma of the segments' apparent radius, times the radius (its "
-        "noise; calibrated) [-]")
-
-    def options(self) -> FrontEndOptions:
-        """The :class:`~starnav.navigation.trn.frontend.FrontEndOptions` of this section."""
-        si = self.to_si()
-        d = self.model_dump()
-        d.pop("max_track_turn_deg")
-        return FrontEndOptions(**d, max_track_turn=float(si.max_track_turn))
-
-
-class TrnFilterConfig(StrictModel):
-    """The fly-by estimator (starnav.navigation.trn.filter): an EKF with body-fixed landmark
-    states."""
-
-    accel_psd_m2_s3: NonNegativeFloat = Field(
-        1e-8, description="white-acceleration PSD of the relative motion [m^2/s^3]")
-    gravity: bool = Field(True, description="the body's point-mass gravity in the prediction")
-    gate_probability: Annotated[float, Field(gt=0, lt=1)] = Field(
-        0.9999, description="chi-square gate of each feature, centroid and radius [-]")
-    max_landmarks: Annotated[int, Field(ge=0)] = Field(
-        40, description="most landmark (feature) states at once")
-    max_incidence_deg: Annotated[float, Field(gt=0, lt=90)] = Field(
-        75.0, description="steepest angle between a new landmark's ray and the surface normal "
-        "[deg]")
-    landmark_height_sigma_m: NonNegativeFloat = Field(
-        1.0, description="shape-model height error at a new landmark, 1-sigma [m]")
-    centroid_model_sigma_px: NonNegativeFloat = Field(
-        1.27, description="lit-centroid model error added in quadrature [px] (calibrated on "
-        "rendered frames: tools/calibrate_flyby_model_error.py)")
-    radius_model_fraction: NonNegativeFloat = Field(
-        0.025, description="apparent-radius model error as a fraction of the radius [-] "
-        "(calibrated)")
-    silhouette_bias_time_s: NonNegativeFloat = Field(
-        19.0, description="correlation time of the silhouette's model errors, first-order "
-        "Gauss-Markov bias states [s] (calibrated; 0: white, added to each frame's noise)")
-    centroid_sun_share: Annotated[float, Field(ge=0, le=1)] = Field(
-        0.962, description="share of the centroid model error's variance along the Sun's "
-        "image direction [-] (calibrated; 0.5: isotropic)")
-    silhouette_scaling: Literal["geometry", "constant"] = Field(
-        "geometry", description="how the silhouette model-error sigmas follow the geometry: "
-        "geometry (centroid ~ apparent radius x sin(phase); radius fraction: limb blur and "
-        "terminator shift, filter.silhouette_scale; relative to the reference below; chosen "
-        "by the calibration, tools/calibrate_flyby_model_error.py) or constant")
-    silhouette_reference_radius_px: PositiveFloat = Field(
-        48.95, description="apparent radius at which the model-error sigmas were calibrated "
-        "[px] (the calibration fly-by's CA)")
-    silhouette_reference_phase_deg: Annotated[float, Field(ge=0, lt=180)] = Field(
-        50.0, description="Sun phase at which the model-error sigmas were calibrated [deg]")
-    silhouette_limb_blur_px: NonNegativeFloat = Field(
-        1.85, description="outward spread of the lit limb above the segments threshold [px] "
-        "(the radius model error's limb term; calibrated)")
-    silhouette_terminator_shift_deg: NonNegativeFloat = Field(
-        4.12, description="shift of the effective terminator against the lit-facet model "
-        "[deg] (the radius model error's terminator term; calibrated)")
-    feature_correlation: Annotated[float, Field(ge=0, lt=1)] = Field(
-        0.25, description="correlation of the tracked features' errors within a frame [-]: N "
-        "features count as N / (1 + (N - 1) c) independent ones (calibrated)")
-    silhouette_offset: bool = Field(
-        False, description="put the deterministic part of the silhouette's model error (the "
-        "centroid offset law below, the radius's limb-blur and terminator terms) into the "
-        "predicted measurement; the bias states then carry the residual (filter step 4c; off: "
-        "measured worse at phase 70 deg, docs/navigation.md)")
-    silhouette_centroid_offset_fraction: Annotated[float, Field(gt=-0.5, lt=0.5)] = Field(
-        0.0374, description="lit-centroid offset along the Sun's image direction over apparent "
-        "radius x sin(phase) [-] (calibrated; used with silhouette_offset)")
-    silhouette_bias_mean: tuple[float, float, float] = Field(
-        (0.0, 0.0, 0.0), description="mean of the silhouette's model errors at the reference "
-        "geometry: centroid along and across the Sun's image direction [px], radius fraction "
-        "[-]; scaled with the geometry like the sigmas, which are then the scatter about it "
-        "(filter step 4d; calibrated)")
-    reset_after: Annotated[int, Field(ge=0)] = Field(
-        3, description="frames in a row with the silhouette's centroid or radius rejected by "
-        "the gate after which the filter re-opens its relative state (filter step 5a; 0: "
-        "never)")
-    birth_position_sigma_m: NonNegativeFloat = Field(
-        0.0, description="no landmark is born while the position's largest 1-sigma exceeds "
-        "this [m] (filter step 7a: a landmark cast from a loose position is a poor "
-        "linearisation, which makes the shape-scale state inconsistent); 0: always")
-    use_centroid: bool = Field(True, description="use the lit silhouette's centroid")
-    use_radius: bool = Field(True, description="use the lit silhouette's apparent radius")
-    initial_position_sigma_km: PositiveFloat = Field(
-        1.0, description="initial 1-sigma of the relative position, per axis [km]")
-    initial_velocity_sigma_m_s: PositiveFloat = Field(
-        5.0, description="initial 1-sigma of the relative velocity, per axis [m/s]")
-
-    def options(self) -> TrnFilterOptions:
-        """The SI :class:`~starnav.navigation.trn.filter.TrnFilterOptions`."""
-        si = self.to_si()
-        return TrnFilterOptions(
-            accel_psd=si.accel_psd, gravity=si.gravity, gate_probability=si.gate_probability,
-            max_landmarks=si.max_landmarks, max_incidence=si.max_incidence,
-            landmark_height_sigma=si.landmark_height_sigma,
-            centroid_model_sigma_px=si.centroid_model_sigma_px,
-            radius_model_fraction=si.radius_model_fraction, use_centroid=si.use_centroid,
-            use_radius=si.use_radius, silhouette_bias_time=si.silhouette_bias_time,
-            centroid_sun_share=si.centroid_sun_share,
-            silhouette_scaling=si.silhouette_scaling,
-            reference_radius_px=si.silhouette_reference_radius_px,
-            reference_phase=si.silhouette_reference_phase,
-            limb_blur_px=si.silhouette_limb_blur_px,
-            terminator_shift=si.silhouette_terminator_shift,
-            feature_correlation=si.feature_correlation,
-            silhouette_offset=si.silhouette_offset,
-            centroid_offset_fraction=si.silhouette_centroid_offset_fraction,
-            bias_mean=tuple(float(v) for v in si.silhouette_bias_mean),
-            reset_after=si.reset_after, birth_position_sigma=si.birth_position_sigma)
-
-    def initial_covariance(self) -> NDArray[np.float64]:
-        """The diagonal initial covariance (6, 6) [m^2, m^2/s^2]."""
-        si = self.to_si()
-        return np.diag([si.initial_position_sigma**2] * 3 + [si.initial_velocity_sigma**2] * 3)
 
 
 class TrnShapeModelConfig(StrictModel):
@@ -457,7 +274,7 @@ class NavigationConfig(StrictModel):
         ellipsoid (``starnav.simulate.chain_options`` passes it), used when
         ``fix.moon_radii_km`` is null.
         """
-        L, Rf, Rs, F = self.limb, self.refine, self.ransac, self.fix
+        Rf, F = self.refine, self.fix
         Fsi = F.to_si()
         r = MOON_RADIUS if moon_radius_m is None else float(moon_radius_m)
         if Fsi.moon_radii is not None:
@@ -498,15 +315,8 @@ class NavigationConfig(StrictModel):
             k = 1.0 if Rf.terrain_error_scale is None else Rf.terrain_error_scale
             radius_fraction = k * terrain.common_fraction
         return ChainOptions(
-            limb=LimbScanOptions(max_points=L.max_points, min_level=L.min_level,
-                                 min_run_length_px=L.min_run_length_px,
-                                 min_sun_cos=L.min_sun_cos, drop_border_px=L.drop_border_px,
-                                 point_sigma_px=L.point_sigma_px,
-                                 point_offset_px=L.point_offset_px,
-                                 max_phase_rad=L.to_si().max_phase),
-            ransac=RansacOptions(model=Rs.model, threshold_px=Rs.threshold_px,
-                                 max_iterations=Rs.max_iterations, confidence=Rs.confidence,
-                                 min_inlier_fraction=Rs.min_inlier_fraction),
+            limb=self.limb.to_si(),
+            ransac=self.ransac.to_si(),
             refine=RefineOptions(n_windows=Rf.n_windows, size_px=Rf.window_size_px,
                                  edge_model=edge_model, psf_sigma_px=Rf.psf_sigma_px,
                                  saturation_dn=Rf.saturation_dn, min_sigma_px=Rf.min_sigma_px,

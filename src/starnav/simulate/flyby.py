@@ -30,11 +30,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.config import Scenario, scenario_from_dict, scenario_to_dict
-from starnav.config_base import set_dotted
+from starnav.config_base import SIView, set_dotted
 from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry
 from starnav.navigation.trn.frontend import FlybyFrontEnd
-from starnav.navigation.trn.options import FrontEndOptions
 from starnav.navigation.trn.truth import BODY_AOVS
 from starnav.navigation.trn.windows import WindowReader
 from starnav.radiance import RadianceImage
@@ -124,13 +123,13 @@ def dispersed_flyby(base: Scenario, run: int) -> tuple[Scenario, dict[str, float
 
 
 def segments_image(sim: Simulator, render: tuple[FrameGeometry, RadianceImage], run: int = 0,
-                   front_end: FrontEndOptions | None = None) -> NDArray[np.float32]:
+                   front_end: SIView | None = None) -> NDArray[np.float32]:
     """The segments DN of one frame of run ``run`` (0 where no run was read): the first
     acquisition again, with the same noise stream as the closed loop's, so the very image its
     front end read (the runs keep no image)."""
     geom, img = render
     fe = FlybyFrontEnd(sim.camera, front_end if front_end is not None
-                       else sim.scenario.navigation.trn.front_end.options())
+                       else sim.scenario.navigation.trn.front_end.to_si())
     e0, _, _, _ = flyby_exposures(sim, img, geom, fe, run=run)
     return WindowReader.from_exposures(e0).segments_image()
 

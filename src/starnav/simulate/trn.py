@@ -32,11 +32,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from starnav.camera import camera_from_config
+from starnav.config_base import SIView
 from starnav.detector import Exposure, expose
 from starnav.detector.readout import ReadoutTiming, min_exposure
 from starnav.errors import ConfigError
 from starnav.geometry import FrameGeometry
-from starnav.navigation.trn.frontend import FlybyFrontEnd, FrontEndFrame, FrontEndOptions
+from starnav.navigation.trn.frontend import FlybyFrontEnd, FrontEndFrame
 from starnav.navigation.trn.truth import FeatureTruthBook
 from starnav.navigation.trn.windows import WindowReader
 from starnav.radiance import RadianceImage
@@ -171,7 +172,7 @@ def flyby_exposures(sim: Simulator, img: RadianceImage, geom: FrameGeometry, fro
 
 
 def track_flyby(sim: Simulator, frames: Iterable[int] | None = None, *,
-                options: FrontEndOptions | None = None, run: int = 0,
+                options: SIView | None = None, run: int = 0,
                 renders: Sequence[tuple[FrameGeometry, RadianceImage]] | None = None,
                 attitude: Callable[[FrameGeometry], Any] | None = None
                 ) -> list[FlybyStep]:
@@ -183,8 +184,9 @@ def track_flyby(sim: Simulator, frames: Iterable[int] | None = None, *,
         A fly-by scenario (``target.kind: shape_model``, ``trajectory.source: flyby``).
     frames : iterable of int, optional
         Frame indices in time order; default every frame.
-    options : FrontEndOptions, optional
-        Default ``navigation.trn.front_end`` of the scenario.
+    options : SIView, optional
+        Front-end settings (a ``TrnFrontEndConfig``'s ``to_si()``); default the scenario's
+        ``navigation.trn.front_end``.
     run : int
         Monte Carlo run (detector noise streams).
     renders : sequence of (FrameGeometry, RadianceImage), optional
@@ -198,7 +200,7 @@ def track_flyby(sim: Simulator, frames: Iterable[int] | None = None, *,
     list of FlybyStep
     """
     sc = sim.scenario
-    opts = options or sc.navigation.trn.front_end.options()
+    opts = options if options is not None else sc.navigation.trn.front_end.to_si()
     fe = FlybyFrontEnd(sim.camera, opts,
                        rng=generator(sc.seed, STAGE_NAVIGATION, run, 0, TRN_STREAM))
     book = FeatureTruthBook(sim.camera)

@@ -25,7 +25,6 @@ Itokawa is about 9 % too large in scale against Hayabusa's). The estimator there
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,7 +32,7 @@ from starnav.bodies.shape import CoarseShape, ShapeModel, coarse_shape_model
 from starnav.bodies.small_body import ShapeModelBody
 from starnav.cache import BoundedCache
 from starnav.errors import ConfigError
-from starnav.navigation.trn.filter import TrnFilterOptions
+from starnav.navigation.trn.filter import ShapePrior
 
 #: Coarse models by (truth's source, faces, smoothing passes).
 _COARSE: BoundedCache[tuple[str, int, int], CoarseShape] = BoundedCache(4)
@@ -47,8 +46,8 @@ class EstimatorModel:
     ----------
     body : ShapeModelBody
         The truth's spin and ``gm`` on the model's shape.
-    options : TrnFilterOptions
-        The filter options with the model's scale sigma and landmark height sigma.
+    prior : ShapePrior
+        What the model adds to the filter: its scale sigma, height error and birth threshold.
     scale_error : float
         The model's size over the truth's, minus 1 [-] (0 for ``exact``).
     info : dict
@@ -58,7 +57,7 @@ class EstimatorModel:
     """
 
     body: Any
-    options: TrnFilterOptions
+    prior: ShapePrior
     scale_error: float
     info: dict[str, Any]
 
@@ -70,13 +69,12 @@ def coarse_of(truth: ShapeModelBody, faces: int, smoothing_iterations: int) -> C
         lambda: coarse_shape_model(truth.shape, int(faces), int(smoothing_iterations)))
 
 
-def estimator_model(truth: ShapeModelBody, config: Any, options: TrnFilterOptions,
-                    unit_draw: float) -> EstimatorModel:
+def estimator_model(truth: ShapeModelBody, config: Any, unit_draw: float) -> EstimatorModel:
     """The model of a run whose scale error is ``config.scale_sigma * unit_draw``
     (``config``: a :class:`~starnav.navigation.schema.TrnShapeModelConfig`; ``unit_draw`` a
     standard normal draw of the run's stream)."""
     if config.map == "exact":
-        return EstimatorModel(truth, options, 0.0, {
+        return EstimatorModel(truth, ShapePrior(), 0.0, {
             "map": "exact", "faces": truth.shape.n_faces, "scale_error": 0.0,
             "scale_truth": 0.0})
     if config.map != "coarse":
@@ -85,13 +83,11 @@ def estimator_model(truth: ShapeModelBody, config: Any, options: TrnFilterOption
     e = float(config.scale_sigma) * float(unit_draw)
     shape = ShapeModel(coarse.shape.vertices * (1.0 + e), coarse.shape.faces,
                        coarse.shape.source)
-    opts = dataclasses.replace(
-        options, scale_sigma=float(config.scale_sigma) if config.estimate_scale else 0.0,
-        landmark_height_sigma=max(options.landmark_height_sigma,
-                                  float(config.height_sigma_fraction) * coarse.mean_radius),
-        birth_position_sigma=(options.birth_position_sigma or
-                              float(config.birth_sigma_fraction) * coarse.mean_radius))
-    return EstimatorModel(ShapeModelBody(truth.config, shape=shape), opts, e, {
+    prior = ShapePrior(
+        scale_sigma=float(config.scale_sigma) if config.estimate_scale else 0.0,
+        height_sigma=float(config.height_sigma_fraction) * coarse.mean_radius,
+        birth_sigma=float(config.birth_sigma_fraction) * coarse.mean_radius)
+    return EstimatorModel(ShapeModelBody(truth.config, shape=shape), prior, e, {
         "map": "coarse", "faces": shape.n_faces, "scale_error": e,
         "scale_truth": 1.0 / (1.0 + e) - 1.0, "height_rms_m": coarse.height_rms,
         "height_max_m": coarse.height_max})

@@ -10,7 +10,9 @@ not an MSCKF, the observability argument and each step in full: docs/methods.md,
 Technique, per frame
 --------------------
 1. Predict ``(r, v)``: constant velocity plus the body's point-mass gravity, white-acceleration
-   process noise; the silhouette bias states decay as first-order Gauss-Markov processes.
+   process noise; the silhouette bias states decay as first-order Gauss-Markov processes, in
+   time or (1a) in the aspect: the rotation of the view and of the Sun relative to the body
+   (:func:`aspect_change`), which is what a shape model's silhouette error follows.
 2. Drop the landmarks whose track is absent from the frame (marginalised).
 3. Append the frame's attitude error ``dtheta`` (camera axes) to the state.
 4. Measurements: each feature, the lit centroid and the apparent radius, with their analytic
@@ -25,8 +27,8 @@ Technique, per frame
    ``birth_position_sigma``.
 8. Marginalise ``dtheta``; record the state, covariance, NIS and counts.
 
-The knobs are :class:`TrnFilterOptions` (scenario keys:
-:class:`~starnav.navigation.schema.TrnFilterConfig`).
+The knobs are the scenario section :class:`TrnFilterConfig`; what the body model adds,
+:class:`ShapePrior`.
 
 References
 ----------
@@ -40,7 +42,8 @@ SLAM", IEEE Trans. PAMI 29 (2007) 1052-1067.
 
 Index
 -----
-:func:`run_filter` (the estimator), :class:`TrnFilterOptions`, :class:`FlybyRun`;
+:func:`run_filter` (the estimator), :class:`TrnFilterConfig`, :class:`ShapePrior`,
+:class:`FlybyRun`;
 measurement models :func:`feature_model`, :func:`features_model`, :func:`centroid_model`,
 :func:`radius_model`, :func:`silhouette_scale`, :func:`silhouette_offset`;
 :func:`propagate`, :func:`landmark_births`, :func:`gate_rows`, :func:`validate_inputs`.
@@ -51,14 +54,17 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Annotated, Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from pydantic import Field, model_validator
 from scipy.stats import chi2
 
 from starnav.camera import Camera
+from starnav.config_base import SIView, StrictModel
 from starnav.errors import ConfigError, GeometryError
+from starnav.fields import NonNegativeFloat, PositiveFloat
 from starnav.navigation.trn.body_view import BodyInCamera, lit_silhouette, raycast
 from starnav.navigation.trn.measurements import FlybyMeasurement
 from starnav.typing import FloatArray
@@ -67,6 +73,8 @@ from starnav.typing import FloatArray
 MAX_STEP = 10.0
 #: Position change [m] below which the iterated update stops.
 ITERATION_TOLERANCE = 1e-3
+#: Most relinearisations of the iterated update (1: the plain EKF).
+ITERATIONS = 4
 #: Orthonormality tolerance of a measured attitude matrix [-].
 ROTATION_TOLERANCE = 1e-6
 #: States before the landmarks: ``r`` (3), ``v`` (3), the centroid's model-error state
@@ -77,18 +85,17 @@ BIAS = slice(6, 9)
 SCALE = 9
 
 
-#: Names of the silhouette model-error scalings (:func:`silhouette_scale`).
-SILHOUETTE_SCALINGS = ("geometry", "constant")
 #: Phase below which the terminator-shift law is held at its value [rad]: near zero phase the
 #: terminator leaves the view and what remains (the limb's threshold) is not phase-driven.
 PHASE_FLOOR = math.radians(15.0)
 
 
-def silhouette_scale(radius_px: float, phase: float, options: TrnFilterOptions) -> FloatArray:
+def silhouette_scale(radius_px: float, phase: float, options: SIView) -> FloatArray:
     """Factors ``(centroid along, centroid across, radius)`` by which the silhouette's
-    model-error sigmas at the calibration geometry (``options.reference_radius_px``,
+    model-error sigmas at the calibration geometry (``options.silhouette_reference_radius_px``,
     ``reference_phase``) scale at apparent radius ``radius_px`` [px] and Sun phase ``phase``
-    [rad] (module step 4a); ones for ``silhouette_scaling = "constant"``.
+    [rad] (module step 4a); ones for ``silhouette_scaling = "constant"``; for ``"shape"`` the
+    law of a shape model's own error (:func:`shape_error_term`).
 
     Two mechanisms, each a closed form on a sphere of apparent radius ``rho`` at phase
     ``alpha``, whose lit area is ``A = pi rho^2 (1 + cos alpha) / 2`` with its centroid
@@ -108,8 +115,9 @@ def silhouette_scale(radius_px: float, phase: float, options: TrnFilterOptions) 
     The centroid's factor is ``(rho / rho_ref) (sin alpha / sin alpha_ref)`` (the terminator
     term; the limb blur moves it little); the radius's is the ratio of
     ``hypot(w / (rho (1 + cos alpha)), tan(alpha / 2) delta / 2)`` to its reference value
-    (``w = options.limb_blur_px``, ``delta = options.terminator_shift``; the two have opposite
-    signs, the sigma takes their root sum square: it never vanishes where they cancel).
+    (``w = options.silhouette_limb_blur_px``, ``delta = options.silhouette_terminator_shift``;
+    the two have opposite signs, the sigma takes their root sum square: it never vanishes where
+    they cancel).
     On the calibration fly-by (phase 35 - 66 deg) the centroid error over ``rho sin alpha``
     stays within 0.030 - 0.033 and the radius error follows the two terms
     (tools/calibrate_flyby_model_error.py).
@@ -118,18 +126,50 @@ def silhouette_scale(radius_px: float, phase: float, options: TrnFilterOptions) 
     """
     if options.silhouette_scaling == "constant":
         return np.ones(3)
+    if options.silhouette_scaling == "shape":
+        m = (shape_error_term(phase, options)
+             / shape_error_term(options.silhouette_reference_phase, options))
+        return np.array([m * radius_px / options.silhouette_reference_radius_px] * 2 + [m])
     a = max(float(phase), PHASE_FLOOR)
-    a0 = max(float(options.reference_phase), PHASE_FLOOR)
-    rho, rho0 = float(radius_px), options.reference_radius_px
+    a0 = max(float(options.silhouette_reference_phase), PHASE_FLOOR)
+    rho, rho0 = float(radius_px), options.silhouette_reference_radius_px
     c = (rho / rho0) * (math.sin(a) / math.sin(a0))
     r = radius_model_term(rho, a, options) / radius_model_term(rho0, a0, options)
     return np.array([c, c, r])
 
 
-def radius_model_term(radius_px: float, phase: float, options: TrnFilterOptions) -> float:
+def shape_error_term(phase: float, options: SIView) -> float:
+    """The phase law of a shape model's silhouette error, ``hypot(q, sin(alpha / 2))`` [-]
+    (``q = options.silhouette_shape_error_floor``), for ``silhouette_scaling = "shape"``.
+
+    An empirical form. A model whose surface departs from the truth by heights ``dh`` moves
+    the lit outline by about ``dh`` where the outline is the limb (at every phase: ``q``, what
+    is left at phase 0) and by more where it is the terminator, where a height error also
+    moves the shading boundary; the terminator's share of the lit outline grows with the
+    phase (its half-ellipse departs from the limb by ``rho (1 - cos alpha) = 2 rho
+    sin^2(alpha / 2)``). The centroid's error [px] is the law times the apparent radius
+    ``rho`` (the same shape error, magnified), the radius's fraction the law alone. Its
+    constants are fitted on the calibration fly-bys (tools/calibrate_flyby_coarse_map.py).
+    """
+    return math.hypot(options.silhouette_shape_error_floor, math.sin(0.5 * float(phase)))
+
+
+def aspect_change(u0: ArrayLike, s0: ArrayLike, u1: ArrayLike, s1: ArrayLike) -> float:
+    """The aspect change [rad] between two views (module step 1a): ``hypot`` of the angle
+    between the body-fixed view directions ``u0, u1`` (body centre -> spacecraft, unit) and of
+    the angle between the body-fixed Sun directions ``s0, s1`` (unit; the body's spin turns
+    its illumination). A silhouette computed from a shape model differs from the truth's by a
+    function of these two directions only (and of the apparent size, which scales it), so its
+    error decorrelates with the aspect, not with time."""
+    a = math.acos(min(max(float(np.dot(u0, u1)), -1.0), 1.0))
+    b = math.acos(min(max(float(np.dot(s0, s1)), -1.0), 1.0))
+    return math.hypot(a, b)
+
+
+def radius_model_term(radius_px: float, phase: float, options: SIView) -> float:
     """``hypot(w / (rho (1 + cos alpha)), tan(alpha / 2) delta / 2)`` of
     :func:`silhouette_scale` [-] (``alpha`` already floored)."""
-    w, d = options.limb_blur_px, options.terminator_shift
+    w, d = options.silhouette_limb_blur_px, options.silhouette_terminator_shift
     return math.hypot(w / (radius_px * (1.0 + math.cos(phase))),
                       0.5 * d * math.tan(phase / 2.0))
 
@@ -158,7 +198,7 @@ class SilhouetteOffset:
 
 
 def silhouette_offset(r: ArrayLike, sun: ArrayLike | None, k: float,
-                      options: TrnFilterOptions) -> SilhouetteOffset:
+                      options: SIView) -> SilhouetteOffset:
     """Predicted offset of the rendered lit silhouette from the lit-facet model seen from ``r``
     (body-centred J2000 [m]) under the Sun direction ``sun`` (body -> Sun unit vector; None:
     phase 0), with the lit facets' radius constant ``k = rho |r|`` [px m] (module step 4c).
@@ -167,9 +207,11 @@ def silhouette_offset(r: ArrayLike, sun: ArrayLike | None, k: float,
     radius ``rho = k / |r|`` and phase ``alpha`` (``cos alpha = r.sun / |r|``),
 
     * centroid: ``c rho sin(alpha)`` along the Sun's image direction (``c =
-      options.centroid_offset_fraction``; a terminator shift ``delta_c = 3 pi c / 4``);
+      options.silhouette_centroid_offset_fraction``; a terminator shift
+      ``delta_c = 3 pi c / 4``);
     * radius: ``w / (1 + cos alpha) - rho tan(alpha / 2) delta / 2`` [px] (limb blur ``w =
-      options.limb_blur_px``, terminator shift ``delta = options.terminator_shift``).
+      options.silhouette_limb_blur_px``, terminator shift
+      ``delta = options.silhouette_terminator_shift``).
 
     Gradients are analytic (``k`` held, as in :func:`radius_model`); at phase 0 (and without a
     Sun) the phase's gradient is taken as zero (``sin alpha`` has a kink there).
@@ -191,8 +233,8 @@ def silhouette_offset(r: ArrayLike, sun: ArrayLike | None, k: float,
         t, dt = sa / (1.0 + c), -dc / ((1.0 + c) * sa)
     else:
         dsa, t, dt = np.zeros(3), 0.0, np.zeros(3)
-    kc = options.centroid_offset_fraction
-    w, d = options.limb_blur_px, options.terminator_shift
+    kc = options.silhouette_centroid_offset_fraction
+    w, d = options.silhouette_limb_blur_px, options.silhouette_terminator_shift
     return SilhouetteOffset(
         centroid_px=kc * rho * sa, centroid_grad=kc * (sa * drho + rho * dsa),
         radius_px=w / (1.0 + c) - 0.5 * d * rho * t,
@@ -208,65 +250,118 @@ class ShapeBodyLike(Protocol):
     def orientation(self, epochs_tdb: ArrayLike, ephemeris: Any = None) -> FloatArray: ...
 
 
+class TrnFilterConfig(StrictModel):
+    """Scenario section ``navigation.trn.filter``: the fly-by estimator, an EKF with body-fixed
+    landmark states (:func:`run_filter` reads its SI view, ``to_si()``)."""
+
+    accel_psd_m2_s3: NonNegativeFloat = Field(
+        1e-8, description="white-acceleration PSD of the relative motion [m^2/s^3]")
+    gravity: bool = Field(True, description="the body's point-mass gravity in the prediction")
+    gate_probability: Annotated[float, Field(gt=0, lt=1)] = Field(
+        0.9999, description="chi-square gate of each feature, centroid and radius [-]")
+    max_landmarks: Annotated[int, Field(ge=0)] = Field(
+        40, description="most landmark (feature) states at once")
+    max_incidence_deg: Annotated[float, Field(gt=0, lt=90)] = Field(
+        75.0, description="steepest angle between a new landmark's ray and the surface normal "
+        "[deg]")
+    landmark_height_sigma_m: NonNegativeFloat = Field(
+        1.0, description="shape-model height error at a new landmark, 1-sigma [m]")
+    centroid_model_sigma_px: NonNegativeFloat = Field(
+        1.27, description="lit-centroid model error added in quadrature [px] (calibrated on "
+        "rendered frames: tools/calibrate_flyby_model_error.py)")
+    radius_model_fraction: NonNegativeFloat = Field(
+        0.025, description="apparent-radius model error as a fraction of the radius [-] "
+        "(calibrated)")
+    silhouette_bias_time_s: NonNegativeFloat = Field(
+        19.0, description="correlation time of the silhouette's model errors, first-order "
+        "Gauss-Markov bias states [s] (calibrated; 0 with silhouette_bias_angle_deg 0: white, "
+        "added to each frame's noise)")
+    silhouette_bias_angle_deg: Annotated[float, Field(ge=0, le=180)] = Field(
+        0.0, description="correlation angle of the silhouette's model errors in the aspect "
+        "(the rotation of the view and of the Sun relative to the body, filter step 1a) "
+        "[deg]; > 0 replaces silhouette_bias_time_s (a shape model's error follows the "
+        "aspect, not the time)")
+    centroid_sun_share: Annotated[float, Field(ge=0, le=1)] = Field(
+        0.962, description="share of the centroid model error's variance along the Sun's "
+        "image direction [-] (calibrated; 0.5: isotropic)")
+    silhouette_scaling: Literal["geometry", "shape", "constant"] = Field(
+        "geometry", description="how the silhouette model-error sigmas follow the geometry: "
+        "geometry (centroid ~ apparent radius x sin(phase); radius fraction: limb blur and "
+        "terminator shift, filter.silhouette_scale; relative to the reference below; chosen "
+        "by the calibration, tools/calibrate_flyby_model_error.py), shape (a shape model's "
+        "own error: centroid ~ apparent radius x hypot(q, sin(phase / 2)), radius fraction ~ "
+        "hypot(q, sin(phase / 2)); filter.shape_error_term) or constant")
+    silhouette_shape_error_floor: PositiveFloat = Field(
+        0.2, description="q of the shape law: the limb's share of a shape model's silhouette "
+        "error, left at phase 0 [-] (silhouette_scaling: shape; calibrated)")
+    silhouette_reference_radius_px: PositiveFloat = Field(
+        48.95, description="apparent radius at which the model-error sigmas were calibrated "
+        "[px] (the calibration fly-by's CA)")
+    silhouette_reference_phase_deg: Annotated[float, Field(ge=0, lt=180)] = Field(
+        50.0, description="Sun phase at which the model-error sigmas were calibrated [deg]")
+    silhouette_limb_blur_px: NonNegativeFloat = Field(
+        1.85, description="outward spread of the lit limb above the segments threshold [px] "
+        "(the radius model error's limb term; calibrated)")
+    silhouette_terminator_shift_deg: NonNegativeFloat = Field(
+        4.12, description="shift of the effective terminator against the lit-facet model "
+        "[deg] (the radius model error's terminator term; calibrated)")
+    feature_correlation: Annotated[float, Field(ge=0, lt=1)] = Field(
+        0.25, description="correlation of the tracked features' errors within a frame [-]: N "
+        "features count as N / (1 + (N - 1) c) independent ones (calibrated)")
+    silhouette_offset: bool = Field(
+        False, description="put the deterministic part of the silhouette's model error (the "
+        "centroid offset law below, the radius's limb-blur and terminator terms) into the "
+        "predicted measurement; the bias states then carry the residual (filter step 4c; off: "
+        "measured worse at phase 70 deg, docs/navigation.md)")
+    silhouette_centroid_offset_fraction: Annotated[float, Field(gt=-0.5, lt=0.5)] = Field(
+        0.0374, description="lit-centroid offset along the Sun's image direction over apparent "
+        "radius x sin(phase) [-] (calibrated; used with silhouette_offset)")
+    silhouette_bias_mean: tuple[float, float, Annotated[float, Field(gt=-0.5, lt=0.5)]] = Field(
+        (0.0, 0.0, 0.0), description="mean of the silhouette's model errors at the reference "
+        "geometry: centroid along and across the Sun's image direction [px], radius fraction "
+        "[-]; scaled with the geometry like the sigmas, which are then the scatter about it "
+        "(filter step 4d; calibrated)")
+    reset_after: Annotated[int, Field(ge=0)] = Field(
+        3, description="frames in a row with the silhouette's centroid or radius rejected by "
+        "the gate after which the filter re-opens its relative state (filter step 5a; 0: "
+        "never)")
+    birth_position_sigma_m: NonNegativeFloat = Field(
+        0.0, description="no landmark is born while the position's largest 1-sigma exceeds "
+        "this [m] (filter step 7a: a landmark cast from a loose position is a poor "
+        "linearisation, which makes the shape-scale state inconsistent); 0: always")
+    use_centroid: bool = Field(True, description="use the lit silhouette's centroid")
+    use_radius: bool = Field(True, description="use the lit silhouette's apparent radius")
+    initial_position_sigma_km: PositiveFloat = Field(
+        1.0, description="initial 1-sigma of the relative position, per axis [km]")
+    initial_velocity_sigma_m_s: PositiveFloat = Field(
+        5.0, description="initial 1-sigma of the relative velocity, per axis [m/s]")
+
+    def initial_covariance(self) -> NDArray[np.float64]:
+        """The diagonal initial covariance (6, 6) [m^2, m^2/s^2]."""
+        si = self.to_si()
+        return np.diag([si.initial_position_sigma**2] * 3 + [si.initial_velocity_sigma**2] * 3)
+
+    @model_validator(mode="after")
+    def _radius_terms(self) -> TrnFilterConfig:
+        si = self.to_si()
+        if not (si.silhouette_limb_blur_px > 0 or si.silhouette_terminator_shift > 0):
+            raise ValueError("silhouette_limb_blur_px or silhouette_terminator_shift_deg must "
+                             "be > 0 (the radius model error's two terms)")
+        return self
+
+
+#: The section's defaults, SI.
+_DEFAULT = TrnFilterConfig().to_si()
+
+
 @dataclass(frozen=True)
-class TrnFilterOptions:
-    """Knobs of the fly-by EKF, SI (module table).
+class ShapePrior:
+    """What the filter knows of the body model it navigates on, beyond its section (resolved
+    by :func:`~starnav.navigation.trn.body_model.estimator_model`; the default: the model is
+    the body, exactly).
 
     Attributes
     ----------
-    accel_psd : float
-        White-acceleration power spectral density [m^2 s^-3].
-    gravity : bool
-        Point-mass gravity of the body (``body.gm``) in the prediction.
-    gate_probability : float
-        Probability of the chi-square gate of each measurement [-].
-    max_landmarks : int
-        Most landmark states at once.
-    max_incidence : float
-        Largest angle between a birth ray and the facet normal [rad].
-    landmark_height_sigma : float
-        1-sigma of the shape model's height at a new landmark [m].
-    centroid_model_sigma_px : float
-        Centroid model error added in quadrature [px].
-    radius_model_fraction : float
-        Radius model error as a fraction of the radius [-].
-    use_centroid, use_radius : bool
-        Use the silhouette's centroid / apparent radius.
-    iterations : int
-        Most relinearisations of the iterated update (1: the plain EKF).
-    silhouette_bias_time : float
-        Correlation time [s] of the silhouette's model errors, first-order Gauss-Markov
-        states (module step 4); 0: white, added to each frame's measurement noise.
-    centroid_sun_share : float
-        Share of the centroid model error's variance (``2 centroid_model_sigma_px^2``) along
-        the Sun's image direction [-]; the rest is across it (0.5: isotropic).
-    silhouette_scaling : str
-        How the model-error sigmas follow the geometry (:func:`silhouette_scale`):
-        ``"geometry"`` (the terminator-shift law) or ``"constant"`` (as calibrated).
-    reference_radius_px, reference_phase : float
-        The geometry at which ``centroid_model_sigma_px`` and ``radius_model_fraction`` hold
-        (the calibration fly-by's apparent radius [px] and Sun phase [rad] at CA).
-    limb_blur_px, terminator_shift : float
-        The radius model error's two mechanisms (:func:`silhouette_scale`): the lit limb's
-        outward spread [px] and the effective terminator's shift [rad] (calibrated).
-    feature_correlation : float
-        Pairwise correlation of the frame's feature errors [-] (module step 4b; 0: independent,
-        the synthetic measurements; the rendered calibration gives 0.31, the scenario default).
-    silhouette_offset : bool
-        Put the deterministic part of the lit silhouette's model error into the predicted
-        measurement (module step 4c, :func:`silhouette_offset`); the bias states then carry
-        only the residual.
-    centroid_offset_fraction : float
-        The lit centroid's offset along the Sun's image direction over ``rho sin(alpha)`` [-]
-        (step 4c; calibrated). The radius's offset uses ``limb_blur_px`` and
-        ``terminator_shift``.
-    bias_mean : (3,) tuple
-        Mean of the silhouette's model error at the reference geometry (step 4d): centroid
-        along and across the Sun's image direction [px], radius fraction [-]; the bias
-        sigmas are then the scatter about it.
-    reset_after : int
-        Frames in a row with the silhouette rejected after which the relative state is
-        re-opened (step 5a); 0: never.
     scale_sigma : float
         1-sigma of the shape model's scale error [-] (step 4e): a random-constant state
         ``s`` (the body is the model times ``1 + s``) in the silhouette's size and centroid
@@ -274,74 +369,25 @@ class TrnFilterOptions:
     scale_consider : bool
         Keep the scale state out of the update (a Schmidt consider state: its uncertainty
         and correlations are carried, its value stays at the model's); False: estimated.
-    birth_position_sigma : float
-        No landmark is born while the position's largest 1-sigma exceeds this [m] (step 7a);
-        0: always.
+    height_sigma : float
+        The model's height error at a landmark, 1-sigma [m]; a new landmark's height sigma is
+        the larger of this and the section's ``landmark_height_sigma``.
+    birth_sigma : float
+        The birth threshold of step 7a the model sets [m], used when the section's
+        ``birth_position_sigma`` is 0 (0: always).
     """
 
-    accel_psd: float = 1e-8
-    gravity: bool = True
-    gate_probability: float = 0.9999
-    max_landmarks: int = 40
-    max_incidence: float = math.radians(75.0)
-    landmark_height_sigma: float = 1.0
-    centroid_model_sigma_px: float = 0.3
-    radius_model_fraction: float = 0.01
-    use_centroid: bool = True
-    use_radius: bool = True
-    iterations: int = 4
-    silhouette_bias_time: float = 19.0
-    centroid_sun_share: float = 0.962
-    silhouette_scaling: str = "constant"
-    reference_radius_px: float = 48.95
-    reference_phase: float = math.radians(50.0)
-    limb_blur_px: float = 1.85
-    feature_correlation: float = 0.0
-    terminator_shift: float = math.radians(4.12)
-    silhouette_offset: bool = False
-    centroid_offset_fraction: float = 0.0374
-    bias_mean: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    reset_after: int = 0
     scale_sigma: float = 0.0
     scale_consider: bool = True
-    birth_position_sigma: float = 0.0
+    height_sigma: float = 0.0
+    birth_sigma: float = 0.0
 
     def __post_init__(self) -> None:
-        mean = np.asarray(self.bias_mean, float)
-        if mean.shape != (3,) or not np.all(np.isfinite(mean)) or abs(mean[2]) >= 0.5:
-            raise ConfigError("options.bias_mean", np.ravel(mean).tolist(),
-                              "3 finite values (centroid along and across the Sun [px], "
-                              "radius fraction with |value| < 0.5)")
-        checks = (("accel_psd", self.accel_psd >= 0, ">= 0"),
-                  ("gate_probability", 0 < self.gate_probability < 1, "in (0, 1)"),
-                  ("max_landmarks", self.max_landmarks >= 0, ">= 0"),
-                  ("iterations", self.iterations >= 1, ">= 1"),
-                  ("max_incidence", 0 < self.max_incidence < math.pi / 2, "in (0, pi/2) rad"),
-                  ("landmark_height_sigma", self.landmark_height_sigma >= 0, ">= 0"),
-                  ("centroid_model_sigma_px", self.centroid_model_sigma_px >= 0, ">= 0"),
-                  ("radius_model_fraction", self.radius_model_fraction >= 0, ">= 0"),
-                  ("silhouette_bias_time", self.silhouette_bias_time >= 0
-                   and math.isfinite(self.silhouette_bias_time), ">= 0 [s], finite"),
-                  ("centroid_sun_share", 0 <= self.centroid_sun_share <= 1, "in [0, 1]"),
-                  ("silhouette_scaling", self.silhouette_scaling in SILHOUETTE_SCALINGS,
-                   f"one of {', '.join(SILHOUETTE_SCALINGS)}"),
-                  ("reference_radius_px", self.reference_radius_px > 0
-                   and math.isfinite(self.reference_radius_px), "> 0 [px], finite"),
-                  ("reference_phase", 0 <= self.reference_phase < math.pi, "in [0, pi) rad"),
-                  ("limb_blur_px", self.limb_blur_px >= 0, ">= 0 [px]"),
-                  ("feature_correlation", 0 <= self.feature_correlation < 1, "in [0, 1)"),
-                  ("terminator_shift", self.terminator_shift >= 0, ">= 0 [rad]"),
-                  ("reset_after", self.reset_after >= 0, ">= 0 frames (0: never)"),
-                  ("scale_sigma", 0 <= self.scale_sigma < 0.5, "in [0, 0.5) [-]"),
-                  ("birth_position_sigma", self.birth_position_sigma >= 0, ">= 0 [m]"),
-                  ("centroid_offset_fraction", math.isfinite(self.centroid_offset_fraction)
-                   and abs(self.centroid_offset_fraction) < 0.5, "finite, |value| < 0.5 [-]"),
-                  ("limb_blur_px + terminator_shift",
-                   self.limb_blur_px > 0 or self.terminator_shift > 0,
-                   "one of them > 0 (the radius model error's two terms)"))
-        for name, ok, want in checks:
+        for name, ok, want in (("scale_sigma", 0 <= self.scale_sigma < 0.5, "in [0, 0.5) [-]"),
+                               ("height_sigma", self.height_sigma >= 0, ">= 0 [m]"),
+                               ("birth_sigma", self.birth_sigma >= 0, ">= 0 [m]")):
             if not ok:
-                raise ConfigError(f"options.{name}", getattr(self, name), want)
+                raise ConfigError(f"shape_prior.{name}", getattr(self, name), want)
 
 
 @dataclass
@@ -617,8 +663,9 @@ def landmark_births(camera: Camera, r: FloatArray, R_true: FloatArray, R_bi: Flo
 # ----------------------------------------------------------------------------- the filter
 def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: ShapeBodyLike,
                initial_state: ArrayLike, initial_covariance: ArrayLike,
-               options: TrnFilterOptions | None = None, *,
-               sun_direction: ArrayLike | None = None) -> FlybyRun:
+               options: SIView | None = None, *,
+               sun_direction: ArrayLike | None = None,
+               prior: ShapePrior | None = None) -> FlybyRun:
     """Estimate ``(r, v)`` relative to the body over a fly-by (module essay).
 
     Parameters
@@ -631,14 +678,20 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
     initial_state : (6,) array
         ``(r, v)`` at the first epoch, body-centred J2000 [m, m/s].
     initial_covariance : (6, 6) array
-    options : TrnFilterOptions
+    options : SIView, optional
+        The SI view of a :class:`TrnFilterConfig` (``to_si()``); default its defaults.
     sun_direction : (3,) array, optional
         Body -> Sun unit vector (J2000) over the fly-by; a measurement's own
         ``sun_direction`` takes precedence for its frame. Without either the centroid and
         radius are predicted from the whole silhouette (phase 0), and the phase bias must be
         covered by ``centroid_model_sigma_px`` / ``radius_model_fraction``.
+    prior : ShapePrior, optional
+        What the body model adds (scale state, height error, birth threshold); default none.
     """
-    opt = options if options is not None else TrnFilterOptions()
+    opt = options if options is not None else _DEFAULT
+    pri = prior if prior is not None else ShapePrior()
+    height_sigma = max(opt.landmark_height_sigma, pri.height_sigma)
+    birth_sigma = opt.birth_position_sigma or pri.birth_sigma
     x0, P0 = validate_inputs(measurements, initial_state, initial_covariance)
     sun = None if sun_direction is None else _unit_sun(sun_direction, "sun_direction")
     frame_sun = [None if m.sun_direction is None else
@@ -661,14 +714,16 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
     dof_kind = {kd: np.zeros(K, np.int64) for kd in ("feature", "centroid", "radius")}
     out.info["nis_by_kind"], out.info["nis_dof_by_kind"] = nis_kind, dof_kind
     tau = opt.silhouette_bias_time
+    angle = opt.silhouette_bias_angle
+    bias_on = tau > 0 or angle > 0           # bias states (else white model error)
     share = np.array([opt.centroid_sun_share, 1.0 - opt.centroid_sun_share])
     sig_b = (np.r_[opt.centroid_model_sigma_px * np.sqrt(2.0 * share),
                    opt.radius_model_fraction] if tau > 0 else np.zeros(3))
-    mu = np.asarray(opt.bias_mean, float)    # the bias's calibrated mean (step 4d)
+    mu = np.asarray(opt.silhouette_bias_mean, float)    # the bias's calibrated mean (step 4d)
     x = np.r_[x0, np.zeros(CORE - 6)]
     P = np.zeros((CORE, CORE))
     P[:6, :6], P[BIAS, BIAS] = P0, np.diag(sig_b**2)
-    P[SCALE, SCALE] = opt.scale_sigma**2
+    P[SCALE, SCALE] = pri.scale_sigma**2
     out.info["shape_scale"] = np.zeros(K)
     out.info["landmark_first"], out.info["landmark_last"] = {}, {}
     out.info["shape_scale_sigma"] = np.zeros(K)
@@ -681,6 +736,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
     ids: list[int] = []                       # track id of each landmark, in state order
     banned: set[int] = set()
     t_prev = measurements[0].epoch_tdb
+    aspect_prev: tuple[FloatArray, FloatArray] | None = None   # (view, Sun), body-fixed
 
     for k, m in enumerate(measurements):
         # 1 predict
@@ -692,12 +748,22 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             P[:6, :] = Phi @ P[:6, :]
             P[:, :6] = P[:, :6] @ Phi.T
             P[:6, :6] += Q
-            if tau > 0:
-                a = math.exp(-dt / tau)
+            if bias_on:
+                if angle > 0:                 # 1a the aspect's change, not the time's
+                    view = aspect_of(x[:3], body, m.epoch_tdb,
+                                     frame_sun[k] if frame_sun[k] is not None else sun)
+                    d_asp = aspect_change(*aspect_prev, *view) if aspect_prev else 0.0
+                    aspect_prev = view
+                    a = math.exp(-d_asp / angle)
+                else:
+                    a = math.exp(-dt / tau)
                 x[BIAS] *= a
                 P[BIAS, :] *= a
                 P[:, BIAS] *= a
                 P[BIAS, BIAS] += np.diag((sig_b * scale) ** 2 * (1.0 - a * a))
+        if angle > 0 and aspect_prev is None:  # 1a the first frame's aspect
+            aspect_prev = aspect_of(x[:3], body, m.epoch_tdb,
+                                    frame_sun[k] if frame_sun[k] is not None else sun)
         # 2 drop the landmarks whose track ended
         seen = {f.track_id for f in m.features}
         keep = [j for j, tid in enumerate(ids) if tid in seen]
@@ -759,7 +825,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
 
         sil0 = silhouette_at(r.copy()) if need_sil else None
         # 4a the bias states follow the geometry: b <- (s_k / s_k-1) b (silhouette_scale)
-        if sil0 is not None and tau > 0:
+        if sil0 is not None and bias_on:
             rn = float(np.linalg.norm(r))
             phase = (math.acos(min(max(float(r @ s_k) / rn, -1.0), 1.0)) if s_k is not None
                      else 0.0)
@@ -771,11 +837,12 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             scale = s_new
         out.info["silhouette_scale"][k] = scale
         if sil0 is not None and opt.use_centroid and m.centroid_uv is not None:
-            var = m.centroid_sigma_px**2 + (0.0 if tau > 0 else opt.centroid_model_sigma_px**2)
+            var = m.centroid_sigma_px**2 + (0.0 if bias_on else
+                                            opt.centroid_model_sigma_px**2)
             rows.append(("centroid", np.asarray(m.centroid_uv, float), np.eye(2) * var, -1,
                          sil0))
         if sil0 is not None and opt.use_radius and m.apparent_radius_px is not None:
-            var = m.apparent_radius_sigma_px**2 + (0.0 if tau > 0 else (
+            var = m.apparent_radius_sigma_px**2 + (0.0 if bias_on else (
                 opt.radius_model_fraction * sil0[2] / float(np.linalg.norm(r))) ** 2)
             rows.append(("radius", np.array([m.apparent_radius_px]), np.array([[var]]), -1,
                          sil0))
@@ -875,7 +942,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             z = np.concatenate([a[1] for a in accepted])
             Rn = _block_diag([a[2] for a in accepted])
             xi = x.copy()
-            for it in range(opt.iterations):
+            for it in range(ITERATIONS):
                 hl, Hl_, okl = predict_all(accepted, xi, n, th)
                 if not all(okl):
                     break
@@ -886,7 +953,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
                 if it == 0:
                     nu0, S0 = z - h, S
                 Kg = np.linalg.solve(S, H @ P).T
-                if opt.scale_consider:
+                if pri.scale_consider:
                     Kg[SCALE] = 0.0           # 4e Schmidt: the scale is considered, not updated
                 step = x + Kg @ (z - h - H @ (x - xi))
                 done = np.max(np.abs(step[:3] - xi[:3])) < ITERATION_TOLERANCE
@@ -910,8 +977,8 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             th = slice(n - 3, n)
         # 7 new landmarks
         room = opt.max_landmarks - len(ids)
-        if (opt.birth_position_sigma > 0 and np.linalg.eigvalsh(P[:3, :3])[-1]
-                > opt.birth_position_sigma**2):
+        if (birth_sigma > 0 and np.linalg.eigvalsh(P[:3, :3])[-1]
+                > birth_sigma**2):
             room = 0                          # 7a no births while the position is this loose
         new = [f for f in m.features if f.track_id not in ids and f.track_id not in banned]
         if room > 0 and new:
@@ -939,7 +1006,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
                 J[:, SCALE] = b.J_h * float(b.normal_body @ b.point_body) / s_est
                 Js.append(J)
                 Gs.append(np.column_stack([b.J_uv, b.J_h]))
-                Ns.append(np.diag([f.sigma_px**2, f.sigma_px**2, opt.landmark_height_sigma**2]))
+                Ns.append(np.diag([f.sigma_px**2, f.sigma_px**2, height_sigma**2]))
                 ls.append(b.point_body)
                 born.append(f.track_id)
             if born:
@@ -967,6 +1034,15 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
         out.covariances[k] = P[:6, :6]
         out.landmarks[k] = len(ids)
     return out
+
+
+def aspect_of(r: FloatArray, body: ShapeBodyLike, epoch: float, sun: FloatArray | None
+              ) -> tuple[FloatArray, FloatArray]:
+    """The body-fixed view direction (centre -> spacecraft at ``r``, J2000 [m]) and Sun
+    direction at ``epoch`` [TDB s] (module step 1a; no Sun: the view's, phase 0)."""
+    R_bi = np.asarray(body.orientation(epoch), float).reshape(3, 3)
+    u = R_bi.T @ (np.asarray(r, float) / float(np.linalg.norm(r)))
+    return u, (R_bi.T @ sun if sun is not None else u)
 
 
 def gate_rows(rows: list, predicted: tuple[list[FloatArray], list[FloatArray], list[bool]],

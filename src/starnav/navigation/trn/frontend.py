@@ -15,11 +15,12 @@ tracker acquires:
 The front end sees the frame only through a
 :class:`~starnav.navigation.trn.windows.WindowReader`; truth is attached afterwards
 (:class:`~starnav.navigation.trn.truth.FeatureTruthBook`) and never read here. The knobs are
-:class:`FrontEndOptions` (calibrated ones: ``tools/calibrate_flyby_model_error.py``).
+:class:`~starnav.navigation.trn.options.TrnFrontEndConfig` (calibrated ones:
+``tools/calibrate_flyby_model_error.py``).
 
 Index
 -----
-:class:`FlybyFrontEnd`, :class:`FrontEndOptions`, :class:`WindowPlan`, :class:`FrontEndFrame`,
+:class:`FlybyFrontEnd`, :class:`WindowPlan`, :class:`FrontEndFrame`,
 :class:`Track`, :data:`STAGES`.
 """
 
@@ -35,6 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.camera import Camera
+from starnav.config_base import SIView
 from starnav.navigation.trn.features import (
     detect_corners,
     epipolar_ransac,
@@ -42,7 +44,14 @@ from starnav.navigation.trn.features import (
     track_patch,
 )
 from starnav.navigation.trn.measurements import FeatureObservation, FlybyMeasurement
-from starnav.navigation.trn.options import FrontEndOptions
+from starnav.navigation.trn.options import (
+    BLOCK_PX,
+    MIN_BODY_AREA_PX,
+    RANSAC_ITERATIONS,
+    TrnFrontEndConfig,
+    patch_half_px,
+    template_store_half_px,
+)
 from starnav.navigation.trn.windows import (
     BodyFix,
     WindowAccessError,
@@ -122,15 +131,19 @@ class FlybyFrontEnd:
     ----------
     camera : Camera
         For the lines of sight of the epipolar test.
-    options : FrontEndOptions
+    options : SIView, optional
+        The SI view of a :class:`~starnav.navigation.trn.options.TrnFrontEndConfig`
+        (``to_si()``); default its defaults.
     rng : numpy Generator, optional
         RANSAC draws (default ``default_rng(0)``).
     """
 
-    def __init__(self, camera: Camera, options: FrontEndOptions | None = None,
+    def __init__(self, camera: Camera, options: SIView | None = None,
                  rng: np.random.Generator | None = None) -> None:
         self.camera = camera
-        self.options = options or FrontEndOptions()
+        self.options = options if options is not None else TrnFrontEndConfig().to_si()
+        self._patch_half = patch_half_px(self.options)
+        self._store_half = template_store_half_px(self.options)
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.tracks: list[Track] = []
         self._next_id = 0
@@ -149,7 +162,7 @@ class FlybyFrontEnd:
         """
         o = self.options
         t0 = time.perf_counter()
-        body = analyse_segments(reader, block_px=o.block_px, min_area_px=o.min_body_area_px)
+        body = analyse_segments(reader, block_px=BLOCK_PX, min_area_px=MIN_BODY_AREA_PX)
         t1 = time.perf_counter()
         sig = np.zeros(3) if attitude_sigma is None else np.asarray(attitude_sigma, float)
         R = np.asarray(R_cam_to_inertial, float)
@@ -167,7 +180,7 @@ class FlybyFrontEnd:
         order = sorted(groups)
         rects = plan_windows(body, [np.array(groups[k]) for k in order],
                              n_windows=o.n_windows, core_px=o.core_px,
-                             patch_half_px=o.patch_half_px, limb_margin_px=o.limb_margin_px,
+                             patch_half_px=self._patch_half, limb_margin_px=o.limb_margin_px,
                              max_window_px=o.max_window_px)
         t2 = time.perf_counter()
         return WindowPlan(index, float(epoch_tdb), R, sig, body, tuple(rects),
@@ -184,7 +197,7 @@ class FlybyFrontEnd:
             return None
 
     def _window_of(self, windows: tuple[WindowRect, ...], uv: FloatArray) -> int:
-        h = self.options.template_store_half_px
+        h = self._store_half
         for k, (r0, c0, hh, ww) in enumerate(windows):
             # the rounded centre keeps the whole stored template inside the window
             if (c0 + h + 0.5 <= uv[0] <= c0 + ww - 1.5 - h
@@ -215,14 +228,14 @@ class FlybyFrontEnd:
         moved: list[tuple[Track, FloatArray]] = []
         for tr in self.tracks:
             assert tr.predicted is not None and tr.patch is not None
-            got = self._crop_patch(reader, tr.predicted, o.patch_half_px)
+            got = self._crop_patch(reader, tr.predicted, self._patch_half)
             if got is None:
                 counts["left"] += 1
                 continue
             nxt, (nr0, nc0) = got
             # the stored template, padded (edge copies, outside the LK window) to the size of
             # the search patch: OpenCV's LK takes two images of one size
-            pad = o.patch_half_px - o.template_store_half_px
+            pad = self._patch_half - self._store_half
             prev = cv2.copyMakeBorder(to_8bit(tr.patch, lo_hi), pad, pad, pad, pad,
                                       cv2.BORDER_REPLICATE)
             pr0, pc0 = tr.patch_corner
@@ -244,7 +257,7 @@ class FlybyFrontEnd:
             R = plan.R_cam_to_inertial.T @ self._prev_R
             turn = math.acos(min(max((np.trace(R) - 1.0) / 2.0, -1.0), 1.0))
             inl, _ = epipolar_ransac(self.camera.unproject(uv_prev), self.camera.unproject(uv_cur),
-                                     R, o.epipolar_px / self.camera.fx, o.ransac_iterations,
+                                     R, o.epipolar_px / self.camera.fx, RANSAC_ITERATIONS,
                                      self.rng)
             for (tr, p), ok in zip(moved, inl, strict=True):
                 if not ok:
@@ -270,7 +283,7 @@ class FlybyFrontEnd:
         per_window = np.zeros(len(windows), int)
         for tr in survivors:
             per_window[tr.window] += 1
-        h = o.patch_half_px
+        h = self._patch_half
         for k, (r0, c0, hh, ww) in enumerate(windows):
             need = o.max_tracks_per_window - per_window[k]
             if per_window[k] >= o.min_tracks_per_window or need <= 0:
@@ -285,7 +298,7 @@ class FlybyFrontEnd:
                     vv, uu = np.ogrid[0:hh, 0:ww]
                     allowed &= (uu - du) ** 2 + (vv - dv) ** 2 >= o.min_distance_px ** 2
             pts = detect_corners(dn, allowed, max_corners=int(need), quality=o.quality,
-                                 min_distance_px=o.min_distance_px, block_px=o.block_px)
+                                 min_distance_px=o.min_distance_px, block_px=BLOCK_PX)
             for q in pts:
                 survivors.append(Track(self._next_id, q + [c0, r0], k))
                 self._next_id += 1
@@ -293,7 +306,7 @@ class FlybyFrontEnd:
         t3 = time.perf_counter()
         # ---- keep this frame's patches (read now: the next frame has other windows)
         for tr in survivors:
-            got = self._crop_patch(reader, tr.uv, o.template_store_half_px)
+            got = self._crop_patch(reader, tr.uv, self._store_half)
             assert got is not None  # inside its window by construction
             tr.patch, tr.patch_corner = got
         self.tracks = survivors

@@ -236,7 +236,8 @@ def plan_windows(body: BodyFix, groups: Sequence[FloatArray], *, n_windows: int,
     n_windows : int
         Windows to open (<= 16).
     core_px, patch_half_px, limb_margin_px, max_window_px
-        Geometry of the windows [px] (module table).
+        Geometry of the windows [px] (their meanings:
+        :class:`~starnav.navigation.trn.options.TrnFrontEndConfig`).
     min_texture_fraction : float
         A birth window needs a texture score of at least this fraction of the frame's best.
 

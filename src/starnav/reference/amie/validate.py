@@ -50,7 +50,7 @@ from starnav.detector.schema import DetectorConfig
 from starnav.eclipse import disc_mean_sunlit_fraction
 from starnav.errors import StarnavError
 from starnav.navigation.frames import Frame
-from starnav.navigation.limb import LimbScanOptions
+from starnav.navigation.limb import LimbConfig
 from starnav.navigation.pipeline import ChainOptions, process_frame
 from starnav.navigation.refine import RefineOptions, cut_windows, plan_windows
 from starnav.reference.amie.frame import (
@@ -112,7 +112,7 @@ class AmieOptions:
     interior_erode_px: int = 4
     threshold_peak_fraction: float = 0.1
     seed: int = 1
-    max_phase_deg: float = math.degrees(LimbScanOptions().max_phase_rad)
+    max_phase_deg: float = LimbConfig().max_phase_deg
     edge_margin_px: int = 3
     min_limb_points: int = 30
     min_disc_inside: float = 0.5
@@ -223,8 +223,8 @@ def _solve_limb(dn: NDArray[np.integer], camera: Camera, R_cam_to_inertial: Floa
     StarnavError
         No limb points at all (no Moon above the threshold).
     """
-    chain = ChainOptions(limb=LimbScanOptions(min_run_length_px=2, max_points=2000,
-                                              max_phase_rad=math.radians(options.max_phase_deg)),
+    limb = {"min_run_length_px": 2, "max_points": 2000}
+    chain = ChainOptions(limb=LimbConfig(**limb, max_phase_deg=options.max_phase_deg).to_si(),
                          refine=RefineOptions(size_px=options.window_px,
                                               saturation_dn=float(saturation_dn),
                                               min_contrast_dn=5.0))
@@ -239,7 +239,7 @@ def _solve_limb(dn: NDArray[np.integer], camera: Camera, R_cam_to_inertial: Floa
             raise StarnavError(f"no limb on the frame: {status}: {message}")
         # the points only, for the comparison: the fix stays withheld
         relaxed = replace(chain, use_windows=False,
-                          limb=replace(chain.limb, max_phase_rad=math.pi))
+                          limb=LimbConfig(**limb, max_phase_deg=180.0).to_si())
         first = process_frame(frame, camera, options=relaxed,
                               rng=np.random.default_rng(options.seed))
         if first.limb is None:
