@@ -873,11 +873,12 @@ def _levenberg_marquardt(model: _TableModel | _GaussModel, X: FloatArray, Z: Flo
         a = np.flatnonzero(active)   # the windows still iterating
         if not a.size:
             break
-        Za = Z[a]
+        every = a.size == K   # all windows: whole arrays, no gathers (the common case)
+        Za = Z.copy() if every else Z[a]
         dg = Za[:, s0:g0:q + 1]   # a view of the diagonal: damped in place
-        dg += lam[a][:, None] * np.where(dg > 0, dg, 1.0)
+        dg += (lam if every else lam[a])[:, None] * np.where(dg > 0, dg, 1.0)
         step, ok = _solve(Za[:, s0:g0].reshape(-1, q, q), Za[:, g0:])
-        step /= scale[a][:, None]
+        step /= (scale if every else scale[a])[:, None]
         mx = np.abs(step[:, :2] * _EDGE_MOTION).max(axis=1)
         ok &= mx < np.inf
         step /= np.maximum(mx, 1.0)[:, None]   # at most 1 px of edge motion
@@ -896,27 +897,38 @@ def _levenberg_marquardt(model: _TableModel | _GaussModel, X: FloatArray, Z: Flo
             it[tired] += 1
         go = ok & ~last
         if go.any():
-            wg, sg, mg = a[go], step[go], mx[go]
-            Xt = X[wg]
+            every = every and bool(go.all())
+            wg, sg, mg = (a, step, mx) if every else (a[go], step[go], mx[go])
+            Xt = X.copy() if every else X[wg]
             Xt[:, :q] += sg
             if q == 3:
                 np.clip(Xt[:, 2], 0.2, 10.0, out=Xt[:, 2])
-            T = model.evaluate(_ALL if wg.size == K else wg, Xt)
-            acc = T[:, p] <= Z[wg, p]
+            T = model.evaluate(_ALL if every else wg, Xt)
+            acc = T[:, p] <= (Z[:, p] if every else Z[wg, p])
+            every = every and bool(acc.all())
             wa, D, Ta = (wg, sg, T) if acc.all() else (wg[acc], sg[acc], T[acc])
             if wa.size:
                 # the cost's curvature along the step against Gauss-Newton's
-                Zo = Z[wa]
+                Zo = Z if every else Z[wa]
                 den = (D[:, None, :] @ Zo[:, s0:g0].reshape(-1, q, q) @ D[..., None])[:, 0, 0]
                 num = ((Zo[:, g0:] - Ta[:, g0:]) * D).sum(axis=1)
                 ratio = np.divide(num, den, out=np.ones_like(num),
-                                  where=(den > 0) & (mg[acc] < _SECANT_NEAR))
-                scale[wa] = np.minimum(np.maximum(ratio, _SECANT_RANGE[0]), _SECANT_RANGE[1])
-                X[wa] = Xt[acc]
-                Z[wa] = Ta
-                lam[wa] = np.maximum(lam[wa] / _LM_GROWTH, _LM_LAMBDA_MIN)
-                it[wa] += 1
-                rejected[wa] = 0
+                                  where=(den > 0) & ((mg if every else mg[acc]) < _SECANT_NEAR))
+                if every:   # every window stepped and was accepted: in place
+                    np.minimum(np.maximum(ratio, _SECANT_RANGE[0]), _SECANT_RANGE[1], out=scale)
+                    X[:] = Xt
+                    Z[:] = Ta
+                    np.maximum(lam / _LM_GROWTH, _LM_LAMBDA_MIN, out=lam)
+                    it += 1
+                    rejected[:] = 0
+                else:
+                    scale[wa] = np.minimum(np.maximum(ratio, _SECANT_RANGE[0]),
+                                           _SECANT_RANGE[1])
+                    X[wa] = Xt[acc]
+                    Z[wa] = Ta
+                    lam[wa] = np.maximum(lam[wa] / _LM_GROWTH, _LM_LAMBDA_MIN)
+                    it[wa] += 1
+                    rejected[wa] = 0
             if wa.size < wg.size:
                 rj = ~acc
                 wr = wg[rj]
