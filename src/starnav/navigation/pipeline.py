@@ -705,20 +705,21 @@ def navigate(
         # processed once, on the clock
         prepare_frame(f, cam, options=per_frame[k], rng=copy.deepcopy(frame_rngs[k]))
         if peak is not None:
-            # the heap is traced on a pass of its own (tracing slows the chain): the same
-            # frame and RANSAC stream, a copy of the filter
+            # the heap is traced on a pass of its own after the timed one (tracing slows the
+            # chain): the same frame and RANSAC stream, a copy of the filter before its step
             shadow = _FilterRecorder(copy.deepcopy(rec.ekf), K)
-            tracemalloc.start()
-            tracemalloc.reset_peak()
-            shadow.step(k, process_frame(f, cam, options=per_frame[k],
-                                         rng=copy.deepcopy(frame_rngs[k])))
-            peak[k] = tracemalloc.get_traced_memory()[1]
-            tracemalloc.stop()
-            del shadow
+            rng_traced = copy.deepcopy(frame_rngs[k])
         c0 = time.process_time()
         m = process_frame(f, cam, options=per_frame[k], rng=frame_rngs[k])
         dt = rec.step(k, m)
         cpu[k] = time.process_time() - c0
+        if peak is not None:
+            tracemalloc.start()
+            tracemalloc.reset_peak()
+            shadow.step(k, process_frame(f, cam, options=per_frame[k], rng=rng_traced))
+            peak[k] = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+            del shadow
         for j, s in enumerate(STAGES[:-1]):
             if s in m.timings_s:
                 stage[k, j] = m.timings_s[s]
