@@ -203,3 +203,59 @@ def test_cli_navigate(cam, sequence, tmp_path, monkeypatch):
     m = json.loads((out / "metrics.json").read_text())
     assert m["fixes"] == 6 and "monte_carlo" not in m
     assert (out / "navigation_config.json").exists()
+
+
+def _psf_chain() -> ChainOptions:
+    """The chain with the detector-psf edge model (the one with tables to prepare)."""
+    from starnav.detector.schema import DetectorConfig
+    from starnav.navigation.refine import EdgeSpread, PixelNoise, RefineOptions
+
+    det = DetectorConfig()
+    return ChainOptions(refine=RefineOptions(edge_model="detector-psf",
+                                             spread=EdgeSpread.from_detector(det),
+                                             noise=PixelNoise.from_detector(det)))
+
+
+def test_prepare_frame_builds_every_table_the_refinement_asks_for(cam, sequence):
+    """What navigate keeps off the clock (prepare_frame) is all the table building: after
+    it, processing the frame builds no edge table (a regression test of the mechanism)."""
+    from starnav.navigation import refine as rf
+    from starnav.navigation.pipeline import prepare_frame
+
+    _, frames = sequence
+    chain = _psf_chain()
+    f = frames[4]
+    prepare_frame(f, cam, options=chain, rng=np.random.default_rng(7))
+    built = rf._edge_tables.cache_info().misses
+    m = process_frame(f, cam, options=chain, rng=np.random.default_rng(7))
+    assert m.usable and m.refined is not None and len(m.refined) >= 14
+    assert rf._edge_tables.cache_info().misses == built
+
+
+def test_navigate_processes_each_frame_once_on_the_clock(cam, sequence, monkeypatch):
+    """Each frame goes through the chain once (plus once more, traced, with measure_memory),
+    and the estimates do not depend on the heap tracing."""
+    from starnav.navigation import pipeline
+
+    dyn, frames = sequence
+    frames = frames[:3]
+    chain = _psf_chain()
+    P0 = np.diag([50e3**2] * 3 + [0.5**2] * 3)
+    calls = []
+    real = pipeline.process_frame
+
+    def counted(frame, *a, **k):
+        calls.append(int(frame.index))
+        return real(frame, *a, **k)
+
+    monkeypatch.setattr(pipeline, "process_frame", counted)
+    runs = {}
+    for traced in (False, True):
+        calls.clear()
+        runs[traced] = navigate(FrameList(cam, frames), dynamics=dyn, moon=dyn, P0=P0,
+                                chain=chain, seed=3, measure_memory=traced)
+        assert calls == [int(f.index) for f in frames for _ in range(1 + traced)]
+    assert runs[True].peak_memory_bytes is not None and runs[False].peak_memory_bytes is None
+    np.testing.assert_array_equal(runs[False].filter.states, runs[True].filter.states)
+    np.testing.assert_array_equal(runs[False].filter.covariances, runs[True].filter.covariances)
+    assert np.all(runs[False].cpu_times_s > 0)

@@ -8,12 +8,13 @@
    (:mod:`~starnav.navigation.christian_robinson`). A frame without a usable limb returns a
    measurement with a ``status`` and a message instead of raising, so a sequence goes on.
 2. :func:`run_filter`: the EKF (:mod:`~starnav.navigation.ekf`) over the measurements.
-3. :func:`navigate`: both over a dataset, timing each stage and, on request, the peak heap.
+3. :func:`navigate`: both over a dataset, each frame prepared (:func:`prepare_frame`: read,
+   its edge tables built) then processed once on the clock; on request the peak heap.
    Monte Carlo runs repeat these in :mod:`starnav.batch` (:mod:`starnav.batch.runs`).
 
 Index
 -----
-:func:`process_frame`, :class:`FrameMeasurement`, :class:`ChainOptions`,
+:func:`process_frame`, :func:`prepare_frame`, :class:`FrameMeasurement`, :class:`ChainOptions`,
 :func:`camera_consider_jacobian`, :func:`run_filter`, :class:`FilterResult`,
 :func:`navigate`, :class:`NavigationRun`, :func:`initial_error_normal`, :func:`truth_states`,
 :data:`STAGES`.
@@ -58,8 +59,8 @@ from starnav.navigation.limb import (
     sun_direction_in_image,
 )
 from starnav.navigation.metrics import NavMetrics, limb_point_errors, nees
-from starnav.navigation.ransac import RansacConfig, RansacError, ransac_limb
-from starnav.navigation.refine import RefineOptions, refine_limb
+from starnav.navigation.ransac import RansacConfig, RansacError, RansacResult, ransac_limb
+from starnav.navigation.refine import RefineOptions, prepare_edge_tables, refine_limb
 from starnav.navigation.refine import warm_up as refine_warm_up
 from starnav.seeding import STAGE_NAVIGATION, generator
 from starnav.typing import FloatArray
@@ -224,57 +225,20 @@ def process_frame(
     opt = options or ChainOptions()
     rng = rng if rng is not None else np.random.default_rng(int(frame.index))
     tm: dict[str, float] = {}
-    R_ci = R_measured = np.asarray(frame.R_cam_to_inertial_measured, float)
+    R_measured = np.asarray(frame.R_cam_to_inertial_measured, float)
     declared = camera
-    if opt.calibration is not None:
-        # the attitude a star solve through the calibrated camera gives (star_alignment)
-        camera = opt.calibration.camera
-        R_ci = R_ci @ _alignment(declared, camera).T
-    R_mi = getattr(frame, "R_body_to_inertial", None)
-    R_body_to_cam = None if R_mi is None else R_ci.T @ np.asarray(R_mi, float)
+    camera, R_ci, R_mi, R_body_to_cam = _chain_camera(frame, camera, opt)
 
-    t = time.perf_counter()
-    seg = frame.segments
-    if seg is None:
-        tm["limb"] = time.perf_counter() - t
-        return _fail(frame, "no-segments", "the frame has no segments readout", tm)
-    try:
-        centre0 = segments_centroid(seg, opt.limb.min_level) if len(seg) else None
-        if centre0 is None:
-            raise LimbNotFoundError("segments: the readout has no run above threshold (no Moon "
-                                    "in the frame, or an exposure too short for the threshold)",
-                                    "no-moon")
-        sdir = sun_direction_in_image(camera, R_ci, frame.sun_direction_inertial, centre0)
-        phase0 = phase_angle_from_image(camera, R_ci, frame.sun_direction_inertial, centre0)
-        if phase0 > opt.limb.max_phase:
-            raise LimbNotFoundError(
-                f"phase angle {math.degrees(phase0):.0f} deg > limb.max_phase_deg "
-                f"{math.degrees(opt.limb.max_phase):.0f} deg: a crescent this thin shows "
-                "too short a lit limb for a trustworthy fix (its errors are beyond the "
-                "calibrated model)", "thin-crescent")
-        limb = limb_points_from_segments(seg, sdir, options=opt.limb)
-    except LimbNotFoundError as err:
-        tm["limb"] = time.perf_counter() - t
-        return _fail(frame, err.reason, str(err), tm)
-    tm["limb"] = time.perf_counter() - t
-
-    t = time.perf_counter()
-    try:
-        rr = ransac_limb(limb.uv, camera, rng=rng, options=opt.ransac, fix_options=opt.fix,
-                         R_body_to_cam=R_body_to_cam)
-    except RansacError as err:
-        tm["ransac"] = time.perf_counter() - t
-        return _fail(frame, "ransac-failed", str(err), tm, limb=limb)
+    front = _limb_and_ransac(frame, camera, opt, rng, R_ci, R_body_to_cam, tm)
+    if isinstance(front, FrameMeasurement):
+        return front
+    limb, rr, sdir = front
     inl = rr.inliers
-    tm["ransac"] = time.perf_counter() - t
 
     refined = None
     if opt.use_windows and frame.windows:
         t = time.perf_counter()
-        if rr.model == "circle":
-            centre, radius = rr.params[:2], float(rr.params[2])
-        else:
-            centre, radius = fit_circle_kasa(limb.uv[inl])
+        centre, radius = _coarse_circle(limb, rr)
         try:
             phase = phase_angle_from_image(camera, R_ci, frame.sun_direction_inertial, centre)
             refined = refine_limb(frame.windows, centre, radius, sun_dir_image=sdir,
@@ -335,6 +299,94 @@ def process_frame(
     tm["fix"] = time.perf_counter() - t
     return FrameMeasurement(int(frame.index), float(frame.epoch_tdb), "ok", "", limb, inl,
                             refined, fix, pos, cov, tm, G, noise, white, J, JCJ, scale)
+
+
+
+def _chain_camera(frame: NavFrame, camera: Camera, opt: ChainOptions
+                  ) -> tuple[Camera, FloatArray, FloatArray | None, FloatArray | None]:
+    """The camera the chain navigates with and the attitudes through it: ``(camera,
+    R_cam_to_inertial, R_body_to_inertial or None, R_body_to_cam or None)``."""
+    R_ci = np.asarray(frame.R_cam_to_inertial_measured, float)
+    if opt.calibration is not None:
+        # the attitude a star solve through the calibrated camera gives (star_alignment)
+        declared, camera = camera, opt.calibration.camera
+        R_ci = R_ci @ _alignment(declared, camera).T
+    R_mi = getattr(frame, "R_body_to_inertial", None)
+    R_body_to_cam = None if R_mi is None else R_ci.T @ np.asarray(R_mi, float)
+    return camera, R_ci, R_mi, R_body_to_cam
+
+
+def prepare_frame(frame: NavFrame, camera: Camera, *, options: ChainOptions | None = None,
+                  rng: np.random.Generator | None = None) -> None:
+    """What the tracker holds before a frame comes, made ahead of :func:`process_frame`: the
+    frame read (its segments and windows), and the ``detector-psf`` edge model's tables of
+    the field cells and edge directions its windows fall in (built once and cached: a
+    tracker carries them; :meth:`~starnav.navigation.refine.EdgeSpread.tables_along`).
+
+    The cells come from the coarse limb circle, so the limb scan and RANSAC run here on
+    ``rng`` (pass a copy of the stream :func:`process_frame` will use); nothing is refined,
+    fixed or filtered."""
+    opt = options or ChainOptions()
+    windows = frame.windows
+    if (frame.segments is None or not (opt.use_windows and windows)
+            or opt.refine.edge_model != "detector-psf"):
+        return
+    rng = rng if rng is not None else np.random.default_rng(int(frame.index))
+    cam, R_ci, _, R_body_to_cam = _chain_camera(frame, camera, opt)
+    front = _limb_and_ransac(frame, cam, opt, rng, R_ci, R_body_to_cam, {})
+    if not isinstance(front, FrameMeasurement):
+        centre, radius = _coarse_circle(front[0], front[1])
+        prepare_edge_tables(windows, centre, radius, options=opt.refine, camera=cam)
+
+
+def _limb_and_ransac(frame: NavFrame, camera: Camera, opt: ChainOptions,
+                     rng: np.random.Generator, R_ci: FloatArray,
+                     R_body_to_cam: FloatArray | None, tm: dict[str, float]
+                     ) -> FrameMeasurement | tuple[LimbPoints, RansacResult, FloatArray]:
+    """Steps 1a-c of :func:`process_frame`: the limb points, RANSAC's consensus and the Sun's
+    direction in the image, or the failed frame's measurement (stage times into ``tm``)."""
+    t = time.perf_counter()
+    seg = frame.segments
+    if seg is None:
+        tm["limb"] = time.perf_counter() - t
+        return _fail(frame, "no-segments", "the frame has no segments readout", tm)
+    try:
+        centre0 = segments_centroid(seg, opt.limb.min_level) if len(seg) else None
+        if centre0 is None:
+            raise LimbNotFoundError("segments: the readout has no run above threshold (no Moon "
+                                    "in the frame, or an exposure too short for the threshold)",
+                                    "no-moon")
+        sdir = sun_direction_in_image(camera, R_ci, frame.sun_direction_inertial, centre0)
+        phase0 = phase_angle_from_image(camera, R_ci, frame.sun_direction_inertial, centre0)
+        if phase0 > opt.limb.max_phase:
+            raise LimbNotFoundError(
+                f"phase angle {math.degrees(phase0):.0f} deg > limb.max_phase_deg "
+                f"{math.degrees(opt.limb.max_phase):.0f} deg: a crescent this thin shows "
+                "too short a lit limb for a trustworthy fix (its errors are beyond the "
+                "calibrated model)", "thin-crescent")
+        limb = limb_points_from_segments(seg, sdir, options=opt.limb)
+    except LimbNotFoundError as err:
+        tm["limb"] = time.perf_counter() - t
+        return _fail(frame, err.reason, str(err), tm)
+    tm["limb"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    try:
+        rr = ransac_limb(limb.uv, camera, rng=rng, options=opt.ransac, fix_options=opt.fix,
+                         R_body_to_cam=R_body_to_cam)
+    except RansacError as err:
+        tm["ransac"] = time.perf_counter() - t
+        return _fail(frame, "ransac-failed", str(err), tm, limb=limb)
+    tm["ransac"] = time.perf_counter() - t
+    return limb, rr, sdir
+
+
+
+def _coarse_circle(limb: LimbPoints, rr: RansacResult) -> tuple[FloatArray, float]:
+    """The coarse limb circle the windows are refined about: centre [px] and radius [px]."""
+    if rr.model == "circle":
+        return rr.params[:2], float(rr.params[2])
+    return fit_circle_kasa(limb.uv[rr.inliers])
 
 
 def camera_consider_jacobian(calibration: CameraCalibration, uv: FloatArray,
@@ -601,9 +653,8 @@ class NavigationRun:
     stage_times_s : (K, len(STAGES)) array
         Wall time per stage (:data:`STAGES`) [s]; NaN for a stage not run.
     cpu_times_s : (K,) array
-        Process CPU time of the whole chain per frame, the filter's step included [s], timed
-        on a second pass of the frame (the first, untimed, reads it and builds what is built
-        once: :func:`navigate`).
+        Process CPU time of the whole chain per frame, the filter's step included [s]; what
+        the tracker holds before the frame comes is made outside it (:func:`prepare_frame`).
     peak_memory_bytes : (K,) array or None
         Peak traced Python heap (numpy arrays included) of the chain per frame [bytes]
         (``measure_memory``; measured in a separate pass so the timings are untraced).
@@ -704,25 +755,27 @@ def navigate(
     if any(c.use_windows for c in per_frame):
         refine_warm_up()  # static tables, built once: not per-frame working memory
     for k, f in enumerate(frames):
-        # an untimed pass first (same frame, same RNG state, a copy of the filter): what the
-        # tracker holds before a frame comes (the readout in memory, the edge model's tables
-        # of the field cells and directions its windows fall in: built once, not per frame)
-        # stays outside the clock, whether or not the heap is traced (tracing slows the
-        # chain: it is this pass that is traced)
-        shadow = _FilterRecorder(copy.deepcopy(rec.ekf), K)
-        rcopy = copy.deepcopy(frame_rngs[k])
+        # what the tracker holds before a frame comes (the readout in memory, the edge
+        # model's tables of the field cells and directions its windows fall in) is made
+        # first, outside the clock and the traced heap (prepare_frame); then the frame is
+        # processed once, on the clock
+        prepare_frame(f, cam, options=per_frame[k], rng=copy.deepcopy(frame_rngs[k]))
         if peak is not None:
-            tracemalloc.start()
-            tracemalloc.reset_peak()
-        shadow.step(k, process_frame(f, cam, options=per_frame[k], rng=rcopy))
-        if peak is not None:
-            peak[k] = tracemalloc.get_traced_memory()[1]
-            tracemalloc.stop()
-        del shadow
+            # the heap is traced on a pass of its own after the timed one (tracing slows the
+            # chain): the same frame and RANSAC stream, a copy of the filter before its step
+            shadow = _FilterRecorder(copy.deepcopy(rec.ekf), K)
+            rng_traced = copy.deepcopy(frame_rngs[k])
         c0 = time.process_time()
         m = process_frame(f, cam, options=per_frame[k], rng=frame_rngs[k])
         dt = rec.step(k, m)
         cpu[k] = time.process_time() - c0
+        if peak is not None:
+            tracemalloc.start()
+            tracemalloc.reset_peak()
+            shadow.step(k, process_frame(f, cam, options=per_frame[k], rng=rng_traced))
+            peak[k] = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+            del shadow
         for j, s in enumerate(STAGES[:-1]):
             if s in m.timings_s:
                 stage[k, j] = m.timings_s[s]

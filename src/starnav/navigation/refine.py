@@ -33,7 +33,8 @@ Index
 :func:`plan_windows`, :class:`WindowRequest`, :func:`cut_windows`; :func:`refine_limb`,
 :func:`fit_edge_window`, :class:`EdgeFit`, :func:`edge_profile`, :func:`f_nu`;
 :class:`RefineOptions`, :class:`PixelNoise`, :class:`EdgeSpread`, :class:`EdgeTables`,
-:class:`ModelErrorCalibration`, :func:`packaged_model_error`, :func:`warm_up`.
+:class:`ModelErrorCalibration`, :func:`packaged_model_error`, :func:`warm_up`,
+:func:`prepare_edge_tables`.
 """
 
 from __future__ import annotations
@@ -912,11 +913,12 @@ def _levenberg_marquardt(model: _TableModel | _GaussModel, X: FloatArray, Z: Flo
         a = np.flatnonzero(active)   # the windows still iterating
         if not a.size:
             break
-        Za = Z[a]
+        every = a.size == K   # all windows: whole arrays, no gathers (the common case)
+        Za = Z.copy() if every else Z[a]
         dg = Za[:, s0:g0:q + 1]   # a view of the diagonal: damped in place
-        dg += lam[a][:, None] * np.where(dg > 0, dg, 1.0)
+        dg += (lam if every else lam[a])[:, None] * np.where(dg > 0, dg, 1.0)
         step, ok = _solve(Za[:, s0:g0].reshape(-1, q, q), Za[:, g0:])
-        step /= scale[a][:, None]
+        step /= (scale if every else scale[a])[:, None]
         mx = np.abs(step[:, :2] * _EDGE_MOTION).max(axis=1)
         ok &= mx < np.inf
         step /= np.maximum(mx, 1.0)[:, None]   # at most 1 px of edge motion
@@ -935,27 +937,38 @@ def _levenberg_marquardt(model: _TableModel | _GaussModel, X: FloatArray, Z: Flo
             it[tired] += 1
         go = ok & ~last
         if go.any():
-            wg, sg, mg = a[go], step[go], mx[go]
-            Xt = X[wg]
+            every = every and bool(go.all())
+            wg, sg, mg = (a, step, mx) if every else (a[go], step[go], mx[go])
+            Xt = X.copy() if every else X[wg]
             Xt[:, :q] += sg
             if q == 3:
                 np.clip(Xt[:, 2], 0.2, 10.0, out=Xt[:, 2])
-            T = model.evaluate(_ALL if wg.size == K else wg, Xt)
-            acc = T[:, p] <= Z[wg, p]
+            T = model.evaluate(_ALL if every else wg, Xt)
+            acc = T[:, p] <= (Z[:, p] if every else Z[wg, p])
+            every = every and bool(acc.all())
             wa, D, Ta = (wg, sg, T) if acc.all() else (wg[acc], sg[acc], T[acc])
             if wa.size:
                 # the cost's curvature along the step against Gauss-Newton's
-                Zo = Z[wa]
+                Zo = Z if every else Z[wa]
                 den = (D[:, None, :] @ Zo[:, s0:g0].reshape(-1, q, q) @ D[..., None])[:, 0, 0]
                 num = ((Zo[:, g0:] - Ta[:, g0:]) * D).sum(axis=1)
                 ratio = np.divide(num, den, out=np.ones_like(num),
-                                  where=(den > 0) & (mg[acc] < _SECANT_NEAR))
-                scale[wa] = np.minimum(np.maximum(ratio, _SECANT_RANGE[0]), _SECANT_RANGE[1])
-                X[wa] = Xt[acc]
-                Z[wa] = Ta
-                lam[wa] = np.maximum(lam[wa] / _LM_GROWTH, _LM_LAMBDA_MIN)
-                it[wa] += 1
-                rejected[wa] = 0
+                                  where=(den > 0) & ((mg if every else mg[acc]) < _SECANT_NEAR))
+                if every:   # every window stepped and was accepted: in place
+                    np.minimum(np.maximum(ratio, _SECANT_RANGE[0]), _SECANT_RANGE[1], out=scale)
+                    X[:] = Xt
+                    Z[:] = Ta
+                    np.maximum(lam / _LM_GROWTH, _LM_LAMBDA_MIN, out=lam)
+                    it += 1
+                    rejected[:] = 0
+                else:
+                    scale[wa] = np.minimum(np.maximum(ratio, _SECANT_RANGE[0]),
+                                           _SECANT_RANGE[1])
+                    X[wa] = Xt[acc]
+                    Z[wa] = Ta
+                    lam[wa] = np.maximum(lam[wa] / _LM_GROWTH, _LM_LAMBDA_MIN)
+                    it[wa] += 1
+                    rejected[wa] = 0
             if wa.size < wg.size:
                 rj = ~acc
                 wr = wg[rj]
@@ -1095,6 +1108,66 @@ def _pixel_grid(h: int, w: int) -> tuple[FloatArray, FloatArray]:
     return rows, cols
 
 
+def _window_corners(windows: Sequence[Window]
+                    ) -> tuple[NDArray[np.int_], FloatArray, FloatArray]:
+    """Each window's ``(height, width)``, top-left ``(row, col)`` and centre ``(u, v)`` [px],
+    ``(K, 2)`` each."""
+    K = len(windows)
+    hw = np.array([w.dn.shape for w in windows]).reshape(K, 2)
+    rc0 = np.array([(w.row0, w.col0) for w in windows], float).reshape(K, 2)
+    return hw, rc0, rc0[:, ::-1] + (hw[:, ::-1] - 1) * 0.5
+
+
+def _window_normals(centres: FloatArray, c: FloatArray) -> FloatArray:
+    """Unit direction from the coarse centre ``c`` to each window's centre ``(K, 2)``: where
+    the window centre's ray crosses the coarse limb is the window's reference point."""
+    normal = centres - c
+    normal /= np.hypot(normal[:, 0], normal[:, 1])[:, None]
+    return normal
+
+
+def prepare_edge_tables(windows: Sequence[Window], centre_px: ArrayLike, radius_px: float, *,
+                        options: RefineOptions | None = None, camera: object | None = None
+                        ) -> None:
+    """Build (and cache) the ``detector-psf`` edge tables :func:`refine_limb` will ask for
+    with these windows and this coarse circle: those of every window's field cell and edge
+    direction (:meth:`EdgeSpread.tables_along`). A tracker carries its tables before the
+    frame comes; nothing to do for the Gaussian edge models."""
+    opt = options or RefineOptions()
+    if opt.edge_model != "detector-psf" or not windows or camera is None:
+        return
+    c, R = np.asarray(centre_px, float), float(radius_px)
+    dn, real, _, _, centres = _window_pixels(windows, c)
+    normal = _window_normals(centres, c)
+    _, _, saturated, usable = _window_groups(dn, real, opt)
+    for k in _fit_groups(usable, saturated):
+        # the tables and their stack, as refine_limb asks for them
+        _StackedTables(opt.spread.tables_along(  # type: ignore[union-attr]
+            camera, c + R * normal[k], normal[k]), R)
+
+
+def _window_groups(dn: FloatArray, real: NDArray[np.bool_], opt: RefineOptions
+                   ) -> tuple[NDArray[np.bool_], NDArray[np.int_], NDArray[np.bool_],
+                              NDArray[np.bool_]]:
+    """Per pixel: unsaturated (``ok``); per window: its count, saturated, usable."""
+    ok = real & (dn < opt.saturation_dn)
+    n_ok = ok.sum(axis=1)
+    saturated = n_ok < real.sum(axis=1)
+    # a Gaussian of fitted width cannot be told from the edge's position when the inside is
+    # clipped (measured: -1.9 +- 2.9 px at 0.18 ms): only the detector's own blur makes a
+    # saturated edge usable
+    usable = (n_ok >= 12) & ((opt.edge_model == "detector-psf") | ~saturated)
+    return ok, n_ok, saturated, usable
+
+
+def _fit_groups(usable: NDArray[np.bool_], saturated: NDArray[np.bool_]
+                ) -> list[NDArray[np.intp]]:
+    """The windows fitted together: the well-exposed ones, then the saturated ones (their
+    model has no ramp)."""
+    groups = (np.flatnonzero(usable & ~saturated), np.flatnonzero(usable & saturated))
+    return [k for k in groups if k.size]
+
+
 def _window_pixels(windows: Sequence[Window], c: FloatArray
                    ) -> tuple[FloatArray, NDArray[np.bool_], FloatArray, FloatArray, FloatArray]:
     """The windows' pixels as ``(K, M)`` arrays: DN, a mask of real pixels (windows smaller
@@ -1102,9 +1175,7 @@ def _window_pixels(windows: Sequence[Window], c: FloatArray
     [px]; and the windows' centres ``(K, 2)`` [px]."""
     K = len(windows)
     shapes = [w.dn.shape for w in windows]
-    hw = np.array(shapes).reshape(K, 2)
-    rc0 = np.array([(w.row0, w.col0) for w in windows], float).reshape(K, 2)
-    centres = rc0[:, ::-1] + (hw[:, ::-1] - 1) * 0.5
+    hw, rc0, centres = _window_corners(windows)
     if shapes.count(shapes[0]) == K:
         h, w = shapes[0]
         dn = np.array([w_.dn for w_ in windows], float).reshape(K, h * w)
@@ -1184,17 +1255,10 @@ def refine_limb(
     rho = np.hypot(rel_u, rel_v)
     # reference direction: where the window centre's ray crosses the coarse limb; a pixel's
     # arc coordinate is R times its angle from it
-    normal = centres - c
-    normal /= np.hypot(normal[:, 0], normal[:, 1])[:, None]
+    normal = _window_normals(centres, c)
     nu, nv = normal[:, 0:1], normal[:, 1:2]
     t_arc = R * np.arctan2(nu * rel_v - nv * rel_u, nu * rel_u + nv * rel_v)
-    ok = real & (dn < opt.saturation_dn)
-    n_ok = ok.sum(axis=1)
-    saturated = n_ok < real.sum(axis=1)
-    # a Gaussian of fitted width cannot be told from the edge's position when the inside is
-    # clipped (measured: -1.9 +- 2.9 px at 0.18 ms): only the detector's own blur makes a
-    # saturated edge usable
-    usable = (n_ok >= 12) & (tabulated | ~saturated)
+    ok, n_ok, saturated, usable = _window_groups(dn, real, opt)
     debug = log.isEnabledFor(logging.DEBUG)
     if debug:
         for i in np.flatnonzero(~usable):
@@ -1206,10 +1270,7 @@ def refine_limb(
     K = len(windows)
     delta, step_dn, background = np.zeros(K), np.zeros(K), np.zeros(K)
     blur, sd, converged = np.ones(K), np.full(K, math.inf), np.zeros(K, bool)
-    for group in (usable & ~saturated, usable & saturated):
-        k = np.flatnonzero(group)
-        if not k.size:
-            continue
+    for k in _fit_groups(usable, saturated):
         tables = None
         if tabulated:
             tables = opt.spread.tables_along(  # type: ignore[union-attr]
