@@ -149,3 +149,42 @@ def test_bench_knowledge_is_one_emulated_bench_per_run(truth_camera):
     assert np.allclose(e, pool[cal.provenance["bench_seed"]]["error"], rtol=0, atol=1e-12)
     assert bench_calibration(Camera.preset("aa-str", width=512, height=512), 1, 0) is None
     assert nav.calibration(None) is None
+
+
+def test_consider_jacobian_matches_central_differences(frame, truth_camera):
+    """camera_consider_jacobian's first-order form (the fix's point Jacobian times the pixel
+    shift each moved parameter makes, no new solve) against central differences of the fix
+    re-solved through cameras moved by +-0.05 sigma, the attitude re-solved through each:
+    every column within 2 % of the largest column's norm, and the fix's 1-sigma from the
+    calibration (``sqrt(diag(J C J^T))``) within 2 %. The default bench calibration of the
+    tracker (focal length, principal point, distortion)."""
+    from starnav.camera_calibration import bench_calibration, star_alignment
+    from starnav.navigation.christian_robinson import christian_robinson
+    from starnav.navigation.pipeline import camera_consider_jacobian
+
+    fr, _ = frame
+    cal = bench_calibration(truth_camera, 7, 0)
+    assert cal is not None and len(cal.parameters) == 7
+    m = process_frame(fr, truth_camera, options=ChainOptions(calibration=cal))
+    assert m.usable
+    uv = m.points_used
+    R_meas = np.asarray(fr.R_cam_to_inertial_measured, float)
+    J = camera_consider_jacobian(cal, uv, m.position, R_meas, None, truth_camera,
+                                 ChainOptions().fix, m.fix)
+    fd = np.zeros_like(J)
+    for i, name in enumerate(cal.parameters):
+        h = 0.05 * cal.sigma(name)
+        pos = []
+        for s in (1.0, -1.0):
+            d = np.zeros(len(cal.parameters))
+            d[i] = s * h
+            cam = cal.camera_with(d)
+            R = R_meas @ star_alignment(truth_camera, cam).T
+            pos.append(christian_robinson(uv, cam).position_inertial(R))
+        fd[:, i] = (pos[0] - pos[1]) / (2 * h)
+    scale = np.max(np.linalg.norm(fd * np.sqrt(np.diag(cal.covariance)), axis=0))
+    err = np.linalg.norm((J - fd) * np.sqrt(np.diag(cal.covariance)), axis=0)
+    assert np.all(err < 0.02 * scale), err / scale
+    C = np.asarray(cal.covariance)
+    assert np.sqrt(np.diag(J @ C @ J.T)) == pytest.approx(np.sqrt(np.diag(fd @ C @ fd.T)),
+                                                         rel=0.02)

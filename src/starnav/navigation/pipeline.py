@@ -292,7 +292,7 @@ def process_frame(
     if opt.calibration is not None and opt.calibration.parameters:
         used = refined.uv if refined is not None else limb.uv[inl]
         J = camera_consider_jacobian(opt.calibration, used, pos, R_measured, R_mi, declared,
-                                     opt.fix)
+                                     opt.fix, fix)
         C = np.asarray(opt.calibration.covariance, float)
         JCJ = J @ C @ J.T
         cov = cov + JCJ
@@ -392,25 +392,44 @@ def _coarse_circle(limb: LimbPoints, rr: RansacResult) -> tuple[FloatArray, floa
 def camera_consider_jacobian(calibration: CameraCalibration, uv: FloatArray,
                              position: FloatArray, R_measured: FloatArray,
                              R_body_to_inertial: FloatArray | None, declared: Camera,
-                             options: ChristianRobinsonOptions) -> FloatArray:
+                             options: ChristianRobinsonOptions,
+                             fix: LimbFix | None = None) -> FloatArray:
     """``J = d position / d theta`` [m per unit, J2000] of the calibrated parameters
     ``theta``: the fix's covariance gains ``J C J^T`` of the calibration's ``C``.
 
     The parameters are *considered*, not estimated: a limb fix cannot tell a focal-length
     error from a range error (both scale the disc). The filter carries them as Schmidt
     states (:class:`~starnav.navigation.ekf.NavigationEkf`, step 7), one constant error for
-    every fix of the arc. ``J`` is a one-sided difference of the fix re-solved from the same
-    points with each parameter moved by its 1-sigma, the attitude re-solved through the moved
-    camera too (:func:`~starnav.camera_calibration.star_alignment` from ``declared``, the
-    camera of the frame's attitude ``R_measured``): a principal-point error moves the stars
-    as it moves the Moon. It is exact to first order."""
+    every fix of the arc. Each parameter is moved by its 1-sigma ``h`` either way, with the
+    attitude re-solved through the moved camera
+    (:func:`~starnav.camera_calibration.star_alignment` from ``declared``, the camera of the
+    frame's attitude ``R_measured``): a principal-point error moves the stars as it moves the
+    Moon.
+
+    With ``fix`` (the fix of ``uv`` through the calibrated camera, solved with its point
+    Jacobian) the fix's change is first order and needs no new solve: the moved camera reads
+    pixel ``uv`` as the calibrated one reads ``uv' = project(unproject'(uv))``, so the centre
+    moves by ``sum_i G_i (uv'_i - uv_i)``, ``G`` the fix's point Jacobian. Without it, the
+    fix is re-solved through each moved camera. Either way each column is a central
+    difference over +-h: the principal point's effect on the Moon and on the stars nearly
+    cancel, and what is left is of the size of a one-sided difference's own error."""
     J = np.zeros((3, len(calibration.parameters)))
-    for i, h, cam, A in _moved_cameras(calibration, declared):
-        R_ci = R_measured @ A.T
-        R_bc = None if R_body_to_inertial is None else R_ci.T @ np.asarray(R_body_to_inertial,
-                                                                           float)
-        moved = christian_robinson(uv, cam, R_body_to_cam=R_bc, options=options)
-        J[:, i] = (moved.position_inertial(R_ci) - position) / h
+    known = calibration.camera
+    G = None if fix is None else fix.point_jacobian
+    for i, h, moved in _moved_cameras(calibration, declared):
+        pos = []
+        for cam, A in moved:
+            R_moved = R_measured @ A.T
+            if G is not None and fix is not None:
+                duv = known.project(cam.unproject(uv)) - uv
+                c = fix.centre_camera + np.einsum("nij,nj->i", G, duv)
+                pos.append(-(R_moved @ c))
+                continue
+            R_bc = None if R_body_to_inertial is None else R_moved.T @ np.asarray(
+                R_body_to_inertial, float)
+            pos.append(christian_robinson(uv, cam, R_body_to_cam=R_bc,
+                                          options=options).position_inertial(R_moved))
+        J[:, i] = (pos[0] - pos[1]) / (2.0 * h)
     return J
 
 
@@ -431,10 +450,10 @@ def _alignment(declared: Camera, known: Camera) -> FloatArray:
 
 
 def _moved_cameras(calibration: CameraCalibration, declared: Camera
-                   ) -> list[tuple[int, float, Camera, FloatArray]]:
-    """Per calibrated parameter with a 1-sigma ``h > 0``: ``(index, h, the camera with it
-    moved by h, its star alignment from declared)``. The same for every frame of a
-    calibration, so made once per (calibration, declared camera) pair."""
+                   ) -> list[tuple[int, float, list[tuple[Camera, FloatArray]]]]:
+    """Per calibrated parameter with a 1-sigma ``h > 0``: ``(index, h, [(camera, its star
+    alignment from declared)] with the parameter moved by +h and by -h)``. The same for every
+    frame of a calibration, so made once per (calibration, declared camera) pair."""
     key = (id(calibration), id(declared))
     hit = _MOVED.get(key)
     if hit is not None and hit[0] is calibration and hit[1] is declared:
@@ -444,10 +463,13 @@ def _moved_cameras(calibration: CameraCalibration, declared: Camera
         h = calibration.sigma(name)
         if h <= 0:
             continue
-        d = np.zeros(len(calibration.parameters))
-        d[i] = h
-        cam = calibration.camera_with(d)
-        out.append((i, h, cam, star_alignment(declared, cam)))
+        moved = []
+        for sign in (1.0, -1.0):
+            d = np.zeros(len(calibration.parameters))
+            d[i] = sign * h
+            cam = calibration.camera_with(d)
+            moved.append((cam, star_alignment(declared, cam)))
+        out.append((i, h, moved))
     if len(_MOVED) >= 16:
         _MOVED.clear()
     _MOVED[key] = (calibration, declared, out)
