@@ -27,7 +27,7 @@ import logging
 import math
 import time
 import tracemalloc
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -414,16 +414,19 @@ def camera_consider_jacobian(calibration: CameraCalibration, uv: FloatArray,
     difference over +-h: the principal point's effect on the Moon and on the stars nearly
     cancel, and what is left is of the size of a one-sided difference's own error."""
     J = np.zeros((3, len(calibration.parameters)))
-    known = calibration.camera
     G = None if fix is None else fix.point_jacobian
-    for i, h, moved in _moved_cameras(calibration, declared):
+    steps, shifts = _moved_cameras(calibration, declared)
+    if G is not None and fix is not None:
+        # every moved camera's pixel shift at the points at once: (N, moved cameras, 2)
+        dc = np.einsum("nij,nkj->ki", G, shifts(uv))
+    k = 0
+    for i, h, moved in steps:
         pos = []
         for cam, A in moved:
             R_moved = R_measured @ A.T
             if G is not None and fix is not None:
-                duv = known.project(cam.unproject(uv)) - uv
-                c = fix.centre_camera + np.einsum("nij,nj->i", G, duv)
-                pos.append(-(R_moved @ c))
+                pos.append(-(R_moved @ (fix.centre_camera + dc[k])))
+                k += 1
                 continue
             R_bc = None if R_body_to_inertial is None else R_moved.T @ np.asarray(
                 R_body_to_inertial, float)
@@ -449,11 +452,35 @@ def _alignment(declared: Camera, known: Camera) -> FloatArray:
     return A
 
 
+#: Spacing of the grid on which each moved camera's pixel shift is tabulated [px].
+SHIFT_GRID_PX = 16.0
+
+
+def _pixel_shifts(known: Camera, moved: Sequence[Camera]
+                  ) -> Callable[[FloatArray], FloatArray]:
+    """``uv (N, 2) -> (N, len(moved), 2)``: for each moved camera, ``project_known(
+    unproject_moved(uv)) - uv`` [px], where the calibrated camera reads the pixel the moved
+    one reads at ``uv``. Smooth fields over the detector (each camera differs by one
+    parameter), tabulated once on a grid of :data:`SHIFT_GRID_PX` and interpolated
+    bilinearly."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    u = np.linspace(-0.5, known.width - 0.5, int(np.ceil(known.width / SHIFT_GRID_PX)) + 1)
+    v = np.linspace(-0.5, known.height - 0.5, int(np.ceil(known.height / SHIFT_GRID_PX)) + 1)
+    grid = np.stack(np.meshgrid(u, v, indexing="ij"), -1)
+    d = np.stack([known.project(cam.unproject(grid)) - grid for cam in moved], axis=2)
+    f = RegularGridInterpolator((u, v), d, method="linear", bounds_error=False,
+                                fill_value=None)
+    return lambda uv: f(np.asarray(uv, float))
+
+
 def _moved_cameras(calibration: CameraCalibration, declared: Camera
-                   ) -> list[tuple[int, float, list[tuple[Camera, FloatArray]]]]:
+                   ) -> tuple[list[tuple[int, float, list[tuple[Camera, FloatArray]]]],
+                              Callable[[FloatArray], FloatArray]]:
     """Per calibrated parameter with a 1-sigma ``h > 0``: ``(index, h, [(camera, its star
-    alignment from declared)] with the parameter moved by +h and by -h)``. The same for every
-    frame of a calibration, so made once per (calibration, declared camera) pair."""
+    alignment from declared)] with the parameter moved by +h and by -h)``, and the moved
+    cameras' pixel shifts in that order (:func:`_pixel_shifts`). The same for every frame of
+    a calibration, so made once per (calibration, declared camera) pair."""
     key = (id(calibration), id(declared))
     hit = _MOVED.get(key)
     if hit is not None and hit[0] is calibration and hit[1] is declared:
@@ -470,10 +497,11 @@ def _moved_cameras(calibration: CameraCalibration, declared: Camera
             cam = calibration.camera_with(d)
             moved.append((cam, star_alignment(declared, cam)))
         out.append((i, h, moved))
+    res = (out, _pixel_shifts(calibration.camera, [c for _, _, m in out for c, _ in m]))
     if len(_MOVED) >= 16:
         _MOVED.clear()
-    _MOVED[key] = (calibration, declared, out)
-    return out
+    _MOVED[key] = (calibration, declared, res)
+    return res
 
 
 def _common_jacobian(fix: LimbFix, refined: LimbPoints, camera: Camera, R_ci: FloatArray,
