@@ -1,6 +1,8 @@
 # starnav: two commands on a fresh machine.
 #   make demo   creates .venv, installs starnav, runs the main job on built-in defaults
 #   make test   creates .venv with the dev extras, runs the test suite (slow tests excluded)
+#               on one worker per core (pytest-xdist; a module's tests share a worker, so its
+#               module-scoped renders are made once)
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -22,10 +24,10 @@ demo: llvm $(STAMP)
 	$(BIN)/starnav demo --out out/demo
 
 test: llvm $(STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n auto --dist loadscope
 
 test-slow: llvm $(STAMP)
-	$(BIN)/python -m pytest -m slow
+	$(BIN)/python -m pytest -m slow -n auto --dist loadscope
 
 bench: llvm $(STAMP)
 	for b in render detector navigation scenes dem calibration dataset; do \
