@@ -268,15 +268,29 @@ class Camera:
         xy_d = np.asarray(xy_d, dtype=float)
         if not self.has_distortion:
             return xy_d.copy()
-        xy = xy_d.copy()
+        xd, yd = xy_d[..., 0], xy_d[..., 1]
+        x, y = xd.copy(), yd.copy()
+        k1, k2, k3, p1, p2 = self.k1, self.k2, self.k3, self.p1, self.p2
         for _ in range(UNDISTORT_MAX_ITER):
-            resid = self.distort(xy) - xy_d
-            J = self.distortion_jacobian(xy)
-            step = np.linalg.solve(J, resid[..., None])[..., 0]
-            xy = xy - step
-            if np.max(np.abs(step), initial=0.0) < UNDISTORT_TOL:
+            # distort and its 2 x 2 Jacobian together, the Newton step by Cramer's rule
+            xx, yy, xy2 = x * x, y * y, 2.0 * x * y
+            r2 = xx + yy
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            dr = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2))
+            rx = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * xx) - xd
+            ry = y * radial + p1 * (r2 + 2.0 * yy) + p2 * xy2 - yd
+            a = radial + xx * dr + 2.0 * p1 * y + 6.0 * p2 * x
+            b = 0.5 * xy2 * dr + 2.0 * p1 * x + 2.0 * p2 * y
+            d = radial + yy * dr + 6.0 * p1 * y + 2.0 * p2 * x
+            det = a * d - b * b
+            sx = (d * rx - b * ry) / det
+            sy = (a * ry - b * rx) / det
+            x = x - sx
+            y = y - sy
+            if max(np.max(np.abs(sx), initial=0.0), np.max(np.abs(sy), initial=0.0)) \
+                    < UNDISTORT_TOL:
                 break
-        return xy
+        return np.stack([x, y], axis=-1)
 
     # ------------------------------------------------------------ projection
     def project(self, points: ArrayLike, distort: bool = True) -> FloatArray:
