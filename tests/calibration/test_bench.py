@@ -194,3 +194,35 @@ def test_acquire_refuses_a_bad_exposure_and_bad_counts(paper_bench):
 def test_misalignment_schema_rejects_large_tilts():
     with pytest.raises(ConfigError, match="misalignment.screen_tilt_deg"):
         bench_from_dict({"misalignment": MISALIGNMENT | {"screen_tilt_deg": [20.0, 0.0]}})
+
+
+def test_the_image_carries_the_camera_distortion_once():
+    """The bench draws the radiance on the camera's pinhole grid and the detector stage applies
+    the camera's distortion, once: a dot near each corner of a camera with k1 = -0.05 is
+    centroided where the full as-built geometry (through the camera's distortion) puts it,
+    through the chain (noise, PSF: 0.1 px) and the ideal detector (0.03 px). Distorted twice
+    (the bench and the chain each) the corner dots would land ~1.2 px off."""
+    from starnav.calibration.geometric import detect_dots
+    from starnav.calibration.screen import gaussian_dots
+    from starnav.camera import Camera
+
+    cam = Camera.preset("aa-str", k1=-0.05)
+    bench = Bench(bench_from_dict({"misalignment": MISALIGNMENT}), camera=cam)
+    uv = np.array([[100.3, 110.6], [920.7, 105.2], [108.1, 915.4], [912.5, 921.9],
+                   [511.6, 500.3]])
+    screen = bench.geometry.pixel_to_screen(uv)
+    truth = bench.geometry.screen_to_pixel(screen)
+    xy = np.stack([(truth[:, 0] - cam.cx) / cam.fx, (truth[:, 1] - cam.cy) / cam.fy], -1)
+    twice = cam.distort(xy) * [cam.fx, cam.fy] + [cam.cx, cam.cy]
+    assert np.min(np.hypot(*(twice - truth)[:4].T)) > 1.0   # what the test would see
+    counts = gaussian_dots(bench.screen_shape, screen, 1.5, bench.radiometry.le_max,
+                           bench.radiometry)
+    peak = float(bench.radiance_at_camera(counts).max())
+    for det, tol in ((bench.chain_detector(), 0.1), (IdealDetector(cam), 0.03)):
+        t = 1.5 * det.full_well_e / (peak * cam.etendue)   # ~half the well after the PSF
+        dn = bench.acquire(counts, t, det, 1).dn
+        sig = dn - np.median(dn)
+        c, _ = detect_dots(sig, 0.05 * sig.max(), 7)
+        d = np.hypot(*(c[:, None, :] - truth[None, :, :]).transpose(2, 0, 1))
+        assert len(c) == len(uv)
+        assert np.all(d.min(axis=0) < tol), d.min(axis=0)

@@ -197,3 +197,22 @@ def test_matching_a_rotated_distorted_grid_keeps_each_dot_its_own():
     io, ip = match_points(seen[inside], desired, spacing)
     assert len(io) == inside.sum()
     assert np.array_equal(np.nonzero(inside)[0][io], ip)
+
+
+@pytest.mark.parametrize("dv", [25.0, -25.0])
+def test_matching_a_grid_one_row_short_takes_the_offset_nearest_the_prediction(dv):
+    """An offset of 0.4 spacing pushes the last (first) row of dots off the detector:
+    the grid seen is one row short, and the lattice offset one spacing the other way pairs as
+    many dots as the true one. The vote must resolve the tie by the nominal prediction (the
+    smaller offset), whichever its sign, not by the histogram's array order (which took the
+    most negative offset and paired every dot with its neighbour)."""
+    spacing = 61.0
+    g = np.stack(np.meshgrid(24.0 + spacing * np.arange(17), 24.0 + spacing * np.arange(17)),
+                 -1).reshape(-1, 2)
+    rng = np.random.default_rng(5)
+    seen = g + np.array([9.0, dv]) + rng.normal(0, 0.5, g.shape)
+    inside = (seen[:, 1] > 7.5) & (seen[:, 1] < 1015.5)
+    assert inside.sum() == 16 * 17
+    io, ip = match_points(seen[inside], g, spacing)
+    assert len(io) == inside.sum()
+    assert np.array_equal(np.nonzero(inside)[0][io], ip)

@@ -201,7 +201,7 @@ def test_star_field_holdout_negative_control_focal_length(bench, result, star_fi
     """Negative control: the calibrated camera with its focal length 0.7 % off (6.6 sigma of
     its stated 0.1 %) fails the parameter test, and the stars ask for the -0.7 % back. At 0.5 %
     (4.7 sigma, chi-square about 4.7^2 + the rest against 24.3) a 7-dof test at 0.1 % rejects
-    about half the time (14 of 20 seeded benches, docs/calibration.md): the margin of this
+    about half the time (12 of 20 seeded benches, docs/calibration.md): the margin of this
     control is taken where the test has power."""
     from dataclasses import replace
 

@@ -8,11 +8,12 @@ Technique
    beam (tangent, collimator distortion) -> camera pixel; the inverse by Newton iterations.
 2. Radiance at the camera (:meth:`Bench.radiance_at_camera`): radiance is conserved through
    the collimator; each screen pixel's footprint is splatted with its exact box overlap
-   (:func:`splat`), flux conserving.
+   (:func:`splat`), flux conserving, on the camera's pinhole grid (the radiance before the
+   camera's optics, as a render).
 3. Collimator spot and the defocus of a tilted screen, varying over the field, by input-side
    blending of Gaussians (:func:`field_varying_blur`): flux and centroid conserved.
 4. Detector: the scenario's chain (:class:`ChainDetector`) or a noise-free one
-   (:class:`IdealDetector`).
+   (:class:`IdealDetector`); each applies the camera's distortion once.
 5. Check (:func:`check_bench`): eq. 2 with the stated and the derived field, plus the actual
    detector coverage.
 
@@ -54,6 +55,7 @@ from starnav.calibration.screen import ScreenRadiometry
 from starnav.camera import Camera
 from starnav.config import build_camera
 from starnav.detector import DetectorConfig, expose
+from starnav.detector.optics import distort
 from starnav.errors import ConfigError
 from starnav.spectra import SensorResponse, sensor_response_from_config
 from starnav.typing import FloatArray
@@ -206,16 +208,18 @@ class BenchGeometry:
         v = v @ self.R_cam.T
         return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
-    def screen_to_pixel(self, ji: ArrayLike) -> FloatArray:
+    def screen_to_pixel(self, ji: ArrayLike, distort: bool = True) -> FloatArray:
         """Detector pixel ``(..., 2)`` where screen pixels appear, through the camera's own
-        distortion (the pinhole pixel for a camera without distortion)."""
-        return self.camera.project(self.screen_to_los(ji))
+        distortion; with ``distort=False`` the pinhole pixel (where the radiance reaching the
+        camera is drawn, before the camera's optics)."""
+        return self.camera.project(self.screen_to_los(ji), distort=distort)
 
-    def pixel_to_screen(self, uv: ArrayLike) -> FloatArray:
-        """Screen pixel ``(..., 2)`` seen at detector pixels ``uv`` (Newton inverse of
-        :meth:`screen_to_pixel`; converges to :data:`INVERSE_TOL_PX`)."""
+    def pixel_to_screen(self, uv: ArrayLike, distort: bool = True) -> FloatArray:
+        """Screen pixel ``(..., 2)`` seen at detector pixels ``uv`` (pinhole pixels with
+        ``distort=False``) (Newton inverse of :meth:`screen_to_pixel`; converges to
+        :data:`INVERSE_TOL_PX`)."""
         uv = np.asarray(uv, float)
-        xy = self.camera.pixel_to_normalized(uv)
+        xy = self.camera.pixel_to_normalized(uv, undistort=distort)
         v = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], -1) @ self.R_cam  # -> collimator
         t = v[..., :2] / v[..., 2:3]
         r2 = (t * t).sum(-1)
@@ -223,9 +227,9 @@ class BenchGeometry:
         ji = self.nominal_tangent_to_screen(t)
         h = 0.5
         for _ in range(INVERSE_MAX_ITER):
-            f0 = self.screen_to_pixel(ji) - uv
-            fj = self.screen_to_pixel(ji + np.array([h, 0.0])) - uv
-            fi = self.screen_to_pixel(ji + np.array([0.0, h])) - uv
+            f0 = self.screen_to_pixel(ji, distort) - uv
+            fj = self.screen_to_pixel(ji + np.array([h, 0.0]), distort) - uv
+            fi = self.screen_to_pixel(ji + np.array([0.0, h]), distort) - uv
             J = np.stack([(fj - f0) / h, (fi - f0) / h], -1)  # (..., 2 uv, 2 ji)
             step = np.linalg.solve(J, f0[..., None])[..., 0]
             ji = ji - step
@@ -416,8 +420,9 @@ class ChainDetector:
 
 
 class IdealDetector:
-    """Mean photo-electrons ``t A Omega Le [cos^4]`` and ``DN = e- / gain``: no PSF, noise,
-    saturation, offset or quantisation (for noise-free checks of the bench itself)."""
+    """Mean photo-electrons ``t A Omega Le [cos^4]`` resampled through the camera's
+    distortion (as the chain does) and ``DN = e- / gain``: no PSF, noise, saturation, offset or
+    quantisation (for noise-free checks of the bench itself)."""
 
     def __init__(self, camera: Camera, full_well_e: float = 1e5, gain_e_per_dn: float = 1.0,
                  relative_illumination: bool = True) -> None:
@@ -435,6 +440,8 @@ class IdealDetector:
         e = np.asarray(le, float) * exposure_time * self.camera.etendue
         if self._ri is not None:
             e = e * self._ri
+        if self.camera.has_distortion:
+            e = distort(e.astype(np.float32), self.camera).astype(float)
         return DetectorFrame(e / self.gain_e_per_dn, e)
 
 
@@ -520,7 +527,7 @@ class Bench:
         us = np.linspace(-0.5, cam.width - 0.5, max(4, min(n, cam.width + 1)))
         vs = np.linspace(-0.5, cam.height - 0.5, max(4, min(n, cam.height + 1)))
         U, V = np.meshgrid(us, vs)
-        ji = self.geometry.pixel_to_screen(np.stack([U, V], -1))
+        ji = self.geometry.pixel_to_screen(np.stack([U, V], -1), distort=False)
         return (RectBivariateSpline(vs, us, ji[..., 0], kx=3, ky=3),
                 RectBivariateSpline(vs, us, ji[..., 1], kx=3, ky=3))
 
@@ -534,7 +541,7 @@ class Bench:
 
     @cached_property
     def stimulated_mask(self) -> NDArray[np.bool_]:
-        """Camera pixels whose centre sees the screen ``(H, W)``."""
+        """Pinhole-grid pixels whose centre sees the screen ``(H, W)``."""
         ji = self.screen_coordinates_of_pixels()
         H, W = self.screen_shape
         return ((ji[..., 0] >= -0.5) & (ji[..., 0] <= W - 0.5)
@@ -542,10 +549,11 @@ class Bench:
 
     @cached_property
     def sigma_map(self) -> FloatArray:
-        """Per-axis sigma of the collimator spot + screen defocus at each pixel [camera px]."""
+        """Per-axis sigma of the collimator spot + screen defocus at each pinhole-grid pixel
+        [camera px]."""
         cam = self.camera
         u, v = cam.pixel_grid()
-        xy = cam.pixel_to_normalized(np.stack([u, v], -1))
+        xy = cam.pixel_to_normalized(np.stack([u, v], -1), undistort=False)   # pinhole grid
         los = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], -1)
         b = los @ self.geometry.R_cam
         theta = np.arctan2(np.hypot(b[..., 0], b[..., 1]), b[..., 2])
@@ -579,7 +587,7 @@ class Bench:
         js = np.arange(j0 - step, j1 + 2 * step, step, dtype=float)
         is_ = np.arange(i0 - step, i1 + 2 * step, step, dtype=float)
         J_, I_ = np.meshgrid(js, is_)
-        uv = self.geometry.screen_to_pixel(np.stack([J_, I_], -1))
+        uv = self.geometry.screen_to_pixel(np.stack([J_, I_], -1), distort=False)
         du_di, du_dj = np.gradient(uv[..., 0], step)
         dv_di, dv_dj = np.gradient(uv[..., 1], step)
         J = np.stack([np.stack([du_dj, du_di], -1), np.stack([dv_dj, dv_di], -1)], -2)
@@ -599,7 +607,7 @@ class Bench:
             return ndimage.map_coordinates(grid, [ci, cj], order=1, mode="nearest")
 
         if len(ji) <= EXACT_FORWARD_MAX:
-            uv = self.geometry.screen_to_pixel(ji)
+            uv = self.geometry.screen_to_pixel(ji, distort=False)
         else:
             uv = np.stack([interp(uvg[..., 0]), interp(uvg[..., 1])], -1)
         J = np.empty((len(ji), 2, 2))
@@ -628,7 +636,8 @@ class Bench:
 
     def radiance_at_camera(self, counts: ArrayLike) -> FloatArray:
         """Pinhole electron-radiance image ``(H, W)`` the camera receives from a screen image
-        [e- s^-1 m^-2 sr^-1] (geometry, collimator transmission, vignetting, spot)."""
+        [e- s^-1 m^-2 sr^-1] (geometry, collimator transmission, vignetting, spot): the
+        camera's own distortion is not in it, the detector stage applies it (once)."""
         le_s = self.screen_electron_radiance(counts)
         rad = self.radiometry
         cam = self.camera
