@@ -28,14 +28,6 @@ Float32Array = NDArray[np.float32]
 IPC_BLOCK_ROWS = 32
 
 
-def ipc_kernel(nearest: float, diagonal: float) -> NDArray[np.float64]:
-    """The 3 x 3 IPC kernel [-] (unit sum)."""
-    k = np.array([[diagonal, nearest, diagonal],
-                  [nearest, 1.0 - 4.0 * (nearest + diagonal), nearest],
-                  [diagonal, nearest, diagonal]])
-    return k
-
-
 def interpixel_capacitance(charge: Float32Array, nearest: float = 0.005,
                            diagonal: float = 0.0005) -> Float32Array:
     """Apply the 3 x 3 IPC coupling (essay step 1).
