@@ -20,9 +20,8 @@ nondestructive focal plane arrays*, Proc. SPIE 5167; Kannawadi, A. et al. (2016)
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
-Float32Array = NDArray[np.float32]
+from starnav.typing import Float32Array
 
 #: Rows per block of :func:`interpixel_capacitance` (a block's temporaries stay in the cache).
 IPC_BLOCK_ROWS = 32
