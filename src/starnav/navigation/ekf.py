@@ -121,18 +121,10 @@ def _is_covariance(C: FloatArray, tol: float, positive_diagonal: bool = False) -
 
 @dataclass(frozen=True)
 class EkfPriors:
-    """What the builder resolves for :class:`NavigationEkf` besides its section: covariances
-    that come from calibrations, not from a knob.
-
-    Attributes
-    ----------
-    common_covariance : 3 x 3 tuple, optional
-        Steady-state covariance of the ``limb-common`` bias states [-, per unit of disc
-        radius] (the packaged refinement calibration); required by that model only.
-    consider_covariance : n x n tuple, optional
-        Covariance of the considered camera parameters (module step 7): the chain's camera
-        calibration's; None: no consider states.
-    """
+    """What the builder resolves for :class:`NavigationEkf` from calibrations (the knobs are
+    :class:`FilterConfig`'s): ``common_covariance``, the ``limb-common`` bias states' steady
+    state (3 x 3, per unit of disc radius; that model needs it), and ``consider_covariance``,
+    the considered camera parameters' (n x n, module step 7; None: no consider states)."""
 
     common_covariance: tuple[tuple[float, float, float], ...] | None = None
     consider_covariance: tuple[tuple[float, ...], ...] | None = None

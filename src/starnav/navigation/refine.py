@@ -127,11 +127,8 @@ class PixelNoise:
 
 class RefineConfig(StrictModel):
     """Scenario section ``navigation.refine``: subpixel refinement from windows
-    (:func:`plan_windows` and :func:`refine_limb` read its SI view, ``to_si()``; the chain
-    reads ``enabled`` and ``outlier_px``; the builder,
-    :meth:`~starnav.navigation.schema.NavigationConfig.chain_options`, resolves
-    :class:`RefineModels` from ``edge_model``, ``psf_knowledge``, ``noise_model`` and the
-    ``terrain_*`` keys)."""
+    (:func:`plan_windows` and :func:`refine_limb` read its SI view, ``to_si()``; the builder
+    resolves :class:`RefineModels` from it and the scenario)."""
 
     enabled: bool = Field(True, description="refine with the frame's windows when present")
     n_windows: Annotated[int, Field(ge=1, le=MAX_WINDOWS)] = Field(
@@ -188,25 +185,12 @@ MAX_ITERATIONS = 30
 
 @dataclass(frozen=True)
 class RefineModels:
-    """What the builder resolves for :func:`refine_limb` from the scenario (none of it is a
-    knob: :class:`RefineConfig` holds those).
-
-    Attributes
-    ----------
-    noise : PixelNoise, optional
-        The detector's per-pixel noise (``noise_model``); None: unweighted fits.
-    spread : EdgeSpread, optional
-        The detector's blur, estimated or known (``psf_knowledge``): with it, ``edge_model:
-        auto`` is ``detector-psf``.
-    limb_topography : LimbTopography, optional
-        The DEM's limb-height statistics (``terrain_model_error``, ``terrain_model_ppd``).
-    model_error_table : ModelErrorCalibration, optional
-        The packaged model-error calibration of the ``detector-psf`` model.
-    min_contrast_dn : float
-        A window's fitted edge step below this is no edge [DN]: a step of the detector's DN
-        scale (10 DN of the tracker's 12 bits; 5 DN of a 10-bit camera, as in
-        :mod:`starnav.reference.amie.validate`).
-    """
+    """What the builder resolves for :func:`refine_limb` from the scenario (the knobs are
+    :class:`RefineConfig`'s): the detector's per-pixel ``noise`` (None: unweighted fits) and
+    blur ``spread`` (with it, ``edge_model: auto`` is ``detector-psf``), the DEM's
+    ``limb_topography``, the packaged ``model_error_table`` of the ``detector-psf`` model, and
+    ``min_contrast_dn``, the smallest fitted edge step of the detector's DN scale [DN] (10 of
+    the tracker's 12 bits; 5 of a 10-bit camera, :mod:`starnav.reference.amie.validate`)."""
 
     noise: PixelNoise | None = None
     spread: EdgeSpread | None = None
