@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 
 import numpy as np
 import pytest
@@ -269,19 +270,27 @@ def test_frames_without_a_fix_only_propagate():
 def test_option_checks():
     import typing
 
-    from starnav.config import scenario_from_dict
+    from pydantic import ValidationError
+
+    from starnav.config_base import format_validation_error
     from starnav.errors import ConfigError, UnknownNameError
     from starnav.navigation.ekf import BIAS_MODELS
+
+    def scenario_error(section: dict) -> ConfigError:
+        """The error a scenario's ``navigation.filter: section`` gets."""
+        with pytest.raises(ValidationError) as err:
+            FilterConfig.model_validate(section)
+        return format_validation_error(err.value, "navigation.filter")
 
     # the section's choices are the registry's; an unknown one is named with the known ones
     assert set(typing.get_args(FilterConfig.model_fields["bias_model"].annotation)) == set(
         BIAS_MODELS.names())
     with pytest.raises(UnknownNameError, match="known: additive, limb-common, none, range-scale"):
         measurement_model(np.zeros(9), np.zeros(3), "scale")
-    with pytest.raises(ConfigError, match="navigation.filter.bias_model.*'scale'.*additive"):
-        scenario_from_dict({"navigation": {"filter": {"bias_model": "scale"}}})
-    with pytest.raises(ConfigError, match="navigation.filter.bias_tau_days.*0.*greater than 0"):
-        scenario_from_dict({"navigation": {"filter": {"bias_tau_days": 0.0}}})
+    assert re.search("navigation.filter.bias_model.*'scale'.*additive",
+                     str(scenario_error({"bias_model": "scale"})))
+    assert re.search("navigation.filter.bias_tau_days.*0.*greater than 0",
+                     str(scenario_error({"bias_tau_days": 0.0})))
     dyn = MovingMoonTwoBody()
     with pytest.raises(ConfigError, match="filter.bias_sigma_km.*bias 1-sigma > 0"):
         NavigationEkf(dyn, dyn, 0.0, circular_state(dyn, 6e7), P0,
