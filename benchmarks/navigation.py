@@ -103,7 +103,8 @@ class Product:
         sc = scenario_from_dict(demo_scenario())
         nav = sc.navigation
         self.chain = nav.chain_options(scenario=sc)
-        self.ekf = nav.ekf_options()
+        self.ekf = nav.filter.to_si()
+        self.ekf_priors = nav.ekf_priors()
         self.P0 = nav.initial_covariance()
         self.dyn = PointMassDynamics(step_s=nav.filter.rk4_step_s)
         assert sc.trajectory is not None
@@ -135,7 +136,7 @@ def _case(range_km: float, product: Product):
     def chain_step(options: ChainOptions = chain):
         return navigate([frame], camera=cam, dynamics=dyn, moon=dyn, P0=product.P0,
                         x0=x_prev, t0=t0 - product.cadence_s, chain=options,
-                        ekf=product.ekf)
+                        ekf=product.ekf, ekf_priors=product.ekf_priors)
 
     return cam, g, frame, chain, full, chain_step
 
@@ -194,8 +195,8 @@ def bench_case(range_km: float, repeat: int, product: Product) -> dict:
     }
     if frame.windows:
         stages["refine_windows"] = lambda: refine_limb(
-            frame.windows, rr.params[:2], rr.params[2], options=refine_opt, camera=cam,
-            phase_rad=1.0)
+            frame.windows, rr.params[:2], rr.params[2], options=refine_opt,
+            models=full.refine_models, camera=cam, phase_rad=1.0)
         stages["refine_windows_gaussian"] = lambda: refine_limb(frame.windows, rr.params[:2],
                                                                 rr.params[2])
     out["median_ms"] = {}
@@ -216,7 +217,8 @@ def bench_case(range_km: float, repeat: int, product: Product) -> dict:
         out[f"{name}_stages_ms"] = st
     run = navigate([frame], camera=cam, dynamics=product.dyn, moon=product.dyn, P0=product.P0,
                    x0=chain_step(full).filter.states[0, :6], t0=float(g.epoch_tdb),
-                   chain=full, ekf=product.ekf, measure_memory=True)
+                   chain=full, ekf=product.ekf, ekf_priors=product.ekf_priors,
+                   measure_memory=True)
     peak = run.peak_memory_bytes
     out["chain_peak_kb"] = float(peak[0]) / 1024.0 if peak is not None else math.nan
     return out

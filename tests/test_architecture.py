@@ -442,21 +442,18 @@ def test_runs_are_looped_over_by_the_batch_driver_only():
 #: A unit suffix an SI options field may carry where its scenario key carries the user's unit
 #: (``max_phase_rad`` for ``max_phase_deg``, ``bias_tau_s`` for ``bias_tau_days``).
 _SI_FIELD_SUFFIX = re.compile(r"_(m|s|rad|m_s|m2_s3)$")
-#: Options dataclasses that still repeat knobs of their section, with the reason each is not
-#: yet read from the section itself. New entries are refused: a knob is declared on its
-#: schema field (description, unit, range) and the algorithm reads the section's SI view.
-REPEATS_PENDING = {
-    # the filter's consider and bias states are being extended on it (kept apart to merge)
-    "starnav.navigation.ekf.EkfOptions",
-    # the window fit's hot path reads these fields; its knobs and the objects the builder
-    # resolves (noise, PSF, terrain, calibration table) are to be split in one step
-    "starnav.navigation.refine.RefineOptions",
-}
-#: Fields that hold what the builder resolves from a knob and the scenario, not the knob.
+#: Dataclass fields named as a knob that hold something else: what the builder resolves from
+#: a knob and the scenario, or what an algorithm reports. Each with its reason; every other
+#: dataclass of a section's module holds no knob of the section (no allowlist of repeats: a
+#: knob is declared on its schema field and the algorithm reads the section's SI view).
 RESOLVED = {
     # fix.attitude_sigma_arcsec, null: the pointing section's knowledge; or a star solution's
     # 3 x 3 covariance (navigation.attitude: stars)
     "starnav.navigation.christian_robinson.ChristianRobinsonOptions.attitude_sigma_rad",
+    # the model a RANSAC result was fitted with (a record of the output, not a setting)
+    "starnav.navigation.ransac.RansacResult.model",
+    # the packaged calibration's value, what refine.saturated_model_error_px: null resolves to
+    "starnav.navigation.refine.ModelErrorCalibration.saturated_model_error_px",
 }
 
 
@@ -467,13 +464,13 @@ def _section_modules(section: type) -> set[str]:
     return {section.__module__, *named}
 
 
-def _options_classes(text: str, module: str) -> dict[str, list[str]]:
-    """``module.Name`` -> field names of each ``@dataclass`` class named ``*Options`` in the
-    source ``text`` (read with :mod:`ast`: importing every module would load OpenCV and
-    Matplotlib)."""
+def _dataclass_fields(text: str, module: str) -> dict[str, list[str]]:
+    """``module.Name`` -> field names of each ``@dataclass`` class in the source ``text``
+    (options, resolved models, results: a knob repeated under any name of class is caught;
+    read with :mod:`ast`: importing every module would load OpenCV and Matplotlib)."""
     out = {}
     for node in ast.parse(text).body:
-        if (isinstance(node, ast.ClassDef) and node.name.endswith("Options")
+        if (isinstance(node, ast.ClassDef)
                 and any("dataclass" in ast.unparse(d) for d in node.decorator_list)):
             out[f"{module}.{node.name}"] = [
                 b.target.id for b in node.body
@@ -516,19 +513,20 @@ def _navigation_sections() -> list[type]:
     return found
 
 
-def _navigation_options() -> dict[str, list[str]]:
-    """The ``*Options`` dataclasses of ``starnav.navigation`` and their fields."""
+def _navigation_dataclasses() -> dict[str, list[str]]:
+    """The dataclasses of ``starnav.navigation`` and their fields."""
     out = {}
     for f in sorted((SRC / "navigation").rglob("*.py")):
         module = ".".join(("starnav", *f.relative_to(SRC).with_suffix("").parts))
-        out.update(_options_classes(f.read_text(), module.removesuffix(".__init__")))
+        out.update(_dataclass_fields(f.read_text(), module.removesuffix(".__init__")))
     return out
 
 
 def test_the_repeated_knob_check_catches_what_it_names():
     """The check itself: a dataclass beside its section that repeats a key (as it is, or in SI
-    with its unit) is caught; one that holds only what the section does not, a section of
-    another module, or a class that is not a dataclass, is not."""
+    with its unit), whatever its class is called, is caught; one that holds only what the
+    section does not, a section of another module, or a class that is not a dataclass, is
+    not."""
     from pydantic import Field
 
     from starnav.config_base import StrictModel
@@ -543,23 +541,29 @@ def test_the_repeated_knob_check_catches_what_it_names():
         "@dataclass(frozen=True)\nclass DemoOptions:\n    threshold_px: float = 2.0\n"
         "    tau_s: float = 86400.0\n    batch: int = 32\n\n"
         "@dataclass\nclass OtherOptions:\n    batch: int = 32\n\n"
+        "@dataclass(frozen=True)\nclass DemoModels:\n    noise: object = None\n"
+        "    tau_days: float = 1.0\n\n"
         "class PlainOptions:\n    threshold_px: float = 2.0\n")
-    found = _options_classes(source, "starnav.navigation.demo")
+    found = _dataclass_fields(source, "starnav.navigation.demo")
     assert set(found) == {"starnav.navigation.demo.DemoOptions",
-                          "starnav.navigation.demo.OtherOptions"}
+                          "starnav.navigation.demo.OtherOptions",
+                          "starnav.navigation.demo.DemoModels"}
     assert _repeated_knobs(found, [DemoConfig]) == {
-        "starnav.navigation.demo.DemoOptions": ["tau_s", "threshold_px"]}
-    assert _repeated_knobs(_options_classes(source, "starnav.navigation.other"),
+        "starnav.navigation.demo.DemoOptions": ["tau_s", "threshold_px"],
+        "starnav.navigation.demo.DemoModels": ["tau_days"]}
+    assert _repeated_knobs(_dataclass_fields(source, "starnav.navigation.other"),
                            [DemoConfig]) == {}
 
 
 def test_each_navigation_knob_is_declared_once():
-    """No options dataclass of the navigation repeats a knob of its scenario section: the
-    algorithms read the section's SI view (``to_si()``), as the detector does."""
-    options = _navigation_options()
-    assert "starnav.navigation.pipeline.ChainOptions" in options   # the scan reads them
+    """No dataclass of the navigation repeats a knob of its scenario section: the algorithms
+    read the section's SI view (``to_si()``), as the detector does, and what the builder
+    resolves sits in dataclasses of resolved objects (``RefineModels``, ``EkfPriors``)."""
+    options = _navigation_dataclasses()
+    for scanned in ("pipeline.ChainOptions", "refine.RefineModels", "ekf.EkfPriors"):
+        assert f"starnav.navigation.{scanned}" in options   # the scan reads them
     found = _repeated_knobs(options, _navigation_sections())
-    assert set(found) <= REPEATS_PENDING, {k: v for k, v in found.items()
-                                           if k not in REPEATS_PENDING}
-    assert REPEATS_PENDING <= set(found), "resolved: drop from REPEATS_PENDING " + str(
-        REPEATS_PENDING - set(found))
+    assert not found, ("a knob declared twice (declare it once, on its schema field, and read "
+                       f"the section's SI view): {found}")
+    fields = {f"{k}.{f}" for k, v in options.items() for f in v}
+    assert RESOLVED <= fields, f"stale RESOLVED entries: {sorted(RESOLVED - fields)}"

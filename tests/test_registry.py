@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
 import pytest
 from pydantic import BaseModel, ValidationError
 
@@ -69,7 +70,7 @@ def test_a_name_is_registered_once():
 
 def test_the_project_registries_use_the_shared_error():
     from starnav.detector.chain import EFFECTS, get_effect
-    from starnav.navigation.ekf import BIAS_MODELS, EkfOptions
+    from starnav.navigation.ekf import BIAS_MODELS, measurement_model
     from starnav.photometry import PHOTOMETRIC_MODELS, get_model
 
     assert get_model("hapke") is PHOTOMETRIC_MODELS["hapke"]
@@ -80,7 +81,7 @@ def test_the_project_registries_use_the_shared_error():
         get_effect("bloom")
     assert "read_noise" in EFFECTS
     with pytest.raises(UnknownNameError, match=re.escape(", ".join(sorted(BIAS_MODELS)))):
-        EkfOptions(bias_model="scale")
+        measurement_model(np.zeros(9), np.zeros(3), "scale")
 
 
 def test_mitsuba_plugin_names_follow_the_model_registry():

@@ -39,8 +39,7 @@ from numpy.typing import NDArray
 
 from starnav.atomic import atomic_path
 from starnav.errors import DataFileError, not_a_file_error
-
-Float32Array = NDArray[np.float32]
+from starnav.typing import Float32Array
 
 RADIANCE_CHANNELS = ("L", "Le")
 AOV_CHANNELS = ("range", "nx", "ny", "nz", "lat", "lon", "incidence", "emission", "phase", "mask")

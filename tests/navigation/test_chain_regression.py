@@ -34,7 +34,7 @@ from starnav.constants import AU
 from starnav.detector.schema import DetectorConfig
 from starnav.navigation.christian_robinson import christian_robinson
 from starnav.navigation.dynamics import PointMassDynamics
-from starnav.navigation.ekf import NavigationEkf
+from starnav.navigation.ekf import FilterConfig, NavigationEkf
 from starnav.navigation.limb import (
     limb_points_from_segments,
     segments_centroid,
@@ -42,7 +42,13 @@ from starnav.navigation.limb import (
 )
 from starnav.navigation.pipeline import ChainOptions, process_frame
 from starnav.navigation.ransac import RansacConfig, ransac_limb
-from starnav.navigation.refine import EdgeSpread, PixelNoise, RefineOptions, packaged_model_error
+from starnav.navigation.refine import (
+    EdgeSpread,
+    PixelNoise,
+    RefineConfig,
+    RefineModels,
+    packaged_model_error,
+)
 from starnav.navigation.synthetic import pointing_geometry, synthetic_frame
 
 PINS = Path(__file__).with_name("data") / "chain_pins.json"
@@ -68,11 +74,12 @@ def _frame(range_km: float):
     return cam, g, frame
 
 
-def _navigate_refine() -> RefineOptions:
+def _navigate_refine() -> ChainOptions:
     det = DetectorConfig()
-    return RefineOptions(edge_model="detector-psf", spread=EdgeSpread.from_detector(det),
-                         noise=PixelNoise.from_detector(det),
-                         model_error_table=packaged_model_error())
+    return ChainOptions(refine=RefineConfig(edge_model="detector-psf").to_si(),
+                        refine_models=RefineModels(spread=EdgeSpread.from_detector(det),
+                                                   noise=PixelNoise.from_detector(det),
+                                                   model_error_table=packaged_model_error()))
 
 
 def _measure_case(range_km: float, dyn: PointMassDynamics) -> dict:
@@ -86,10 +93,11 @@ def _measure_case(range_km: float, dyn: PointMassDynamics) -> dict:
     fix = christian_robinson(lp.uv[rr.inliers], cam, sigma_px=0.5)
     plain = process_frame(frame, cam, options=ChainOptions(use_windows=False),
                           rng=np.random.default_rng(1))
-    full = process_frame(frame, cam, options=ChainOptions(refine=_navigate_refine()),
+    full = process_frame(frame, cam, options=_navigate_refine(),
                          rng=np.random.default_rng(1))
     x0 = dyn.moon_state(T0) + np.concatenate([g.camera_position, g.camera_velocity])
-    ekf = NavigationEkf(dyn, dyn, T0 - 300.0, x0, np.diag([100e3**2] * 3 + [1.0] * 3))
+    ekf = NavigationEkf(dyn, dyn, T0 - 300.0, x0, np.diag([100e3**2] * 3 + [1.0] * 3),
+                        options=FilterConfig(accel_psd_m2_s3=0.0).to_si())  # perfect dynamics
     ekf.predict(T0)
     x_pred, P_pred = ekf.x.copy(), ekf.P.copy()
     info = ekf.update(plain.position, plain.covariance)

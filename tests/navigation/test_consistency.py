@@ -14,7 +14,7 @@ from starnav.constants import MOON_RADIUS
 from starnav.dem.grid import DemGrid
 from starnav.dem.limb import limb_heights, limb_topography
 from starnav.navigation.christian_robinson import LimbFix
-from starnav.navigation.refine import PixelNoise, RefineOptions, fit_edge_window
+from starnav.navigation.refine import PixelNoise, fit_edge_window
 
 ARCSEC = math.pi / 180.0 / 3600.0
 
@@ -64,8 +64,8 @@ def test_weighted_edge_fit_sigma_matches_its_scatter():
                                      (1500.0, 60.0, 300.0))
         dn = np.round(clean + rng.standard_normal(clean.size)
                       * np.sqrt(noise.variance_dn2(clean) - 1 / 12))
-        for out, opt in ((z_w, RefineOptions(noise=noise)), (z_u, RefineOptions())):
-            f = fit_edge_window(dn, rho, t, R, options=opt)
+        for out, px_noise in ((z_w, noise), (z_u, None)):
+            f = fit_edge_window(dn, rho, t, R, noise=px_noise)
             out.append((f.delta - delta) / f.sigma_delta)
     rms_w = float(np.sqrt(np.mean(np.square(z_w))))
     rms_u = float(np.sqrt(np.mean(np.square(z_u))))

@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 
 import numpy as np
 import pytest
 
+from starnav.constants import DAY
 from starnav.navigation.ekf import (
-    EkfOptions,
+    EkfPriors,
+    FilterConfig,
     NavigationEkf,
     gauss_markov_discrete,
     measurement_model,
@@ -30,6 +33,16 @@ NEES_MIN_FRACTION = 0.90
 RUNS, STEPS, DT = 20, 120, 1800.0
 SIGMA_RANGE, SIGMA_LATERAL = 30e3, 3e3
 P0 = np.diag([100e3**2] * 3 + [1.0**2] * 3)
+
+
+def _filter(common=None, consider=None, **kw):
+    """``options`` (a FilterConfig's SI view; perfect dynamics unless ``accel_psd_m2_s3`` is
+    given; ``bias_tau_s`` in seconds) and ``priors`` of the filter."""
+    kw.setdefault("accel_psd_m2_s3", 0.0)
+    if "bias_tau_s" in kw:
+        kw["bias_tau_days"] = kw.pop("bias_tau_s") / DAY
+    return {"options": FilterConfig(**kw).to_si(),
+            "priors": EkfPriors(common_covariance=common, consider_covariance=consider)}
 
 
 def _simulate(dyn, rng, steps=STEPS, scale_bias=0.0):
@@ -55,7 +68,7 @@ def _measurements(T, Z, R, r_scale=1.0):
             for k, (t, z, r) in enumerate(zip(T, Z, R, strict=True))]
 
 
-def _nees_runs(seed, r_scale=1.0, options=None, scale_bias=0.0, runs=RUNS):
+def _nees_runs(seed, r_scale=1.0, filt=None, scale_bias=0.0, runs=RUNS):
     """NEES and NIS ``(runs, STEPS)`` of ``runs`` Monte Carlo runs, and the last result."""
     dyn = MovingMoonTwoBody(step=300.0)
     rng = np.random.default_rng(seed)
@@ -64,7 +77,7 @@ def _nees_runs(seed, r_scale=1.0, options=None, scale_bias=0.0, runs=RUNS):
     for _ in range(runs):
         x0, T, X, Z, R = _simulate(dyn, rng, scale_bias=scale_bias)
         res = run_filter(_measurements(T, Z, R, r_scale), dynamics=dyn, moon=dyn, t0=0.0,
-                         x0=x0 + L @ rng.standard_normal(6), P0=P0, options=options)
+                         x0=x0 + L @ rng.standard_normal(6), P0=P0, **(filt or _filter()))
         nees.append(res.nees(X))
         nis.append(res.nis)
     return np.array(nees), np.array(nis), res
@@ -187,26 +200,26 @@ def test_range_scale_bias_state_absorbs_a_scale_error():
     """Fixes scaled by (1 + 2e-3) (a ~0.15 px outward limb bias at 60 000 km): with a
     range-scale Gauss-Markov state the filter stays consistent and estimates the scale; without
     it, it does not."""
-    opt = EkfOptions(bias_model="range-scale", range_scale_sigma=5e-3, bias_tau_s=1e9,
-                     gate_probability=None)
-    nees, _, res = _nees_runs(seed=3, options=opt, scale_bias=2e-3, runs=10)
+    opt = _filter(bias_model="range-scale", range_scale_sigma=5e-3, bias_tau_s=1e9,
+                  gate_probability=None)
+    nees, _, res = _nees_runs(seed=3, filt=opt, scale_bias=2e-3, runs=10)
     assert consistency_fraction(nees.ravel(), 6) >= NEES_MIN_FRACTION
     k, sk = res.states[-1, 6], math.sqrt(res.covariances[-1, 6, 6])
     assert abs(k - 2e-3) < 3 * sk and sk < 1e-3
-    nees0, _, _ = _nees_runs(seed=3, options=EkfOptions(gate_probability=None),
+    nees0, _, _ = _nees_runs(seed=3, filt=_filter(gate_probability=None),
                              scale_bias=2e-3, runs=10)
     assert consistency_fraction(nees0.ravel(), 6) < 0.5
 
 
 # ------------------------------------------------------------------------ mechanics
-def _ekf(options=None):
+def _ekf(filt=None):
     dyn = MovingMoonTwoBody(step=300.0)
     x0 = circular_state(dyn, 6.0e7)
-    return dyn, x0, NavigationEkf(dyn, dyn, 0.0, x0, P0, options=options)
+    return dyn, x0, NavigationEkf(dyn, dyn, 0.0, x0, P0, **(filt or _filter()))
 
 
 def test_joseph_update_is_symmetric_positive_and_optimal():
-    dyn, x0, ekf = _ekf(EkfOptions(gate_probability=None))
+    dyn, x0, ekf = _ekf(_filter(gate_probability=None))
     ekf.predict(DT)
     rel = ekf.x[:3] - dyn.moon_state(DT)[:3]
     R = fix_covariance(rel, SIGMA_RANGE, SIGMA_LATERAL)
@@ -223,7 +236,7 @@ def test_joseph_update_is_symmetric_positive_and_optimal():
 
 def test_gate_rejects_outliers_then_forces_a_fix(caplog):
     caplog.set_level(logging.INFO, logger="starnav.navigation.ekf")
-    dyn, x0, ekf = _ekf(EkfOptions(max_consecutive_rejections=2))
+    dyn, x0, ekf = _ekf(_filter(max_consecutive_rejections=2))
     ekf.predict(DT)
     rel = ekf.x[:3] - dyn.moon_state(DT)[:3]
     R = fix_covariance(rel, SIGMA_RANGE, SIGMA_LATERAL)
@@ -245,7 +258,7 @@ def test_frames_without_a_fix_only_propagate():
     meas = _measurements(T, Z, R)
     meas[3] = FrameMeasurement(3, float(T[3]), "no-moon", "no run above threshold")
     meas[4] = FrameMeasurement(4, float(T[4]), "degenerate-arc", "2 lit limb points")
-    res = run_filter(meas, dynamics=dyn, moon=dyn, t0=0.0, x0=x0, P0=P0)
+    res = run_filter(meas, dynamics=dyn, moon=dyn, t0=0.0, x0=x0, P0=P0, **_filter())
     assert list(res.has_fix) == [True, True, True, False, False, True]
     assert np.isnan(res.nis[3]) and np.isnan(res.nis[4])
     x4, Phi = dyn.propagate(T[3], res.states[3], T[4])
@@ -255,16 +268,33 @@ def test_frames_without_a_fix_only_propagate():
 
 
 def test_option_checks():
-    from starnav.errors import ConfigError, UnknownNameError
+    import typing
 
+    from pydantic import ValidationError
+
+    from starnav.config_base import format_validation_error
+    from starnav.errors import ConfigError, UnknownNameError
+    from starnav.navigation.ekf import BIAS_MODELS
+
+    def scenario_error(section: dict) -> ConfigError:
+        """The error a scenario's ``navigation.filter: section`` gets."""
+        with pytest.raises(ValidationError) as err:
+            FilterConfig.model_validate(section)
+        return format_validation_error(err.value, "navigation.filter")
+
+    # the section's choices are the registry's; an unknown one is named with the known ones
+    assert set(typing.get_args(FilterConfig.model_fields["bias_model"].annotation)) == set(
+        BIAS_MODELS.names())
     with pytest.raises(UnknownNameError, match="known: additive, limb-common, none, range-scale"):
-        EkfOptions(bias_model="scale")
-    with pytest.raises(ConfigError, match="bias_tau_s"):
-        EkfOptions(bias_tau_s=0.0)
+        measurement_model(np.zeros(9), np.zeros(3), "scale")
+    assert re.search("navigation.filter.bias_model.*'scale'.*additive",
+                     str(scenario_error({"bias_model": "scale"})))
+    assert re.search("navigation.filter.bias_tau_days.*0.*greater than 0",
+                     str(scenario_error({"bias_tau_days": 0.0})))
     dyn = MovingMoonTwoBody()
-    with pytest.raises(ConfigError, match="bias 1-sigma > 0"):
+    with pytest.raises(ConfigError, match="filter.bias_sigma_km.*bias 1-sigma > 0"):
         NavigationEkf(dyn, dyn, 0.0, circular_state(dyn, 6e7), P0,
-                      options=EkfOptions(bias_model="additive"))
+                      **_filter(bias_model="additive"))
     with pytest.raises(ConfigError, match="positive-definite"):
         NavigationEkf(dyn, dyn, 0.0, circular_state(dyn, 6e7), -P0)
 
@@ -323,19 +353,17 @@ def test_limb_common_states_keep_their_steady_state_covariance():
     (phi^2 C + (1 - phi^2) C), for any time step; a C that is not a covariance is refused."""
     from starnav.errors import ConfigError
 
-    opt = EkfOptions(bias_model="limb-common", common_covariance=tuple(map(tuple, _C)),
-                     bias_tau_s=7200.0, gate_probability=None)
+    opt = _filter(bias_model="limb-common", common=tuple(map(tuple, _C)),
+                  bias_tau_s=7200.0, gate_probability=None)
     dyn, x0, ekf = _ekf(opt)
     assert np.allclose(ekf.P[6:, 6:], _C)
     for t in (600.0, 4000.0, 90_000.0):
         ekf.predict(t)
         assert np.allclose(ekf.P[6:, 6:], _C, rtol=1e-12, atol=0)
     with pytest.raises(ConfigError, match="common_covariance"):
-        EkfOptions(bias_model="limb-common", common_covariance=((1.0, 2.0, 0.0),
-                                                                (2.0, 1.0, 0.0),
-                                                                (0.0, 0.0, 1.0)))
+        EkfPriors(common_covariance=((1.0, 2.0, 0.0), (2.0, 1.0, 0.0), (0.0, 0.0, 1.0)))
     with pytest.raises(ConfigError, match="common_covariance"):
-        EkfOptions(bias_model="limb-common")
+        _ekf(_filter(bias_model="limb-common"))
 
 
 @pytest.mark.slow
@@ -372,11 +400,10 @@ def test_limb_common_states_make_correlated_fix_errors_consistent():
             X.append(x)
         xs = x0 + L0 @ rng.standard_normal(6)
         lc = run_filter(meas_lc, dynamics=dyn, moon=dyn, t0=0.0, x0=xs, P0=P0,
-                        options=EkfOptions(bias_model="limb-common", bias_tau_s=tau,
-                                           common_covariance=tuple(map(tuple, _C)),
-                                           gate_probability=None))
+                        **_filter(bias_model="limb-common", bias_tau_s=tau,
+                                  common=tuple(map(tuple, _C)), gate_probability=None))
         w = run_filter(meas_w, dynamics=dyn, moon=dyn, t0=0.0, x0=xs, P0=P0,
-                       options=EkfOptions(gate_probability=None))
+                       **_filter(gate_probability=None))
         nees_lc.append(lc.nees(np.array(X)))
         nis_lc.append(lc.nis)
         nees_w.append(w.nees(np.array(X)))
@@ -398,7 +425,7 @@ def test_consider_states_make_a_constant_calibration_error_consistent():
     C = np.diag([1.0, 4.0, 0.25, 2.0])
     Lc = np.linalg.cholesky(C)
     L0 = np.linalg.cholesky(P0)
-    opt_c = EkfOptions(consider_covariance=tuple(map(tuple, C)), gate_probability=None)
+    opt_c = _filter(consider=tuple(map(tuple, C)), gate_probability=None)
     nees_c, nis_c, nees_w = [], [], []
     for _ in range(runs):
         x = circular_state(dyn, 6.0e7)
@@ -422,9 +449,9 @@ def test_consider_states_make_a_constant_calibration_error_consistent():
             meas_w.append(FrameMeasurement(k, t, "ok", position=z, covariance=W + JCJ))
             X.append(x)
         xs = x0 + L0 @ rng.standard_normal(6)
-        c = run_filter(meas_c, dynamics=dyn, moon=dyn, t0=0.0, x0=xs, P0=P0, options=opt_c)
+        c = run_filter(meas_c, dynamics=dyn, moon=dyn, t0=0.0, x0=xs, P0=P0, **opt_c)
         w = run_filter(meas_w, dynamics=dyn, moon=dyn, t0=0.0, x0=xs, P0=P0,
-                       options=EkfOptions(gate_probability=None))
+                       **_filter(gate_probability=None))
         assert c.states.shape[1] == 10
         assert np.all(c.states[:, 6:] == 0.0)
         assert np.allclose(c.covariances[-1][6:, 6:], C, rtol=1e-9, atol=0)
@@ -448,8 +475,8 @@ def test_limb_common_states_follow_the_phase_factor():
     tau, runs, steps = 2 * 3600.0, 12, 60
     L0 = np.linalg.cholesky(P0)
     Lc = np.linalg.cholesky(_C)
-    opt = EkfOptions(bias_model="limb-common", bias_tau_s=tau,
-                     common_covariance=tuple(map(tuple, _C)), gate_probability=None)
+    opt = _filter(bias_model="limb-common", bias_tau_s=tau, common=tuple(map(tuple, _C)),
+                  gate_probability=None)
     nees_s, nees_1 = [], []
     for _ in range(runs):
         x = circular_state(dyn, 6.0e7)
@@ -477,7 +504,7 @@ def test_limb_common_states_follow_the_phase_factor():
         xs = x0 + L0 @ rng.standard_normal(6)
         for out, meas in ((nees_s, meas_s), (nees_1, meas_1)):
             out.append(run_filter(meas, dynamics=dyn, moon=dyn, t0=0.0, x0=xs, P0=P0,
-                                  options=opt).nees(np.array(X)))
+                                  **opt).nees(np.array(X)))
     assert consistency_fraction(np.ravel(nees_s), 6) >= NEES_MIN_FRACTION
     # per epoch of the second half, the 12-run ANEES above its 95 % band's top: 2.5 % of the
     # epochs for a consistent filter (6 or more of 28: under 1e-4 for independent epochs)

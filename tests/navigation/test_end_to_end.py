@@ -58,7 +58,8 @@ def _run(halo_frames, cfg_dict):
     dyn, ds = halo_frames
     cfg = NavigationConfig.model_validate(cfg_dict)
     return navigate(ds, dynamics=dyn, moon=dyn, P0=cfg.initial_covariance(),
-                    chain=cfg.chain_options(), ekf=cfg.ekf_options(),
+                    chain=cfg.chain_options(), ekf=cfg.filter.to_si(),
+                    ekf_priors=cfg.ekf_priors(),
                     seed=5)
 
 

@@ -11,6 +11,7 @@ import pytest
 
 from starnav.constants import AU
 from starnav.detector.products import Segments, Window
+from starnav.navigation.ekf import EkfPriors
 from starnav.navigation.frames import Frame, FrameList
 from starnav.navigation.pipeline import ChainOptions, navigate, process_frame
 from starnav.navigation.synthetic import pointing_geometry, synthetic_frame
@@ -168,8 +169,9 @@ def test_navigation_config_section():
     assert ch.fix.attitude_sigma_rad == pytest.approx(math.radians(1.0), rel=1e-12)
     assert ch.fix.radii_m == (1738100.0, 1738100.0, 1736000.0)
     assert ch.ransac.model == "christian-robinson" and ch.limb.max_points == 600
-    ek = sc.navigation.ekf_options()
-    assert ek.bias_sigma_m == 2000.0 and ek.bias_tau_s == 43200.0 and ek.n_bias == 3
+    ek = sc.navigation.filter.to_si()
+    assert ek.bias_sigma == 2000.0 and ek.bias_tau == 43200.0 and ek.bias_model == "additive"
+    assert sc.navigation.ekf_priors() == EkfPriors()
     assert sc.navigation.initial_covariance()[0, 0] == pytest.approx(1e8)
     with pytest.raises(ConfigError, match="navigation.ransac.threshold"):
         scenario_from_dict({"navigation": {"ransac": {"threshold": 1.0}}})
@@ -208,12 +210,12 @@ def test_cli_navigate(cam, sequence, tmp_path, monkeypatch):
 def _psf_chain() -> ChainOptions:
     """The chain with the detector-psf edge model (the one with tables to prepare)."""
     from starnav.detector.schema import DetectorConfig
-    from starnav.navigation.refine import EdgeSpread, PixelNoise, RefineOptions
+    from starnav.navigation.refine import EdgeSpread, PixelNoise, RefineConfig, RefineModels
 
     det = DetectorConfig()
-    return ChainOptions(refine=RefineOptions(edge_model="detector-psf",
-                                             spread=EdgeSpread.from_detector(det),
-                                             noise=PixelNoise.from_detector(det)))
+    return ChainOptions(refine=RefineConfig(edge_model="detector-psf").to_si(),
+                        refine_models=RefineModels(spread=EdgeSpread.from_detector(det),
+                                                   noise=PixelNoise.from_detector(det)))
 
 
 def test_prepare_frame_builds_every_table_the_refinement_asks_for(cam, sequence):

@@ -66,13 +66,13 @@ def test_chain_options_navigate_with_the_estimate_and_a_coarser_terrain(demo):
     a 1 px/deg DEM; the analysis options restore the simulator's own."""
     sc, _ = demo
     opt = sc.navigation.chain_options(scenario=sc)
-    assert opt.refine.spread.aberration != sc.detector.optics.aberration
-    assert opt.refine.spread.aberration == estimated_psf(
+    assert opt.refine_models.spread.aberration != sc.detector.optics.aberration
+    assert opt.refine_models.spread.aberration == estimated_psf(
         sc.detector, camera_from_config(sc.camera)).aberration
     perfect = scenario_from_dict(demo_scenario(), ["navigation.refine.psf_knowledge=detector",
                                                    "navigation.refine.terrain_model_ppd=null"])
     popt = perfect.navigation.chain_options(scenario=perfect)
-    assert popt.refine.spread.aberration == sc.detector.optics.aberration
+    assert popt.refine_models.spread.aberration == sc.detector.optics.aberration
     # the coarse grid smooths the relief: a smaller limb-height spread than the rendered DEM's
-    coarse, fine = opt.refine.limb_topography, popt.refine.limb_topography
+    coarse, fine = opt.refine_models.limb_topography, popt.refine_models.limb_topography
     assert 0.85 < coarse.std_m / fine.std_m < 0.99

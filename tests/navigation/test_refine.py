@@ -19,7 +19,8 @@ from starnav.navigation.limb import (
 from starnav.navigation.metrics import limb_point_errors
 from starnav.navigation.ransac import ransac_limb
 from starnav.navigation.refine import (
-    RefineOptions,
+    RefineConfig,
+    RefineModels,
     cut_windows,
     edge_profile,
     f_nu,
@@ -66,7 +67,7 @@ def _refined(cam, frame, **kw):
     d = sun_direction_in_image(cam, g.R_cam_to_inertial, g.sun_direction, c0)
     lp = limb_points_from_segments(seg, d)
     rr = ransac_limb(lp.uv, cam, rng=np.random.default_rng(0))
-    opt = RefineOptions(**kw)
+    opt = RefineConfig(**kw).to_si()
     req = plan_windows(lp.uv[rr.inliers], rr.params[:2], shape=dn.shape, options=opt)
     fine = refine_limb(cut_windows(dn, req), rr.params[:2], rr.params[2], options=opt)
     return lp, fine
@@ -187,8 +188,8 @@ def test_window_model_gradient_and_normal_matrix_against_finite_differences(monk
     from starnav.navigation.refine import EdgeSpread
 
     cam, dn, noise, c, R = _detector_disc(1500.0, 0)
-    opt = RefineOptions(edge_model="detector-psf", spread=EdgeSpread(AberrationPsfConfig()),
-                        noise=noise)
+    opt = RefineConfig(edge_model="detector-psf").to_si()
+    models = RefineModels(spread=EdgeSpread(AberrationPsfConfig()), noise=noise)
     ang = np.linspace(0, 2 * math.pi, 16, endpoint=False) + math.radians(11.25)
     wins = cut_windows(dn, plan_windows(c + R * np.column_stack([np.cos(ang), np.sin(ang)]),
                                         c, shape=dn.shape, options=opt))
@@ -200,8 +201,9 @@ def test_window_model_gradient_and_normal_matrix_against_finite_differences(monk
         return real(*args, **kwargs)
 
     monkeypatch.setattr(refine, "_fit_windows", spy)
-    refine_limb(wins, c + 0.3, R + 0.4, options=opt, camera=cam)
-    y, mask, rho, t_arc, radius, _, tables = seen[0][:7]
+    refine_limb(wins, c + 0.3, R + 0.4, options=opt, models=models, camera=cam)
+    y, mask, rho, t_arc, radius = seen[0][:5]
+    tables = seen[0][8]
     model = refine._TableModel(y, mask, rho, t_arc, radius,
                                refine._StackedTables(tables, radius), ramp=True)
     sw = 1.0 / np.sqrt(noise.variance_dn2(y))   # any positive weights
@@ -285,9 +287,8 @@ def test_detector_psf_model_places_the_edge_the_detector_blurred(amplitude):
         cam, dn, noise, c, R = _detector_disc(amplitude, seed)
         from starnav.detector.schema import AberrationPsfConfig
 
-        opt = RefineOptions(edge_model="detector-psf",
-                            spread=EdgeSpread(AberrationPsfConfig()), noise=noise,
-                            min_sigma_px=1e-6)
+        opt = RefineConfig(edge_model="detector-psf", min_sigma_px=1e-6).to_si()
+        models = RefineModels(spread=EdgeSpread(AberrationPsfConfig()), noise=noise)
         # limb normals off the pixel axes (within a few degrees of an axis the window samples
         # the edge at one sub-pixel phase and the detector's discrete convolution shows: up
         # to 0.08 px, part of the calibrated edge model error)
@@ -295,7 +296,7 @@ def test_detector_psf_model_places_the_edge_the_detector_blurred(amplitude):
         pts = c + (R + 0.3) * np.column_stack([np.cos(ang), np.sin(ang)])
         wins = cut_windows(dn, plan_windows(pts, c, shape=dn.shape, options=opt))
         # a coarse circle 0.4 px off, as RANSAC on pixel-level points gives
-        fine = refine_limb(wins, c + 0.3, R + 0.4, options=opt, camera=cam)
+        fine = refine_limb(wins, c + 0.3, R + 0.4, options=opt, models=models, camera=cam)
         if amplitude > 4095:
             assert fine.saturated.all()
         e = np.hypot(*(fine.uv - c).T) - R
@@ -306,9 +307,9 @@ def test_detector_psf_model_places_the_edge_the_detector_blurred(amplitude):
     assert abs(e.mean()) < 0.02, e.mean()
     assert abs(math.sqrt(np.mean(z**2)) - 1.0) < 0.15, math.sqrt(np.mean(z**2))
     if amplitude > 4095:
-        gauss = RefineOptions(noise=noise)     # blurred-limb: saturated windows are skipped
+        gauss = RefineModels(noise=noise)     # blurred-limb: saturated windows are skipped
         with pytest.raises(LimbNotFoundError):
-            refine_limb(wins, c + 0.3, R + 0.4, options=gauss, camera=cam)
+            refine_limb(wins, c + 0.3, R + 0.4, models=gauss, camera=cam)
 
 
 def test_a_frame_in_the_blooming_regime_drops_its_saturated_windows():
@@ -321,15 +322,12 @@ def test_a_frame_in_the_blooming_regime_drops_its_saturated_windows():
     cam, dn, noise, c, R = _detector_disc(20000.0, 0)
     ang = np.linspace(0, 2 * math.pi, 16, endpoint=False)
     pts = c + R * np.column_stack([np.cos(ang), np.sin(ang)])
-    base = RefineOptions(edge_model="detector-psf", spread=EdgeSpread(AberrationPsfConfig()),
-                         noise=noise)
-    wins = cut_windows(dn, plan_windows(pts, c, shape=dn.shape, options=base))
-    assert len(refine_limb(wins, c, R, options=base, camera=cam)) >= 12
-    import dataclasses
-
-    strict = dataclasses.replace(base, max_overexposure=1.5)   # 20000 / ~4000 = 5 > 1.5
+    models = RefineModels(spread=EdgeSpread(AberrationPsfConfig()), noise=noise)
+    wins = cut_windows(dn, plan_windows(pts, c, shape=dn.shape))
+    assert len(refine_limb(wins, c, R, models=models, camera=cam)) >= 12
+    strict = RefineConfig(max_overexposure=1.5).to_si()   # 20000 / ~4000 = 5 > 1.5
     with pytest.raises(LimbNotFoundError):
-        refine_limb(wins, c, R, options=strict, camera=cam)
+        refine_limb(wins, c, R, options=strict, models=models, camera=cam)
 
 
 def test_model_error_calibration_phase_factors():

@@ -44,7 +44,8 @@ from starnav.navigation.ransac import ransac_limb
 from starnav.navigation.refine import (
     EdgeSpread,
     PixelNoise,
-    RefineOptions,
+    RefineConfig,
+    RefineModels,
     cut_windows,
     packaged_model_error,
     plan_windows,
@@ -65,9 +66,11 @@ DISC_NOISE = PixelNoise(gain_e_per_dn=24.4, read_noise_e=100.0, prnu_fraction=0.
                         offset_dn=100.0)
 
 
-def _psf_options(noise: PixelNoise, **kw) -> RefineOptions:
-    return RefineOptions(edge_model="detector-psf", spread=EdgeSpread(AberrationPsfConfig()),
-                         noise=noise, model_error_table=packaged_model_error(), **kw)
+def _psf_options(noise: PixelNoise, **kw) -> tuple:
+    """The refinement's section (SI view) and resolved models of the detector-psf cases."""
+    return (RefineConfig(edge_model="detector-psf", **kw).to_si(),
+            RefineModels(spread=EdgeSpread(AberrationPsfConfig()), noise=noise,
+                         model_error_table=packaged_model_error()))
 
 
 def _bench_frame():
@@ -113,14 +116,16 @@ def _detector_disc(amplitude_dn: float, seed: int):
 
 
 def _cases():
-    """name -> (windows, centre, radius, options, camera) of every pinned refinement."""
+    """name -> (windows, centre, radius, (options, models), camera) of every pinned
+    refinement."""
     cam, frame = _bench_frame()
     rr = ransac_limb(frame_limb(frame, cam).uv, cam, rng=np.random.default_rng(1))
     c, R = rr.params[:2], float(rr.params[2])
     out = {
-        "bench-gauss-fitted": (frame.windows, c, R, RefineOptions(), cam),
+        "bench-gauss-fitted": (frame.windows, c, R, (None, None), cam),
         "bench-gauss-known-noise": (frame.windows, c, R,
-                                    RefineOptions(psf_sigma_px=0.8, noise=NOISE), cam),
+                                    (RefineConfig(psf_sigma_px=0.8).to_si(),
+                                     RefineModels(noise=NOISE)), cam),
         "bench-detector-psf": (frame.windows, c, R, _psf_options(NOISE), cam),
     }
     for name, amp in (("disc-well-exposed", 1500.0), ("disc-saturated", 20000.0)):
@@ -144,12 +149,13 @@ def frame_limb(frame, cam):
 def _measure() -> dict:
     cases, cam, frame = _cases()
     doc: dict = {}
-    for name, (wins, c, R, opt, camera) in cases.items():
-        fine = refine_limb(wins, c, R, options=opt, camera=camera, phase_rad=1.0)
+    for name, (wins, c, R, (opt, models), camera) in cases.items():
+        fine = refine_limb(wins, c, R, options=opt, models=models, camera=camera, phase_rad=1.0)
         doc[name] = {"uv": fine.uv.tolist(), "sigma_px": fine.sigma_px.tolist(),
                      "fit_sigma_px": fine.fit_sigma_px.tolist(),
                      "saturated": fine.saturated.tolist()}
-    m = process_frame(frame, cam, options=ChainOptions(refine=_psf_options(NOISE)),
+    opt, models = _psf_options(NOISE)
+    m = process_frame(frame, cam, options=ChainOptions(refine=opt, refine_models=models),
                       rng=np.random.default_rng(1))
     doc["chain-detector-psf"] = {"position": m.position.tolist(), "n_refined": len(m.refined),
                                  "covariance_diag": np.diag(m.covariance).tolist()}

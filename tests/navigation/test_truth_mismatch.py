@@ -14,10 +14,9 @@ import numpy as np
 import pytest
 
 from starnav.navigation.dynamics import PointMassDynamics
-from starnav.navigation.ekf import EkfOptions
+from starnav.navigation.ekf import FilterConfig
 from starnav.navigation.metrics import anees_statistics
 from starnav.navigation.pipeline import FrameMeasurement, run_filter
-from starnav.navigation.schema import FilterConfig
 from starnav.scenes.ephemeris import Ephemeris, parse_epoch
 from starnav.scenes.forces import SrpParameters, TruthForceModel
 
@@ -54,7 +53,7 @@ def _nees(arc, accel_psd: float) -> np.ndarray:
                                  + SIGMA * rng.standard_normal(3),
                                  covariance=np.eye(3) * SIGMA**2) for k in range(STEPS)]
         res = run_filter(meas, dynamics=filt, moon=filt, t0=t0, x0=x0 + L @ rng.standard_normal(6),
-                         P0=P0, options=EkfOptions(accel_psd_m2_s3=accel_psd))
+                         P0=P0, options=FilterConfig(accel_psd_m2_s3=accel_psd).to_si())
         out.append(res.nees(X))
     return np.array(out)
 

@@ -39,10 +39,11 @@ from starnav.batch.runs import over_runs, run_ids
 from starnav.batch.table import to_csv
 from starnav.batch.tasks import RenderedFrame, expose_sequence_task, expose_task, filter_task
 from starnav.config import scenario_to_dict
+from starnav.config_base import SIView
 from starnav.errors import ConfigError, DataFileError
 from starnav.navigation import plots as P
 from starnav.navigation.dynamics import Dynamics, MoonEphemeris
-from starnav.navigation.ekf import EkfOptions
+from starnav.navigation.ekf import EkfPriors
 from starnav.navigation.pipeline import (
     FilterResult,
     FrameMeasurement,
@@ -118,7 +119,8 @@ def navigate_runs(dataset: Any, runs: int, *, scenario: Any | None = None,
 
 def filter_runs(measurements: Sequence[FrameMeasurement], truth: ArrayLike, *,
                 dynamics: Dynamics, moon: MoonEphemeris, P0: ArrayLike, runs: int,
-                seed: int = 0, options: EkfOptions | None = None) -> list[FilterResult]:
+                seed: int = 0, options: SIView | None = None,
+                priors: EkfPriors | None = None) -> list[FilterResult]:
     """The filter re-run ``runs`` times (runs 1..runs) on the same measurements from
     ``x0 ~ N(truth[0], P0)``, run ``r``'s initial error from
     :func:`~starnav.navigation.pipeline.initial_error_normal` ``(seed, r)``: the Monte Carlo of
@@ -131,7 +133,8 @@ def filter_runs(measurements: Sequence[FrameMeasurement], truth: ArrayLike, *,
     t0 = float(measurements[0].epoch_tdb)
     return over_runs(lambda r: run_filter(
         measurements, dynamics=dynamics, moon=moon, t0=t0,
-        x0=X[0] + L @ initial_error_normal(seed, r), P0=P, options=options), ids)
+        x0=X[0] + L @ initial_error_normal(seed, r), P0=P, options=options, priors=priors),
+        ids)
 
 
 def verdict_line(m: dict[str, Any]) -> str:

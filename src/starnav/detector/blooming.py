@@ -29,10 +29,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.registry import Registry
+from starnav.typing import Float32Array
 
 logger = logging.getLogger(__name__)
 
-Float32Array = NDArray[np.float32]
 
 #: Relative tolerance under which left-over spill charge is considered spent.
 SPILL_TOL = 1e-12

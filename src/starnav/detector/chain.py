@@ -45,10 +45,10 @@ from starnav.detector.seeding import temporal_rng
 from starnav.errors import ConfigError
 from starnav.radiance import RadianceImage
 from starnav.registry import Registry
+from starnav.typing import Float32Array
 
 logger = logging.getLogger(__name__)
 
-Float32Array = NDArray[np.float32]
 
 STAGES = ("photons", "charge", "pixel", "signal", "image")
 

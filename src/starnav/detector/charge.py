@@ -22,8 +22,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.detector.seeding import fixed_pattern_rng
+from starnav.typing import Float32Array
 
-Float32Array = NDArray[np.float32]
 
 @lru_cache(maxsize=8)
 def prnu_map(sensor_seed: int, shape: tuple[int, int], sigma: float) -> Float32Array:

@@ -20,20 +20,11 @@ nondestructive focal plane arrays*, Proc. SPIE 5167; Kannawadi, A. et al. (2016)
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
-Float32Array = NDArray[np.float32]
+from starnav.typing import Float32Array
 
 #: Rows per block of :func:`interpixel_capacitance` (a block's temporaries stay in the cache).
 IPC_BLOCK_ROWS = 32
-
-
-def ipc_kernel(nearest: float, diagonal: float) -> NDArray[np.float64]:
-    """The 3 x 3 IPC kernel [-] (unit sum)."""
-    k = np.array([[diagonal, nearest, diagonal],
-                  [nearest, 1.0 - 4.0 * (nearest + diagonal), nearest],
-                  [diagonal, nearest, diagonal]])
-    return k
 
 
 def interpixel_capacitance(charge: Float32Array, nearest: float = 0.005,

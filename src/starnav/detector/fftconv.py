@@ -17,10 +17,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.cache import BoundedCache
+from starnav.typing import Float32Array
 
 logger = logging.getLogger(__name__)
 
-Float32Array = NDArray[np.float32]
 
 #: FFT sizes are rounded up to a multiple of this before ``next_fast_len`` [samples].
 FFT_QUANTUM = 32

@@ -45,10 +45,10 @@ from starnav.camera import Camera
 from starnav.detector.fftconv import convolve_add, signal_bbox
 from starnav.detector.schema import AberrationPsfConfig, GhostConfig, StrayLightConfig
 from starnav.errors import ConfigError
+from starnav.typing import Float32Array
 
 logger = logging.getLogger(__name__)
 
-Float32Array = NDArray[np.float32]
 
 #: Gaussian truncation of the aberration kernels [sigma].
 GAUSS_TRUNCATE_SIGMA = 4.0

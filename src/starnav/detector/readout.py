@@ -29,10 +29,9 @@ from numpy.typing import NDArray
 from starnav.detector.products import MAX_WINDOWS, Segments, Window
 from starnav.detector.schema import ReadoutTimingConfig, WindowSpec
 from starnav.errors import ConfigError
+from starnav.typing import Float32Array
 
 logger = logging.getLogger(__name__)
-
-Float32Array = NDArray[np.float32]
 
 
 # =========================================================================== signal to DN

@@ -29,8 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from starnav.detector.fftconv import convolve_add, signal_bbox
-
-Float32Array = NDArray[np.float32]
+from starnav.typing import Float32Array
 
 #: Motion blur shorter than this is ignored [px].
 MIN_BLUR_PX = 0.05

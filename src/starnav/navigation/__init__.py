@@ -22,7 +22,7 @@ from starnav.navigation.christian_robinson import (
     christian_robinson,
 )
 from starnav.navigation.dynamics import Dynamics, MoonEphemeris, PointMassDynamics
-from starnav.navigation.ekf import EkfOptions, NavigationEkf
+from starnav.navigation.ekf import EkfPriors, FilterConfig, NavigationEkf
 from starnav.navigation.frames import Frame, FrameList, NavDataset, NavFrame
 from starnav.navigation.limb import (
     LimbConfig,
@@ -41,13 +41,14 @@ from starnav.navigation.pipeline import (
     run_filter,
 )
 from starnav.navigation.ransac import RansacConfig, RansacError, ransac_limb
-from starnav.navigation.refine import RefineOptions, plan_windows, refine_limb
+from starnav.navigation.refine import RefineConfig, RefineModels, plan_windows, refine_limb
 
 __all__ = [
     "ChainOptions",
     "ChristianRobinsonOptions",
     "Dynamics",
-    "EkfOptions",
+    "EkfPriors",
+    "FilterConfig",
     "FilterResult",
     "FixError",
     "Frame",
@@ -65,7 +66,8 @@ __all__ = [
     "PointMassDynamics",
     "RansacError",
     "RansacConfig",
-    "RefineOptions",
+    "RefineConfig",
+    "RefineModels",
     "christian_robinson",
     "limb_points_from_segments",
     "navigate",

@@ -23,7 +23,8 @@ Technique
    covariance would treat as new at each frame; estimating them is not possible either, since
    a limb fix cannot tell a focal-length error from a range error.
 
-The knobs are :class:`EkfOptions`.
+The knobs are the scenario section :class:`FilterConfig`; the covariances the builder
+resolves from calibrations, :class:`EkfPriors`.
 
 References
 ----------
@@ -37,8 +38,9 @@ Schmidt-Kalman consider filter).
 
 Index
 -----
-:class:`NavigationEkf`, :class:`EkfOptions`, :class:`UpdateInfo`, :func:`measurement_model`,
-:func:`gauss_markov_discrete`, :func:`white_acceleration_q`.
+:class:`NavigationEkf`, :class:`FilterConfig`, :class:`EkfPriors`, :func:`bias_covariance`,
+:class:`UpdateInfo`, :func:`measurement_model`, :func:`gauss_markov_discrete`,
+:func:`white_acceleration_q`, :data:`BIAS_MODELS`.
 """
 
 from __future__ import annotations
@@ -46,13 +48,16 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import Annotated, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
+from pydantic import Field
 from scipy.special import chdtri
 
-from starnav.constants import DAY
+from starnav.config_base import SIView, StrictModel
 from starnav.errors import ConfigError
+from starnav.fields import NonNegativeFloat, PositiveFloat
 from starnav.navigation.dynamics import Dynamics, MoonEphemeris
 from starnav.registry import Registry
 from starnav.typing import FloatArray
@@ -64,85 +69,105 @@ BIAS_MODELS: Registry[int] = Registry("bias model", {
     "none": 0, "additive": 3, "range-scale": 1, "range-scale+additive": 4, "limb-common": 3})
 
 
-@dataclass(frozen=True)
-class EkfOptions:
-    """Knobs of :class:`NavigationEkf` (their meanings:
-    :class:`~starnav.navigation.schema.FilterConfig`)."""
+class FilterConfig(StrictModel):
+    """Scenario section ``navigation.filter``: the EKF (:class:`NavigationEkf` reads its SI
+    view, ``to_si()``; the initial sigmas and the RK4 step are read by its callers)."""
 
-    bias_model: str = "none"
-    bias_sigma_m: float = 0.0
-    range_scale_sigma: float = 0.0
-    bias_tau_s: float = DAY
-    accel_psd_m2_s3: float = 0.0
-    gate_probability: float | None = 0.9999
-    max_consecutive_rejections: int = 5
+    bias_model: Literal["none", "additive", "range-scale", "range-scale+additive",
+                        "limb-common"] = Field(
+        "none", description="Gauss-Markov bias states: additive (3-axis shift), range-scale, "
+        "both, or limb-common (the errors all refined limb points of a frame share, with "
+        "their calibrated covariance; only bias_tau_days is used)")
+    bias_sigma_km: NonNegativeFloat = Field(0.0, description="additive bias 1-sigma [km]")
+    range_scale_sigma: NonNegativeFloat = Field(0.0, description="range-scale bias 1-sigma [-]")
+    bias_tau_days: PositiveFloat = Field(1.0, description="bias correlation time [days]")
+    dynamics: Literal["earth-moon-sun"] = Field(
+        "earth-moon-sun", description="the filter's force model: Earth, Moon and Sun point "
+        "masses from DE421 (starnav.scenes.dynamics), whatever trajectory.forces adds to the "
+        "truth")
+    accel_psd_m2_s3: NonNegativeFloat = Field(
+        2.4e-9, description="white acceleration noise density [m^2/s^3]: what the filter's "
+        "model leaves out (planets, SRP of a 12U CubeSat, J2 at the halo: rms 1.7e-7 m/s^2, "
+        "starnav.scenes.forces.unmodelled_acceleration_psd; 0: perfect dynamics knowledge)")
+    gate_probability: Annotated[float, Field(gt=0, lt=1)] | None = Field(
+        0.9999, description="chi-square gate on the NIS; null disables")
+    max_consecutive_rejections: Annotated[int, Field(ge=1)] = Field(
+        5, description="after this many fixes in a row rejected by the gate, the next one is "
+        "accepted regardless (recovery from a diverged filter)")
+    initial_position_sigma_km: PositiveFloat = Field(100.0, description="initial 1-sigma [km]")
+    initial_velocity_sigma_m_s: PositiveFloat = Field(1.0, description="initial 1-sigma [m/s]")
+    rk4_step_s: PositiveFloat = Field(
+        1800.0, description="longest RK4 step of the filter dynamics [s] (an interval is split "
+        "into equal steps no longer than this; 1800 s near L2: under a millimetre per day from "
+        "the converged integration, one step per frame at the demo's cadence)")
+
+
+#: The defaults' SI view.
+_DEFAULT = FilterConfig().to_si()
+#: What ``filter.common_covariance`` must be.
+_COMMON_EXPECTED = ("a positive semi-definite 3 x 3 covariance with a positive diagonal for "
+                    "bias_model='limb-common'")
+
+
+def _is_covariance(C: FloatArray, tol: float, positive_diagonal: bool = False) -> bool:
+    """``C`` is a finite square matrix with a non-negative (``positive_diagonal``: positive)
+    diagonal whose symmetric part has no eigenvalue below ``-tol``."""
+    if C.ndim != 2 or C.shape[0] != C.shape[1] or not np.all(np.isfinite(C)):
+        return False
+    d = np.diag(C)
+    return bool((np.all(d > 0) if positive_diagonal else np.all(d >= 0))
+                and np.min(np.linalg.eigvalsh(0.5 * (C + C.T))) >= -tol)
+
+
+@dataclass(frozen=True)
+class EkfPriors:
+    """What the builder resolves for :class:`NavigationEkf` from calibrations (the knobs are
+    :class:`FilterConfig`'s): ``common_covariance``, the ``limb-common`` bias states' steady
+    state (3 x 3, per unit of disc radius; that model needs it), and ``consider_covariance``,
+    the considered camera parameters' (n x n, module step 7; None: no consider states)."""
+
     common_covariance: tuple[tuple[float, float, float], ...] | None = None
     consider_covariance: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:
-        BIAS_MODELS.check(self.bias_model)
         if self.consider_covariance is not None:
             C = np.asarray(self.consider_covariance, float)
-            if C.ndim != 2 or C.shape[0] != C.shape[1] or not np.all(np.isfinite(C)) \
-                    or np.any(np.diag(C) < 0) \
-                    or np.min(np.linalg.eigvalsh(0.5 * (C + C.T))) < -1e-9 * np.max(np.diag(C)):
+            if (C.ndim != 2 or C.size == 0
+                    or not _is_covariance(C, 1e-9 * float(np.max(np.diag(C))))):
                 raise ConfigError("filter.consider_covariance", np.shape(C),
                                   "a square positive semi-definite covariance of the considered "
                                   "camera parameters")
-        if self.bias_model == "limb-common":
-            C = np.asarray(self.common_covariance if self.common_covariance is not None
-                           else np.zeros((3, 3)), float)
-            if C.shape != (3, 3) or not np.all(np.isfinite(C)) or np.any(np.diag(C) <= 0) \
-                    or np.min(np.linalg.eigvalsh(0.5 * (C + C.T))) < -1e-12 * np.max(C):
+        if self.common_covariance is not None:
+            C = np.asarray(self.common_covariance, float)
+            if C.shape != (3, 3) or not _is_covariance(C, 1e-12 * float(np.max(C)), True):
                 raise ConfigError("filter.common_covariance", self.common_covariance,
-                                  "a positive semi-definite 3 x 3 covariance with a positive "
-                                  "diagonal for bias_model='limb-common'")
-        for name in ("bias_sigma_m", "range_scale_sigma", "accel_psd_m2_s3"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ConfigError(f"filter.{name}", v, "a finite value >= 0")
-        if not (math.isfinite(self.bias_tau_s) and self.bias_tau_s > 0):
-            raise ConfigError("filter.bias_tau_s", self.bias_tau_s, "a time constant > 0 s")
-        if self.gate_probability is not None and not 0.0 < self.gate_probability < 1.0:
-            raise ConfigError("filter.gate_probability", self.gate_probability,
-                              "None or a probability in (0, 1)")
-        if self.max_consecutive_rejections < 1:
-            raise ConfigError("filter.max_consecutive_rejections",
-                              self.max_consecutive_rejections, "an integer >= 1")
-
-    @property
-    def n_bias(self) -> int:
-        return BIAS_MODELS[self.bias_model]
+                                  _COMMON_EXPECTED)
 
     @property
     def n_consider(self) -> int:
         """Number of considered parameters (Schmidt states, module step 7)."""
         return 0 if self.consider_covariance is None else len(self.consider_covariance)
 
-    @property
-    def bias_sigma(self) -> float:
-        """Steady-state 1-sigma of the first bias state [m or -]."""
-        return float(self.bias_sigmas[0]) if self.n_bias else 0.0
 
-    @property
-    def bias_sigmas(self) -> FloatArray:
-        """Steady-state 1-sigma of every bias state (scale [-] first, then metres)."""
-        return {
-            "none": np.zeros(0),
-            "additive": np.full(3, self.bias_sigma_m),
-            "range-scale": np.array([self.range_scale_sigma]),
-            "range-scale+additive": np.array([self.range_scale_sigma] + [self.bias_sigma_m] * 3),
-            "limb-common": np.sqrt(np.diag(np.asarray(self.common_covariance, float)))
-            if self.common_covariance is not None else np.zeros(3),
-        }[self.bias_model]
-
-    @property
-    def bias_covariance(self) -> FloatArray:
-        """Steady-state covariance of the bias states."""
-        if self.bias_model == "limb-common":
-            return np.asarray(self.common_covariance, float)
-        sb = self.bias_sigmas
-        return np.diag(sb * sb)
+def bias_covariance(options: SIView, priors: EkfPriors) -> FloatArray:
+    """Steady-state covariance of the bias states of ``options.bias_model`` (``options`` a
+    :class:`FilterConfig`'s SI view; scale [-] first, then metres)."""
+    model = options.bias_model
+    if model == "limb-common":
+        if priors.common_covariance is None:
+            raise ConfigError("filter.common_covariance", None, _COMMON_EXPECTED)
+        return np.asarray(priors.common_covariance, float)
+    sb = {"none": np.zeros(0),
+          "additive": np.full(3, options.bias_sigma),
+          "range-scale": np.array([options.range_scale_sigma]),
+          "range-scale+additive": np.array([options.range_scale_sigma]
+                                           + [options.bias_sigma] * 3)}[model]
+    if np.any(sb <= 0):
+        scale = sb[0] <= 0 and model.startswith("range-scale")
+        raise ConfigError("filter.range_scale_sigma" if scale else "filter.bias_sigma_km",
+                          options.range_scale_sigma if scale else options.bias_sigma / 1e3,
+                          f"a bias 1-sigma > 0 for bias_model={model!r}")
+    return np.diag(sb * sb)
 
 
 def gauss_markov_discrete(dt: float, sigma: float, tau: float) -> tuple[float, float]:
@@ -258,16 +283,20 @@ class NavigationEkf:
         Initial EMB-centred J2000 position [m] and velocity [m/s].
     P0 : (6, 6) array
         Its covariance [m^2, m^2/s, m^2/s^2].
-    options : EkfOptions, optional
-        Bias model, noise, gate.
+    options : SIView, optional
+        The SI view of a :class:`FilterConfig` (bias model, noise, gate); default its
+        defaults.
+    priors : EkfPriors, optional
+        The resolved covariances (limb-common bias states, considered parameters).
     bias0 : (n_bias,) array, optional
         Initial bias estimate (default zero; its covariance is the steady state).
     """
 
     def __init__(self, dynamics: Dynamics, moon: MoonEphemeris, t0: float, x0: ArrayLike,
-                 P0: ArrayLike, *, options: EkfOptions | None = None,
-                 bias0: ArrayLike | None = None) -> None:
-        self.options = opt = options or EkfOptions()
+                 P0: ArrayLike, *, options: SIView | None = None,
+                 priors: EkfPriors | None = None, bias0: ArrayLike | None = None) -> None:
+        self.options = opt = options if options is not None else _DEFAULT
+        self.priors = priors = priors if priors is not None else EkfPriors()
         x0 = np.asarray(x0, float)
         P0 = np.asarray(P0, float)
         if x0.shape != (6,) or not np.all(np.isfinite(x0)):
@@ -279,7 +308,14 @@ class NavigationEkf:
         except np.linalg.LinAlgError:
             raise ConfigError("filter.P0", "not positive definite",
                               "a positive-definite 6 x 6 covariance") from None
-        nb, nc = opt.n_bias, opt.n_consider
+        # the knobs the steps read, once (an SI view's attribute is a dictionary look-up)
+        self.bias_model: str = BIAS_MODELS.check(opt.bias_model)
+        self.n_bias = nb = BIAS_MODELS[self.bias_model]
+        self.n_consider = nc = priors.n_consider
+        self._bias_cov = bias_covariance(opt, priors)
+        self._accel_psd = float(opt.accel_psd)
+        self._bias_tau = float(opt.bias_tau)
+        self._max_rejections = int(opt.max_consecutive_rejections)
         self.dynamics = dynamics
         self.moon = moon
         self.t = float(t0)
@@ -290,15 +326,9 @@ class NavigationEkf:
         self.P = np.zeros((6 + nb + nc, 6 + nb + nc))
         self.P[:6, :6] = 0.5 * (P0 + P0.T)
         if nb:
-            sb = opt.bias_sigmas
-            if np.any(sb <= 0):
-                name = "range_scale_sigma" if sb[0] <= 0 and opt.bias_model.startswith(
-                    "range-scale") else "bias_sigma_m"
-                raise ConfigError(f"filter.{name}", float(np.min(sb)),
-                                  f"a bias 1-sigma > 0 for bias_model={opt.bias_model!r}")
-            self.P[6:6 + nb, 6:6 + nb] = opt.bias_covariance
+            self.P[6:6 + nb, 6:6 + nb] = self._bias_cov
         if nc:
-            C = np.asarray(opt.consider_covariance, float)
+            C = np.asarray(priors.consider_covariance, float)
             self.P[6 + nb:, 6 + nb:] = 0.5 * (C + C.T)
         self.rejections_in_a_row = 0
         self._gate = math.inf
@@ -318,22 +348,21 @@ class NavigationEkf:
         dt = t - self.t
         if dt == 0.0:
             return
-        opt = self.options
         x6, Phi = self.dynamics.propagate(self.t, self.x[:6], t)
-        n, nb = self.n, opt.n_bias
+        n, nb = self.n, self.n_bias
         F = np.zeros((n, n))
         F[:6, :6] = Phi
         # the considered parameters are constants (no process noise)
-        F[6 + nb:, 6 + nb:] = np.eye(opt.n_consider)
+        F[6 + nb:, 6 + nb:] = np.eye(self.n_consider)
         Q = np.zeros((n, n))
-        if opt.accel_psd_m2_s3 > 0:
-            Q[:6, :6] = white_acceleration_q(dt, opt.accel_psd_m2_s3)
+        if self._accel_psd > 0:
+            Q[:6, :6] = white_acceleration_q(dt, self._accel_psd)
         if nb:
             # every bias a first-order Gauss-Markov process of the same time constant:
             # Q = (1 - phi^2) times the steady-state covariance (exact)
-            phi_b, q1 = gauss_markov_discrete(dt, 1.0, opt.bias_tau_s)
+            phi_b, q1 = gauss_markov_discrete(dt, 1.0, self._bias_tau)
             F[6:6 + nb, 6:6 + nb] = phi_b * np.eye(nb)
-            Q[6:6 + nb, 6:6 + nb] = q1 * opt.bias_covariance
+            Q[6:6 + nb, 6:6 + nb] = q1 * self._bias_cov
             self.x[6:6 + nb] *= phi_b
         self.x[:6] = x6
         P = F @ self.P @ F.T + Q
@@ -344,7 +373,7 @@ class NavigationEkf:
                               ) -> tuple[FloatArray, FloatArray]:
         """``h(x)`` [m] and ``H`` at the current epoch."""
         moon = self.moon.moon_state(self.t)
-        return measurement_model(self.x, moon[:3], self.options.bias_model, common_jacobian)
+        return measurement_model(self.x, moon[:3], self.bias_model, common_jacobian)
 
     def update(self, z: ArrayLike, R: ArrayLike,
                common_jacobian: ArrayLike | None = None,
@@ -366,7 +395,7 @@ class NavigationEkf:
         z = np.asarray(z, float)
         R = np.asarray(R, float)
         h, H = self.predicted_measurement(common_jacobian)
-        nc = self.options.n_consider
+        nc = self.n_consider
         if consider_jacobian is not None:
             J = np.asarray(consider_jacobian, float)
             if J.shape != (3, nc):
@@ -377,12 +406,11 @@ class NavigationEkf:
         S = H @ self.P @ H.T + R
         S = 0.5 * (S + S.T)
         nis = float(nu @ np.linalg.solve(S, nu))
-        opt = self.options
         forced = False
         gate = self._gate
-        if opt.gate_probability is not None:
+        if gate < math.inf:
             if nis > gate:
-                if self.rejections_in_a_row < opt.max_consecutive_rejections:
+                if self.rejections_in_a_row < self._max_rejections:
                     self.rejections_in_a_row += 1
                     log.info("EKF: fix at t = %.1f s rejected (NIS %.1f > gate %.1f)", self.t,
                              nis, gate)

@@ -46,7 +46,7 @@ from starnav.navigation.christian_robinson import (
     christian_robinson_centres,
 )
 from starnav.navigation.dynamics import Dynamics, MoonEphemeris
-from starnav.navigation.ekf import EkfOptions, NavigationEkf
+from starnav.navigation.ekf import EkfPriors, NavigationEkf
 from starnav.navigation.frames import NavDataset, NavFrame
 from starnav.navigation.limb import (
     LimbConfig,
@@ -60,7 +60,12 @@ from starnav.navigation.limb import (
 )
 from starnav.navigation.metrics import NavMetrics, limb_point_errors, nees
 from starnav.navigation.ransac import RansacConfig, RansacError, RansacResult, ransac_limb
-from starnav.navigation.refine import RefineOptions, prepare_edge_tables, refine_limb
+from starnav.navigation.refine import (
+    RefineConfig,
+    RefineModels,
+    prepare_edge_tables,
+    refine_limb,
+)
 from starnav.navigation.refine import warm_up as refine_warm_up
 from starnav.seeding import STAGE_NAVIGATION, generator
 from starnav.typing import FloatArray
@@ -77,12 +82,18 @@ class ChainOptions:
 
     Attributes
     ----------
-    limb, ransac, refine, fix :
-        Per-stage options (see each module's table).
+    limb, ransac, refine :
+        The SI views of the stages' scenario sections (:class:`~starnav.navigation.limb.
+        LimbConfig`, :class:`~starnav.navigation.ransac.RansacConfig`,
+        :class:`~starnav.navigation.refine.RefineConfig`: its ``outlier_px`` drops refined
+        points whose residual to a first fix exceeds it).
+    refine_models : RefineModels
+        What the builder resolved for the refinement (noise, blur, terrain, calibration).
+    fix : ChristianRobinsonOptions
+        The fix's shape and attitude knowledge.
     use_windows : bool
-        Refine with the frame's windows when it has some.
-    refine_outlier_px : float
-        Refined points whose residual to a first fix exceeds this are dropped [px].
+        Refine with the frame's windows when it has some (the builder sets it from
+        ``refine.enabled``; a caller switches it off for the pixel-level chain).
     calibration : CameraCalibration, optional
         The camera as a calibration estimated it: the chain navigates with its camera
         (whatever camera the caller passes) and adds its covariance to each fix as consider
@@ -92,15 +103,11 @@ class ChainOptions:
 
     limb: SIView = field(default_factory=lambda: LimbConfig().to_si())
     ransac: SIView = field(default_factory=lambda: RansacConfig().to_si())
-    refine: RefineOptions = field(default_factory=RefineOptions)
+    refine: SIView = field(default_factory=lambda: RefineConfig().to_si())
+    refine_models: RefineModels = field(default_factory=RefineModels)
     fix: ChristianRobinsonOptions = field(default_factory=ChristianRobinsonOptions)
     use_windows: bool = True
-    refine_outlier_px: float = 0.5
     calibration: CameraCalibration | None = None
-
-    def __post_init__(self) -> None:
-        if not self.refine_outlier_px > 0:
-            raise ConfigError("refine_outlier_px", self.refine_outlier_px, "> 0 px")
 
 
 @dataclass(frozen=True)
@@ -148,7 +155,7 @@ class FrameMeasurement:
         (the fix on its own); a filter with the parameters as consider states takes it out.
     common_scale : float
         ``s``: the factor at this frame's phase on the slowly varying limb errors'
-        covariance (:meth:`~starnav.navigation.refine.RefineOptions.fix_scale`); the
+        covariance (:meth:`~starnav.navigation.refine.RefineModels.fix_scale`); the
         ``limb-common`` filter's states are those errors over ``sqrt(s)``, seen through
         ``sqrt(s) G``.
     timings_s : dict
@@ -242,7 +249,8 @@ def process_frame(
         try:
             phase = phase_angle_from_image(camera, R_ci, frame.sun_direction_inertial, centre)
             refined = refine_limb(frame.windows, centre, radius, sun_dir_image=sdir,
-                                  options=opt.refine, camera=camera, phase_rad=phase)
+                                  options=opt.refine, models=opt.refine_models, camera=camera,
+                                  phase_rad=phase)
         except LimbNotFoundError as err:
             log.info("frame %s: subpixel refinement failed (%s); pixel-level points used",
                      frame.index, err)
@@ -253,7 +261,7 @@ def process_frame(
         if refined is not None:
             fix = christian_robinson(refined.uv, camera, sigma_px=refined.sigma_px,
                                      R_body_to_cam=R_body_to_cam, options=opt.fix)
-            bad = np.abs(fix.residual_px) > opt.refine_outlier_px
+            bad = np.abs(fix.residual_px) > opt.refine.outlier_px
             if np.any(bad) and (~bad).sum() >= 3:
                 keep = ~bad
                 refined = refined.subset(keep)
@@ -275,8 +283,8 @@ def process_frame(
         noise = fix.covariance_inertial(R_ci, opt.fix.attitude_sigma_rad)
         Gpx = _common_jacobian(fix, refined, camera, R_ci, R_body_to_cam, opt.fix)
         G = Gpx * float(refined.radius_px)
-        scale = opt.refine.fix_scale(phase, bool(refined.saturated is not None
-                                                  and np.any(refined.saturated)))
+        saturated = refined.saturated is not None and bool(np.any(refined.saturated))
+        scale = opt.refine_models.fix_scale(opt.refine, phase, saturated)
         if refined.fix_covariance_px2 is not None and refined.fit_sigma_px is not None:
             # the pixels' noise and the attitude, and the calibrated slowly varying rest
             # the same points as the fix: its Jacobian with the fit's own sigmas
@@ -329,14 +337,15 @@ def prepare_frame(frame: NavFrame, camera: Camera, *, options: ChainOptions | No
     opt = options or ChainOptions()
     windows = frame.windows
     if (frame.segments is None or not (opt.use_windows and windows)
-            or opt.refine.edge_model != "detector-psf"):
+            or opt.refine_models.edge_model(opt.refine) != "detector-psf"):
         return
     rng = rng if rng is not None else np.random.default_rng(int(frame.index))
     cam, R_ci, _, R_body_to_cam = _chain_camera(frame, camera, opt)
     front = _limb_and_ransac(frame, cam, opt, rng, R_ci, R_body_to_cam, {})
     if not isinstance(front, FrameMeasurement):
         centre, radius = _coarse_circle(front[0], front[1])
-        prepare_edge_tables(windows, centre, radius, options=opt.refine, camera=cam)
+        prepare_edge_tables(windows, centre, radius, options=opt.refine,
+                            models=opt.refine_models, camera=cam)
 
 
 def _limb_and_ransac(frame: NavFrame, camera: Camera, opt: ChainOptions,
@@ -589,7 +598,8 @@ def run_filter(
     t0: float,
     x0: ArrayLike,
     P0: ArrayLike,
-    options: EkfOptions | None = None,
+    options: SIView | None = None,
+    priors: EkfPriors | None = None,
 ) -> FilterResult:
     """Run the EKF over a sequence of frame measurements (module step 2).
 
@@ -607,14 +617,16 @@ def run_filter(
         Initial EMB-centred J2000 state [m, m/s].
     P0 : (6, 6) array
         Its covariance.
-    options : EkfOptions, optional
+    options, priors :
+        The filter's section (SI view of :class:`~starnav.navigation.ekf.FilterConfig`) and
+        resolved covariances (:class:`~starnav.navigation.ekf.EkfPriors`); default theirs.
 
     Returns
     -------
     FilterResult
     """
-    rec = _FilterRecorder(NavigationEkf(dynamics, moon, t0, x0, P0, options=options),
-                          len(measurements))
+    rec = _FilterRecorder(NavigationEkf(dynamics, moon, t0, x0, P0, options=options,
+                                        priors=priors), len(measurements))
     for k, m in enumerate(measurements):
         rec.step(k, m)
     return rec.result()
@@ -640,14 +652,14 @@ class _FilterRecorder:
         ekf.predict(m.epoch_tdb)
         if m.usable and m.position is not None and m.covariance is not None:
             self.has[k] = True
-            lc = (ekf.options.bias_model == "limb-common" and m.common_jacobian is not None
+            lc = (ekf.bias_model == "limb-common" and m.common_jacobian is not None
                   and m.white_covariance is not None)
             # with limb-common states the slowly varying limb errors are states: the fix's
             # pixel noise and attitude alone are its measurement noise
             R = m.white_covariance if lc else m.covariance
             G = m.common_jacobian * math.sqrt(m.common_scale) if lc else None
             J = m.consider_jacobian
-            if J is not None and ekf.options.n_consider:
+            if J is not None and ekf.n_consider:
                 # the calibration's error is a consider state: constant over the arc
                 if not lc:
                     R = R - m.consider_covariance
@@ -664,7 +676,7 @@ class _FilterRecorder:
 
     def result(self) -> FilterResult:
         return FilterResult(self.epochs, self.X, self.P, self.has, self.acc, self.nis,
-                            self.ekf.options.bias_model, self.times)
+                            self.ekf.bias_model, self.times)
 
 
 def initial_error_normal(seed: int, run: int) -> FloatArray:
@@ -736,7 +748,8 @@ def navigate(
     x0: ArrayLike | None = None,
     t0: float | None = None,
     chain: ChainOptions | None = None,
-    ekf: EkfOptions | None = None,
+    ekf: SIView | None = None,
+    ekf_priors: EkfPriors | None = None,
     seed: int = 0,
     run: int = 0,
     measure_memory: bool = False,
@@ -759,7 +772,11 @@ def navigate(
         error drawn from ``P0`` (stream ``generator(seed, STAGE_NAVIGATION, run)``).
     t0 : float, optional
         Epoch of ``x0``; default the first frame's epoch.
-    chain, ekf : options
+    chain : ChainOptions, optional
+        The chain's options.
+    ekf, ekf_priors :
+        The filter's section (SI view of :class:`~starnav.navigation.ekf.FilterConfig`) and
+        resolved covariances (:class:`~starnav.navigation.ekf.EkfPriors`).
     seed, run : int
         The scenario's seed and the Monte Carlo run: the initial error comes from
         ``generator(seed, STAGE_NAVIGATION, run)`` and frame ``i``'s RANSAC from
@@ -796,7 +813,8 @@ def navigate(
         x0 = truth[0] + np.linalg.cholesky(P0) @ initial_error_normal(seed, run)
     frame_rngs = [generator(seed, STAGE_NAVIGATION, run, int(f.index)) for f in frames]
     K = len(frames)
-    rec = _FilterRecorder(NavigationEkf(dynamics, moon, t0, x0, P0, options=ekf), K)
+    rec = _FilterRecorder(NavigationEkf(dynamics, moon, t0, x0, P0, options=ekf,
+                                        priors=ekf_priors), K)
     stage = np.full((K, len(STAGES)), np.nan)
     cpu = np.empty(K)
     peak = np.empty(K) if measure_memory else None

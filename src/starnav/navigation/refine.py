@@ -19,7 +19,8 @@ Technique
    the calibrated model errors (:class:`ModelErrorCalibration`); what all points share goes to
    ``LimbPoints.common_covariance_px2``.
 
-The knobs are :class:`RefineOptions`.
+The knobs are the scenario section :class:`RefineConfig`; what the builder resolves from
+the scenario (noise, blur, terrain, calibration), :class:`RefineModels`.
 
 References
 ----------
@@ -32,8 +33,8 @@ Index
 -----
 :func:`plan_windows`, :class:`WindowRequest`, :func:`cut_windows`; :func:`refine_limb`,
 :func:`fit_edge_window`, :class:`EdgeFit`, :func:`edge_profile`, :func:`f_nu`;
-:class:`RefineOptions`, :class:`PixelNoise`, :class:`EdgeSpread`, :class:`EdgeTables`,
-:class:`ModelErrorCalibration`, :func:`packaged_model_error`, :func:`warm_up`,
+:class:`RefineConfig`, :class:`RefineModels`, :class:`PixelNoise`, :class:`EdgeSpread`,
+:class:`EdgeTables`, :class:`ModelErrorCalibration`, :func:`packaged_model_error`, :func:`warm_up`,
 :func:`prepare_edge_tables`.
 """
 
@@ -47,17 +48,20 @@ import math
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Annotated, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from pydantic import Field
 from scipy.special import gamma, ndtr, pbdv
 
+from starnav.config_base import SIView, StrictModel
 from starnav.data import packaged_path
 from starnav.dem.limb import LimbTopography
 from starnav.detector.optics import line_spread_function
 from starnav.detector.products import MAX_WINDOWS, Window
 from starnav.errors import ConfigError
+from starnav.fields import NonNegativeFloat, PositiveFloat
 from starnav.navigation.limb import LimbNotFoundError, LimbPoints
 from starnav.registry import Registry
 from starnav.typing import FloatArray
@@ -121,100 +125,149 @@ class PixelNoise:
                    offset_dn=float(d.adc.offset_dn))  # type: ignore[attr-defined]
 
 
+class RefineConfig(StrictModel):
+    """Scenario section ``navigation.refine``: subpixel refinement from windows
+    (:func:`plan_windows` and :func:`refine_limb` read its SI view, ``to_si()``; the builder
+    resolves :class:`RefineModels` from it and the scenario)."""
+
+    enabled: bool = Field(True, description="refine with the frame's windows when present")
+    n_windows: Annotated[int, Field(ge=1, le=MAX_WINDOWS)] = Field(
+        MAX_WINDOWS, description="windows planned")
+    window_size_px: Annotated[int, Field(ge=5)] = Field(11, description="window side [px]")
+    edge_model: Literal["auto", "detector-psf", "blurred-limb", "blurred-step"] = Field(
+        "auto", description="edge model of the window fit: detector-psf (the dataset "
+        "detector's own blur: defocus disc * Gaussian, pixel apertures, IPC; needs the "
+        "scenario), blurred-limb / blurred-step (Gaussian of fitted width); auto: detector-psf "
+        "when the scenario is known and its aberration PSF is on, else blurred-limb")
+    psf_sigma_px: NonNegativeFloat | None = Field(
+        None, description="Gaussian PSF sigma [px]; null: fitted per window")
+    psf_knowledge: Literal["estimated", "detector"] = Field(
+        "estimated", description="the PSF of the detector-psf edge model: estimated (fitted "
+        "to star images exposed through the detector, starnav.navigation.psf) or detector "
+        "(the simulator's own setting: perfect knowledge, an analysis option)")
+    saturation_dn: PositiveFloat = Field(4095.0, description="pixels at or above are ignored [DN]")
+    min_sigma_px: PositiveFloat = Field(0.02, description="floor of a refined point's sigma [px]")
+    noise_model: bool = Field(
+        True, description="weight each window fit with the scenario detector's per-pixel noise "
+        "(read, shot, PRNU, quantisation) and take its covariance from it")
+    terrain_model_error: bool = Field(
+        True, description="add the DEM's limb-height spread (starnav.dem.limb) to each refined "
+        "point's sigma when the Moon has terrain")
+    terrain_model_ppd: PositiveFloat | None = Field(
+        1.0, description="resolution of the DEM the navigation's limb-height statistics come "
+        "from [px/deg] (area-averaged from the scenario's DEM): a terrain model coarser than "
+        "the one that renders; null: the rendered DEM itself (perfect knowledge)")
+    outlier_px: PositiveFloat = Field(0.5, description="refined points farther from the first "
+                                                       "fix are dropped [px]")
+    model_error_px: NonNegativeFloat | None = Field(
+        None, description="the edge model's own error [px], added to every refined point's "
+        "sigma; null: the packaged calibration with the detector-psf model "
+        "(starnav/data/navigation/refine_model_error.json), 0 otherwise")
+    saturated_model_error_px: NonNegativeFloat | None = Field(
+        None, description="extra model error of a window whose inside is saturated [px] "
+        "(detector-psf model); null: the packaged calibration")
+    terrain_error_scale: NonNegativeFloat | None = Field(
+        None, description="factor on the DEM's limb-height spread (terrain_model_error): what "
+        "the lit limb shows beyond the silhouette; null: the packaged calibration with the "
+        "detector-psf model, 1 otherwise")
+    max_overexposure: Annotated[float, Field(gt=1, allow_inf_nan=False)] = Field(
+        20.0, description="saturated windows whose fitted step exceeds this many times the "
+        "headroom to saturation are dropped (blooming, not the optics, shapes that edge)")
+
+
+#: The defaults' SI view.
+_DEFAULT = RefineConfig().to_si()
+#: Starting Gaussian blur of a fitted-width edge model [px].
+SIGMA0_PX = 1.0
+#: Most Levenberg-Marquardt iterations of a window fit.
+MAX_ITERATIONS = 30
+
+
 @dataclass(frozen=True)
-class RefineOptions:
-    """Knobs of :func:`plan_windows` and :func:`refine_limb` (their meanings:
-    :class:`~starnav.navigation.schema.RefineConfig`)."""
+class RefineModels:
+    """What the builder resolves for :func:`refine_limb` from the scenario (the knobs are
+    :class:`RefineConfig`'s): the detector's per-pixel ``noise`` (None: unweighted fits) and
+    blur ``spread`` (with it, ``edge_model: auto`` is ``detector-psf``), the DEM's
+    ``limb_topography``, the packaged ``model_error_table`` of the ``detector-psf`` model, and
+    ``min_contrast_dn``, the smallest fitted edge step of the detector's DN scale [DN] (10 of
+    the tracker's 12 bits; 5 of a 10-bit camera, :mod:`starnav.reference.amie.validate`)."""
 
-    n_windows: int = MAX_WINDOWS
-    size_px: int = 11
-    edge_model: str = "blurred-limb"
-    psf_sigma_px: float | None = None
-    sigma0_px: float = 1.0
-    saturation_dn: float = 4095.0
-    max_iterations: int = 30
-    min_sigma_px: float = 0.02
-    min_contrast_dn: float = 10.0
     noise: PixelNoise | None = None
-    model_error_px: float | None = None
-    limb_topography: LimbTopography | None = None
     spread: EdgeSpread | None = None
-    saturated_model_error_px: float | None = None
-    max_overexposure: float = 20.0
-    terrain_scale: float | None = None
+    limb_topography: LimbTopography | None = None
     model_error_table: ModelErrorCalibration | None = None
+    min_contrast_dn: float = 10.0
 
-    def model_errors(self, phase_rad: float | None) -> tuple[float, float, float]:
+    def __post_init__(self) -> None:
+        if not (self.min_contrast_dn > 0 and math.isfinite(self.min_contrast_dn)):
+            raise ConfigError("refine.min_contrast_dn", self.min_contrast_dn,
+                              "a finite step > 0 DN")
+
+    def edge_model(self, options: SIView) -> str:
+        """The edge model the fit uses: ``options.edge_model``, ``auto`` resolved
+        (``detector-psf`` with a :attr:`spread`, else ``blurred-limb``)."""
+        name = options.edge_model
+        if name == "auto":
+            return "blurred-limb" if self.spread is None else "detector-psf"
+        if name == "detector-psf" and self.spread is None:
+            raise ConfigError("refine.edge_model", name,
+                              "an EdgeSpread (the detector's blur) with the detector-psf model")
+        return EDGE_MODELS.check(name)
+
+    def model_errors(self, options: SIView, phase_rad: float | None
+                     ) -> tuple[float, float, float]:
         """``(edge model error [px], saturated extra [px], terrain scale)`` at a phase angle
-        [rad]: each given value, else the calibration's at that phase (its largest without a
-        phase), else 0, 0, 1."""
+        [rad]: each value ``options`` gives, else the calibration's at that phase (its largest
+        without a phase), else 0, 0, 1."""
         tab = (self.model_error_table.at(phase_rad) if self.model_error_table is not None
                else (0.0, 0.0, 1.0))
-        return (tab[0] if self.model_error_px is None else self.model_error_px,
-                tab[1] if self.saturated_model_error_px is None
-                else self.saturated_model_error_px,
-                tab[2] if self.terrain_scale is None else self.terrain_scale)
+        e, s, k = (options.model_error_px, options.saturated_model_error_px,
+                   options.terrain_error_scale)
+        return (tab[0] if e is None else e, tab[1] if s is None else s,
+                tab[2] if k is None else k)
 
-    def common_covariance(self, radius_px: float) -> FloatArray:
+    def common_covariance(self, options: SIView, radius_px: float) -> FloatArray:
         """Covariance [px^2] of the errors every point of a frame shares, at a disc radius
         ``radius_px``: ``(a, b, c)`` of :class:`ModelErrorCalibration` (the disc's apparent
         radius, a shift of the limb towards the Sun in the image and one across it). From
-        the calibration when there is one (terrain and edge model together, scaling with
-        the disc), else the DEM's half-circle limb height times the terrain scale (radius
-        only); zero without terrain."""
+        the calibration when there is one and ``options.terrain_error_scale`` is null
+        (terrain and edge model together, scaling with the disc), else the DEM's half-circle
+        limb height times the terrain scale (radius only); zero without terrain."""
         out = np.zeros((3, 3))
         topo = self.limb_topography
         t = self.model_error_table
+        scale = options.terrain_error_scale
         if topo is None:
             return out
-        if t is not None and self.terrain_scale is None:
+        if t is not None and scale is None:
             return np.asarray(t.common_covariance, float) * radius_px**2
-        k = 1.0 if self.terrain_scale is None else self.terrain_scale
+        k = 1.0 if scale is None else scale
         out[0, 0] = (k * topo.common_fraction * radius_px) ** 2
         return out
 
-    def fix_covariance(self, radius_px: float, saturated: bool,
+    def fix_covariance(self, options: SIView, radius_px: float, saturated: bool,
                        phase_rad: float | None = None) -> FloatArray | None:
         """Covariance [px^2] of a fix's slowly varying error in the three limb modes
         (:attr:`ModelErrorCalibration.fix_covariance` times its factor at ``phase_rad``,
         or its smooth-Moon value without terrain) at a disc radius ``radius_px``; None
-        without a calibration."""
+        without a calibration or with ``options.terrain_error_scale`` set."""
         t = self.model_error_table
-        if t is None or self.terrain_scale is not None:
+        if t is None or options.terrain_error_scale is not None:
             return None
         if self.limb_topography is None:
             return np.asarray(t.fix_covariance_smooth, float) * radius_px**2
         C = t.fix_covariance_saturated if saturated else t.fix_covariance
-        return np.asarray(C, float) * (radius_px**2 * self.fix_scale(phase_rad, saturated))
+        return np.asarray(C, float) * (radius_px**2 * self.fix_scale(options, phase_rad,
+                                                                     saturated))
 
-    def fix_scale(self, phase_rad: float | None, saturated: bool) -> float:
+    def fix_scale(self, options: SIView, phase_rad: float | None, saturated: bool) -> float:
         """The calibration's factor on the slowly varying fix covariance at ``phase_rad``
-        (:meth:`ModelErrorCalibration.fix_scale`; 1 without one, or without terrain)."""
+        (:meth:`ModelErrorCalibration.fix_scale`; 1 without one, without terrain, or with
+        ``options.terrain_error_scale`` set)."""
         t = self.model_error_table
-        if t is None or self.terrain_scale is not None or self.limb_topography is None:
+        if t is None or options.terrain_error_scale is not None or self.limb_topography is None:
             return 1.0
         return t.fix_scale(phase_rad, saturated)
-
-    def __post_init__(self) -> None:
-        if not 1 <= self.n_windows <= MAX_WINDOWS:
-            raise ConfigError("refine.n_windows", self.n_windows, f"1..{MAX_WINDOWS} windows")
-        if self.size_px < 5:
-            raise ConfigError("refine.size_px", self.size_px, "a window side >= 5 px")
-        EDGE_MODELS.check(self.edge_model)
-        if self.psf_sigma_px is not None and not (self.psf_sigma_px >= 0
-                                                  and math.isfinite(self.psf_sigma_px)):
-            raise ConfigError("refine.psf_sigma_px", self.psf_sigma_px, "None or >= 0 px")
-        if not self.sigma0_px > 0:
-            raise ConfigError("refine.sigma0_px", self.sigma0_px, "> 0 px")
-        for name in ("model_error_px", "saturated_model_error_px", "terrain_scale"):
-            v = getattr(self, name)
-            if v is not None and not (v >= 0 and math.isfinite(v)):
-                raise ConfigError(f"refine.{name}", v, "None or a finite value >= 0")
-        if not self.max_overexposure > 1:
-            raise ConfigError("refine.max_overexposure", self.max_overexposure, "> 1")
-        if self.edge_model == "detector-psf" and self.spread is None:
-            raise ConfigError("refine.edge_model", self.edge_model,
-                              "an EdgeSpread (the detector's blur) with the detector-psf model")
 
 
 # ------------------------------------------------------------------------ F_nu functions
@@ -536,7 +589,7 @@ def edge_profile(d: ArrayLike, sigma: float, amplitudes: Sequence[float], backgr
 
 # ------------------------------------------------------------------------ planning
 def plan_windows(uv: ArrayLike, centre_px: ArrayLike, *, shape: tuple[int, int],
-                 options: RefineOptions | None = None) -> list[WindowRequest]:
+                 options: SIView | None = None) -> list[WindowRequest]:
     """Window requests evenly spread along a limb arc (module step 1).
 
     Parameters
@@ -547,15 +600,16 @@ def plan_windows(uv: ArrayLike, centre_px: ArrayLike, *, shape: tuple[int, int],
         Centre of the limb circle [px], used to order the points.
     shape : (rows, cols)
         Detector size [px].
-    options : RefineOptions, optional
-        ``n_windows`` and ``size_px``.
+    options : SIView, optional
+        The SI view of a :class:`RefineConfig` (``n_windows``, ``window_size_px``); default
+        its defaults.
 
     Returns
     -------
     list of WindowRequest
         At most ``n_windows`` windows, inside the detector.
     """
-    opt = options or RefineOptions()
+    opt = options if options is not None else _DEFAULT
     p = np.asarray(uv, float).reshape(-1, 2)
     if p.shape[0] == 0:
         return []
@@ -566,7 +620,7 @@ def plan_windows(uv: ArrayLike, centre_px: ArrayLike, *, shape: tuple[int, int],
     # centres of k equal parts of the arc, in point order
     idx = np.round((np.arange(k) + 0.5) * p.shape[0] / k - 0.5).astype(int)
     H, W = shape
-    s = min(opt.size_px, H, W)
+    s = min(opt.window_size_px, H, W)
     out = []
     for u, v in p[idx]:
         r0 = int(np.clip(round(v) - s // 2, 0, H - s))
@@ -992,36 +1046,37 @@ def _levenberg_marquardt(model: _TableModel | _GaussModel, X: FloatArray, Z: Flo
 
 
 def _fit_windows(y: FloatArray, mask: NDArray[np.bool_], rho: FloatArray, t_arc: FloatArray,
-                 radius_px: float, opt: RefineOptions,
-                 tables: Sequence[EdgeTables] | None = None,
+                 radius_px: float, edge_model: str, psf_sigma_px: float | None,
+                 noise: PixelNoise | None, tables: Sequence[EdgeTables] | None = None,
                  saturated: bool = False) -> _WindowFits:
     """Fit the window model to ``K`` windows of ``M`` pixels at once (module steps 3-4):
     ``y``, ``mask``, ``rho``, ``t_arc`` are ``(K, M)``; with ``tables`` (one per window) the
-    ``detector-psf`` model (a step only when ``saturated``), else the Gaussian one."""
+    ``detector-psf`` model (a step only when ``saturated``), else the Gaussian one of
+    ``edge_model`` (of width ``psf_sigma_px``, or fitted when None); weighted by ``noise``."""
     model: _TableModel | _GaussModel
     if tables is not None:
         model = _TableModel(y, mask, rho, t_arc, radius_px,
                             _StackedTables(tables, radius_px), ramp=not saturated)
     else:
-        fit_sigma = opt.psf_sigma_px is None
+        fit_sigma = psf_sigma_px is None
         model = _GaussModel(y, mask, rho, t_arc, radius_px,
-                            EDGE_MODELS["blurred-limb" if opt.edge_model == "detector-psf"
-                                        else opt.edge_model],
-                            opt.sigma0_px if fit_sigma
-                            else math.sqrt(opt.psf_sigma_px**2 + PIXEL_BOX_VARIANCE),
+                            EDGE_MODELS["blurred-limb" if edge_model == "detector-psf"
+                                        else edge_model],
+                            SIGMA0_PX if fit_sigma
+                            else math.sqrt(psf_sigma_px**2 + PIXEL_BOX_VARIANCE),
                             fit_sigma)
     K, p, q = y.shape[0], model.p, model.q
     X = np.zeros((K, 3))
     X[:, 2] = model.sigma0
     Z = model.evaluate(_ALL, X)
-    if opt.noise is not None:
+    if noise is not None:
         # (a saturated window's cost is rough at the 1e-3 px level: there the first pass
         # converges as fully as the second, or its weights move the edge by ~1e-3 px)
         _levenberg_marquardt(model, X, Z, _CONVERGED_STEP if saturated else _WEIGHTS_STEP,
-                             opt.max_iterations)
+                             MAX_ITERATIONS)
         # weighted pass: weights from the noise model at the unweighted fit's prediction
-        Z = model.reweigh(opt.noise, Z[:, :p], X)
-    it, converged = _levenberg_marquardt(model, X, Z, _CONVERGED_STEP, opt.max_iterations)
+        Z = model.reweigh(noise, Z[:, :p], X)
+    it, converged = _levenberg_marquardt(model, X, Z, _CONVERGED_STEP, MAX_ITERATIONS)
     lin, cost, S = Z[:, :p], Z[:, p], Z[:, p + 1:p + 1 + q * q].reshape(K, q, q)
     # 1-sigma of delta (module step 5): the delta entry of (J^T W J)^-1 of all parameters,
     # the reduced S^-1's, at the last point evaluated; known noise: inflated by the reduced
@@ -1029,7 +1084,7 @@ def _fit_windows(y: FloatArray, mask: NDArray[np.bool_], rho: FloatArray, t_arc:
     # unknown noise: s^2 (J^T J)^-1
     dof = np.maximum(mask.sum(axis=1) - q - p, 1)
     s2 = cost / dof
-    factor = np.maximum(s2, 1.0) if opt.noise is not None else s2
+    factor = np.maximum(s2, 1.0) if noise is not None else s2
     e0 = np.zeros((K, q))
     e0[:, 0] = 1.0
     c00, ok = _solve(S, e0)
@@ -1064,7 +1119,8 @@ def fit_edge_window(
     t_arc: ArrayLike,
     radius_px: float,
     *,
-    options: RefineOptions | None = None,
+    options: SIView | None = None,
+    noise: PixelNoise | None = None,
     tables: EdgeTables | None = None,
     saturated: bool = False,
 ) -> EdgeFit:
@@ -1080,10 +1136,15 @@ def fit_edge_window(
         Arc coordinate of each pixel about the window's reference angle [px].
     radius_px : float
         Coarse limb radius [px].
-    options : RefineOptions, optional
+    options : SIView, optional
+        The SI view of a :class:`RefineConfig` (``edge_model``, ``psf_sigma_px``); default
+        its defaults.
+    noise : PixelNoise, optional
+        The pixels' noise: a weighted fit with its covariance; None: unweighted.
     tables : EdgeTables, optional
         The detector's blurred step and ramp at this window (``detector-psf`` model); without
-        them the Gaussian model of ``options.edge_model``.
+        them the Gaussian model of ``options.edge_model`` (``auto`` and ``detector-psf``:
+        ``blurred-limb``).
     saturated : bool
         The window held saturated pixels (removed from ``dn``): the inside of the limb is not
         seen, so only a blurred step is fitted (``detector-psf`` model).
@@ -1093,11 +1154,13 @@ def fit_edge_window(
     EdgeFit
         ``amplitudes[0]`` is the step ``A`` [DN]; with tables ``sigma`` is NaN (not fitted).
     """
+    opt = options if options is not None else _DEFAULT
     y = np.asarray(dn, float)[None, :]
+    edge = "blurred-limb" if opt.edge_model == "auto" else opt.edge_model
     return _fit_windows(y, np.ones(y.shape, bool), np.asarray(rho, float)[None, :],
-                        np.asarray(t_arc, float)[None, :], float(radius_px),
-                        options or RefineOptions(),
-                        None if tables is None else [tables], saturated).edge_fit(0)
+                        np.asarray(t_arc, float)[None, :], float(radius_px), edge,
+                        opt.psf_sigma_px, noise, None if tables is None else [tables],
+                        saturated).edge_fit(0)
 
 
 @functools.lru_cache(maxsize=8)
@@ -1127,36 +1190,38 @@ def _window_normals(centres: FloatArray, c: FloatArray) -> FloatArray:
 
 
 def prepare_edge_tables(windows: Sequence[Window], centre_px: ArrayLike, radius_px: float, *,
-                        options: RefineOptions | None = None, camera: object | None = None
-                        ) -> None:
+                        options: SIView | None = None, models: RefineModels | None = None,
+                        camera: object | None = None) -> None:
     """Build (and cache) the ``detector-psf`` edge tables :func:`refine_limb` will ask for
     with these windows and this coarse circle: those of every window's field cell and edge
     direction (:meth:`EdgeSpread.tables_along`). A tracker carries its tables before the
     frame comes; nothing to do for the Gaussian edge models."""
-    opt = options or RefineOptions()
-    if opt.edge_model != "detector-psf" or not windows or camera is None:
+    opt = options if options is not None else _DEFAULT
+    models = models if models is not None else RefineModels()
+    if models.edge_model(opt) != "detector-psf" or not windows or camera is None:
         return
     c, R = np.asarray(centre_px, float), float(radius_px)
     dn, real, _, _, centres = _window_pixels(windows, c)
     normal = _window_normals(centres, c)
-    _, _, saturated, usable = _window_groups(dn, real, opt)
+    _, _, saturated, usable = _window_groups(dn, real, opt.saturation_dn, True)
     for k in _fit_groups(usable, saturated):
         # the tables and their stack, as refine_limb asks for them
-        _StackedTables(opt.spread.tables_along(  # type: ignore[union-attr]
+        _StackedTables(models.spread.tables_along(  # type: ignore[union-attr]
             camera, c + R * normal[k], normal[k]), R)
 
 
-def _window_groups(dn: FloatArray, real: NDArray[np.bool_], opt: RefineOptions
-                   ) -> tuple[NDArray[np.bool_], NDArray[np.int_], NDArray[np.bool_],
-                              NDArray[np.bool_]]:
-    """Per pixel: unsaturated (``ok``); per window: its count, saturated, usable."""
-    ok = real & (dn < opt.saturation_dn)
+def _window_groups(dn: FloatArray, real: NDArray[np.bool_], saturation_dn: float,
+                   tabulated: bool) -> tuple[NDArray[np.bool_], NDArray[np.int_],
+                                             NDArray[np.bool_], NDArray[np.bool_]]:
+    """Per pixel: unsaturated (``ok``); per window: its count, saturated, usable
+    (``tabulated``: the ``detector-psf`` model, which keeps saturated windows)."""
+    ok = real & (dn < saturation_dn)
     n_ok = ok.sum(axis=1)
     saturated = n_ok < real.sum(axis=1)
     # a Gaussian of fitted width cannot be told from the edge's position when the inside is
     # clipped (measured: -1.9 +- 2.9 px at 0.18 ms): only the detector's own blur makes a
     # saturated edge usable
-    usable = (n_ok >= 12) & ((opt.edge_model == "detector-psf") | ~saturated)
+    usable = (n_ok >= 12) & (tabulated | ~saturated)
     return ok, n_ok, saturated, usable
 
 
@@ -1201,7 +1266,8 @@ def refine_limb(
     radius_px: float,
     *,
     sun_dir_image: ArrayLike | None = None,
-    options: RefineOptions | None = None,
+    options: SIView | None = None,
+    models: RefineModels | None = None,
     camera: object | None = None,
     phase_rad: float | None = None,
 ) -> LimbPoints:
@@ -1215,7 +1281,10 @@ def refine_limb(
         Coarse limb circle [px] (from RANSAC on the pixel-level points).
     sun_dir_image : (2,) array, optional
         Carried into the result.
-    options : RefineOptions, optional
+    options : SIView, optional
+        The SI view of a :class:`RefineConfig`; default its defaults.
+    models : RefineModels, optional
+        What the builder resolved (noise, blur, terrain, calibration); default none.
     camera : Camera, optional
         Needed by the ``detector-psf`` model (the field position of each window).
     phase_rad : float, optional
@@ -1231,11 +1300,16 @@ def refine_limb(
     LimbNotFoundError
         When fewer than 3 windows give a valid edge.
     """
-    opt = options or RefineOptions()
+    opt = options if options is not None else _DEFAULT
+    models = models if models is not None else RefineModels()
+    # the knobs, read once
+    edge_model = models.edge_model(opt)
+    size_px, saturation_dn = opt.window_size_px, opt.saturation_dn
+    psf_sigma_px, noise = opt.psf_sigma_px, models.noise
     c = np.asarray(centre_px, float)
     R = float(radius_px)
-    half = opt.size_px / 2.0 + 1.0
-    tabulated = opt.edge_model == "detector-psf"
+    half = size_px / 2.0 + 1.0
+    tabulated = edge_model == "detector-psf"
     if tabulated and camera is None:
         raise ConfigError("camera", None, "a Camera for the detector-psf edge model")
     if len(windows) < 3:
@@ -1244,11 +1318,11 @@ def refine_limb(
     # model error of a point: the terrain's limb-height spread averaged over the window's arc,
     # at this disc size (its half-circle mean is shared by all points: ``common``), and the
     # edge model's own error
-    edge_err, sat_err, t_scale = opt.model_errors(phase_rad)
-    topo = opt.limb_topography
-    frac = topo.sigma_fraction_over(opt.size_px / max(R, 1.0)) if topo is not None else 0.0
+    edge_err, sat_err, t_scale = models.model_errors(opt, phase_rad)
+    topo = models.limb_topography
+    frac = topo.sigma_fraction_over(size_px / max(R, 1.0)) if topo is not None else 0.0
     model_px = math.hypot(edge_err, t_scale * frac * R)
-    common = opt.common_covariance(R)
+    common = models.common_covariance(opt, R)
 
     # local geometry of every pixel of every window (module step 2), all windows at once
     dn, real, rel_u, rel_v, centres = _window_pixels(windows, c)
@@ -1258,7 +1332,7 @@ def refine_limb(
     normal = _window_normals(centres, c)
     nu, nv = normal[:, 0:1], normal[:, 1:2]
     t_arc = R * np.arctan2(nu * rel_v - nv * rel_u, nu * rel_u + nv * rel_v)
-    ok, n_ok, saturated, usable = _window_groups(dn, real, opt)
+    ok, n_ok, saturated, usable = _window_groups(dn, real, saturation_dn, tabulated)
     debug = log.isEnabledFor(logging.DEBUG)
     if debug:
         for i in np.flatnonzero(~usable):
@@ -1273,10 +1347,10 @@ def refine_limb(
     for k in _fit_groups(usable, saturated):
         tables = None
         if tabulated:
-            tables = opt.spread.tables_along(  # type: ignore[union-attr]
+            tables = models.spread.tables_along(  # type: ignore[union-attr]
                 camera, c + R * normal[k], normal[k])
-        f = _fit_windows(dn[k], ok[k], rho[k], t_arc[k], R, opt, tables,
-                         saturated=bool(saturated[k[0]]))
+        f = _fit_windows(dn[k], ok[k], rho[k], t_arc[k], R, edge_model, psf_sigma_px, noise,
+                         tables, saturated=bool(saturated[k[0]]))
         delta[k], step_dn[k], background[k] = f.delta, f.lin[:, 1], f.lin[:, 0]
         sd[k], converged[k] = f.sigma_delta, f.converged
         if not tabulated:
@@ -1286,19 +1360,20 @@ def refine_limb(
     # on both sides of it
     outward = rho - R - delta[:, None]
     valid = (usable & converged & (np.abs(delta) < half) & np.isfinite(sd)
-             & (step_dn >= opt.min_contrast_dn)
+             & (step_dn >= models.min_contrast_dn)
              & (ok & (outward > blur[:, None])).any(axis=1)
              & (real & (outward < -blur[:, None])).any(axis=1))
     # far past the full well the edge is blooming and halo, not the optics' blur
     fitted_saturated = usable & saturated
-    overexposure = step_dn / np.maximum(opt.saturation_dn - background, 1.0)
-    valid &= ~fitted_saturated | (overexposure <= opt.max_overexposure)
+    max_overexposure = opt.max_overexposure
+    overexposure = step_dn / np.maximum(saturation_dn - background, 1.0)
+    valid &= ~fitted_saturated | (overexposure <= max_overexposure)
     if debug:
         for i in np.flatnonzero(usable & ~valid):
             log.debug("window at (%d, %d): no valid edge (delta %.2f px, A %.1f DN, conv %s)",
                       windows[i].row0, windows[i].col0, delta[i], step_dn[i], converged[i])
     if (fitted_saturated.any()
-            and float(np.median(overexposure[fitted_saturated])) > opt.max_overexposure):
+            and float(np.median(overexposure[fitted_saturated])) > max_overexposure):
         # the frame is in the blooming regime (the paper's 7.7 ms): its saturated windows'
         # edges, even where one fits, are not the optics' blur of the limb
         log.debug("saturated windows overexposed %.0fx (median): dropped",
@@ -1316,6 +1391,6 @@ def refine_limb(
     return LimbPoints(uv=pts, sigma_px=sig, centre_px=c, radius_px=R,
                       sun_dir_image=d, n_candidates=len(windows), source="windows",
                       common_covariance_px2=common,
-                      fix_covariance_px2=opt.fix_covariance(R, bool(sat_flags.any()),
-                                                            phase_rad),
+                      fix_covariance_px2=models.fix_covariance(opt, R, bool(sat_flags.any()),
+                                                               phase_rad),
                       fit_sigma_px=sd[i], saturated=sat_flags)

@@ -323,9 +323,9 @@ def navigate_dataset(
                                                  and len(frames) != len(chains)):
         raise ConfigError("frames/chains", None, "both or neither, one chain per frame")
     chain = cfg.chain_options(scenario=scenario)
-    ekf = cfg.ekf_options(chain.calibration)
     run = navigate(dataset if frames is None else frames, camera=dataset.camera,
-                   dynamics=dyn, moon=dyn, P0=P0, chain=chain, chains=chains, ekf=ekf,
+                   dynamics=dyn, moon=dyn, P0=P0, chain=chain, chains=chains,
+                   ekf=cfg.filter.to_si(), ekf_priors=cfg.ekf_priors(chain.calibration),
                    seed=seed, measure_memory=measure_memory)
     shown = list(dataset) if plots else []
     paths = write_outputs(run, out_dir, plots=plots, frames=shown,

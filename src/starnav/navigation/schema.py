@@ -3,12 +3,14 @@
 Units are in the key names (``_px``, ``_km``, ``_arcsec``, ``_days``). Each knob is declared
 once, on its field (description, unit, range); a section whose algorithm reads it as it is is
 declared beside that algorithm and reads its SI view (``to_si()``): ``limb``
-(:class:`~starnav.navigation.limb.LimbConfig`), ``ransac``
-(:class:`~starnav.navigation.ransac.RansacConfig`), ``trn.front_end``
+(:class:`~starnav.navigation.limb.LimbConfig`), ``refine``
+(:class:`~starnav.navigation.refine.RefineConfig`), ``ransac``
+(:class:`~starnav.navigation.ransac.RansacConfig`), ``filter``
+(:class:`~starnav.navigation.ekf.FilterConfig`), ``trn.front_end``
 (:class:`~starnav.navigation.trn.options.TrnFrontEndConfig`) and ``trn.filter``
 (:class:`~starnav.navigation.trn.filter.TrnFilterConfig`). :meth:`NavigationConfig.
-chain_options` and :meth:`NavigationConfig.ekf_options` resolve the rest with the scenario (the
-detector's noise and blur, the terrain, the attitude knowledge, the calibrations).
+chain_options` and :meth:`NavigationConfig.ekf_priors` resolve what the knobs and the scenario
+give (the detector's noise and blur, the terrain, the attitude knowledge, the calibrations).
 
 Example (YAML)::
 
@@ -40,7 +42,7 @@ from starnav.dem.limb import limb_topography_for
 from starnav.errors import ConfigError
 from starnav.fields import NonNegativeFloat, PositiveFloat
 from starnav.navigation.christian_robinson import ChristianRobinsonOptions
-from starnav.navigation.ekf import EkfOptions
+from starnav.navigation.ekf import EkfPriors, FilterConfig
 from starnav.navigation.limb import LimbConfig
 from starnav.navigation.pipeline import ChainOptions
 from starnav.navigation.psf import estimated_psf
@@ -48,58 +50,12 @@ from starnav.navigation.ransac import RansacConfig
 from starnav.navigation.refine import (
     EdgeSpread,
     PixelNoise,
-    RefineOptions,
+    RefineConfig,
+    RefineModels,
     packaged_model_error,
 )
 from starnav.navigation.trn.filter import TrnFilterConfig
 from starnav.navigation.trn.options import TrnFrontEndConfig
-
-
-class RefineConfig(StrictModel):
-    """Subpixel refinement from windows (starnav.navigation.refine)."""
-
-    enabled: bool = Field(True, description="refine with the frame's windows when present")
-    n_windows: Annotated[int, Field(ge=1, le=16)] = Field(16, description="windows planned")
-    window_size_px: Annotated[int, Field(ge=5)] = Field(11, description="window side [px]")
-    edge_model: Literal["auto", "detector-psf", "blurred-limb", "blurred-step"] = Field(
-        "auto", description="edge model of the window fit: detector-psf (the dataset "
-        "detector's own blur: defocus disc * Gaussian, pixel apertures, IPC; needs the "
-        "scenario), blurred-limb / blurred-step (Gaussian of fitted width); auto: detector-psf "
-        "when the scenario is known and its aberration PSF is on, else blurred-limb")
-    psf_sigma_px: NonNegativeFloat | None = Field(
-        None, description="Gaussian PSF sigma [px]; null: fitted per window")
-    psf_knowledge: Literal["estimated", "detector"] = Field(
-        "estimated", description="the PSF of the detector-psf edge model: estimated (fitted "
-        "to star images exposed through the detector, starnav.navigation.psf) or detector "
-        "(the simulator's own setting: perfect knowledge, an analysis option)")
-    saturation_dn: PositiveFloat = Field(4095.0, description="pixels at or above are ignored [DN]")
-    min_sigma_px: PositiveFloat = Field(0.02, description="floor of a refined point's sigma [px]")
-    noise_model: bool = Field(
-        True, description="weight each window fit with the scenario detector's per-pixel noise "
-        "(read, shot, PRNU, quantisation) and take its covariance from it")
-    terrain_model_error: bool = Field(
-        True, description="add the DEM's limb-height spread (starnav.dem.limb) to each refined "
-        "point's sigma when the Moon has terrain")
-    terrain_model_ppd: PositiveFloat | None = Field(
-        1.0, description="resolution of the DEM the navigation's limb-height statistics come "
-        "from [px/deg] (area-averaged from the scenario's DEM): a terrain model coarser than "
-        "the one that renders; null: the rendered DEM itself (perfect knowledge)")
-    outlier_px: PositiveFloat = Field(0.5, description="refined points farther from the first "
-                                                       "fix are dropped [px]")
-    model_error_px: NonNegativeFloat | None = Field(
-        None, description="the edge model's own error [px], added to every refined point's "
-        "sigma; null: the packaged calibration with the detector-psf model "
-        "(starnav/data/navigation/refine_model_error.json), 0 otherwise")
-    saturated_model_error_px: NonNegativeFloat | None = Field(
-        None, description="extra model error of a window whose inside is saturated [px] "
-        "(detector-psf model); null: the packaged calibration")
-    terrain_error_scale: NonNegativeFloat | None = Field(
-        None, description="factor on the DEM's limb-height spread (terrain_model_error): what "
-        "the lit limb shows beyond the silhouette; null: the packaged calibration with the "
-        "detector-psf model, 1 otherwise")
-    max_overexposure: Annotated[float, Field(gt=1, allow_inf_nan=False)] = Field(
-        20.0, description="saturated windows whose fitted step exceeds this many times the "
-        "headroom to saturation are dropped (blooming, not the optics, shapes that edge)")
 
 
 class FixConfig(StrictModel):
@@ -137,38 +93,6 @@ class AttitudeSourceConfig(StrictModel):
     gyro_bias_deg_h: NonNegativeFloat = Field(
         0.01, description="1-sigma of the gyro's uncalibrated rate bias per axis, a random "
         "constant per run [deg/h] (assumption, as the ARW)")
-
-
-class FilterConfig(StrictModel):
-    """EKF (starnav.navigation.ekf)."""
-
-    bias_model: Literal["none", "additive", "range-scale", "range-scale+additive",
-                        "limb-common"] = Field(
-        "none", description="Gauss-Markov bias states: additive (3-axis shift), range-scale, "
-        "both, or limb-common (the errors all refined limb points of a frame share, with "
-        "their calibrated covariance; only bias_tau_days is used)")
-    bias_sigma_km: NonNegativeFloat = Field(0.0, description="additive bias 1-sigma [km]")
-    range_scale_sigma: NonNegativeFloat = Field(0.0, description="range-scale bias 1-sigma [-]")
-    bias_tau_days: PositiveFloat = Field(1.0, description="bias correlation time [days]")
-    dynamics: Literal["earth-moon-sun"] = Field(
-        "earth-moon-sun", description="the filter's force model: Earth, Moon and Sun point "
-        "masses from DE421 (starnav.scenes.dynamics), whatever trajectory.forces adds to the "
-        "truth")
-    accel_psd_m2_s3: NonNegativeFloat = Field(
-        2.4e-9, description="white acceleration noise density [m^2/s^3]: what the filter's "
-        "model leaves out (planets, SRP of a 12U CubeSat, J2 at the halo: rms 1.7e-7 m/s^2, "
-        "starnav.scenes.forces.unmodelled_acceleration_psd; 0: perfect dynamics knowledge)")
-    gate_probability: Annotated[float, Field(gt=0, lt=1)] | None = Field(
-        0.9999, description="chi-square gate on the NIS; null disables")
-    max_consecutive_rejections: Annotated[int, Field(ge=1)] = Field(
-        5, description="after this many fixes in a row rejected by the gate, the next one is "
-        "accepted regardless (recovery from a diverged filter)")
-    initial_position_sigma_km: PositiveFloat = Field(100.0, description="initial 1-sigma [km]")
-    initial_velocity_sigma_m_s: PositiveFloat = Field(1.0, description="initial 1-sigma [m/s]")
-    rk4_step_s: PositiveFloat = Field(
-        1800.0, description="longest RK4 step of the filter dynamics [s] (an interval is split "
-        "into equal steps no longer than this; 1800 s near L2: under a millimetre per day from "
-        "the converged integration, one step per frame at the demo's cadence)")
 
 
 class TrnShapeModelConfig(StrictModel):
@@ -284,7 +208,6 @@ class NavigationConfig(StrictModel):
         else:
             radii = (r, r, r)
         noise, terrain, spread = None, None, None
-        edge_model = "blurred-limb" if Rf.edge_model == "auto" else Rf.edge_model
         att: float | tuple[float, float, float] = 0.0
         if Fsi.attitude_sigma is not None:
             a = Fsi.attitude_sigma
@@ -299,12 +222,13 @@ class NavigationConfig(StrictModel):
                     aberration = estimated_psf(scenario.detector,
                                                camera_from_config(scenario.camera)).aberration
                 spread = EdgeSpread.from_detector(scenario.detector, aberration=aberration)
-                edge_model = "detector-psf"
             on_moon = getattr(scenario, "target", None) is None or scenario.target.kind == "moon"
             if Rf.terrain_model_error and on_moon and scenario.moon.shape == "dem":
                 terrain = limb_topography_for(_coarser(scenario.moon.dem, Rf.terrain_model_ppd))
             if Fsi.attitude_sigma is None:
                 att = scenario.pointing.knowledge_sigma
+        refine = Rf.to_si()
+        edge_model = RefineModels(spread=spread).edge_model(refine)
         table = packaged_model_error() if edge_model == "detector-psf" else None
         # the fix's radius error when no refined points carry their own (pixel-level points)
         if terrain is None:
@@ -317,20 +241,14 @@ class NavigationConfig(StrictModel):
         return ChainOptions(
             limb=self.limb.to_si(),
             ransac=self.ransac.to_si(),
-            refine=RefineOptions(n_windows=Rf.n_windows, size_px=Rf.window_size_px,
-                                 edge_model=edge_model, psf_sigma_px=Rf.psf_sigma_px,
-                                 saturation_dn=Rf.saturation_dn, min_sigma_px=Rf.min_sigma_px,
-                                 noise=noise, limb_topography=terrain, spread=spread,
-                                 model_error_px=Rf.model_error_px,
-                                 saturated_model_error_px=Rf.saturated_model_error_px,
-                                 terrain_scale=Rf.terrain_error_scale,
-                                 model_error_table=table, max_overexposure=Rf.max_overexposure),
+            refine=refine,
+            refine_models=RefineModels(noise=noise, spread=spread, limb_topography=terrain,
+                                       model_error_table=table),
+            use_windows=Rf.enabled,
             fix=ChristianRobinsonOptions(
                 radii_m=radii,  # type: ignore[arg-type]
                 attitude_sigma_rad=att,
                 radius_sigma_fraction=radius_fraction),
-            use_windows=Rf.enabled,
-            refine_outlier_px=Rf.outlier_px,
             calibration=self.calibration(scenario),
         )
 
@@ -357,14 +275,13 @@ class NavigationConfig(StrictModel):
                                   f"{cam.height} px detector with its pixel pitch")
         return cal
 
-    def ekf_options(self, calibration: CameraCalibration | None = None) -> EkfOptions:
-        """The SI :class:`~starnav.navigation.ekf.EkfOptions` of this section; with the
-        chain's camera ``calibration`` its parameters are the filter's consider states, with
-        the calibration's covariance."""
-        f = self.filter
-        fsi = f.to_si()
+    def ekf_priors(self, calibration: CameraCalibration | None = None) -> EkfPriors:
+        """What the filter (its section's SI view, ``filter.to_si()``) needs besides its
+        knobs: the ``limb-common`` bias states' covariance, and with the chain's camera
+        ``calibration`` its parameters as consider states, with the calibration's
+        covariance."""
         common = consider = None
-        if f.bias_model == "limb-common":
+        if self.filter.bias_model == "limb-common":
             # the states carry what the fix's own covariance carries besides its pixels and
             # the attitude: the calibrated slowly varying fix error in the three limb modes
             # (ModelErrorCalibration.fix_covariance), not the points' shared error
@@ -375,13 +292,7 @@ class NavigationConfig(StrictModel):
         if calibration is not None and calibration.parameters:
             consider = tuple(tuple(float(x) for x in r)
                              for r in np.asarray(calibration.covariance, float))
-        return EkfOptions(bias_model=f.bias_model, bias_sigma_m=fsi.bias_sigma,
-                          common_covariance=common, consider_covariance=consider,
-                          range_scale_sigma=f.range_scale_sigma,
-                          bias_tau_s=fsi.bias_tau,
-                          accel_psd_m2_s3=f.accel_psd_m2_s3,
-                          gate_probability=f.gate_probability,
-                          max_consecutive_rejections=f.max_consecutive_rejections)
+        return EkfPriors(common_covariance=common, consider_covariance=consider)
 
     def initial_covariance(self) -> NDArray[np.float64]:
         """Diagonal initial covariance (6 x 6) [m^2, m^2/s^2] from the filter's sigmas."""

@@ -32,7 +32,7 @@ from starnav.navigation.limb import (
     segments_centroid,
     sun_direction_in_image,
 )
-from starnav.navigation.refine import RefineOptions, cut_windows, plan_windows
+from starnav.navigation.refine import RefineConfig, cut_windows, plan_windows
 from starnav.registry import Registry
 from starnav.typing import FloatArray
 
@@ -229,8 +229,8 @@ def synthetic_frame(
             d = sun_direction_in_image(camera, R_meas, geometry.sun_direction, c0)
             lp = limb_points_from_segments(seg, d)
             req = plan_windows(lp.uv, lp.centre_px, shape=dn.shape,
-                               options=RefineOptions(n_windows=n_windows,
-                                                     size_px=window_size_px))
+                               options=RefineConfig(n_windows=n_windows,
+                                                    window_size_px=window_size_px).to_si())
             wins = cut_windows(dn, req)
         except LimbNotFoundError:
             wins = []

@@ -52,7 +52,7 @@ from starnav.errors import StarnavError
 from starnav.navigation.frames import Frame
 from starnav.navigation.limb import LimbConfig
 from starnav.navigation.pipeline import ChainOptions, process_frame
-from starnav.navigation.refine import RefineOptions, cut_windows, plan_windows
+from starnav.navigation.refine import RefineConfig, RefineModels, cut_windows, plan_windows
 from starnav.reference.amie.frame import (
     AMIE_FRAMES,
     calibrate,
@@ -225,9 +225,9 @@ def _solve_limb(dn: NDArray[np.integer], camera: Camera, R_cam_to_inertial: Floa
     """
     limb = {"min_run_length_px": 2, "max_points": 2000}
     chain = ChainOptions(limb=LimbConfig(**limb, max_phase_deg=options.max_phase_deg).to_si(),
-                         refine=RefineOptions(size_px=options.window_px,
-                                              saturation_dn=float(saturation_dn),
-                                              min_contrast_dn=5.0))
+                         refine=RefineConfig(window_size_px=options.window_px,
+                                             saturation_dn=float(saturation_dn)).to_si(),
+                         refine_models=RefineModels(min_contrast_dn=5.0))
     frame = Frame(index=0, epoch_tdb=0.0, R_cam_to_inertial_measured=R_cam_to_inertial,
                   sun_direction_inertial=sun_dir_inertial,
                   segments=extract_segments(np.asarray(dn), [int(threshold_dn)]))
