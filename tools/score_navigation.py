@@ -10,10 +10,10 @@ The protocol (docs/navigation.md, "Tuning apart from scoring"):
   the PSF estimate on the star frames of ``tools/estimate_psf.py`` (seeds 9100-9103), the
   camera's bench calibrations (``tools/calibrate_camera_bench.py``, bench seeds 9500-9539),
   the fix covariance's factors per bin of phase (the refinement's arcs again).
-- **Scoring set** (:data:`SCORING_ARCS`): another season (February to April 2028), halo
-  phases (20 and 280 deg) apart from the tuning phases and the spent scoring sets
-  (:data:`SPENT`), Sun phases on both sides of the tuning arcs' 52-100 deg (114-115 and
-  29-32 deg), seeds 9403-9404; the truth with every mismatch on (planets, solar radiation
+- **Scoring set** (:data:`SCORING_ARCS`): another season (June and September 2028), halo
+  phases (170 and 350 deg) apart from the tuning phases and the spent scoring sets
+  (:data:`SPENT`), Sun phases 81-111 deg (across the tuning arcs' upper edge, 100 deg) and
+  32-33 deg (below them), ranges 51 000-52 000 and 72 000-73 000 km, seeds 9405-9406; the truth with every mismatch on (planets, solar radiation
   pressure with eclipses and J2 in the truth only; PSF estimated from stars; terrain
   statistics from a coarser DEM than the rendered one; the camera known as one emulated bench
   calibrated it), each run on its own terrain, detector noise, attitude knowledge error,
@@ -43,10 +43,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "src/starnav/data/navigation/scores.json"
 FIGURE = ROOT / "docs/figures/anees_scoring.png"
-SCORING_ARCS = (["trajectory.halo_phase_deg=20", "trajectory.epoch=2028-02-16T00:00:00 TDB",
-                 "seed=9403"],                  # Sun phase 114-115 deg, 75 000 km
-                ["trajectory.halo_phase_deg=280", "trajectory.epoch=2028-04-19T00:00:00 TDB",
-                 "seed=9404"])                  # Sun phase 29-32 deg, 74 000-77 000 km
+SCORING_ARCS = (["trajectory.halo_phase_deg=170", "trajectory.epoch=2028-06-14T00:00:00 TDB",
+                 "seed=9405"],
+                ["trajectory.halo_phase_deg=350", "trajectory.epoch=2028-09-20T00:00:00 TDB",
+                 "seed=9406"])
 #: Scoring sets already spent (each saw a released default once; never scored again).
 SPENT = ((["trajectory.halo_phase_deg=150", "trajectory.epoch=2027-08-10T00:00:00 TDB",
            "seed=9301"],
@@ -55,7 +55,11 @@ SPENT = ((["trajectory.halo_phase_deg=150", "trajectory.epoch=2027-08-10T00:00:0
          (["trajectory.halo_phase_deg=100", "trajectory.epoch=2027-12-08T00:00:00 TDB",
            "seed=9401"],
           ["trajectory.halo_phase_deg=200", "trajectory.epoch=2028-01-05T00:00:00 TDB",
-           "seed=9402"]))
+           "seed=9402"]),
+         (["trajectory.halo_phase_deg=20", "trajectory.epoch=2028-02-16T00:00:00 TDB",
+           "seed=9403"],
+          ["trajectory.halo_phase_deg=280", "trajectory.epoch=2028-04-19T00:00:00 TDB",
+           "seed=9404"]))
 ARC = ["trajectory.duration_days=1.0", "trajectory.cadence_s=7200", "render.spp=8"]
 RUNS = 20
 
