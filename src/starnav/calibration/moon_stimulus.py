@@ -135,12 +135,15 @@ def calibrated_counts(bench: Bench, cal: RadiometricCalibration, le_camera: Arra
     table = np.maximum.accumulate(np.clip(cal.lut(grid) - cal.lut(0), 0.0, None))
     target = prewarp(want, mapping, bench, 1.0)
     top = float(table[-1])
-    if target.size and target.max() > top * (1 + 1e-9):
+    if target.size and float(target.max()) > top * (1 + 1e-9):
         raise ConfigError("stimulus electron radiance", f"{target.max():.4g} e- s^-1 m^-2 sr^-1",
                           f"<= the calibrated full white above black {top:.4g} (count {n_max}); "
                           f"raise the albedo-exposure factor k by >= {target.max() / top:.4g}x")
     counts = np.zeros(target.shape, np.uint16)
-    on = np.nonzero(target > 0)
+    # screen pixels outside the bench's window never reach the detector
+    j0, i0, j1, i1 = bench.screen_window
+    ii, jj = np.nonzero(target[i0:i1, j0:j1] > 0)
+    on = (ii + i0, jj + j0)
     x = target[on]
     hi = np.clip(np.searchsorted(table, x, side="left"), 0, n_max)
     lo = np.clip(hi - 1, 0, n_max)

@@ -286,11 +286,15 @@ class TruthScreen:
         screen and the stray light are the pedestal of :meth:`camera_image` at count 0.
         """
         bench = self.bench
-        c = bench.radiometry.check_counts(counts)
+        c = np.asarray(counts)
         if c.shape != bench.screen_shape:
             raise ConfigError("screen counts", f"shape {c.shape}",
                               f"the screen's {bench.screen_shape} grey counts (rows, cols)")
-        ii, jj = np.nonzero(c > 0)
+        j0, i0, j1, i1 = bench.screen_window
+        sub = bench.radiometry.check_counts(c) if not np.issubdtype(c.dtype, np.unsignedinteger) \
+            or int(c.max()) > bench.config.screen.max_count else c
+        ii, jj = np.nonzero(sub[i0:i1, j0:j1] > 0)
+        ii, jj = ii + i0, jj + j0
         screen = np.zeros(c.shape)
         if ii.size:
             amp = self._screen_base(ii, jj) * (self.level(c[ii, jj]) - self.level(0))
