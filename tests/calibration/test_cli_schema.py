@@ -138,8 +138,14 @@ def test_hil_geometric_then_stimulate(app, tmp_path):
     assert r.exit_code == 0, r.output
     s = json.loads((out / "stimulate.json").read_text())
     assert len(s["frames"]) == 2 and s["plan"]["k"] == pytest.approx(13333.33, rel=1e-6)
+    # the default bench has a truth: counts from the lab's calibration, shown on the truth
+    # screen, each frame with its budget and verdict
+    assert s["stimulus_path"].startswith("truth bench")
+    assert s["radiometric_calibration"]["counts"][-1] == 255
     for f in s["frames"]:
-        assert abs(f["disc_ratio"] - 1) < 0.02 and f["centroid_offset_px"] < 0.5
+        assert f["truth_bench"] and f["consistent"] and f["centroid_offset_px"] < 0.5
+        assert abs(f["disc_ratio"] - 1) <= f["z_crit"] * f["sigma"]["disc_ratio"]
+        assert f["budget"]["disc_ratio"]["reference absolute"] > 0
     import imageio.v3 as iio
 
     scr = iio.imread(out / "screen" / "frame_000000.png")

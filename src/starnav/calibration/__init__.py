@@ -57,6 +57,7 @@ _EXPORTS = {
     "TruthScreen": "radiometric_truth", "ReferenceInstrument": "radiometric_truth",
     "calibrate_radiometry": "radiometric_lab", "validate_radiometry": "radiometric_lab",
     "RadiometricCalibration": "radiometric_lab",
+    "compare_moon_stimulus": "moon_stimulus", "MoonStimulusComparison": "moon_stimulus",
     "run_check": "workflows", "run_geometric": "workflows", "run_radiometric": "workflows",
     "run_stimulate": "workflows", "HilReport": "workflows",
 }

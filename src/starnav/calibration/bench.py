@@ -640,9 +640,25 @@ class Bench:
         camera's own distortion is not in it, the detector stage applies it (once)."""
         le_s = self.screen_electron_radiance(counts)
         rad = self.radiometry
+        out = self.screen_to_camera(le_s - rad.le_min)
+        if rad.le_min > 0:
+            out += rad.le_min * self.stimulated_mask
+        if self.config.acquisition.include_spot_psf:
+            out = field_varying_blur(out, self.sigma_map, self.config.acquisition.psf_levels)
+        return np.maximum(out, 0.0)
+
+    def screen_to_camera(self, le_screen: ArrayLike) -> FloatArray:
+        """Pinhole image ``(H, W)`` of a screen electron-radiance image ``(rows, cols)`` given
+        at the camera (the screen pixels' geometry and the collimator's vignetting; no spot
+        blur, no black level) [e- s^-1 m^-2 sr^-1]. Linear in ``le_screen``; only its positive
+        pixels are drawn."""
         cam = self.camera
+        le_screen = np.asarray(le_screen, float)
+        if le_screen.shape != self.screen_shape:
+            raise ConfigError("screen radiance image", f"shape {le_screen.shape}",
+                              f"the screen's {self.screen_shape} (rows, cols)")
         j0, i0, j1, i1 = self.screen_window
-        sub = le_s[i0:i1, j0:j1] - rad.le_min
+        sub = le_screen[i0:i1, j0:j1]
         ii, jj = np.nonzero(sub > 0)
         vals = sub[ii, jj]
         ji = np.stack([jj + j0, ii + i0], -1).astype(float)
@@ -658,11 +674,7 @@ class Bench:
                 vals = vals * vignetting(self.config.collimator, cam.pupil_diameter,
                                          np.hypot(t[:, 0], t[:, 1]))
             out = splat(vals, uv, width, (cam.height, cam.width), J, area)
-        if rad.le_min > 0:
-            out += rad.le_min * self.stimulated_mask
-        if self.config.acquisition.include_spot_psf:
-            out = field_varying_blur(out, self.sigma_map, self.config.acquisition.psf_levels)
-        return np.maximum(out, 0.0)
+        return out
 
     def acquire(self, counts: ArrayLike, exposure_time: float, detector: DetectorStage,
                 frame_index: int = 0) -> Acquisition:

@@ -146,19 +146,23 @@ class RadiometricCalibration:
 
     def lut_sigma(self, count: float, term: str) -> float:
         """1-sigma of ``lut(count) - lut(0)`` from one covariance term [e- s^-1 m^-2 sr^-1]."""
-        J = self._lut_jacobian(count)
+        J = self.lut_jacobian(count)
         return math.sqrt(max(float(J @ self.covariance[term] @ J), 0.0))
 
-    def _lut_jacobian(self, count: float) -> FloatArray:
-        J = np.zeros(len(self.le))
+    def lut_jacobian(self, count: ArrayLike) -> FloatArray:
+        """``d (lut(count) - lut(0)) / d le`` over the calibrated counts: ``(..., n)`` for
+        counts of shape ``(...)`` [-]."""
+        count = np.asarray(count, float)
+        J = np.zeros(count.shape + (len(self.le),))
         for i in range(len(self.le)):
             h = max(1e-6 * abs(self.le[i]), 1e-300)
             up = self.le.copy()
             up[i] += h
             dn = self.le.copy()
             dn[i] -= h
-            J[i] = ((self.lut(count, up) - self.lut(0, up)) - (self.lut(count, dn)
-                                                                 - self.lut(0, dn))) / (2 * h)
+            J[..., i] = ((self.lut(count, up) - self.lut(0, up)) - (self.lut(count, dn)
+                                                                      - self.lut(0, dn))) / (
+                2 * h)
         return J
 
     def interpolation_sigma(self, count: float) -> float:
@@ -452,6 +456,29 @@ def _exposure_for(lab_exposures: tuple[float, ...], le: float, etendue: float,
     return ok[-1] if ok else ts[0]
 
 
+def aperture_sigma(bench: Bench, instrument: ReferenceInstrument) -> float:
+    """Relative 1-sigma between what the camera's pupil and the reference's aperture receive
+    from a panel of unmeasured angular emission [-].
+
+    A panel radiating as cos^p, averaged over a disc of radius R at the collimator's focal
+    distance f, falls by p R^2 / (4 f^2); p is known to ``emission_exponent_sigma``."""
+    f_coll = bench.geometry.focal_length
+    r_cam = bench.camera.pupil_diameter / 2.0
+    r_ref = instrument.config.aperture_mm * 1e-3 / 2.0
+    return (bench.config.radiometric_lab.emission_exponent_sigma * abs(r_cam**2 - r_ref**2)
+            / (4 * f_coll**2))
+
+
+def nonlinearity_beta(detector: DetectorStage | None) -> float:
+    """``beta`` of the tracker's charge-to-voltage response ``S / (1 + beta S / FWC)`` (0 for
+    a detector without that stage) [-]."""
+    dcfg = getattr(detector, "config", None)
+    if dcfg is None or not dcfg.signal.nonlinearity.enabled:
+        return 0.0
+    dfc = dcfg.signal.nonlinearity.full_well_deficit_fraction
+    return dfc / (1.0 - dfc)
+
+
 def validate_radiometry(bench: Bench, cal: RadiometricCalibration,
                         truth: TruthScreen | None = None,
                         instrument: ReferenceInstrument | None = None,
@@ -488,13 +515,7 @@ def validate_radiometry(bench: Bench, cal: RadiometricCalibration,
     else:
         scale = 1.0
         drift_sigma = abs(cal.drift_per_s) * (t_val - cal.session_end_s)
-    # a panel radiating as cos^p, averaged over a disc of radius R at the collimator's focal
-    # distance f, falls by p R^2 / (4 f^2): the camera's pupil and the reference's aperture
-    # differ, and p is not measured
-    f_coll = bench.geometry.focal_length
-    r_cam = cam.pupil_diameter / 2.0
-    r_ref = inst.config.aperture_mm * 1e-3 / 2.0
-    aperture_sigma = lab.emission_exponent_sigma * abs(r_cam**2 - r_ref**2) / (4 * f_coll**2)
+    a_sigma = aperture_sigma(bench, inst)
     gu = _grid(lab.validation_grid[0] + 1, cam.width, lab.flat_margin_px, between=True)
     gv = _grid(lab.validation_grid[1] + 1, cam.height, lab.flat_margin_px, between=True)
     uvs = np.array([(u, v) for v in gv for u in gu])
@@ -506,11 +527,7 @@ def validate_radiometry(bench: Bench, cal: RadiometricCalibration,
     scatter = truth.pixel_scatter((len(uvs),), average_px=npx)
     # the tracker's charge-to-voltage non-linearity S / (1 + beta S / FWC): on the bench the
     # stimulus rides on the black level's pedestal, in orbit it does not
-    beta = 0.0
-    dcfg = getattr(detector, "config", None)
-    if dcfg is not None and dcfg.signal.nonlinearity.enabled:
-        dfc = dcfg.signal.nonlinearity.full_well_deficit_fraction
-        beta = dfc / (1.0 - dfc)
+    beta = nonlinearity_beta(detector)
     dark_frames: dict[float, Any] = {}
     points = []
     for ic, count in enumerate(validation_counts):
@@ -529,7 +546,7 @@ def validate_radiometry(bench: Bench, cal: RadiometricCalibration,
                      "reference repeatability": cal.lut_sigma(count, "repeatability") / base,
                      "reference spectral": cal.lut_sigma(count, "spectral") / base,
                      "LUT interpolation": cal.interpolation_sigma(count),
-                     "reference aperture": aperture_sigma}
+                     "reference aperture": a_sigma}
         if detector is None:
             le_t = (truth.electron_radiance(count, uvs, t_val)
                     - truth.electron_radiance(0, uvs, t_val))
@@ -655,5 +672,5 @@ def radiometric_lab(bench: Bench, detector: DetectorStage | None = None) -> Radi
 
 
 __all__ = ["RadiometricCalibration", "RadiometricLabResult", "RadiometricValidation",
-           "ValidationPoint", "calibrate_radiometry", "plausibility", "radiometric_lab",
-           "validate_radiometry"]
+           "ValidationPoint", "aperture_sigma", "calibrate_radiometry", "nonlinearity_beta",
+           "plausibility", "radiometric_lab", "validate_radiometry"]

@@ -33,7 +33,9 @@ Technique
 
 Index
 -----
-:class:`TruthScreen`          the real panel + collimator (seeded departures)
+:class:`TruthScreen`          the real panel + collimator (seeded departures): uniform fields
+                              (:meth:`~TruthScreen.camera_image`) and any screen image
+                              (:meth:`~TruthScreen.radiance_at_camera`)
 :class:`ReferenceInstrument`  the calibrated spectroradiometer (seeded errors)
 :class:`Reading`              one reference reading, with its stated uncertainty class
 
@@ -48,9 +50,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy import ndimage
 from scipy.interpolate import RectBivariateSpline
 
-from starnav.calibration.bench import Bench
+from starnav.calibration.bench import Bench, field_varying_blur
 from starnav.calibration.schema import KM_LM_PER_W, photopic_efficiency
 from starnav.calibration.streams import STREAMS
 from starnav.errors import ConfigError
@@ -107,6 +110,7 @@ class TruthScreen:
                  points_cache: dict[bytes, FloatArray] | None = None) -> None:
         self._points: dict[bytes, FloatArray] = {} if points_cache is None else points_cache
         self._base: FloatArray | None = None
+        self._screen_scatter: FloatArray | None = None
         cfg = bench.config
         t = cfg.radiometric_truth
         self.bench = bench
@@ -256,6 +260,66 @@ class TruthScreen:
         le += float(self.ambient_weights() @ self.k_e)
         scatter = self.pixel_scatter(le.shape)
         return le * (1.0 + scatter * (count > 0))
+
+    def screen_pixel_scatter(self, rows: ArrayLike, cols: ArrayLike) -> FloatArray:
+        """Relative luminance scatter of screen pixels ``(rows, cols)`` in the bench's screen
+        window (the fixed pattern whose average over a camera pixel is
+        :meth:`pixel_scatter`; seeded) [-]."""
+        j0, i0, j1, i1 = self.bench.screen_window
+        if self._screen_scatter is None:
+            rng = np.random.default_rng(self.pixel_seed)
+            self._screen_scatter = self.pixel_rms * rng.standard_normal((i1 - i0, j1 - j0))
+        r = np.asarray(rows) - i0
+        c = np.asarray(cols) - j0
+        inside = (r >= 0) & (r < i1 - i0) & (c >= 0) & (c < j1 - j0)
+        return np.where(inside, self._screen_scatter[np.clip(r, 0, i1 - i0 - 1),
+                                                     np.clip(c, 0, j1 - j0 - 1)], 0.0)
+
+    def radiance_at_camera(self, counts: ArrayLike, time_s: float) -> FloatArray:
+        """Pinhole electron-radiance image ``(H, W)`` of a grey screen image ``counts (rows,
+        cols)`` shown at ``time_s`` after power-on [e- s^-1 m^-2 sr^-1] (module essay, step 1,
+        for a non-uniform image).
+
+        Every lit screen pixel at point ``r`` radiates ``D(t) tau 10^-OD U(r) (1 + s_ij)
+        sum_c A_c(r) (g_c(n) - g_c(0)) K_c`` above the black screen, carried to the camera by
+        the bench's geometry, vignetting and spot (:meth:`Bench.screen_to_camera`); the black
+        screen and the stray light are the pedestal of :meth:`camera_image` at count 0.
+        """
+        bench = self.bench
+        c = np.asarray(counts)
+        if c.shape != bench.screen_shape:
+            raise ConfigError("screen counts", f"shape {c.shape}",
+                              f"the screen's {bench.screen_shape} grey counts (rows, cols)")
+        j0, i0, j1, i1 = bench.screen_window
+        sub = bench.radiometry.check_counts(c) if not np.issubdtype(c.dtype, np.unsignedinteger) \
+            or int(c.max()) > bench.config.screen.max_count else c
+        ii, jj = np.nonzero(sub[i0:i1, j0:j1] > 0)
+        ii, jj = ii + i0, jj + j0
+        screen = np.zeros(c.shape)
+        if ii.size:
+            amp = self._screen_base(ii, jj) * (self.level(c[ii, jj]) - self.level(0))
+            screen[ii, jj] = (amp @ self.k_e) * (1.0 + self.screen_pixel_scatter(ii, jj))
+        le = bench.screen_to_camera(screen) * (
+            self.transmission * self.nd * float(self.luminance_factor(time_s)))
+        acq = bench.config.acquisition
+        if acq.include_spot_psf:
+            le = field_varying_blur(le, bench.sigma_map, acq.psf_levels)
+        return np.maximum(le, 0.0) + self.camera_image(0, time_s)
+
+    def _screen_base(self, rows: FloatArray, cols: FloatArray) -> FloatArray:
+        """``U A_c`` of screen pixels ``(N,)`` -> ``(N, 3)``: exact on a grid every
+        :data:`IMAGE_GRID_PX` screen pixels over their box, bilinear in between (smooth)."""
+        s = IMAGE_GRID_PX
+        i0, j0 = int(rows.min()), int(cols.min())
+        ni = (int(rows.max()) - i0) // s + 2
+        nj = (int(cols.max()) - j0) // s + 2
+        J_, I_ = np.meshgrid(j0 + s * np.arange(nj, dtype=float),
+                             i0 + s * np.arange(ni, dtype=float))
+        P = self.bench.geometry.screen_points(np.stack([J_, I_], -1))
+        grid = self.field(P[..., :2])[..., None] * self.angular(P, self._cam_pupil)
+        coords = [(np.asarray(rows) - i0) / s, (np.asarray(cols) - j0) / s]
+        return np.stack([ndimage.map_coordinates(grid[..., k], coords, order=1,
+                                                 mode="nearest") for k in range(3)], -1)
 
     def _image_base(self) -> FloatArray:
         """``tau 10^-OD U A_c`` at every pixel ``(H, W, 3)``: exact on a grid every

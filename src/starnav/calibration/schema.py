@@ -477,7 +477,8 @@ class RadiometricLabConfig(StrictModel):
     validation_grid: tuple[Annotated[int, Field(ge=2)], Annotated[int, Field(ge=2)]] = Field(
         (4, 4), description="hold-out field points (x, y), placed between the flat_grid points")
     validation_delay_min: NonNegativeFloat = Field(
-        60.0, description="time from the end of the calibration to the validation [min]")
+        60.0, description="time from the end of the calibration to the validation and the "
+        "Moon stimuli on the truth bench [min]")
     patch_half_px: Annotated[int, Field(ge=1, le=64)] = Field(
         8, description="half size of the tracker patch averaged at each field point [px]")
     emission_exponent_sigma: NonNegativeFloat = Field(

@@ -39,8 +39,10 @@ from starnav.calibration.geometric import (
     random_layout_holdout,
 )
 from starnav.calibration.intrinsics import calibrate_camera
+from starnav.calibration.moon_stimulus import compare_moon_stimulus
 from starnav.calibration.radiometric import compare_stimulus, count_flux_mapping, moon_flux
-from starnav.calibration.radiometric_lab import radiometric_lab
+from starnav.calibration.radiometric_lab import calibrate_radiometry, radiometric_lab
+from starnav.calibration.radiometric_truth import ReferenceInstrument, TruthScreen
 from starnav.calibration.scaling import (
     albedo_exposure_experiment,
     bench_min_exposure,
@@ -277,6 +279,13 @@ def run_stimulate(cfg: BenchConfig, dataset: str | Path, sink: FrameSink,
     EXRs as written by ``starnav render`` (``*.exr``, sorted by name). One factor k serves the
     whole sequence (the brightest frame decides), so the bench exposure is constant.
 
+    With ``radiometric_truth.enabled`` (the default) the bench is the truth bench: the screen
+    is calibrated against the reference instrument first, the counts come from that
+    calibration and the predicted acquisition is the truth screen's
+    (:func:`~starnav.calibration.moon_stimulus.compare_moon_stimulus`: each frame's metrics
+    carry the budget and the verdict); without it, the nominal bench model
+    (:func:`~starnav.calibration.radiometric.compare_stimulus`).
+
     Parameters
     ----------
     sink : callable
@@ -318,22 +327,44 @@ def run_stimulate(cfg: BenchConfig, dataset: str | Path, sink: FrameSink,
                         headroom=cfg.radiometric.headroom_fraction)
     frames = []
     first = None
+    lab = None
+    if cfg.radiometric_truth.enabled:
+        # the bench as it is: counts from the lab's calibration against the reference,
+        # shown on the truth screen
+        truth = TruthScreen(bench)
+        inst = ReferenceInstrument(bench, truth)
+        lab = (truth, inst, calibrate_radiometry(bench, truth, inst))
+    det = bench.chain_detector()
     for i, f in enumerate(files):
         img = read_exr(f)
         if peaks[i] <= 0:
             log.warning("%s: no Moon in the field; skipped", f.name)
             continue
-        comp = compare_stimulus(bench, img, t_r, mapping, bench_exposure_s=plan.bench_exposure_s,
-                                frame_base=1000 + 4 * i)
+        if lab is None:
+            comp = compare_stimulus(bench, img, t_r, mapping, det,
+                                    bench_exposure_s=plan.bench_exposure_s,
+                                    frame_base=1000 + 4 * i)
+            metrics = comp.metrics() | {"truth_bench": False}
+        else:
+            mc = compare_moon_stimulus(bench, img, t_r, mapping, lab[2], lab[0], lab[1], det,
+                                       bench_exposure_s=plan.bench_exposure_s,
+                                       frame_base=1000 + 4 * i)
+            comp, metrics = mc.comparison, mc.metrics()
         sink(f.stem, comp.counts, comp.bench.dn, comp.orbit_dn)
-        frames.append({"frame": f.name} | comp.metrics())
+        frames.append({"frame": f.name} | metrics)
         if first is None:
             first = comp
         if progress is not None:
             progress(i + 1, len(files))
     summary = {"dataset": str(d), "dataset_format": "directory of RadianceImage EXRs "
                "as `starnav render` writes them",
-               "plan": plan.to_dict(), "frames": frames}
+               "plan": plan.to_dict(), "frames": frames,
+               "stimulus_path": "truth bench, counts from the radiometric calibration against "
+               "the reference instrument" if lab is not None else "nominal bench model"}
+    if lab is not None:
+        summary["radiometric_calibration"] = {
+            "counts": lab[2].counts.tolist(), "le_e_s_m2_sr": lab[2].le.tolist(),
+            "provenance": lab[2].provenance, "truth": lab[0].summary()}
     figs = {}
     if first is not None:
         figs["first_frame"] = plots.stimulus_comparison(first, f"{frames[0]['frame']}: bench vs "

@@ -228,9 +228,16 @@ def stimulate(
         _fail(err)
         return
     s = rep.summary
-    _table("hil stimulate", [("frames", len(s["frames"])), ("k", s["plan"]["k"]),
-                             ("bench exposure (s)", s["plan"]["bench_exposure_s"]),
-                             ("peak count", s["plan"]["peak_count"])])
+    rows = [("frames", len(s["frames"])), ("k", s["plan"]["k"]),
+            ("bench exposure (s)", s["plan"]["bench_exposure_s"]),
+            ("peak count", s["plan"]["peak_count"]), ("stimulus path", s["stimulus_path"])]
+    if "radiometric_calibration" in s:
+        fr = s["frames"]
+        rows += [("frames consistent with the budget",
+                  f"{sum(f['consistent'] for f in fr)} / {len(fr)}"),
+                 ("frames within the paper's use (2 sigma <= tolerance)",
+                  f"{sum(f['meets_paper_use'] for f in fr)} / {len(fr)}")]
+    _table("hil stimulate", rows)
     typer.echo(f"outputs in {out}")
 
 

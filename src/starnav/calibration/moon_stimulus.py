@@ -1,0 +1,376 @@
+"""The Moon stimulus on the truth bench: counts chosen with the lab's radiometric calibration,
+shown on the real screen, and the tracker's DN compared with the in-orbit DN within a budget.
+
+The stimulus of :func:`~starnav.calibration.radiometric.compare_stimulus` is chosen and
+displayed with one table (the datasheet screen), so its comparison cannot fail. Here the counts
+come from :class:`~starnav.calibration.radiometric_lab.RadiometricCalibration` (made against
+the reference instrument) and the screen that shows them is the
+:class:`~starnav.calibration.radiometric_truth.TruthScreen`.
+
+Technique
+---------
+1. **Time and monitor.** The stimulus is acquired ``radiometric_lab.validation_delay_min`` after
+   the session; the reference re-reads full white on axis then, and the calibration is rescaled
+   by ``s = reading / monitor`` (drift since the session).
+2. **Counts** (:func:`calibrated_counts`). The displayed pinhole image ``Le / k`` is divided by
+   the lab's field factor ``F(u, v)`` and by ``s``, pre-warped with the geometric calibration,
+   and inverted through the calibrated LUT above count 0, ``LUT(n) - LUT(0)`` (dithered between
+   neighbouring counts): every acquisition is dark-subtracted with a black screen.
+3. **Display** (:meth:`TruthScreen.radiance_at_camera`): angular emission over the camera's
+   pupil, smooth field and screen-pixel scatter, per-channel gamma, black level and stray light
+   (the pedestal), warm-up and drift at the acquisition time, the as-built transmission.
+4. **Comparison.** In orbit at ``t``, on the bench at ``k t`` through the same detector; both
+   dark-subtracted: the disc electrons ratio and the inner-disc median ratio
+   (:class:`~starnav.calibration.radiometric.StimulusComparison`).
+5. **Budget** (relative 1-sigma per term of :data:`MOON_TERMS`, per metric). The LUT's
+   covariance terms propagate through the Jacobian of ``LUT(n) - LUT(0)`` averaged over the
+   stimulus counts with the metric's weights (the disc: signal; the inner median: pixels); the
+   interpolation, field and aperture terms are those of the hold-out validation averaged the
+   same way; the monitor's repeatability; the tracker's non-linearity on the black pedestal
+   (``2 beta P / FWC``: the bench signal rides on ``P``, the orbit's does not); the collimator
+   spot's spill outside the disc region (the bench's designed spot); the tracker pixels'
+   scatter (measured from the per-pixel ratios). **Consistent** when both errors are within
+   the Bonferroni bound at :data:`~starnav.calibration.radiometric_lab.FAMILY_ALPHA`; **meets
+   the paper's use** when consistent and ``coverage_k`` sigma is within ``tolerance``.
+
+References
+----------
+Seed paper, "Radiometric Calibration" (the stimulus and its validation, Figs. 15-16);
+JCGM 100:2008 (GUM), first-order propagation.
+
+Index
+-----
+:func:`compare_moon_stimulus`, :class:`MoonStimulusComparison`, :func:`calibrated_counts`,
+:data:`MOON_TERMS`, :data:`METRICS`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import ndimage, stats
+
+from starnav.calibration.bench import (
+    Acquisition,
+    Bench,
+    DetectorStage,
+    field_varying_blur,
+)
+from starnav.calibration.geometric import ScreenMapping, prewarp
+from starnav.calibration.radiometric import INNER_MIN_FRACTION, StimulusComparison
+from starnav.calibration.radiometric_lab import (
+    FAMILY_ALPHA,
+    RadiometricCalibration,
+    aperture_sigma,
+    nonlinearity_beta,
+)
+from starnav.calibration.radiometric_truth import ReferenceInstrument, TruthScreen
+from starnav.calibration.screen import QUANTIZATION_METHODS
+from starnav.calibration.streams import bench_rng
+from starnav.errors import ConfigError
+from starnav.radiance import RadianceImage
+from starnav.typing import FloatArray
+
+#: Budget terms of the Moon-stimulus comparison, in the order they are reported.
+MOON_TERMS = ("reference absolute", "reference repeatability", "reference spectral",
+              "reference aperture", "LUT interpolation", "field factor", "field interpolation",
+              "monitor / drift", "tracker linearity", "collimator spot", "tracker pixels")
+#: The compared quantities (keys of :meth:`StimulusComparison.metrics`).
+METRICS = ("disc_ratio", "inner_median_ratio")
+#: Normal-consistency factor of the median absolute deviation [-].
+_MAD_SIGMA = 1.4826
+#: Standard error of a median over that of a mean, Gaussian samples [-].
+_MEDIAN_EFFICIENCY = math.sqrt(math.pi / 2.0)
+
+
+def calibrated_counts(bench: Bench, cal: RadiometricCalibration, le_camera: ArrayLike,
+                      mapping: ScreenMapping, scale: float = 1.0, method: str | None = None,
+                      rng: np.random.Generator | None = None
+                      ) -> tuple[NDArray[np.uint16], FloatArray]:
+    """Screen counts that show the pinhole image ``le_camera`` above the black screen, chosen
+    with the lab's calibration (module essay, step 2).
+
+    Parameters
+    ----------
+    le_camera : (H, W) array
+        Wanted electron radiance above the black screen at the camera [e- s^-1 m^-2 sr^-1].
+    scale : float
+        Monitor rescaling of the calibration at the acquisition time [-].
+    method : {"nearest", "dither"}, optional
+        Default ``radiometric.quantization``.
+
+    Returns
+    -------
+    counts : (rows, cols) uint16
+        The screen image.
+    n_camera : (H, W) array
+        The continuous count each camera pixel asks for (0 outside the image) [-].
+
+    Raises
+    ------
+    ConfigError
+        The stimulus exceeds the calibrated full white (raise k), bad ``method``, negative
+        radiance.
+    """
+    le = np.asarray(le_camera, float)
+    if le.size and (not np.all(np.isfinite(le)) or le.min() < 0):
+        raise ConfigError("stimulus electron radiance", "negative or non-finite values",
+                          "radiance >= 0 [e- s^-1 m^-2 sr^-1]")
+    m = method or bench.config.radiometric.quantization
+    if m not in QUANTIZATION_METHODS:
+        raise ConfigError("radiometric.quantization", m,
+                          f"one of {', '.join(QUANTIZATION_METHODS)}")
+    lit = le > 0
+    want = np.zeros_like(le)
+    v, u = np.nonzero(lit)
+    if u.size:
+        f = cal.field_factor(np.stack([u, v], -1).astype(float))
+        want[v, u] = le[v, u] / (np.clip(f, 1e-6, None) * scale)
+    n_max = bench.config.screen.max_count
+    grid = np.arange(n_max + 1, dtype=float)
+    table = np.maximum.accumulate(np.clip(cal.lut(grid) - cal.lut(0), 0.0, None))
+    target = prewarp(want, mapping, bench, 1.0)
+    top = float(table[-1])
+    if target.size and float(target.max()) > top * (1 + 1e-9):
+        raise ConfigError("stimulus electron radiance", f"{target.max():.4g} e- s^-1 m^-2 sr^-1",
+                          f"<= the calibrated full white above black {top:.4g} (count {n_max}); "
+                          f"raise the albedo-exposure factor k by >= {target.max() / top:.4g}x")
+    counts = np.zeros(target.shape, np.uint16)
+    # screen pixels outside the bench's window never reach the detector
+    j0, i0, j1, i1 = bench.screen_window
+    ii, jj = np.nonzero(target[i0:i1, j0:j1] > 0)
+    on = (ii + i0, jj + j0)
+    x = target[on]
+    hi = np.clip(np.searchsorted(table, x, side="left"), 0, n_max)
+    lo = np.clip(hi - 1, 0, n_max)
+    span = table[hi] - table[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = np.where(span > 0, (x - table[lo]) / span, 0.0)
+    if m == "nearest":
+        pick = t >= 0.5
+    else:
+        rng = rng if rng is not None else bench_rng(bench.config, "stimulus")
+        pick = rng.random(x.shape) < t
+    counts[on] = np.where(pick, hi, lo)
+    n_cam = np.interp(want, table, grid) * lit
+    return counts, n_cam
+
+
+@dataclass
+class MoonStimulusComparison:
+    """A rendered image in orbit and its stimulus on the truth bench, with the budget.
+
+    Attributes
+    ----------
+    comparison : StimulusComparison
+        Frames, masks and the metrics of the nominal path.
+    budget : dict
+        ``{metric: {term: relative 1-sigma}}`` for each of :data:`METRICS`.
+    acquisition_time_s : float
+        After power-on [s].
+    monitor_scale : float
+        The calibration's rescaling by the monitor at that time [-].
+    tolerance, coverage_k : float
+        The paper's use and the coverage factor (``radiometric_lab``).
+    """
+
+    comparison: StimulusComparison
+    budget: dict[str, dict[str, float]]
+    acquisition_time_s: float
+    monitor_scale: float
+    tolerance: float
+    coverage_k: float
+
+    def errors(self) -> dict[str, float]:
+        """``ratio - 1`` of each metric [-]."""
+        m = self.comparison.metrics()
+        return {k: float(m[k]) - 1.0 for k in METRICS}
+
+    def sigmas(self) -> dict[str, float]:
+        """Combined relative 1-sigma of each metric (terms in quadrature) [-]."""
+        return {k: math.sqrt(sum(v * v for v in self.budget[k].values())) for k in METRICS}
+
+    @property
+    def z_crit(self) -> float:
+        """Bonferroni bound on ``|z|`` over :data:`METRICS` at the family false-alarm rate."""
+        return float(stats.norm.isf(FAMILY_ALPHA / (2 * len(METRICS))))
+
+    @property
+    def consistent(self) -> bool:
+        e, s = self.errors(), self.sigmas()
+        return all(abs(e[k]) <= self.z_crit * s[k] for k in METRICS)
+
+    @property
+    def meets_use(self) -> bool:
+        s = self.sigmas()
+        return self.consistent and all(self.coverage_k * s[k] <= self.tolerance
+                                       for k in METRICS)
+
+    def metrics(self) -> dict[str, Any]:
+        """The comparison's metrics plus the error, sigma, budget and verdicts (JSON-safe)."""
+        e, s = self.errors(), self.sigmas()
+        return self.comparison.metrics() | {
+            "truth_bench": True, "acquisition_time_s": self.acquisition_time_s,
+            "monitor_scale": self.monitor_scale,
+            "error": e, "sigma": s, "z": {k: e[k] / s[k] if s[k] > 0 else float("inf")
+                                          for k in METRICS},
+            "budget": {k: dict(v) for k, v in self.budget.items()},
+            "z_crit": self.z_crit, "family_false_alarm": FAMILY_ALPHA,
+            "consistent": self.consistent, "tolerance": self.tolerance,
+            "coverage_k": self.coverage_k, "meets_paper_use": self.meets_use}
+
+
+def _lut_terms(cal: RadiometricCalibration, n_cam: FloatArray, weights: FloatArray
+               ) -> dict[str, float]:
+    """LUT covariance terms and interpolation of a weighted mean over the stimulus counts."""
+    w = np.asarray(weights, float)
+    n_max = int(cal.counts[-1])
+    bins = np.clip(np.rint(n_cam), 1, n_max).astype(int)
+    sel = w > 0
+    W = np.bincount(bins[sel], weights=w[sel], minlength=n_max + 1)
+    W = W / max(W.sum(), 1e-300)
+    ms = np.nonzero(W)[0].astype(float)
+    base = np.clip(cal.lut(ms) - cal.lut(0), 1e-300, None)
+    J = (W[ms.astype(int)] / base) @ cal.lut_jacobian(ms)
+    interp = sum(W[int(mm)] * cal.interpolation_sigma(mm) for mm in ms)
+    names = {"absolute": "reference absolute", "repeatability": "reference repeatability",
+             "spectral": "reference spectral"}
+    out = {names[k]: math.sqrt(max(float(J @ c @ J), 0.0)) for k, c in cal.covariance.items()
+           if k in names}
+    out["LUT interpolation"] = float(interp)
+    return out
+
+
+def compare_moon_stimulus(bench: Bench, le: ArrayLike | RadianceImage, render_exposure_s: float,
+                          mapping: ScreenMapping, cal: RadiometricCalibration,
+                          truth: TruthScreen, instrument: ReferenceInstrument,
+                          detector: DetectorStage | None = None, *,
+                          bench_exposure_s: float | None = None,
+                          le_displayed: ArrayLike | RadianceImage | None = None,
+                          rng: np.random.Generator | None = None,
+                          frame_base: int = 200) -> MoonStimulusComparison:
+    """Expose a rendered image in orbit and its stimulus on the truth bench, chosen with the
+    lab's calibration, and the budget of the comparison (module essay).
+
+    Parameters
+    ----------
+    le : (H, W) array or RadianceImage
+        Rendered pinhole electron radiance at the true albedo [e- s^-1 m^-2 sr^-1].
+    render_exposure_s : float
+        In-orbit exposure [s].
+    mapping : ScreenMapping
+        Geometric calibration.
+    cal : RadiometricCalibration
+        The lab's calibration of this bench (:func:`calibrate_radiometry`).
+    truth, instrument : TruthScreen, ReferenceInstrument
+        The bench as it is and the reference that re-reads the monitor.
+    detector : DetectorStage, optional
+        Default: the scenario's chain.
+    bench_exposure_s : float, optional
+        Default: the screen-limited ``k`` on the calibrated screen (the peak at
+        ``headroom_fraction`` of the calibrated full white at its field point).
+    le_displayed : array or RadianceImage, optional
+        Image to display (default ``le / k``).
+    rng : numpy.random.Generator, optional
+        Dithering stream; default the bench's ``"stimulus"`` stream.
+    frame_base : int
+        First of the four frame indices used (orbit, orbit dark, bench, bench dark).
+
+    Raises
+    ------
+    ConfigError
+        Empty image, non-positive exposure, or a stimulus brighter than the calibrated screen.
+    """
+    det = detector if detector is not None else bench.chain_detector()
+    img = np.asarray(le.Le if isinstance(le, RadianceImage) else le, float)
+    if not np.any(img > 0):
+        raise ConfigError("radiance image Le", "all zero", "a frame with the Moon in the field")
+    if not (math.isfinite(render_exposure_s) and render_exposure_s > 0):
+        raise ConfigError("render_exposure_s", render_exposure_s, "an exposure > 0 s")
+    cfg = bench.config
+    lab = cfg.radiometric_lab
+    n_max = cfg.screen.max_count
+    cam = bench.camera
+    # 1. time and monitor
+    t_acq = cal.session_end_s + lab.validation_delay_min * 60.0
+    thru = cal.options.get("through_collimator", True)
+    if cal.options.get("monitor", True):
+        rs = [instrument.read(n_max, np.array([cam.cx, cam.cy]), t_acq, thru)
+              for _ in range(lab.readings_per_point)]
+        scale = float(np.mean([r.le for r in rs])) / cal.monitor_le
+        drift_sigma = math.sqrt(2.0) * cal.monitor_sigma
+    else:
+        scale = 1.0
+        drift_sigma = abs(cal.drift_per_s) * (t_acq - cal.session_end_s)
+    lit = img > 0
+    v, u = np.nonzero(lit)
+    uv = np.stack([u, v], -1).astype(float)
+    f_lit = cal.field_factor(uv)
+    if bench_exposure_s is None:
+        white = float(cal.lut(n_max) - cal.lut(0)) * scale
+        k = max(1.0, float(np.max(img[lit] / f_lit)) / (cfg.radiometric.headroom_fraction
+                                                        * white))
+        bench_exposure_s = k * render_exposure_s
+    k = float(bench_exposure_s) / render_exposure_s
+    disp = (img / k if le_displayed is None else
+            np.asarray(le_displayed.Le if isinstance(le_displayed, RadianceImage)
+                       else le_displayed, float))
+    # 2. counts from the calibration; 3. shown on the truth screen
+    counts, n_cam = calibrated_counts(bench, cal, disp, mapping, scale, None, rng)
+    orbit = det.expose(img, render_exposure_s, frame_base)
+    orbit_dark = det.expose(np.zeros_like(img), render_exposure_s, frame_base + 1)
+    le_b = truth.radiance_at_camera(counts, t_acq)
+    fr = det.expose(le_b, bench_exposure_s, frame_base + 2)
+    dark = det.expose(truth.camera_image(0, t_acq), bench_exposure_s, frame_base + 3)
+    acq = Acquisition(le_b, fr.dn, fr.electrons, float(bench_exposure_s), frame_base + 2)
+    margin = cfg.radiometric.disc_margin_px
+    region = ndimage.binary_dilation(lit, iterations=margin) if margin > 0 else lit
+    inner = ndimage.binary_erosion(lit, iterations=3) & (img > INNER_MIN_FRACTION * img.max())
+    comp = StimulusComparison(img, counts, k, float(render_exposure_s), float(bench_exposure_s),
+                              orbit.dn, orbit_dark.dn, orbit.electrons, acq, dark.dn,
+                              det.gain_e_per_dn, det.full_well_e, region, inner)
+    # 5. the budget
+    ri = cam.relative_illumination(u.astype(float), v.astype(float))
+    f_lin = cal.field_factor(uv, 1)
+    f_sig = cal.field_factor_sigma(uv)
+    beta = nonlinearity_beta(det)
+    pedestal = float(cal.lut(0)) * scale * f_lit * bench_exposure_s * cam.etendue * ri
+    # the collimator spot's spill out of the disc region, by the bench's design
+    spill = 0.0
+    if cfg.acquisition.include_spot_psf:
+        blurred = field_varying_blur(img, bench.sigma_map, cfg.acquisition.psf_levels)
+        spill = abs(float(blurred[region].sum()) / float(img[lit].sum()) - 1.0)
+    so, sb = comp.orbit_signal_e, comp.bench_signal_e
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = sb[inner] / so[inner]
+    r = r[np.isfinite(r)]
+    sig_px = (_MAD_SIGMA * float(np.median(np.abs(r - np.median(r)))) if r.size > 1 else 0.0)
+    s_lit = np.clip(so[lit], 0.0, None)
+    weights = {"disc_ratio": img[lit], "inner_median_ratio": inner[lit].astype(float)}
+    pixels = {"disc_ratio": sig_px * math.sqrt(float((s_lit**2).sum())) / max(
+        float(s_lit.sum()), 1e-300),
+              "inner_median_ratio": _MEDIAN_EFFICIENCY * sig_px / math.sqrt(max(r.size, 1))}
+    a_sig = aperture_sigma(bench, instrument)
+    budget: dict[str, dict[str, float]] = {}
+    for key, w in weights.items():
+        wn = w / max(float(w.sum()), 1e-300)
+        terms = _lut_terms(cal, n_cam[lit], wn)
+        terms["reference aperture"] = a_sig
+        terms["field factor"] = float(wn @ (f_sig / np.clip(f_lit, 1e-6, None)))
+        terms["field interpolation"] = (float(wn @ (np.abs(f_lit - f_lin) / f_lit))
+                                        if cal.options.get("model_field", True) else 0.0)
+        terms["monitor / drift"] = drift_sigma
+        terms["tracker linearity"] = float(wn @ (2.0 * beta * pedestal / det.full_well_e))
+        terms["collimator spot"] = spill if key == "disc_ratio" else 0.0
+        terms["tracker pixels"] = pixels[key]
+        budget[key] = {t: terms[t] for t in MOON_TERMS}
+    return MoonStimulusComparison(comp, budget, float(t_acq), float(scale), lab.tolerance,
+                                  lab.coverage_k)
+
+
+__all__ = ["METRICS", "MOON_TERMS", "MoonStimulusComparison", "calibrated_counts",
+           "compare_moon_stimulus"]
