@@ -13,11 +13,11 @@ The protocol (docs/navigation.md, "Tuning apart from scoring"):
 - **Scoring set** (:data:`SCORING_ARCS`): another season (June and September 2028), halo
   phases (170 and 350 deg) apart from the tuning phases and the spent scoring sets
   (:data:`SPENT`), Sun phases 81-111 deg (across the tuning arcs' upper edge, 100 deg) and
-  32-33 deg (below them), ranges 51 000-52 000 and 72 000-73 000 km, seeds 9405-9406; the truth with every mismatch on (planets, solar radiation
-  pressure with eclipses and J2 in the truth only; PSF estimated from stars; terrain
-  statistics from a coarser DEM than the rendered one; the camera known as one emulated bench
-  calibrated it), each run on its own terrain, detector noise, attitude knowledge error,
-  initial error and bench.
+  32-33 deg (below them), ranges 51 000-52 000 and 72 000-73 000 km, seeds 9405-9406; the
+  truth with every mismatch on (planets, solar radiation pressure with eclipses and J2 in the
+  truth only; PSF estimated from stars; terrain statistics from a coarser DEM than the
+  rendered one; the camera known as one emulated bench calibrated it), each run on its own
+  terrain, detector noise, attitude knowledge error, initial error and bench.
 
 The record (``src/starnav/data/navigation/scores.json``) keeps the scores, the scoring set, the
 commit scored and the fingerprint of every default the score depends on
