@@ -41,6 +41,7 @@ JCGM 100:2008 (GUM), first-order propagation.
 Index
 -----
 :func:`compare_moon_stimulus`, :class:`MoonStimulusComparison`, :func:`calibrated_counts`,
+:func:`calibrated_k`, :func:`monitor`, :func:`lut_sensitivity`, :func:`lut_terms`,
 :data:`MOON_TERMS`, :data:`METRICS`.
 """
 
@@ -224,12 +225,27 @@ class MoonStimulusComparison:
             "coverage_k": self.coverage_k, "meets_paper_use": self.meets_use}
 
 
-def _lut_terms(cal: RadiometricCalibration, n_cam: FloatArray, weights: FloatArray
-               ) -> dict[str, float]:
-    """LUT covariance terms and interpolation of a weighted mean over the stimulus counts."""
+#: The LUT's covariance terms and their names in the budgets.
+_LUT_TERM_NAMES = {"absolute": "reference absolute", "repeatability": "reference repeatability",
+                   "spectral": "reference spectral"}
+
+
+def lut_sensitivity(cal: RadiometricCalibration, n_cam: ArrayLike, weights: ArrayLike
+                    ) -> tuple[FloatArray, float]:
+    """Relative sensitivity of a weighted mean of ``LUT(n) - LUT(0)`` over the stimulus counts
+    ``n_cam`` to the calibrated LUT values, and the weighted interpolation error.
+
+    Returns
+    -------
+    J : (n,) array
+        ``d ln(mean) / d le`` over the calibrated counts [(e- s^-1 m^-2 sr^-1)^-1].
+    interpolation : float
+        Weighted relative interpolation error (:meth:`RadiometricCalibration.interpolation_sigma`)
+        [-].
+    """
     w = np.asarray(weights, float)
     n_max = int(cal.counts[-1])
-    bins = np.clip(np.rint(n_cam), 1, n_max).astype(int)
+    bins = np.clip(np.rint(np.asarray(n_cam, float)), 1, n_max).astype(int)
     sel = w > 0
     W = np.bincount(bins[sel], weights=w[sel], minlength=n_max + 1)
     W = W / max(W.sum(), 1e-300)
@@ -237,12 +253,58 @@ def _lut_terms(cal: RadiometricCalibration, n_cam: FloatArray, weights: FloatArr
     base = np.clip(cal.lut(ms) - cal.lut(0), 1e-300, None)
     J = (W[ms.astype(int)] / base) @ cal.lut_jacobian(ms)
     interp = sum(W[int(mm)] * cal.interpolation_sigma(mm) for mm in ms)
-    names = {"absolute": "reference absolute", "repeatability": "reference repeatability",
-             "spectral": "reference spectral"}
-    out = {names[k]: math.sqrt(max(float(J @ c @ J), 0.0)) for k, c in cal.covariance.items()
-           if k in names}
-    out["LUT interpolation"] = float(interp)
+    return J, float(interp)
+
+
+def lut_terms(cal: RadiometricCalibration, J: FloatArray) -> dict[str, float]:
+    """Relative 1-sigma of each of the LUT's covariance terms along the sensitivity ``J``
+    (:func:`lut_sensitivity`, or a difference of two) [-]."""
+    return {_LUT_TERM_NAMES[k]: math.sqrt(max(float(J @ c @ J), 0.0))
+            for k, c in cal.covariance.items() if k in _LUT_TERM_NAMES}
+
+
+def _lut_terms(cal: RadiometricCalibration, n_cam: FloatArray, weights: FloatArray
+               ) -> dict[str, float]:
+    """LUT covariance terms and interpolation of a weighted mean over the stimulus counts."""
+    J, interp = lut_sensitivity(cal, n_cam, weights)
+    out = lut_terms(cal, J)
+    out["LUT interpolation"] = interp
     return out
+
+
+def monitor(bench: Bench, cal: RadiometricCalibration, instrument: ReferenceInstrument
+            ) -> tuple[float, float, float]:
+    """The stimulus's acquisition time, the calibration's rescaling by the monitor then, and
+    the relative 1-sigma of that rescaling (module essay, step 1).
+
+    Returns
+    -------
+    time_s, scale, sigma : float
+        After power-on [s]; ``reading / monitor`` [-]; [-].
+    """
+    lab = bench.config.radiometric_lab
+    cam = bench.camera
+    t_acq = cal.session_end_s + lab.validation_delay_min * 60.0
+    if cal.options.get("monitor", True):
+        thru = cal.options.get("through_collimator", True)
+        rs = [instrument.read(bench.config.screen.max_count, np.array([cam.cx, cam.cy]), t_acq,
+                              thru) for _ in range(lab.readings_per_point)]
+        return (float(t_acq), float(np.mean([r.le for r in rs])) / cal.monitor_le,
+                math.sqrt(2.0) * cal.monitor_sigma)
+    return float(t_acq), 1.0, abs(cal.drift_per_s) * (t_acq - cal.session_end_s)
+
+
+def calibrated_k(bench: Bench, cal: RadiometricCalibration, le: FloatArray,
+                 scale: float = 1.0) -> float:
+    """Smallest albedo divisor whose stimulus peaks at ``radiometric.headroom_fraction`` of the
+    calibrated full white (above black) at its field point [-]."""
+    lit = le > 0
+    v, u = np.nonzero(lit)
+    f = cal.field_factor(np.stack([u, v], -1).astype(float))
+    n_max = bench.config.screen.max_count
+    white = float(cal.lut(n_max) - cal.lut(0)) * scale
+    return max(1.0, float(np.max(le[lit] / f)) / (bench.config.radiometric.headroom_fraction
+                                                  * white))
 
 
 def compare_moon_stimulus(bench: Bench, le: ArrayLike | RadianceImage, render_exposure_s: float,
@@ -293,28 +355,15 @@ def compare_moon_stimulus(bench: Bench, le: ArrayLike | RadianceImage, render_ex
         raise ConfigError("render_exposure_s", render_exposure_s, "an exposure > 0 s")
     cfg = bench.config
     lab = cfg.radiometric_lab
-    n_max = cfg.screen.max_count
     cam = bench.camera
     # 1. time and monitor
-    t_acq = cal.session_end_s + lab.validation_delay_min * 60.0
-    thru = cal.options.get("through_collimator", True)
-    if cal.options.get("monitor", True):
-        rs = [instrument.read(n_max, np.array([cam.cx, cam.cy]), t_acq, thru)
-              for _ in range(lab.readings_per_point)]
-        scale = float(np.mean([r.le for r in rs])) / cal.monitor_le
-        drift_sigma = math.sqrt(2.0) * cal.monitor_sigma
-    else:
-        scale = 1.0
-        drift_sigma = abs(cal.drift_per_s) * (t_acq - cal.session_end_s)
+    t_acq, scale, drift_sigma = monitor(bench, cal, instrument)
     lit = img > 0
     v, u = np.nonzero(lit)
     uv = np.stack([u, v], -1).astype(float)
     f_lit = cal.field_factor(uv)
     if bench_exposure_s is None:
-        white = float(cal.lut(n_max) - cal.lut(0)) * scale
-        k = max(1.0, float(np.max(img[lit] / f_lit)) / (cfg.radiometric.headroom_fraction
-                                                        * white))
-        bench_exposure_s = k * render_exposure_s
+        bench_exposure_s = calibrated_k(bench, cal, img, scale) * render_exposure_s
     k = float(bench_exposure_s) / render_exposure_s
     disp = (img / k if le_displayed is None else
             np.asarray(le_displayed.Le if isinstance(le_displayed, RadianceImage)
@@ -373,4 +422,4 @@ def compare_moon_stimulus(bench: Bench, le: ArrayLike | RadianceImage, render_ex
 
 
 __all__ = ["METRICS", "MOON_TERMS", "MoonStimulusComparison", "calibrated_counts",
-           "compare_moon_stimulus"]
+           "calibrated_k", "compare_moon_stimulus", "lut_sensitivity", "lut_terms", "monitor"]

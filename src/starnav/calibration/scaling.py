@@ -10,18 +10,30 @@ Technique
 1. :func:`plan_scaling`: ``k`` large enough for the screen and for the readout law.
 2. :func:`albedo_exposure_experiment` (the paper's Fig. 18): two-sample Kolmogorov-Smirnov
    tests of scaled acquisitions against the first, each rejecting a true equivalence with
-   probability <= ``ks_alpha``; a control sample off by ``control_product_factor``.
+   probability <= ``ks_alpha``; a control sample off by ``control_product_factor``; the disc
+   DN of each case over the first's with its budget. On the nominal bench the one table that
+   chooses the counts also displays them, so the cases are equal by construction. Given the
+   lab's calibration and the truth bench, each case's counts come from the calibrated LUT
+   (:func:`~starnav.calibration.moon_stimulus.calibrated_counts`) and the truth screen shows
+   them (gamma, black level, field, angular emission, drift): the cases sit at different
+   counts, where the LUT's errors differ. The ratio's budget: the LUT's covariance terms along
+   the difference of the two cases' sensitivities, both cases' interpolation errors, the
+   tracker's non-linearity on the two pedestals (the bench exposures differ), the tracker
+   pixels' scatter (measured); the field factor, the monitor, the reference's aperture and the
+   collimator spot act alike on every case (same pixels, same time) and cancel.
 3. :func:`end_to_end` (the paper's Fig. 19): a frame exposed in orbit against its scaled bench
    acquisition.
 
 References
 ----------
-Seed paper, "Scaling between exposure time and albedo" (Figs. 18-19).
+Seed paper, "Scaling between exposure time and albedo" (Figs. 18-19); JCGM 100:2008 (GUM),
+first-order propagation.
 
 Index
 -----
 :func:`plan_scaling`, :class:`ScalingPlan`, :func:`bench_min_exposure`,
-:func:`albedo_exposure_experiment`, :class:`KsExperiment`, :class:`KsCase`, :func:`ks_test`,
+:func:`albedo_exposure_experiment`, :class:`KsExperiment`, :class:`KsCase`, :data:`RATIO_TERMS`,
+:func:`ks_test`,
 :func:`end_to_end`, :class:`EndToEnd`.
 """
 
@@ -30,7 +42,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -46,11 +58,20 @@ from starnav.errors import ConfigError
 from starnav.radiance import RadianceImage
 from starnav.typing import FloatArray
 
+if TYPE_CHECKING:  # radiometric_lab imports this module
+    from starnav.calibration.radiometric_lab import RadiometricCalibration
+    from starnav.calibration.radiometric_truth import ReferenceInstrument, TruthScreen
+
 log = logging.getLogger(__name__)
 
 #: Frame indices of the scaling experiments.
 FRAME_KS = 300
 FRAME_E2E = 400
+#: Budget terms of a case's disc-DN ratio to the first case, in the order they are reported.
+RATIO_TERMS = ("reference absolute", "reference repeatability", "reference spectral",
+               "LUT interpolation", "tracker linearity", "tracker pixels")
+#: Normal-consistency factor of the median absolute deviation [-].
+_MAD_SIGMA = 1.4826
 
 
 # =========================================================================== k
@@ -205,6 +226,11 @@ class KsCase:
         ``p_value > alpha``.
     dn : (n,) array
         Dark-subtracted DN of the disc region.
+    disc_ratio : float
+        Summed ``dn`` over the reference case's (1 for an equivalent acquisition) [-].
+    ratio_budget : dict
+        ``{term: relative 1-sigma}`` of ``disc_ratio`` (:data:`RATIO_TERMS`; zeros for the
+        reference itself).
     """
 
     label: str
@@ -216,12 +242,26 @@ class KsCase:
     p_value: float
     equivalent: bool
     dn: FloatArray
+    disc_ratio: float = 1.0
+    ratio_budget: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def ratio_error(self) -> float:
+        """``disc_ratio - 1``: the departure from the equivalence [-]."""
+        return self.disc_ratio - 1.0
+
+    @property
+    def ratio_sigma(self) -> float:
+        """Combined relative 1-sigma of ``disc_ratio`` (terms in quadrature) [-]."""
+        return math.sqrt(sum(v * v for v in self.ratio_budget.values()))
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d.pop("dn")
         d["n_pixels"] = int(self.dn.size)
         d["mean_dn"] = float(self.dn.mean())
+        d["ratio_error"] = self.ratio_error
+        d["ratio_sigma"] = self.ratio_sigma
         return d
 
 
@@ -233,6 +273,7 @@ class KsExperiment:
     control: KsCase
     alpha: float
     k_screen: float
+    truth_bench: bool = False
 
     @property
     def scaled_equivalent(self) -> bool:
@@ -243,21 +284,51 @@ class KsExperiment:
     def control_detected(self) -> bool:
         return not self.control.equivalent
 
+    @property
+    def z_crit(self) -> float:
+        """Bonferroni bound on a ratio's ``|z|`` over the scaled cases (not the reference) at the
+        family false-alarm rate."""
+        from starnav.calibration.radiometric_lab import (
+            FAMILY_ALPHA,  # lazy: cycle with starnav.calibration.radiometric_lab
+        )
+
+        return float(stats.norm.isf(FAMILY_ALPHA / (2 * max(len(self.cases) - 1, 1))))
+
+    def ratio_within_budget(self, case: KsCase) -> bool:
+        """``|disc_ratio - 1| <= z_crit x ratio_sigma``."""
+        return abs(case.ratio_error) <= self.z_crit * case.ratio_sigma
+
+    @property
+    def ratios_consistent(self) -> bool:
+        """Every scaled case's disc ratio within its budget."""
+        return all(self.ratio_within_budget(c) for c in self.cases[1:])
+
     def to_dict(self) -> dict[str, Any]:
+        from starnav.calibration.radiometric_lab import (
+            FAMILY_ALPHA,  # lazy: cycle with starnav.calibration.radiometric_lab
+        )
+
         return {"alpha": self.alpha, "k_screen": self.k_screen,
                 "scaled_equivalent": self.scaled_equivalent,
                 "control_detected": self.control_detected,
                 "false_alarm_rate_per_test": f"<= {self.alpha} (conservative, see module essay)",
                 "cases": [c.to_dict() for c in self.cases],
-                "control": self.control.to_dict()}
+                "control": self.control.to_dict(),
+                "truth_bench": self.truth_bench, "ratio_z_crit": self.z_crit,
+                "ratio_family_false_alarm": FAMILY_ALPHA,
+                "ratios_consistent": self.ratios_consistent,
+                "control_ratio_detected": not self.ratio_within_budget(self.control)}
 
 
 def albedo_exposure_experiment(bench: Bench, le: ArrayLike | RadianceImage,
                                render_exposure_s: float, mapping: ScreenMapping,
                                detector: DetectorStage | None = None,
-                               rng: np.random.Generator | None = None) -> KsExperiment:
+                               rng: np.random.Generator | None = None, *,
+                               calibration: RadiometricCalibration | None = None,
+                               truth: TruthScreen | None = None,
+                               instrument: ReferenceInstrument | None = None) -> KsExperiment:
     """Acquire the rendered Moon scaled by several k (and a control) and KS-test them
-    (module essay, step 3; knobs from ``bench.config.scaling``).
+    (module essay, step 2; knobs from ``bench.config.scaling``).
 
     Parameters
     ----------
@@ -269,16 +340,42 @@ def albedo_exposure_experiment(bench: Bench, le: ArrayLike | RadianceImage,
     detector : DetectorStage, optional
     rng : numpy.random.Generator, optional
         Dithering stream; default the bench's ``"scaling"`` stream.
+    calibration, truth, instrument : optional, all three or none
+        The lab's radiometric calibration, the truth screen and the reference instrument: the
+        cases are chosen with the calibration and shown on the truth screen (module essay);
+        without them, the nominal bench model.
+
+    Raises
+    ------
+    ConfigError
+        Only some of ``calibration``, ``truth``, ``instrument`` given; an empty image.
     """
     from scipy import ndimage
 
+    from starnav.calibration.moon_stimulus import (
+        calibrated_counts,  # lazy: cycle with starnav.calibration.radiometric_lab
+        calibrated_k,
+        monitor,
+    )
+
+    given = [x is not None for x in (calibration, truth, instrument)]
+    if any(given) and not all(given):
+        raise ConfigError("truth bench", "calibration, truth, instrument given: "
+                          + ", ".join(str(g) for g in given), "all three or none")
     sc = bench.config.scaling
     det = detector if detector is not None else bench.chain_detector()
     rng = rng if rng is not None else bench_rng(bench.config, "scaling")
     img = np.asarray(le.Le if isinstance(le, RadianceImage) else le, float)
+    if not np.any(img > 0):
+        raise ConfigError("radiance image Le", "all zero", "a frame with the Moon in the field")
     rad = bench.radiometry
-    k_screen = max(1.0, float(img.max()) / (bench.config.radiometric.headroom_fraction
-                                            * rad.le_max))
+    on_truth = calibration is not None and truth is not None and instrument is not None
+    if on_truth:
+        t_acq, scale, _ = monitor(bench, calibration, instrument)
+        k_screen = calibrated_k(bench, calibration, img, scale)
+    else:
+        k_screen = max(1.0, float(img.max()) / (bench.config.radiometric.headroom_fraction
+                                                * rad.le_max))
     mask = img > 0
     region = ndimage.binary_dilation(mask, iterations=bench.config.radiometric.disc_margin_px)
     specs = [(f"k = {m * k_screen:.4g}", m * k_screen, 1.0) for m in sc.ks_k_multiples]
@@ -289,23 +386,97 @@ def albedo_exposure_experiment(bench: Bench, le: ArrayLike | RadianceImage,
     cases = []
     for idx, (label, k, pf) in enumerate(specs):
         t = k * render_exposure_s * pf
-        counts = stimulus_counts(img, mapping, bench, 1.0 / k,
-                                 bench.config.radiometric.quantization, rng)
-        acq = bench.acquire(counts, t, det, FRAME_KS + 2 * idx)
-        if t not in dark_cache:
-            dark_cache[t] = bench.acquire(np.zeros_like(counts), t, det,
-                                          FRAME_KS + 2 * idx + 1).dn
-        dn = (acq.dn - dark_cache[t])[region]
-        cases.append((label, k, t, pf, int(counts.max()), dn))
-    ref = cases[0][5]
+        if on_truth:
+            counts, n_cam = calibrated_counts(bench, calibration, img / k, mapping, scale, None,
+                                              rng)
+            le_b = truth.radiance_at_camera(counts, t_acq)
+            acq_dn = det.expose(le_b, t, FRAME_KS + 2 * idx).dn
+            if t not in dark_cache:
+                dark_cache[t] = det.expose(truth.camera_image(0, t_acq), t,
+                                           FRAME_KS + 2 * idx + 1).dn
+        else:
+            counts = stimulus_counts(img, mapping, bench, 1.0 / k,
+                                     bench.config.radiometric.quantization, rng)
+            n_cam = None
+            acq_dn = bench.acquire(counts, t, det, FRAME_KS + 2 * idx).dn
+            if t not in dark_cache:
+                dark_cache[t] = bench.acquire(np.zeros_like(counts), t, det,
+                                              FRAME_KS + 2 * idx + 1).dn
+        full = acq_dn - dark_cache[t]
+        cases.append((label, k, t, pf, int(counts.max()), full, n_cam))
+    ref_full, ref_n = cases[0][5], cases[0][6]
+    ref = ref_full[region]
+    budget_of = _ratio_budget(bench, det, img, ref_full, ref_n, cases[0][2], calibration,
+                              scale if on_truth else 1.0)
     out = []
-    for label, k, t, pf, pk, dn in cases:
-        d, p = (0.0, 1.0) if dn is ref else ks_test(ref, dn)
-        out.append(KsCase(label, k, t, pf, pk, d, p, p > sc.ks_alpha, dn))
-    exp = KsExperiment(out[:-1], out[-1], sc.ks_alpha, k_screen)
-    log.info("albedo-exposure KS: scaled p = %s, control p = %.3g",
-             ", ".join(f"{c.p_value:.3g}" for c in exp.cases), exp.control.p_value)
+    for label, k, t, pf, pk, full, n_cam in cases:
+        dn = full[region]
+        first = full is ref_full
+        d, p = (0.0, 1.0) if first else ks_test(ref, dn)
+        ratio = float(dn.sum()) / float(ref.sum())
+        budget = {name: 0.0 for name in RATIO_TERMS} if first else budget_of(full, n_cam, t)
+        out.append(KsCase(label, k, t, pf, pk, d, p, p > sc.ks_alpha, dn, ratio, budget))
+    exp = KsExperiment(out[:-1], out[-1], sc.ks_alpha, k_screen, on_truth)
+    log.info("albedo-exposure KS (%s bench): scaled p = %s, control p = %.3g; disc ratios %s",
+             "truth" if on_truth else "nominal",
+             ", ".join(f"{c.p_value:.3g}" for c in exp.cases), exp.control.p_value,
+             ", ".join(f"{c.disc_ratio:.4f}" for c in out))
     return exp
+
+
+def _ratio_budget(bench: Bench, det: DetectorStage, img: FloatArray, ref_full: FloatArray,
+                  ref_n: FloatArray | None, ref_t: float,
+                  cal: RadiometricCalibration | None, scale: float):
+    """``budget(full_dn, n_cam, t)``: the relative 1-sigma terms (:data:`RATIO_TERMS`) of a
+    case's disc ratio to the reference case (module essay, step 2)."""
+    from scipy import ndimage
+
+    from starnav.calibration.moon_stimulus import (
+        lut_sensitivity,  # lazy: cycle with starnav.calibration.radiometric_lab
+        lut_terms,
+    )
+    from starnav.calibration.radiometric_lab import (
+        nonlinearity_beta,  # lazy: cycle with starnav.calibration.radiometric_lab
+    )
+
+    lit = img > 0
+    w = img[lit] / float(img[lit].sum())
+    inner = ndimage.binary_erosion(lit, iterations=3)
+    s_ref = np.clip(ref_full[lit], 0.0, None)
+    beta = nonlinearity_beta(det)
+    cam = bench.camera
+    v, u = np.nonzero(lit)
+    ri = cam.relative_illumination(u.astype(float), v.astype(float))
+    if cal is not None:
+        f_lit = cal.field_factor(np.stack([u, v], -1).astype(float))
+        black = float(cal.lut(0)) * scale * f_lit
+        J_ref, i_ref = lut_sensitivity(cal, ref_n[lit], w)
+    else:
+        black = np.full(u.shape, float(bench.radiometry.le_lut[0]))
+        J_ref, i_ref = None, 0.0
+
+    def pedestal_term(t: float) -> float:
+        return float(w @ (2.0 * beta * black * ri * cam.etendue * t / det.full_well_e))
+
+    def budget(full: FloatArray, n_cam: FloatArray | None, t: float) -> dict[str, float]:
+        if cal is not None and J_ref is not None and n_cam is not None:
+            J, i_case = lut_sensitivity(cal, n_cam[lit], w)
+            terms = lut_terms(cal, J - J_ref)
+            terms["LUT interpolation"] = math.hypot(i_case, i_ref)
+        else:
+            # the nominal bench displays with the table that chose the counts
+            terms = {name: 0.0 for name in RATIO_TERMS[:4]}
+        terms["tracker linearity"] = abs(pedestal_term(t) - pedestal_term(ref_t))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = full[inner] / ref_full[inner]
+        r = r[np.isfinite(r)]
+        sig_px = (_MAD_SIGMA * float(np.median(np.abs(r - np.median(r)))) if r.size > 1
+                  else 0.0)
+        terms["tracker pixels"] = sig_px * math.sqrt(float((s_ref**2).sum())) / max(
+            float(s_ref.sum()), 1e-300)
+        return {name: float(terms[name]) for name in RATIO_TERMS}
+
+    return budget
 
 
 # =========================================================================== end to end
@@ -363,5 +534,6 @@ def end_to_end(bench: Bench, le: ArrayLike | RadianceImage, mapping: ScreenMappi
     return EndToEnd(plan, comp, d, p, sc.ks_alpha)
 
 
-__all__ = ["EndToEnd", "KsCase", "KsExperiment", "ScalingPlan", "albedo_exposure_experiment",
+__all__ = ["RATIO_TERMS", "EndToEnd", "KsCase", "KsExperiment", "ScalingPlan",
+           "albedo_exposure_experiment",
            "bench_min_exposure", "end_to_end", "ks_test", "plan_scaling"]
