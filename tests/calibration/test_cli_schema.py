@@ -169,8 +169,11 @@ def test_hil_radiometric_cli(app, tmp_path):
     assert r.exit_code == 0, r.output
     s = json.loads((tmp_path / "radiometric.json").read_text())
     assert abs(s["validation"]["disc_ratio"] - 1) < 0.02
-    assert s["albedo_exposure_ks"]["scaled_equivalent"]
-    assert s["albedo_exposure_ks"]["control_detected"]
+    ks = s["albedo_exposure_ks"]
+    # the default bench has a truth: the equivalence runs on it and its ratios are within
+    # their budget (the KS test may reject a scaled case there: docs/calibration.md, section 5)
+    assert ks["truth_bench"] and ks["ratios_consistent"] and ks["control_ratio_detected"]
+    assert ks["control_detected"]
     assert s["end_to_end"]["plan"]["k"] == pytest.approx(13333.33, rel=1e-6)
     for f in ("count_flux_mapping.png", "radiometric_validation.png",
               "albedo_exposure_histograms.png", "end_to_end.png", "count_flux_mapping.json"):

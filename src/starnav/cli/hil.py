@@ -188,8 +188,13 @@ def radiometric(
         ("k (albedo / k, exposure x k)", s["plan"]["k"]),
         ("stimulus peak count", s["plan"]["peak_count"]),
         ("validation disc ratio", s["validation"]["disc_ratio"]),
+        ("KS bench", "truth (calibrated counts)" if ks["truth_bench"] else "nominal model"),
         ("KS scaled p-values", ", ".join(f"{c['p_value']:.3g}" for c in ks["cases"][1:])),
         ("KS control p-value", f"{ks['control']['p_value']:.3g}"),
+        ("KS scaled disc ratio - 1 (1-sigma)",
+         ", ".join(f"{c['ratio_error']:+.4f} ({c['ratio_sigma']:.4f})" for c in ks["cases"][1:])),
+        ("KS control disc ratio - 1", f"{ks['control']['ratio_error']:+.4f}"),
+        ("KS scaled ratios within budget", ks["ratios_consistent"]),
         ("end-to-end disc ratio", e2e["metrics"]["disc_ratio"]),
         ("end-to-end KS p-value", e2e["ks_p_value"]),
     ])
