@@ -175,6 +175,7 @@ def test_hil_radiometric_cli(app, tmp_path):
     assert ks["truth_bench"] and ks["ratios_consistent"] and ks["control_ratio_detected"]
     assert ks["control_detected"]
     assert s["end_to_end"]["plan"]["k"] == pytest.approx(13333.33, rel=1e-6)
+    assert s["end_to_end"]["truth_bench"] and s["end_to_end"]["metrics"]["consistent"]
     for f in ("count_flux_mapping.png", "radiometric_validation.png",
               "albedo_exposure_histograms.png", "end_to_end.png", "count_flux_mapping.json"):
         assert (tmp_path / f).exists()

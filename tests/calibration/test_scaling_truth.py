@@ -15,13 +15,14 @@ albedo 0.12 (no renderer).
 
 from __future__ import annotations
 
+import pytest
 from scipy import stats
 
 from starnav.calibration.bench import Bench, IdealDetector
 from starnav.calibration.geometric import TrueMapping
 from starnav.calibration.radiometric_lab import calibrate_radiometry
 from starnav.calibration.radiometric_truth import ReferenceInstrument, TruthScreen
-from starnav.calibration.scaling import RATIO_TERMS, albedo_exposure_experiment
+from starnav.calibration.scaling import RATIO_TERMS, albedo_exposure_experiment, end_to_end
 from starnav.calibration.schema import bench_from_dict
 from starnav.seeding import generator
 
@@ -112,3 +113,31 @@ def test_the_truth_path_is_used():
            "LUT interpolation")
     assert all(nominal.cases[-1].ratio_budget[t] == 0.0 for t in lut)
     assert abs(nominal.cases[-1].ratio_error) <= nominal.z_crit * nominal.cases[-1].ratio_sigma
+
+
+def test_end_to_end_on_the_truth_bench():
+    """The seed paper's end-to-end case (0.015 ms in orbit, 200 ms on the bench, k = 13 333)
+    given the truth bench goes through the lab's calibration and the truth screen: consistent
+    with its budget; the truth panel's gamma moving by +0.1 after the calibration dims the
+    count-13 stimulus by ~(13 / 255)^0.1 - 1 = -26 %, far outside it."""
+    bench = _bench()
+    img = _moon(bench.camera)
+    seed = SCORING_SEEDS + 12
+    lab = _lab(bench, seed)
+    kw = {"truth": lab[0], "instrument": lab[1], "calibration": lab[2]}
+
+    def run():
+        return end_to_end(bench, img, TrueMapping(bench.geometry), IdealDetector(bench.camera),
+                          render_exposure_s=T_RENDER, bench_exposure_s=0.2,
+                          rng=generator(seed, 6, 11), **kw)
+
+    e2e = run()
+    assert e2e.plan.k == pytest.approx(0.2 / T_RENDER)
+    d = e2e.to_dict()
+    assert d["truth_bench"] and d["metrics"]["truth_bench"]
+    assert e2e.truth is not None and e2e.truth.consistent
+    assert d["metrics"]["sigma"]["disc_ratio"] > 0
+    lab[0].gamma = lab[0].gamma + 0.1
+    bad = run().truth
+    assert bad is not None and not bad.consistent
+    assert bad.errors()["disc_ratio"] < -0.15

@@ -22,7 +22,8 @@ Technique
    pixels' scatter (measured); the field factor, the monitor, the reference's aperture and the
    collimator spot act alike on every case (same pixels, same time) and cancel.
 3. :func:`end_to_end` (the paper's Fig. 19): a frame exposed in orbit against its scaled bench
-   acquisition.
+   acquisition; given the truth bench, the stimulus of
+   :func:`~starnav.calibration.moon_stimulus.compare_moon_stimulus` with its budget.
 
 References
 ----------
@@ -59,6 +60,7 @@ from starnav.radiance import RadianceImage
 from starnav.typing import FloatArray
 
 if TYPE_CHECKING:  # radiometric_lab imports this module
+    from starnav.calibration.moon_stimulus import MoonStimulusComparison
     from starnav.calibration.radiometric_lab import RadiometricCalibration
     from starnav.calibration.radiometric_truth import ReferenceInstrument, TruthScreen
 
@@ -489,18 +491,25 @@ class EndToEnd:
     ks_statistic: float
     ks_p_value: float
     alpha: float
+    truth: MoonStimulusComparison | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {"plan": self.plan.to_dict(), "metrics": self.comparison.metrics(),
+        metrics = (self.truth.metrics() if self.truth is not None
+                   else self.comparison.metrics() | {"truth_bench": False})
+        return {"plan": self.plan.to_dict(), "metrics": metrics,
                 "ks_statistic": self.ks_statistic, "ks_p_value": self.ks_p_value,
-                "ks_equivalent": self.ks_p_value > self.alpha, "alpha": self.alpha}
+                "ks_equivalent": self.ks_p_value > self.alpha, "alpha": self.alpha,
+                "truth_bench": self.truth is not None}
 
 
 def end_to_end(bench: Bench, le: ArrayLike | RadianceImage, mapping: ScreenMapping,
                detector: DetectorStage | None = None, *,
                le_scaled: ArrayLike | RadianceImage | None = None,
                render_exposure_s: float | None = None, bench_exposure_s: float | None = None,
-               rng: np.random.Generator | None = None) -> EndToEnd:
+               rng: np.random.Generator | None = None,
+               calibration: RadiometricCalibration | None = None,
+               truth: TruthScreen | None = None,
+               instrument: ReferenceInstrument | None = None) -> EndToEnd:
     """Render-in-orbit vs scaled bench acquisition, end to end (module essay, step 4).
 
     Parameters
@@ -515,7 +524,22 @@ def end_to_end(bench: Bench, le: ArrayLike | RadianceImage, mapping: ScreenMappi
     render_exposure_s, bench_exposure_s : float, optional
         [s]; defaults ``scaling.render_exposure_ms`` and the plan's exposure (``scaling``
         section: fixed, or the shortest the readout allows).
+    calibration, truth, instrument : optional, all three or none
+        The truth bench: the stimulus is chosen with the lab's calibration and shown on the
+        truth screen, compared within its budget
+        (:func:`~starnav.calibration.moon_stimulus.compare_moon_stimulus`); without them, the
+        nominal bench model.
+
+    Raises
+    ------
+    ConfigError
+        Only some of ``calibration``, ``truth``, ``instrument`` given; see also
+        :func:`plan_scaling`.
     """
+    given = [x is not None for x in (calibration, truth, instrument)]
+    if any(given) and not all(given):
+        raise ConfigError("truth bench", "calibration, truth, instrument given: "
+                          + ", ".join(str(g) for g in given), "all three or none")
     sc = bench.config.scaling
     img = np.asarray(le.Le if isinstance(le, RadianceImage) else le, float)
     t_r = render_exposure_s if render_exposure_s is not None else sc.render_exposure_ms * 1e-3
@@ -526,12 +550,23 @@ def end_to_end(bench: Bench, le: ArrayLike | RadianceImage, mapping: ScreenMappi
                         bench_min_exposure_s=bench_min_exposure(bench), bench_exposure_s=t_b,
                         headroom=bench.config.radiometric.headroom_fraction)
     rng = rng if rng is not None else bench_rng(bench.config, "end_to_end")
-    comp = compare_stimulus(bench, img, t_r, mapping, detector,
-                            bench_exposure_s=plan.bench_exposure_s, le_displayed=le_scaled,
-                            rng=rng, frame_base=FRAME_E2E)
+    mc = None
+    if calibration is not None and truth is not None and instrument is not None:
+        from starnav.calibration.moon_stimulus import (
+            compare_moon_stimulus,  # lazy: cycle with starnav.calibration.radiometric_lab
+        )
+
+        mc = compare_moon_stimulus(bench, img, t_r, mapping, calibration, truth, instrument,
+                                   detector, bench_exposure_s=plan.bench_exposure_s,
+                                   le_displayed=le_scaled, rng=rng, frame_base=FRAME_E2E)
+        comp = mc.comparison
+    else:
+        comp = compare_stimulus(bench, img, t_r, mapping, detector,
+                                bench_exposure_s=plan.bench_exposure_s, le_displayed=le_scaled,
+                                rng=rng, frame_base=FRAME_E2E)
     gain = comp.gain
     d, p = ks_test(comp.orbit_signal_e[comp.region] / gain, comp.bench_signal_e[comp.region] / gain)
-    return EndToEnd(plan, comp, d, p, sc.ks_alpha)
+    return EndToEnd(plan, comp, d, p, sc.ks_alpha, mc)
 
 
 __all__ = ["RATIO_TERMS", "EndToEnd", "KsCase", "KsExperiment", "ScalingPlan",

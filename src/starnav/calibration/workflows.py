@@ -186,9 +186,9 @@ def run_radiometric(cfg: BenchConfig,
     stimulus validated against the in-orbit exposure (Figs. 15-16), the albedo-exposure
     equivalence test (Fig. 18) and the end-to-end case (Fig. 19).
 
-    With ``radiometric_truth.enabled`` (the default) the equivalence test runs on the truth
-    bench (counts from the radiometric calibration against the reference instrument, shown on
-    the truth screen); the validation and the end-to-end case run on the nominal bench model.
+    With ``radiometric_truth.enabled`` (the default) the equivalence test and the end-to-end
+    case run on the truth bench (counts from the radiometric calibration against the reference
+    instrument, shown on the truth screen); the validation runs on the nominal bench model.
 
     Parameters
     ----------
@@ -219,7 +219,7 @@ def run_radiometric(cfg: BenchConfig,
     ks = albedo_exposure_experiment(bench, img, t_r, mapping, **lab)
     scaled = image_scaled if image_scaled is not None else render_reference(cfg, plan.albedo_factor)
     e2e = end_to_end(bench, img, mapping, le_scaled=scaled, render_exposure_s=t_r,
-                     bench_exposure_s=plan.bench_exposure_s)
+                     bench_exposure_s=plan.bench_exposure_s, **lab)
     summary = {
         "screen": {"max_count": rad.max_count, "full_white_le_e_s_m2_sr": rad.le_max,
                    "full_white_l_w_m2_sr": float(rad.l_lut[-1]),

@@ -195,8 +195,13 @@ def radiometric(
          ", ".join(f"{c['ratio_error']:+.4f} ({c['ratio_sigma']:.4f})" for c in ks["cases"][1:])),
         ("KS control disc ratio - 1", f"{ks['control']['ratio_error']:+.4f}"),
         ("KS scaled ratios within budget", ks["ratios_consistent"]),
+        ("end-to-end bench", "truth (calibrated counts)" if e2e["truth_bench"]
+         else "nominal model"),
         ("end-to-end disc ratio", e2e["metrics"]["disc_ratio"]),
         ("end-to-end KS p-value", e2e["ks_p_value"]),
+        *([("end-to-end disc ratio 1-sigma", e2e["metrics"]["sigma"]["disc_ratio"]),
+           ("end-to-end consistent with its budget", e2e["metrics"]["consistent"])]
+          if e2e["truth_bench"] else []),
     ])
     typer.echo(f"outputs in {out}")
 
