@@ -1,7 +1,7 @@
 # starnav: two commands on a fresh machine.
 #   make demo   creates .venv, installs starnav, runs the main job on built-in defaults
 #   make test   creates .venv with the dev extras, runs the test suite (slow tests excluded)
-#               on one worker per core (pytest-xdist; a module's tests share a worker, so its
+#               on one worker per core, at most 4 (pytest-xdist; a module's tests share a worker, so its
 #               module-scoped renders are made once)
 PYTHON ?= python3
 VENV   := .venv
@@ -10,6 +10,8 @@ STAMP  := $(VENV)/.starnav-installed
 
 .PHONY: demo test test-slow bench bench-cycles lint llvm clean
 CYCLES_VENV ?= .venv-cycles
+# test workers: one per logical core, at most 4 (each worker holds its own renders and tables)
+TEST_WORKERS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); [ $$n -gt 4 ] && n=4; echo $$n)
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,10 +26,10 @@ demo: llvm $(STAMP)
 	$(BIN)/starnav demo --out out/demo
 
 test: llvm $(STAMP)
-	$(BIN)/python -m pytest -n auto --dist loadscope
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadscope
 
 test-slow: llvm $(STAMP)
-	$(BIN)/python -m pytest -m slow -n auto --dist loadscope
+	$(BIN)/python -m pytest -m slow -n $(TEST_WORKERS) --dist loadscope
 
 bench: llvm $(STAMP)
 	for b in render detector navigation scenes dem calibration dataset; do \
