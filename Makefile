@@ -1,8 +1,8 @@
 # starnav: two commands on a fresh machine.
 #   make demo   creates .venv, installs starnav, runs the main job on built-in defaults
 #   make test   creates .venv with the dev extras, runs the test suite (slow tests excluded)
-#               on one worker per core, at most 4 (pytest-xdist; a module's tests share a worker, so its
-#               module-scoped renders are made once)
+#               on one worker per core, at most 4 (pytest-xdist; a module's tests share a
+#               worker, so its module-scoped renders are made once)
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
