@@ -70,7 +70,7 @@ from starnav.calibration.radiometric_lab import (
     nonlinearity_beta,
 )
 from starnav.calibration.radiometric_truth import ReferenceInstrument, TruthScreen
-from starnav.calibration.screen import QUANTIZATION_METHODS
+from starnav.calibration.screen import QUANTIZATION_METHODS, quantize_to_counts
 from starnav.calibration.streams import bench_rng
 from starnav.errors import ConfigError
 from starnav.radiance import RadianceImage
@@ -145,18 +145,9 @@ def calibrated_counts(bench: Bench, cal: RadiometricCalibration, le_camera: Arra
     j0, i0, j1, i1 = bench.screen_window
     ii, jj = np.nonzero(target[i0:i1, j0:j1] > 0)
     on = (ii + i0, jj + j0)
-    x = target[on]
-    hi = np.clip(np.searchsorted(table, x, side="left"), 0, n_max)
-    lo = np.clip(hi - 1, 0, n_max)
-    span = table[hi] - table[lo]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        t = np.where(span > 0, (x - table[lo]) / span, 0.0)
-    if m == "nearest":
-        pick = t >= 0.5
-    else:
+    if m != "nearest":
         rng = rng if rng is not None else bench_rng(bench.config, "stimulus")
-        pick = rng.random(x.shape) < t
-    counts[on] = np.where(pick, hi, lo)
+    counts[on] = quantize_to_counts(target[on], table, m, rng)
     n_cam = np.interp(want, table, grid) * lit
     return counts, n_cam
 

@@ -15,7 +15,8 @@ Seed paper, "Radiometric Calibration", steps 1-2 and Figs. 14-16.
 
 Index
 -----
-:class:`ScreenRadiometry`, :func:`gaussian_dots`, :data:`QUANTIZATION_METHODS`.
+:class:`ScreenRadiometry`, :func:`quantize_to_counts`, :func:`gaussian_dots`,
+:data:`QUANTIZATION_METHODS`.
 """
 
 from __future__ import annotations
@@ -36,6 +37,21 @@ log = logging.getLogger(__name__)
 
 QUANTIZATION_METHODS = ("nearest", "dither")
 
+
+
+def quantize_to_counts(x: FloatArray, table: FloatArray, method: str,
+                       rng: np.random.Generator | None) -> NDArray[np.uint16]:
+    """Counts whose table values bracket ``x``: the nearest of the two, or a random choice
+    between them with expectation ``x`` (``dither``, needs ``rng``). ``table`` is
+    non-decreasing over counts ``0 .. len(table) - 1``; ``x`` within its range."""
+    n_max = len(table) - 1
+    hi = np.clip(np.searchsorted(table, x, side="left"), 0, n_max)
+    lo = np.clip(hi - 1, 0, n_max)
+    span = table[hi] - table[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = np.where(span > 0, (x - table[lo]) / span, 0.0)
+    pick_hi = t >= 0.5 if method == "nearest" else rng.random(np.shape(x)) < t
+    return np.where(pick_hi, hi, lo).astype(np.uint16)
 
 @dataclass(frozen=True)
 class ScreenRadiometry:
@@ -214,20 +230,9 @@ class ScreenRadiometry:
             log.warning("stimulus clipped at full white: %d pixel(s) above %.4g",
                         int(np.count_nonzero(x > top)), top)
         x = np.clip(x, self.le_min, top)
-        lut = self.le_lut
-        hi = np.clip(np.searchsorted(lut, x, side="left"), 0, self.max_count)
-        lo = np.clip(hi - 1, 0, self.max_count)
-        span = lut[hi] - lut[lo]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            t = np.where(span > 0, (x - lut[lo]) / span, 0.0)
-        if method == "nearest":
-            pick_hi = t >= 0.5
-        else:
-            if rng is None:
-                raise ConfigError("rng", None, "a numpy Generator for dithering")
-            pick_hi = rng.random(x.shape) < t
-        out = np.where(pick_hi, hi, lo)
-        return out.astype(np.uint16)
+        if method != "nearest" and rng is None:
+            raise ConfigError("rng", None, "a numpy Generator for dithering")
+        return quantize_to_counts(x, self.le_lut, method, rng)
 
 
 # --------------------------------------------------------------------------- patterns
