@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import ndimage, stats
+from scipy import stats
 
 from starnav.calibration.bench import (
     Acquisition,
@@ -62,7 +62,7 @@ from starnav.calibration.bench import (
     field_varying_blur,
 )
 from starnav.calibration.geometric import ScreenMapping, prewarp
-from starnav.calibration.radiometric import INNER_MIN_FRACTION, StimulusComparison
+from starnav.calibration.radiometric import StimulusComparison, checked_render, disc_regions
 from starnav.calibration.radiometric_lab import (
     FAMILY_ALPHA,
     RadiometricCalibration,
@@ -339,11 +339,7 @@ def compare_moon_stimulus(bench: Bench, le: ArrayLike | RadianceImage, render_ex
         Empty image, non-positive exposure, or a stimulus brighter than the calibrated screen.
     """
     det = detector if detector is not None else bench.chain_detector()
-    img = np.asarray(le.Le if isinstance(le, RadianceImage) else le, float)
-    if not np.any(img > 0):
-        raise ConfigError("radiance image Le", "all zero", "a frame with the Moon in the field")
-    if not (math.isfinite(render_exposure_s) and render_exposure_s > 0):
-        raise ConfigError("render_exposure_s", render_exposure_s, "an exposure > 0 s")
+    img = checked_render(le, render_exposure_s)
     cfg = bench.config
     lab = cfg.radiometric_lab
     cam = bench.camera
@@ -367,9 +363,7 @@ def compare_moon_stimulus(bench: Bench, le: ArrayLike | RadianceImage, render_ex
     fr = det.expose(le_b, bench_exposure_s, frame_base + 2)
     dark = det.expose(truth.camera_image(0, t_acq), bench_exposure_s, frame_base + 3)
     acq = Acquisition(le_b, fr.dn, fr.electrons, float(bench_exposure_s), frame_base + 2)
-    margin = cfg.radiometric.disc_margin_px
-    region = ndimage.binary_dilation(lit, iterations=margin) if margin > 0 else lit
-    inner = ndimage.binary_erosion(lit, iterations=3) & (img > INNER_MIN_FRACTION * img.max())
+    region, inner = disc_regions(img, cfg.radiometric.disc_margin_px)
     comp = StimulusComparison(img, counts, k, float(render_exposure_s), float(bench_exposure_s),
                               orbit.dn, orbit_dark.dn, orbit.electrons, acq, dark.dn,
                               det.gain_e_per_dn, det.full_well_e, region, inner)

@@ -22,7 +22,8 @@ Seed paper, "Radiometric Calibration" (steps 1-5, Figs. 14-17) and its ref. 20.
 Index
 -----
 :func:`moon_flux`, :class:`MoonFlux`, :func:`count_flux_mapping`, :class:`CountFluxMapping`,
-:func:`screen_limited_k`, :func:`compare_stimulus`, :class:`StimulusComparison`.
+:func:`screen_limited_k`, :func:`compare_stimulus`, :class:`StimulusComparison`,
+:func:`checked_render`, :func:`disc_regions`.
 """
 
 from __future__ import annotations
@@ -278,6 +279,28 @@ class StimulusComparison:
         }
 
 
+def checked_render(le: ArrayLike | RadianceImage, render_exposure_s: float) -> FloatArray:
+    """The rendered radiance of a stimulus comparison as an array, refused when it holds no
+    Moon or its exposure is not positive (:class:`~starnav.errors.ConfigError`)."""
+    img = np.asarray(le.Le if isinstance(le, RadianceImage) else le, float)
+    if not np.any(img > 0):
+        raise ConfigError("radiance image Le", "all zero", "a frame with the Moon in the field")
+    if not (math.isfinite(render_exposure_s) and render_exposure_s > 0):
+        raise ConfigError("render_exposure_s", render_exposure_s, "an exposure > 0 s")
+    return img
+
+
+def disc_regions(img: FloatArray, margin_px: int) -> tuple[NDArray[np.bool_],
+                                                           NDArray[np.bool_]]:
+    """``(region, inner)`` of a comparison: the lit disc grown by ``margin_px`` (where the
+    disc's electrons are summed) and the inner disc (3 px in from the limb, above
+    :data:`INNER_MIN_FRACTION` of the peak: the per-pixel ratios)."""
+    lit = img > 0
+    region = ndimage.binary_dilation(lit, iterations=margin_px) if margin_px > 0 else lit
+    inner = ndimage.binary_erosion(lit, iterations=3) & (img > INNER_MIN_FRACTION * img.max())
+    return region, inner
+
+
 def compare_stimulus(bench: Bench, le: ArrayLike | RadianceImage, render_exposure_s: float,
                      mapping: ScreenMapping, detector: DetectorStage | None = None, *,
                      bench_exposure_s: float | None = None,
@@ -316,11 +339,7 @@ def compare_stimulus(bench: Bench, le: ArrayLike | RadianceImage, render_exposur
         Empty image, non-positive exposure, or a stimulus brighter than the screen.
     """
     det = detector if detector is not None else bench.chain_detector()
-    img = np.asarray(le.Le if isinstance(le, RadianceImage) else le, float)
-    if not np.any(img > 0):
-        raise ConfigError("radiance image Le", "all zero", "a frame with the Moon in the field")
-    if not (math.isfinite(render_exposure_s) and render_exposure_s > 0):
-        raise ConfigError("render_exposure_s", render_exposure_s, "an exposure > 0 s")
+    img = checked_render(le, render_exposure_s)
     rad = bench.radiometry
     cfg = bench.config.radiometric
     if bench_exposure_s is None:
@@ -339,14 +358,12 @@ def compare_stimulus(bench: Bench, le: ArrayLike | RadianceImage, render_exposur
     orbit_dark = det.expose(np.zeros_like(img), render_exposure_s, frame_base + 1)
     acq = bench.acquire(counts, bench_exposure_s, det, frame_base + 2)
     bench_dark = bench.acquire(np.zeros_like(counts), bench_exposure_s, det, frame_base + 3)
-    mask = img > 0
-    region = ndimage.binary_dilation(mask, iterations=cfg.disc_margin_px) \
-        if cfg.disc_margin_px > 0 else mask
-    inner = ndimage.binary_erosion(mask, iterations=3) & (img > INNER_MIN_FRACTION * img.max())
+    region, inner = disc_regions(img, cfg.disc_margin_px)
     return StimulusComparison(img, counts, k, float(render_exposure_s), float(bench_exposure_s),
                               orbit.dn, orbit_dark.dn, orbit.electrons, acq, bench_dark.dn,
                               det.gain_e_per_dn, det.full_well_e, region, inner)
 
 
-__all__ = ["CountFluxMapping", "MoonFlux", "StimulusComparison", "compare_stimulus",
-           "count_flux_mapping", "moon_flux", "screen_limited_k"]
+__all__ = ["CountFluxMapping", "MoonFlux", "StimulusComparison", "checked_render",
+           "compare_stimulus", "count_flux_mapping", "disc_regions", "moon_flux",
+           "screen_limited_k"]
