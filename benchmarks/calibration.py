@@ -146,6 +146,18 @@ def intrinsics(n: int) -> None:
     print(json.dumps(out, indent=1))
 
 
+def seeded_lab(bench, seed: int, cache: dict):
+    """One seeded truth bench as a lab sees it: ``(truth screen, reference instrument, the
+    lab's radiometric calibration against it)``."""
+    from starnav.calibration.radiometric_lab import calibrate_radiometry
+    from starnav.calibration.radiometric_truth import ReferenceInstrument, TruthScreen
+    from starnav.seeding import generator
+
+    tr = TruthScreen(bench, generator(seed, 6, 7), cache)
+    inst = ReferenceInstrument(bench, tr, generator(seed, 6, 8))
+    return tr, inst, calibrate_radiometry(bench, tr, inst)
+
+
 def radiometric(n: int) -> None:
     """The radiometric calibration against the reference instrument on ``n`` seeded truth
     benches: estimated against true parameters with their 1-sigma, the validation's error
@@ -160,7 +172,6 @@ def radiometric(n: int) -> None:
         validate_radiometry,
     )
     from starnav.calibration.radiometric_truth import ReferenceInstrument, TruthScreen
-    from starnav.seeding import generator
 
     def run(lab: dict, seeds: range) -> dict:
         bench = Bench(bench_from_dict({"radiometric_lab": lab}))
@@ -169,9 +180,7 @@ def radiometric(n: int) -> None:
         rows = []
         t0 = time.perf_counter()
         for i in seeds:
-            tr = TruthScreen(bench, generator(5000 + i, 6, 7), cache)
-            inst = ReferenceInstrument(bench, tr, generator(5000 + i, 6, 8))
-            cal = calibrate_radiometry(bench, tr, inst)
+            tr, inst, cal = seeded_lab(bench, 5000 + i, cache)
             val = validate_radiometry(bench, cal, tr, inst)
             pl = plausibility(bench, cal, tr)
             white_true = float(tr.electron_radiance(255, np.array([[cam.cx, cam.cy]]),
@@ -246,8 +255,6 @@ def moon(n: int) -> None:
     from starnav.calibration import Bench, IdealDetector, bench_from_dict
     from starnav.calibration.geometric import TrueMapping
     from starnav.calibration.moon_stimulus import METRICS, MOON_TERMS, compare_moon_stimulus
-    from starnav.calibration.radiometric_lab import calibrate_radiometry
-    from starnav.calibration.radiometric_truth import ReferenceInstrument, TruthScreen
     from starnav.calibration.workflows import render_reference
     from starnav.seeding import generator
 
@@ -265,9 +272,7 @@ def moon(n: int) -> None:
         rows = []
         t1 = time.perf_counter()
         for i in seeds:
-            tr = TruthScreen(bench, generator(8400 + i, 6, 7), cache)
-            inst = ReferenceInstrument(bench, tr, generator(8400 + i, 6, 8))
-            cal = calibrate_radiometry(bench, tr, inst)
+            tr, inst, cal = seeded_lab(bench, 8400 + i, cache)
             det = IdealDetector(bench.camera) if detector == "ideal" else bench.chain_detector()
             mc = compare_moon_stimulus(bench, img, t_r, mapping, cal, tr, inst, det,
                                        bench_exposure_s=t_b, rng=generator(8400 + i, 6, 9))
