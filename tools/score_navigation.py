@@ -10,10 +10,10 @@ The protocol (docs/navigation.md, "Tuning apart from scoring"):
   the PSF estimate on the star frames of ``tools/estimate_psf.py`` (seeds 9100-9103), the
   camera's bench calibrations (``tools/calibrate_camera_bench.py``, bench seeds 9500-9539),
   the fix covariance's factors per bin of phase (the refinement's arcs again).
-- **Scoring set** (:data:`SCORING_ARCS`): another season (June and September 2028), halo
-  phases (170 and 350 deg) apart from the tuning phases and the spent scoring sets
-  (:data:`SPENT`), Sun phases 81-111 deg (across the tuning arcs' upper edge, 100 deg) and
-  32-33 deg (below them), ranges 51 000-52 000 and 72 000-73 000 km, seeds 9405-9406; the
+- **Scoring set** (:data:`SCORING_ARCS`): another season (November 2028 and January 2029),
+  halo phases (80 and 260 deg) apart from the tuning phases and the spent scoring sets
+  (:data:`SPENT`), Sun phases 131-139 deg (the crescent side, beyond the tuning arcs' 100 deg)
+  and 63-70 deg, ranges 67 700-73 400 and 68 500-74 000 km, seeds 9407-9408; the
   truth with every mismatch on (planets, solar radiation pressure with eclipses and J2 in the
   truth only; PSF estimated from stars; terrain statistics from a coarser DEM than the
   rendered one; the camera known as one emulated bench calibrated it), each run on its own
@@ -43,10 +43,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "src/starnav/data/navigation/scores.json"
 FIGURE = ROOT / "docs/figures/anees_scoring.png"
-SCORING_ARCS = (["trajectory.halo_phase_deg=170", "trajectory.epoch=2028-06-14T00:00:00 TDB",
-                 "seed=9405"],
-                ["trajectory.halo_phase_deg=350", "trajectory.epoch=2028-09-20T00:00:00 TDB",
-                 "seed=9406"])
+SCORING_ARCS = (["trajectory.halo_phase_deg=80", "trajectory.epoch=2028-11-01T00:00:00 TDB",
+                 "seed=9407"],
+                ["trajectory.halo_phase_deg=260", "trajectory.epoch=2029-01-17T00:00:00 TDB",
+                 "seed=9408"])
 #: Scoring sets already spent (each saw a released default once; never scored again).
 SPENT = ((["trajectory.halo_phase_deg=150", "trajectory.epoch=2027-08-10T00:00:00 TDB",
            "seed=9301"],
@@ -59,7 +59,11 @@ SPENT = ((["trajectory.halo_phase_deg=150", "trajectory.epoch=2027-08-10T00:00:0
          (["trajectory.halo_phase_deg=20", "trajectory.epoch=2028-02-16T00:00:00 TDB",
            "seed=9403"],
           ["trajectory.halo_phase_deg=280", "trajectory.epoch=2028-04-19T00:00:00 TDB",
-           "seed=9404"]))
+           "seed=9404"]),
+         (["trajectory.halo_phase_deg=170", "trajectory.epoch=2028-06-14T00:00:00 TDB",
+           "seed=9405"],
+          ["trajectory.halo_phase_deg=350", "trajectory.epoch=2028-09-20T00:00:00 TDB",
+           "seed=9406"]))
 ARC = ["trajectory.duration_days=1.0", "trajectory.cadence_s=7200", "render.spp=8"]
 RUNS = 20
 
