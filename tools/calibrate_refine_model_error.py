@@ -26,6 +26,16 @@ varying (all but the pixels' noise and the attitude).
 The tests score the result on three other arcs (tests/navigation/test_consistency.py: the
 demo arc, halo phase 0, 2027-03-01, seed 20250101, and two more).
 
+``--blooming`` calibrates, with the packaged terms, those of a limb far past the full well
+(the paper's 7.7 ms, segments at 2048 DN; ``ModelErrorCalibration.blooming``) on the same
+real-Moon arcs, 2 noise runs each, phase bins 0-60-90-120-180 deg (the fix's error changes
+fastest between a gibbous and a quarter Moon there): pass 1, no blooming terms, gives a
+saturated window's extra per bin from the residuals of each frame's three-mode fit
+(``starnav.batch.consistency.saturated_extra_by_phase``); pass 2, with it, gives from the
+fixes their slowly varying covariance (pooled, by maximum likelihood:
+``starnav.batch.consistency.shared_covariance_mle``; scaled to a mean NEES of 3) and its factor
+per bin. No window is dropped for its fitted over-exposure there.
+
 ``--phase-scales`` runs the second pass alone on the real-Moon arcs with the packaged terms
 and writes only the factors per bin of phase on the pooled fix covariance
 (``starnav.batch.consistency.fix_phase_scales``): the shared limb errors grow towards the
@@ -36,6 +46,7 @@ Usage::
     .venv/bin/python tools/calibrate_refine_model_error.py            # calibrate, write
     .venv/bin/python tools/calibrate_refine_model_error.py --dry-run  # print only
     .venv/bin/python tools/calibrate_refine_model_error.py --phase-scales
+    .venv/bin/python tools/calibrate_refine_model_error.py --blooming
 """
 
 from __future__ import annotations
@@ -43,6 +54,7 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -63,6 +75,10 @@ ARCS = (["trajectory.halo_phase_deg=60", "trajectory.epoch=2027-03-06T00:00:00 T
 COMMON = ["trajectory.duration_days=13.2", "trajectory.cadence_s=86400", "render.spp=8"]
 RUNS = 2
 #: No model error at all: the first pass.
+#: The blooming regime's calibration exposure and segment threshold (the paper's 7.7 ms, as
+#: the demo's second exposure) and its bins of phase [deg].
+BLOOMING = (7.7e-3, ("detector.readout.segments.thresholds_dn=[2048]",))
+BLOOMING_EDGES = (0.0, 60.0, 90.0, 120.0, 180.0)
 UNCALIBRATED = {"phase_edges_deg": [0.0, 180.0], "edge_model_error_px": [0.0],
                 "saturated_model_error_px": [0.0], "terrain_scale": 1.0,
                 "common_covariance": [[0.0] * 3] * 3}
@@ -101,7 +117,12 @@ def main() -> None:
     ap.add_argument("--dry-run", action="store_true", help="print, restore the packaged file")
     ap.add_argument("--phase-scales", action="store_true",
                     help="the fix covariance's factors per bin of phase alone (second pass)")
+    ap.add_argument("--blooming", action="store_true",
+                    help="the blooming regime's terms alone (7.7 ms)")
     args = ap.parse_args()
+    if args.blooming:
+        blooming(args.dry_run)
+        return
     if args.phase_scales:
         phase_scales(args.dry_run)
         return
@@ -211,6 +232,70 @@ def phase_scales(dry_run: bool) -> None:
                                           "fix_scale_fixes_per_bin")}), flush=True)
     if not dry_run:
         _use(doc, OUT)
+        print("wrote", OUT)
+
+
+def blooming(dry_run: bool) -> None:
+    """The blooming regime's terms (module docstring, ``--blooming``)."""
+    from starnav.batch.consistency import (
+        _nees_scaled,
+        fix_phase_scales,
+        limb_point_records,
+        render_arc,
+        saturated_extra_by_phase,
+        shared_covariance_mle,
+    )
+    from starnav.batch.presets import demo_scenario
+    from starnav.config import scenario_from_dict, scenario_to_dict
+    from starnav.dem.limb import limb_topography_for
+    from starnav.navigation.refine import ModelErrorCalibration
+
+    doc = json.loads(OUT.read_text())
+    before = json.dumps(doc, indent=1) + "\n"
+    doc.pop("blooming", None)
+    nb = len(BLOOMING_EDGES) - 1
+    section = {"min_exposure_s": math.sqrt(SATURATED[0] * BLOOMING[0]),
+               "exposure_s": BLOOMING[0], "phase_edges_deg": list(BLOOMING_EDGES),
+               "saturated_model_error_px": [0.0] * nb,
+               "fix_covariance_saturated": [[0.0] * 3] * 3}
+    base = demo_scenario()
+    sc = scenario_from_dict(base)
+    topo = limb_topography_for(sc.moon.dem)
+    win = sc.navigation.refine.window_size_px
+    configs = [scenario_to_dict(scenario_from_dict(base, [*arc, *COMMON])) for arc in ARCS]
+    renders = [render_arc(c) for c in configs]
+    print("rendered", sum(len(r) for r in renders), "frames", flush=True)
+    try:
+        # pass 1: a saturated window's own extra
+        _use({**doc, "blooming": section}, OUT)
+        cal = ModelErrorCalibration.from_dict({**doc, "blooming": section}).blooming
+        points = [limb_point_records(c, RUNS, (BLOOMING,), r)[BLOOMING[0]]["points"]
+                  for c, r in zip(configs, renders, strict=True)]
+        section["saturated_model_error_px"] = saturated_extra_by_phase(
+            _merge(points), cal, topo, win, BLOOMING_EDGES)
+        print("pass 1:", section["saturated_model_error_px"], flush=True)
+        # pass 2: the fixes' slowly varying error
+        _use({**doc, "blooming": section}, OUT)
+        tab = _merge([limb_point_records(c, RUNS, (BLOOMING,), r)[BLOOMING[0]]["fixes"]
+                      for c, r in zip(configs, renders, strict=True)])
+    finally:
+        OUT.write_text(before)
+    sat = tab["saturated"].astype(bool)
+    C = _nees_scaled(shared_covariance_mle(tab, sat), tab, sat)
+    section["fix_covariance_saturated"] = C.tolist()
+    section["fix_scale_saturated_by_phase"] = fix_phase_scales(tab, C, True, BLOOMING_EDGES)
+    edges = np.asarray(BLOOMING_EDGES)
+    b = np.clip(np.searchsorted(edges, np.degrees(tab["phase"]), "right") - 1, 0, nb - 1)
+    section["fixes_per_bin"] = [int(((b == k) & sat).sum()) for k in range(nb)]
+    section["calibration_arcs"] = [a + COMMON for a in ARCS]
+    section["runs"] = RUNS
+    section["segments_threshold_dn"] = 2048
+    section["written"] = _dt.date.today().isoformat()
+    sd = np.sqrt(np.diag(C))
+    section["sigma_km_equivalent"] = (sd * 1737.4).tolist()
+    print(json.dumps(section), flush=True)
+    if not dry_run:
+        _use({**doc, "blooming": section}, OUT)
         print("wrote", OUT)
 
 

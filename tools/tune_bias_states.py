@@ -34,6 +34,7 @@ Usage::
     .venv/bin/python tools/tune_bias_states.py --dry-run --runs 4
     .venv/bin/python tools/tune_bias_states.py --records /tmp/tune.pkl   # keep the runs
     .venv/bin/python tools/tune_bias_states.py --reselect   # the criterion on the written grid
+    .venv/bin/python tools/tune_bias_states.py --exposure 7.7e-3   # one exposure, keep the rest
 """
 
 from __future__ import annotations
@@ -65,8 +66,10 @@ GRIDS = {
     # the shared limb errors as states with their calibrated covariance: the correlation
     # time is free
     1.5e-5: ("limb-common", [(0.0, 0.0, tau) for tau in (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)]),
+    # the fixes' covariance carries the blooming limb's error (ModelErrorCalibration.blooming):
+    # the states need only carry what stays from frame to frame; no states is a candidate too
     7.7e-3: ("range-scale+additive", list(itertools.product(
-        (0.005, 0.01, 0.02), (5.0, 10.0, 25.0), (1.0, 2.0, 4.0, 8.0)))),
+        (0.002, 0.005, 0.01, 0.02), (2.0, 5.0, 10.0, 25.0), (1.0, 2.0, 4.0, 8.0)))),
 }
 
 
@@ -116,7 +119,11 @@ def main() -> None:
                     help="keep the Monte Carlo acquisitions in this pickle (reused if present)")
     ap.add_argument("--reselect", action="store_true",
                     help="apply the criterion to the grid already written (no Monte Carlo)")
+    ap.add_argument("--exposure", type=float, default=None,
+                    help="tune this exposure of GRIDS alone [s]; the others stay as written")
     args = ap.parse_args()
+    if args.exposure is not None and not any(math.isclose(args.exposure, t) for t in GRIDS):
+        ap.error(f"--exposure {args.exposure!r}: expected one of {sorted(GRIDS)}")
     if args.reselect:
         reselect(args.dry_run)
         return
@@ -155,7 +162,11 @@ def main() -> None:
                  "commit": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
                                           capture_output=True, text=True).stdout.strip(),
                  "exposures": {}}
+    if args.exposure is not None and OUT.exists():
+        doc["exposures"] = json.loads(OUT.read_text())["exposures"]
     for exposure, (model, grid) in GRIDS.items():
+        if args.exposure is not None and not math.isclose(exposure, args.exposure):
+            continue
         extra = [f"detector.exposure_time_s={exposure!r}"]
         for t, ov in DEMO_EXPOSURE_OVERRIDES:
             if math.isclose(t, exposure):
@@ -180,12 +191,15 @@ def main() -> None:
 
         rows = []
         for q in ACCEL_PSD:
-            for ks, sb, tau in grid:
-                row = score({"bias_model": model, "range_scale_sigma": ks,
+            settings = [(model, ks, sb, tau) for ks, sb, tau in grid]
+            if model != "limb-common":
+                settings.append(("none", 0.0, 0.0, 1.0))
+            for name, ks, sb, tau in settings:
+                row = score({"bias_model": name, "range_scale_sigma": ks,
                              "bias_sigma_km": sb, "bias_tau_days": tau,
                              "accel_psd_m2_s3": q})
                 rows.append(row)
-                print(f"{exposure * 1e3:g} ms {model} q {q:g} k {ks:g} b {sb:g} km "
+                print(f"{exposure * 1e3:g} ms {name} q {q:g} k {ks:g} b {sb:g} km "
                       f"tau {tau:g} d: epochs in band "
                       + ", ".join(f"{p['epochs_in_band']:.0%}" for p in row["per_arc"])
                       + "; ANEES " + ", ".join(f"{p['nees_mean']:.2f}" for p in row["per_arc"])
@@ -195,7 +209,8 @@ def main() -> None:
         white = score({"bias_model": "none"})
         best = select(rows)
         doc["exposures"][f"{exposure!r}"] = {
-            **{k: best[k] for k in KEPT}, "calibration_arcs": best["per_arc"],
+            **{k: best[k] for k in KEPT}, "commit": doc["commit"],
+            "written": doc["written"], "calibration_arcs": best["per_arc"],
             "without_biases": white["per_arc"], "grid": rows}
         kept = {k: best[k] for k in best if k != "per_arc"}
         print(f"-> {exposure * 1e3:g} ms: {json.dumps(kept)}\n   per arc {best['per_arc']}"

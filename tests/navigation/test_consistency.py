@@ -455,6 +455,50 @@ def test_model_error_calibration_recovers_known_terms():
     assert C[0, 1] / math.sqrt(C[0, 0] * C[1, 1]) == pytest.approx(-0.61, abs=0.1)
 
 
+def test_blooming_terms_recover_known_values():
+    """The blooming calibration's two estimators on synthetic records with known terms:
+    ``shared_covariance_mle`` recovers a shared covariance whose fixes' white parts span
+    a factor 10^4 along one mode (a short stretch of limb), where the method of moments
+    scatters by several times the term (and can turn indefinite); ``saturated_extra_by_phase`` recovers a saturated window's extra per
+    bin through each frame's shared offset and Sun-ward shift (~5 % sampling error)."""
+    from starnav.batch.consistency import saturated_extra_by_phase, shared_covariance_mle
+    from starnav.navigation.refine import ModelErrorCalibration
+
+    rng = np.random.default_rng(11)
+    C_true = np.array([[1.5e-3, -2e-4, 0.0], [-2e-4, 5e-4, 0.0], [0.0, 0.0, 1.5e-4]])
+    n = 400
+    W = np.array([np.diag([1e-6, 1e-6, 1e-6 * (1e4 if i % 5 == 0 else 1.0)])
+                  for i in range(n)])
+    e = np.array([np.linalg.cholesky(C_true + w) @ rng.standard_normal(3) for w in W])
+    fixes = {"error": e, "white": W}
+    C = shared_covariance_mle(fixes, np.ones(n, bool))
+    assert np.allclose(np.sqrt(np.diag(C)), np.sqrt(np.diag(C_true)), rtol=0.12)
+    moments = np.mean([np.outer(x, x) - w for x, w in zip(e, W, strict=True)], axis=0)
+    # why the likelihood is used: the moments' sampling error on that mode is ~5x its size
+    assert abs(moments[2, 2] - C_true[2, 2]) > 2 * abs(C[2, 2] - C_true[2, 2])
+    with pytest.raises(ValueError, match="at least 6"):
+        shared_covariance_mle(fixes, np.arange(n) < 3)
+
+    cal = ModelErrorCalibration((0.0, 180.0), (0.05,), (0.0,))
+    extra_true = {0: 2.0, 1: 0.8, 2: 0.15}
+    cols = {k: [] for k in ("error", "fit_sigma", "saturated", "radius", "phase", "sun_angle",
+                            "frame", "run")}
+    for f in range(360):
+        b = f % 3
+        ph = math.radians((30.0, 75.0, 140.0)[b])
+        phi = rng.uniform(-1.4, 1.4, 12)
+        fit = rng.uniform(0.05, 0.2, 12)
+        err = (rng.standard_normal(12) * np.sqrt(fit**2 + 0.05**2 + extra_true[b] ** 2)
+               + rng.normal(0, 3.0) + rng.normal(0, 1.0) * np.cos(phi))
+        for k, v in (("error", err), ("fit_sigma", fit), ("saturated", np.ones(12, bool)),
+                     ("radius", np.full(12, 80.0)), ("phase", np.full(12, ph)),
+                     ("sun_angle", phi), ("frame", np.full(12, f)), ("run", np.zeros(12))):
+            cols[k].append(v)
+    points = {k: np.concatenate(v) for k, v in cols.items()}
+    got = saturated_extra_by_phase(points, cal, None, 11, (0.0, 60.0, 90.0, 180.0))
+    assert np.allclose(got, [extra_true[b] for b in range(3)], rtol=0.1), got
+
+
 def test_fix_phase_scales_recover_known_factors():
     """starnav.batch.consistency.fix_phase_scales on synthetic fixes whose slowly varying
     error has covariance ``s_b C`` in bin ``b`` of phase (s = 0.5, 1, 3): each factor is

@@ -330,6 +330,56 @@ def test_a_frame_in_the_blooming_regime_drops_its_saturated_windows():
         refine_limb(wins, c, R, options=strict, models=models, camera=cam)
 
 
+def test_the_blooming_terms_keep_the_overexposed_windows():
+    """With the calibration's blooming terms (``keep_overexposed``) the same frame keeps its
+    saturated windows whatever ``max_overexposure`` says: their fitted step does not
+    measure the over-exposure there, and the terms carry their error."""
+    from starnav.detector.schema import AberrationPsfConfig
+    from starnav.navigation.refine import EdgeSpread, ModelErrorCalibration
+
+    cam, dn, noise, c, R = _detector_disc(20000.0, 0)
+    ang = np.linspace(0, 2 * math.pi, 16, endpoint=False)
+    pts = c + R * np.column_stack([np.cos(ang), np.sin(ang)])
+    wins = cut_windows(dn, plan_windows(pts, c, shape=dn.shape))
+    strict = RefineConfig(max_overexposure=1.5).to_si()
+    table = ModelErrorCalibration((0.0, 180.0), (0.05,), (0.3,), keep_overexposed=True)
+    models = RefineModels(spread=EdgeSpread(AberrationPsfConfig()), noise=noise,
+                          model_error_table=table)
+    fine = refine_limb(wins, c, R, options=strict, models=models, camera=cam)
+    assert len(fine) >= 12 and fine.saturated.all()
+    assert np.all(fine.overexposure > 1.5)
+    # the saturated extra of the table is in each point's sigma
+    assert np.all(fine.sigma_px >= 0.3)
+
+
+def test_model_error_calibration_blooming_terms_by_exposure():
+    """The packaged calibration's blooming terms: given from their threshold exposure on (the
+    paper's 7.7 ms), the well-exposed/saturated terms below it; on their own phase bins, with
+    the well-exposed edge model error carried over bin by bin; a blooming section without a
+    value per bin is a clear error."""
+    from starnav.errors import ConfigError
+    from starnav.navigation.refine import ModelErrorCalibration, packaged_model_error
+
+    cal = packaged_model_error()
+    assert cal.blooming is not None
+    b = cal.for_exposure(7.7e-3)
+    assert b is cal.blooming and b.keep_overexposed
+    assert cal.for_exposure(1.5e-5) is cal and cal.for_exposure(1.8e-4) is cal
+    assert cal.for_exposure(None) is cal and not cal.keep_overexposed
+    assert 1.8e-4 < cal.blooming_min_exposure_s < 7.7e-3
+    for deg in (30.0, 75.0, 100.0, 150.0):
+        assert b.at(math.radians(deg))[0] == cal.at(math.radians(deg))[0]
+    assert np.any(np.asarray(b.fix_covariance_saturated) != np.asarray(
+        cal.fix_covariance_saturated))
+    doc = {"phase_edges_deg": [0, 90, 180], "edge_model_error_px": [0.1] * 2,
+           "saturated_model_error_px": [0.1] * 2, "terrain_scale": 1.0,
+           "blooming": {"min_exposure_s": 1e-3, "phase_edges_deg": [0, 60, 90, 180],
+                        "saturated_model_error_px": [1.0, 1.0],
+                        "fix_covariance_saturated": [[1e-4, 0, 0], [0, 1e-4, 0], [0, 0, 1e-4]]}}
+    with pytest.raises(ConfigError, match="one value per phase bin"):
+        ModelErrorCalibration.from_dict(doc)
+
+
 def test_model_error_calibration_phase_factors():
     """The fix covariance's factor per bin of phase: read from the packaged file, applied by
     bin (the largest without a phase), 1 when the file has none; a wrong count is a clear

@@ -196,8 +196,8 @@ def filter_consistency(mc: NoiseMonteCarlo, config: dict[str, Any] | None = None
 
 
 # ----------------------------------------------------------------------------- limb points
-_COLUMNS = ("error", "sigma", "fit_sigma", "common_var", "sun_angle", "saturated", "radius",
-            "phase", "frame", "run")
+_COLUMNS = ("error", "sigma", "fit_sigma", "common_var", "sun_angle", "saturated",
+            "overexposure", "radius", "phase", "frame", "run")
 
 
 def limb_point_table(frames: list[list[FrameResult]]) -> dict[str, np.ndarray]:
@@ -205,7 +205,8 @@ def limb_point_table(frames: list[list[FrameResult]]) -> dict[str, np.ndarray]:
     true limb, > 0 outside), ``sigma`` (its own, as the fix uses it), ``fit_sigma`` (pixels'
     noise alone), ``common_var`` (the variance it shares with its frame) [px^2], ``sun_angle``
     (of the point's normal from the Sun in the image) [rad],
-    ``saturated``, ``radius`` [px], ``phase`` [rad], ``frame``, ``run`` (pixel-level points,
+    ``saturated``, ``overexposure`` (fitted step over the headroom to saturation, 0 well
+    exposed), ``radius`` [px], ``phase`` [rad], ``frame``, ``run`` (pixel-level points,
     without windows, are left out)."""
     cols: dict[str, list[Any]] = {k: [] for k in _COLUMNS}
     for per_frame in frames:
@@ -221,6 +222,8 @@ def limb_point_table(frames: list[list[FrameResult]]) -> dict[str, np.ndarray]:
             cols["sun_angle"].append(np.zeros(n) if p.sun_angle_rad is None
                                      else p.sun_angle_rad.astype(float))
             cols["saturated"].append(p.saturated)
+            cols["overexposure"].append(np.zeros(n) if p.overexposure is None
+                                        else p.overexposure.astype(float))
             cols["radius"].append(np.full(n, p.radius_px))
             cols["phase"].append(np.full(n, p.phase_rad))
             cols["frame"].append(np.full(n, fr.index))
@@ -416,6 +419,44 @@ def calibrate_model_error(smooth: dict[str, np.ndarray], terrain: dict[str, np.n
                         "fix_saturated": summary(fix_cs), "fix_smooth": summary(fix_sm)}}
 
 
+def shared_covariance_mle(fixes: dict[str, np.ndarray], sel: np.ndarray) -> np.ndarray:
+    """The covariance ``C`` of the fixes' slowly varying error in the three limb modes
+    (units of the disc radius squared) by maximum likelihood: ``e_i ~ N(0, W_i + C)``, ``W_i``
+    the fix's white part (``fixes["white"]``), over the fixes where ``sel``; ``C = L L^T``
+    with ``L`` lower triangular. The method of moments (``mean(e e^T - W)``) leans on the
+    few fixes from a short stretch of limb, whose white part is large along one mode, and
+    can turn indefinite; the likelihood weighs each fix by its own covariance."""
+    from scipy.optimize import minimize
+
+    idx = np.flatnonzero(sel)
+    if idx.size < 6:
+        raise ValueError(f"{idx.size} fixes: at least 6 are needed for the shared covariance")
+    e = np.asarray(fixes["error"], float)[idx]
+    W = np.asarray(fixes["white"], float)[idx]
+    tril = np.tril_indices(3)
+
+    def unpack(x: np.ndarray) -> np.ndarray:
+        L = np.zeros((3, 3))
+        L[tril] = x
+        L[np.diag_indices(3)] = np.exp(np.diag(L))
+        return L @ L.T
+
+    def nll(x: np.ndarray) -> float:
+        S = W + unpack(x)[None]
+        sign, logdet = np.linalg.slogdet(S)
+        if np.any(sign <= 0):
+            return 1e300
+        return float(np.sum(logdet) + np.einsum("ni,ni->", e, np.linalg.solve(
+            S, e[..., None])[..., 0]))
+
+    x0 = np.zeros(6)
+    x0[[0, 2, 5]] = np.log(np.maximum(np.sqrt(np.mean(e * e, axis=0)), 1e-6))
+    res = minimize(nll, x0, method="Nelder-Mead",
+                   options={"maxiter": 20000, "xatol": 1e-8, "fatol": 1e-10})
+    res = minimize(nll, res.x, method="BFGS")
+    return unpack(res.x)
+
+
 def _nees_scaled(C: np.ndarray, fixes: dict[str, np.ndarray], sel: np.ndarray) -> np.ndarray:
     """``s C`` with ``s`` such that the fixes' mean NEES (3 dof) with ``white + s C`` is 3 on
     the calibration fixes: the moments give the shape of ``C``, this its size where it is
@@ -459,6 +500,49 @@ def fix_phase_scales(fixes: dict[str, np.ndarray], C: np.ndarray, saturated: boo
     ok = [i for i, x in enumerate(out) if math.isfinite(x)]
     if not ok:
         return [1.0] * nb
+    return [out[i] if math.isfinite(out[i]) else out[min(ok, key=lambda j: abs(j - i))]
+            for i in range(nb)]
+
+
+def saturated_extra_by_phase(points: dict[str, np.ndarray], calibration: Any, topography: Any,
+                             window_px: int, phase_edges_deg: tuple[float, ...]) -> list[float]:
+    """Per bin of phase, a saturated window's extra error [px] beyond the pixels' noise, the
+    edge model's error and the terrain (``calibration``'s, a
+    :class:`~starnav.navigation.refine.ModelErrorCalibration`), from the residuals of each
+    frame's weighted fit of the three shared modes (as :func:`calibrate_model_error`'s
+    terrain scale): ``s^2 = mean(r^2 n/(n-3) - s_fit^2 - s_e^2 - (k t_l)^2)``, floored at 0.
+    Frames with fewer than 5 saturated points are left out; a bin with fewer than
+    :data:`MIN_FRAMES_PER_BIN` frames takes its nearest calibrated neighbour's value."""
+    edges = np.asarray(phase_edges_deg, float)
+    nb = edges.size - 1
+    b_of = np.clip(np.searchsorted(edges, np.degrees(points["phase"]), "right") - 1, 0, nb - 1)
+    sat = points["saturated"].astype(bool)
+    per_bin: list[list[float]] = [[] for _ in range(nb)]
+    for f, r in _frame_keys(points, sat):
+        sel = sat & (points["frame"] == f) & (points["run"] == r)
+        n = int(sel.sum())
+        if n < 5:
+            continue
+        R = float(points["radius"][sel][0])
+        phase = float(points["phase"][sel][0])
+        se, _, k = calibration.at(phase)
+        tl = 0.0 if topography is None else topography.sigma_fraction_over(window_px / R) * R
+        own = points["fit_sigma"][sel] ** 2 + se**2 + (k * tl) ** 2
+        phi = points["sun_angle"][sel]
+        X = np.column_stack([np.ones(n), np.cos(phi), np.sin(phi)])
+        W = 1.0 / own
+        try:
+            beta = np.linalg.solve(X.T @ (X * W[:, None]), X.T @ (W * points["error"][sel]))
+        except np.linalg.LinAlgError:
+            continue
+        resid = points["error"][sel] - X @ beta
+        per_bin[int(b_of[sel][0])].append(float(np.mean(resid**2)) * n / (n - 3)
+                                          - float(np.mean(own)))
+    out = [math.sqrt(max(float(np.mean(v)), 0.0)) if len(v) >= MIN_FRAMES_PER_BIN
+           else math.nan for v in per_bin]
+    ok = [i for i, x in enumerate(out) if math.isfinite(x)]
+    if not ok:
+        raise ValueError("no phase bin has enough saturated calibration frames")
     return [out[i] if math.isfinite(out[i]) else out[min(ok, key=lambda j: abs(j - i))]
             for i in range(nb)]
 

@@ -202,6 +202,9 @@ class LimbPointRecord:
         Its covariance from the points' own errors and the attitude, ``G^-1 P_own G^-T``.
     mode_white : (3, 3) array or None
         Its covariance from the pixels' noise and the attitude alone.
+    overexposure : (N,) float32 or None
+        Each refined point's window: fitted edge step over the headroom to saturation (0
+        well exposed).
     """
 
     refined: bool
@@ -215,6 +218,7 @@ class LimbPointRecord:
     mode_error: FloatArray | None = None
     mode_noise: FloatArray | None = None
     mode_white: FloatArray | None = None
+    overexposure: NDArray[np.float32] | None = None
 
     @classmethod
     def of(cls, m: Any, phase_rad: float = math.nan,
@@ -249,7 +253,8 @@ class LimbPointRecord:
         return cls(True, float(lp.radius_px), lp.sigma_px.astype(np.float32),
                    np.asarray(fit, np.float32), np.asarray(sat, bool),
                    cvar.astype(np.float32), float(phase_rad), ang.astype(np.float32), me, mn,
-                   mw)
+                   mw, None if lp.overexposure is None
+                   else np.asarray(lp.overexposure, np.float32))
 
 
 @dataclass(frozen=True)

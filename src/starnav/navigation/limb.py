@@ -128,6 +128,9 @@ class LimbPoints:
         The part of ``sigma_px`` that comes from the pixels' noise alone [px] (refinement).
     saturated : (n,) bool array or None
         The point's window held saturated pixels (refinement).
+    overexposure : (n,) array or None
+        The fitted edge step over the headroom to saturation of a saturated window, 0 for a
+        well-exposed one (refinement) [-].
     """
 
     uv: FloatArray
@@ -141,6 +144,7 @@ class LimbPoints:
     fix_covariance_px2: FloatArray | None = None
     fit_sigma_px: FloatArray | None = None
     saturated: NDArray[np.bool_] | None = None
+    overexposure: FloatArray | None = None
 
     def __len__(self) -> int:
         return int(self.uv.shape[0])
@@ -150,7 +154,8 @@ class LimbPoints:
         return dataclasses.replace(
             self, uv=self.uv[keep], sigma_px=self.sigma_px[keep],
             fit_sigma_px=None if self.fit_sigma_px is None else self.fit_sigma_px[keep],
-            saturated=None if self.saturated is None else self.saturated[keep])
+            saturated=None if self.saturated is None else self.saturated[keep],
+            overexposure=None if self.overexposure is None else self.overexposure[keep])
 
 
 # ------------------------------------------------------------------------ geometry helpers

@@ -41,6 +41,7 @@ Index
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import functools
 import json
 import logging
@@ -172,7 +173,8 @@ class RefineConfig(StrictModel):
         "detector-psf model, 1 otherwise")
     max_overexposure: Annotated[float, Field(gt=1, allow_inf_nan=False)] = Field(
         20.0, description="saturated windows whose fitted step exceeds this many times the "
-        "headroom to saturation are dropped (blooming, not the optics, shapes that edge)")
+        "headroom to saturation are dropped (blooming, not the optics, shapes that edge); "
+        "not at the exposures of the packaged calibration's blooming terms, which carry them")
 
 
 #: The defaults' SI view.
@@ -477,6 +479,18 @@ class ModelErrorCalibration:
         Per bin of phase, the factor on ``fix_covariance`` (``fix_covariance_saturated``):
         its shape is pooled over all phases, its size follows the phase (the shadows near
         the terminator eat more of the lit limb towards the crescent); None: 1 in every bin.
+    blooming : ModelErrorCalibration or None
+        The terms of a limb far past the full well (the paper's 7.7 ms), calibrated at that
+        exposure: the saturated windows' extra, covariance and its factors per bin of phase
+        (their own bins), the rest as here. There the fitted step no longer measures the
+        over-exposure (the step and the edge's place trade off along the clipped profile),
+        so no window is dropped for it (:attr:`keep_overexposed`); the edge sits pixels
+        outside the limb, and the fix's covariance carries that. None: not calibrated.
+    blooming_min_exposure_s : float
+        The exposure from which :meth:`for_exposure` gives :attr:`blooming` [s]: the
+        geometric mean of the saturated and the blooming calibration exposures.
+    keep_overexposed : bool
+        This table's saturated windows are kept whatever their fitted over-exposure.
     """
 
     phase_edges_deg: tuple[float, ...]
@@ -489,6 +503,9 @@ class ModelErrorCalibration:
     fix_covariance_smooth: tuple[tuple[float, float, float], ...] = ((0.0,) * 3,) * 3
     fix_scale_by_phase: tuple[float, ...] | None = None
     fix_scale_saturated_by_phase: tuple[float, ...] | None = None
+    blooming: ModelErrorCalibration | None = None
+    blooming_min_exposure_s: float = math.inf
+    keep_overexposed: bool = False
 
     def __post_init__(self) -> None:
         n = len(self.phase_edges_deg) - 1
@@ -501,6 +518,14 @@ class ModelErrorCalibration:
                                                           for x in v)):
                 raise ConfigError(f"model error calibration: {name}", v,
                                   f"{n} factors > 0, one per phase bin")
+
+    def for_exposure(self, exposure_s: float | None) -> ModelErrorCalibration:
+        """The terms for frames exposed ``exposure_s`` [s]: :attr:`blooming` from
+        :attr:`blooming_min_exposure_s` on, else these (None: these)."""
+        if (self.blooming is not None and exposure_s is not None
+                and exposure_s >= self.blooming_min_exposure_s):
+            return self.blooming
+        return self
 
     def _bin(self, phase_rad: float) -> int:
         k = bisect.bisect_right(self.phase_edges_deg, math.degrees(phase_rad)) - 1
@@ -535,11 +560,31 @@ class ModelErrorCalibration:
             v = doc.get(key)
             return None if v is None else tuple(float(x) for x in v)
 
-        return cls(tuple(doc["phase_edges_deg"]), tuple(doc["edge_model_error_px"]),
+        base = cls(tuple(doc["phase_edges_deg"]), tuple(doc["edge_model_error_px"]),
                    tuple(doc["saturated_model_error_px"]), float(doc["terrain_scale"]),
                    mat("common_covariance"), mat("fix_covariance"),
                    mat("fix_covariance_saturated"), mat("fix_covariance_smooth"),
-                   scales("fix_scale_by_phase"), scales("fix_scale_saturated_by_phase"))
+                   scales("fix_scale_by_phase"), scales("fix_scale_saturated_by_phase"),
+                   keep_overexposed=bool(doc.get("keep_overexposed", False)))
+        b = doc.get("blooming")
+        if b is None:
+            return base
+        edges = [float(x) for x in b["phase_edges_deg"]]
+        mids = [math.radians(0.5 * (lo + hi)) for lo, hi in zip(edges[:-1], edges[1:],
+                                                                  strict=False)]
+        # the well-exposed terms on the blooming bins (their edges refine these)
+        table = {k: v for k, v in doc.items() if k != "blooming"}
+        table.update({
+            "phase_edges_deg": edges,
+            "edge_model_error_px": [base.at(m)[0] for m in mids],
+            "fix_scale_by_phase": (None if base.fix_scale_by_phase is None
+                                   else [base.fix_scale(m, False) for m in mids]),
+            "saturated_model_error_px": b["saturated_model_error_px"],
+            "fix_covariance_saturated": b["fix_covariance_saturated"],
+            "fix_scale_saturated_by_phase": b.get("fix_scale_saturated_by_phase"),
+            "keep_overexposed": True})
+        return dataclasses.replace(base, blooming=cls.from_dict(table),
+                                   blooming_min_exposure_s=float(b["min_exposure_s"]))
 
 
 @functools.lru_cache(maxsize=1)
@@ -1365,7 +1410,9 @@ def refine_limb(
              & (real & (outward < -blur[:, None])).any(axis=1))
     # far past the full well the edge is blooming and halo, not the optics' blur
     fitted_saturated = usable & saturated
-    max_overexposure = opt.max_overexposure
+    table = models.model_error_table
+    max_overexposure = (math.inf if table is not None and table.keep_overexposed
+                        else opt.max_overexposure)
     overexposure = step_dn / np.maximum(saturation_dn - background, 1.0)
     valid &= ~fitted_saturated | (overexposure <= max_overexposure)
     if debug:
@@ -1393,4 +1440,5 @@ def refine_limb(
                       common_covariance_px2=common,
                       fix_covariance_px2=models.fix_covariance(opt, R, bool(sat_flags.any()),
                                                                phase_rad),
-                      fit_sigma_px=sd[i], saturated=sat_flags)
+                      fit_sigma_px=sd[i], saturated=sat_flags,
+                      overexposure=np.where(sat_flags, overexposure[i], 0.0))

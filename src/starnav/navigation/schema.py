@@ -229,7 +229,10 @@ class NavigationConfig(StrictModel):
                 att = scenario.pointing.knowledge_sigma
         refine = Rf.to_si()
         edge_model = RefineModels(spread=spread).edge_model(refine)
-        table = packaged_model_error() if edge_model == "detector-psf" else None
+        table = None
+        if edge_model == "detector-psf":
+            table = packaged_model_error().for_exposure(
+                None if scenario is None else float(scenario.detector.exposure_time_s))
         # the fix's radius error when no refined points carry their own (pixel-level points)
         if terrain is None:
             radius_fraction = 0.0
