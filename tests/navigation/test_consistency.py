@@ -459,8 +459,9 @@ def test_blooming_terms_recover_known_values():
     """The blooming calibration's two estimators on synthetic records with known terms:
     ``shared_covariance_mle`` recovers a shared covariance whose fixes' white parts span
     a factor 10^4 along one mode (a short stretch of limb), where the method of moments
-    scatters by several times the term (and can turn indefinite); ``saturated_extra_by_phase`` recovers a saturated window's extra per
-    bin through each frame's shared offset and Sun-ward shift (~5 % sampling error)."""
+    scatters by several times the term (and can turn indefinite);
+    ``saturated_extra_by_phase`` recovers a saturated window's extra per bin through each
+    frame's shared offset and Sun-ward shift (~5 % sampling error)."""
     from starnav.batch.consistency import saturated_extra_by_phase, shared_covariance_mle
     from starnav.navigation.refine import ModelErrorCalibration
 
