@@ -17,8 +17,8 @@ Technique, per frame
 3. Append the frame's attitude error ``dtheta`` (camera axes) to the state.
 4. Measurements: each feature, the lit centroid and the apparent radius, with their analytic
    Jacobians; 4a the bias sigmas follow the geometry and the navigated model's own map
-   error, the centroid bias stays the same image offset when its axes (the Sun's image
-   direction) turn, 4b features share part of their error,
+   error, a shape model's centroid bias stays the same image offset when its axes (the
+   Sun's image direction) turn, 4b features share part of their error,
    4c the silhouette's deterministic offset, 4d the bias's calibrated mean, 4e the shape
    model's scale as a Schmidt consider state (a coarse model known to ``scale_sigma``).
 5. Gate each measurement on its own innovation; 5a re-open the state after ``reset_after``
@@ -860,9 +860,11 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             return cache[key]
 
         sil0 = silhouette_at(r.copy()) if need_sil else None
-        if sil0 is not None and bias_on:
-            # 4a the centroid bias is an offset in the image; its axes (the Sun's image
-            # direction) turn with the geometry, fast near phase 0: carry the offset over
+        if sil0 is not None and bias_on and opt.silhouette_scaling == "shape":
+            # 4a a shape model's centroid error is an offset in the image, set by the aspect;
+            # the bias axes (the Sun's image direction) turn with the geometry, by up to 180
+            # deg in a frame near phase 0: carry the offset over. (The terminator's error of
+            # the other laws lies along the Sun's direction and turns with it.)
             if axes_prev is not None:
                 T = sil0[1].T @ axes_prev
                 x[6:8] = T @ x[6:8]
