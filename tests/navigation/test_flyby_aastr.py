@@ -11,7 +11,9 @@ strict xfail: overconfident). The silhouette's model error of these runs
 (tools/calibrate_flyby_coarse_map.py: the shape law over phase and apparent size, bias states
 correlated over 65 deg of aspect); this pass is the development fly-by, one of them (in
 sample; docs/navigation.md, "Asteroid fly-by on the AA-STR"). The out-of-sample score is the
-record of ``tools/score_flyby.py``.
+record of ``tools/score_flyby.py``. On a large body (Eros, the development fly-bys of
+``scoring.DEVELOPMENT_FLYBYS``): the map-error terms follow the navigated model's own
+departure, and the centroid bias stays an image offset when the Sun's image direction turns.
 """
 
 from __future__ import annotations
