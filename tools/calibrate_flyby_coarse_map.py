@@ -16,6 +16,11 @@ Sun's image direction [px] and the radius's relative difference [-]. Then
    2))``; ``q`` shared, chosen on a grid by the Gaussian likelihood of all three series, the
    ``k`` their maximum-likelihood scale at that ``q``. The filter's sigmas are the law at its
    reference geometry (``silhouette_reference_radius_px``, ``_phase_deg``).
+   The errors of a fly-by are divided by its body's map error factor
+   (``navigation.trn.filter.map_error_factor``: the coarse model's rms height error over its
+   mean radius, over the first calibration body's, which is recorded as the filter's
+   ``silhouette_reference_height_fraction``), so that the sigmas are those of the reference
+   body's map and scale to another body's model through that factor.
 2. **The correlation angle**: each series divided by its law, resampled on a uniform grid of
    the accumulated aspect change (``filter.aspect_change``), its autocorrelation's integral
    scale, pooled over the two fly-bys and about zero (the integral up to the first zero
@@ -61,7 +66,8 @@ def series(case, step: float) -> dict[str, np.ndarray]:
     """The coarse model's silhouette error along ``case`` (module item 0)."""
     body = ShapeModelBody(ShapeModelConfig(model=case.body))
     sm = TrnShapeModelConfig(map="coarse")
-    coarse = coarse_of(body, sm.faces, sm.smoothing_iterations).shape
+    cm = coarse_of(body, sm.faces, sm.smoothing_iterations)
+    coarse = cm.shape
     cam = Camera.preset("aa-str")
     fl = flyby_from_config(FlybyConfig(v_inf_km_s=case.v_inf / 1e3,
                                        closest_approach_km=case.closest_approach / 1e3,
@@ -74,6 +80,7 @@ def series(case, step: float) -> dict[str, np.ndarray]:
     s = np.asarray(fl.sun_direction, float)
     out = {k: np.zeros(t.size) for k in ("rho", "phase", "aspect", "along", "across",
                                          "radius")}
+    out["height_fraction"] = np.array(cm.height_rms / cm.mean_radius)
     prev = None
     for k in range(t.size):
         r = X[k, :3]
@@ -135,6 +142,11 @@ def main() -> None:
     ap.add_argument("--step", type=float, default=0.25, help="sampling of the passes [s]")
     args = ap.parse_args()
     data = {c.name: series(c, args.step) for c in CALIBRATION_FLYBYS}
+    ref_fraction = float(data[CALIBRATION_FLYBYS[0].name]["height_fraction"])
+    for s in data.values():                 # item 1: to the reference body's map error
+        f = float(s["height_fraction"]) / ref_fraction
+        for comp in ("along", "across", "radius"):
+            s[comp] = s[comp] / f
     best = None
     for q in Q_GRID:
         nll, ks = 0.0, {}
@@ -170,8 +182,10 @@ def main() -> None:
                    "centroid_model_sigma_px": math.sqrt(0.5 * (sa**2 + sx**2)),
                    "centroid_sun_share": sa**2 / (sa**2 + sx**2),
                    "radius_model_fraction": ks["radius"] * m0,
-                   "silhouette_bias_angle_deg": math.degrees(angle)},
+                   "silhouette_bias_angle_deg": math.degrees(angle),
+                   "silhouette_reference_height_fraction": ref_fraction},
         "per_flyby": {n: {"frames": int(s["rho"].size),
+                          "height_fraction": float(s["height_fraction"]),
                           "phase_deg": [math.degrees(float(s["phase"].min())),
                                         math.degrees(float(s["phase"].max()))],
                           "rho_px": [float(s["rho"].min()), float(s["rho"].max())],

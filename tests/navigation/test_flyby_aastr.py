@@ -11,11 +11,14 @@ strict xfail: overconfident). The silhouette's model error of these runs
 (tools/calibrate_flyby_coarse_map.py: the shape law over phase and apparent size, bias states
 correlated over 65 deg of aspect); this pass is the development fly-by, one of them (in
 sample; docs/navigation.md, "Asteroid fly-by on the AA-STR"). The out-of-sample score is the
-record of ``tools/score_flyby.py``.
+record of ``tools/score_flyby.py``. On a large body (Eros, the development fly-bys of
+``scoring.DEVELOPMENT_FLYBYS``): the map-error terms follow the navigated model's own
+departure, and the centroid bias stays an image offset when the Sun's image direction turns.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -29,6 +32,7 @@ os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/lib/x86_64-linux-gnu/libLLVM.so.19
 from starnav.batch.flyby import estimator_body, flyby_closed_loop
 from starnav.batch.flyby_synthetic import flyby_monte_carlo
 from starnav.batch.presets import flyby_scenario
+from starnav.bodies.schema import ShapeModelConfig
 from starnav.bodies.small_body import ShapeModelBody
 from starnav.camera import Camera
 from starnav.config import scenario_from_dict
@@ -37,9 +41,18 @@ from starnav.detector.products import MAX_WINDOWS
 from starnav.errors import ConfigError
 from starnav.navigation.metrics import anees_statistics
 from starnav.navigation.schema import TrnFilterConfig, TrnShapeModelConfig
-from starnav.navigation.trn.filter import aspect_change, silhouette_scale
+from starnav.navigation.trn.body_model import coarse_of, estimator_model
+from starnav.navigation.trn.body_view import BodyInCamera, lit_silhouette
+from starnav.navigation.trn.filter import (
+    ShapePrior,
+    aspect_change,
+    map_error_factor,
+    run_filter,
+    silhouette_scale,
+)
 from starnav.navigation.trn.scoring import (
     CALIBRATION_FLYBYS,
+    DEVELOPMENT_FLYBYS,
     SCORING_FLYBYS,
     SPENT_FLYBYS,
     SYNTHETIC,
@@ -47,7 +60,7 @@ from starnav.navigation.trn.scoring import (
     TARGETS,
     read_record,
 )
-from starnav.navigation.trn.synthetic import flyby_truth, run_measurements
+from starnav.navigation.trn.synthetic import boresight_attitude, flyby_truth, run_measurements
 from starnav.scenes.flyby import flyby_from_config
 from starnav.scenes.schema import FlybyConfig
 from starnav.simulate import Simulator
@@ -235,8 +248,9 @@ def test_short_dispersed_pass_consistent_under_the_per_epoch_statistic(short_pas
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason=(
-    "measured: time-averaged ANEES 15.6 above [3.46, 9.36] (thirds 7.8 / 15.8 / 23.1; 61 % "
-    "of the epochs above their band), CA error 0.02 - 2.5 % of range. Not the aspect "
+    "measured: time-averaged ANEES 15.1 above the band's upper 9.20 (the former map-error "
+    "defaults: 15.6 above [3.46, 9.36], thirds 7.8 / 15.8 / 23.1; 61 % of the epochs above "
+    "their band), CA error 0.02 - 2.5 % of range. Not the aspect "
     "correlation (65 or 180 deg: the same); with the exact map the landmarks' births, 16 "
     "times as many, make it 15.3 (4.1 without landmarks, 3.9 with births held until the "
     "position is within 10 m); with the coarse map and no landmarks 11.0: docs/navigation.md"))
@@ -286,17 +300,19 @@ def geometry(c):
 
 
 def test_the_scoring_set_is_new_and_the_spent_ones_are_recorded():
-    """The scoring fly-bys share neither a name nor a geometry with the calibration fly-bys
-    or the spent scoring fly-bys (a fly-by whose score was seen never scores again), and each
-    spent fly-by's old score stays in the record with the defaults it was scored with."""
+    """The scoring fly-bys share neither a name nor a geometry with the calibration, the
+    development or the spent scoring fly-bys (a fly-by whose score was seen never scores
+    again), and each spent fly-by's old score stays in the record with the defaults it was
+    scored with."""
     rec = read_record()
-    used = {geometry(c) for c in CALIBRATION_FLYBYS + SPENT_FLYBYS}
-    names = {c.name for c in CALIBRATION_FLYBYS + SPENT_FLYBYS}
+    seen = CALIBRATION_FLYBYS + SPENT_FLYBYS + DEVELOPMENT_FLYBYS
+    used = {geometry(c) for c in seen}
+    names = {c.name for c in seen}
     for c in SCORING_FLYBYS:
         assert geometry(c) not in used and c.name not in names, c
         assert all(not (c.body == k.body and (c.v_inf, c.closest_approach, c.phase_at_ca)
                         == (k.v_inf, k.closest_approach, k.phase_at_ca))
-                   for k in CALIBRATION_FLYBYS + SPENT_FLYBYS), c
+                   for k in seen), c
     assert set(rec["spent"]) == {c.name for c in SPENT_FLYBYS}
     for c in SPENT_FLYBYS:
         old = rec["spent"][c.name]
@@ -366,3 +382,130 @@ def test_the_map_error_keys_reach_the_filter_and_bad_values_are_refused():
             scenario_from_dict({"navigation": {"trn": {"filter": {key: bad}}}})
     with pytest.raises(ValueError, match="silhouette_bias_angle"):
         TrnFilterConfig(silhouette_bias_angle_deg=-0.1)
+
+
+# ----------------------------------------------------------------------------- a large body's map
+@pytest.fixture(scope="module")
+def eros_and_itokawa_models():
+    """The coarse estimator models of Eros and Itokawa (no scale error)."""
+    sm = TrnShapeModelConfig(map="coarse")
+    return {name: (body, estimator_model(body, sm, 0.0))
+            for name in ("eros", "itokawa")
+            for body in [ShapeModelBody(ShapeModelConfig(model=name))]}
+
+
+def test_the_map_error_terms_scale_with_the_bodys_own_map(eros_and_itokawa_models):
+    """Regression test of the Eros overconfidence: the coarse map's error model follows the
+    navigated model's own departure from the truth, not metres or radius fractions fitted on
+    Itokawa. The landmark height sigma is ``height_sigma_ratio`` times the model's rms height
+    error, the silhouette sigmas' factor is its relative height error over the calibration
+    body's (1 on Itokawa, about 1.8 on Eros: its 500-face model departs relatively more), and
+    that factor reaches the filter's silhouette bias sigmas (frame 0, no silhouette update)."""
+    opt = TrnFilterConfig(**SYNTHETIC_FILTER).to_si()
+    f = {}
+    for name, (body, m) in eros_and_itokawa_models.items():
+        rms = m.info["height_rms_m"]
+        assert m.prior.height_sigma == pytest.approx(
+            TrnShapeModelConfig().height_sigma_ratio * rms)
+        assert m.prior.height_fraction == pytest.approx(
+            rms / coarse_of(body, 500, 10).mean_radius)
+        f[name] = map_error_factor(m.prior, opt)
+    assert f["itokawa"] == pytest.approx(1.0, abs=0.01)
+    assert 1.5 < f["eros"] < 2.2
+    assert map_error_factor(ShapePrior(), opt) == 1.0       # exact map: nothing stated
+
+    body, m = eros_and_itokawa_models["eros"]
+    truth = eros_pass(body, np.array([-8.0, -4.0]))
+    meas = run_measurements(truth, SEED, 0, SYN)
+    cfg = TrnFilterConfig(**{**SYNTHETIC_FILTER, "use_centroid": False, "use_radius": False})
+    P0 = cfg.initial_covariance()
+    runs = [run_filter(meas[:1], Camera.preset("aa-str"), m.body, truth.states[0], P0,
+                       cfg.to_si(), sun_direction=truth.sun_direction, prior=p)
+            for p in (m.prior, ShapePrior(scale_sigma=m.prior.scale_sigma,
+                                          height_sigma=m.prior.height_sigma))]
+    assert runs[0].info["bias_sigma"][0] == pytest.approx(
+        f["eros"] * runs[1].info["bias_sigma"][0])
+
+
+def eros_pass(body, epochs):
+    """The first development fly-by of Eros (``scoring.DEVELOPMENT_FLYBYS``) at ``epochs``."""
+    c = DEVELOPMENT_FLYBYS[0]
+    fl = flyby_from_config(FlybyConfig(v_inf_km_s=c.v_inf / 1e3,
+                                       closest_approach_km=c.closest_approach / 1e3,
+                                       phase_at_ca_deg=math.degrees(c.phase_at_ca)),
+                           epoch_ca=0.0, gm=body.gm)
+    return flyby_truth(fl, body, Camera.preset("aa-str"), epochs, SYN, seed=1)
+
+
+def test_the_eros_maps_silhouette_error_is_the_scaled_law_not_itokawas(eros_and_itokawa_models):
+    """Regression test of the cause on an Eros development fly-by (not a calibration or
+    scoring one), below phase 120 deg where the shape law's form holds: the coarse model's lit
+    silhouette against the full model's, at the true pose every 16 s. Its error over the
+    calibrated law (``shape_error_term`` times the calibration's sigmas) has an rms above 1.2
+    in the across-Sun centroid and the radius with Itokawa's factor (1: the former model) and
+    between 0.4 and 1.2 in all three once scaled by ``map_error_factor``."""
+    body, m = eros_and_itokawa_models["eros"]
+    coarse = coarse_of(body, 500, 10).shape
+    opt = TrnFilterConfig(**SYNTHETIC_FILTER).to_si()
+    cam = Camera.preset("aa-str")
+    c = DEVELOPMENT_FLYBYS[1]
+    fl = flyby_from_config(FlybyConfig(v_inf_km_s=c.v_inf / 1e3,
+                                       closest_approach_km=c.closest_approach / 1e3,
+                                       phase_at_ca_deg=math.degrees(c.phase_at_ca)),
+                           epoch_ca=0.0, gm=body.gm)
+    half = c.start_ca_ranges * c.closest_approach / c.v_inf
+    t = np.arange(-half, half, 16.0)
+    X, s = fl.states(t), np.asarray(fl.sun_direction, float)
+    Rb = np.asarray(body.orientation(t), float).reshape(-1, 3, 3)
+    share = np.array([opt.centroid_sun_share, 1.0 - opt.centroid_sun_share])
+    sig0 = np.r_[opt.centroid_model_sigma_px * np.sqrt(2.0 * share), opt.radius_model_fraction]
+    z = []
+    for k in range(t.size):
+        r = X[k, :3]
+        phase = math.acos(float(r @ s) / float(np.linalg.norm(r)))
+        if phase >= math.radians(120.0):
+            continue
+        Rc = boresight_attitude(r, fl.z_hat)
+        R_bc, cen, sc = Rc.T @ Rb[k], Rc.T @ (-r), Rc.T @ s
+        true = lit_silhouette(BodyInCamera.place(body.shape.vertices, body.shape.faces, R_bc,
+                                                 cen), sc, cam)
+        model = lit_silhouette(BodyInCamera.place(coarse.vertices, coarse.faces, R_bc, cen), sc,
+                               cam)
+        e = cam.project_jacobian(cen) @ sc
+        e /= np.linalg.norm(e)
+        d = np.column_stack([e, [-e[1], e[0]]]).T @ (model.centroid_uv - true.centroid_uv)
+        sig = sig0 * silhouette_scale(true.radius_px, phase, opt)
+        z.append(np.r_[d, model.radius_px / true.radius_px - 1.0] / sig)
+    z = np.array(z)
+    assert z.shape[0] >= 40
+    rms = np.sqrt(np.mean(z**2, axis=0))
+    f = map_error_factor(m.prior, opt)
+    assert np.all(rms[1:] > 1.2), rms
+    assert np.all((0.4 < rms / f) & (rms / f < 1.2)), rms / f
+
+
+def test_the_centroid_bias_stays_an_image_offset_when_the_suns_image_direction_turns(
+        eros_and_itokawa_models):
+    """Regression test (the other cause found on the Eros development fly-bys): the centroid's
+    bias states are along and across the Sun's image direction, which turns fast near phase 0;
+    the offset they carry is one of the image and must be carried over, not turned with the
+    axes. Two frames 1 s apart, the second's Sun turned by 180 deg about the line of sight
+    (same phase, the Sun's image direction reversed), no centroid and an uninformative radius
+    in it, the bias's decay switched off: the bias in the new axes is minus the old one (the
+    same image offset; before the fix it kept its value: the image offset reversed)."""
+    body, m = eros_and_itokawa_models["eros"]
+    truth = eros_pass(body, np.array([-8.0, -7.0]))
+    m0, m1 = run_measurements(truth, SEED, 0, SYN)
+    u = -truth.states[1, :3] / np.linalg.norm(truth.states[1, :3])
+    s = np.asarray(truth.sun_direction, float)
+    m1 = dataclasses.replace(m1, features=(), centroid_uv=None, apparent_radius_sigma_px=1e6,
+                             sun_direction=2.0 * float(s @ u) * u - s)
+    cfg = TrnFilterConfig(**{**SYNTHETIC_FILTER, "silhouette_bias_angle_deg": 0.0,
+                             "silhouette_bias_time_s": 1e12, "max_landmarks": 0})
+    run = run_filter([m0, m1], Camera.preset("aa-str"), m.body, truth.states[0],
+                     cfg.initial_covariance(), cfg.to_si(), sun_direction=s, prior=m.prior)
+    b0, b1 = run.info["bias"][:, :2]
+    assert np.linalg.norm(b0) > 0.01
+    # the same image offset, within the few % the bias's geometry factor (apparent radius,
+    # phase) changes in 1 s near CA
+    assert np.linalg.norm(b1 + b0) < 0.1 * np.linalg.norm(b0), (b0, b1)

@@ -113,11 +113,11 @@ class TrnShapeModelConfig(StrictModel):
     estimate_scale: bool = Field(
         True, description="carry the scale error as a filter state (filter step 4e); false: "
         "the filter takes the drawn model's scale as exact")
-    height_sigma_fraction: Annotated[float, Field(ge=0, lt=0.5)] = Field(
-        0.015, description="the coarse model's height error at a landmark, 1-sigma, as a "
-        "fraction of the body's mean radius [-] (the landmark height sigma is the larger of "
-        "this and filter.landmark_height_sigma_m; the packaged bodies' at 500 faces: "
-        "docs/navigation.md)")
+    height_sigma_ratio: Annotated[float, Field(ge=0, le=100)] = Field(
+        2.15, description="the coarse model's height error at a landmark, 1-sigma, over the "
+        "model's rms height error against the truth (its stated accuracy; the packaged "
+        "bodies' at 500 faces: docs/navigation.md) [-]; the landmark height sigma is the "
+        "larger of this and filter.landmark_height_sigma_m")
     birth_sigma_fraction: Annotated[float, Field(ge=0)] = Field(
         0.3, description="no landmark is born on the coarse model while the position's "
         "largest 1-sigma exceeds this fraction of the mean radius [-] (filter step 7a; "

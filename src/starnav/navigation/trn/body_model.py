@@ -9,11 +9,15 @@ Itokawa is about 9 % too large in scale against Hayabusa's). The estimator there
 * ``coarse``: :func:`~starnav.bodies.shape.coarse_shape_model` of the truth (quadric
   decimation to ``faces`` triangles, Taubin smoothing, the truth's volume), scaled by
   ``1 + e`` with ``e ~ N(0, scale_sigma^2)`` drawn per Monte Carlo run. The filter carries the
-  scale as a consider state of sigma ``scale_sigma`` (filter step 4e) when ``estimate_scale``,
-  and its landmarks' height 1-sigma is at least ``height_sigma_fraction`` of the mean radius
-  (the coarse model's departure from the surface, ``CoarseShape.height_rms``; docs/navigation.md
-  gives it for the packaged bodies). No landmark is born on it while the position's largest
-  1-sigma exceeds ``birth_sigma_fraction`` of the mean radius (filter step 7a: a landmark cast
+  scale as a consider state of sigma ``scale_sigma`` (filter step 4e) when ``estimate_scale``.
+  The model's stated accuracy is its rms departure from the surface (``CoarseShape.height_rms``;
+  docs/navigation.md gives it for the packaged bodies): its landmarks' height 1-sigma is
+  ``height_sigma_ratio`` times it, and the silhouette's model-error sigmas, calibrated on one
+  body's model, scale with its ratio to the mean radius (``ShapePrior.height_fraction``, filter
+  ``map_error_factor``): an error model in metres, or in fractions of the radius, fitted on one
+  body's map understates a map whose departure is relatively larger. No landmark is born on it
+  while the position's largest 1-sigma exceeds ``birth_sigma_fraction`` of the mean radius
+  (filter step 7a: a landmark cast
   from a loose position is a poor linearisation, and with the scale state the filter then
   gains information along the direction that only the priors fix, the trajectory's scale, and
   becomes overconfident: the known inconsistency of EKF-SLAM, Huang, Mourikis & Roumeliotis
@@ -85,8 +89,9 @@ def estimator_model(truth: ShapeModelBody, config: Any, unit_draw: float) -> Est
                        coarse.shape.source)
     prior = ShapePrior(
         scale_sigma=float(config.scale_sigma) if config.estimate_scale else 0.0,
-        height_sigma=float(config.height_sigma_fraction) * coarse.mean_radius,
-        birth_sigma=float(config.birth_sigma_fraction) * coarse.mean_radius)
+        height_sigma=float(config.height_sigma_ratio) * coarse.height_rms,
+        birth_sigma=float(config.birth_sigma_fraction) * coarse.mean_radius,
+        height_fraction=coarse.height_rms / coarse.mean_radius)
     return EstimatorModel(ShapeModelBody(truth.config, shape=shape), prior, e, {
         "map": "coarse", "faces": shape.n_faces, "scale_error": e,
         "scale_truth": 1.0 / (1.0 + e) - 1.0, "height_rms_m": coarse.height_rms,

@@ -16,7 +16,9 @@ Technique, per frame
 2. Drop the landmarks whose track is absent from the frame (marginalised).
 3. Append the frame's attitude error ``dtheta`` (camera axes) to the state.
 4. Measurements: each feature, the lit centroid and the apparent radius, with their analytic
-   Jacobians; 4a the bias sigmas follow the geometry, 4b features share part of their error,
+   Jacobians; 4a the bias sigmas follow the geometry and the navigated model's own map
+   error, a shape model's centroid bias stays the same image offset when its axes (the
+   Sun's image direction) turn, 4b features share part of their error,
    4c the silhouette's deterministic offset, 4d the bias's calibrated mean, 4e the shape
    model's scale as a Schmidt consider state (a coarse model known to ``scale_sigma``).
 5. Gate each measurement on its own innovation; 5a re-open the state after ``reset_after``
@@ -45,7 +47,8 @@ Index
 :func:`run_filter` (the estimator), :class:`TrnFilterConfig`, :class:`ShapePrior`,
 :class:`FlybyRun`;
 measurement models :func:`feature_model`, :func:`features_model`, :func:`centroid_model`,
-:func:`radius_model`, :func:`silhouette_scale`, :func:`silhouette_offset`;
+:func:`radius_model`, :func:`silhouette_scale`, :func:`map_error_factor`,
+:func:`silhouette_offset`;
 :func:`propagate`, :func:`landmark_births`, :func:`gate_rows`, :func:`validate_inputs`.
 """
 
@@ -152,6 +155,23 @@ def shape_error_term(phase: float, options: SIView) -> float:
     constants are fitted on the calibration fly-bys (tools/calibrate_flyby_coarse_map.py).
     """
     return math.hypot(options.silhouette_shape_error_floor, math.sin(0.5 * float(phase)))
+
+
+def map_error_factor(prior: ShapePrior, options: SIView) -> float:
+    """The factor on the silhouette's model-error sigmas for the model navigated on (module
+    step 4a): the model's rms height error over its mean radius (``prior.height_fraction``)
+    over that of the model they were calibrated on
+    (``options.silhouette_reference_height_fraction``); 1 when either is 0.
+
+    A shape model whose surface departs from the truth by heights ``dh`` moves the lit
+    outline by about ``dh`` (:func:`shape_error_term`), which is ``rho dh / R`` px at an
+    apparent radius ``rho`` of a body of radius ``R``: the silhouette's error over the
+    apparent radius is proportional to the model's relative height error, so sigmas fitted
+    on one body's model carry over to another's through this ratio, not unchanged."""
+    ref = float(options.silhouette_reference_height_fraction)
+    if ref <= 0 or prior.height_fraction <= 0:
+        return 1.0
+    return float(prior.height_fraction) / ref
 
 
 def aspect_change(u0: ArrayLike, s0: ArrayLike, u1: ArrayLike, s1: ArrayLike) -> float:
@@ -299,6 +319,11 @@ class TrnFilterConfig(StrictModel):
         "[px] (the calibration fly-by's CA)")
     silhouette_reference_phase_deg: Annotated[float, Field(ge=0, lt=180)] = Field(
         50.0, description="Sun phase at which the model-error sigmas were calibrated [deg]")
+    silhouette_reference_height_fraction: Annotated[float, Field(ge=0, lt=0.5)] = Field(
+        0.0, description="rms height error over the mean radius of the shape model on which "
+        "the silhouette model-error sigmas were calibrated [-]; > 0: they scale with the "
+        "navigated model's own (ShapePrior.height_fraction) over this (filter."
+        "map_error_factor); 0: not scaled")
     silhouette_limb_blur_px: NonNegativeFloat = Field(
         1.85, description="outward spread of the lit limb above the segments threshold [px] "
         "(the radius model error's limb term; calibrated)")
@@ -375,17 +400,24 @@ class ShapePrior:
     birth_sigma : float
         The birth threshold of step 7a the model sets [m], used when the section's
         ``birth_position_sigma`` is 0 (0: always).
+    height_fraction : float
+        The model's rms height error over its mean radius [-] (its stated accuracy; 0: not
+        stated). The silhouette's model-error sigmas scale by its ratio to the section's
+        ``silhouette_reference_height_fraction`` (step 4a, :func:`map_error_factor`).
     """
 
     scale_sigma: float = 0.0
     scale_consider: bool = True
     height_sigma: float = 0.0
     birth_sigma: float = 0.0
+    height_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         for name, ok, want in (("scale_sigma", 0 <= self.scale_sigma < 0.5, "in [0, 0.5) [-]"),
                                ("height_sigma", self.height_sigma >= 0, ">= 0 [m]"),
-                               ("birth_sigma", self.birth_sigma >= 0, ">= 0 [m]")):
+                               ("birth_sigma", self.birth_sigma >= 0, ">= 0 [m]"),
+                               ("height_fraction", 0 <= self.height_fraction < 0.5,
+                                "in [0, 0.5) [-]")):
             if not ok:
                 raise ConfigError(f"shape_prior.{name}", getattr(self, name), want)
 
@@ -717,8 +749,11 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
     angle = opt.silhouette_bias_angle
     bias_on = tau > 0 or angle > 0           # bias states (else white model error)
     share = np.array([opt.centroid_sun_share, 1.0 - opt.centroid_sun_share])
-    sig_b = (np.r_[opt.centroid_model_sigma_px * np.sqrt(2.0 * share),
-                   opt.radius_model_fraction] if tau > 0 else np.zeros(3))
+    f_map = map_error_factor(pri, opt)        # 4a the navigated model's own map error
+    centroid_model_sigma = f_map * opt.centroid_model_sigma_px
+    radius_model_fraction = f_map * opt.radius_model_fraction
+    sig_b = (np.r_[centroid_model_sigma * np.sqrt(2.0 * share),
+                   radius_model_fraction] if tau > 0 else np.zeros(3))
     mu = np.asarray(opt.silhouette_bias_mean, float)    # the bias's calibrated mean (step 4d)
     x = np.r_[x0, np.zeros(CORE - 6)]
     P = np.zeros((CORE, CORE))
@@ -737,6 +772,7 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
     banned: set[int] = set()
     t_prev = measurements[0].epoch_tdb
     aspect_prev: tuple[FloatArray, FloatArray] | None = None   # (view, Sun), body-fixed
+    axes_prev: FloatArray | None = None      # the centroid bias's image axes, last frame
 
     for k, m in enumerate(measurements):
         # 1 predict
@@ -824,6 +860,17 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             return cache[key]
 
         sil0 = silhouette_at(r.copy()) if need_sil else None
+        if sil0 is not None and bias_on and opt.silhouette_scaling == "shape":
+            # 4a a shape model's centroid error is an offset in the image, set by the aspect;
+            # the bias axes (the Sun's image direction) turn with the geometry, by up to 180
+            # deg in a frame near phase 0: carry the offset over. (The terminator's error of
+            # the other laws lies along the Sun's direction and turns with it.)
+            if axes_prev is not None:
+                T = sil0[1].T @ axes_prev
+                x[6:8] = T @ x[6:8]
+                P[6:8, :] = T @ P[6:8, :]
+                P[:, 6:8] = P[:, 6:8] @ T.T
+            axes_prev = sil0[1]
         # 4a the bias states follow the geometry: b <- (s_k / s_k-1) b (silhouette_scale)
         if sil0 is not None and bias_on:
             rn = float(np.linalg.norm(r))
@@ -837,13 +884,12 @@ def run_filter(measurements: Sequence[FlybyMeasurement], camera: Camera, body: S
             scale = s_new
         out.info["silhouette_scale"][k] = scale
         if sil0 is not None and opt.use_centroid and m.centroid_uv is not None:
-            var = m.centroid_sigma_px**2 + (0.0 if bias_on else
-                                            opt.centroid_model_sigma_px**2)
+            var = m.centroid_sigma_px**2 + (0.0 if bias_on else centroid_model_sigma**2)
             rows.append(("centroid", np.asarray(m.centroid_uv, float), np.eye(2) * var, -1,
                          sil0))
         if sil0 is not None and opt.use_radius and m.apparent_radius_px is not None:
             var = m.apparent_radius_sigma_px**2 + (0.0 if bias_on else (
-                opt.radius_model_fraction * sil0[2] / float(np.linalg.norm(r))) ** 2)
+                radius_model_fraction * sil0[2] / float(np.linalg.norm(r))) ** 2)
             rows.append(("radius", np.array([m.apparent_radius_px]), np.array([[var]]), -1,
                          sil0))
 
