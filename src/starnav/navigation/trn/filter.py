@@ -1,11 +1,10 @@
 """Fly-by estimator: an EKF with body-fixed landmark states, fed by tracked features, the
 tracker's own attitude, and the lit silhouette's centroid and apparent size.
 
-It estimates the spacecraft's position and velocity relative to the body's centre (J2000 axes,
-m and m/s) with their covariance. The body's known size fixes the range (bearings alone do
-not), the lit centroid its direction, the features the relative motion. Why landmark states and
-not an MSCKF, the observability argument and each step in full: docs/methods.md,
-"starnav.navigation.trn.filter".
+It estimates the position and velocity relative to the body's centre (J2000, m and m/s) with
+their covariance: the body's known size fixes the range, the lit centroid its direction, the
+features the relative motion. Why landmark states, the observability argument and each step
+in full: docs/methods.md, "starnav.navigation.trn.filter".
 
 Technique, per frame
 --------------------
@@ -15,12 +14,10 @@ Technique, per frame
    (:func:`aspect_change`), which is what a shape model's silhouette error follows.
 2. Drop the landmarks whose track is absent from the frame (marginalised).
 3. Append the frame's attitude error ``dtheta`` (camera axes) to the state.
-4. Measurements: each feature, the lit centroid and the apparent radius, with their analytic
-   Jacobians; 4a the bias sigmas follow the geometry and the navigated model's own map
-   error, a shape model's centroid bias stays the same image offset when its axes (the
-   Sun's image direction) turn, 4b features share part of their error,
-   4c the silhouette's deterministic offset, 4d the bias's calibrated mean, 4e the shape
-   model's scale as a Schmidt consider state (a coarse model known to ``scale_sigma``).
+4. Measurements: features, lit centroid and apparent radius, with analytic Jacobians; 4a the
+   bias sigmas follow the geometry and the model's own map error, and its centroid bias stays
+   one image offset when the Sun's image direction turns; 4b shared feature error; 4c the
+   silhouette's offset; 4d the bias's mean; 4e the model's scale as a consider state.
 5. Gate each measurement on its own innovation; 5a re-open the state after ``reset_after``
    rejected silhouettes in a row.
 6. Update with every accepted measurement at once (Joseph form); record the NIS.
