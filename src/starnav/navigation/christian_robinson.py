@@ -224,13 +224,16 @@ def scaled_rays(uv: ArrayLike, camera: Camera, B: FloatArray,
     Returns ``(s (N, 3), J (N, 3, 2) or None)``; ``J`` in [1/px].
     """
     uv = np.asarray(uv, float)
-    x = camera.unproject(uv)
+    if with_jacobian:
+        x, Jx = camera.unproject_with_jacobian(uv)
+    else:
+        x, Jx = camera.unproject(uv), None
     y = x @ B.T
     ny = np.linalg.norm(y, axis=1)
     s = y / ny[:, None]
-    if not with_jacobian:
+    if Jx is None:
         return s, None
-    BJ = np.matmul(B, camera.unproject_jacobian(uv))  # (N, 3, 2)
+    BJ = np.matmul(B, Jx)  # (N, 3, 2)
     # (I - s s^T) / |y| applied to B Jx without forming the (N, 3, 3) projector
     sBJ = np.matmul(s[:, None, :], BJ)                 # (N, 1, 2)
     return s, (BJ - s[:, :, None] * sBJ) / ny[:, None, None]

@@ -62,6 +62,7 @@ from starnav.detector.optics import line_spread_function
 from starnav.detector.products import MAX_WINDOWS, Window
 from starnav.errors import ConfigError
 from starnav.fields import NonNegativeFloat, PositiveFloat
+from starnav.linalg import solve, solve_vectors
 from starnav.navigation.limb import LimbNotFoundError, LimbPoints
 from starnav.registry import Registry
 from starnav.typing import FloatArray
@@ -769,10 +770,9 @@ class _StackedTables:
 def _solve(A: FloatArray, b: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
     """Batched ``A x = b`` (``(K, n, n)``, ``(K, n)`` or ``(K, n, m)``); windows whose matrix
     is singular get the minimum-norm least-squares solution and ``False`` in the mask."""
-    vec = b.ndim == A.ndim - 1
     try:
-        x = np.linalg.solve(A, b[..., None] if vec else b)
-        return (x[..., 0] if vec else x), np.ones(len(A), bool)
+        x = solve_vectors(A, b) if b.ndim == A.ndim - 1 else solve(A, b)
+        return x, np.ones(len(A), bool)
     except np.linalg.LinAlgError:
         out, ok = np.empty(b.shape), np.ones(len(A), bool)
         for i in range(len(A)):
