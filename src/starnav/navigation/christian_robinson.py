@@ -47,6 +47,7 @@ Index
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass, field, replace
@@ -57,6 +58,7 @@ from numpy.typing import ArrayLike
 from starnav.camera import Camera
 from starnav.constants import MOON_RADIUS
 from starnav.errors import ConfigError, StarnavError
+from starnav.linalg import solve_vectors
 from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
@@ -115,6 +117,24 @@ def attitude_covariance(attitude_sigma_rad: float | ArrayLike) -> FloatArray:
                           "one value or three (camera x, y, z) >= 0 rad, or a 3x3 "
                           "covariance [rad^2]")
     return np.diag(np.broadcast_to(a, (3,)) ** 2)
+
+
+@functools.lru_cache(maxsize=16)
+def _attitude_covariance_of(attitude_sigma_rad: float | tuple) -> tuple[FloatArray, bool]:
+    S = attitude_covariance(attitude_sigma_rad)
+    S.flags.writeable = False
+    return S, bool(np.any(S != 0))
+
+
+def _attitude_covariance_nonzero(attitude_sigma_rad: float | ArrayLike
+                                 ) -> tuple[FloatArray, bool]:
+    """:func:`attitude_covariance` (read-only) and whether it is nonzero, made once per
+    value for a float or a tuple (every frame's fix asks for the configured one)."""
+    try:
+        return _attitude_covariance_of(attitude_sigma_rad)  # type: ignore[arg-type]
+    except TypeError:   # unhashable (an array): made anew
+        S = attitude_covariance(attitude_sigma_rad)
+        return S, bool(np.any(S != 0))
 
 
 def _skew(v: FloatArray) -> FloatArray:
@@ -207,8 +227,8 @@ class LimbFix:
         """
         R = np.asarray(R_cam_to_inertial, float)
         P = R @ self.covariance_camera @ R.T
-        S = attitude_covariance(attitude_sigma_rad)
-        if np.any(S != 0):
+        S, nonzero = _attitude_covariance_nonzero(attitude_sigma_rad)
+        if nonzero:
             X = _skew(np.asarray(self.centre_camera, float))
             P = P + R @ X @ S @ X.T @ R.T
         if radius_sigma_fraction > 0:
@@ -259,7 +279,7 @@ def centre_from_n(n: FloatArray, B: FloatArray) -> FloatArray:
     if not nn > 1.0:
         raise FixError(f"Christian-Robinson: n^T n = {nn:.6g} <= 1, the limb points do not "
                        "bound a body (noise-dominated or outliers)")
-    return np.linalg.solve(B, n) / math.sqrt(nn - 1.0)
+    return solve_vectors(B, n) / math.sqrt(nn - 1.0)
 
 
 def christian_robinson(

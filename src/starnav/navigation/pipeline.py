@@ -56,7 +56,7 @@ from starnav.navigation.limb import (
     limb_points_from_segments,
     phase_angle_from_image,
     segments_centroid,
-    sun_direction_in_image,
+    sun_geometry_in_image,
 )
 from starnav.navigation.metrics import NavMetrics, limb_point_errors, nees
 from starnav.navigation.ransac import RansacConfig, RansacError, RansacResult, ransac_limb
@@ -365,8 +365,8 @@ def _limb_and_ransac(frame: NavFrame, camera: Camera, opt: ChainOptions,
             raise LimbNotFoundError("segments: the readout has no run above threshold (no Moon "
                                     "in the frame, or an exposure too short for the threshold)",
                                     "no-moon")
-        sdir = sun_direction_in_image(camera, R_ci, frame.sun_direction_inertial, centre0)
-        phase0 = phase_angle_from_image(camera, R_ci, frame.sun_direction_inertial, centre0)
+        sdir, phase0 = sun_geometry_in_image(camera, R_ci, frame.sun_direction_inertial,
+                                             centre0)
         if phase0 > opt.limb.max_phase:
             raise LimbNotFoundError(
                 f"phase angle {math.degrees(phase0):.0f} deg > limb.max_phase_deg "
