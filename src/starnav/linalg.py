@@ -8,7 +8,7 @@ and type dispatch cost more than the solve. Float64 inputs only; a singular matr
 
 Index
 -----
-:func:`solve`, :func:`solve_vectors`.
+:func:`solve`, :func:`solve_vectors`, :func:`lstsq_vectors`.
 """
 
 from __future__ import annotations
@@ -46,3 +46,24 @@ def solve_vectors(A: FloatArray, b: FloatArray) -> FloatArray:
     with np.errstate(call=_singular, invalid="call", over="ignore", divide="ignore",
                      under="ignore"):
         return _gufuncs.solve1(A, b, signature="dd->d")
+
+
+def _no_convergence(err: str, flag: int) -> None:
+    raise LinAlgError("SVD did not converge in Linear Least Squares")
+
+
+def lstsq_vectors(A: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Least-squares ``A x = b`` for float64 ``A`` ``(..., m, n)`` and ``b`` ``(..., m)``,
+    a stack solved in one call: what ``np.linalg.lstsq(A_i, b_i, rcond=None)`` gives for
+    each, ``(x (..., n), rank (...))``."""
+    m, n = A.shape[-2:]
+    if _gufuncs is None or m == 0:   # pragma: no cover
+        out = [np.linalg.lstsq(a, v, rcond=None) for a, v in
+               zip(A.reshape(-1, m, n), b.reshape(-1, m), strict=True)]
+        return (np.array([o[0] for o in out]).reshape(A.shape[:-2] + (n,)),
+                np.array([o[2] for o in out]).reshape(A.shape[:-2]))
+    with np.errstate(call=_no_convergence, invalid="call", over="ignore", divide="ignore",
+                     under="ignore"):
+        x, _, rank, _ = _gufuncs.lstsq(A, b[..., None], np.finfo(float).eps * max(n, m),
+                                       signature="ddd->ddid")
+    return x[..., 0], rank

@@ -58,7 +58,7 @@ from numpy.typing import ArrayLike
 from starnav.camera import Camera
 from starnav.constants import MOON_RADIUS
 from starnav.errors import ConfigError, StarnavError
-from starnav.linalg import solve_vectors
+from starnav.linalg import lstsq_vectors, solve_vectors
 from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
@@ -324,8 +324,7 @@ def christian_robinson(
         raise FixError(f"Christian-Robinson: {N} limb points, need >= {opt.min_points}")
     B = shape_transform(opt.radii_m, R_body_to_cam)
     s, Js = scaled_rays(uv, camera, B, with_jacobian=with_covariance)
-    ones = np.ones(N)
-    n, _, rank, _ = np.linalg.lstsq(s, ones, rcond=None)
+    n, rank = lstsq_vectors(s, np.ones(N))
     if rank < 3:
         raise FixError(f"Christian-Robinson: the {N} limb rays are degenerate (rank {rank}); "
                        "need >= 3 points spread along the limb")
@@ -361,14 +360,13 @@ def christian_robinson_centres(uv_sets: ArrayLike, camera: Camera, *,
         raise FixError(f"Christian-Robinson: {N} limb points, need >= {opt.min_points}")
     B = shape_transform(opt.radii_m, R_body_to_cam)
     s = scaled_rays(uv.reshape(-1, 2), camera, B)[0].reshape(K, N, 3)
-    ones = np.ones(N)
+    ns, ranks = lstsq_vectors(s, np.ones((K, N)))   # each set on its own, in one call
     out = np.empty((K, 3))
     for k in range(K):
-        n, _, rank, _ = np.linalg.lstsq(s[k], ones, rcond=None)
-        if rank < 3:
+        if ranks[k] < 3:
             raise FixError(f"Christian-Robinson: the {N} limb rays are degenerate (rank "
-                           f"{rank}); need >= 3 points spread along the limb")
-        out[k] = centre_from_n(n, B)
+                           f"{ranks[k]}); need >= 3 points spread along the limb")
+        out[k] = centre_from_n(ns[k], B)
     return out
 
 

@@ -848,10 +848,10 @@ class _TableModel:
         Z = np.empty((n, p + 7))
         Z[:, :p] = lin = P[:, :, 0]
         Z[:, p] = Gp[:, 0, 0]
-        L = np.empty((n, 2, 3))   # [[A, Gt, 0], [0, A, Gt]]
-        L[:, 0, 0] = L[:, 1, 1] = lin[:, 1]
-        L[:, 0, 1] = L[:, 1, 2] = lin[:, p - 1]
-        L[:, 0, 2] = L[:, 1, 0] = 0.0
+        L = np.zeros((n, 6))   # [[A, Gt, 0], [0, A, Gt]], row-major
+        L[:, 0::4] = lin[:, 1:2]
+        L[:, 1::4] = lin[:, p - 1:p]
+        L = L.reshape(n, 2, 3)
         LG = L @ Gp[:, 1:]
         np.matmul(LG[:, :, 1:], L.transpose(0, 2, 1), out=Z[:, p + 1:p + 5].reshape(n, 2, 2))
         Z[:, p + 5:] = LG[:, :, 0]
@@ -964,7 +964,7 @@ def _levenberg_marquardt(model: _TableModel | _GaussModel, X: FloatArray, Z: Flo
     converged = np.zeros(K, bool)
     active = np.full(K, max_iterations > 0)
     while True:
-        a = np.flatnonzero(active)   # the windows still iterating
+        a = active.nonzero()[0]   # the windows still iterating
         if not a.size:
             break
         every = a.size == K   # all windows: whole arrays, no gathers (the common case)
@@ -999,8 +999,9 @@ def _levenberg_marquardt(model: _TableModel | _GaussModel, X: FloatArray, Z: Flo
                 np.clip(Xt[:, 2], 0.2, 10.0, out=Xt[:, 2])
             T = model.evaluate(_ALL if every else wg, Xt)
             acc = T[:, p] <= (Z[:, p] if every else Z[wg, p])
-            every = every and bool(acc.all())
-            wa, D, Ta = (wg, sg, T) if acc.all() else (wg[acc], sg[acc], T[acc])
+            all_acc = bool(acc.all())
+            every = every and all_acc
+            wa, D, Ta = (wg, sg, T) if all_acc else (wg[acc], sg[acc], T[acc])
             if wa.size:
                 # the cost's curvature along the step against Gauss-Newton's
                 Zo = Z if every else Z[wa]
