@@ -97,6 +97,27 @@ def test_undistort_inverts_distort():
     assert np.max(np.abs(cam.undistort(cam.distort(xy)) - xy)) < 1e-12
 
 
+def test_one_point_undistorts_as_in_a_batch():
+    # regression: a single point takes the float path, a batch the array one; the same
+    # Newton steps, so the same bits, and the same iteration count (a point converged early
+    # in a batch keeps stepping with the others, so compare against one-point batches)
+    cam = distorted_camera()
+    xy = np.random.default_rng(6).uniform(-0.18, 0.18, size=(50, 2))
+    for p in xy:
+        one = cam.undistort(p)
+        assert one.shape == (2,)
+        assert np.array_equal(one, cam.undistort(np.stack([p, p]))[0])
+        assert np.array_equal(cam.undistort(p[None]), one[None])
+
+
+def test_unproject_with_jacobian_is_both():
+    cam = distorted_camera()
+    uv = np.random.default_rng(7).uniform(0, 1000, size=(20, 2))
+    s, J = cam.unproject_with_jacobian(uv)
+    assert np.array_equal(s, cam.unproject(uv)) and s.flags.c_contiguous
+    assert np.array_equal(J, cam.unproject_jacobian(uv))
+
+
 def test_relative_illumination_is_cos4(aa_str):
     # corner pixel: cos^4 of the angle to the axis
     u, v = -0.5, -0.5

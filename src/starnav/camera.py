@@ -50,6 +50,25 @@ UNDISTORT_MAX_ITER = 50
 UNDISTORT_TOL = 1e-14
 
 
+def _undistort_step(x, y, xd, yd, k1, k2, k3, p1, p2):  # type: ignore[no-untyped-def]
+    """One Newton step of :meth:`Camera.undistort` at ``(x, y)`` towards the distorted
+    ``(xd, yd)`` (floats or arrays alike): the new ``(x, y)`` and the step ``(sx, sy)``.
+    :meth:`Camera.distort` and its 2 x 2 Jacobian together, the step by Cramer's rule."""
+    xx, yy, xy2 = x * x, y * y, 2.0 * x * y
+    r2 = xx + yy
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    dr = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2))
+    rx = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * xx) - xd
+    ry = y * radial + p1 * (r2 + 2.0 * yy) + p2 * xy2 - yd
+    a = radial + xx * dr + 2.0 * p1 * y + 6.0 * p2 * x
+    b = 0.5 * xy2 * dr + 2.0 * p1 * x + 2.0 * p2 * y
+    d = radial + yy * dr + 6.0 * p1 * y + 2.0 * p2 * x
+    det = a * d - b * b
+    sx = (d * rx - b * ry) / det
+    sy = (a * ry - b * rx) / det
+    return x - sx, y - sy, sx, sy
+
+
 #: Largest lens distortion accepted, as a fraction of a detector corner's distance from the
 #: principal point: beyond it the Brown-Conrady polynomial no longer describes a real lens
 #: (its inverse, used to place the stars and the limb, stops converging).
@@ -268,25 +287,21 @@ class Camera:
         xy_d = np.asarray(xy_d, dtype=float)
         if not self.has_distortion:
             return xy_d.copy()
+        coeffs = (self.k1, self.k2, self.k3, self.p1, self.p2)
+        if xy_d.size == 2:
+            # one point (the Moon's image position): the same steps on Python floats, free
+            # of the per-operation cost of arrays
+            xd, yd = float(xy_d.flat[0]), float(xy_d.flat[1])
+            x, y = xd, yd
+            for _ in range(UNDISTORT_MAX_ITER):
+                x, y, sx, sy = _undistort_step(x, y, xd, yd, *coeffs)
+                if max(abs(sx), abs(sy)) < UNDISTORT_TOL:
+                    break
+            return np.array([x, y]).reshape(xy_d.shape)
         xd, yd = xy_d[..., 0], xy_d[..., 1]
         x, y = xd.copy(), yd.copy()
-        k1, k2, k3, p1, p2 = self.k1, self.k2, self.k3, self.p1, self.p2
         for _ in range(UNDISTORT_MAX_ITER):
-            # distort and its 2 x 2 Jacobian together, the Newton step by Cramer's rule
-            xx, yy, xy2 = x * x, y * y, 2.0 * x * y
-            r2 = xx + yy
-            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            dr = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2))
-            rx = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * xx) - xd
-            ry = y * radial + p1 * (r2 + 2.0 * yy) + p2 * xy2 - yd
-            a = radial + xx * dr + 2.0 * p1 * y + 6.0 * p2 * x
-            b = 0.5 * xy2 * dr + 2.0 * p1 * x + 2.0 * p2 * y
-            d = radial + yy * dr + 6.0 * p1 * y + 2.0 * p2 * x
-            det = a * d - b * b
-            sx = (d * rx - b * ry) / det
-            sy = (a * ry - b * rx) / det
-            x = x - sx
-            y = y - sy
+            x, y, sx, sy = _undistort_step(x, y, xd, yd, *coeffs)
             if max(np.max(np.abs(sx), initial=0.0), np.max(np.abs(sy), initial=0.0)) \
                     < UNDISTORT_TOL:
                 break
@@ -339,6 +354,12 @@ class Camera:
 
     def unproject_jacobian(self, uv: ArrayLike, undistort: bool = True) -> FloatArray:
         """Jacobian ``d(s) / d(u, v)`` of :meth:`unproject` (unit vector s), ``(..., 3, 2)``."""
+        return self.unproject_with_jacobian(uv, undistort)[1]
+
+    def unproject_with_jacobian(self, uv: ArrayLike, undistort: bool = True
+                                ) -> tuple[FloatArray, FloatArray]:
+        """:meth:`unproject` and :meth:`unproject_jacobian` together (one undistortion):
+        ``(s (..., 3), d(s) / d(u, v) (..., 3, 2))``."""
         uv = np.asarray(uv, dtype=float)
         xy = self.pixel_to_normalized(uv, undistort=undistort)
         # d(xy)/d(uv): inverse of d(uv)/d(xy) = F Jd
@@ -352,7 +373,7 @@ class Camera:
         s = m[..., :, None] / n
         # d(m/|m|)/dm = (I - s s^T)/|m|; dm/dxy = [[1,0],[0,1],[0,0]]
         P = (np.eye(3) - s @ np.swapaxes(s, -1, -2)) / n
-        return P[..., :, :2] @ dxy_duv
+        return np.ascontiguousarray(s[..., 0]), P[..., :, :2] @ dxy_duv
 
     def pixel_grid(self) -> tuple[FloatArray, FloatArray]:
         """Pixel-centre coordinates ``(u, v)``, each ``(height, width)`` [px]."""

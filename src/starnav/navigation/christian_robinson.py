@@ -47,6 +47,7 @@ Index
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass, field, replace
@@ -57,6 +58,7 @@ from numpy.typing import ArrayLike
 from starnav.camera import Camera
 from starnav.constants import MOON_RADIUS
 from starnav.errors import ConfigError, StarnavError
+from starnav.linalg import lstsq_vectors, solve_vectors
 from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
@@ -115,6 +117,24 @@ def attitude_covariance(attitude_sigma_rad: float | ArrayLike) -> FloatArray:
                           "one value or three (camera x, y, z) >= 0 rad, or a 3x3 "
                           "covariance [rad^2]")
     return np.diag(np.broadcast_to(a, (3,)) ** 2)
+
+
+@functools.lru_cache(maxsize=16)
+def _attitude_covariance_of(attitude_sigma_rad: float | tuple) -> tuple[FloatArray, bool]:
+    S = attitude_covariance(attitude_sigma_rad)
+    S.flags.writeable = False
+    return S, bool(np.any(S != 0))
+
+
+def _attitude_covariance_nonzero(attitude_sigma_rad: float | ArrayLike
+                                 ) -> tuple[FloatArray, bool]:
+    """:func:`attitude_covariance` (read-only) and whether it is nonzero, made once per
+    value for a float or a tuple (every frame's fix asks for the configured one)."""
+    try:
+        return _attitude_covariance_of(attitude_sigma_rad)  # type: ignore[arg-type]
+    except TypeError:   # unhashable (an array): made anew
+        S = attitude_covariance(attitude_sigma_rad)
+        return S, bool(np.any(S != 0))
 
 
 def _skew(v: FloatArray) -> FloatArray:
@@ -207,8 +227,8 @@ class LimbFix:
         """
         R = np.asarray(R_cam_to_inertial, float)
         P = R @ self.covariance_camera @ R.T
-        S = attitude_covariance(attitude_sigma_rad)
-        if np.any(S != 0):
+        S, nonzero = _attitude_covariance_nonzero(attitude_sigma_rad)
+        if nonzero:
             X = _skew(np.asarray(self.centre_camera, float))
             P = P + R @ X @ S @ X.T @ R.T
         if radius_sigma_fraction > 0:
@@ -224,13 +244,16 @@ def scaled_rays(uv: ArrayLike, camera: Camera, B: FloatArray,
     Returns ``(s (N, 3), J (N, 3, 2) or None)``; ``J`` in [1/px].
     """
     uv = np.asarray(uv, float)
-    x = camera.unproject(uv)
+    if with_jacobian:
+        x, Jx = camera.unproject_with_jacobian(uv)
+    else:
+        x, Jx = camera.unproject(uv), None
     y = x @ B.T
     ny = np.linalg.norm(y, axis=1)
     s = y / ny[:, None]
-    if not with_jacobian:
+    if Jx is None:
         return s, None
-    BJ = np.matmul(B, camera.unproject_jacobian(uv))  # (N, 3, 2)
+    BJ = np.matmul(B, Jx)  # (N, 3, 2)
     # (I - s s^T) / |y| applied to B Jx without forming the (N, 3, 3) projector
     sBJ = np.matmul(s[:, None, :], BJ)                 # (N, 1, 2)
     return s, (BJ - s[:, :, None] * sBJ) / ny[:, None, None]
@@ -256,7 +279,7 @@ def centre_from_n(n: FloatArray, B: FloatArray) -> FloatArray:
     if not nn > 1.0:
         raise FixError(f"Christian-Robinson: n^T n = {nn:.6g} <= 1, the limb points do not "
                        "bound a body (noise-dominated or outliers)")
-    return np.linalg.solve(B, n) / math.sqrt(nn - 1.0)
+    return solve_vectors(B, n) / math.sqrt(nn - 1.0)
 
 
 def christian_robinson(
@@ -301,8 +324,7 @@ def christian_robinson(
         raise FixError(f"Christian-Robinson: {N} limb points, need >= {opt.min_points}")
     B = shape_transform(opt.radii_m, R_body_to_cam)
     s, Js = scaled_rays(uv, camera, B, with_jacobian=with_covariance)
-    ones = np.ones(N)
-    n, _, rank, _ = np.linalg.lstsq(s, ones, rcond=None)
+    n, rank = lstsq_vectors(s, np.ones(N))
     if rank < 3:
         raise FixError(f"Christian-Robinson: the {N} limb rays are degenerate (rank {rank}); "
                        "need >= 3 points spread along the limb")
@@ -338,14 +360,13 @@ def christian_robinson_centres(uv_sets: ArrayLike, camera: Camera, *,
         raise FixError(f"Christian-Robinson: {N} limb points, need >= {opt.min_points}")
     B = shape_transform(opt.radii_m, R_body_to_cam)
     s = scaled_rays(uv.reshape(-1, 2), camera, B)[0].reshape(K, N, 3)
-    ones = np.ones(N)
+    ns, ranks = lstsq_vectors(s, np.ones((K, N)))   # each set on its own, in one call
     out = np.empty((K, 3))
     for k in range(K):
-        n, _, rank, _ = np.linalg.lstsq(s[k], ones, rcond=None)
-        if rank < 3:
+        if ranks[k] < 3:
             raise FixError(f"Christian-Robinson: the {N} limb rays are degenerate (rank "
-                           f"{rank}); need >= 3 points spread along the limb")
-        out[k] = centre_from_n(n, B)
+                           f"{ranks[k]}); need >= 3 points spread along the limb")
+        out[k] = centre_from_n(ns[k], B)
     return out
 
 

@@ -58,6 +58,7 @@ from scipy.special import chdtri
 from starnav.config_base import SIView, StrictModel
 from starnav.errors import ConfigError
 from starnav.fields import NonNegativeFloat, PositiveFloat
+from starnav.linalg import solve, solve_vectors
 from starnav.navigation.dynamics import Dynamics, MoonEphemeris
 from starnav.registry import Registry
 from starnav.typing import FloatArray
@@ -405,7 +406,7 @@ class NavigationEkf:
         nu = z - h
         S = H @ self.P @ H.T + R
         S = 0.5 * (S + S.T)
-        nis = float(nu @ np.linalg.solve(S, nu))
+        nis = float(nu @ solve_vectors(S, nu))
         forced = False
         gate = self._gate
         if gate < math.inf:
@@ -419,7 +420,7 @@ class NavigationEkf:
                 log.warning("EKF: %d fixes rejected in a row; accepting the fix at t = %.1f s "
                             "(NIS %.1f)", self.rejections_in_a_row, self.t, nis)
         self.rejections_in_a_row = 0
-        K = np.linalg.solve(S, H @ self.P).T
+        K = solve(S, H @ self.P).T
         if nc:
             # Schmidt: the considered parameters are never estimated (Joseph form below is
             # exact for this suboptimal gain)

@@ -31,7 +31,7 @@ Index
 -----
 :func:`limb_points_from_segments`, :class:`LimbPoints`, :class:`LimbConfig`,
 :class:`LimbNotFoundError`, :func:`segments_centroid`, :func:`sun_direction_in_image`,
-:func:`phase_angle_from_image`, :func:`fit_circle_kasa`.
+:func:`phase_angle_from_image`, :func:`sun_geometry_in_image`, :func:`fit_circle_kasa`.
 """
 
 from __future__ import annotations
@@ -51,6 +51,7 @@ from starnav.config_base import SIView, StrictModel
 from starnav.detector.products import Segments
 from starnav.errors import StarnavError
 from starnav.fields import PositiveFloat
+from starnav.linalg import solve_vectors
 from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
@@ -199,10 +200,24 @@ def sun_direction_in_image(camera: Camera, R_cam_to_inertial: ArrayLike,
     LimbNotFoundError
         When the Sun is along the line of sight (full or new Moon: no lit side to pick).
     """
+    s_cam, x = _sun_and_line_of_sight(camera, R_cam_to_inertial, sun_direction_inertial,
+                                      moon_px)
+    return _sun_direction(camera, s_cam, x)
+
+
+def _sun_and_line_of_sight(camera: Camera, R_cam_to_inertial: ArrayLike,
+                           sun_direction_inertial: ArrayLike, moon_px: ArrayLike
+                           ) -> tuple[FloatArray, FloatArray]:
+    """The Sun's direction in camera axes (as given, not normalised) and the unit line of
+    sight to ``moon_px``."""
     R = np.asarray(R_cam_to_inertial, float)
     s_cam = R.T @ np.asarray(sun_direction_inertial, float)
+    return s_cam, camera.unproject(np.asarray(moon_px, float))
+
+
+def _sun_direction(camera: Camera, s_cam: FloatArray, x: FloatArray) -> FloatArray:
+    """:func:`sun_direction_in_image` from the Sun in camera axes and the line of sight."""
     s_cam = s_cam / np.linalg.norm(s_cam)
-    x = camera.unproject(np.asarray(moon_px, float))
     d = camera.project_jacobian(x)[:2] @ s_cam
     nd = float(np.linalg.norm(d))
     # the Jacobian scales with 1/z = 1 for a unit x: |d| ~ fx sin(angle to the LOS)
@@ -216,11 +231,23 @@ def phase_angle_from_image(camera: Camera, R_cam_to_inertial: ArrayLike,
                            sun_direction_inertial: ArrayLike, moon_px: ArrayLike) -> float:
     """The Sun-Moon-camera (phase) angle [rad] from where the Moon is in the image, the
     measured attitude and the Sun's direction (from the Moon, inertial; any length)."""
-    R = np.asarray(R_cam_to_inertial, float)
-    s_cam = R.T @ np.asarray(sun_direction_inertial, float)
-    x = camera.unproject(np.asarray(moon_px, float))
+    return _phase_angle(*_sun_and_line_of_sight(camera, R_cam_to_inertial,
+                                                sun_direction_inertial, moon_px))
+
+
+def _phase_angle(s_cam: FloatArray, x: FloatArray) -> float:
     c = -float(s_cam @ x) / float(np.linalg.norm(s_cam) * np.linalg.norm(x))
     return math.acos(max(-1.0, min(1.0, c)))
+
+
+def sun_geometry_in_image(camera: Camera, R_cam_to_inertial: ArrayLike,
+                          sun_direction_inertial: ArrayLike, moon_px: ArrayLike
+                          ) -> tuple[FloatArray, float]:
+    """:func:`sun_direction_in_image` and :func:`phase_angle_from_image` together (one line
+    of sight): ``(unit (du, dv), phase angle [rad])``."""
+    s_cam, x = _sun_and_line_of_sight(camera, R_cam_to_inertial, sun_direction_inertial,
+                                      moon_px)
+    return _sun_direction(camera, s_cam, x), _phase_angle(s_cam, x)
 
 
 def fit_circle_kasa(uv: ArrayLike) -> tuple[FloatArray, float]:
@@ -233,7 +260,7 @@ def fit_circle_kasa(uv: ArrayLike) -> tuple[FloatArray, float]:
         raise LimbNotFoundError(f"a circle needs >= 3 points, got {p.shape[0]}",
                                 "degenerate-arc")
     u, v = p.T.copy()   # contiguous coordinates: every sum below is one dot product
-    m = np.array([u.mean(), v.mean()])
+    m = np.array([u.sum() / u.size, v.sum() / v.size])   # the means, as ndarray.mean
     u -= m[0]
     v -= m[1]
     b = u * u + v * v
@@ -243,7 +270,7 @@ def fit_circle_kasa(uv: ArrayLike) -> tuple[FloatArray, float]:
     Suu, Svv, Suv, Su, Sv = u @ u, v @ v, u @ v, u.sum(), v.sum()
     N = np.array([[Suu, Suv, Su], [Suv, Svv, Sv], [Su, Sv, float(u.size)]])
     if Suu * Svv - Suv * Suv > 1e-12 * Suu * Svv:
-        sol = np.linalg.solve(N, np.array([u @ b, v @ b, b.sum()]))
+        sol = solve_vectors(N, np.array([u @ b, v @ b, b.sum()]))
     else:   # collinear points: the minimum-norm solution, rejected below if it is no circle
         sol, *_ = np.linalg.lstsq(np.column_stack([u, v, np.ones(u.size)]), b, rcond=None)
     c = sol[:2] / 2.0
@@ -272,11 +299,15 @@ def _row_scan(row: NDArray, c0: NDArray, c1: NDArray, right: bool) -> tuple[NDAr
     """Lit-side end per row: rightmost end (``right``) or leftmost start."""
     if right:
         order = np.lexsort((c1, row))
-        last = np.r_[row[order][1:] != row[order][:-1], True]
+        r = row[order]
+        last = np.ones(r.size, bool)
+        np.not_equal(r[1:], r[:-1], out=last[:-1])
         sel = order[last]
         return c1[sel], row[sel]
     order = np.lexsort((c0, row))
-    first = np.r_[True, row[order][1:] != row[order][:-1]]
+    r = row[order]
+    first = np.ones(r.size, bool)
+    np.not_equal(r[1:], r[:-1], out=first[1:])
     sel = order[first]
     return c0[sel], row[sel]
 
@@ -302,8 +333,9 @@ def _column_scan(row: NDArray, c0: NDArray, c1: NDArray, width: int,
         op, fill = np.minimum, np.iinfo(np.int64).max
     T = np.full((top, width), fill, dtype=np.int64)
     r = row.astype(np.int64)
-    op.at(T, (lvl, c0), r)
-    op.at(T, (lvl, c1 - (np.int64(1) << lvl) + 1), r)
+    flat, at = T.reshape(-1), lvl.astype(np.int64) * width   # flat indices: a faster scatter
+    op.at(flat, at + c0, r)
+    op.at(flat, at + (c1 - (np.int64(1) << lvl) + 1), r)
     for level in range(top - 1, 0, -1):
         h = 1 << (level - 1)
         lo, hi = T[level - 1], T[level]

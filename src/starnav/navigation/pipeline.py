@@ -56,7 +56,7 @@ from starnav.navigation.limb import (
     limb_points_from_segments,
     phase_angle_from_image,
     segments_centroid,
-    sun_direction_in_image,
+    sun_geometry_in_image,
 )
 from starnav.navigation.metrics import NavMetrics, limb_point_errors, nees
 from starnav.navigation.ransac import RansacConfig, RansacError, RansacResult, ransac_limb
@@ -365,8 +365,8 @@ def _limb_and_ransac(frame: NavFrame, camera: Camera, opt: ChainOptions,
             raise LimbNotFoundError("segments: the readout has no run above threshold (no Moon "
                                     "in the frame, or an exposure too short for the threshold)",
                                     "no-moon")
-        sdir = sun_direction_in_image(camera, R_ci, frame.sun_direction_inertial, centre0)
-        phase0 = phase_angle_from_image(camera, R_ci, frame.sun_direction_inertial, centre0)
+        sdir, phase0 = sun_geometry_in_image(camera, R_ci, frame.sun_direction_inertial,
+                                             centre0)
         if phase0 > opt.limb.max_phase:
             raise LimbNotFoundError(
                 f"phase angle {math.degrees(phase0):.0f} deg > limb.max_phase_deg "
@@ -424,19 +424,20 @@ def camera_consider_jacobian(calibration: CameraCalibration, uv: FloatArray,
     cancel, and what is left is of the size of a one-sided difference's own error."""
     J = np.zeros((3, len(calibration.parameters)))
     G = None if fix is None else fix.point_jacobian
-    steps, shifts = _moved_cameras(calibration, declared)
+    steps, shifts, alignments = _moved_cameras(calibration, declared)
     if G is not None and fix is not None:
-        # every moved camera's pixel shift at the points at once: (N, moved cameras, 2)
+        # every moved camera's pixel shift at the points at once: (N, moved cameras, 2), and
+        # its fix's position through its own attitude, all moved cameras at once
         dc = np.einsum("nij,nkj->ki", G, shifts(uv))
-    k = 0
+        R_moved = R_measured @ alignments.transpose(0, 2, 1)
+        at = -(R_moved @ (fix.centre_camera + dc)[..., None])[..., 0]
+        for k, (i, h, _) in enumerate(steps):
+            J[:, i] = (at[2 * k] - at[2 * k + 1]) / (2.0 * h)
+        return J
     for i, h, moved in steps:
         pos = []
         for cam, A in moved:
             R_moved = R_measured @ A.T
-            if G is not None and fix is not None:
-                pos.append(-(R_moved @ (fix.centre_camera + dc[k])))
-                k += 1
-                continue
             R_bc = None if R_body_to_inertial is None else R_moved.T @ np.asarray(
                 R_body_to_inertial, float)
             pos.append(christian_robinson(uv, cam, R_body_to_cam=R_bc,
@@ -485,11 +486,12 @@ def _pixel_shifts(known: Camera, moved: Sequence[Camera]
 
 def _moved_cameras(calibration: CameraCalibration, declared: Camera
                    ) -> tuple[list[tuple[int, float, list[tuple[Camera, FloatArray]]]],
-                              Callable[[FloatArray], FloatArray]]:
+                              Callable[[FloatArray], FloatArray], FloatArray]:
     """Per calibrated parameter with a 1-sigma ``h > 0``: ``(index, h, [(camera, its star
-    alignment from declared)] with the parameter moved by +h and by -h)``, and the moved
-    cameras' pixel shifts in that order (:func:`_pixel_shifts`). The same for every frame of
-    a calibration, so made once per (calibration, declared camera) pair."""
+    alignment from declared)] with the parameter moved by +h and by -h)``, the moved
+    cameras' pixel shifts in that order (:func:`_pixel_shifts`) and their alignments stacked
+    ``(moved cameras, 3, 3)``. The same for every frame of a calibration, so made once per
+    (calibration, declared camera) pair."""
     key = (id(calibration), id(declared))
     hit = _MOVED.get(key)
     if hit is not None and hit[0] is calibration and hit[1] is declared:
@@ -506,7 +508,8 @@ def _moved_cameras(calibration: CameraCalibration, declared: Camera
             cam = calibration.camera_with(d)
             moved.append((cam, star_alignment(declared, cam)))
         out.append((i, h, moved))
-    res = (out, _pixel_shifts(calibration.camera, [c for _, _, m in out for c, _ in m]))
+    res = (out, _pixel_shifts(calibration.camera, [c for _, _, m in out for c, _ in m]),
+           np.array([A for _, _, m in out for _, A in m], float).reshape(-1, 3, 3))
     if len(_MOVED) >= 16:
         _MOVED.clear()
     _MOVED[key] = (calibration, declared, res)

@@ -260,8 +260,9 @@ def ransac_limb(
         idx = np.stack([i0, i1, i2], 1)
         h = model.hypotheses(idx)
         r = model.residuals(h)
-        r = np.where(np.isfinite(r), r, np.inf)
-        score = np.minimum(r * r, t2).sum(axis=0)
+        # a degenerate hypothesis (NaN or infinite residuals) scores t2 at every point:
+        # fmin ignores the NaNs (r <= threshold is False for them below)
+        score = np.fmin(r * r, t2).sum(axis=0)
         k = int(np.argmin(score))
         done += K
         if score[k] < best_score:

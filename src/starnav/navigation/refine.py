@@ -63,6 +63,7 @@ from starnav.detector.optics import line_spread_function
 from starnav.detector.products import MAX_WINDOWS, Window
 from starnav.errors import ConfigError
 from starnav.fields import NonNegativeFloat, PositiveFloat
+from starnav.linalg import solve, solve_vectors
 from starnav.navigation.limb import LimbNotFoundError, LimbPoints
 from starnav.registry import Registry
 from starnav.typing import FloatArray
@@ -814,10 +815,9 @@ class _StackedTables:
 def _solve(A: FloatArray, b: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
     """Batched ``A x = b`` (``(K, n, n)``, ``(K, n)`` or ``(K, n, m)``); windows whose matrix
     is singular get the minimum-norm least-squares solution and ``False`` in the mask."""
-    vec = b.ndim == A.ndim - 1
     try:
-        x = np.linalg.solve(A, b[..., None] if vec else b)
-        return (x[..., 0] if vec else x), np.ones(len(A), bool)
+        x = solve_vectors(A, b) if b.ndim == A.ndim - 1 else solve(A, b)
+        return x, np.ones(len(A), bool)
     except np.linalg.LinAlgError:
         out, ok = np.empty(b.shape), np.ones(len(A), bool)
         for i in range(len(A)):
@@ -893,10 +893,10 @@ class _TableModel:
         Z = np.empty((n, p + 7))
         Z[:, :p] = lin = P[:, :, 0]
         Z[:, p] = Gp[:, 0, 0]
-        L = np.empty((n, 2, 3))   # [[A, Gt, 0], [0, A, Gt]]
-        L[:, 0, 0] = L[:, 1, 1] = lin[:, 1]
-        L[:, 0, 1] = L[:, 1, 2] = lin[:, p - 1]
-        L[:, 0, 2] = L[:, 1, 0] = 0.0
+        L = np.zeros((n, 6))   # [[A, Gt, 0], [0, A, Gt]], row-major
+        L[:, 0::4] = lin[:, 1:2]
+        L[:, 1::4] = lin[:, p - 1:p]
+        L = L.reshape(n, 2, 3)
         LG = L @ Gp[:, 1:]
         np.matmul(LG[:, :, 1:], L.transpose(0, 2, 1), out=Z[:, p + 1:p + 5].reshape(n, 2, 2))
         Z[:, p + 5:] = LG[:, :, 0]
@@ -1009,7 +1009,7 @@ def _levenberg_marquardt(model: _TableModel | _GaussModel, X: FloatArray, Z: Flo
     converged = np.zeros(K, bool)
     active = np.full(K, max_iterations > 0)
     while True:
-        a = np.flatnonzero(active)   # the windows still iterating
+        a = active.nonzero()[0]   # the windows still iterating
         if not a.size:
             break
         every = a.size == K   # all windows: whole arrays, no gathers (the common case)
@@ -1044,8 +1044,9 @@ def _levenberg_marquardt(model: _TableModel | _GaussModel, X: FloatArray, Z: Flo
                 np.clip(Xt[:, 2], 0.2, 10.0, out=Xt[:, 2])
             T = model.evaluate(_ALL if every else wg, Xt)
             acc = T[:, p] <= (Z[:, p] if every else Z[wg, p])
-            every = every and bool(acc.all())
-            wa, D, Ta = (wg, sg, T) if acc.all() else (wg[acc], sg[acc], T[acc])
+            all_acc = bool(acc.all())
+            every = every and all_acc
+            wa, D, Ta = (wg, sg, T) if all_acc else (wg[acc], sg[acc], T[acc])
             if wa.size:
                 # the cost's curvature along the step against Gauss-Newton's
                 Zo = Z if every else Z[wa]
