@@ -43,3 +43,23 @@ def test_least_squares_are_numpys_set_by_set():
     assert list(rank) == [3, 3, 2]
     x0, r0 = lstsq_vectors(A[0], b[0])
     assert np.array_equal(x0, x[0]) and r0 == 3
+
+
+def test_without_the_private_kernels_the_public_functions_give_the_same(monkeypatch):
+    """A NumPy whose private kernels are missing or changed: the public wrappers serve, with
+    the same results and errors."""
+    import starnav.linalg as L
+
+    rng = np.random.default_rng(2)
+    A = rng.standard_normal((4, 3, 3)) + 3.0 * np.eye(3)
+    b = rng.standard_normal((4, 3))
+    Als = rng.standard_normal((2, 8, 3))
+    bls = rng.standard_normal((2, 8))
+    fast = (L.solve(A, b[..., None]), L.solve_vectors(A, b), L.lstsq_vectors(Als, bls))
+    monkeypatch.setattr(L, "_gufuncs", None)
+    assert np.array_equal(L.solve(A, b[..., None]), fast[0])
+    assert np.array_equal(L.solve_vectors(A, b), fast[1])
+    x, rank = L.lstsq_vectors(Als, bls)
+    assert np.allclose(x, fast[2][0], rtol=1e-12) and np.array_equal(rank, fast[2][1])
+    with pytest.raises(np.linalg.LinAlgError):
+        L.solve_vectors(np.zeros((2, 2)), np.ones(2))

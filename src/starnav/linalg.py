@@ -18,9 +18,32 @@ from numpy.linalg import LinAlgError
 
 from starnav.typing import FloatArray
 
-try:   # the gufuncs numpy.linalg.solve wraps (NumPy >= 1.8)
+try:   # the gufuncs numpy.linalg.solve wraps (a private module of NumPy)
     from numpy.linalg import _umath_linalg as _gufuncs
 except ImportError:   # pragma: no cover - a NumPy without them: the public wrapper
+    _gufuncs = None
+
+
+def _gufuncs_agree() -> bool:
+    """The private kernels are called as this NumPy's public functions call them and give
+    their results on a small system (else, e.g. after a NumPy upgrade changed their
+    signatures, the public functions are used)."""
+    A = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]])
+    b = np.array([1.0, -2.0, 0.5])
+    try:
+        return bool(
+            np.array_equal(_gufuncs.solve(A, b[:, None], signature="dd->d"),
+                           np.linalg.solve(A, b[:, None]))
+            and np.array_equal(_gufuncs.solve1(A, b, signature="dd->d"),
+                               np.linalg.solve(A, b))
+            and np.allclose(_gufuncs.lstsq(A, b[:, None], np.finfo(float).eps * 3,
+                                           signature="ddd->ddid")[0][:, 0],
+                            np.linalg.lstsq(A, b, rcond=None)[0], rtol=1e-12, atol=0))
+    except Exception:   # noqa: BLE001 - any failure means: do not use them
+        return False
+
+
+if _gufuncs is not None and not _gufuncs_agree():   # pragma: no cover
     _gufuncs = None
 
 
