@@ -60,6 +60,7 @@ from pathlib import Path
 import numpy as np
 
 from starnav.batch.consistency import SATURATED, WELL_EXPOSED
+from starnav.batch.presets import DEMO_EXPOSURE_OVERRIDES
 
 OUT = Path(__file__).resolve().parents[1] / "src/starnav/data/navigation/refine_model_error.json"
 ARCS = (["trajectory.halo_phase_deg=60", "trajectory.epoch=2027-03-06T00:00:00 TDB",
@@ -75,9 +76,11 @@ ARCS = (["trajectory.halo_phase_deg=60", "trajectory.epoch=2027-03-06T00:00:00 T
 COMMON = ["trajectory.duration_days=13.2", "trajectory.cadence_s=86400", "render.spp=8"]
 RUNS = 2
 #: No model error at all: the first pass.
-#: The blooming regime's calibration exposure and segment threshold (the paper's 7.7 ms, as
-#: the demo's second exposure) and its bins of phase [deg].
-BLOOMING = (7.7e-3, ("detector.readout.segments.thresholds_dn=[2048]",))
+#: The blooming regime's calibration exposure and its detector settings: the demo's second
+#: exposure (the paper's 7.7 ms, segments at 2048 DN), its filter's settings aside; and the
+#: regime's bins of phase [deg].
+BLOOMING = next((t, tuple(o for o in ov if not o.startswith("navigation.")))
+                for t, ov in DEMO_EXPOSURE_OVERRIDES)
 BLOOMING_EDGES = (0.0, 60.0, 90.0, 120.0, 180.0)
 UNCALIBRATED = {"phase_edges_deg": [0.0, 180.0], "edge_model_error_px": [0.0],
                 "saturated_model_error_px": [0.0], "terrain_scale": 1.0,
@@ -238,11 +241,11 @@ def phase_scales(dry_run: bool) -> None:
 def blooming(dry_run: bool) -> None:
     """The blooming regime's terms (module docstring, ``--blooming``)."""
     from starnav.batch.consistency import (
-        _nees_scaled,
         fix_phase_scales,
         limb_point_records,
         render_arc,
         saturated_extra_by_phase,
+        scaled_to_nees,
         shared_covariance_mle,
     )
     from starnav.batch.presets import demo_scenario
@@ -269,10 +272,21 @@ def blooming(dry_run: bool) -> None:
         # pass 1: a saturated window's own extra
         _use({**doc, "blooming": section}, OUT)
         cal = ModelErrorCalibration.from_dict({**doc, "blooming": section}).blooming
-        points = [limb_point_records(c, RUNS, (BLOOMING,), r)[BLOOMING[0]]["points"]
-                  for c, r in zip(configs, renders, strict=True)]
+        recs = [limb_point_records(c, RUNS, (SATURATED, BLOOMING), r)
+                for c, r in zip(configs, renders, strict=True)]
+        for t, what in ((SATURATED[0], "saturated terms, over-exposed windows dropped"),
+                        (BLOOMING[0], "blooming, every window kept")):
+            p = _merge([rec[t]["points"] for rec in recs])
+            sat = p["saturated"].astype(bool)
+            n_fix = sum(rec[t]["fixes"]["error"].shape[0] for rec in recs)
+            n_all = sum(rec[t]["fix_nees"].size for rec in recs)
+            print(f"{t * 1e3:g} ms ({what}): saturated points {p['error'][sat].mean():+.3f} "
+                  f"px outside the limb (std {p['error'][sat].std():.3f} px), median fitted "
+                  f"over-exposure {np.median(p['overexposure'][sat]):.1f}; {n_fix} of {n_all} "
+                  "fixes from refined points", flush=True)
+        points = _merge([rec[BLOOMING[0]]["points"] for rec in recs])
         section["saturated_model_error_px"] = saturated_extra_by_phase(
-            _merge(points), cal, topo, win, BLOOMING_EDGES)
+            points, cal, topo, win, BLOOMING_EDGES)
         print("pass 1:", section["saturated_model_error_px"], flush=True)
         # pass 2: the fixes' slowly varying error
         _use({**doc, "blooming": section}, OUT)
@@ -281,7 +295,7 @@ def blooming(dry_run: bool) -> None:
     finally:
         OUT.write_text(before)
     sat = tab["saturated"].astype(bool)
-    C = _nees_scaled(shared_covariance_mle(tab, sat), tab, sat)
+    C = scaled_to_nees(shared_covariance_mle(tab, sat), tab, sat)
     section["fix_covariance_saturated"] = C.tolist()
     section["fix_scale_saturated_by_phase"] = fix_phase_scales(tab, C, True, BLOOMING_EDGES)
     edges = np.asarray(BLOOMING_EDGES)
@@ -289,7 +303,7 @@ def blooming(dry_run: bool) -> None:
     section["fixes_per_bin"] = [int(((b == k) & sat).sum()) for k in range(nb)]
     section["calibration_arcs"] = [a + COMMON for a in ARCS]
     section["runs"] = RUNS
-    section["segments_threshold_dn"] = 2048
+    section["detector"] = list(BLOOMING[1])
     section["written"] = _dt.date.today().isoformat()
     sd = np.sqrt(np.diag(C))
     section["sigma_km_equivalent"] = (sd * 1737.4).tolist()

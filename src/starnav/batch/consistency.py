@@ -287,6 +287,32 @@ def _frame_keys(t: dict[str, np.ndarray], sel: np.ndarray) -> list[tuple[int, in
                           t["run"][sel].astype(int).tolist(), strict=True)))
 
 
+def _filled(v: list[float], error: str = "no phase bin is calibrated") -> list[float]:
+    """Each NaN bin of ``v`` takes its nearest calibrated neighbour's value (a bin with too
+    few frames); ValueError ``error`` when no bin is calibrated."""
+    ok = [i for i, x in enumerate(v) if math.isfinite(x)]
+    if not ok:
+        raise ValueError(error)
+    return [v[i] if math.isfinite(v[i]) else v[min(ok, key=lambda j: abs(j - i))]
+            for i in range(len(v))]
+
+
+def three_mode_fit(err: np.ndarray, phi: np.ndarray, own: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The weighted least-squares fit of one frame's point errors [px] to the shared modes
+    ``a + b cos(phi) + c sin(phi)`` (weights ``1 / own``, the points' own variances):
+    ``(coefficients, their covariance, residuals)``, None when the normal matrix is singular
+    (points on too short a stretch of limb)."""
+    X = np.column_stack([np.ones(err.size), np.cos(phi), np.sin(phi)])
+    W = 1.0 / own
+    try:
+        C = np.linalg.inv(X.T @ (X * W[:, None]))
+    except np.linalg.LinAlgError:
+        return None
+    beta = C @ (X.T @ (W * err))
+    return beta, C, err - X @ beta
+
+
 def calibrate_model_error(smooth: dict[str, np.ndarray], terrain: dict[str, np.ndarray],
                           fixes: dict[str, np.ndarray] | None, topography: Any, window_px: int,
                           phase_edges_deg: tuple[float, ...] = PHASE_EDGES_DEG,
@@ -337,14 +363,7 @@ def calibrate_model_error(smooth: dict[str, np.ndarray], terrain: dict[str, np.n
                                                     - smooth["fit_sigma"][s] ** 2)) - se2, 0))
         mom.append(row)
 
-    def filled(v: list[float]) -> list[float]:
-        ok = [i for i, x in enumerate(v) if math.isfinite(x)]
-        if not ok:
-            raise ValueError("no phase bin has enough calibration frames")
-        return [v[i] if math.isfinite(v[i]) else v[min(ok, key=lambda j: abs(j - i))]
-                for i in range(len(v))]
-
-    se, ss = filled(se), filled(ss)
+    se, ss = (_filled(v, "no phase bin has enough calibration frames") for v in (se, ss))
     # the real Moon, frame by frame
     bt = bins(terrain)
     un = ~terrain["saturated"].astype(bool)
@@ -359,15 +378,10 @@ def calibrate_model_error(smooth: dict[str, np.ndarray], terrain: dict[str, np.n
         err = terrain["error"][sel]
         tl = topography.sigma_fraction_over(window_px / R) * R
         own = terrain["fit_sigma"][sel] ** 2 + se[int(bt[sel][0])] ** 2 + tl**2
-        X = np.column_stack([np.ones(n), np.cos(phi), np.sin(phi)])
-        W = 1.0 / own
-        N = X.T @ (X * W[:, None])
-        try:
-            C = np.linalg.inv(N)
-        except np.linalg.LinAlgError:
+        fit = three_mode_fit(err, phi, own)
+        if fit is None:
             continue
-        beta = C @ (X.T @ (W * err))
-        resid = err - X @ beta
+        beta, C, resid = fit
         res_num.append(float(np.mean(resid**2)) * n / (n - 3)
                        - float(np.mean(terrain["fit_sigma"][sel] ** 2
                                        + se[int(bt[sel][0])] ** 2)))
@@ -391,9 +405,9 @@ def calibrate_model_error(smooth: dict[str, np.ndarray], terrain: dict[str, np.n
             raise ValueError("no unsaturated fix to calibrate the shared errors on")
         E = [np.outer(e, e) for e in fixes["error"]]
         common = psd_mean([E[i] - fixes["noise"][i] for i in np.flatnonzero(~sat)])
-        fix_c = _nees_scaled(psd_mean([E[i] - fixes["white"][i] for i in np.flatnonzero(~sat)]),
+        fix_c = scaled_to_nees(psd_mean([E[i] - fixes["white"][i] for i in np.flatnonzero(~sat)]),
                              fixes, ~sat)
-        fix_cs = _nees_scaled(psd_mean([E[i] - fixes["white"][i] for i in np.flatnonzero(sat)]),
+        fix_cs = scaled_to_nees(psd_mean([E[i] - fixes["white"][i] for i in np.flatnonzero(sat)]),
                               fixes, sat) if n_sat else fix_c
 
     def summary(S: np.ndarray) -> dict[str, Any]:
@@ -406,7 +420,7 @@ def calibrate_model_error(smooth: dict[str, np.ndarray], terrain: dict[str, np.n
     if smooth_fixes is not None and smooth_fixes["error"].size:
         ok = ~smooth_fixes["saturated"].astype(bool)
         E = [np.outer(e, e) for e in smooth_fixes["error"]]
-        fix_sm = _nees_scaled(psd_mean([E[i] - smooth_fixes["white"][i]
+        fix_sm = scaled_to_nees(psd_mean([E[i] - smooth_fixes["white"][i]
                                         for i in np.flatnonzero(ok)]), smooth_fixes, ok)
     return {"phase_edges_deg": [float(x) for x in edges],
             "edge_model_error_px": se, "saturated_model_error_px": ss,
@@ -457,7 +471,7 @@ def shared_covariance_mle(fixes: dict[str, np.ndarray], sel: np.ndarray) -> np.n
     return unpack(res.x)
 
 
-def _nees_scaled(C: np.ndarray, fixes: dict[str, np.ndarray], sel: np.ndarray) -> np.ndarray:
+def scaled_to_nees(C: np.ndarray, fixes: dict[str, np.ndarray], sel: np.ndarray) -> np.ndarray:
     """``s C`` with ``s`` such that the fixes' mean NEES (3 dof) with ``white + s C`` is 3 on
     the calibration fixes: the moments give the shape of ``C``, this its size where it is
     used (a mean of ratios, not a ratio of means: the fixes' own noise varies tenfold with
@@ -483,7 +497,7 @@ def fix_phase_scales(fixes: dict[str, np.ndarray], C: np.ndarray, saturated: boo
                      phase_edges_deg: tuple[float, ...] = PHASE_EDGES_DEG) -> list[float]:
     """Per bin of phase, the factor ``s`` on the slowly varying fix covariance ``C`` (its
     shape pooled over all phases) that makes the bin's calibration fixes' mean NEES (3 dof)
-    with ``white + s C`` equal 3 (:func:`_nees_scaled`): the shared limb errors grow towards
+    with ``white + s C`` equal 3 (:func:`scaled_to_nees`): the shared limb errors grow towards
     the crescent, where shadows eat the lit limb. A bin with fewer than
     :data:`MIN_FRAMES_PER_BIN` fixes takes its nearest calibrated neighbour's factor."""
     edges = np.asarray(phase_edges_deg, float)
@@ -495,13 +509,11 @@ def fix_phase_scales(fixes: dict[str, np.ndarray], C: np.ndarray, saturated: boo
     for k in range(nb):
         sel = sat & (b == k) & np.isfinite(fixes["phase"])
         if int(sel.sum()) >= MIN_FRAMES_PER_BIN and np.any(C):
-            out[k] = float(_nees_scaled(C, fixes, sel)[np.unravel_index(
+            out[k] = float(scaled_to_nees(C, fixes, sel)[np.unravel_index(
                 np.argmax(np.abs(C)), C.shape)] / C.flat[np.argmax(np.abs(C))])
-    ok = [i for i, x in enumerate(out) if math.isfinite(x)]
-    if not ok:
+    if not any(math.isfinite(x) for x in out):
         return [1.0] * nb
-    return [out[i] if math.isfinite(out[i]) else out[min(ok, key=lambda j: abs(j - i))]
-            for i in range(nb)]
+    return _filled(out)
 
 
 def saturated_extra_by_phase(points: dict[str, np.ndarray], calibration: Any, topography: Any,
@@ -528,23 +540,15 @@ def saturated_extra_by_phase(points: dict[str, np.ndarray], calibration: Any, to
         se, _, k = calibration.at(phase)
         tl = 0.0 if topography is None else topography.sigma_fraction_over(window_px / R) * R
         own = points["fit_sigma"][sel] ** 2 + se**2 + (k * tl) ** 2
-        phi = points["sun_angle"][sel]
-        X = np.column_stack([np.ones(n), np.cos(phi), np.sin(phi)])
-        W = 1.0 / own
-        try:
-            beta = np.linalg.solve(X.T @ (X * W[:, None]), X.T @ (W * points["error"][sel]))
-        except np.linalg.LinAlgError:
+        fit = three_mode_fit(points["error"][sel], points["sun_angle"][sel], own)
+        if fit is None:
             continue
-        resid = points["error"][sel] - X @ beta
+        resid = fit[2]
         per_bin[int(b_of[sel][0])].append(float(np.mean(resid**2)) * n / (n - 3)
                                           - float(np.mean(own)))
     out = [math.sqrt(max(float(np.mean(v)), 0.0)) if len(v) >= MIN_FRAMES_PER_BIN
            else math.nan for v in per_bin]
-    ok = [i for i, x in enumerate(out) if math.isfinite(x)]
-    if not ok:
-        raise ValueError("no phase bin has enough saturated calibration frames")
-    return [out[i] if math.isfinite(out[i]) else out[min(ok, key=lambda j: abs(j - i))]
-            for i in range(nb)]
+    return _filled(out, "no phase bin has enough saturated calibration frames")
 
 
 def modelled_sigma(table: dict[str, np.ndarray], calibration: Any, topography: Any,
