@@ -129,11 +129,14 @@ def flyby_sweep(body: ShapeBodyLike, camera: Camera, *, v_inf_km_s: Sequence[flo
                                                      phase_deg)))
 
 
-def case_monte_carlo(case: FlybyCase, runs: int, seed: int = 11
+def case_monte_carlo(case: FlybyCase, runs: int, seed: int = 11, *,
+                     filter_overrides: dict[str, Any] | None = None,
+                     shape_overrides: dict[str, Any] | None = None
                      ) -> tuple[FlybyMonteCarlo, float]:
     """``runs`` synthetic runs of ``case`` on the coarse model
     (:mod:`starnav.navigation.trn.scoring`), and the CPU time of the filter runs per frame and
-    run [s] (the synthetic truth's excluded)."""
+    run [s] (the synthetic truth's excluded); ``filter_overrides`` and ``shape_overrides``
+    change the scored defaults' filter and shape-model keys (a diagnosis, never a score)."""
     body = ShapeModelBody(ShapeModelConfig(model=case.body))
     cam = Camera.preset("aa-str")
     fl = flyby_from_config(FlybyConfig(v_inf_km_s=case.v_inf / 1e3,
@@ -143,11 +146,12 @@ def case_monte_carlo(case: FlybyCase, runs: int, seed: int = 11
     half = case.start_ca_ranges * case.closest_approach / case.v_inf
     epochs = np.arange(-half, half + 1e-9, case.cadence)
     truth = flyby_truth(fl, body, cam, epochs, SYNTHETIC, seed=1)
-    cfg = TrnFilterConfig(**SYNTHETIC_FILTER)
+    cfg = TrnFilterConfig(**{**SYNTHETIC_FILTER, **(filter_overrides or {})})
     t0 = time.process_time()
     mc = flyby_monte_carlo(truth, cam, body, runs, cfg.initial_covariance(), seed=seed,
                            synthetic=SYNTHETIC, options=cfg.to_si(),
-                           shape_model=TrnShapeModelConfig(map="coarse"))
+                           shape_model=TrnShapeModelConfig(
+                               **{"map": "coarse", **(shape_overrides or {})}))
     return mc, (time.process_time() - t0) / (runs * epochs.size)
 
 
