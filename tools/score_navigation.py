@@ -10,14 +10,15 @@ The protocol (docs/navigation.md, "Tuning apart from scoring"):
   the PSF estimate on the star frames of ``tools/estimate_psf.py`` (seeds 9100-9103), the
   camera's bench calibrations (``tools/calibrate_camera_bench.py``, bench seeds 9500-9539),
   the fix covariance's factors per bin of phase (the refinement's arcs again).
-- **Scoring set** (:data:`SCORING_ARCS`): another season (November 2028 and January 2029),
-  halo phases (80 and 260 deg) apart from the tuning phases and the spent scoring sets
-  (:data:`SPENT`), Sun phases 131-139 deg (the crescent side, beyond the tuning arcs' 100 deg)
-  and 63-70 deg, ranges 67 700-73 400 and 68 500-74 000 km, seeds 9407-9408; the
-  truth with every mismatch on (planets, solar radiation pressure with eclipses and J2 in the
-  truth only; PSF estimated from stars; terrain statistics from a coarser DEM than the
-  rendered one; the camera known as one emulated bench calibrated it), each run on its own
-  terrain, detector noise, attitude knowledge error, initial error and bench.
+- **Scoring set** (:data:`SCORING_ARCS`): another season (March and June 2029), halo phases
+  (130 and 290 deg) apart from the tuning phases and the spent scoring sets (:data:`SPENT`),
+  Sun phases 32-48 deg (the gibbous side, below the tuning arcs' 50 deg) and 127-130 deg,
+  ranges 54 500-60 600 and 69 700-72 200 km, seeds 9409-9410 (chosen from the geometry alone,
+  before any run); the truth with every mismatch on (planets, solar radiation pressure with
+  eclipses and J2 in the truth only; PSF estimated from stars; terrain statistics from a
+  coarser DEM than the rendered one; the camera known as one emulated bench calibrated it),
+  each run on its own terrain, detector noise, attitude knowledge error, initial error and
+  bench.
 
 The record (``src/starnav/data/navigation/scores.json``) keeps the scores, the scoring set, the
 commit scored and the fingerprint of every default the score depends on
@@ -43,10 +44,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "src/starnav/data/navigation/scores.json"
 FIGURE = ROOT / "docs/figures/anees_scoring.png"
-SCORING_ARCS = (["trajectory.halo_phase_deg=80", "trajectory.epoch=2028-11-01T00:00:00 TDB",
-                 "seed=9407"],
-                ["trajectory.halo_phase_deg=260", "trajectory.epoch=2029-01-17T00:00:00 TDB",
-                 "seed=9408"])
+SCORING_ARCS = (["trajectory.halo_phase_deg=130", "trajectory.epoch=2029-03-14T00:00:00 TDB",
+                 "seed=9409"],
+                ["trajectory.halo_phase_deg=290", "trajectory.epoch=2029-06-20T00:00:00 TDB",
+                 "seed=9410"])
 #: Scoring sets already spent (each saw a released default once; never scored again).
 SPENT = ((["trajectory.halo_phase_deg=150", "trajectory.epoch=2027-08-10T00:00:00 TDB",
            "seed=9301"],
@@ -63,7 +64,11 @@ SPENT = ((["trajectory.halo_phase_deg=150", "trajectory.epoch=2027-08-10T00:00:0
          (["trajectory.halo_phase_deg=170", "trajectory.epoch=2028-06-14T00:00:00 TDB",
            "seed=9405"],
           ["trajectory.halo_phase_deg=350", "trajectory.epoch=2028-09-20T00:00:00 TDB",
-           "seed=9406"]))
+           "seed=9406"]),
+         (["trajectory.halo_phase_deg=80", "trajectory.epoch=2028-11-01T00:00:00 TDB",
+           "seed=9407"],
+          ["trajectory.halo_phase_deg=260", "trajectory.epoch=2029-01-17T00:00:00 TDB",
+           "seed=9408"]))
 ARC = ["trajectory.duration_days=1.0", "trajectory.cadence_s=7200", "render.spp=8"]
 RUNS = 20
 

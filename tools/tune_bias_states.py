@@ -69,7 +69,8 @@ GRIDS = {
     # the fixes' covariance carries the blooming limb's error (ModelErrorCalibration.blooming):
     # the states need only carry what stays from frame to frame; no states is a candidate too
     7.7e-3: ("range-scale+additive", list(itertools.product(
-        (0.002, 0.005, 0.01, 0.02), (2.0, 5.0, 10.0, 25.0), (1.0, 2.0, 4.0, 8.0)))),
+        (0.002, 0.005, 0.01, 0.02), (2.0, 5.0, 10.0, 15.0, 20.0, 25.0),
+        (1.0, 2.0, 4.0, 8.0)))),
 }
 
 
