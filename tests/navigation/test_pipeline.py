@@ -179,6 +179,28 @@ def test_navigation_config_section():
         scenario_from_dict({"navigation": {"ransac": {"model": "ellipse"}}})
 
 
+def test_limb_common_states_take_the_terms_of_their_exposure():
+    """The ``limb-common`` states carry the calibrated slowly varying fix error of the regime
+    the frames are exposed in: the well-exposed fix's below the blooming threshold, the
+    blooming (saturated) fix's from it on (regression test against the packaged table)."""
+    from starnav.config import scenario_from_dict
+    from starnav.navigation.refine import packaged_model_error
+
+    nav = scenario_from_dict({"navigation": {"filter": {"bias_model": "limb-common"}}}).navigation
+    table = packaged_model_error()
+    assert table.blooming is not None
+    as_tuple = lambda C: tuple(tuple(float(x) for x in r) for r in C)  # noqa: E731
+    well = nav.ekf_priors(None, 1.5e-5).common_covariance
+    assert well == as_tuple(table.fix_covariance) == nav.ekf_priors().common_covariance
+    bloom = nav.ekf_priors(None, 7.7e-3).common_covariance
+    assert bloom == as_tuple(table.blooming.fix_covariance_saturated)
+    # the blooming fix's slowly varying error is larger than the well-exposed one's
+    assert np.trace(np.asarray(bloom)) > 10 * np.trace(np.asarray(well))
+    just_below = np.nextafter(table.blooming_min_exposure_s, 0.0)
+    assert nav.ekf_priors(None, just_below).common_covariance == well
+    assert nav.ekf_priors(None, table.blooming_min_exposure_s).common_covariance == bloom
+
+
 def test_cli_navigate(cam, sequence, tmp_path, monkeypatch):
     from typer.testing import CliRunner
 

@@ -228,7 +228,8 @@ def attitude_comparison(
         nav = sc.navigation
         dyn = PointMassDynamics(step_s=nav.filter.to_si().rk4_step)
         common = dict(camera=sim.camera, dynamics=dyn, moon=dyn, P0=nav.initial_covariance(),
-                      ekf=nav.filter.to_si(), ekf_priors=nav.ekf_priors(chains[j].calibration),
+                      ekf=nav.filter.to_si(), ekf_priors=nav.ekf_priors(
+                          chains[j].calibration, float(sc.detector.exposure_time_s)),
                       seed=int(sc.seed),
                       run=run)
         ra = navigate(frames_a[j], chain=chains[j], **common)

@@ -567,7 +567,8 @@ def filter_task(config: dict[str, Any], point: int, frames: list[list[FrameResul
             with quiet_logger("starnav.navigation.ekf"):
                 res = run_filter(meas, dynamics=dyn, moon=dyn, t0=float(epochs[0]), x0=x0,
                                  P0=P0, options=nav.filter.to_si(),
-                                 priors=nav.ekf_priors(nav.calibration(sc, r)))
+                                 priors=nav.ekf_priors(nav.calibration(sc, r),
+                                                       float(sc.detector.exposure_time_s)))
             series = [res.errors(truth), res.sigma3(), res.nees(truth), res.nis,
                       res.nees_position(truth), res.nees_velocity(truth)]
             ekf_times = [float(t) for t in res.timings_s]

@@ -325,7 +325,9 @@ def navigate_dataset(
     chain = cfg.chain_options(scenario=scenario)
     run = navigate(dataset if frames is None else frames, camera=dataset.camera,
                    dynamics=dyn, moon=dyn, P0=P0, chain=chain, chains=chains,
-                   ekf=cfg.filter.to_si(), ekf_priors=cfg.ekf_priors(chain.calibration),
+                   ekf=cfg.filter.to_si(), ekf_priors=cfg.ekf_priors(
+                       chain.calibration, None if scenario is None
+                       else float(scenario.detector.exposure_time_s)),
                    seed=seed, measure_memory=measure_memory)
     shown = list(dataset) if plots else []
     paths = write_outputs(run, out_dir, plots=plots, frames=shown,

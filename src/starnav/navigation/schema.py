@@ -278,20 +278,24 @@ class NavigationConfig(StrictModel):
                                   f"{cam.height} px detector with its pixel pitch")
         return cal
 
-    def ekf_priors(self, calibration: CameraCalibration | None = None) -> EkfPriors:
+    def ekf_priors(self, calibration: CameraCalibration | None = None,
+                   exposure_s: float | None = None) -> EkfPriors:
         """What the filter (its section's SI view, ``filter.to_si()``) needs besides its
-        knobs: the ``limb-common`` bias states' covariance, and with the chain's camera
-        ``calibration`` its parameters as consider states, with the calibration's
-        covariance."""
+        knobs: the ``limb-common`` bias states' covariance for frames exposed ``exposure_s``
+        [s] (None: the well-exposed terms), and with the chain's camera ``calibration`` its
+        parameters as consider states, with the calibration's covariance."""
         common = consider = None
         if self.filter.bias_model == "limb-common":
             # the states carry what the fix's own covariance carries besides its pixels and
             # the attitude: the calibrated slowly varying fix error in the three limb modes
             # (ModelErrorCalibration.fix_covariance), not the points' shared error
             # (common_covariance, half of it: the filter was overconfident wherever the
-            # attitude's sigma no longer hid the difference, docs/stars.md)
-            common = tuple(tuple(float(x) for x in r)
-                           for r in packaged_model_error().fix_covariance)
+            # attitude's sigma no longer hid the difference, docs/stars.md); in the blooming
+            # regime every frame saturates, so its states carry the saturated fix's terms
+            base = packaged_model_error()
+            table = base.for_exposure(exposure_s)
+            C = table.fix_covariance if table is base else table.fix_covariance_saturated
+            common = tuple(tuple(float(x) for x in r) for r in C)
         if calibration is not None and calibration.parameters:
             consider = tuple(tuple(float(x) for x in r)
                              for r in np.asarray(calibration.covariance, float))
