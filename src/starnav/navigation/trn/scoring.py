@@ -98,6 +98,11 @@ DEVELOPMENT_FLYBYS: tuple[FlybyCase, ...] = (
     FlybyCase("itokawa-dev-c", "itokawa", 0.7e3, 7.0e3, math.radians(70.0), 8.0, 4.0),
 )
 
+#: Where the shape law's crescent term (``filter.crescent_term``,
+#: ``silhouette_crescent_gain``) is calibrated (``tools/calibrate_flyby_coarse_map.py``): the
+#: calibration and development fly-bys, two bodies; never a scoring or spent one.
+CRESCENT_CALIBRATION_FLYBYS: tuple[FlybyCase, ...] = CALIBRATION_FLYBYS + DEVELOPMENT_FLYBYS
+
 #: Scored once per default, outside the calibration envelope (v_inf 0.5 - 1 km/s, CA 5 - 8 km,
 #: phase 40 - 60 deg, Itokawa) and apart from the spent and development ones. Eros at CA
 #: 130 km: its 17 km half-length stays inside the 10.3 deg half field.
