@@ -57,7 +57,9 @@ from starnav.navigation.trn.scoring import (
     CRESCENT_CALIBRATION_FLYBYS,
     DEVELOPMENT_FLYBYS,
     SCORING_FLYBYS,
+    SCORING_SEED,
     SPENT_FLYBYS,
+    SPENT_SEEDS,
     SYNTHETIC,
     SYNTHETIC_FILTER,
     TARGETS,
@@ -282,6 +284,7 @@ def test_scoring_record_is_of_the_current_defaults_and_outside_the_envelope():
         TrnShapeModelConfig(map="coarse").model_dump())
     assert rec["defaults"]["filter"] == as_json(TrnFilterConfig(**SYNTHETIC_FILTER).model_dump())
     assert {c.name for c in SCORING_FLYBYS} == set(rec["scoring"])
+    assert rec["seed"] == SCORING_SEED and SCORING_SEED not in SPENT_SEEDS
     assert {c.name for c in CALIBRATION_FLYBYS} == set(rec["calibration"])
     cal = CALIBRATION_FLYBYS
     for c in SCORING_FLYBYS:
