@@ -45,8 +45,7 @@ Index
 :class:`FlybyRun`;
 measurement models :func:`feature_model`, :func:`features_model`, :func:`centroid_model`,
 :func:`radius_model`, :func:`silhouette_scale`, :func:`shape_error_term`,
-:func:`crescent_term`, :func:`map_error_factor`,
-:func:`silhouette_offset`;
+:func:`crescent_term`, :func:`map_error_factor`, :func:`silhouette_offset`;
 :func:`propagate`, :func:`landmark_births`, :func:`gate_rows`, :func:`validate_inputs`.
 """
 
