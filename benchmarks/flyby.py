@@ -196,7 +196,12 @@ def bench_scoring(runs: int = 20) -> None:
     calibration envelope and Eros), ``runs`` dispersed synthetic runs each on the coarse map,
     against the targets; the packaged record (tools/score_flyby.py) beside each number."""
     from starnav.batch.flyby_synthetic import score_case
-    from starnav.navigation.trn.scoring import SCORING_FLYBYS, TARGETS, read_record
+    from starnav.navigation.trn.scoring import (
+        SCORING_FLYBYS,
+        SCORING_SEED,
+        TARGETS,
+        read_record,
+    )
 
     rec = read_record()["scoring"]
     lo, hi = TARGETS["epochs_in_band"]
@@ -218,7 +223,7 @@ def bench_scoring(runs: int = 20) -> None:
         return d[key[0]][key[1]] if isinstance(key, tuple) else d[key]
 
     for case in SCORING_FLYBYS:
-        s = score_case(case, runs)
+        s = score_case(case, runs, SCORING_SEED)
         print(f"\n{case.name}: {case.body}, v_inf {case.v_inf / 1e3} km/s, CA "
               f"{case.closest_approach / 1e3} km, phase {math.degrees(case.phase_at_ca):.0f} "
               f"deg, {s['frames']} "

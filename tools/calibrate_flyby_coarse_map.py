@@ -28,6 +28,17 @@ Sun's image direction [px] and the radius's relative difference [-]. Then
    variance of a first-order Gauss-Markov process of that correlation angle); the largest
    over the three series (the longer, the less the filter averages).
 
+3. **The crescent term** (``navigation.trn.filter.crescent_term``): with ``q`` and the
+   ``k`` of item 1 held, the across-Sun centroid sigma times ``hypot(1, kappa (1 - f) / f)``
+   (``f = (1 + cos alpha) / 2``, the lit fraction; relative to its value at the reference
+   phase, as the filter applies it); ``kappa`` by maximum likelihood on a grid over the
+   crescent fly-bys (``scoring.CRESCENT_CALIBRATION_FLYBYS``: the calibration fly-bys and
+   the development fly-bys of Itokawa and Eros), each sampled at ``--crescent-samples``
+   epochs over its pass (equal weight per fly-by) and brought to the reference map like
+   item 1. Recorded under ``crescent``, with the rms of each fly-by's error over the law
+   with and without the term per phase bin; the filter's value is ``crescent.filter``
+   (released once scored: ``scoring.SYNTHETIC_FILTER``).
+
 No scoring fly-by is read. Usage::
 
     PYTHONPATH=src python tools/calibrate_flyby_coarse_map.py [--step 0.25]
@@ -48,8 +59,8 @@ from starnav.camera import Camera
 from starnav.navigation.schema import TrnFilterConfig, TrnShapeModelConfig
 from starnav.navigation.trn.body_model import coarse_of
 from starnav.navigation.trn.body_view import BodyInCamera, lit_silhouette
-from starnav.navigation.trn.filter import aspect_change
-from starnav.navigation.trn.scoring import CALIBRATION_FLYBYS
+from starnav.navigation.trn.filter import aspect_change, crescent_term
+from starnav.navigation.trn.scoring import CALIBRATION_FLYBYS, CRESCENT_CALIBRATION_FLYBYS
 from starnav.navigation.trn.synthetic import boresight_attitude
 from starnav.scenes.flyby import flyby_from_config
 from starnav.scenes.schema import FlybyConfig
@@ -60,6 +71,10 @@ OUT = (Path(__file__).resolve().parents[1]
 Q_GRID = np.round(np.arange(0.02, 1.001, 0.01), 2)
 #: Grid step of the accumulated aspect [rad].
 ASPECT_STEP = math.radians(0.25)
+#: Grid of the crescent term's gain kappa.
+KAPPA_GRID = np.round(np.r_[0.0, np.arange(0.01, 2.001, 0.01)], 2)
+#: Phase bins of the crescent term's record [deg].
+PHASE_BINS = (0.0, 60.0, 120.0, 135.0, 150.0, 180.0)
 
 
 def series(case, step: float) -> dict[str, np.ndarray]:
@@ -103,6 +118,43 @@ def series(case, step: float) -> dict[str, np.ndarray]:
     return out
 
 
+def crescent_factor(phase: np.ndarray, kappa: float, phase_ref: float) -> np.ndarray:
+    """The across-Sun factor of item 3, relative to the reference phase, as the filter's
+    ``silhouette_scale`` applies it."""
+    t = np.array([crescent_term(float(a)) for a in np.atleast_1d(phase)])
+    return np.hypot(1.0, kappa * t) / math.hypot(1.0, kappa * crescent_term(phase_ref))
+
+
+def fit_crescent(data: dict[str, dict[str, np.ndarray]], q: float, k_across: float,
+                 phase_ref: float) -> tuple[float, dict[str, dict[str, list[float]]]]:
+    """``kappa`` of item 3 by maximum likelihood (each fly-by's mean log-likelihood, summed:
+    equal weight per fly-by), and per fly-by the rms over the law of the across-Sun error
+    per :data:`PHASE_BINS` bin without and with the term."""
+    z = {n: s["across"] / (k_across * s["rho"] * law(s["phase"], q)) for n, s in data.items()}
+    best = None
+    for kappa in KAPPA_GRID:
+        nll = 0.0
+        for n, s in data.items():
+            g = crescent_factor(s["phase"], float(kappa), phase_ref)
+            nll += float(np.mean(2.0 * np.log(g) + (z[n] / g) ** 2))
+        if best is None or nll < best[0]:
+            best = (nll, float(kappa))
+    kappa = best[1]
+    bins: dict[str, dict[str, list[float]]] = {}
+    for n, s in data.items():
+        g = crescent_factor(s["phase"], kappa, phase_ref)
+        deg = np.degrees(s["phase"])
+        rows = {}
+        for lo, hi in zip(PHASE_BINS[:-1], PHASE_BINS[1:], strict=True):
+            m = (deg >= lo) & (deg < hi)
+            if m.sum() >= 3:
+                rows[f"{lo:.0f}-{hi:.0f}"] = [int(m.sum()),
+                                              float(np.sqrt(np.mean(z[n][m] ** 2))),
+                                              float(np.sqrt(np.mean((z[n][m] / g[m]) ** 2)))]
+        bins[n] = rows
+    return kappa, bins
+
+
 def law(phase: np.ndarray, q: float) -> np.ndarray:
     return np.hypot(q, np.sin(0.5 * phase))
 
@@ -140,7 +192,12 @@ def integral_scale(passes: list[tuple[np.ndarray, np.ndarray]]) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--step", type=float, default=0.25, help="sampling of the passes [s]")
+    ap.add_argument("--crescent-samples", type=int, default=600,
+                    help="epochs per fly-by of the crescent term's fit (item 3)")
     args = ap.parse_args()
+    if args.step <= 0 or args.crescent_samples < 10:
+        ap.error(f"--step must be > 0 s (got {args.step}) and --crescent-samples >= 10 "
+                 f"(got {args.crescent_samples})")
     data = {c.name: series(c, args.step) for c in CALIBRATION_FLYBYS}
     ref_fraction = float(data[CALIBRATION_FLYBYS[0].name]["height_fraction"])
     for s in data.values():                 # item 1: to the reference body's map error
@@ -168,6 +225,15 @@ def main() -> None:
     m0 = float(law(np.array(ref.silhouette_reference_phase), q))
     sa = ks["along"] * ref.silhouette_reference_radius_px * m0
     sx = ks["across"] * ref.silhouette_reference_radius_px * m0
+    cres = {}                               # item 3, each brought to the reference map
+    for c in CRESCENT_CALIBRATION_FLYBYS:
+        half = c.start_ca_ranges * c.closest_approach / c.v_inf
+        s = series(c, 2.0 * half / (args.crescent_samples - 1))
+        f = float(s["height_fraction"]) / ref_fraction
+        s["across"] = s["across"] / f
+        s["map_factor"] = np.array(f)
+        cres[c.name] = s
+    kappa, bins = fit_crescent(cres, q, ks["across"], ref.silhouette_reference_phase)
     record = {
         "what": "the coarse shape model's lit-silhouette error against the full model on the "
                 "calibration fly-bys (tools/calibrate_flyby_coarse_map.py)",
@@ -194,10 +260,22 @@ def main() -> None:
                                   for c, y in normalised(s, q).items()},
                           "mean": {c: float(np.mean(y)) for c, y in normalised(s, q).items()}}
                       for n, s in data.items()},
+        "crescent": {
+            "calibration_flybys": [c.name for c in CRESCENT_CALIBRATION_FLYBYS],
+            "bodies": sorted({c.body for c in CRESCENT_CALIBRATION_FLYBYS}),
+            "samples_per_flyby": args.crescent_samples,
+            "law": "across-Sun centroid sigma times hypot(1, kappa (1 - f) / f) / hypot(1, "
+                   "kappa (1 - f_ref) / f_ref), f = (1 + cos phase) / 2; q and k_across held",
+            "filter": {"silhouette_crescent_gain": kappa},
+            "map_factor": {n: float(s["map_factor"]) for n, s in cres.items()},
+            "across_rms_over_law": {
+                "columns": ["frames", "without the term", "with the term"], **bins},
+        },
     }
     OUT.write_text(json.dumps(record, indent=1) + "\n")
     print(json.dumps({k: record[k] for k in ("q", "k_along", "k_across", "k_radius",
-                                             "integral_scale_deg", "filter")}, indent=1))
+                                             "integral_scale_deg", "filter", "crescent")},
+                     indent=1))
 
 
 if __name__ == "__main__":

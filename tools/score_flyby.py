@@ -6,9 +6,10 @@
 The calibration fly-bys (``starnav.navigation.trn.scoring.CALIBRATION_FLYBYS``) are where the
 coarse-map knobs were chosen; they are run here for their in-sample numbers only. The scoring
 fly-bys (``SCORING_FLYBYS``: another v_inf, CA distance and phase, and Eros) are run once, 20
-dispersed synthetic runs each, and recorded as they come out, verdicts included: nothing is
-re-tuned on them. The records of spent scoring fly-bys (``SPENT_FLYBYS``) are carried over
-from the previous record under ``spent``, with the defaults they were scored with.
+dispersed synthetic runs each (Monte Carlo seed ``SCORING_SEED``), and recorded as they come
+out, verdicts included: nothing is re-tuned on them. The records of spent scoring fly-bys
+(``SPENT_FLYBYS``) are carried over from the previous record under ``spent``, with the
+defaults and the seed they were scored with.
 
 Usage::
 
@@ -26,7 +27,9 @@ from starnav.navigation.schema import TrnFilterConfig, TrnShapeModelConfig
 from starnav.navigation.trn.scoring import (
     CALIBRATION_FLYBYS,
     SCORING_FLYBYS,
+    SCORING_SEED,
     SPENT_FLYBYS,
+    SPENT_SEEDS,
     SYNTHETIC_FILTER,
     TARGETS,
 )
@@ -42,7 +45,8 @@ def main() -> None:
     spent = dict(old.get("spent", {}))
     for c in SPENT_FLYBYS:
         if c.name not in spent and c.name in old.get("scoring", {}):
-            spent[c.name] = {**old["scoring"][c.name], "defaults": old["defaults"]}
+            spent[c.name] = {**old["scoring"][c.name], "defaults": old["defaults"],
+                             "seed": old.get("seed", SPENT_SEEDS[0])}   # before it was kept
     record = {
         "what": "fly-by estimator on the coarse shape model, synthetic measurements on the "
                 "AA-STR (starnav.navigation.trn.scoring); written by tools/score_flyby.py",
@@ -50,8 +54,10 @@ def main() -> None:
                      "shape_model": TrnShapeModelConfig(map="coarse").model_dump(),
                      "filter": TrnFilterConfig(**SYNTHETIC_FILTER).model_dump()},
         "targets": TARGETS,
-        "calibration": {c.name: score_case(c, args.runs) for c in CALIBRATION_FLYBYS},
-        "scoring": {c.name: score_case(c, args.runs) for c in SCORING_FLYBYS},
+        "seed": SCORING_SEED,
+        "calibration": {c.name: score_case(c, args.runs, SCORING_SEED)
+                        for c in CALIBRATION_FLYBYS},
+        "scoring": {c.name: score_case(c, args.runs, SCORING_SEED) for c in SCORING_FLYBYS},
         "spent": spent,
     }
     OUT.write_text(json.dumps(record, indent=1, default=float) + "\n")

@@ -44,8 +44,8 @@ Index
 :func:`run_filter` (the estimator), :class:`TrnFilterConfig`, :class:`ShapePrior`,
 :class:`FlybyRun`;
 measurement models :func:`feature_model`, :func:`features_model`, :func:`centroid_model`,
-:func:`radius_model`, :func:`silhouette_scale`, :func:`map_error_factor`,
-:func:`silhouette_offset`;
+:func:`radius_model`, :func:`silhouette_scale`, :func:`shape_error_term`,
+:func:`crescent_term`, :func:`map_error_factor`, :func:`silhouette_offset`;
 :func:`propagate`, :func:`landmark_births`, :func:`gate_rows`, :func:`validate_inputs`.
 """
 
@@ -95,7 +95,9 @@ def silhouette_scale(radius_px: float, phase: float, options: SIView) -> FloatAr
     model-error sigmas at the calibration geometry (``options.silhouette_reference_radius_px``,
     ``reference_phase``) scale at apparent radius ``radius_px`` [px] and Sun phase ``phase``
     [rad] (module step 4a); ones for ``silhouette_scaling = "constant"``; for ``"shape"`` the
-    law of a shape model's own error (:func:`shape_error_term`).
+    law of a shape model's own error (:func:`shape_error_term`), the across-Sun centroid's
+    times the crescent factor ``hypot(1, kappa (1 - f) / f)`` (:func:`crescent_term`) over its
+    value at the reference phase.
 
     Two mechanisms, each a closed form on a sphere of apparent radius ``rho`` at phase
     ``alpha``, whose lit area is ``A = pi rho^2 (1 + cos alpha) / 2`` with its centroid
@@ -127,9 +129,13 @@ def silhouette_scale(radius_px: float, phase: float, options: SIView) -> FloatAr
     if options.silhouette_scaling == "constant":
         return np.ones(3)
     if options.silhouette_scaling == "shape":
-        m = (shape_error_term(phase, options)
-             / shape_error_term(options.silhouette_reference_phase, options))
-        return np.array([m * radius_px / options.silhouette_reference_radius_px] * 2 + [m])
+        p0 = options.silhouette_reference_phase
+        m = shape_error_term(phase, options) / shape_error_term(p0, options)
+        c = m * radius_px / options.silhouette_reference_radius_px
+        kappa = options.silhouette_crescent_gain
+        g = (math.hypot(1.0, kappa * crescent_term(phase))
+             / math.hypot(1.0, kappa * crescent_term(p0))) if kappa > 0 else 1.0
+        return np.array([c, c * g, m])
     a = max(float(phase), PHASE_FLOOR)
     a0 = max(float(options.silhouette_reference_phase), PHASE_FLOOR)
     rho, rho0 = float(radius_px), options.silhouette_reference_radius_px
@@ -152,6 +158,26 @@ def shape_error_term(phase: float, options: SIView) -> float:
     constants are fitted on the calibration fly-bys (tools/calibrate_flyby_coarse_map.py).
     """
     return math.hypot(options.silhouette_shape_error_floor, math.sin(0.5 * float(phase)))
+
+
+def crescent_term(phase: float) -> float:
+    """The crescent's lever on the lit centroid, ``(1 - f) / f = tan^2(alpha / 2)`` [-], with
+    ``f = (1 + cos alpha) / 2`` the lit fraction of a sphere's disc at phase ``alpha`` [rad]
+    (``silhouette_scaling = "shape"``: the across-Sun centroid's factor ``hypot(1, kappa
+    (1 - f) / f)``, ``kappa = options.silhouette_crescent_gain``).
+
+    On a disc of apparent radius ``rho`` centred at the body's centre the lit part (area
+    ``f pi rho^2``) and the dark part the terminator cuts away (``(1 - f) pi rho^2``) have
+    first moments that cancel: the lit centroid lies at ``(1 - f) / f`` times the dark
+    part's centroid, on the other side (on a sphere ``4 rho (1 - cos alpha) / (3 pi)`` towards
+    the Sun against ``4 rho (1 + cos alpha) / (3 pi)`` away from it). A model error that
+    moves the dark part's centroid (where the terminator and the horns fall on the model's
+    surface) moves the lit centroid by that lever times it: 1 at phase 90 deg, 3 at 120 deg,
+    7.5 at 140 deg. Along the Sun the shape law's ``sin(alpha / 2)`` already follows the
+    terminator; across it, the crescent's horns carry the error. ``inf`` at phase 180 deg.
+    """
+    c = math.cos(float(phase))
+    return math.inf if c <= -1.0 else (1.0 - c) / (1.0 + c)
 
 
 def map_error_factor(prior: ShapePrior, options: SIView) -> float:
@@ -311,6 +337,11 @@ class TrnFilterConfig(StrictModel):
     silhouette_shape_error_floor: PositiveFloat = Field(
         0.2, description="q of the shape law: the limb's share of a shape model's silhouette "
         "error, left at phase 0 [-] (silhouette_scaling: shape; calibrated)")
+    silhouette_crescent_gain: NonNegativeFloat = Field(
+        0.0, description="kappa of the shape law's crescent term: the across-Sun centroid "
+        "sigma is multiplied by hypot(1, kappa (1 - f) / f), f = (1 + cos phase) / 2 the lit "
+        "fraction, relative to its value at the reference phase (silhouette_scaling: shape; "
+        "filter.crescent_term; calibrated: tools/calibrate_flyby_coarse_map.py); 0: off")
     silhouette_reference_radius_px: PositiveFloat = Field(
         48.95, description="apparent radius at which the model-error sigmas were calibrated "
         "[px] (the calibration fly-by's CA)")
