@@ -6,8 +6,6 @@ from __future__ import annotations
 PLANCK_H = 6.62607015e-34
 #: Speed of light in vacuum [m/s] (exact).
 SPEED_OF_LIGHT = 299_792_458.0
-#: Boltzmann constant [J/K] (SI 2019 exact).
-BOLTZMANN_K = 1.380649e-23
 #: Astronomical unit [m] (IAU 2012 Resolution B2, exact).
 AU = 149_597_870_700.0
 #: Nominal total solar irradiance at 1 AU [W/m^2] (IAU 2015 Resolution B3).
@@ -18,8 +16,6 @@ SUN_RADIUS = 6.957e8
 SUN_TEFF = 5772.0
 #: Mean lunar radius used as the LOLA reference sphere [m] (LOLA PDS labels).
 MOON_RADIUS = 1_737_400.0
-#: Visual geometric albedo of the Moon (Lane & Irvine 1973; docs/facts.md section 2).
-MOON_GEOMETRIC_ALBEDO = 0.12
 #: Seconds per Julian day.
 DAY = 86_400.0
 

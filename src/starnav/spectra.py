@@ -94,10 +94,6 @@ class Spectrum:
     def scaled(self, factor: float) -> Spectrum:
         return Spectrum(self.wavelengths, self.values * factor, self.unit)
 
-    def on_grid(self, grid: FloatArray) -> Spectrum:
-        """Resampled on ``grid`` [nm]."""
-        return Spectrum(grid, self(grid), self.unit)
-
 
 def product(a: Spectrum, b: Spectrum, unit: str = "") -> Spectrum:
     """Pointwise product on the union of both grids, restricted to their common support."""

@@ -217,11 +217,3 @@ def read_table(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     import pyarrow.parquet as pq
 
     return pq.read_table(path).to_pylist()
-
-
-def columns_markdown() -> str:
-    """The Markdown table of :data:`COLUMNS` (docs/sweep.md)."""
-    lines = ["| column | type | unit | meaning |", "|---|---|---|---|"]
-    for c in COLUMNS:
-        lines.append(f"| `{c.name}` | {c.kind} | {c.unit} | {c.description} |")
-    return "\n".join(lines)

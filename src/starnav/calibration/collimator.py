@@ -161,10 +161,6 @@ class SpotModel:
         """Per-axis Gaussian sigma ``r_rms / sqrt(2)`` at field angle ``theta`` [rad] -> [rad]."""
         return self.rms_radius_at(theta) / math.sqrt(2.0)
 
-    def table_fit_residual(self) -> float:
-        """Largest |model - table| over the table rows [rad]."""
-        return float(np.max(np.abs(self.rms_radius_at(self.field) - self.rms_radius)))
-
 
 # --------------------------------------------------------------------------- distortion
 def distort_tangent(t: ArrayLike, k1: float, k2: float = 0.0) -> FloatArray:

@@ -179,10 +179,6 @@ class ScreenRadiometry:
         return (self.channel_le[0][c[..., 0]] + self.channel_le[1][c[..., 1]]
                 + self.channel_le[2][c[..., 2]])
 
-    def band_radiance(self, counts: ArrayLike) -> FloatArray:
-        """Band radiance at the camera for grey counts [W m^-2 sr^-1]."""
-        return self.l_lut[self.check_counts(counts)]
-
     # ................................................................ radiance -> counts
     def continuous_count(self, le: ArrayLike) -> FloatArray:
         """The (non-integer) grey count whose radiance is ``le``, interpolated between levels."""

@@ -35,11 +35,6 @@ from starnav.config_base import StrictModel
 from starnav.fields import NonNegativeFloat, PositiveFloat, UnitInterval
 from starnav.lunar_calibration import lunar_calibration
 
-#: Names accepted by ``DemConfig.format`` (``auto`` guesses from the file name and contents).
-DEM_FORMATS = ("auto", "pds3", "geotiff", "svs-geotiff", "npy")
-#: Names accepted by ``AlbedoConfig.decoding``.
-ALBEDO_DECODINGS = ("auto", "svs-8bit", "linear", "reflectance")
-
 
 class ProceduralDemConfig(StrictModel):
     """The procedural Moon (see :mod:`starnav.dem.procedural` for the model and its sources).

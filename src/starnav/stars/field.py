@@ -105,14 +105,6 @@ class StarField:
         keep = ~self.occulted
         return PointSources(self.pinhole_px[keep, 0], self.pinhole_px[keep, 1], self.rate[keep])
 
-    def to_records(self) -> list[dict]:
-        """JSON-safe list of the stars (units in the keys)."""
-        return [{"hip": int(self.hip[i]), "v_mag": float(self.v[i]), "b_v_mag": float(self.b_v[i]),
-                 "direction_inertial": self.direction_inertial[i].tolist(),
-                 "pixel_px": self.pixel_px[i].tolist(), "rate_e_per_s": float(self.rate[i]),
-                 "electrons_e": float(self.electrons[i]), "occulted": bool(self.occulted[i]),
-                 "in_frame": bool(self.in_frame[i])} for i in range(len(self))]
-
 
 def field_radius(camera: Camera, margin_px: float) -> float:
     """Half-angle [rad] of the cone holding the whole detector plus ``margin_px``."""

@@ -37,10 +37,6 @@ def amie_plate_scale() -> dict[str, Any]:
     and the ``method``."""
     return json.loads(packaged_path(PLATE_SCALE_FILE).read_text())
 
-#: Diffraction-limited Gaussian sigma [px]: 0.42 lambda N / pitch at 800 nm, f/10, 14 um (the
-#: floor; the measured core is about twice as wide).
-AMIE_PSF_SIGMA_DIFFRACTION_PX = 0.42 * 800e-9 * 10.0 / 14e-6
-
 
 def amie_psf_sigma_px() -> float:
     """The PSF core's Gaussian sigma [px], measured on Vega (``amie/vega_calibration.json``,
