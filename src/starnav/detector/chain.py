@@ -342,9 +342,9 @@ def _prefix_settings(cfg: DetectorConfig) -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class MeanCharge:
-    """The frame before the chain's first temporal-noise effect and what made it (module
-    essay): another acquisition of the same radiance, camera, exposure, stars and sensor can
-    start from it (``expose(..., mean_charge=...)``).
+    """The frame before the chain's first temporal-noise effect and what made it: another
+    acquisition of the same radiance, camera, exposure, stars and sensor can start from it
+    (``expose(..., mean_charge=...)``).
 
     Attributes
     ----------
@@ -352,10 +352,8 @@ class MeanCharge:
         The frame at that point of the chain [e-].
     position : int
         Index in the chain order of the first effect not applied.
-    ledger : dict
-        Charge ledger so far [e-].
-    stages : dict
-        Copies after each applied effect (when kept).
+    ledger, stages : dict
+        Charge ledger so far [e-]; copies after each applied effect (when kept).
     electrons : (H, W) float32 or None
         The charge at the end of the pixel stage, if that came before ``position``.
     radiance, camera, point_sources : object
@@ -408,26 +406,19 @@ class Exposure:
         Signal entering the ADC (after crosstalk, non-linearity, read noise) [e-].
     segments : Segments or None
         Full-image compressed readout (if ``segments`` is among the readout modes).
-    windows : tuple of Window
-        Windows readout.
-    timing : tuple of ReadoutTiming
-        Readout-law check of every requested readout.
+    windows, timing : tuple of Window, tuple of ReadoutTiming
+        Windows readout; readout-law check of every requested readout.
     ledger : dict
-        Charge book-keeping [e-] (``photoelectrons_e``, ``optics_lost_e``, ``drained_e``,
-        ``left_array_e``).
-    stages : dict
-        Copy of the frame after each effect (when kept), in chain order.
-    timings_ms : dict
-        Wall time of each effect [ms].
-    exposure_time : float
-        [s].
-    gain : float
-        [e-/DN].
+        Charge book-keeping [e-] (as :class:`ChainContext`'s).
+    stages, timings_ms : dict
+        Copy of the frame after each effect (when kept), in chain order; wall time of each
+        effect [ms].
+    exposure_time, gain : float
+        [s], [e-/DN].
     seed, sensor_seed, frame_index : int
     config : DetectorConfig
     mean_charge : MeanCharge or None
-        The frame before the first temporal-noise effect, when asked for
-        (``keep_mean_charge``).
+        The frame before the first temporal-noise effect (``keep_mean_charge``).
     """
 
     dn: NDArray[np.uint16]
@@ -526,32 +517,25 @@ def expose(radiance: RadianceImage | NDArray[Any], camera: Camera,
         The renderer's output (its ``Le`` channel is used) or an electron-radiance array
         [e- s^-1 m^-2 sr^-1]; undistorted pinhole image of ``camera``.
     camera : Camera
-        Optics and detector geometry (etendue, principal point, distortion).
     config : DetectorConfig, optional
         Chain settings; defaults to the AA-STR values.
-    seed : int
-        Dataset seed: temporal noise, and the fixed pattern when ``config.sensor_seed`` is None.
-    frame_index : int
-        Frame number: selects the temporal noise stream.
+    seed, frame_index : int
+        Dataset seed (temporal noise, and the fixed pattern when ``config.sensor_seed`` is
+        None) and frame number (the temporal noise stream).
     exposure_time : float, optional
         Integration time [s]; default ``config.exposure_time_s``.
     windows : sequence, optional
-        Windows to read, ``WindowSpec`` or ``(row0, col0, height, width)``; default
-        ``config.readout.windows``.
+        ``WindowSpec`` or ``(row0, col0, height, width)``; default ``config.readout.windows``.
     keep_stages : bool, optional
         Keep a copy of the frame after every effect; default ``config.debug.keep_stages``.
     point_sources : PointSources, optional
-        Stars (pinhole positions [px], rates [e-/s]), added after the aberration PSF's place
-        in the chain (step 2b of docs/detector.md, "Stage order"); ``None``: the frame is
-        exactly as without.
+        Stars (pinhole positions [px], rates [e-/s]), added after the aberration PSF
+        (docs/detector.md, "Stage order").
     keep_mean_charge : bool
-        Keep the frame before the first temporal-noise effect as
-        :attr:`Exposure.mean_charge` (module essay), for another acquisition of the same
-        radiance.
+        Keep :attr:`Exposure.mean_charge` for another acquisition of the same radiance.
     mean_charge : MeanCharge, optional
-        Start from that frame (the ``mean_charge`` of an exposure of the same ``radiance``
-        object, camera, stars, exposure time, sensor and detector settings, readout modes,
-        windows and thresholds aside): the result is the one of a full run.
+        Start from that frame (made from the same inputs, readout settings aside): the result
+        is the one of a full run.
 
     Returns
     -------

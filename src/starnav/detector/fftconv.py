@@ -79,18 +79,12 @@ def convolve_add(out: Float32Array, src: Float32Array, r0: int, c0: int,
     out : (H, W) float32
         Frame accumulating the result (modified in place).
     src : (h, w) float32
-        Source sub-image.
     r0, c0 : int
         Position of ``src[0, 0]`` in ``out`` [px].
     kernel : (2 kh + 1, 2 kw + 1) float32
-        Convolution kernel centred on its middle sample.
+        Centred on its middle sample.
     key : hashable, optional
         Cache key of ``kernel`` (same key = same kernel).
-
-    Returns
-    -------
-    float
-        Sum of the convolved values that landed outside ``out`` (same unit as ``src``).
     """
     import scipy.fft as sfft
 

@@ -246,20 +246,15 @@ def line_spread_function(camera: Camera, cfg: AberrationPsfConfig, u: float, v: 
                          normal: NDArray[np.float64], x: NDArray[np.float64], *,
                          pixel_boxes: int = 2, ipc: tuple[float, float] = (0.0, 0.0)
                          ) -> NDArray[np.float64]:
-    """The detector's linear blur at pixel ``(u, v)`` projected on the direction ``normal``:
-    the line spread function [1/px] that an edge across ``normal`` is blurred by.
+    """The line spread function [1/px] at pixel ``(u, v)`` across the direction ``normal``:
+    :func:`apply_psf_grid`'s blur seen along one direction.
 
-    It is what :func:`apply_psf_grid` and the charge chain do to an image, seen along one
-    direction: the tent blend of the four nearest node PSFs of :func:`psf_grid` at ``(u, v)``
-    (each a defocus disc, whose projection is the semicircle law
-    ``2 sqrt(R^2 - x^2) / (pi R^2)``, convolved with the elliptical Gaussian, whose projection
-    is a Gaussian of variance ``sigma_r^2 cos^2 a + sigma_t^2 sin^2 a``, ``a`` the angle between
-    ``normal`` and the field's radial direction); ``pixel_boxes`` pixel apertures (each projects
-    on ``normal = (n_u, n_v)`` as boxes of widths ``|n_u|`` and ``|n_v|``): 2 by default, the
-    renderer's pixel filter and the pixel integration of the PSF kernels (a discrete
-    convolution of pixel-averaged radiance with a pixel-integrated PSF blurs by one pixel
-    aperture more than the optics alone, variance 1/12 px^2); and the inter-pixel capacitance
-    ``ipc = (nearest, diagonal)`` as shifted copies.
+    The tent blend of the four nearest node PSFs (each a defocus disc, projecting to the
+    semicircle law ``2 sqrt(R^2 - x^2) / (pi R^2)``, convolved with the elliptical Gaussian,
+    projecting to variance ``sigma_r^2 cos^2 a + sigma_t^2 sin^2 a``, ``a`` the angle to the
+    radial direction); ``pixel_boxes`` pixel apertures (boxes of widths ``|n_u|`` and
+    ``|n_v|``; 2 by default: the renderer's pixel filter and the pixel-integrated kernels);
+    and the inter-pixel capacitance ``ipc = (nearest, diagonal)`` as shifted copies.
 
     Parameters
     ----------

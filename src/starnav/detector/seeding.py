@@ -1,14 +1,8 @@
 """Random streams of the detector chain, keyed so that results never depend on processing order.
 
-Technique
----------
-Fixed-pattern maps must be frozen per sensor, temporal noise change
-per frame, and a dataset must be bit-identical for one seed whatever the number of workers or the
-order in which frames are made. ``SeedSequence.spawn`` hands out children in call order, so
-instead of calling it we build each child directly by its *spawn key*:
-``SeedSequence(entropy, spawn_key=(k1, k2, ...))`` is exactly the child that a chain of
-``spawn`` calls would give at position ``k1, k2, ...`` (NumPy's documented construction), but
-it can be made in any order.
+Each child stream is built by its *spawn key*, ``SeedSequence(entropy, spawn_key=(k1, ...))``,
+the child a chain of ``spawn`` calls would give (NumPy's documented construction), in any
+order:
 
 =============== ============================================ =================================
 stream          key                                          changes with
@@ -17,9 +11,8 @@ fixed pattern   ``(sensor_seed, (STAGE_DETECTOR_FIXED, effect))`` the sensor see
 temporal        ``(seed, (STAGE_DETECTOR_TEMPORAL, frame, effect))`` the seed and frame index
 =============== ============================================ =================================
 
-``effect`` is a stable integer per effect name (:data:`EFFECT_STREAMS`), never derived from
-``hash()`` (salted per process) nor from the chain order. The stage keys come from
-:mod:`starnav.seeding`, the one registry shared with rendering and pointing.
+``effect`` is a stable integer per effect name (:data:`EFFECT_STREAMS`), never ``hash()``;
+the stage keys come from :mod:`starnav.seeding`.
 """
 
 from __future__ import annotations

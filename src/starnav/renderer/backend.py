@@ -1,27 +1,14 @@
 """Choice of the Mitsuba variant at run time: cuda, then llvm (only with libLLVM >= 16), then
 scalar.
 
-Dr.Jit's CPU backend JIT-compiles through libLLVM. Versions 14 and 15 abort the whole process
-inside Dr.Jit ("Cannot select fmaximum"), so they are never handed to it: :func:`find_llvm`
-looks for libLLVM >= 16 (``DRJIT_LIBLLVM_PATH`` if set and usable, then the dynamic linker's
-cache, then the usual Debian/Ubuntu locations) and :func:`activate` sets ``DRJIT_LIBLLVM_PATH``
-to it before the llvm variant is tried. Without one, the llvm variants are skipped and the
-scalar variant is used: slower, never a crash.
+libLLVM 14 and 15 abort Dr.Jit ("Cannot select fmaximum"): :func:`find_llvm` looks for
+libLLVM >= 16 (``DRJIT_LIBLLVM_PATH``, the linker cache, the usual Debian locations) and
+:func:`activate` sets ``DRJIT_LIBLLVM_PATH`` before the llvm variant is tried; without one
+the scalar variant is used. The choice is recorded (:func:`current`) in every image's metadata.
 
-The choice is logged and recorded (:func:`current`), and written into every image's metadata.
-
-Dr.Jit compiles its kernels for the host CPU (instruction set, vector width, fused
-multiply-adds), so the same render differs between CPUs in the last bits of float32.
-``STARNAV_LLVM_TARGET="cpu;features;width"`` (e.g. ``znver3;+avx2,+fma;8``) makes it compile
-for another target instead (Dr.Jit's ``jit_llvm_set_target``), so that one machine can
-reproduce another's rounding; :func:`llvm_target` reports the target in use.
-
-Example
--------
->>> from starnav.renderer import backend
->>> info = backend.activate()          # doctest: +SKIP
->>> info.variant                       # doctest: +SKIP
-'llvm_ad_spectral'
+``STARNAV_LLVM_TARGET="cpu;features;width"`` (e.g. ``znver3;+avx2,+fma;8``) compiles the
+kernels for another CPU (``jit_llvm_set_target``), to reproduce its float32 rounding;
+:func:`llvm_target` reports the target in use.
 """
 
 from __future__ import annotations

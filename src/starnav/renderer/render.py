@@ -801,32 +801,20 @@ def _render_fused(scene, box: tuple[int, int, int, int], seed: int, spp: int,
                   ) -> tuple[NDArray[np.float32], dict[str, NDArray[np.float32]] | None,
                              NDArray[np.int32] | None]:
     """The radiance pass and the AOV pass over the crop ``box`` as Mitsuba's own wavefront
-    render does them (``SamplingIntegrator::render`` / ``render_sample`` of Mitsuba 3.9, JIT
-    variants), with two differences that change no number:
+    render does them (``SamplingIntegrator::render`` / ``render_sample``, JIT variants), with
+    differences that change no number:
 
-    * every value that depends on the crop window (its offset and size, hence the pixel of a
-      sample and the film coordinates) and the seed enters the kernels as an *opaque* value
-      instead of a literal, so one compiled kernel serves every frame (Mitsuba bakes them in:
-      each new crop window recompiled the radiance and AOV kernels, 0.5-0.9 s on a busy
-      machine, for kernels running 0.1-0.2 s at 60 000 km);
-    * the sensor's near clip plane stays at :data:`NEAR_CLIP_MIN_KM` (a literal too) and each
-      ray's origin is moved on by ``near_shift`` [km] along the ``boresight`` (the sensor's
-      world +z) to the frame's near plane, as Mitsuba's ``perspective`` does with its own
-      near clip (``o + d near / d_z``, and ``maxt`` shortened by as much);
-    * the pixel values are the sums of each pixel's ``spp`` consecutive samples
-      accumulated in the kernel instead of the image block's scatter and the film's develop;
-    * the AOV pass is the scene intersection of the pixel-centre rays, and its geometric
-      channels (:func:`_aov_channels`'s, in float32 as there, angles formed in the body-fixed
-      frame) are computed in the same ``dr.eval`` as the radiance instead of in NumPy.
+    * the crop window's offset and size and the seed enter the kernels as *opaque* values, so
+      one compiled kernel serves every frame (Mitsuba bakes them in and recompiles);
+    * the near clip plane stays at :data:`NEAR_CLIP_MIN_KM` and each ray's origin is moved by
+      ``near_shift`` [km] along the ``boresight``, as ``perspective`` does with its near clip;
+    * each pixel's ``spp`` consecutive samples are summed in the kernel (no image block);
+    * the AOV pass (:func:`_aov_channels`, float32) runs in the same ``dr.eval``.
 
-    The samples and their use are Mitsuba's: the images equal ``mi.render``'s to float32
-    rounding (the ray of a sample is formed from full-frame instead of crop film coordinates;
-    ``tests/renderer/test_speed_agreement.py``). Returns the
-    ``(bh, bw, 2)`` film channels (``L``, ``Le``, normalised responses) and, with an
-    ``aov_frame``, the crop's geometric channels (:data:`starnav.radiance.AOV_CHANNELS`, plus
-    the body-fixed ones if asked; zero where the pixel-centre ray misses), all float32, and
-    ``None`` (the per-pixel sample counts of the adaptive render: :func:`_render_adaptive`,
-    which this function hands an ``adaptive`` plan to).
+    The images equal ``mi.render``'s to float32 rounding. Returns the ``(bh, bw, 2)`` film
+    channels (``L``, ``Le``, normalised responses), with an ``aov_frame`` the crop's geometric
+    channels (zero where the centre ray misses), float32, and ``None`` (the sample counts of
+    :func:`_render_adaptive`).
     """
     import drjit as dr
     import mitsuba as mi
@@ -895,61 +883,22 @@ def adaptive_sample_counts(hit: NDArray[np.bool_], proxy: NDArray[np.float32],
                            spread: float = ADAPTIVE_SPREAD) -> NDArray[np.int32]:
     """Samples per pixel of the adaptive render, from the pixel-centre rays alone.
 
-    Technique
-    ---------
     Each pixel's value is the mean of its own samples, an unbiased estimate of its pixel
-    integral *whatever the number of samples*, as long as that number does not depend on the
-    samples. It is decided here from deterministic information only: the one non-jittered ray
-    through each pixel centre (the ray of the AOV channels) and the frame geometry.
+    integral whatever their number, as long as that number does not depend on the samples: it
+    is decided from deterministic information only, the ray through each pixel centre and
+    the frame geometry.
 
-    1. ``inside``: the pixel's cone meets the body's bounding sphere (pixel-centre ray within
-       the sphere's angular radius plus one pixel of it). A pixel outside gets **0** samples:
-       every one of its rays misses, so its value is exactly zero as before. (Zero samples where
-       all nine centre rays of a neighbourhood miss would be biased: a limb that clips a pixel's
-       corner passes between the four centre rays around that corner.)
-    2. ``hit`` disagrees within the pixel's 3 x 3 neighbourhood (the limb, occluding terrain's
-       silhouette, holes): **spp** (inside the sphere: a centre ray up to 1.4 px outside the
-       limb can belong to a pixel whose area misses the sphere, which step 1 leaves at 0).
-    3. ``proxy``, the centre ray's radiance (the BSDF towards the Sun at fixed wavelengths, zero
-       in cast shadow or off the surface), spreads over the 3 x 3 neighbourhood by more than
-       ``spread`` of its largest value: ``max - min > spread * max``: **spp**. This takes in
-       the terminator band (mu0 -> 0 makes any change relative), the edges of cast shadows
-       (lit/shadowed changes: proxy 0 beside a lit value), the lit limb (a miss is 0), albedo
-       edges and range jumps that change the radiance. The threshold, 0.3
-       (:data:`ADAPTIVE_SPREAD`), was set when the pixel noise was spectral up to a spread of
-       ~0.3 (the wavelengths drawn by the sensor response); with the wavelengths drawn by the
-       electron spectrum (``spectral_sampling: electrons``, the default) the noise left is the
-       pixel footprint's terrain and grows with the spread. The real Moon at full field is not
-       flat at the pixel scale (LDEM_4 terrain, LROC albedo). Per-pixel std over 8 seeds / mean
-       of ``Le``, median per bin of the spread (``benchmarks/render_noise.py``: real Moon
-       filling the field, 9 715 km, phase 30 deg, lit interior with incidence < 80 deg):
+    1. Outside ``inside`` (the pixel's cone misses the bounding sphere): **0** samples, every
+       ray misses.
+    2. ``hit`` disagrees within the 3 x 3 neighbourhood (limb, silhouettes, holes): **spp**.
+    3. ``proxy`` (the centre ray's radiance, zero in shadow or off the surface) spreads over
+       the 3 x 3 neighbourhood by more than ``spread`` of its largest value
+       (``max - min > spread * max``; the terminator, shadow edges, the lit limb, albedo
+       edges): **spp**.
+    4. Every other pixel inside: **interior_spp**.
 
-       ============== ======== ======== ======== ======== ======== ======== ========
-       spread         < 0.05   0.05-0.1 0.1-0.15 0.15-0.2 0.2-0.3  0.3-0.5  0.5-0.8
-       ============== ======== ======== ======== ======== ======== ======== ========
-       pixels         219 412  322 092  128 578  49 547   29 708   6 194    238
-       1 spp          0.42 %   0.87 %   1.56 %   2.31 %   3.37 %   5.46 %   8.02 %
-       2 spp          0.18 %   0.35 %   0.61 %   0.89 %   1.30 %   2.11 %   3.28 %
-       4 spp          0.07 %   0.14 %   0.24 %   0.35 %   0.51 %   0.83 %   1.41 %
-       16 spp         0.01 %   0.02 %   0.04 %   0.06 %   0.09 %   0.14 %   0.26 %
-       ============== ======== ======== ======== ======== ======== ======== ========
-
-       With 0.3, 0.85 % of that frame's lit interior passes the threshold; with the limb and
-       the terminator, 4.2 % of its sampled pixels get the full ``spp``.
-    4. every other pixel inside: **interior_spp** (the flat interior, the night side, and the
-       thin band between the limb and the bounding sphere, where the samples are cheap misses).
-
-    The noise this leaves in the interior (same frame, median over its 755 879 lit interior
-    pixels): **0.86 %** at 1 spp, **0.35 %** at 2, **0.14 %** at 4, 0.03 % at 16; with the
-    wavelengths drawn by the sensor response (``spectral_sampling: response``) 3.20 %, 2.15 %,
-    1.49 % and **0.53 %**. At the demo exposure (15 us) the median lit pixel collects 26 300
-    e-, whose shot noise is 0.62 %; the detector's PRNU is 2 % rms. The default
-    ``interior_spp`` (:data:`~starnav.renderer.schema.DEFAULT_INTERIOR_SPP`, 2) is the fewest
-    of 1, 2, 4 whose median is at most the 16-spp render's with ``response`` sampling
-    (0.53 %): the adaptive render is the default. Pixels just under the threshold are the
-    noisiest (1.30 % at 2 spp for a spread of 0.2-0.3, 3.9 % of the interior, against 0.55 %
-    at 16 spp with ``response`` sampling): ``interior_spp: 4`` keeps every bin at or below
-    0.51 %.
+    The noise left per spread bin and the choice of :data:`ADAPTIVE_SPREAD` and of the default
+    ``interior_spp`` (noise per spread bin): docs/methods.md, "starnav.renderer.render".
 
     Parameters
     ----------
@@ -1041,31 +990,17 @@ def _render_adaptive(scene, box: tuple[int, int, int, int], seed: int, spp: int,
                                 NDArray[np.int32]]:
     """:func:`_render_fused` with samples where the signal needs them.
 
-    Technique
-    ---------
-    1. **Centre pass** (one kernel, ``bw bh`` rays): the pixel-centre rays of the AOV channels,
-       their channels, the radiance proxy of :func:`_centre_radiance` (one shadow ray per lit
-       centre) and whether the pixel's cone meets the body's bounding sphere.
-    2. **Sample map** (NumPy, :func:`adaptive_sample_counts`): 0, ``interior_spp`` or ``spp``
-       samples per pixel, decided from step 1 only, so that each pixel's mean stays an
-       unbiased estimate of its pixel integral.
-    3. **Radiance passes**, one kernel per sample count: the pixels of a count, listed by index,
-       are traced as :func:`_render_fused` traces the crop, with the list gathered in the
-       kernel instead of the crop's row-major order: each pixel's ``n`` samples are ``n``
-       consecutive samples of the wavefront, ``n`` samples per wavefront (Mitsuba's
-       stratified and multijitter samplers stratify each pixel's samples as in the full
-       render), the list in Z-order (:func:`_z_order`). The two passes use different sampler
-       seeds (the interior's is the frame's
-       seed plus the golden-ratio constant 0x9E3779B9): the same seed would give pixel ``j``
-       of each list the same random stream. The seeds, the list's length and the crop enter
-       as data (one compiled kernel per sample count serves every frame); each pass is its
-       own ``dr.eval``, so that two passes of equal size never merge into a new kernel.
+    1. **Centre pass**: the pixel-centre rays, their AOV channels, the radiance proxy of
+       :func:`_centre_radiance` and whether the pixel's cone meets the bounding sphere.
+    2. **Sample map**: :func:`adaptive_sample_counts`.
+    3. **Radiance passes**, one kernel per sample count: a count's pixels, listed in Z-order
+       (:func:`_z_order`), traced as :func:`_render_fused` traces the crop, each pixel's ``n``
+       samples consecutive in the wavefront. The passes use different seeds (the interior's
+       offset by 0x9E3779B9) so that no two pixels share a stream; seeds, list length and
+       crop enter as data, and each pass is its own ``dr.eval``.
 
-    The full-spp pixels draw the same kind of samples as the non-adaptive render, the interior
-    ones fewer; a pixel's value is the sum of its samples over their number (box filter, weight
-    1), as there. Returns ``_render_fused``'s image and AOVs and the ``(bh, bw)`` sample
-    counts; ``timing`` (optional) receives the seconds of each step (``centre_s``, ``map_s``,
-    ``spp_<n>_s``).
+    Returns ``_render_fused``'s image and AOVs and the ``(bh, bw)`` sample counts; ``timing``
+    (optional) receives the seconds of each step (``centre_s``, ``map_s``, ``spp_<n>_s``).
     """
     import drjit as dr
     import mitsuba as mi
@@ -1151,21 +1086,14 @@ def _render_adaptive(scene, box: tuple[int, int, int, int], seed: int, spp: int,
 
 
 def _direct_lighting(scene, sampler, ray):
-    """Mitsuba's ``direct`` integrator with one emitter sample and no BSDF sample (the scene's:
-    ``DirectIntegrator::sample`` of Mitsuba 3.9), tracing the shadow ray only where it can
-    matter.
+    """Mitsuba's ``direct`` integrator with one emitter sample and no BSDF sample, casting the
+    shadow ray only where the BSDF is non-zero.
 
-    Mitsuba's integrator asks the scene for the emitter sample *with* its visibility test, so
-    every surface sample casts a shadow ray, even where the BSDF is zero: the Sun below the
-    surface's horizon (``cos_theta(wo) <= 0``: the night side and the far side of each facet
-    at the terminator) or the camera below it. Every starnav BSDF is zero there
-    (:mod:`.bsdfs`: ``lit = mu > 0 and mu0 > 0``), so here the emitter is sampled without the
-    test and the occlusion ray (Mitsuba's own, ``si.spawn_ray_to(ds.p)`` and ``ray_test``) is
-    cast only for the samples whose BSDF value is non-zero. The sampler draws the same numbers
-    in the same order, so the radiance is Mitsuba's sample for sample
-    (``tests/renderer/test_speed_agreement.py``). No emitter is hit by camera rays (the Sun is
-    a ``directional`` emitter), as in every starnav scene. Returns the spectral radiance and
-    the hit mask.
+    Every starnav BSDF is zero with the Sun or the camera below the horizon (:mod:`.bsdfs`),
+    so the emitter is sampled without the visibility test and Mitsuba's own occlusion ray is
+    cast only where it can matter. The sampler draws the same numbers in the same order: the
+    radiance is Mitsuba's sample for sample. No emitter is hit by camera rays (the Sun is
+    ``directional``). Returns the spectral radiance and the hit mask.
     """
     import drjit as dr
     import mitsuba as mi

@@ -155,19 +155,15 @@ def film_channels(response: SensorResponse, colour: Spectrum | None = None) -> F
     """The film's ``L`` and ``Le`` responses and the factors that scale its output back.
 
     Without ``colour``: ``L`` is the unit box over the band and ``Le`` is ``QE T lambda / hc``;
-    the film draws the wavelengths by their (peak-normalised) sum and the emitter carries the
-    solar spectrum. Each sample's weight then carries the solar spectrum's structure and the
-    Moon's reddening: 2-3 % per sample, most of the noise of a lit interior pixel.
+    the emitter carries the solar spectrum, so each sample's weight carries its structure.
 
-    With ``colour`` (the Sun's irradiance times the surface's spectral shape, for a *separable*
-    surface whose reflectance is a grey factor of position and angles times one spectral shape,
-    as every plugin of :mod:`.bsdfs`): radiance is ``L_lambda(x) = colour(lambda) r(x)``, so
-    ``Le(x) = r(x) int colour QE T lambda / hc`` and ``L(x) = kappa Le(x)`` with the constant
-    ``kappa = int colour box / int colour QE T lambda / hc``. Both film channels then carry the
-    electron response times ``colour`` and ``L``'s scale carries ``kappa``: the film draws the
-    wavelengths exactly by the integrand's spectrum, every sample has the same spectral
-    weight, and the Monte Carlo noise is left to the pixel footprint. The emitter is flat
-    (:func:`flat_irradiance_in_band`) and the BSDF drops its spectral shape.
+    With ``colour`` (Sun irradiance times the surface's spectral shape, for a separable
+    surface as every plugin of :mod:`.bsdfs`): ``Le(x) = r(x) int colour QE T lambda / hc``
+    and ``L(x) = kappa Le(x)``, ``kappa = int colour box / int colour QE T lambda / hc``. Both
+    channels carry the electron response times ``colour`` and ``L``'s scale carries
+    ``kappa``: the wavelengths are drawn by the integrand's spectrum and every sample has the
+    same spectral weight. The emitter is flat (:func:`flat_irradiance_in_band`) and the BSDF
+    drops its spectral shape.
     """
     box = response.box()
     epj = response.electrons_per_joule()
