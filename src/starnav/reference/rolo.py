@@ -343,8 +343,7 @@ class RoloIrradiance:
     irradiance : float
         ``integral I(lambda) dlambda`` over ``band_nm`` [W m^-2].
     electron_irradiance : float or None
-        ``integral I QE T lambda / (h c) dlambda`` [e- s^-1 m^-2] through the sensor response
-        (``None`` without one).
+        ``integral I QE T lambda / (h c) dlambda`` [e- s^-1 m^-2] (``None`` without response).
     band_nm : tuple of float
         Integration band [nm].
     spectrum : Spectrum
@@ -353,10 +352,8 @@ class RoloIrradiance:
         Geometry [rad] (longitudes wrapped to ``[-pi, pi)``).
     sun_distance, observer_distance : float
         Sun-Moon and observer-Moon centre distances [m].
-    apollo : bool
-        Whether the Apollo factors were applied.
-    extrapolated : bool
-        The geometry is outside the model's fit range (``reason`` says how).
+    apollo, extrapolated : bool
+        Whether the Apollo factors were applied; the geometry is outside the fit range.
     reason : str or None
         :func:`rolo_extrapolation`'s sentence.
     """

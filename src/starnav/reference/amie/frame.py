@@ -116,18 +116,16 @@ _BOLTZMANN_EV = 8.6171e-5   # k_B [eV/K], as in amiextractor
 # --------------------------------------------------------------------------- the raw frame
 @dataclass(frozen=True, eq=False)
 class AmieFrame:
-    """One raw AMIE frame: decoded DN, validity mask and label values.
+    """One raw AMIE frame: decoded DN, validity mask and label values (SI; the label's own
+    keyword in capitals).
 
     Attributes
     ----------
     path : pathlib.Path
         The ``.IMG`` file.
-    product_id : str
-        ``PRODUCT_ID``.
-    target_name : str
-        ``TARGET_NAME`` (``MOON``, ``STAR``).
-    observation_type : str
-        ``IMAGE_OBSERVATION_TYPE`` (``REGULAR``, ``CALIBRATION``; empty if absent).
+    product_id, target_name, observation_type, filter_name : str
+        ``PRODUCT_ID``, ``TARGET_NAME`` (``MOON``, ``STAR``), ``IMAGE_OBSERVATION_TYPE``
+        (empty if absent), ``FILTER_NAME`` (always ``NONE``).
     label : mapping
         The parsed PDS3 label (a :class:`pvl.PVLModule`): every raw value, with its units.
     image_offset : int
@@ -138,31 +136,21 @@ class AmieFrame:
         False at the marker pixels, saturated pixels and the dark top band.
     dark_band_rows : (512,) int array, read-only
         Rows of the dark band per column (the band is ``dn[:dark_band_rows[c], c]``) [px].
-    start_time_utc : str
-        ``START_TIME`` as in the label (UTC, ISO 8601).
-    start_time : datetime.datetime
-        The same, timezone-aware (UTC).
-    exposure_s : float
-        ``EXPOSURE_DURATION`` [s] (label: ms).
-    gain_e_per_dn : float
-        ``GAIN_NUMBER`` [e-/DN].
-    filter_name : str
-        ``FILTER_NAME`` (always ``NONE``).
-    focal_plane_temperature_k : float
-        ``FOCAL_PLANE_TEMPERATURE`` [K].
+    start_time_utc, start_time : str, datetime.datetime
+        ``START_TIME`` as in the label (UTC, ISO 8601) and timezone-aware.
+    exposure_s, gain_e_per_dn, focal_plane_temperature_k : float
+        ``EXPOSURE_DURATION`` [s], ``GAIN_NUMBER`` [e-/DN], ``FOCAL_PLANE_TEMPERATURE`` [K].
     sc_to_moon_m : (3,) float array, read-only
-        ``SC_TARGET_POSITION_VECTOR``: spacecraft to Moon centre, Earth mean equator J2000 [m]
-        (label: km).
+        ``SC_TARGET_POSITION_VECTOR``: spacecraft to Moon centre, Earth mean equator J2000 [m].
     target_center_distance_m : float
-        ``TARGET_CENTER_DISTANCE`` [m] (label: km).
+        ``TARGET_CENTER_DISTANCE`` [m].
     phase_angle_rad : float or None
-        ``PHASE_ANGLE`` [rad] (label: deg); None where the label says ``N/A``.
+        ``PHASE_ANGLE`` [rad]; None where the label says ``N/A``.
     boresight_radec_rad, boresight_radec_deg : (2,) float array, read-only
-        ``RIGHT_ASCENSION``, ``DECLINATION`` of the boresight, J2000 [rad] and as in the label
-        [deg].
+        ``RIGHT_ASCENSION``, ``DECLINATION`` of the boresight, J2000 [rad] and [deg].
     reticle_radec_rad, reticle_radec_deg : (4, 2) float array, read-only
         ``(RETICLE_POINT_RA[i], RETICLE_POINT_DECLINATION[i])``, the four reticle corners in
-        label order, J2000 [rad] and as in the label [deg].
+        label order, J2000 [rad] and [deg].
     """
 
     path: Path
@@ -725,19 +713,17 @@ class AmieCalibrationOptions:
     Attributes
     ----------
     bias_law : str
-        Temperature law of the master bias, a key of :data:`BIAS_LAWS` (default ``"none"``).
+        Temperature law of the master bias, a key of :data:`BIAS_LAWS`.
     sky_nsigma : float
-        Source threshold of the 5 x 5 median-smoothed residual [its rms] (default 3).
+        Source threshold of the 5 x 5 median-smoothed residual [its rms].
     sky_margin_px : int
-        Dark sky lies farther than this from a source pixel [px] (default 5).
+        Dark sky lies farther than this from a source pixel [px].
     hot_nsigma : float
-        Single pixels beyond this many rms are left out of the sky [-] (default 5).
-    min_sky_pixels : int
-        Rows/columns with fewer dark-sky pixels take interpolated terms [-] (default 32).
-    sky_iterations : int
-        Fit / dark-sky selection rounds [-] (default 3).
+        Single pixels beyond this many rms are left out of the sky [-].
+    min_sky_pixels, sky_iterations : int
+        Rows/columns with fewer dark-sky pixels take interpolated terms; fit / selection rounds.
     min_flat : float
-        Pixels whose unit-median flat is below this are invalid [-] (default 0.5).
+        Pixels whose unit-median flat is below this are invalid [-].
     """
 
     bias_law: str = "none"
@@ -769,13 +755,10 @@ class AmieCalibrated:
     Attributes
     ----------
     frame : AmieFrame
-        The raw frame.
     dn : (512, 512) float array, read-only
         Bias-, background- and flat-corrected signal [DN]: 0 on average over the dark sky.
-    electrons : (512, 512) float array, read-only
-        ``dn x gain`` [e-].
-    signal_e_per_s : (512, 512) float array, read-only
-        ``electrons / exposure`` [e-/s].
+    electrons, signal_e_per_s : (512, 512) float array, read-only
+        ``dn x gain`` [e-] and ``electrons / exposure`` [e-/s].
     valid : (512, 512) bool array, read-only
         ``frame.valid`` and the flat at least ``min_flat``.
     sky : (512, 512) bool array, read-only
@@ -784,16 +767,11 @@ class AmieCalibrated:
         Row term ``R`` of the sky background, including the columns' median offset [DN].
     column_offsets_dn : (512,) float array, read-only
         Column stripes ``C - median(C)`` [DN].
-    background_dn : float
-        Median of ``dn`` over the dark sky after calibration [DN].
-    background_rms_dn : float
-        Clipped rms of ``dn`` over the dark sky after calibration (the noise) [DN].
-    bias_scale : float
-        Factor applied to the master bias [-].
-    gain_e_per_dn : float
-        Gain [e-/DN] (the frame's).
+    background_dn, background_rms_dn : float
+        Median and clipped rms (the noise) of ``dn`` over the dark sky after calibration [DN].
+    bias_scale, gain_e_per_dn : float
+        Factor applied to the master bias [-]; the frame's gain [e-/DN].
     options : AmieCalibrationOptions
-        The options used.
     """
 
     frame: AmieFrame
@@ -861,26 +839,20 @@ def calibrate(frame: AmieFrame, *, options: AmieCalibrationOptions | None = None
               ) -> AmieCalibrated:
     """Bias, sky background (row ramp and column stripes), flat, electrons, rate.
 
-    The stages and their sources are in the module docstring. The master bias
-    (``calib/mfbias_NONE_512.npy``, DN at 273.15 K) is subtracted **without temperature
-    scaling** by default: no law is given by the data README or the label, and the master's
-    pixel-scale pattern is measured in the frames at scale ~1 (0.75-1.25) whatever their
-    temperature, while amiextractor's silicon law (``options.bias_law = "silicon-thermal"``,
-    3.2-8.1 x) raises the dark sky's rms by 18-56 % over ``k = 1``; the row ramp that does
-    scale with temperature is measured on each frame's dark sky (stage 2) instead.
+    The master bias (``calib/mfbias_NONE_512.npy``, DN at 273.15 K) is subtracted without
+    temperature scaling by default: neither the data README nor the label gives a law, and the
+    master's pattern is found in the frames at scale ~1 whatever their temperature (the
+    silicon law, ``options.bias_law = "silicon-thermal"``, raises the dark sky's rms); the row
+    ramp that does scale with temperature is measured on each frame's dark sky (stage 2).
 
     Parameters
     ----------
     frame : AmieFrame
-        A frame from :func:`read_amie`.
     options : AmieCalibrationOptions, optional
-        The knobs (defaults in the module docstring).
 
     Returns
     -------
     AmieCalibrated
-        ``dn`` [DN], ``electrons`` [e-], ``signal_e_per_s`` [e-/s], ``valid``, the dark-sky
-        mask, the background terms [DN], the calibrated background level and rms [DN].
     """
     opt = options or AmieCalibrationOptions()
     bias = _load_calibration(BIAS_FILE)
@@ -921,15 +893,10 @@ class MoonSignal:
     Attributes
     ----------
     mask : (512, 512) bool array
-        The pixels summed.
+        The pixels summed (``n_pixels`` of them).
     n_pixels : int
-        Their number.
-    dn : float
-        Sum of ``dn - background`` [DN].
-    electrons : float
-        ``dn x gain`` [e-].
-    e_per_s : float
-        ``electrons / exposure`` [e-/s].
+    dn, electrons, e_per_s : float
+        Sum of ``dn - background`` [DN], times the gain [e-], over the exposure [e-/s].
     """
 
     mask: BoolArray
@@ -942,21 +909,8 @@ class MoonSignal:
 def moon_signal(cal: AmieCalibrated, *, n_sigma: float = 5.0,
                 aperture: BoolArray | None = None) -> MoonSignal:
     """The Moon's (or a star's) signal: ``dn - background`` summed over the valid pixels above
-    ``background + n_sigma x rms``, or over a given ``aperture``.
-
-    Parameters
-    ----------
-    cal : AmieCalibrated
-        The calibrated frame.
-    n_sigma : float
-        Threshold above the dark sky's background [its rms] (ignored with ``aperture``).
-    aperture : (512, 512) bool array, optional
-        Sum over these pixels (and ``cal.valid``) instead: e.g. one aperture for two frames.
-
-    Returns
-    -------
-    MoonSignal
-        The pixels and the sums in DN, e- and e-/s.
+    ``background + n_sigma x rms``, or over a given ``aperture`` (and ``cal.valid``; e.g. one
+    aperture for two frames).
     """
     if aperture is None:
         if not n_sigma > 0:

@@ -255,24 +255,9 @@ def attitude_from_reticle(
     corners_radec_deg: ArrayLike,
     camera: Camera,
 ) -> FloatArray:
-    """``R_cam_to_inertial`` from the label's boresight and four reticle corners.
-
-    Shorthand for ``fit_reticle(...).R_cam_to_inertial`` (all eight corner orderings tried; see
-    :func:`fit_reticle` and the module docstring).
-
-    Parameters
-    ----------
-    boresight_radec_deg : (2,) array
-        Boresight RA, Dec, J2000 [deg].
-    corners_radec_deg : (4, 2) array
-        Reticle corners ``(RA, Dec)`` in label order, J2000 [deg].
-    camera : Camera
-        The AMIE camera (``Camera.preset("amie")``).
-
-    Returns
-    -------
-    (3, 3) array
-        Camera (+z boresight, +x right, +y down) -> J2000 rotation.
+    """``R_cam_to_inertial`` (camera +z boresight, +x right, +y down -> J2000) from the label's
+    boresight and four reticle corners: ``fit_reticle(...).R_cam_to_inertial``, all eight
+    corner orderings tried.
     """
     return fit_reticle(boresight_radec_deg, corners_radec_deg, camera).R_cam_to_inertial
 

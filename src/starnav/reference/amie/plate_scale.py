@@ -46,16 +46,12 @@ class PlateScale:
 
     Attributes
     ----------
-    focal_scale : float
-        Calibrated / nominal focal length [-].
-    focal_scale_sigma : float
-        Standard error of ``focal_scale`` [-].
+    focal_scale, focal_scale_sigma : float
+        Calibrated / nominal focal length and its standard error [-].
     frame_range_sigma_fraction : float
         Predictive 1-sigma of one frame's range with the calibrated focal length [-].
-    focal_length_m, focal_length_sigma_m : float
-        The calibrated focal length and its standard error [m].
-    nominal_focal_length_m : float
-        The instrument kernel's [m].
+    focal_length_m, focal_length_sigma_m, nominal_focal_length_m : float
+        The calibrated focal length, its standard error, the instrument kernel's [m].
     frames : dict
         Per frame: ``k`` (label / measured range), the range error with the nominal and the
         calibrated focal length [%], the leave-one-epoch-out error [%], the epoch (UTC day).

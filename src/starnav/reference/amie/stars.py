@@ -1,24 +1,17 @@
 """Vega on the real AMIE frame 040326: the star field of :mod:`starnav.stars` against pixels.
 
-Technique
----------
-1. **Real.** The 200 ms frame ``AMI_EE3_040326_00034_00200`` is calibrated like the Moon
-   frames and Vega measured by :func:`~starnav.reference.amie.vega.star_photometry`: the sum
-   within 10 px minus the mean of the 30-100 px annulus [DN], and the brightest pixel [DN].
-2. **Simulated.** HIP 91262 (Vega) from the Hipparcos catalogue at the frame's epoch, its
-   electrons from :mod:`starnav.stars.radiometry` (V from Hp and B - V, black body by colour,
-   the V = 0 zero point) through the AMIE camera, response and detector
-   (:mod:`~starnav.reference.amie.presets`), drawn by the detector chain at the real centroid
-   (the attitude is chosen so; position is not what is scored) on a black sky, then measured
-   by the same photometry.
-3. **Circularity.** The AMIE quantum efficiency (0.212) was *measured on this very frame*
-   (Vega's CALSPEC spectrum, :mod:`~starnav.reference.amie.vega`), and so was the PSF core.
-   So ``total sim / real`` with that QE is NOT an independent check of the camera: it tests
-   only the star radiometry (catalogue V, black body, zero point) against Vega's measured
-   spectrum through the same band. The independent numbers are returned too: the same ratio
-   with the AMIE user manual's efficiency bound (0.15, what ABRAM uses) and with the QE the
-   Moon frames imply (ROLO-calibrated Moon, never this frame: the Moon frames came out at
-   :data:`MOON_SIGNAL_RATIO` of the real signal with the Vega QE, docs/real-images.md).
+1. **Real.** Frame ``AMI_EE3_040326_00034_00200`` calibrated like the Moon frames, Vega
+   measured by :func:`~starnav.reference.amie.vega.star_photometry`.
+2. **Simulated.** HIP 91262 at the frame's epoch, its electrons from
+   :mod:`starnav.stars.radiometry`, through the AMIE camera, response and detector
+   (:mod:`~starnav.reference.amie.presets`), drawn at the real centroid on a black sky and
+   measured by the same photometry.
+3. **Circularity.** The AMIE QE and PSF core were measured on this very frame
+   (:mod:`~starnav.reference.amie.vega`), so ``total sim / real`` with that QE tests only the
+   star radiometry (catalogue V, black body, zero point) against Vega's spectrum. The
+   independent numbers are returned too: the same ratio with the user manual's efficiency
+   bound (0.15) and with the QE the ROLO-calibrated Moon frames imply
+   (:data:`MOON_SIGNAL_RATIO`, docs/real-images.md).
 """
 
 from __future__ import annotations

@@ -208,15 +208,13 @@ class RealLimbFix:
 def _solve_limb(dn: NDArray[np.integer], camera: Camera, R_cam_to_inertial: FloatArray,
                 sun_dir_inertial: FloatArray, threshold_dn: int, saturation_dn: int,
                 options: AmieOptions) -> LimbSolution:
-    """The tracker's own chain (:func:`starnav.navigation.pipeline.process_frame`), run as on
-    board: a segments readout -> pixel-level limb and RANSAC -> up to 16 windows planned along
-    the consensus limb (:func:`~starnav.navigation.refine.plan_windows`) and cut from the
-    image -> subpixel refinement and the Christian-Robinson fix.
+    """The tracker's own chain (:func:`starnav.navigation.pipeline.process_frame`) as on board:
+    segments -> pixel-level limb and RANSAC -> up to 16 windows along the consensus limb ->
+    subpixel refinement and the Christian-Robinson fix.
 
-    A frame on which the chain gives no fix (a crescent thinner than its phase limit, RANSAC or
-    the fix failing) still returns its limb points, for the comparison: the chain's
-    pixel-level points (for a thin crescent, found with the phase limit lifted), with
-    ``status`` and ``message`` saying why there is no fix.
+    Without a fix (a crescent beyond the phase limit, RANSAC or the fix failing) the limb
+    points are still returned for the comparison (for a thin crescent, found with the phase
+    limit lifted), ``status`` and ``message`` saying why.
 
     Raises
     ------
