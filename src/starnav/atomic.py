@@ -3,21 +3,10 @@
 A reader never sees a half-written file: either the old content or the new one. Every file
 starnav writes goes through :func:`atomic_path` (or the two helpers built on it).
 
-Durable on power loss: the temporary file's data is flushed to the disk (``fsync``) before the
-rename, and the directory holding the new name after it (POSIX makes neither implicit: without
-the first a crash can leave the new name on an empty file, without the second the old name).
-Every write does it, whatever it is: measured on this project's machine it costs 1.5-2 ms a
-small file and ~14 ms a 4 MB one, ~40 ms of a 1-4 s dataset frame (docs/performance.md): too
-little for a switch. A
-failed write that the system reports without a file name (``write``, ``fsync``: ENOSPC, EIO) is
-re-raised naming the file being written, so that the user learns where the disk filled up.
-
-Example
--------
->>> from starnav.atomic import atomic_path
->>> with atomic_path("out/x.png") as tmp:          # doctest: +SKIP
-...     imageio.imwrite(tmp, image)                # written to a temporary name
->>> # renamed to out/x.png only if the block succeeded
+Durable on power loss: the temporary file is flushed to the disk (``fsync``) before the
+rename, and the directory after it (POSIX makes neither implicit). Every write does it (its
+cost: docs/performance.md). A failed write that the system reports without a file name
+(``write``, ``fsync``: ENOSPC, EIO) is re-raised naming the file being written.
 """
 
 from __future__ import annotations

@@ -1,32 +1,21 @@
 """What every configuration schema shares: the base model, dotted overrides, error messages.
 
-This module sits below every schema (``starnav.config`` for the scenario,
-``starnav.calibration.schema`` for the bench, ``starnav.dem.schema`` for a DEM section, the sweep
-grid of ``starnav.batch.grid``) and imports none of them, so each can use it without an import
-cycle. It holds the three things they would otherwise each write again:
+Below every schema (scenario, bench, DEM, sweep grid), importing none of them:
 
-1. :class:`StrictModel`, the frozen pydantic base that rejects unknown keys, so a typo is an
-   error and not a silently ignored setting.
-2. Dotted keys: ``a.b.c=value`` items (the CLI's ``--set``, a dataset's per-exposure overrides,
-   a sweep's grid values) parsed by :func:`parse_override` (the value is YAML, an empty value is
-   ``None``) and written into a nested mapping by :func:`set_dotted`, which creates missing
-   sections; :func:`apply_overrides` does both on a copy.
-3. :func:`format_validation_error`, which turns a pydantic ``ValidationError`` into a
-   :class:`~starnav.errors.ConfigError` naming the first offending field (dotted, optionally
-   under a prefix such as ``moon.dem``), the value received and what was expected, and counting
-   the other problems. A missing required key reads ``<missing>``; a whole section that was
-   rejected is shown by its keys rather than dumped.
-4. SI at the edge: a scenario key carries its unit in its name (``row_time_us``,
-   ``range_km``, ``phase_angle_deg``); :meth:`StrictModel.to_si` is the one place where those
-   units become SI. It returns an :class:`SIView`, a frozen tree of the same sections whose
-   keys drop the unit suffix and whose values are in m, s, rad, K, m/s, rad/s, W/m^2
-   (``row_time_us=174`` -> ``row_time=1.74e-4``; the suffix table is :data:`SI_SUFFIXES`).
-   Keys in counting units (``_px``, ``_e``, ``_dn``, ``_fraction``) and wavelengths in nm (the
-   spectral convention of :mod:`starnav.spectra` and Mitsuba) keep their names and values.
-5. :func:`commented_yaml`, which writes a validated mapping as YAML with the schema's own
-   description of every key above it (plus the allowed choices or range read from the field's
-   type), so a file like the one of ``starnav init`` documents itself and cannot drift from
-   the schema: a field's ``Field(description=...)`` is its only documentation.
+1. :class:`StrictModel`, the frozen pydantic base that rejects unknown keys (a typo is an
+   error, not an ignored setting).
+2. Dotted keys ``a.b.c=value`` (``--set``, per-exposure overrides, grid values):
+   :func:`parse_override` (the value is YAML, empty is ``None``), :func:`set_dotted`
+   (creates missing sections), :func:`apply_overrides` (both, on a copy).
+3. :func:`format_validation_error`: a pydantic ``ValidationError`` as a
+   :class:`~starnav.errors.ConfigError` naming the first offending field, the value and what
+   was expected.
+4. SI at the edge: a key carries its unit in its name (``row_time_us``); :meth:`StrictModel.to_si`
+   is the one place those become SI, an :class:`SIView` whose keys drop the suffix
+   (``row_time_us=174`` -> ``row_time=1.74e-4``; :data:`SI_SUFFIXES`). Counting units
+   (``_px``, ``_e``, ``_dn``, ``_fraction``) and wavelengths in nm keep their names and values.
+5. :func:`commented_yaml`: a validated mapping as YAML with each field's description (and its
+   choices or range) above it, so ``starnav init``'s file cannot drift from the schema.
 """
 
 from __future__ import annotations

@@ -84,18 +84,11 @@ def asinh_stretch(values: ArrayLike, black: float, white: float,
     """8-bit asinh stretch: ``255 asinh(x / s) / asinh(1 / s)``, ``x = (v - black) / (white -
     black)`` clipped to 0..1, ``s`` the softening.
 
-    Why asinh for a Moon or limb frame: the frame is mostly black sky with a small disc whose
-    lit side spans three decades (the bright limb, often saturated or bloomed, down to the
-    terminator and the faint halo of the PSF). A linear stretch shows only the limb; a log
-    stretch turns the sky noise grey. asinh is linear below ``s`` (the sky at ``black`` stays
-    black, its noise stays dark) and logarithmic above, so the terminator and the limb are
-    both visible and the saturated core is white without clipping a wide band
-    (Lupton, Gunn & Szalay 1999, AJ 118, 1406).
-
-    The formula is evaluated once per distinct value of an integer frame (a table of at most
-    65 536 entries, then a look-up) and only on the pixels above ``black`` of a float frame
-    (the others are 0): the same numbers as evaluating it on every pixel, in a few ms instead
-    of ~10 ms for a 1024 x 1024 frame.
+    A Moon frame is mostly black sky with a disc spanning three decades: asinh is linear below
+    ``s`` (the sky and its noise stay dark) and logarithmic above, so terminator and limb are
+    both visible and the saturated core is white (Lupton, Gunn & Szalay 1999). Evaluated once
+    per distinct value of an integer frame (a look-up table) and only above ``black`` for a
+    float frame: the same numbers as on every pixel.
 
     Parameters
     ----------
@@ -210,13 +203,10 @@ def write_quicklook(values: ArrayLike, path: str | os.PathLike[str], caption: st
                     unit: str, black: float | None = None) -> QuickLookInfo:
     """Write the 8-bit quick-look PNG of a frame, the frame's own shape.
 
-    Technique: :func:`quicklook_levels` picks black (the sky) and white (the bright part of the
-    disc); :func:`asinh_stretch` maps them to 0..255. The annotation is written twice: as PNG
-    text chunks (``Title``, ``Description`` = ``caption`` plus the stretch, and the
-    machine-readable ``starnav:*`` keys, :data:`QUICKLOOK_KEYS`) and burnt into the picture: a
-    caption band over the top-left rows (white text on black) and a scale bar over the
-    bottom-left rows (the stretch of black..white, labelled with the two values). Deterministic
-    bytes (no time stamp), written atomically.
+    :func:`quicklook_levels` picks black and white, :func:`asinh_stretch` maps them to
+    0..255. The annotation is in PNG text chunks (``Title``, ``Description``, the
+    ``starnav:*`` keys of :data:`QUICKLOOK_KEYS`) and burnt in: a caption band top left and a
+    labelled scale bar bottom left. Deterministic bytes, written atomically.
 
     Parameters
     ----------

@@ -103,14 +103,12 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
     out_dir : path
         Output directory: ``dataset/``, ``navigation/exposure_<ms>ms/``, ``report.md``.
     progress : callable, optional
-        ``progress(done, total)``: frames of the dataset, then one step per exposure
-        navigated, then the report.
+        ``progress(done, total)``: the dataset's frames, one step per exposure, the report.
     exposures_s : sequence of float
         Exposure times [s]; default the paper's 0.015 ms and 7.7 ms.
     exposure_overrides : sequence of (exposure_time, overrides)
-        ``detector.*`` / ``navigation.*`` overrides per exposure; default: the 7.7 ms frames
-        are read out with a 2048 DN segment threshold (saturation-robust, as the paper tuned
-        its image processing to each scenario).
+        ``detector.*`` / ``navigation.*`` overrides per exposure; default
+        :data:`~starnav.batch.presets.DEMO_EXPOSURE_OVERRIDES`.
     workers : int
         0: this process; N: a local Dask cluster for the dataset.
     runs : int
@@ -119,9 +117,9 @@ def main_job(scenario: Scenario | None = None, out_dir: str | Path = "out/demo",
     Returns
     -------
     dict
-        Flat summary: ``report`` (path of report.md), ``dataset``, ``frames``,
-        ``dataset_frames_per_s``, ``elapsed_s``, and per exposure the limb bias [px], the
-        final position error [km] and its fraction of the range [%].
+        Flat summary: ``report``, ``dataset``, ``frames``, ``dataset_frames_per_s``,
+        ``elapsed_s``, and per exposure the limb bias [px], the final position error [km] and
+        its fraction of the range [%].
     """
     t0 = time.perf_counter()
     sc = scenario if scenario is not None else scenario_from_dict(demo_scenario(),

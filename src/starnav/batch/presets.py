@@ -1,24 +1,17 @@
 """Ready-made studies: the paper's exposure study and the demo, plus the paper's numbers.
 
 :data:`PAPER_CASES` holds the results of the STAR Nav paper (:data:`PAPER_CITATION`) for its
-four exposure scenarios, and the criteria the sweep report uses to say whether a measured point
-agrees with them. :data:`PRESETS` are sweep presets by name (``starnav sweep --preset NAME``):
-a scenario (a complete, resolved scenario dict) and a grid.
+four exposure scenarios, and the criteria the sweep report judges a measured point by.
+:data:`PRESETS` are sweep presets by name (``starnav sweep --preset NAME``): a resolved
+scenario dict and a grid.
 
 ``exposure-study``
-    The four scenarios of the paper: 200 ms (the unmodified tracker), 7.7 ms (the saturation
-    robustness limit, fictitious), 0.18 ms (the firmware limit) and 0.015 ms (well exposed),
-    on the AA-STR (1024 x 1024, f = 50.7 mm), the real Moon (LOLA terrain, LROC albedo,
-    ROLO-calibrated Hapke photometry: the defaults) along a one-day
-    LUMIO-like L2 halo arc at 60 000-80 000 km with an image every 30 minutes, the Moon placed
-    at random in the field, and the paper's pixel-accuracy algorithm (segments only: windows
-    and subpixel refinement off) with Gauss-Markov biases (range scale and a 3-axis shift) in
-    the EKF, as the paper's Gauss-Markov measurement bias. 5 Monte Carlo runs per exposure
-    (detector noise, RANSAC and initial state). The stars are drawn (``stars.enabled``), so
-    the report also gives the attitude side: stars detected and identified per navigation
-    frame, solved or not, and the attitude 1-sigma they give (``source: assumed`` stays: the
-    fixes use the paper's assumed attitude; ``--set navigation.attitude.source=stars`` to use
-    the tracker's own).
+    The paper's four exposures (200, 7.7, 0.18 and 0.015 ms) on the AA-STR, the real Moon
+    (the defaults) along a one-day LUMIO-like halo arc at 60 000-80 000 km, an image every
+    30 minutes, the Moon at random in the field, the paper's pixel-accuracy algorithm
+    (segments only) with Gauss-Markov biases in the EKF; 5 Monte Carlo runs per exposure. The
+    stars are drawn, so the report also gives the attitude side (the fixes keep the paper's
+    assumed attitude; ``--set navigation.attitude.source=stars`` uses the tracker's own).
 
 Example
 -------
@@ -59,10 +52,8 @@ class PaperCase:
     ----------
     exposure_time : float
     name : str
-    paper_limb : str
-        What the paper reports for the limb-point error.
-    paper_navigation : str
-        What the paper reports for navigation.
+    paper_limb, paper_navigation : str
+        What the paper reports for the limb-point error and for navigation.
     limb_ok : callable
         ``limb_ok(bias_px, std_px) -> bool``: the measured limb agrees with the paper.
     navigation_ok : callable

@@ -1,42 +1,33 @@
 """The Moon stimulus on the truth bench: counts chosen with the lab's radiometric calibration,
 shown on the real screen, and the tracker's DN compared with the in-orbit DN within a budget.
 
-The stimulus of :func:`~starnav.calibration.radiometric.compare_stimulus` is chosen and
-displayed with one table (the datasheet screen), so its comparison cannot fail. Here the counts
-come from :class:`~starnav.calibration.radiometric_lab.RadiometricCalibration` (made against
-the reference instrument) and the screen that shows them is the
-:class:`~starnav.calibration.radiometric_truth.TruthScreen`.
+Unlike :func:`~starnav.calibration.radiometric.compare_stimulus` (one datasheet table chooses
+and displays the counts, so it cannot fail), the counts come from the lab's
+:class:`~starnav.calibration.radiometric_lab.RadiometricCalibration` and the
+:class:`~starnav.calibration.radiometric_truth.TruthScreen` shows them.
 
 Technique
 ---------
-1. **Time and monitor.** The stimulus is acquired ``radiometric_lab.validation_delay_min`` after
-   the session; the reference re-reads full white on axis then, and the calibration is rescaled
-   by ``s = reading / monitor`` (drift since the session).
-2. **Counts** (:func:`calibrated_counts`). The displayed pinhole image ``Le / k`` is divided by
-   the lab's field factor ``F(u, v)`` and by ``s``, pre-warped with the geometric calibration,
-   and inverted through the calibrated LUT above count 0, ``LUT(n) - LUT(0)`` (dithered between
-   neighbouring counts): every acquisition is dark-subtracted with a black screen.
-3. **Display** (:meth:`TruthScreen.radiance_at_camera`): angular emission over the camera's
-   pupil, smooth field and screen-pixel scatter, per-channel gamma, black level and stray light
-   (the pedestal), warm-up and drift at the acquisition time, the as-built transmission.
-4. **Comparison.** In orbit at ``t``, on the bench at ``k t`` through the same detector; both
-   dark-subtracted: the disc electrons ratio and the inner-disc median ratio
-   (:class:`~starnav.calibration.radiometric.StimulusComparison`).
-5. **Budget** (relative 1-sigma per term of :data:`MOON_TERMS`, per metric). The LUT's
-   covariance terms propagate through the Jacobian of ``LUT(n) - LUT(0)`` averaged over the
-   stimulus counts with the metric's weights (the disc: signal; the inner median: pixels); the
-   interpolation, field and aperture terms are those of the hold-out validation averaged the
-   same way; the monitor's repeatability; the tracker's non-linearity on the black pedestal
-   (``2 beta P / FWC``: the bench signal rides on ``P``, the orbit's does not); the collimator
-   spot's spill outside the disc region (the bench's designed spot); the tracker pixels'
-   scatter (measured from the per-pixel ratios). **Consistent** when both errors are within
-   the Bonferroni bound at :data:`~starnav.calibration.radiometric_lab.FAMILY_ALPHA`; **meets
-   the paper's use** when consistent and ``coverage_k`` sigma is within ``tolerance``.
+1. **Monitor.** At ``radiometric_lab.validation_delay_min`` the reference re-reads full white
+   on axis; the calibration is rescaled by ``s = reading / monitor``.
+2. **Counts** (:func:`calibrated_counts`): ``Le / k`` divided by the field factor and ``s``,
+   pre-warped, inverted through ``LUT(n) - LUT(0)`` (dithered); every acquisition is
+   dark-subtracted with a black screen.
+3. **Display** (:meth:`TruthScreen.radiance_at_camera`) at the acquisition time.
+4. **Comparison.** In orbit at ``t``, on the bench at ``k t`` through the same detector: the
+   disc electrons ratio and the inner-disc median ratio.
+5. **Budget** (relative 1-sigma per term of :data:`MOON_TERMS`, per metric): the LUT's
+   covariance through the Jacobian of ``LUT(n) - LUT(0)`` weighted as the metric; the hold-out
+   interpolation, field and aperture terms; the monitor's repeatability; the tracker's
+   non-linearity on the black pedestal (``2 beta P / FWC``); the collimator spot's spill; the
+   tracker pixels' scatter. **Consistent** when both errors are within the Bonferroni bound at
+   :data:`~starnav.calibration.radiometric_lab.FAMILY_ALPHA`; **meets the paper's use** when
+   consistent and ``coverage_k`` sigma is within ``tolerance``.
 
 References
 ----------
-Seed paper, "Radiometric Calibration" (the stimulus and its validation, Figs. 15-16);
-JCGM 100:2008 (GUM), first-order propagation.
+Seed paper, "Radiometric Calibration" (Figs. 15-16); JCGM 100:2008 (GUM), first-order
+propagation.
 
 Index
 -----
@@ -321,17 +312,9 @@ def compare_moon_stimulus(bench: Bench, le: ArrayLike | RadianceImage, render_ex
         The lab's calibration of this bench (:func:`calibrate_radiometry`).
     truth, instrument : TruthScreen, ReferenceInstrument
         The bench as it is and the reference that re-reads the monitor.
-    detector : DetectorStage, optional
-        Default: the scenario's chain.
-    bench_exposure_s : float, optional
-        Default: the screen-limited ``k`` on the calibrated screen (the peak at
-        ``headroom_fraction`` of the calibrated full white at its field point).
-    le_displayed : array or RadianceImage, optional
-        Image to display (default ``le / k``).
-    rng : numpy.random.Generator, optional
-        Dithering stream; default the bench's ``"stimulus"`` stream.
-    frame_base : int
-        First of the four frame indices used (orbit, orbit dark, bench, bench dark).
+    detector, bench_exposure_s, le_displayed, rng, frame_base
+        As :func:`~starnav.calibration.radiometric.compare_stimulus` (``bench_exposure_s``
+        taken on the calibrated screen).
 
     Raises
     ------

@@ -1,46 +1,34 @@
 """The bench as it really is, radiometrically, and the instrument a lab calibrates it against.
 
-The calibration model of :class:`~starnav.calibration.screen.ScreenRadiometry` is the screen's
-datasheet: a Lambertian panel, uniform, stable, with the nominal gamma, seen through a
-collimator of the catalogue transmission. :class:`TruthScreen` is what the camera really
-receives; :class:`ReferenceInstrument` is the calibrated spectroradiometer that reads it, with
-its own errors. The radiometric calibration (:mod:`starnav.calibration.radiometric_lab`) sees
-the truth only through that instrument.
+:class:`~starnav.calibration.screen.ScreenRadiometry` is the screen's datasheet (Lambertian,
+uniform, stable, nominal gamma, catalogue transmission). :class:`TruthScreen` is what the camera
+really receives; :class:`ReferenceInstrument` is the calibrated spectroradiometer that reads it,
+with its own errors: :mod:`starnav.calibration.radiometric_lab` sees the truth only through it.
 
 Technique
 ---------
-1. **Truth radiance at the camera**. Towards camera pixel ``(u, v)`` at time ``t`` after
-   power-on, a grey count ``n`` gives the electron radiance
+1. **Truth radiance at the camera**, pixel ``(u, v)``, time ``t`` after power-on, count ``n``:
 
    ``Le = D(t) tau 10^-OD U(x, y) sum_c A_c g_c(n) K_c + Le_amb``
 
-   with ``K_c = integral S_c QE T lambda/(h c)`` the channel's full-count spectral radiance
-   ``S_c`` through the camera response; ``g_c(n) = b + (1 - b) (n / n_max)^gamma_c`` with
-   per-channel gammas drawn around the nominal and a black level ``b``; ``A_c`` the mean over
-   the receiving pupil of ``cos^p_c`` of the emission angle (non-Lambertian, per channel: a
-   ray reaching pupil point ``q`` at distance ``d`` behind a collimator of focal length ``f``
-   left screen point ``r`` at tangent ``(q + d r / f - r) / f``); ``U`` a smooth random
-   polynomial field over the screen (degree <= 3, stated rms) times a pixel-level scatter;
-   ``D(t) = (1 - a e^{-t / tau_w}) (1 + s t)`` warm-up and drift; ``tau`` the as-built
-   transmission (drawn within the tolerance); ``Le_amb`` stray light in the enclosure.
-2. **The reference instrument** reads spectral radiance at the camera's place, through the
-   collimator (or, as a lab that trusts the datasheet would, at the bare screen), averaged over
-   its own aperture and acceptance cone. Its errors are those of its specification: an absolute
-   scale per luminance class (drawn once per instrument), a wavelength-scale shift, a linear
-   spectral-responsivity tilt, and a repeatability per reading. The lab converts the reading to
-   the camera's electron radiance with the camera's nominal response, so spectral errors
-   propagate through the screen's spectrum.
+   ``K_c`` the channel's full-count radiance through the camera response;
+   ``g_c(n) = b + (1 - b) (n / n_max)^gamma_c`` (per-channel gammas, black level ``b``);
+   ``A_c`` the pupil mean of ``cos^p_c`` of the emission angle (a ray reaching pupil point
+   ``q`` at distance ``d`` behind a collimator of focal length ``f`` left screen point ``r`` at
+   tangent ``(q + d r / f - r) / f``); ``U`` a smooth random field (degree <= 3) times a
+   pixel-level scatter; ``D(t) = (1 - a e^{-t / tau_w}) (1 + s t)`` warm-up and drift; ``tau``
+   the as-built transmission; ``Le_amb`` stray light.
+2. **The reference instrument** reads spectral radiance at the camera's place (or at the bare
+   screen), averaged over its aperture and acceptance cone, with its specification's errors:
+   an absolute scale per luminance class, a wavelength shift, a responsivity tilt, a
+   repeatability per reading. The lab converts readings with the camera's nominal response.
 
 Index
 -----
-:class:`TruthScreen`          the real panel + collimator (seeded departures): uniform fields
-                              (:meth:`~TruthScreen.camera_image`) and any screen image
-                              (:meth:`~TruthScreen.radiance_at_camera`)
-:class:`ReferenceInstrument`  the calibrated spectroradiometer (seeded errors)
-:class:`Reading`              one reference reading, with its stated uncertainty class
+:class:`TruthScreen` (uniform fields :meth:`~TruthScreen.camera_image`, any screen image
+:meth:`~TruthScreen.radiance_at_camera`), :class:`ReferenceInstrument`, :class:`Reading`.
 
-Reference: seed paper, "Radiometric Calibration" (the screen measured with a power meter);
-docs/facts.md section 7 for the defaults.
+Reference: seed paper, "Radiometric Calibration"; docs/facts.md section 7 for the defaults.
 """
 
 from __future__ import annotations

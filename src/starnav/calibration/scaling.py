@@ -1,41 +1,32 @@
 """Albedo-exposure scaling: choosing k, and showing that scaled acquisitions are equivalent.
 
 Only the product of albedo and exposure matters to a pixel's charge, so the bench displays the
-Moon rendered with ``rho / k`` and acquires it with ``k t`` (no screen reaches the Moon's flux,
-and the AA-STR cannot read a full frame under 200 ms). Each step in full: docs/methods.md,
-"starnav.calibration.scaling".
+Moon rendered with ``rho / k`` and acquires it with ``k t``. Each step in full:
+docs/methods.md, "starnav.calibration.scaling".
 
 Technique
 ---------
 1. :func:`plan_scaling`: ``k`` large enough for the screen and for the readout law.
 2. :func:`albedo_exposure_experiment` (the paper's Fig. 18): two-sample Kolmogorov-Smirnov
-   tests of scaled acquisitions against the first, each rejecting a true equivalence with
-   probability <= ``ks_alpha``; a control sample off by ``control_product_factor``; the disc
-   DN of each case over the first's with its budget. On the nominal bench the one table that
-   chooses the counts also displays them, so the cases are equal by construction. Given the
-   lab's calibration and the truth bench, each case's counts come from the calibrated LUT
-   (:func:`~starnav.calibration.moon_stimulus.calibrated_counts`) and the truth screen shows
-   them (gamma, black level, field, angular emission, drift): the cases sit at different
-   counts, where the LUT's errors differ. The ratio's budget: the LUT's covariance terms along
-   the difference of the two cases' sensitivities, both cases' interpolation errors, the
-   tracker's non-linearity on the two pedestals (the bench exposures differ), the tracker
-   pixels' scatter (measured); the field factor, the monitor, the reference's aperture and the
-   collimator spot act alike on every case (same pixels, same time) and cancel.
-3. :func:`end_to_end` (the paper's Fig. 19): a frame exposed in orbit against its scaled bench
-   acquisition; given the truth bench, the stimulus of
-   :func:`~starnav.calibration.moon_stimulus.compare_moon_stimulus` with its budget.
+   tests of scaled acquisitions against the first (false rejection <= ``ks_alpha``), a
+   control sample off by ``control_product_factor``, and each case's disc DN ratio with its
+   budget. On the truth bench the cases' counts come from the calibrated LUT and sit where
+   its errors differ; the ratio's budget: the LUT's covariance along the difference of the
+   cases' sensitivities, their interpolation errors, the non-linearity on the two pedestals,
+   the pixels' scatter (field, monitor, aperture and spot cancel).
+3. :func:`end_to_end` (the paper's Fig. 19): a frame in orbit against its scaled bench
+   acquisition (on the truth bench:
+   :func:`~starnav.calibration.moon_stimulus.compare_moon_stimulus`).
 
 References
 ----------
-Seed paper, "Scaling between exposure time and albedo" (Figs. 18-19); JCGM 100:2008 (GUM),
-first-order propagation.
+Seed paper, "Scaling between exposure time and albedo" (Figs. 18-19); JCGM 100:2008 (GUM).
 
 Index
 -----
 :func:`plan_scaling`, :class:`ScalingPlan`, :func:`bench_min_exposure`,
 :func:`albedo_exposure_experiment`, :class:`KsExperiment`, :class:`KsCase`, :data:`RATIO_TERMS`,
-:func:`ks_test`,
-:func:`end_to_end`, :class:`EndToEnd`.
+:func:`ks_test`, :func:`end_to_end`, :class:`EndToEnd`.
 """
 
 from __future__ import annotations
@@ -89,16 +80,13 @@ class ScalingPlan:
         ``1 / k``: multiply the render's albedo by it (``moon.albedo_scale``) [-].
     render_exposure_s, bench_exposure_s : float
         [s]
-    k_screen : float
-        Smallest k for which the stimulus fits the screen [-].
-    k_readout : float
-        Smallest k for which the bench exposure allows the readout [-] (1 when not required).
+    k_screen, k_readout : float
+        Smallest k for which the stimulus fits the screen, and for which the bench exposure
+        allows the readout (1 when not required) [-].
     peak_le_stimulus : float
         Stimulus peak at the camera [e- s^-1 m^-2 sr^-1].
-    peak_count_continuous : float
-        Its (non-integer) screen count [-].
-    peak_count : int
-        Nearest screen level [-].
+    peak_count_continuous, peak_count : float, int
+        Its screen count, and the nearest level [-].
     peak_step_fraction : float
         Radiance step between the levels around the peak, relative [-].
     notes : list of str

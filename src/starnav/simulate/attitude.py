@@ -85,8 +85,7 @@ class AttitudeRecord:
     star_frame : bool
         A star acquisition was scheduled at this frame.
     reasons : tuple of str
-        Why the better sources gave no attitude (e.g. "star frame 200 ms: ...", "navigation
-        frame 0.015 ms: 0 star candidates detected, 4 needed ...").
+        Why the better sources gave no attitude.
     mode : str
         ``lost-in-space`` or ``tracking`` for a solved frame, else empty.
     stars_matched : int
@@ -94,10 +93,9 @@ class AttitudeRecord:
     since_solution_s : float
         Age of the solution the attitude comes from [s] (0 for a solved frame).
     error_rad : (3,) array
-        Error rotation against the truth, camera axes [rad]
-        (:func:`~starnav.stars.attitude.error_rotation`).
+        Error rotation against the truth, camera axes [rad].
     timings_s : dict
-        ``star_exposure`` (drawing and exposing the star acquisition) and ``solve`` [s].
+        ``star_exposure`` and ``solve`` [s].
     """
 
     index: int

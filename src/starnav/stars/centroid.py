@@ -52,25 +52,21 @@ class CentroidOptions:
     ----------
     block_px : int
         Background block: smaller follows the Moon's halo closer.
-    smooth_sigma_px : float
-        Detection matched filter.
-    threshold_sigma : float
-        Detection threshold, in units of the smoothed noise.
+    smooth_sigma_px, threshold_sigma : float
+        Detection matched filter; threshold in units of the smoothed noise.
     spike_ratio : float
         Hot-pixel test: the eight neighbours must hold at least this fraction of the peak.
     max_area_px, max_sigma_px : int, float
         Larger blobs, or a larger second-moment sigma: an extended body.
-    weight_sigma_px : float
-        IWC weight width (about the PSF's rms width).
-    max_iterations : int
-        IWC iterations at most.
+    weight_sigma_px, max_iterations : float, int
+        IWC weight width (about the PSF's rms width); iterations at most.
     detect_bin : int
-        2: background, detection and rejection on the 2 x 2 binned frame (a quarter of the
-        pixels), the centroid and its noise at full resolution.
+        2: background, detection and rejection on the 2 x 2 binned frame, the centroid and its
+        noise at full resolution.
     axis_ratio : float
-        With ``detect_bin`` 2, the hot-pixel test also asks, above the local level (5 x 5
-        border median), for at least this fraction of the peak in the two neighbours along
-        each axis (a PSF of sigma >= 0.4 px puts >= 0.25 there).
+        With ``detect_bin`` 2, the hot-pixel test also asks for this fraction of the peak
+        above the local level in the two neighbours along each axis (a PSF of sigma >= 0.4 px
+        puts >= 0.25 there).
     """
 
     block_px: int = 32
