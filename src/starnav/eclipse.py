@@ -1,31 +1,18 @@
 """The Earth's shadow on the Moon: the fraction of the solar disc a surface point sees.
 
-A point ``P`` of the lunar surface receives the solar irradiance times the fraction of the
-solar disc's light that the Earth does not hide, as seen from ``P``:
+1. Apparent radii ``a = asin(R_sun / |S - P|)`` and ``b = asin(R_shadow / |E - P|)`` and their
+   separation ``d``, seen from the surface point ``P``.
+2. Flat-sky circles (error ~ ``a^2`` ~ 2e-5): ``d >= a + b`` none occulted; ``d <= b - a`` all;
+   otherwise the lens ``A = a^2 acos((d^2 + a^2 - b^2) / (2 d a)) + b^2 acos((d^2 + b^2 -
+   a^2) / (2 d b)) - sqrt((-d + a + b)(d + a - b)(d - a + b)(d + a + b)) / 2`` and the
+   fraction seen ``1 - A / (pi a^2)`` (uniform disc).
+3. Limb-darkened Sun ``I(mu) = 1 - u (1 - mu)``: the occulted light integrated over rings of
+   radius ``r``, each inside the Earth's disc over ``2 acos((r^2 + d^2 - b^2) / (2 r d))``
+   (Gauss-Legendre in ``r``).
 
-1. apparent radii ``a = asin(R_sun / |S - P|)`` (the Sun) and ``b = asin(R_shadow / |E - P|)``
-   (the Earth), and their separation ``d`` (the angle between ``S - P`` and ``E - P``);
-2. the two discs on the sky are circles (the angles are below 2 deg: the flat-sky error is of
-   order ``a^2`` ~ 2e-5 relative); the occulted part of the Sun is their overlap:
-
-   * ``d >= a + b``: none (outside the penumbra);
-   * ``d <= b - a``: all of it (inside the umbra);
-   * otherwise the lens ``A = a^2 acos((d^2 + a^2 - b^2) / (2 d a)) + b^2 acos((d^2 + b^2 -
-     a^2) / (2 d b)) - sqrt((-d + a + b)(d + a - b)(d - a + b)(d + a + b)) / 2`` and the
-     fraction seen is ``1 - A / (pi a^2)`` (uniform disc);
-
-3. with a limb-darkened Sun, ``I(mu) = 1 - u (1 - mu)`` (``mu = sqrt(1 - (r/a)^2)``), the
-   occulted light is integrated over rings of the solar disc: the ring of radius ``r`` lies
-   inside the Earth's disc over the angle ``2 acos((r^2 + d^2 - b^2) / (2 r d))``
-   (Gauss-Legendre in ``r``); ``u = 0`` is the uniform disc, exactly.
-
-``R_shadow`` is the Earth's mean radius enlarged by Danjon's 1/85 (the opaque lower atmosphere;
-Danjon 1951, the rule of the national almanacs since): the umbra and penumbra the eclipse
-predictions use.
-
-Not modelled (a stated limit): the light the Earth's atmosphere refracts into the umbra. A
-totally eclipsed Moon keeps a dim red glow (of order 1e-4 of its full brightness, depending on
-the atmosphere's state: the Danjon scale); here the umbra is black.
+``R_shadow`` is the Earth's mean radius enlarged by Danjon's 1/85 (the almanacs' umbra and
+penumbra). Not modelled: the light refracted into the umbra by the Earth's atmosphere (of
+order 1e-4 of full brightness); the umbra is black.
 
 References
 ----------
@@ -36,9 +23,8 @@ References
 
 Index
 -----
-:func:`disc_fraction_visible` (the formula), :func:`sunlit_fraction` (surface points),
-:func:`disc_mean_sunlit_fraction` (the Moon's visible disc as seen from a camera),
-:func:`could_be_eclipsed` (a cheap test that the whole body is outside the penumbra).
+:func:`disc_fraction_visible`, :func:`sunlit_fraction`, :func:`disc_mean_sunlit_fraction`,
+:func:`could_be_eclipsed` (the whole body outside the penumbra).
 """
 
 from __future__ import annotations

@@ -332,19 +332,15 @@ def attitude_monte_carlo(
 
     Run ``r`` is ``attitude_comparison(scenario, run=r)`` with the Moon's DEM and albedo
     turned about the pole by :func:`starnav.batch.consistency.terrain_offsets_deg`'s angle
-    ``r`` (run 0: the Moon as it is), so every run draws its own detector noise, attitude
-    knowledge error, star acquisitions, gyro errors, initial error *and* lit-terrain limb
-    error. Without the terrain draw every run shares the arc's one terrain error and the
-    verdict is conditional on it (docs/navigation.md, "Consistency needs the terrain
-    sampled").
+    ``r`` (run 0: the Moon as it is), so that the runs also sample the lit-terrain limb
+    error; without it the verdict is conditional on the arc's one terrain (docs/navigation.md,
+    "Consistency needs the terrain sampled").
 
     Verdict per exposure and case: the mean over runs of each run's mean NEES (6 states)
     against the two-sided ``probability`` band of an ``R``-run mean of chi2(6)
-    (:func:`~starnav.navigation.metrics.chi2_band`). A run's time mean over its ``K``
-    correlated steps has at most the variance of one chi2(6) sample, so the band is
-    conservative over frames (its false-alarm rate is at most ``1 - probability`` for a
-    consistent filter). The position and velocity blocks (3 dof each) and the attitude NEES
-    (3 dof) are judged the same way.
+    (:func:`~starnav.navigation.metrics.chi2_band`); a run's time mean of correlated steps has
+    at most the variance of one chi2(6) sample, so the band is conservative. The position,
+    velocity and attitude NEES (3 dof each) are judged the same way.
 
     Parameters
     ----------
@@ -357,7 +353,7 @@ def attitude_monte_carlo(
     terrain : bool
         Each run on its own terrain (default). ``False``: noise runs on the arc's terrain.
     probability : float
-        Two-sided probability of the bands (default 0.99).
+        Two-sided probability of the bands.
     progress : callable, optional
         ``progress(done, total)`` after each run.
 
@@ -365,10 +361,9 @@ def attitude_monte_carlo(
     -------
     dict
         ``cases``: per (exposure, case) the run-averaged NEES (whole, position, velocity) with
-        bands and verdicts, the run-averaged NEES per step, each run's mean NEES, the final
-        position error per run (m and % of range; median, max), the attitude's NEES and
-        errors, the attitude sources summed over runs; ``terrain_offsets_deg``, ``frames``,
-        ``runs``, ``settings``, ``run_wall_times_s``, ``wall_time_s``.
+        bands and verdicts, per step and per run, the final position error per run, the
+        attitude's NEES and errors and sources; ``terrain_offsets_deg``, ``frames``, ``runs``,
+        ``settings``, ``run_wall_times_s``, ``wall_time_s``.
     """
     if not (isinstance(runs, int) and runs >= 2):
         raise ConfigError("runs", runs, "an integer >= 2 (a Monte Carlo verdict needs runs)")

@@ -1,18 +1,13 @@
 """The asteroid fly-by closed loop on rendered frames over Monte Carlo runs (model in the loop).
 
-A fly-by scenario (``target.kind: shape_model``, ``trajectory.source: flyby``) end to end:
-
-1. Render every frame once (:func:`starnav.simulate.flyby.render_flyby`); every Monte Carlo
-   run reuses the radiance.
-2. Per run ``r`` (:func:`flyby_run`; the runs through :func:`starnav.batch.runs.over_runs`,
-   a run the same whatever the number of runs): a. the measured attitude (run 0 the frame's
-   own draw, ``r >= 1`` a fresh one); b. the tracker's acquisitions and the front end
-   (:func:`starnav.simulate.trn.track_flyby`); c. the estimator
-   (:func:`~starnav.navigation.trn.filter.run_filter`) from the truth plus a draw of the
-   initial covariance; d. the metrics against the truth; e. with
-   ``navigation.trn.dispersion: orientation`` the run first draws the fly-by's orientation
-   relative to the body (:func:`starnav.simulate.flyby.dispersed_flyby`) and renders its own
-   frames (:func:`flyby_dispersed_runs`).
+1. Render every frame once (:func:`starnav.simulate.flyby.render_flyby`); every run reuses
+   the radiance.
+2. Per run ``r`` (:func:`flyby_run`, through :func:`starnav.batch.runs.over_runs`): the
+   measured attitude (run 0 the frame's own draw), the tracker's acquisitions and front end
+   (:func:`starnav.simulate.trn.track_flyby`), the estimator
+   (:func:`~starnav.navigation.trn.filter.run_filter`) from the truth plus an initial draw,
+   the metrics against the truth. With ``navigation.trn.dispersion: orientation`` each run
+   draws the fly-by's orientation and renders its own frames (:func:`flyby_dispersed_runs`).
 3. Consistency over the runs (:func:`~starnav.navigation.trn.metrics.summarise_runs`).
 
 The sweep over fly-by geometries is :mod:`starnav.batch.flyby_sweep`.
@@ -128,25 +123,19 @@ class FlybyClosedLoop:
     epochs : (K,) array [TDB s]
     epoch_ca : float [TDB s]
     truth : (K, 6) array
-        True ``(r, v)`` relative to the body, J2000 [m, m/s] (of the first run when the
-        orientation is dispersed: each run's own is in ``run_truths``).
+        True ``(r, v)`` relative to the body, J2000 [m, m/s] (the first run's when dispersed).
     runs : list of FlybyRunResult
     summary : dict
         :func:`~starnav.navigation.trn.metrics.summarise_runs` (for >= 2 runs), else the
         single run's NEES.
     timings_s : dict
-        Per-frame wall time of each stage, mean over frames and runs [s]: ``render`` (once
-        per frame, or per frame and run when dispersed), ``detector``, ``front_end``,
-        ``filter``.
+        Per-frame wall time of each stage (``render``, ``detector``, ``front_end``,
+        ``filter``), mean over frames and runs [s].
     dispersion : str
         ``navigation.trn.dispersion`` of the runs (``none`` or ``orientation``).
-    run_truths : list of (K, 6) arrays, optional
-        Each run's true states when the orientation is dispersed (J2000, its own fly-by).
-    draws : list of dict, optional
-        Each run's drawn orientation (:func:`dispersed_flyby`).
-    run_axes : list of (3, 3) arrays, optional
-        Rows ``x, y, z`` of each run's fly-by frame in J2000 (CA direction, CA velocity,
-        plane normal) when dispersed: the frame its errors are plotted in.
+    run_truths, draws, run_axes : lists, optional
+        When dispersed: each run's true states (J2000), drawn orientation
+        (:func:`dispersed_flyby`) and fly-by frame (rows: CA direction, CA velocity, normal).
     first : (Simulator, renders), optional
         The first run's simulator and frames when dispersed (overlays, memory budget).
     """

@@ -1,21 +1,17 @@
 """What-if grids: ``--grid key=v1,v2`` axes, their points, and which keys reach the renderer.
 
-The one grid parser of ``starnav sweep`` and the fly-by sweeps
-(:func:`starnav.batch.flyby_sweep.parse_sweep_axes` reads its axes through it).
+The one grid parser of ``starnav sweep`` and the fly-by sweeps.
 
 1. Axes (:func:`parse_grid`): each ``--grid KEY=V1,V2,...`` is an axis of a dotted scenario
    key, the values parsed as YAML one by one (commas inside brackets do not split); keys
-   joined by ``+`` are linked and vary together, one list entry per key
-   (``--grid "detector.exposure_time_s+detector.readout.segments.thresholds_dn=
-   [7.7e-3,[2048]],[1.5e-5,[200]]"`` gives two points, not four).
+   joined by ``+`` vary together, one list entry per key (``--grid "a+b=[1,[2]],[3,[4]]"`` gives
+   two points, not four).
 2. Points (:func:`expand`): the Cartesian product of the axes, the last varying fastest; each
    point is the base scenario with its overrides, validated before any work.
 3. Render groups (:func:`render_config`, :func:`render_groups`): points that differ only
-   downstream of the renderer share their renders. Every scenario section is either upstream
-   (:data:`UPSTREAM_SECTIONS`: it changes the radiance image) or downstream
-   (:data:`DOWNSTREAM_SECTIONS`). ``moon.albedo_scale`` is downstream too: it multiplies the
-   reflectance of every photometric model, so the group is rendered at scale 1 and each point
-   scales the radiance (the albedo-exposure equivalence of the paper's HIL bench).
+   downstream of the renderer (:data:`DOWNSTREAM_SECTIONS`, not :data:`UPSTREAM_SECTIONS`)
+   share their renders; ``moon.albedo_scale`` too: radiance is linear in it, so the group is
+   rendered at scale 1 and each point scales the radiance.
 
 Index
 -----

@@ -116,8 +116,7 @@ class FrameResult:
         Moon-relative fix, J2000 [m] and its covariance [m^2].
     limb_errors_px : (N,) float32
         Signed distance of the used limb points to the true limb [px] (> 0 outside).
-    saturated_pixels : int
-    dn_max : int
+    saturated_pixels, dn_max : int
     feasible : bool
         Both acquisitions satisfy the readout law.
     plan_status : str
@@ -133,18 +132,13 @@ class FrameResult:
         The used limb points' uncertainties (for consistency studies).
     common_jacobian, white_covariance : (3, 3) arrays or None
         The fix's sensitivity to the errors its points share [m per unit of disc radius] and
-        its covariance from the pixels' noise and the attitude alone [m^2] (the
-        ``limb-common`` bias model).
+        its covariance from the pixels' noise and the attitude alone [m^2].
     consider_jacobian, consider_covariance : arrays or None
-        The fix's sensitivity to the camera calibration's parameters and its share of
-        ``covariance``, and the factor on the slowly varying limb errors at the frame's
-        phase, ``common_scale`` (:class:`~starnav.navigation.pipeline.FrameMeasurement`).
+        As :class:`~starnav.navigation.pipeline.FrameMeasurement`'s.
     attitude : dict or None
-        With ``stars.enabled``: the attitude the fix used (``source``: assumed, star-frame,
-        navigation-frame, propagated; its error ``error_x/y/roll`` against the truth and
-        predicted 1-sigma ``sigma_x/y/roll``, camera axes [rad]) and what the navigation
-        frame's own stars give, solved lost in space (``frame_*``:
-        :func:`starnav.simulate.attitude.frame_attitude_summary`).
+        With ``stars.enabled``: the attitude the fix used (``source``, its error and
+        predicted 1-sigma, camera axes [rad]) and what the navigation frame's own stars give
+        (``frame_*``: :func:`starnav.simulate.attitude.frame_attitude_summary`).
     """
 
     index: int

@@ -95,11 +95,10 @@ class TargetModel:
     params : dict
         Model parameters (defaults filled in and checked).
     albedo : float or AlbedoMap
-        Constant albedo or a map: the **model's own parameter** (rho, w, A or Hapke w), which
-        :func:`starnav.photometry.model_albedo_parameter` derives from the normal albedo.
+        The **model's own** albedo parameter (constant or a map), as
+        :func:`starnav.photometry.model_albedo_parameter` derives it from the normal albedo.
     albedo_scale : float
-        Global multiplier of the reflectance (albedo-exposure scaling): radiance is exactly
-        proportional to it, for every model.
+        Global multiplier of the reflectance: radiance is exactly proportional to it.
     spectral_shape : Spectrum, optional
         Reflectance factor versus wavelength (1 at the normal albedo's reference wavelength);
         ``None`` is grey.
@@ -110,9 +109,9 @@ class TargetModel:
     max_height : float
         Highest terrain above ``radius`` [m] (bounds the crop window).
     body_fixed_aovs : bool
-        Add the body-fixed surface point of each pixel-centre ray to the AOVs (channels
-        :data:`starnav.radiance.BODY_FIXED_AOV_CHANNELS`, metres): the per-pixel truth of
-        shape-model bodies (feature truth); off for the Moon (its files stay as pinned).
+        Add each pixel-centre ray's body-fixed surface point to the AOVs
+        (:data:`starnav.radiance.BODY_FIXED_AOV_CHANNELS`, metres): the feature truth of
+        shape-model bodies.
     """
 
     shape: str = "sphere"

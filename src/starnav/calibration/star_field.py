@@ -1,32 +1,25 @@
 """Geometric hold-out of the camera calibration on the star-field stimulus.
 
-The bench shows stars the way it would in a star-tracker test: each catalogue star's direction
-is placed on the screen through the collimator *as designed*; the tracker sees them through the
-bench *as built*. The camera calibration (:mod:`~starnav.calibration.intrinsics`) never saw this
-pattern.
+Each catalogue star's direction is placed on the screen through the collimator *as designed*;
+the tracker sees it through the bench *as built*. The camera calibration
+(:mod:`~starnav.calibration.intrinsics`) never saw this pattern.
 
 Technique
 ---------
-1. Stimulus: Hipparcos stars (``V <= v_limit``) about a boresight, camera frame with the
-   boresight along +z and +y towards the celestial north; each star's tangent is inverted
-   through the design collimator (focal length, design distortion) to a screen pixel; stars
-   closer than four centroid windows to a brighter one are dropped (blends); all are drawn as
-   the calibration's dots (same peak radiance: the test is geometric).
-2. Acquisition on the truth bench, dark-subtracted centroids matched to the datasheet camera's
-   prediction (independent of the calibration under test).
-3. Prediction: the *calibrated* camera projecting the design-collimator directions, rotated by
-   the mount attitude. The attitude is re-solved from the stars (generalised least squares, 3
-   nuisance parameters), as a star tracker would, starting from the calibration's mount
-   rotation.
-4. Covariance of each prediction: ``J_theta C J_theta^T`` (``C`` the calibration's covariance,
-   noise + consider) plus the calibration's centroid noise on each observed centroid.
-5. Test: ``chi^2 = r^T Sigma^-1 r`` on the post-fit residuals, ``2N - 3`` dof, one-sided at
-   a stated false-alarm rate.
-6. The camera correction the stars ask for (GLS in the calibrated parameters and the
-   attitude, centroid-noise weights) against the stated covariance plus its own noise:
-   ``chi^2`` with as many dof as parameters. Step 5 spreads one wrong parameter over
-   ``2N - 3`` dof; this test concentrates it, and gives the verdict (``passes``); step 5
-   is reported beside it (``residual_test``).
+1. Stimulus: Hipparcos stars (``V <= v_limit``) about a boresight, inverted through the design
+   collimator to screen pixels; blends (closer than four centroid windows to a brighter star)
+   dropped; drawn as the calibration's dots (the test is geometric).
+2. Acquisition on the truth bench; centroids matched to the datasheet camera's prediction.
+3. Prediction: the *calibrated* camera projecting the design directions, the mount attitude
+   re-solved from the stars (generalised least squares, 3 nuisance parameters).
+4. Covariance: ``J_theta C J_theta^T`` (``C`` the calibration's, noise + consider) plus the
+   centroid noise.
+5. Residual test: ``chi^2 = r^T Sigma^-1 r``, ``2N - 3`` dof, one-sided at a stated
+   false-alarm rate (``residual_test``).
+6. Verdict (``passes``): the camera correction the stars ask for (GLS in the calibrated
+   parameters and the attitude) against the stated covariance plus its own noise, ``chi^2``
+   with as many dof as parameters: it concentrates one wrong parameter that step 5 spreads
+   over ``2N - 3`` dof.
 
 References
 ----------
