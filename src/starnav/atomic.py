@@ -18,10 +18,11 @@ from contextlib import contextmanager
 from pathlib import Path
 
 
-def _default_mode() -> int:
+def current_umask() -> int:
+    """The process's umask (read without changing it)."""
     umask = os.umask(0)
     os.umask(umask)
-    return 0o666 & ~umask
+    return umask
 
 
 def _sync_file(fd: int) -> None:
@@ -61,7 +62,7 @@ def atomic_path(path: str | os.PathLike[str], suffix: str | None = None) -> Iter
     tmp_path = Path(tmp)
     try:
         yield tmp_path
-        os.chmod(tmp_path, _default_mode())  # mkstemp creates 0600
+        os.chmod(tmp_path, 0o666 & ~current_umask())  # mkstemp creates 0600
         sync_file(tmp_path)
         os.replace(tmp_path, p)
     except OSError as err:

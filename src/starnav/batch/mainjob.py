@@ -38,7 +38,7 @@ from starnav.batch.presets import (
     demo_scenario,
     paper_case,
 )
-from starnav.batch.report import describe_scenario
+from starnav.batch.report import _g, describe_scenario
 from starnav.config import Scenario, scenario_from_dict, write_resolved
 from starnav.dataset import DatasetOptions, generate
 from starnav.dataset import format as F
@@ -56,14 +56,6 @@ DEMO_RUNS = 8
 
 #: The report's radiance-next-to-DN figure, relative to the output directory.
 FRAME_FIGURE = "figures/frame_radiance_dn.png"
-
-
-def _g(x: Any, fmt: str = ".3g", scale: float = 1.0) -> str:
-    try:
-        v = float(x) * scale
-    except (TypeError, ValueError):
-        return "-"
-    return format(v, fmt) if math.isfinite(v) else "-"
 
 
 def _num(x: Any) -> float:

@@ -34,7 +34,7 @@ import numpy as np
 import yaml
 
 from starnav import __version__
-from starnav.atomic import atomic_write_text
+from starnav.atomic import atomic_write_text, current_umask
 from starnav.batch import figures as FIG
 from starnav.batch.cluster import open_runner
 from starnav.batch.consistency import consistency_metrics
@@ -138,17 +138,11 @@ def staging(out: Path) -> Iterator[Path]:
                 shutil.rmtree(out)
             else:
                 out.rmdir()  # empty (checked before)
-        os.chmod(tmp, 0o777 & ~_umask())
+        os.chmod(tmp, 0o777 & ~current_umask())
         os.rename(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-
-
-def _umask() -> int:
-    m = os.umask(0)
-    os.umask(m)
-    return m
 
 
 # ============================================================================ sweep

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from starnav import __version__
-from starnav.atomic import sync_directory
+from starnav.atomic import current_umask, sync_directory
 from starnav.cache import BoundedCache
 from starnav.config import (
     Scenario,
@@ -503,19 +503,13 @@ class FrameMaker:
                 F.write_json(d / F.READOUT, {**acq.summary(),
                                              "overrides": list(self.options.overrides_for(t))})
             F.write_json(tmp / F.FRAME_FILES, {"files": F.file_record(tmp)})  # last
-            os.chmod(tmp, 0o777 & ~_umask())
+            os.chmod(tmp, 0o777 & ~current_umask())
             sync_directory(tmp)  # its entries (the exposure directories) reach the disk
             os.rename(tmp, final)
             sync_directory(frames)  # and so does the rename
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
-
-
-def _umask() -> int:
-    m = os.umask(0)
-    os.umask(m)
-    return m
 
 
 def frame_entry(root: Path, index: int) -> dict[str, Any]:

@@ -26,7 +26,6 @@ from starnav.simulate.build import (
     frame_geometries,
     frame_mesh,
     frame_states,
-    mean_normal_albedo,
     renderer_from_scenario,
     scene_from_scenario,
     target_model_from_scenario,
@@ -42,6 +41,6 @@ from starnav.simulate.frames import (
 __all__ = ["WINDOWS_MODES", "Acquisition", "Observation", "Simulator", "acquire",
            "acquisition_seed", "body_from_scenario", "chain_options", "check_windows_mode",
            "describe_frame", "frame_geometries", "frame_mesh", "frame_states",
-           "mean_normal_albedo", "readout_feasibility", "render_scenario",
+           "readout_feasibility", "render_scenario",
            "render_to_directory", "renderer_from_scenario", "scene_from_scenario",
            "simulator_for", "target_model_from_scenario"]

@@ -23,7 +23,6 @@ import numpy as np
 import trimesh
 
 from starnav.bodies import Moon, ShapeModelBody, TargetBody, TargetModel, TriaxialBody
-from starnav.bodies.moon import mean_normal_albedo as moon_mean_normal_albedo
 from starnav.camera import Camera, camera_from_config
 from starnav.config import Scenario
 from starnav.constants import AU
@@ -71,12 +70,6 @@ def target_model_from_scenario(sc: Scenario) -> TargetModel:
     the normal albedo converted to the photometric model's own parameter, maps and DEMs read
     here, so that a missing file is reported before any rendering."""
     return body_from_scenario(sc).render_model()
-
-
-def mean_normal_albedo(sc: Scenario) -> float:
-    """The scenario's (mean) normal albedo of the Moon: ``moon.albedo`` when a number, else
-    the ROLO-calibrated mean normal albedo of the real Moon [-]."""
-    return moon_mean_normal_albedo(sc.moon)
 
 
 def renderer_from_scenario(sc: Scenario, camera: Camera | None = None) -> MoonRenderer:
