@@ -1,27 +1,16 @@
 """A dataset's frames with the tracker's own attitude (``navigation.attitude.source: stars``).
 
-Technique
----------
-A ``source: stars`` dataset records, at every scheduled star frame (``index % schedule_every
-== 0``) and for each exposure, the star acquisition's DN frame (``stars_dn.png``, run 0's
-stream: :func:`starnav.simulate.attitude.star_acquisition_dn`). Navigating it:
+A ``source: stars`` dataset records, at every scheduled star frame and for each exposure, the
+star acquisition's DN frame (``stars_dn.png``, run 0's stream:
+:func:`starnav.simulate.attitude.star_acquisition_dn`). Navigating it, the run's
+:class:`~starnav.simulate.attitude.StarAttitudeTracker` steps through the frames in time order
+with the recorded acquisitions (:meth:`~starnav.simulate.attitude.StarAttitudeTracker.advance`,
+the code path of the in-memory runs, so ``starnav navigate DATASET`` gives run 0's numbers),
+and each frame goes to the chain with the record's attitude and covariance
+(:func:`~starnav.simulate.attitude.with_attitude`).
 
-1. the run's :class:`~starnav.simulate.attitude.StarAttitudeTracker` steps through the frames
-   in time order with the recorded star acquisition and the frame's own ``dn.png`` (the
-   navigation segments acquisition) and the truth geometry (the gyro's true turn, the Moon's
-   exclusion): :meth:`~starnav.simulate.attitude.StarAttitudeTracker.advance`, the code path
-   of the in-memory runs, so ``starnav navigate DATASET`` gives the numbers of the sweep's and
-   the attitude study's run 0;
-2. each frame is handed to the chain with the record's attitude and its 3x3 covariance
-   (:func:`~starnav.simulate.attitude.with_attitude`).
-
-:func:`navigate_with_star_attitude` (``starnav navigate DATASET`` with ``source: stars``)
-runs the navigation on them and writes ``attitude.json`` next to its outputs: every frame's
-attitude source, error and predicted 1-sigma, and why the better sources failed.
-
-Example
--------
->>> frames, chains, records = star_attitude_frames(ds, ds.scenario())   # doctest: +SKIP
+:func:`navigate_with_star_attitude` runs the navigation on them and writes ``attitude.json``:
+every frame's attitude source, error and predicted 1-sigma, and why the better sources failed.
 """
 
 from __future__ import annotations

@@ -2,24 +2,18 @@
 
 :class:`Dataset` holds the manifest, the camera (rebuilt from the manifest's intrinsics, so it
 does not depend on the scenario schema) and one selected exposure; iterating it yields
-:class:`DatasetFrame` objects in time order. A frame implements the navigation chain's
-``NavFrame`` protocol (:mod:`starnav.navigation.frames`): ``index``, ``epoch_tdb``,
-``R_cam_to_inertial_measured``, ``sun_direction_inertial``, ``segments``, ``windows``,
-``truth`` and ``R_body_to_inertial``; files are read on first access and cached. It also gives
-the DN image, the radiance image and the raw JSON documents.
+:class:`DatasetFrame` objects in time order, each a navigation ``NavFrame``
+(:mod:`starnav.navigation.frames`) whose files are read on first access and cached, plus the
+DN image, the radiance image and the raw JSON documents.
 
-:func:`verify` re-hashes every file of every frame against the manifest, and says what is
-missing from an incomplete dataset and which temporaries an interrupted run left
-(``starnav dataset verify DIR``).
+:func:`verify` re-hashes every file against the manifest and says what is missing or left
+over by an interrupted run (``starnav dataset verify DIR``).
 
 Example
 -------
 >>> import starnav.dataset as ds
 >>> data = ds.open("out/ds", exposure=7.7e-3)                    # doctest: +SKIP
->>> len(data), data.exposure_times                                 # doctest: +SKIP
 >>> f = data[0]; f.segments, f.windows, f.truth.range            # doctest: +SKIP
->>> from starnav.navigation.report import navigate_dataset
->>> navigate_dataset(data, "out/nav")                            # doctest: +SKIP
 """
 
 from __future__ import annotations

@@ -218,17 +218,13 @@ class DatasetSummary:
     Attributes
     ----------
     path : Path
-    frames : int
-        Frames in the dataset.
-    frames_made : int
-        Frames made by this call (the others were already there: resume).
+    frames, frames_made : int
+        Frames in the dataset; made by this call (the others were there: resume).
     exposures_s : tuple of float
-    elapsed_s : float
-        Wall time of this call [s].
+    elapsed_s, setup_s : float
+        Wall time of this call, and of its set-up (validation, trajectory, backend, manifest) [s].
     frames_per_s : float
-        ``frames_made / time spent making them`` [1/s] (set-up excluded).
-    setup_s : float
-        Validation, trajectory, backend and manifest set-up [s].
+        ``frames_made / time spent making them`` [1/s].
     per_exposure : dict
         Per exposure directory: median saturated pixels, fraction of frames with windows
         planned, whether the readout law allows the exposure.

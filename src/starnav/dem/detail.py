@@ -1,24 +1,20 @@
 """Sub-posting detail: DEM terrain refined with fractal relief where the mesh is finer than it.
 
-A mesh of the bare DEM (LDEM_4: 7.58 km posting) shows flat bilinear facets where the real Moon
-has relief at every scale. :func:`sub_posting_detail` measures how rough the DEM is at its
-posting and continues that roughness below it, octave by octave, as far as the pixel footprint
-asks; :func:`starnav.dem.mesh.view_mesh` adds it only to vertices finer than a DEM cell. Each
-step in full: docs/methods.md, "starnav.dem.detail".
+:func:`sub_posting_detail` measures how rough the DEM is at its posting and continues that
+roughness below it, octave by octave, as far as the pixel footprint asks;
+:func:`starnav.dem.mesh.view_mesh` adds it only to vertices finer than a DEM cell. Each step
+in full: docs/methods.md, "starnav.dem.detail".
 
 Technique
 ---------
 1. Roughness at the posting: the structure function ``S(r)`` of the DEM's bilinear surface
    (per window with ``amplitude: regional``).
 2. Hurst exponent ``H``: configured (default 0.9, Rosenburg et al. 2011) or measured.
-3. Octaves of wavelength ``c / 2^k``: band-limited gradient noise on the unit vector minus its
-   tangent-plane Laplacian stencil (little power leaks to the DEM's own scale).
+3. Octaves of wavelength ``c / 2^k``: band-limited gradient noise minus its tangent-plane
+   Laplacian stencil (little power leaks to the DEM's own scale).
 4. Amplitudes ``beta S_c (lambda_k / c)^H``, ``beta`` by least squares so that the refined
    surface continues the DEM's power law; each octave's RMS slope capped.
-5. Per vertex: octaves faded in by the vertex spacing, clipped at
-   :data:`DETAIL_CLIP_SIGMA` RMS; no detail where the spacing is coarser than the posting.
-
-The knobs are :class:`~starnav.dem.schema.DetailConfig`.
+5. Per vertex: octaves faded in by the vertex spacing, clipped at :data:`DETAIL_CLIP_SIGMA`.
 
 References
 ----------
@@ -206,34 +202,23 @@ class SubPostingDetail:
 
     Attributes
     ----------
-    posting : float
-        DEM cell along a meridian ``c`` [m].
-    radius : float
-        Reference sphere [m].
-    hurst : float
-        Hurst exponent used [-].
-    hurst_measured : float
-        The DEM's own exponent at 1 to 4 cells [-] (for information unless configured).
-    roughness : float
-        ``S_c``: global RMS height difference of the DEM's bilinear surface at lag ``c`` [m].
-    roughness_nodes : float
-        The same between neighbouring cells (grid nodes) [m].
+    posting, radius : float
+        DEM cell along a meridian ``c``; reference sphere [m].
+    hurst, hurst_measured : float
+        Hurst exponent used; the DEM's own at 1 to 4 cells [-].
+    roughness, roughness_nodes : float
+        ``S_c``: global RMS height difference of the DEM's bilinear surface at lag ``c``; the
+        same between neighbouring grid nodes [m].
     beta : float
         Amplitude factor of the fit: ``sigma_k = beta S_c (lambda_k / c)^H`` [-].
-    wavelengths : (K,) array
-        Octave wavelengths [m], longest first.
-    sigma : (K,) array
-        Octave RMS for the global ``S_c`` [m] (slope cap applied).
-    slope_cap : (K,) array
-        Largest RMS of each octave allowed by the slope guard [m].
+    wavelengths, sigma, slope_cap : (K,) arrays
+        Octave wavelengths (longest first), RMS for the global ``S_c`` (capped), and the
+        slope guard's largest RMS [m].
     roughness_grid : EquirectangularGrid or None
-        Regional ``S_c`` [m] (``amplitude: regional``), else None.
-    max_detail_m : float
-        Bound on ``|detail|`` anywhere [m].
-    rms_m : float
-        RMS of the full detail (all octaves, global ``S_c``) [m].
+        Regional ``S_c`` [m] (``amplitude: regional``).
+    max_detail_m, rms_m : float
+        Bound on ``|detail|`` anywhere; RMS of the full detail (global ``S_c``) [m].
     seed : int
-        Noise seed.
     key : tuple
         Identity for mesh caches.
     """

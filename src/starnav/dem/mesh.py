@@ -430,18 +430,14 @@ def view_mesh(dem: DemGrid, camera: Camera, camera_position_body_m: ArrayLike,
     albedo : AlbedoGrid, optional
         If given, ``vertex_attributes['albedo']`` is sampled from it.
     camera_to_body : (3, 3) array_like, optional
-        Rotation camera frame -> Moon body-fixed (``R_body_to_inertial.T @
-        R_cam_to_inertial``). If given, only the part in the field of view (plus margins) is
-        built.
+        Rotation camera -> Moon body-fixed: only the field of view (plus margins) is built.
     options : MeshOptions, optional
-        Edge size, margins, budget, cache quantum.
     cache : MeshCache or None
         Where meshes are kept (``None``: no caching).
     detail : SubPostingDetail, optional
-        Fractal relief added below the DEM's posting to the vertices whose spacing is finer
-        than a DEM cell (:func:`starnav.dem.detail.sub_posting_detail`); the cap and the
-        terrain bounds then include ``detail.max_detail_m``. A view whose footprint is nowhere
-        finer than the posting gets the same mesh as without it.
+        Fractal relief added to the vertices finer than a DEM cell (the cap and terrain
+        bounds include ``detail.max_detail_m``); a view nowhere finer than the posting gets
+        the same mesh as without it.
 
     Returns
     -------

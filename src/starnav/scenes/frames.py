@@ -125,20 +125,17 @@ def build_trajectory(cfg: TrajectoryConfig, ephemeris: Ephemeris | None = None,
 
 class Scene:
     """Frames of a trajectory (or of one static geometry): epochs, spacecraft truth and
-    :class:`FrameGeometry` per frame.
-
-    Built from its parts (the scenario's sections are assembled by
+    :class:`FrameGeometry` per frame (assembled from a scenario by
     :func:`starnav.simulate.scene_from_scenario`).
 
     Parameters
     ----------
     camera : Camera
     pointing : PointingConfig
-        Pointing law and attitude-knowledge error.
     trajectory : TrajectoryConfig, optional
         The arc and the frame cadence; ``None`` (and no ``arc``) gives one frame of ``static``.
     static : StaticGeometryConfig, optional
-        The one frame without a trajectory (default its defaults).
+        The one frame without a trajectory.
     body_radius : float
         Reference radius of the target body [m] (its bounding sphere for a small body).
     seed : int
@@ -146,17 +143,14 @@ class Scene:
     ephemeris : Ephemeris, optional
         Default DE421.
     arc : Trajectory, optional
-        Use this instead of building ``trajectory``'s (e.g. an arc already in memory).
-    cache_dir : path, optional
+        Use this instead of building ``trajectory``'s.
+    cache_dir, spacecraft : optional
         Forwarded to :func:`build_trajectory`.
     orientation : callable, optional
-        ``f(epochs) -> (n, 3, 3)`` body-fixed -> J2000 rotations of the target body
-        (:meth:`starnav.bodies.TargetBody.orientation`); default the Moon's DE421 librations
-        in ``trajectory.moon_frame`` axes.
+        ``f(epochs) -> (n, 3, 3)`` body-fixed -> J2000 rotations of the target body; default
+        the Moon's DE421 librations in ``trajectory.moon_frame`` axes.
     gm : float
         The target body's gravitational parameter [m^3 s^-2] (a hyperbolic fly-by).
-    spacecraft : SpacecraftConfig, optional
-        Forwarded to :func:`build_trajectory` (the solar radiation pressure of the truth).
     """
 
     def __init__(self, camera: Camera, pointing: PointingConfig, *,

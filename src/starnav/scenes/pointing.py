@@ -178,18 +178,13 @@ def sample_pointing(camera: Camera, camera_position: ArrayLike, rng: np.random.G
     camera : Camera
     camera_position : (3,) array
         Camera relative to the Moon centre, inertial [m].
-    rng : numpy.random.Generator
-        Placement and roll draws.
-    knowledge_rng : numpy.random.Generator
-        Knowledge-error draws.
-    moon_offset : {"random", "fixed"}
+    rng, knowledge_rng : numpy.random.Generator
+        Placement and roll draws; knowledge-error draws.
+    moon_offset, roll : {"random", "fixed"}
     moon_offset_px : (du, dv)
         Offset from the principal point for ``fixed`` [px].
-    max_offset : float
-        Largest random offset [px].
-    margin : float
-        Limb to detector-edge clearance [px].
-    roll : {"random", "fixed"}
+    max_offset, margin : float
+        Largest random offset; limb to detector-edge clearance [px].
     roll_angle : float
         Roll for ``fixed`` [rad].
     knowledge_sigma : (3,) array
@@ -197,13 +192,9 @@ def sample_pointing(camera: Camera, camera_position: ArrayLike, rng: np.random.G
     body_radius : float
         [m].
     sun_position : (3,) array, optional
-        Sun relative to the Moon [m] (only to build the trial geometry; any far point works).
+        Sun relative to the Moon [m] (only to build the trial geometry).
     down_hint : (3,) array, optional
         The roll law's reference (:func:`moon_pointing`; default inertial south).
-
-    Returns
-    -------
-    Pointing
 
     Raises
     ------
