@@ -1,20 +1,18 @@
 """Emulated star-tracker acquisitions of one frame: segments, then windows along the limb.
 
 The AA-STR cannot read a full frame below 200 ms, so the STAR Nav subpixel algorithm
-alternates its two readout modes; this module emulates that sequence on a rendered
-:class:`~starnav.radiance.RadianceImage`:
+alternates its two readout modes:
 
 1. Acquisition 0 (segments): :func:`starnav.detector.expose` at the exposure time.
-2. Window plan: the on-board pixel-level chain of :mod:`starnav.navigation` on the segments
-   alone, then :func:`starnav.navigation.refine.plan_windows`
-   (:func:`plan_windows_from_segments`).
-3. Acquisition 1 (windows): the same radiance with its own temporal noise (``windows =
-   "second"``), or cut from acquisition 0 (``"same"``), or none (:data:`WINDOWS_MODES`); it
-   starts from acquisition 0's mean charge.
+2. Window plan: the on-board pixel-level chain on the segments alone, then
+   :func:`starnav.navigation.refine.plan_windows` (:func:`plan_windows_from_segments`).
+3. Acquisition 1 (windows): the same radiance with its own temporal noise (``"second"``), cut
+   from acquisition 0 (``"same"``), or none (:data:`WINDOWS_MODES`); it starts from
+   acquisition 0's mean charge.
 
-Every random stream is keyed by :mod:`starnav.seeding` (:func:`acquisition_seed`,
+Random streams are keyed by :mod:`starnav.seeding` (:func:`acquisition_seed`,
 :data:`ACQUISITION_STREAM`, :data:`PLAN_STREAM`), independent of the exposure time (common
-random numbers across exposures); the table of streams: docs/dataset.md.
+random numbers across exposures): docs/dataset.md.
 
 Index
 -----
@@ -132,17 +130,14 @@ class Acquisition:
         Acquisition 1 when ``windows_mode == "second"`` and windows were planned.
     windows_mode : str
         ``second``, ``same`` or ``none``.
-    plan_status : str
-        ``ok`` or why no window was planned (the navigation chain's status, e.g. ``no-moon``).
-    plan_message : str
-        Human-readable reason (empty when ``ok``).
+    plan_status, plan_message : str
+        ``ok`` or why no window was planned (e.g. ``no-moon``), and the reason in words.
     planned : tuple of (row0, col0, height, width)
         Window requests [px].
     timings_s : dict
         Wall time of ``detector`` (both acquisitions), ``plan`` and ``stars`` [s].
     stars : StarField or None
-        The frame's stars when the scenario's ``stars.enabled`` (the truth: positions,
-        electrons, occultation; :func:`starnav.stars.frame_stars`), else None.
+        The frame's true stars when ``stars.enabled`` (:func:`starnav.stars.frame_stars`).
     """
 
     exposure_time: float

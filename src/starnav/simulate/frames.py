@@ -1,23 +1,18 @@
 """The frames of a scenario: geometry -> radiance -> the tracker's acquisitions.
 
 :class:`Simulator` is the one place where a frame is made. It builds the camera, the scene
-(trajectory, pointing, truth) and the renderer once per process and then, for frame ``i``:
+and the renderer once per process and then, for frame ``i``:
 
-1. **geometry** (:meth:`Simulator.geometry`): the frame's :class:`~starnav.geometry.FrameGeometry`
-   (true and measured attitude, Sun, Moon orientation, EMB-centred truth);
-2. **radiance** (:meth:`Simulator.render`): the spectral Mitsuba render in band and electron
-   radiance (seed ``seed_u32(seed, STAGE_RENDER, i)``);
-3. **acquisitions** (:meth:`Simulator.acquire`): the segments exposure, the on-board window
-   plan and the windows exposure of :mod:`starnav.simulate.acquire`, for run ``r`` of a Monte
-   Carlo (run 0 is the dataset's);
-4. **observation** (:meth:`Simulator.observe`): what the navigation chain receives for run
-   ``r``: the acquisitions and the attitude the spacecraft believes (run 0 the frame's own
-   knowledge error, every later run a fresh draw:
+1. **geometry** (:meth:`Simulator.geometry`): the frame's :class:`~starnav.geometry.FrameGeometry`;
+2. **radiance** (:meth:`Simulator.render`): seed ``seed_u32(seed, STAGE_RENDER, i)``;
+3. **acquisitions** (:meth:`Simulator.acquire`): :mod:`starnav.simulate.acquire` for run ``r``
+   (run 0 is the dataset's);
+4. **observation** (:meth:`Simulator.observe`): the acquisitions and the attitude the
+   spacecraft believes (run 0 the frame's own knowledge error, later runs a fresh draw:
    :func:`starnav.scenes.pointing.knowledge_for_run`).
 
-``starnav render`` writes step 2, :mod:`starnav.dataset` writes steps 1-3 to disk, and
-:mod:`starnav.batch` runs steps 1-4 in memory; all three therefore see the same frames and the
-same truth.
+``starnav render`` (step 2), :mod:`starnav.dataset` (steps 1-3, on disk) and
+:mod:`starnav.batch` (steps 1-4, in memory) therefore see the same frames and truth.
 """
 
 from __future__ import annotations

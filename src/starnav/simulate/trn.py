@@ -1,27 +1,22 @@
 """The fly-by front end on rendered frames: acquisitions in the tracker's order, then truth.
 
-For each frame of a fly-by scenario (:class:`~starnav.simulate.frames.Simulator`):
+For each frame of a fly-by scenario:
 
-1. render (geometry, radiance with the body-fixed AOVs);
-2. **acquisition 0, segments** (:func:`starnav.detector.expose`, segments only), handed to
-   :meth:`FlybyFrontEnd.plan <starnav.navigation.trn.frontend.FlybyFrontEnd.plan>` through a
-   :class:`~starnav.navigation.trn.windows.WindowReader` with the frame's *measured* attitude;
+1. render (radiance with the body-fixed AOVs);
+2. **acquisition 0, segments**, handed to :meth:`FlybyFrontEnd.plan
+   <starnav.navigation.trn.frontend.FlybyFrontEnd.plan>` with the frame's *measured* attitude;
 3. **acquisition 1, windows**: a second exposure of the same radiance reads the planned
-   windows (its own temporal noise, as :mod:`starnav.simulate.acquire` does for the limb);
-   the readout law is checked on the window pixels;
-4. :meth:`~starnav.navigation.trn.frontend.FlybyFrontEnd.track` on a reader of the two
-   readout *products* (never the full DN frame);
-5. truth attached by :class:`~starnav.navigation.trn.truth.FeatureTruthBook` from the AOVs.
+   windows (readout law checked on the window pixels);
+4. :meth:`~starnav.navigation.trn.frontend.FlybyFrontEnd.track` on the two readout
+   *products* (never the full DN frame);
+5. truth from the AOVs (:class:`~starnav.navigation.trn.truth.FeatureTruthBook`).
 
-The tracker's frame budget (:func:`flyby_frame_budget`): a frame is two acquisitions, each an
-exposure then its readout by the readout law (seed paper eq. 1: the segments scan the whole
-array, at least 200 ms; the windows ``a + b N`` on their pixels); without overlap of
-integration and readout (the conservative reading), a cadence ``T`` is allowed when
+Frame budget (:func:`flyby_frame_budget`): two acquisitions, each an exposure then its readout
+(seed paper eq. 1), without overlap: a cadence ``T`` is allowed when
 ``2 t_exp + t_segments + t_windows(n_windows x max_window_px^2) <= T``.
 
-Noise streams are those of :func:`starnav.simulate.acquire.acquisition_seed` (acquisitions 0
-and 1 of run ``run``); the RANSAC stream is ``generator(seed, STAGE_NAVIGATION, run, 0,
-TRN_STREAM)`` for the whole sequence (the front end is stateful).
+Noise streams: :func:`starnav.simulate.acquire.acquisition_seed`; RANSAC:
+``generator(seed, STAGE_NAVIGATION, run, 0, TRN_STREAM)`` for the whole (stateful) sequence.
 """
 
 from __future__ import annotations

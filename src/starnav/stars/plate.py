@@ -696,8 +696,7 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
     dn : (H, W) array
         The frame (any linear grey levels; DN).
     camera : Camera
-        The nominal camera (focal length known to ``focal_tolerance``; the detector size must
-        be the frame's).
+        The nominal camera (focal length known to ``focal_tolerance``; the frame's size).
     epoch_jyear : float
         Epoch of the star positions [Julian year].
     saturation_dn : float, optional
@@ -708,11 +707,9 @@ def solve_plate(dn: ArrayLike, camera: Camera, *, epoch_jyear: float,
     index_cache : path or bool, optional
         Where the pattern index is cached on disk (:func:`pattern_index`); False: memory only.
     limiting_v : float, optional
-        Faintest V the camera can show in this exposure, when its radiometry is known
-        (:class:`~starnav.stars.images.StarImage`; an upper bound). The index and the
-        verification go no fainter. A frame that is not identified while a field of this size
-        holds on average fewer than ``min_stars`` catalogue stars that bright is reported
-        ``"too-few-stars"`` (the camera cannot see a pattern there), not ``"unidentified"``.
+        Faintest V the camera can show in this exposure (an upper bound): the index and the
+        verification go no fainter, and a field holding on average fewer than ``min_stars``
+        such stars is reported ``"too-few-stars"`` rather than ``"unidentified"``.
 
     Returns
     -------

@@ -1,22 +1,14 @@
 """``starnav stars solve``: plate solutions of image files, with results, a report and overlays.
 
 For each image: read it (:mod:`starnav.stars.images`), describe the camera (a preset and
-``camera.*`` overrides; the detector size is the image's unless given), solve it
-(:func:`starnav.stars.plate.solve_plate`) and record the attitude (RA, Dec, roll, quaternion,
-covariance), the refined focal length, field of view and ``k1``, and the matched stars. One bad
-image is recorded with its one-line reason and does not stop the others.
+``camera.*`` overrides), solve it (:func:`starnav.stars.plate.solve_plate`) and record the
+attitude (RA, Dec, roll, quaternion, covariance), the refined focal length, field of view and
+``k1``, and the matched stars. One bad image is recorded with its reason; the others go on.
 
-Outputs in the output directory: ``results.json`` (every image; each matched star with its
-detection's centroid and the catalogue star projected through the solved attitude and camera),
-``report.md`` and ``overlay_<image stem>.png`` on the frame's pixel grid (the frame
-asinh-stretched; an identified detection circled at its centroid and labelled with its
-Hipparcos number, its catalogue star's projection as a small cross, so the residuals show;
-other detections as small squares; the boresight and an arrow towards celestial north; a
-legend).
-
-Output directory: a non-empty directory is refused unless ``overwrite``; then the earlier run's
-files (``results.json``, ``report.md``, ``overlay_*.png``) are replaced and nothing else is
-touched.
+Outputs: ``results.json``, ``report.md`` and ``overlay_<image stem>.png`` (identified
+detections circled and labelled, their catalogue projections as crosses, other detections as
+squares, the boresight and celestial north). A non-empty output directory is refused unless
+``overwrite``, which replaces only those files.
 """
 
 from __future__ import annotations

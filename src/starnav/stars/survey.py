@@ -177,10 +177,10 @@ def identification_survey(
     ----------
     n_pointings : int
     rng : numpy.random.Generator
-        Draws the pointings and the Moon's place and range (the detector noise has its own
-        seeds: ``first_seed + k``).
+        Draws the pointings and the Moon's place and range (the detector noise is seeded
+        ``first_seed + k``).
     camera, detector : optional
-        Default the AA-STR preset and the default detector (default noise).
+        Default the AA-STR preset and the default detector.
     exposure_time : float
         [s].
     moon : bool
@@ -189,19 +189,16 @@ def identification_survey(
         Range of the Moon's distance [m], drawn uniformly.
     exclude_body : bool
         Give the solver the Moon's and its ghosts' exclusion discs (the tracker's way);
-        ``False`` leaves every blob to the centroiding's rejections and the identification's
-        verification alone (a stress test).
-    correct_arcsec : float
-        Largest error rotation of a correct solution [arcsec].
-    false_px : float
-        Distance to the nearest drawn star beyond which a candidate is false [px].
+        ``False`` is a stress test of the rejections and verification alone.
+    correct_arcsec, false_px : float
+        Largest error rotation of a correct solution [arcsec]; distance to the nearest drawn
+        star beyond which a candidate is false [px].
     first_seed : int
         Temporal noise seed of pointing 0.
     catalogue : StarCatalogue, optional
         Default Hipparcos.
     stars : StarsConfig, optional
-        The stars drawn; default ``StarsConfig(enabled=True)`` (V <= 6.5, aberration drawn
-        and corrected).
+        Default ``StarsConfig(enabled=True)``.
     response : SensorResponse, optional
         QE x T of the sensor; default the AA-STR's.
     """
