@@ -1,21 +1,14 @@
 """A small bounded in-memory cache: the one way starnav keeps expensive results around.
 
-Several things are slow to make and often asked for again with the same inputs: a DEM read
-from disk, the procedural Moon, a view-adapted mesh, the sub-posting detail of a DEM, the
-spectrum of a PSF kernel. Each is kept in memory under a hashable key that names everything the
-result depends on (a file stamp, a configuration's JSON, a grid's ``uid``), and only a few of
-them: the objects are large (a global grid is hundreds of megabytes), so the cache must forget.
+A DEM read from disk, the procedural Moon, a view-adapted mesh, the sub-posting detail, a PSF
+kernel's spectrum: each is kept under a hashable key naming everything it depends on (a file
+stamp, a configuration's JSON, a grid's ``uid``), and only a few, since they are large.
 
-:class:`BoundedCache` holds at most ``maxsize`` entries and forgets the *least recently used*
-one (``policy="lru"``, the default: a hit refreshes the entry) or the *oldest* one
-(``policy="fifo"``: insertion order only). A hit returns the very object that was stored, not a
-copy, so callers may rely on identity (``view_mesh(...) is view_mesh(...)`` when nothing
-changed) and must treat cached objects as read-only. ``maxsize <= 0`` turns caching off; the
-bound may be changed at any time and applies at the next insertion. ``hits`` and ``misses``
-count lookups, for tests and logs.
-
-The cache is not thread-safe and lives in one process (a worker of a process pool has its own).
-Results that depend only on arguments and are small stay with :func:`functools.lru_cache`.
+:class:`BoundedCache` holds at most ``maxsize`` entries and forgets the least recently used
+(``policy="lru"``, a hit refreshes the entry) or the oldest (``"fifo"``). A hit returns the
+stored object itself (callers may rely on identity and must treat it as read-only);
+``maxsize <= 0`` turns caching off; ``hits`` and ``misses`` count lookups. Not thread-safe;
+one per process. Small results of arguments alone stay with :func:`functools.lru_cache`.
 """
 
 from __future__ import annotations

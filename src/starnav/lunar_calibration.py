@@ -1,30 +1,23 @@
 """The real Moon's brightness: photometric constants calibrated once against the ROLO model.
 
-The LROC WAC colour mosaic that starnav ships (``data/albedo/``) is a visual product: its grey
-values say where the Moon is brighter, not how bright. Three things turn it into the Moon's
-normal albedo, and a fourth gives the Moon its colour:
+The LROC WAC mosaic that starnav ships (``data/albedo/``) says where the Moon is brighter, not
+how bright. Four constants make it the Moon's normal albedo and colour:
 
-1. a **contrast exponent** ``q``: the map's linear grey value ``Y`` becomes ``Y**q``. The
-   mosaic's tone curve is not documented well enough to undo (its maria/highland contrast is
-   ~2x too strong once sRGB-decoded); the exponent is set by ROLO's dependence on the Sun's
-   selenographic longitude (a waxing and a waning Moon at the same phase differ because the maria
-   are on the western near side), an independent measurement of the disc's albedo contrast;
-2. the **mean normal albedo** ``k`` at the reference wavelength: the map is scaled so that its
-   area-weighted global mean is ``k``;
-3. the **Hapke phase-function and opposition parameters** ``b, c, B_S0, h_S``: with the Sato et
-   al. (2014) values a uniform Hapke sphere falls off ~20 % too steeply between 7 and 90 deg
-   against ROLO, so these four are fitted within their published ranges; the macroscopic
-   roughness (23.66 deg) and the coherent backscatter (off) keep Sato's values (the DEM resolves
-   part of the roughness itself, so it is not a free knob here);
-4. the **spectral shape** ``s(lambda)`` of the reflectance, 1 at the reference wavelength: the
-   ROLO disc reflectance A(lambda, g) / A(550 nm, g), geometric mean over the fitted phases (the
-   Moon is redder than the Sun: +50 % from 405 to 745 nm). Not fitted: read off ROLO.
+1. a **contrast exponent** ``q`` (grey ``Y`` becomes ``Y**q``): the mosaic's tone curve is not
+   documented; ``q`` is set by ROLO's dependence on the Sun's selenographic longitude (waxing
+   and waning Moons differ because the maria lie on the western near side), an independent
+   measure of the albedo contrast;
+2. the **mean normal albedo** ``k`` at the reference wavelength (area-weighted global mean);
+3. the **Hapke phase-function and opposition parameters** ``b, c, B_S0, h_S``, fitted within
+   their published ranges (Sato et al. 2014's fall off too steeply against ROLO); roughness
+   and coherent backscatter keep Sato's values;
+4. the **spectral shape** ``s(lambda)``, 1 at the reference wavelength: ROLO's
+   A(lambda, g) / A(550 nm, g), geometric mean over the fitted phases (not fitted).
 
-``tools/calibrate_moon_rolo.py`` does the fit (disc-integrated Hapke with the map by quadrature
-over the sphere, against ROLO band-integrated over the AA-STR's 425-1025 nm band with the
-ASTM G-173 Sun) on the *waxing and waning* Moon seen from libration (0, 0) at phases 3-93 deg,
-prints the fit and its residual, and writes ``data/moon/rolo_calibration.json`` with its
-provenance. Tests score the *rendered* Moon (DEM mesh, Mitsuba, spectral) at other geometries.
+``tools/calibrate_moon_rolo.py`` fits the disc-integrated Hapke Moon with the map against ROLO
+over the AA-STR band (waxing and waning, phases 3-93 deg) and writes
+``data/moon/rolo_calibration.json`` with its provenance. Tests score the *rendered* Moon at
+other geometries.
 
 References
 ----------

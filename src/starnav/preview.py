@@ -181,10 +181,6 @@ def write_radiance_preview(img: RadianceImage, path: str | os.PathLike[str], *,
         Percentile of the lit pixels shown as white [%].
     index : int, optional
         Frame index for the caption (default ``meta["geometry"]["index"]``).
-
-    Returns
-    -------
-    PreviewInfo
     """
     grey, top = radiance_stretch(img.L, percentile)
     h, w = grey.shape
@@ -229,11 +225,10 @@ def plot_radiance_and_dn(img: RadianceImage, dn_frames: Sequence[tuple[str, Arra
     Parameters
     ----------
     img : RadianceImage
-        The rendered frame; shown with :func:`radiance_stretch` (module steps 1-2).
+        The rendered frame; shown with :func:`radiance_stretch`.
     dn_frames : sequence of (label, dn, full_scale)
-        DN frames ``(H, W)`` [DN] with a label (e.g. the exposure time) and the ADC full scale
-        ``2^bits - 1`` [DN]; each is shown linear from 0 to the full scale through the same
-        sRGB encoding, so saturated pixels are white and the exposures compare directly.
+        DN frames ``(H, W)`` with a label and the ADC full scale [DN]; each shown linear from
+        0 to full scale through the same sRGB encoding (saturation white, exposures compare).
     path : path
         PNG to write (atomically).
     title : str, optional
@@ -241,13 +236,8 @@ def plot_radiance_and_dn(img: RadianceImage, dn_frames: Sequence[tuple[str, Arra
     percentile : float
         Stretch of the radiance panel [%].
     crop_margin : float or None
-        Show the square around the Moon (the bounding box of the pixels with ``L > 0``)
-        widened by this fraction of its size on each side, the same crop in every panel (the
-        titles give it); None: the whole frame.
-
-    Returns
-    -------
-    Path
+        Show the square around the Moon (pixels with ``L > 0``) widened by this fraction on
+        each side, the same crop in every panel; None: the whole frame.
     """
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import FuncNorm

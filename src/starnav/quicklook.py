@@ -220,10 +220,6 @@ def write_quicklook(values: ArrayLike, path: str | os.PathLike[str], caption: st
         Unit of ``values`` (``"DN"``, ``"W m^-2 sr^-1"``).
     black : float, optional
         Black level (default: the frame's median; pass 0 for radiance).
-
-    Returns
-    -------
-    QuickLookInfo
     """
     a = np.asarray(values)
     if a.ndim != 2:

@@ -1,33 +1,19 @@
 """Named registries: the one way starnav looks a thing up by name.
 
-Many choices in a scenario are names: a detector effect, a blooming mode, a photometric model, a
-DEM format, a filter's bias model, a sweep preset. Behind each is a table from the name to the
-object that implements it (a class, a function, a small record), and every table must answer
-the same three questions the same way: what is registered under this name, which names exist,
-and what the error says when the name is unknown. :class:`Registry` is that table, written
-once.
-
-A registry is filled when its module is imported, either by a decorator on the implementation
-or by a call::
+A detector effect, a blooming mode, a photometric model, a DEM format, a bias model, a sweep
+preset: each is a table from a name to its implementation, and :class:`Registry` is that table
+written once. It is filled at import, by decorator or call::
 
     BLOOMING_MODES = Registry[BloomFunction]("blooming mode")
 
     @BLOOMING_MODES.register("drain")
     def bloom_drain(...): ...
 
-    EDGE_MODELS = Registry("edge model", {"blurred-limb": (0.0, 1.0, 0.5), ...})
-
-and read with :meth:`Registry.get` (or ``REGISTRY[name]``), ``name in REGISTRY``,
-:meth:`Registry.names` and iteration, which keep the order of registration (the order a table
-was written in is often meaningful: a chain of stages, a list shown to a user). An unknown name
-raises :class:`~starnav.errors.UnknownNameError`, a ``KeyError`` whose message names the kind of
-thing and lists the known names sorted (``unknown bias model 'x'; known: additive, none``), so a
-user sees every valid choice in the error itself. Registering a name twice is a programming
-error and raises ``ValueError``: a second implementation never silently replaces the first.
-
-A plain set of allowed strings (a mode whose behaviour is a branch inside one function) is a
-registry too, with a one-line description per name as its object, so that its validation and
-its error read like every other lookup (:meth:`Registry.check`).
+and read with :meth:`Registry.get` (or ``REGISTRY[name]``), ``in``, :meth:`Registry.names` and
+iteration, in registration order. An unknown name raises
+:class:`~starnav.errors.UnknownNameError` listing the known names (``unknown bias model 'x';
+known: additive, none``); registering a name twice raises ``ValueError``. A plain set of
+allowed strings is a registry too, a one-line description per name (:meth:`Registry.check`).
 """
 
 from __future__ import annotations
