@@ -1,27 +1,23 @@
 """Lunar photometric models as Python ``mi.BSDF`` plugins (they run inside Dr.Jit's kernels).
 
-Each plugin's ``eval`` returns the BSDF times the cosine of the light direction, which for a
-surface lit by a collimated irradiance ``E`` is exactly the radiance factor ``r = L / E``
-[sr^-1] of :mod:`starnav.photometry` (the NumPy reference these plugins are tested against).
-In Mitsuba's convention ``si.wi`` points to the observer (emission, ``mu = cos e``) and ``wo``
-to the light (incidence, ``mu0 = cos i``); the phase angle is ``acos(wi . wo)``.
+Each plugin's ``eval`` returns the BSDF times the cosine of the light direction: under a
+collimated irradiance ``E``, exactly the radiance factor ``r = L / E`` [sr^-1] of
+:mod:`starnav.photometry` (the NumPy reference they are tested against). ``si.wi`` points to
+the observer (``mu = cos e``), ``wo`` to the light (``mu0 = cos i``); the phase angle is
+``acos(wi . wo)``. ``sample`` draws cosine-weighted directions (enough for the single-bounce
+``direct`` integrator with emitter sampling; multiple scattering is neglected, as in every
+model here).
 
-``sample`` draws cosine-weighted directions (enough for the single-bounce ``direct``
-integrator with emitter sampling that the renderer uses; multiple scattering between lunar
-facets is neglected, as in every photometric model here).
+The albedo is a Mitsuba texture (``uniform``, a one-channel ``bitmap`` over the sphere's
+(u, v), or a ``mesh_attribute``) evaluated as a grey value (RGB textures, which vanish outside
+360-830 nm, are never involved). Two optional factors multiply the reflectance:
+``spectral_shape`` (a ``regular`` spectrum, 1 at the normal albedo's reference wavelength: the
+ROLO lunar reddening by default, :mod:`starnav.lunar_calibration`) and ``scale``
+(``moon.albedo_scale``: radiance is exactly linear in it, as the albedo-exposure scaling needs).
 
-The albedo is a Mitsuba texture (``uniform``, a single-channel ``bitmap`` over the sphere's
-(u, v), or a ``mesh_attribute`` per vertex); it is evaluated as a wavelength-independent value
-(grey albedo), so RGB textures, which vanish outside 360-830 nm, are never involved. Two optional
-properties multiply the reflectance: ``spectral_shape``, a spectrum texture (``regular``) giving
-the Moon's colour as a factor of wavelength (1 at the reference wavelength of the normal albedo:
-the ROLO-derived lunar reddening by default, see :mod:`starnav.lunar_calibration`), and
-``scale``, a plain factor (``moon.albedo_scale``: radiance is exactly linear in it, whatever the
-model, which is what the albedo-exposure scaling needs).
-
-Plugins are registered by name with :func:`register_plugins`, which must be called again after
-every variant switch (``backend.activate`` does it). There is one plugin per model of
-:data:`starnav.photometry.PHOTOMETRIC_MODELS`, named ``starnav_<model>``.
+:func:`register_plugins` registers one plugin per model of
+:data:`starnav.photometry.PHOTOMETRIC_MODELS`, named ``starnav_<model>``; it must run again
+after every variant switch (``backend.activate`` does it).
 """
 
 from __future__ import annotations

@@ -637,18 +637,13 @@ class MoonRenderer:
     def _earth_shadow(self, geom: FrameGeometry, box: tuple[int, int, int, int]
                       ) -> tuple[NDArray[np.float32], dict[str, Any]] | None:
         """Per-pixel sunlit fraction of the crop window (:mod:`starnav.eclipse`), or None when
-        the body is wholly outside the Earth's penumbra (or the frame has no Earth, or the
-        model is off).
+        the body is wholly outside the Earth's penumbra (or no Earth, or the model is off).
 
-        The radiance of a single distant Sun is proportional to the irradiance, so the
-        shadow is a factor on the rendered radiance: the fraction of the solar disc seen from
-        the surface point under each pixel centre (the reference sphere's near intersection
-        of the pixel-centre ray, or the tangent point of a ray that passes beside it: limb
-        pixels). The fraction changes over thousands of km (from the umbra's edge to the
-        penumbra's it goes from 0 to 1 over the Sun's apparent diameter, 0.53 deg x 384 000 km
-        ~ 3 600 km at the Moon), a pixel's footprint is tens of km: constant over a pixel to
-        well below the Monte Carlo noise. Cast shadows and the terrain are the render's; the
-        fraction is taken on the sphere (10 km of relief move it by < 0.3 %).
+        The radiance of one distant Sun is proportional to its irradiance, so the shadow is a
+        factor on the rendered radiance: the fraction seen from the reference sphere's point
+        under each pixel centre (the tangent point for a ray beside it). It changes over
+        thousands of km (the penumbra is ~3 600 km wide at the Moon), a pixel's footprint is
+        tens of km: constant over a pixel; cast shadows and terrain are the render's.
         """
         if not self.settings.earth_shadow or geom.earth_position is None:
             return None
@@ -897,8 +892,8 @@ def adaptive_sample_counts(hit: NDArray[np.bool_], proxy: NDArray[np.float32],
        edges): **spp**.
     4. Every other pixel inside: **interior_spp**.
 
-    The noise left per spread bin and the choice of :data:`ADAPTIVE_SPREAD` and of the default
-    ``interior_spp`` (noise per spread bin): docs/methods.md, "starnav.renderer.render".
+    The choice of :data:`ADAPTIVE_SPREAD` and of the default ``interior_spp`` (noise per spread
+    bin): docs/methods.md, "starnav.renderer.render".
 
     Parameters
     ----------
