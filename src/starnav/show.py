@@ -13,7 +13,7 @@ Index
 -----
 :func:`render_scene`, :func:`layout_scene`, :class:`Layout`, :class:`View`, :func:`fit_view`,
 :func:`body_view`, :func:`overview_direction`, :func:`frustum_corners`, :func:`sphere_points`,
-:func:`offscreen_window`, :func:`check_offscreen`, :class:`ShowUnavailableError`.
+:func:`offscreen_window`, :class:`ShowUnavailableError`.
 """
 
 from __future__ import annotations
@@ -131,11 +131,6 @@ def _find_window(executable: str, user: str | None, display: str | None,
         "pyvista cannot render offscreen on this machine (no usable OpenGL context: "
         f"{'; '.join(reasons)}). Fixes: install EGL or OSMesa (the system packages libegl1 / "
         "libosmesa6), or run under a virtual display (`xvfb-run -a starnav show ...`)")
-
-
-def check_offscreen(timeout_s: float = PROBE_TIMEOUT_S) -> None:
-    """Raise :class:`ShowUnavailableError` unless some VTK window renders offscreen."""
-    offscreen_window(timeout_s)
 
 
 @contextlib.contextmanager

@@ -30,7 +30,7 @@ Index
 :class:`ScreenMapping`, :class:`NominalMapping`, :class:`TrueMapping`; dots :func:`dot_grid`,
 :func:`fit_dot_grid`, :func:`acquire_dots`, :class:`DotAcquisition`, :func:`auto_dot_exposure`,
 :func:`detect_dots`, :func:`intensity_centroid`, :func:`match_points`; :func:`prewarp`,
-:func:`stimulus_counts`; :func:`pixel_to_tangent`, :func:`tangent_to_pixel`,
+:func:`stimulus_counts`; :func:`pixel_to_tangent`,
 :func:`tangent_to_los`, :func:`angular_residual_arcsec`; :class:`CalibrationError`.
 """
 
@@ -290,13 +290,6 @@ def fit_dot_grid(camera: Camera, n: tuple[int, int], margin_px: float, half_wind
 def pixel_to_tangent(camera: Camera, uv: ArrayLike) -> FloatArray:
     """Detector pixels (distorted image) -> undistorted line-of-sight tangents ``(..., 2)``."""
     return camera.pixel_to_normalized(np.asarray(uv, float), undistort=True)
-
-
-def tangent_to_pixel(camera: Camera, t: ArrayLike, distort: bool = True) -> FloatArray:
-    """Tangents ``(..., 2)`` -> detector pixels (with the camera distortion if ``distort``)."""
-    t = np.asarray(t, float)
-    p = np.concatenate([t, np.ones(t.shape[:-1] + (1,))], -1)
-    return camera.project(p, distort=distort)
 
 
 def tangent_to_los(t: ArrayLike) -> FloatArray:
@@ -808,5 +801,4 @@ __all__ = ["CalibrationError", "DotAcquisition", "GeometricCalibration",
            "GeometricCalibrationResult", "NominalMapping", "Polynomial2D", "ScreenMapping",
            "TrueMapping", "acquire_dots", "angular_residual_arcsec", "calibrate_geometry",
            "detect_dots", "dot_grid", "exponents", "intensity_centroid", "match_points",
-           "pixel_to_tangent", "prewarp", "random_layout_holdout", "stimulus_counts",
-           "tangent_to_pixel"]
+           "pixel_to_tangent", "prewarp", "random_layout_holdout", "stimulus_counts"]

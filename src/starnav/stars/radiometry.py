@@ -19,7 +19,7 @@ M. S. Bessell (1979), PASP 91, 589; M. S. Bessell, F. Castelli and B. Plez (1998
 Index
 -----
 :func:`star_spectrum`, :func:`star_spectra`, :func:`electron_rate`, :func:`electron_rates`,
-:func:`photon_flux_density`, :func:`colour_temperature`, :func:`v_passband`.
+:func:`colour_temperature`, :func:`v_passband`.
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import ArrayLike
 
-from starnav.constants import PLANCK_H, SPEED_OF_LIGHT
 from starnav.errors import ConfigError
 from starnav.spectra import SensorResponse, Spectrum, band_integrals, planck_spectral_radiance
 from starnav.typing import FloatArray
@@ -116,9 +115,3 @@ def electron_rates(v: ArrayLike, b_v: ArrayLike, response: SensorResponse,
     grid = grid[(grid >= lo) & (grid <= hi)]
     fg = np.stack([np.interp(grid, STAR_GRID_NM, row, left=0.0, right=0.0) for row in f])
     return np.trapezoid(fg * e(grid), grid, axis=-1) * pupil_area
-
-
-def photon_flux_density(wavelength_nm: float, f_lambda: float) -> float:
-    """Photons s^-1 m^-2 nm^-1 of a flux density ``f_lambda`` [W m^-2 nm^-1] at
-    ``wavelength_nm`` (REFERENCE.md: V = 0 at 550 nm is ~1.0e8)."""
-    return f_lambda * wavelength_nm * 1e-9 / (PLANCK_H * SPEED_OF_LIGHT)
