@@ -1,11 +1,7 @@
-"""Field types shared by the configuration schemas.
+"""Field types shared by the configuration schemas, so that a constraint is written once.
 
-Every schema module (scenario, detector, DEM, scenes, navigation, bench) constrains its numbers
-the same few ways, and a constraint written once cannot drift between modules: a
-``PositiveFloat`` of the detector and one of the trajectory reject the same values with the
-same message. Each type is a ``typing.Annotated`` float that pydantic validates; all of them
-reject NaN and infinities (``allow_inf_nan=False``), since no configured quantity is meant to
-be either (an optional value is written ``PositiveFloat | None``).
+Each is a ``typing.Annotated`` float that pydantic validates, rejecting NaN and infinities (an
+optional value is written ``PositiveFloat | None``); units are in the field names, never here.
 
 =======================  ==============  ====================================================
 type                     accepts         used for
@@ -13,16 +9,13 @@ type                     accepts         used for
 :data:`FiniteFloat`      any finite      temperatures in degC, signed angles, coefficients
 :data:`PositiveFloat`    ``> 0``         lengths, times, scales, sigmas that must not vanish
 :data:`NonNegativeFloat` ``>= 0``        margins, noise levels that may be switched off
-:data:`UnitInterval`     ``[0, 1]``      fractions that may be 0 or 1 (a fraction of the
-                                         light, of the pixels, of the surface)
+:data:`UnitInterval`     ``[0, 1]``      fractions that may be 0 or 1
 :data:`PositiveFraction` ``(0, 1]``      fractions that must not be 0 (a transmission, a
                                          headroom: a zero would divide or empty a signal)
 =======================  ==============  ====================================================
 
 :data:`PositiveCount` is an ``int >= 1`` that refuses a boolean (pydantic would read ``true``
-as 1: a detector of one pixel, one sample per pixel).
-
-Units are in the field names (``_km``, ``_deg``, ``_s``), never in the types.
+as 1).
 """
 
 from __future__ import annotations

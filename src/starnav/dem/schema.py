@@ -1,18 +1,8 @@
 """Scenario section ``moon.dem`` (owned by :mod:`starnav.dem`).
 
-The DEM section says where the terrain comes from (a file or the procedural Moon), how to decode
-it, where the albedo comes from, and how finely to mesh it. Every model is frozen and rejects
-unknown keys. Unit suffixes (``_km``, ``_deg``, ``_m``, ``_px``) appear only here; the loaders
-convert to SI (metres, radians).
-
-Example
--------
->>> from starnav.dem.schema import DemConfig
->>> DemConfig().source                       # the default: the procedural Moon
-'procedural'
->>> cfg = DemConfig.model_validate({"source": "LDEM_16.LBL", "albedo": {"source": "procedural"}})
->>> cfg.format, cfg.albedo.decoding
-('auto', 'auto')
+Where the terrain comes from (a file or the procedural Moon), how to decode it, where the
+albedo comes from, and how finely to mesh it. Unit suffixes (``_km``, ``_deg``, ``_m``, ``_px``)
+appear only here; the loaders convert to SI.
 
 YAML::
 

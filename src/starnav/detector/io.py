@@ -1,7 +1,6 @@
 """Files of an exposed frame: DN PNG (16 bit), segments and windows (NPZ), summary (JSON).
 
-All files are written to a temporary name and renamed (never half-written) and are readable
-without starnav (``imageio.v3.imread``, ``numpy.load``, ``json``):
+Written atomically, readable without starnav (``imageio.v3.imread``, ``numpy.load``, ``json``):
 
 ========================= ================================================================
 file                      content
@@ -12,11 +11,10 @@ file                      content
 ``<prefix>readout.json``  :meth:`Exposure.summary`
 ========================= ================================================================
 
-PNG encoding (:func:`png_bytes`): greyscale 8 or 16 bit, filter 0 on every row, one zlib
-stream at :data:`PNG_COMPRESS_LEVEL` with a strategy chosen for the content (Huffman only for
-noisy frames, where no filter or string match gains; run-length for mostly flat images),
-optional ``tEXt`` chunks, no time stamp: deterministic bytes for one zlib build, any PNG 1.2
-reader decodes it (ISO/IEC 15948). Its cost: docs/performance.md.
+PNG encoding (:func:`png_bytes`): greyscale 8 or 16 bit, filter 0, one zlib stream at
+:data:`PNG_COMPRESS_LEVEL` with a strategy chosen for the content (Huffman only for noisy
+frames, run-length for mostly flat ones), optional ``tEXt`` chunks, no time stamp:
+deterministic bytes for one zlib build (ISO/IEC 15948).
 
 Index
 -----
