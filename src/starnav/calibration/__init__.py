@@ -1,30 +1,22 @@
 """starnav.calibration: emulation of the hardware-in-the-loop bench of the seed paper.
 
 A screen in the focal plane of a collimator stimulates the star tracker as if it looked at the
-Moon in orbit. This subpackage models that bench before any hardware exists and runs its
-procedures end to end in software:
+Moon in orbit; this subpackage models that bench and runs its procedures end to end:
 
-* :mod:`~starnav.calibration.schema` -- the ``BENCH`` file (:class:`BenchConfig`), TinyV3RSE
-  defaults;
-* :mod:`~starnav.calibration.collimator` -- optical-stimulator condition (eq. 2), Table 2
-  spot, distortion, vignetting;
-* :mod:`~starnav.calibration.screen` -- counts <-> radiance at the camera;
-* :mod:`~starnav.calibration.bench` -- geometry, emulated acquisition, pluggable detector,
-  :func:`check_bench`;
-* :mod:`~starnav.calibration.geometric` -- dot-pattern calibration, pre-warping;
-* :mod:`~starnav.calibration.intrinsics` -- the camera's focal length, principal point and
-  distortion with their covariance (the file navigation reads);
-* :mod:`~starnav.calibration.star_field` -- that camera's hold-out on the star-field stimulus;
-* :mod:`~starnav.calibration.radiometric` -- count <-> Moon flux, calibrated stimuli and their
-  validation;
-* :mod:`~starnav.calibration.scaling` -- albedo-exposure scaling, KS equivalence, end to end;
-* :mod:`~starnav.calibration.radiometric_truth` -- the screen and collimator as they really are,
-  and the reference instrument that reads them;
-* :mod:`~starnav.calibration.radiometric_lab` -- the radiometric calibration against that
-  instrument, its products with their covariance and its hold-out validation;
-* :mod:`~starnav.calibration.workflows` -- what ``starnav hil`` runs.
+* :mod:`~starnav.calibration.schema`: the ``BENCH`` file (:class:`BenchConfig`);
+* :mod:`~starnav.calibration.collimator`: stimulator condition (eq. 2), spot, distortion,
+  vignetting; :mod:`~starnav.calibration.screen`: counts <-> radiance at the camera;
+* :mod:`~starnav.calibration.bench`: geometry, emulated acquisition, :func:`check_bench`;
+* :mod:`~starnav.calibration.geometric`: dot-pattern calibration, pre-warping;
+* :mod:`~starnav.calibration.intrinsics`: the camera's intrinsics with their covariance (the
+  file navigation reads); :mod:`~starnav.calibration.star_field`: their star-field hold-out;
+* :mod:`~starnav.calibration.radiometric`: count <-> Moon flux, calibrated stimuli;
+* :mod:`~starnav.calibration.scaling`: albedo-exposure scaling, KS equivalence, end to end;
+* :mod:`~starnav.calibration.radiometric_truth`, :mod:`~starnav.calibration.radiometric_lab`:
+  the screen as it really is, the reference instrument, and the calibration against it;
+* :mod:`~starnav.calibration.workflows`: what ``starnav hil`` runs.
 
-Names are imported lazily (nothing heavy at ``import starnav.calibration``).
+Names are imported lazily.
 
 >>> from starnav.calibration import Bench, BenchConfig, check_bench
 >>> check_bench(Bench(BenchConfig())).fills_field

@@ -1,7 +1,5 @@
 """Geometric calibration of the bench: dot pattern, centroids, calibration polynomials,
-pre-warping, residuals.
-
-Each step in full: docs/methods.md, "starnav.calibration.geometric".
+pre-warping, residuals. Each step in full: docs/methods.md, "starnav.calibration.geometric".
 
 Technique
 ---------
@@ -16,8 +14,6 @@ Technique
 7. Closed-loop validation on a second grid drawn at ``P(t)`` (the paper's Fig. 12).
 8. Pre-warping an image (:func:`prewarp`) through ``Q``.
 
-The knobs are :class:`~starnav.calibration.schema.GeometricCalibrationConfig`.
-
 References
 ----------
 Seed paper, "Geometric Calibration" and Figs. 12-13 (polynomial fitted to displayed dots,
@@ -25,13 +21,13 @@ Seed paper, "Geometric Calibration" and Figs. 12-13 (polynomial fitted to displa
 
 Index
 -----
-:func:`calibrate_geometry`, :class:`GeometricCalibrationResult`,
-:class:`GeometricCalibration`, :class:`Polynomial2D`, :func:`exponents`; mappings
-:class:`ScreenMapping`, :class:`NominalMapping`, :class:`TrueMapping`; dots :func:`dot_grid`,
-:func:`fit_dot_grid`, :func:`acquire_dots`, :class:`DotAcquisition`, :func:`auto_dot_exposure`,
-:func:`detect_dots`, :func:`intensity_centroid`, :func:`match_points`; :func:`prewarp`,
-:func:`stimulus_counts`; :func:`pixel_to_tangent`,
-:func:`tangent_to_los`, :func:`angular_residual_arcsec`; :class:`CalibrationError`.
+:func:`calibrate_geometry`, :class:`GeometricCalibrationResult`, :class:`GeometricCalibration`,
+:class:`Polynomial2D`, :func:`exponents`; :class:`ScreenMapping`, :class:`NominalMapping`,
+:class:`TrueMapping`; :func:`dot_grid`, :func:`fit_dot_grid`, :func:`acquire_dots`,
+:class:`DotAcquisition`, :func:`auto_dot_exposure`, :func:`detect_dots`,
+:func:`intensity_centroid`, :func:`match_points`; :func:`prewarp`, :func:`stimulus_counts`;
+:func:`pixel_to_tangent`, :func:`tangent_to_los`, :func:`angular_residual_arcsec`;
+:class:`CalibrationError`.
 """
 
 from __future__ import annotations
