@@ -1,11 +1,9 @@
 """A camera as a calibration estimated it: the file the bench writes and navigation reads.
 
-On a real project the flight software does not know the camera's focal length, principal point
-and distortion; it knows what the ground calibration (here the HIL bench emulation,
-:mod:`starnav.calibration`) estimated, with a covariance. This module is that contract: a small
-versioned JSON file, its reader and writer, and the operations both sides need (the calibrated
-:class:`~starnav.camera.Camera`, the 1-sigma of each parameter, a camera with some parameters
-moved, draws from the covariance).
+The flight software does not know the camera's focal length, principal point and distortion; it
+knows what the ground calibration (:mod:`starnav.calibration`) estimated, with a covariance.
+This module is that contract: a small versioned JSON file, its reader and writer, and what both
+sides need (the calibrated camera, each parameter's 1-sigma, moved cameras, draws).
 
 File layout (``format`` ``starnav-camera-calibration``, ``version`` 1)::
 
@@ -19,19 +17,17 @@ File layout (``format`` ``starnav-camera-calibration``, ``version`` 1)::
      "provenance": {...},
      "radiometric": {...}}
 
-``parameters`` are estimated (their order is the covariance's); ``fixed`` holds the camera's
-other distortion coefficients, taken as exact. ``provenance`` says how the file was made (free
-form); ``radiometric`` is the radiometric calibration's section, owned by
-:mod:`starnav.calibration` and carried here untouched.
+``parameters`` are estimated (in the covariance's order); ``fixed`` are taken as exact;
+``provenance`` is free form; ``radiometric`` is :mod:`starnav.calibration`'s section, carried
+untouched.
 
 Index
 -----
-:data:`PARAMETERS`            the estimable parameters, their unit and ``Camera`` field
-:class:`CameraCalibration`    estimate + covariance; ``camera``, ``sigma``, ``sample``
-:func:`with_parameters`       a camera with some parameters set (Jacobians, dispersions)
-:func:`read_calibration`, :func:`write_calibration`
-:func:`star_alignment`        the rotation a star solve through a calibrated camera absorbs
-:func:`bench_calibration`     a run's camera knowledge from the packaged bench emulations
+:data:`PARAMETERS`, :class:`CameraCalibration` (``camera``, ``sigma``, ``sample``),
+:func:`with_parameters` (a camera with some parameters set), :func:`read_calibration`,
+:func:`write_calibration`, :func:`star_alignment` (the rotation a star solve through a
+calibrated camera absorbs), :func:`bench_calibration` (a run's camera knowledge from the
+packaged bench emulations).
 """
 
 from __future__ import annotations

@@ -3,29 +3,25 @@ their covariance: the calibration product navigation reads.
 
 Each matched dot of :mod:`starnav.calibration.geometric` pairs a screen pixel (a known
 direction through the nominal collimator) with the detector pixel it was seen at; fitting the
-camera model to those pairs estimates the camera. The steps in full: docs/calibration.md, "The
-camera's focal length, principal point and distortion".
+camera model to those pairs estimates the camera (docs/calibration.md, "The camera's focal
+length, principal point and distortion").
 
 Technique
 ---------
 1. Model ``uv = camera(theta).project(R(omega) d(s))``: ``theta`` the parameters
    :data:`ESTIMATED`, ``omega`` the unknown mount rotation (a nuisance, not written).
 2. Prior on the mount's tilts (they mimic a principal-point shift); the roll is free.
-3. Fit: Levenberg-Marquardt on the pixel residuals, alternating with the centroid noise
-   estimate.
+3. Fit: Levenberg-Marquardt on the pixel residuals, alternating with the centroid noise.
 4. Covariance ``(J^T W J)^-1``.
-5. Consider parameters (:data:`CONSIDER`: the collimator's focal length and distortion, the
-   screen's shift, tilt and defocus), not estimated: the estimate's response to them, from
-   the bench model moved by each (and each pair) at 1 sigma, is fitted as a quadratic (a
-   tilted screen's is not linear at its tolerance) whose second moment over Gaussian
-   departures is added to the covariance.
+5. Consider parameters (:data:`CONSIDER`: collimator focal length and distortion, screen
+   shift, tilt and defocus): the estimate's response to each (and each pair) at 1 sigma is
+   fitted as a quadratic whose second moment over Gaussian departures is added.
 
 References
 ----------
 B. D. Tapley, B. E. Schutz and G. H. Born, *Statistical Orbit Determination*, Elsevier (2004),
-ch. 6.3 (consider covariance).
-A. M. Mathai and S. B. Provost, *Quadratic Forms in Random Variables*, Dekker (1992), ch. 3
-(moments of quadratic forms in Gaussian variables).
+ch. 6.3 (consider covariance). A. M. Mathai and S. B. Provost, *Quadratic Forms in Random
+Variables*, Dekker (1992), ch. 3.
 
 Index
 -----

@@ -1,32 +1,28 @@
 """Radiometric calibration of the bench against a reference instrument, its products with their
-covariance, and a validation of the tracker's DN that can fail.
-
-Each step in full: docs/methods.md, "starnav.calibration.radiometric_lab".
+covariance, and a validation of the tracker's DN that can fail. Each step in full:
+docs/methods.md, "starnav.calibration.radiometric_lab".
 
 Technique
 ---------
-1. Session (:func:`calibrate_radiometry`): the reference spectroradiometer
-   (:class:`~starnav.calibration.radiometric_truth.ReferenceInstrument`) at the camera's pupil
-   reads full white on axis (monitor), the grey ``lut_counts``, full white over a field grid and
-   the monitor again; readings are drift-corrected by the monitor.
-2. Products (:class:`RadiometricCalibration`): the screen LUT with its covariance split into
-   terms (absolute scale per luminance class, repeatability, spectral consider parameters),
-   the field factor with its sigma, the monitor reading, the albedo-exposure plan
-   (:func:`plausibility`).
+1. Session (:func:`calibrate_radiometry`): the reference spectroradiometer at the camera's
+   pupil reads full white on axis (monitor), the grey ``lut_counts``, full white over a field
+   grid and the monitor again; readings are drift-corrected by the monitor.
+2. Products (:class:`RadiometricCalibration`): the screen LUT with its covariance by term
+   (absolute scale per luminance class, repeatability, spectral), the field factor with its
+   sigma, the monitor reading, the albedo-exposure plan (:func:`plausibility`).
 3. Validation (:func:`validate_radiometry`) at hold-out counts, exposures and field points: the
    tracker's dark-subtracted DN against the prediction, one budget line per term of
    :data:`TERMS`; **consistent** when no point exceeds the Bonferroni bound at a 1 % family
    false-alarm rate, **meets the paper's use** when ``coverage_k`` sigma is within
    ``tolerance`` everywhere.
 
-The knobs are the ``radiometric_lab`` section (:mod:`starnav.calibration.schema`); its switches
-(``model_field``, ``through_collimator``, ``measure_lut``, ``monitor``) turn a term off, as a lab
-that ignores it would: the negative controls of the tests.
+The ``radiometric_lab`` switches (``model_field``, ``through_collimator``, ``measure_lut``,
+``monitor``) turn a term off, as a lab that ignores it would: the tests' negative controls.
 
 References
 ----------
-Seed paper, "Radiometric Calibration"; JCGM 100:2008 (GUM) for the combination of the budget
-(first order, uncorrelated terms within a point).
+Seed paper, "Radiometric Calibration"; JCGM 100:2008 (GUM), first order, uncorrelated terms
+within a point.
 
 Index
 -----

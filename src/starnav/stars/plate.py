@@ -87,14 +87,12 @@ class PlateOptions:
     stars_per_field : float
         Mean number of index stars in the field, over the sky (step 2).
     index_v_max : float
-        Faintest index star [mag] whatever the field (Hipparcos is complete to V ~ 8-9: a
-        narrow field gets fewer stars rather than a patchy index).
+        Faintest index star [mag] whatever the field (Hipparcos is complete to V ~ 8-9).
     n_brightest : int
         Detections forming triangles (fewer when fewer are detected).
-    n_sigma : float
-        Pair-angle tolerance in centroid sigmas.
-    floor_px : float
-        Centroid sigma floor [px]: seeing, unmodelled distortion, blends.
+    n_sigma, floor_px : float
+        Pair-angle tolerance in centroid sigmas; centroid sigma floor (seeing, unmodelled
+        distortion, blends) [px].
     catalogue_tol_arcsec : float
         Catalogue, proper-motion and refraction allowance of a pair angle.
     match_px : float
@@ -103,14 +101,10 @@ class PlateOptions:
         Refinement keeps stars within this many residual rms.
     false_match_probability : float
         Per frame (step 4).
-    max_hypotheses : int
-        Candidate attitudes verified at most.
-    screen_stars : int
-        Further bright detections scoring a candidate (step 4).
-    k1_min_stars : int
-        Fewest well-spread matched stars to fit ``k1``.
-    min_stars : int
-        Fewest detections to try.
+    max_hypotheses, screen_stars : int
+        Candidate attitudes verified at most; further bright detections scoring a candidate.
+    k1_min_stars, min_stars : int
+        Fewest well-spread matched stars to fit ``k1``; fewest detections to try.
     verify_v_limit : float
         Faintest catalogue star used by verification and refinement [mag].
     """
