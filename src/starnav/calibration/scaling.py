@@ -498,7 +498,7 @@ def end_to_end(bench: Bench, le: ArrayLike | RadianceImage, mapping: ScreenMappi
                calibration: RadiometricCalibration | None = None,
                truth: TruthScreen | None = None,
                instrument: ReferenceInstrument | None = None) -> EndToEnd:
-    """Render-in-orbit vs scaled bench acquisition, end to end (module essay, step 4).
+    """Render-in-orbit vs scaled bench acquisition, end to end (module essay, step 3).
 
     Parameters
     ----------
@@ -507,16 +507,12 @@ def end_to_end(bench: Bench, le: ArrayLike | RadianceImage, mapping: ScreenMappi
     mapping : ScreenMapping
         The geometric calibration.
     le_scaled : array or RadianceImage, optional
-        The same frame rendered with ``albedo / k`` (``moon.albedo_scale = plan.albedo_factor``);
-        default ``le / k``.
+        The same frame rendered with ``albedo / k``; default ``le / k``.
     render_exposure_s, bench_exposure_s : float, optional
-        [s]; defaults ``scaling.render_exposure_ms`` and the plan's exposure (``scaling``
-        section: fixed, or the shortest the readout allows).
+        [s]; defaults ``scaling.render_exposure_ms`` and the plan's exposure.
     calibration, truth, instrument : optional, all three or none
-        The truth bench: the stimulus is chosen with the lab's calibration and shown on the
-        truth screen, compared within its budget
-        (:func:`~starnav.calibration.moon_stimulus.compare_moon_stimulus`); without them, the
-        nominal bench model.
+        The truth bench (:func:`~starnav.calibration.moon_stimulus.compare_moon_stimulus`);
+        without them, the nominal bench model.
 
     Raises
     ------

@@ -171,8 +171,8 @@ def solve_attitude(dn: ArrayLike, camera: Camera, detector: DetectorConfig, *,
     epoch_jyear : float
         Epoch of the star positions [Julian year].
     prior : (3, 3) array, optional
-        Camera -> inertial attitude propagated from a previous solution: tracking mode
-        (nearest-neighbour matching, no lost-in-space search). ``None``: lost in space.
+        Camera -> inertial attitude from a previous solution: tracking mode (nearest-neighbour
+        matching); ``None``: lost in space.
     prior_sigma_rad : float
         1-sigma of the prior per axis [rad] (widens the tracking match radius).
     exclusions : tuple of Exclusion
@@ -181,16 +181,15 @@ def solve_attitude(dn: ArrayLike, camera: Camera, detector: DetectorConfig, *,
         Default Hipparcos.
     options : AttitudeOptions, optional
     observer_velocity : (3,) array, optional
-        The tracker's knowledge of its barycentric velocity, ICRF axes [m/s]: the catalogue is
-        corrected to apparent directions (stellar aberration, :mod:`starnav.stars.aberration`)
-        and the attitude is the true one. ``None``: astrometric catalogue places (an attitude
-        biased by up to 20.5 arcsec when the sky is aberrated).
+        The tracker's barycentric velocity, ICRF axes [m/s]: the catalogue is corrected to
+        apparent directions (:mod:`starnav.stars.aberration`). ``None``: catalogue places (an
+        attitude biased by up to 20.5 arcsec when the sky is aberrated).
 
     Returns
     -------
     AttitudeSolution
-        ``status "no-attitude"`` with the reason when the frame has too few stars or none is
-        identified; never raises for frame content.
+        ``status "no-attitude"`` with the reason when too few stars are found or identified;
+        never raises for frame content.
     """
     opt = options or AttitudeOptions()
     cat = catalogue if catalogue is not None else hipparcos()
