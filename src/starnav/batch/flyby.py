@@ -266,10 +266,6 @@ def flyby_closed_loop(sim: Simulator, runs: int = 1, *, renders: Renders | None 
         Two-sided probability of the NEES band.
     progress : callable, optional
         ``progress(stage, done, total)`` with stage ``render`` or ``runs``.
-
-    Returns
-    -------
-    FlybyClosedLoop
     """
     check_flyby_scenario(sim.scenario)
     check_estimator_body(sim.scenario)

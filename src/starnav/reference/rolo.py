@@ -508,10 +508,6 @@ def rolo_geometry(geom: FrameGeometry) -> RoloGeometry:
     ----------
     geom : FrameGeometry
         The frame.
-
-    Returns
-    -------
-    RoloGeometry
     """
     R = np.asarray(geom.R_body_to_inertial, float)
     sun_body = R.T @ np.asarray(geom.sun_position, float)

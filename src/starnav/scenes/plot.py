@@ -42,10 +42,6 @@ def plot_trajectory(traj: Trajectory, path: str | os.PathLike[str],
     max_points : int
         Nodes plotted at most (evenly decimated).
     dpi : int
-
-    Returns
-    -------
-    Path
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure

@@ -247,10 +247,6 @@ def acquire(radiance: RadianceImage | Any, geom: FrameGeometry, camera: Camera,
         Monte Carlo run (0: the dataset's streams).
     windows : {"second", "same", "none"}
         How the windows are read (module step 3).
-
-    Returns
-    -------
-    Acquisition
     """
     mode = check_windows_mode(windows)
     t_exp = float(scenario.detector.exposure_time_s if exposure_time is None else exposure_time)

@@ -849,10 +849,6 @@ def calibrate(frame: AmieFrame, *, options: AmieCalibrationOptions | None = None
     ----------
     frame : AmieFrame
     options : AmieCalibrationOptions, optional
-
-    Returns
-    -------
-    AmieCalibrated
     """
     opt = options or AmieCalibrationOptions()
     bias = _load_calibration(BIAS_FILE)

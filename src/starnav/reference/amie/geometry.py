@@ -222,10 +222,6 @@ def fit_reticle(
     ordering : tuple of 4 int, optional
         Impose the corner ordering (see :data:`CORNER_ORDERINGS`); default: try all eight and
         keep the smallest residual, ties going to the earliest in :data:`CORNER_ORDERINGS`.
-
-    Returns
-    -------
-    ReticleFit
     """
     bs = np.asarray(boresight_radec_deg, float).reshape(-1)
     if bs.shape != (2,) or not np.all(np.isfinite(bs)):
