@@ -115,8 +115,23 @@ def star_index(catalogue: StarCatalogue, v_limit: float, max_separation_rad: flo
                   float(round(epoch_jyear)), catalogue)
 
 
+class MatchResult:
+    """``ok`` and ``n_matched`` of a result with a ``status`` and matched ``detection_index``."""
+
+    status: str
+    detection_index: NDArray[np.int64]
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    @property
+    def n_matched(self) -> int:
+        return int(self.detection_index.size)
+
+
 @dataclass(frozen=True)
-class Identification:
+class Identification(MatchResult):
     """Matched detections and catalogue stars.
 
     Attributes
@@ -144,14 +159,6 @@ class Identification:
     n_required: int = 0
     lam: float = 0.0
     hypotheses: int = 0
-
-    @property
-    def ok(self) -> bool:
-        return self.status == "ok"
-
-    @property
-    def n_matched(self) -> int:
-        return int(self.detection_index.size)
 
 
 def _fail(status: str, reason: str, hyp: int = 0) -> Identification:

@@ -60,7 +60,7 @@ from starnav.errors import ConfigError
 from starnav.scenes.trajectory import default_cache_dir
 from starnav.stars.catalogue import StarCatalogue, hipparcos
 from starnav.stars.centroid import CentroidOptions, Centroids, find_stars
-from starnav.stars.identify import StarIndex, _index
+from starnav.stars.identify import MatchResult, StarIndex, _index
 from starnav.typing import FloatArray
 
 log = logging.getLogger(__name__)
@@ -197,7 +197,7 @@ def plate_settings(camera: Camera, catalogue: StarCatalogue,
 
 
 @dataclass(frozen=True)
-class PlateSolution:
+class PlateSolution(MatchResult):
     """One frame's plate solution, or why there is none.
 
     Attributes
@@ -245,14 +245,6 @@ class PlateSolution:
     hypotheses: int = 0
     time_extract_s: float = 0.0
     time_solve_s: float = 0.0
-
-    @property
-    def ok(self) -> bool:
-        return self.status == "ok"
-
-    @property
-    def n_matched(self) -> int:
-        return int(self.detection_index.size)
 
     @property
     def boresight(self) -> FloatArray:
