@@ -166,10 +166,8 @@ def attitude_comparison(
     ----------
     scenario : Scenario or dict
         Needs a ``trajectory`` (an arc to filter over).
-    exposures_s : sequence of float
-        Navigation exposures [s] (default the demo's: 0.015 ms and 7.7 ms).
-    exposure_overrides : sequence of (exposure, overrides)
-        Per-exposure ``a.b=value`` overrides (default the demo's).
+    exposures_s, exposure_overrides : sequences
+        Navigation exposures [s] and their ``a.b=value`` overrides (default the demo's).
     attitude : dict, optional
         ``navigation.attitude`` keys for the solved case (``star_exposure_s``,
         ``schedule_every``, ``navigation_frames``, ``gyro_*``); ``source`` is set to stars.

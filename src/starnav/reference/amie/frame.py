@@ -621,19 +621,16 @@ def dark_band_rows(dn: NDArray[Any], usable: BoolArray | None = None, *,
         measured [px].
     smooth : (int, int)
         Running-median window (rows, columns) applied to the residual [px].
-    min_depth_dn : float
-        Smallest band depth detected [DN].
-    n_sigma : float
+    min_depth_dn, n_sigma : float
         The band ends where the smoothed residual rises to ``-max(min_depth_dn, n_sigma x
-        sigma)`` [-].
+        sigma)`` [DN], [-].
     sky_clip_dn : float
         Reference pixels more than this above the ramp are not sky [DN].
 
     Returns
     -------
     (samples,) int array
-        Rows of the band per column: the band of column ``c`` is rows ``0 .. band[c] - 1``
-        (0: no band).
+        Rows of the band per column: rows ``0 .. band[c] - 1`` of column ``c`` (0: no band).
     """
     from scipy import ndimage
 

@@ -82,26 +82,20 @@ class AmieOptions:
     ----------
     spp : int
         Render samples per pixel.
-    threshold_sigma : float
-        Segment threshold above the dark sky [its rms].
-    window_px : int
-        Side of a refinement window [px].
-    interior_erode_px : int
-        Pixels eroded from the disc for the per-pixel comparison.
-    threshold_peak_fraction : float
-        The threshold is at least this fraction of the Moon's peak (the real optics' halo: the
-        limb must land inside a refinement window).
+    threshold_sigma, threshold_peak_fraction : float
+        Segment threshold above the dark sky [its rms], and at least this fraction of the
+        Moon's peak (the real optics' halo: the limb must land inside a refinement window).
+    window_px, interior_erode_px : int
+        Side of a refinement window; pixels eroded from the disc for the per-pixel comparison.
     seed : int
         Seed of RANSAC and the detector noise.
     max_phase_deg : float
         The chain's thin-crescent limit (no fix beyond it) [deg].
     edge_margin_px : int
-        Limb points this close to the border or an invalid pixel are the disc's cut, not its
-        limb [px].
-    min_limb_points : int
-        Fewer limb points in the valid area: the frame cannot be compared.
-    min_disc_inside : float
-        A smaller fraction of the disc in the valid area: the frame cannot be compared.
+        Limb points this close to the border or an invalid pixel are the disc's cut [px].
+    min_limb_points, min_disc_inside : int, float
+        Fewer limb points, or a smaller fraction of the disc, in the valid area: the frame
+        cannot be compared.
     max_fit_rms_px : float
         A limb fit (label radius) rms above this has not converged [px].
     """
