@@ -273,33 +273,29 @@ def rolo_reflectance(
     phase : float or array
         Phase angle ``g`` (Sun-Moon-observer angle) [rad], in ``[0, pi]``.
     sun_lon : float or array
-        Selenographic east longitude of the Sun (the subsolar point), ``Phi`` [rad]; positive for
-        the waxing Moon seen from Earth (module docstring). Wrapped to ``[-pi, pi)``.
+        Selenographic east longitude of the subsolar point, ``Phi`` [rad]; positive for the
+        waxing Moon seen from Earth. Wrapped to ``[-pi, pi)``.
     obs_lat, obs_lon : float or array
-        Selenographic latitude and east longitude of the observer (the sub-observer point)
-        [rad]; (0, 0) is the mean sub-Earth point.
+        Selenographic latitude and east longitude of the sub-observer point [rad]; (0, 0) is
+        the mean sub-Earth point.
     wavelength_nm : float or array, optional
-        Wavelengths [nm] in 350-2383.6 nm: ``A`` linearly interpolated between band centres.
-        ``None``: the 32 bands of :data:`ROLO_WAVELENGTHS_NM`.
+        Wavelengths [nm] in 350-2383.6 nm, ``A`` linear between band centres; ``None``: the 32
+        bands of :data:`ROLO_WAVELENGTHS_NM`.
     apollo : bool
         Multiply by the per-band Apollo factor (the published ROLO scale) before interpolating.
 
     Returns
     -------
     ndarray
-        ``A`` with shape ``broadcast(phase, sun_lon, obs_lat, obs_lon).shape`` followed by
-        ``(32,)`` or by the shape of ``wavelength_nm`` (a 0-d result is a NumPy scalar).
+        Shape ``broadcast(phase, sun_lon, obs_lat, obs_lon).shape`` followed by ``(32,)`` or by
+        the shape of ``wavelength_nm`` (a 0-d result is a NumPy scalar). Outside the fit range
+        (:func:`rolo_extrapolation`) it is computed anyway and a warning is logged.
 
     Raises
     ------
     ConfigError
         A phase outside ``[0, pi]``, a latitude outside ``[-pi/2, pi/2]``, a non-finite angle,
         or a wavelength outside the table.
-
-    Notes
-    -----
-    Outside the fit range (:func:`rolo_extrapolation`) the value is computed anyway and a
-    warning is logged.
     """
     g, s, t, p = _geometry_arrays(phase, sun_lon, obs_lat, obs_lon)
     wl = None if wavelength_nm is None else _check_wavelengths(wavelength_nm)
@@ -390,26 +386,22 @@ def rolo_irradiance(
 
     ``I(lambda) = A(lambda) Omega_M E(lambda) / pi (1 AU / D_sun)^2 (384 400 km / D_obs)^2``,
     with ``Omega_M = 6.4177e-5 sr``; the band integrals are those of
-    :func:`starnav.spectra.band_integrals` (trapezoid on the union of the solar and ROLO grids,
-    ``A`` linear between band centres).
+    :func:`starnav.spectra.band_integrals`.
 
     Parameters
     ----------
     phase, sun_lon, obs_lat, obs_lon : float
         Geometry [rad], as :func:`rolo_reflectance`.
-    sun_distance_m : float
-        Sun to Moon-centre distance [m].
-    observer_distance_m : float
-        Observer to Moon-centre distance [m], more than the Moon radius.
+    sun_distance_m, observer_distance_m : float
+        Sun and observer to Moon-centre distances [m] (the observer's above the Moon radius).
     sun_1au : Spectrum, optional
         Solar spectral irradiance **at 1 AU** [W m^-2 nm^-1]; default the ASTM G-173
         extraterrestrial spectrum (:func:`starnav.spectra.solar_spectrum`).
     response : SensorResponse, optional
-        Sensor ``QE x T`` [e-/photon]: sets the band (its support) and gives the electron
-        irradiance. Its band must lie within the ROLO table.
+        Sensor ``QE x T`` [e-/photon]: sets the band (within the ROLO table) and gives the
+        electron irradiance.
     band_nm : (float, float), optional
-        Integration band [nm] when there is no ``response``; default the whole table
-        (350-2383.6 nm). Not allowed together with ``response``.
+        Integration band [nm] without ``response``; default the whole table.
     apollo : bool
         Apply the Apollo factors (the published ROLO scale).
 
