@@ -97,10 +97,8 @@ class BenchGeometry:
     Attributes
     ----------
     camera : Camera
-    focal_length : float
-        Collimator focal length [m].
-    pitch : float
-        Screen pixel pitch [m].
+    focal_length, pitch : float
+        Collimator focal length; screen pixel pitch [m].
     shape : (rows, cols)
         Screen size [px].
     k1, k2 : float
@@ -109,10 +107,8 @@ class BenchGeometry:
         Screen in-plane shift [m].
     defocus : float
         Screen distance from the focal plane, + towards the lens [m].
-    R_screen : (3, 3) array
-        Screen roll and tilt (screen plane -> collimator frame).
-    R_cam : (3, 3) array
-        Collimator frame -> camera frame.
+    R_screen, R_cam : (3, 3) arrays
+        Screen roll and tilt (screen plane -> collimator frame); collimator -> camera frame.
     focal_length_design, k1_design : float, optional
         The collimator's design focal length [m] and distortion [-] when the as-built ones
         above differ (:meth:`nominal`, :meth:`design`).
@@ -694,18 +690,17 @@ class BenchCheck:
     Attributes
     ----------
     conditions : list of StimulatorCondition
-        Eq. 2 with the stated FoV (if configured) and with the derived vertical and horizontal
-        FoV.
+        Eq. 2 with the stated FoV (if configured) and the derived vertical and horizontal FoV.
     stimulated_fraction : float
         Share of detector pixels whose centre sees the screen (full bench model) [-].
     unstimulated_rows : dict
-        Width of the unstimulated band along each detector edge, over the middle half of
-        that edge (``top``, ``bottom`` in rows, ``left``, ``right`` in columns) [px].
+        Width of the unstimulated band along each detector edge, over its middle half
+        (``top``, ``bottom`` in rows, ``left``, ``right`` in columns) [px].
     edge_margin_mm : dict
         Smallest distance from the screen edge to where each detector edge lands on the screen
         (negative: outside the screen) [mm].
     screen_pixel_camera_px : float
-        One screen pixel on the detector [camera px] (must be < 1 so the screen is not resolved).
+        One screen pixel on the detector [camera px] (< 1: the screen is not resolved).
     spot_rms_px : dict
         Collimator spot RMS radius at the centre, the edge middle and the corner [camera px].
     corner_vignetting : float

@@ -43,14 +43,10 @@ class StimulatorCondition:
         Full field of view put in the condition [deg].
     fov_source : str
         Where it comes from (``"stated by the paper"``, ``"derived, vertical"``, ...).
-    screen_extent_mm : float
-        Screen size along that axis [mm].
-    focal_length_mm : float
-        Collimator focal length [mm].
-    lhs : float
-        ``tan(FoV / 2)`` [-].
-    rhs : float
-        ``h_s / (2 f_coll)`` [-].
+    screen_extent_mm, focal_length_mm : float
+        Screen size along that axis; collimator focal length [mm].
+    lhs, rhs : float
+        ``tan(FoV / 2)`` and ``h_s / (2 f_coll)`` [-].
     satisfied : bool
     max_focal_length_mm : float
         Longest collimator that still fills the field ``h_s / (2 tan(FoV/2))`` [mm].

@@ -65,10 +65,9 @@ class MoonFlux:
 
     Attributes
     ----------
-    peak_le : float
-        Brightest pixel's electron radiance [e- s^-1 m^-2 sr^-1].
-    peak_l : float
-        Brightest pixel's band radiance [W m^-2 sr^-1].
+    peak_le, peak_l : float
+        Brightest pixel's electron radiance [e- s^-1 m^-2 sr^-1] and band radiance
+        [W m^-2 sr^-1].
     electrons_per_joule : float
         ``sum Le / sum L`` over the disc [e- J^-1].
     disc_irradiance : float
@@ -215,13 +214,11 @@ class StimulusComparison:
         In-orbit exposure [DN], its dark frame [DN], collected charge [e-].
     bench : Acquisition
     bench_dark_dn : (H, W) array
-    gain : float
-        [e-/DN]
-    full_well_e : float
-    region : (H, W) bool
-        The Moon mask dilated by ``disc_margin_px``.
-    inner : (H, W) bool
-        Eroded mask and brighter than :data:`INNER_MIN_FRACTION` of the peak.
+    gain, full_well_e : float
+        [e-/DN], [e-]
+    region, inner : (H, W) bool
+        The Moon mask dilated by ``disc_margin_px``; eroded and brighter than
+        :data:`INNER_MIN_FRACTION` of the peak.
     """
 
     le_orbit: FloatArray

@@ -80,26 +80,20 @@ class RadiometricCalibration:
         [(e- s^-1 m^-2 sr^-1)^2].
     field_u, field_v : (nx,), (ny,) arrays
         Pinhole pixel coordinates of the field grid [px].
-    field : (ny, nx) array
-        Full white at a field point / on axis [-] (ones if not measured).
-    field_sigma : (ny, nx) array
-        Its 1-sigma [-].
-    monitor_le : float
-        On-axis full white at the end of the session [e- s^-1 m^-2 sr^-1].
-    monitor_sigma : float
-        Relative 1-sigma of its repeatability [-].
-    session_end_s : float
-        End of the session after power-on [s].
-    drift_per_s : float
-        Relative change of the monitor over the session per second [1/s].
+    field, field_sigma : (ny, nx) arrays
+        Full white at a field point / on axis (ones if not measured), and its 1-sigma [-].
+    monitor_le, monitor_sigma : float
+        On-axis full white at the end of the session [e- s^-1 m^-2 sr^-1]; relative 1-sigma
+        of its repeatability [-].
+    session_end_s, drift_per_s : float
+        End of the session after power-on [s]; relative drift of the monitor [1/s].
     options : dict
         The lab switches used (``model_field``, ``through_collimator``, ``measure_lut``,
         ``monitor``).
     provenance : dict
         Instrument, bench seed, method (free form).
     albedo_exposure : dict or None
-        The paper's albedo-exposure plan made with this calibration (:func:`plausibility`:
-        ``k``, the stimulus peak count and the too-dim factor with their 1-sigma).
+        The paper's albedo-exposure plan made with this calibration (:func:`plausibility`).
     """
 
     counts: FloatArray

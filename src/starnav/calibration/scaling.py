@@ -203,10 +203,8 @@ class KsCase:
     Attributes
     ----------
     label : str
-    k : float
-        Albedo divisor [-].
-    exposure_s : float
-        Bench exposure [s].
+    k, exposure_s : float
+        Albedo divisor [-]; bench exposure [s].
     product_ratio : float
         ``(albedo x exposure) / (reference albedo x exposure)`` [-].
     peak_count : int

@@ -49,27 +49,20 @@ class StarField:
     v, b_v : (n,) arrays
         Johnson V and B - V [mag].
     direction_inertial, direction_camera : (n, 3) arrays
-        Unit vectors, inertial (ICRS/J2000 axes) at the epoch and in the camera frame (true
-        attitude) [-]: apparent (aberrated) directions when aberration is on, else the
-        astrometric catalogue places.
-    pinhole_px : (n, 2) array
-        ``(u, v)`` in the undistorted pinhole image [px].
-    pixel_px : (n, 2) array
-        ``(u, v)`` on the detector, distortion included when the chain applies it [px]: where
-        the star's PSF centroid lands.
-    rate : (n,) array
-        Photo-electrons per second through the on-axis pupil [e-/s].
-    electrons : (n,) array
-        Photo-electrons of the exposure before the PSF [e-] (``rate x t [x cos(theta)]``).
-    occulted : (n,) bool array
-        Behind the body.
-    in_frame : (n,) bool array
-        ``pixel_px`` inside the detector (``-0.5 <= u < W - 0.5``, same for v).
+        Unit vectors, inertial (ICRS) at the epoch and in the camera frame (true attitude):
+        apparent directions when aberration is on, else the catalogue places.
+    pinhole_px, pixel_px : (n, 2) arrays
+        ``(u, v)`` in the undistorted pinhole image, and on the detector (distortion included
+        when the chain applies it: where the PSF centroid lands) [px].
+    rate, electrons : (n,) arrays
+        Photo-electrons per second through the on-axis pupil [e-/s], and of the exposure
+        before the PSF [e-].
+    occulted, in_frame : (n,) bool arrays
+        Behind the body; ``pixel_px`` inside the detector.
     epoch_jyear, exposure_time : float
         [Julian year], [s].
     observer_velocity_m_s : tuple of 3 floats
-        The barycentric velocity the directions are aberrated with, ICRF axes [m/s] (zeros:
-        astrometric places).
+        The barycentric velocity of the aberration, ICRF axes [m/s] (zeros: catalogue places).
     """
 
     hip: NDArray[np.int64]
