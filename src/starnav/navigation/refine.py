@@ -837,6 +837,14 @@ def _solve(A: FloatArray, b: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]
         return out, ok
 
 
+def _solve_x(A: FloatArray, b: FloatArray) -> FloatArray:
+    """:func:`_solve`'s solution alone (``b`` ``(K, n, m)``)."""
+    try:
+        return solve(A, b)
+    except np.linalg.LinAlgError:
+        return _solve(A, b)[0]
+
+
 _ALL = slice(None)
 
 #: Weights of the offset and tilt steps in the edge motion they cause anywhere in a window
@@ -890,7 +898,7 @@ class _TableModel:
         return out
 
     def _values(self, k: NDArray[np.intp] | slice, X: FloatArray) -> FloatArray:
-        u = self.u0[k] - (X[:, 0] / self.stack.h)[:, None]
+        u = self.u0[k] - X[:, 0:1] / self.stack.h
         u -= X[:, 1:2] * self.th[k]
         return self.stack.values(k, u)
 
@@ -904,7 +912,7 @@ class _TableModel:
             np.multiply(v[1], W[:, 0], out=Y[:, 2])                 # ramp
         np.multiply(v[2][:, None], W, out=Y[:, p + 1:])             # lsf w {1, t, t^2}
         G = Y @ Y.transpose(0, 2, 1)
-        P, _ = _solve(G[:, :p, :p], G[:, :p, p:])
+        P = _solve_x(G[:, :p, :p], G[:, :p, p:])
         Gp = G[:, p:, p:] - G[:, p:, :p] @ P
         Z = np.empty((n, p + 7))
         Z[:, :p] = lin = P[:, :, 0]
@@ -1041,10 +1049,16 @@ def _levenberg_marquardt(model: _TableModel | _GaussModel, X: FloatArray, Z: Flo
         Zd = Zc.copy()
         dg = Zd[:, s0:g0:q + 1]   # a view of the diagonal: damped in place
         dg += lam[:, None] * np.where(dg > 0, dg, 1.0)
-        step, ok = _solve(Zd[:, s0:g0].reshape(-1, q, q), Zd[:, g0:])
+        try:
+            step = solve_vectors(Zd[:, s0:g0].reshape(-1, q, q), Zd[:, g0:])
+            solved = None
+        except np.linalg.LinAlgError:
+            step, solved = _solve(Zd[:, s0:g0].reshape(-1, q, q), Zd[:, g0:])
         step /= scale[:, None]
-        mx = np.abs(step[:, :2] * _EDGE_MOTION).max(axis=1)
-        ok &= mx < np.inf
+        mx = np.maximum.reduce(np.abs(step[:, :2] * _EDGE_MOTION), axis=1)
+        ok = mx < np.inf
+        if solved is not None:
+            ok &= solved
         step /= np.maximum(mx, 1.0)[:, None]   # at most 1 px of edge motion
         last = ok & (mx < tolerance_px)
         if last.any():   # at the minimum to within the tolerance: step unevaluated
@@ -1087,11 +1101,9 @@ def _levenberg_marquardt(model: _TableModel | _GaussModel, X: FloatArray, Z: Flo
                 ratio = np.divide(num, den, out=np.ones_like(num),
                                   where=(den > 0) & (ma < _SECANT_NEAR))
                 sc = np.minimum(np.maximum(ratio, _SECANT_RANGE[0]), _SECANT_RANGE[1])
-                if ga is None:   # every window stepped and was accepted: in place
-                    scale[:] = sc
-                    Xc[:] = Xt
-                    Zc[:] = Ta
-                    np.maximum(lam / _LM_GROWTH, _LM_LAMBDA_MIN, out=lam)
+                if ga is None:   # every window stepped and was accepted: the new arrays
+                    scale, Xc, Zc = sc, Xt, Ta
+                    lam = np.maximum(lam / _LM_GROWTH, _LM_LAMBDA_MIN)
                     it += 1
                     rejected[:] = 0
                 else:
@@ -1125,6 +1137,7 @@ def _levenberg_marquardt(model: _TableModel | _GaussModel, X: FloatArray, Z: Flo
             gd = idx[d]
             if Xc is not X:
                 X[gd] = Xc[d]
+            if Zc is not Z:
                 Z[gd] = Zc[d]
             it_out[gd] = it[d]
             converged_out[gd] = converged[d]
