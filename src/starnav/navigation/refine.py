@@ -41,7 +41,6 @@ Index
 from __future__ import annotations
 
 import bisect
-import copy
 import dataclasses
 import functools
 import json
@@ -791,13 +790,6 @@ class _StackedTables:
         self.shift = hit[3] / (2.0 * radius_px)
         self.base = (np.arange(len(tables)) * self.n)[:, None]
 
-    def subset(self, k: NDArray[np.intp]) -> _StackedTables:
-        """The same tables seen as the stack of the windows ``k`` only (window ``i`` of the
-        result is window ``k[i]``)."""
-        out = copy.copy(self)
-        out.base, out.mean = self.base[k], self.mean[k]
-        return out
-
     def values(self, k: NDArray[np.intp] | slice, u: FloatArray) -> FloatArray:
         """``(b0, b1, lsf)``, ``(3, k, M)``, of the windows ``k`` at table coordinates ``u``
         (``(x - x0) / h`` of the outward distance ``x``), as :meth:`EdgeTables.evaluate`
@@ -889,14 +881,6 @@ class _TableModel:
         self.W = W
         self.C = np.stack([sw, self.y * sw], axis=1)   # rows 0 and p of Y
 
-    def subset(self, k: NDArray[np.intp]) -> _TableModel:
-        """The model of the windows ``k`` only, for :meth:`evaluate` (their rows gathered
-        once: the Levenberg-Marquardt loop's windows still iterating)."""
-        out = copy.copy(self)
-        out.u0, out.th, out.W, out.C = self.u0[k], self.th[k], self.W[k], self.C[k]
-        out.stack = self.stack.subset(k)
-        return out
-
     def _values(self, k: NDArray[np.intp] | slice, X: FloatArray) -> FloatArray:
         u = self.u0[k] - X[:, 0:1] / self.stack.h
         u -= X[:, 1:2] * self.th[k]
@@ -959,12 +943,6 @@ class _GaussModel:
     def weigh(self, sw: FloatArray) -> None:
         self.sw, self.yw = sw, self.y * sw
 
-    def subset(self, k: NDArray[np.intp]) -> _GaussModel:
-        """The model of the windows ``k`` only, for :meth:`evaluate`."""
-        out = copy.copy(self)
-        out.rho, out.t_arc, out.sw, out.yw = self.rho[k], self.t_arc[k], self.sw[k], self.yw[k]
-        return out
-
     def _bases(self, k: NDArray[np.intp] | slice, X: FloatArray
                ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
         t_arc = self.t_arc[k]
@@ -1017,108 +995,94 @@ def _levenberg_marquardt(model: _TableModel | _GaussModel, X: FloatArray, Z: Flo
     ``X`` holds each window's ``(delta, tau, sigma)`` and ``Z`` its state there, one row per
     window: the amplitudes (``p``), the cost, the reduced normal matrix (``q x q``) and
     gradient (``q``) of the nonlinear parameters; both are updated in place (``Z`` to the
-    last point accepted). Returns each window's iterations and whether it converged.
+    last point evaluated). Returns each window's iterations and whether it converged.
 
-    The windows still iterating step together, on arrays of their own (the model's rows of
-    them gathered once each time a window leaves: :meth:`_TableModel.subset`); only those
-    taking a trial step are evaluated. A window has converged when its next step would move
-    its edge by less than ``tolerance_px`` anywhere in it (the step is then taken without
-    evaluating it), or when a rejected step (the cost rose) puts the minimum along it that
-    close: the parabola through the cost, its slope and the trial's cost has its minimum at
-    ``alpha* < 1/2`` of the step. Each accepted step shorter than ``_SECANT_NEAR`` measures
-    the cost's curvature along it (the change of the gradient) against Gauss-Newton's, and
-    the next step is divided by their ratio: the curvature Gauss-Newton leaves out (the
-    residuals times the blur's second derivative, large where the model's blur is not the
-    scene's) made it converge linearly, ~5x per step, and ~2x on saturated windows."""
+    The windows still iterating step together; only those taking a trial step are
+    evaluated. A window has converged when its next step would move its edge by less than
+    ``tolerance_px`` anywhere in it (the step is then taken without evaluating it), or when
+    a rejected step (the cost rose) puts the minimum along it that close: the parabola
+    through the cost, its slope and the trial's cost has its minimum at ``alpha* < 1/2`` of
+    the step. Each accepted step shorter than ``_SECANT_NEAR`` measures the cost's curvature
+    along it (the change of the gradient) against Gauss-Newton's, and the next step is
+    divided by their ratio: the curvature Gauss-Newton leaves out (the residuals times the
+    blur's second derivative, large where the model's blur is not the scene's) made it
+    converge linearly, ~5x per step, and ~2x on saturated windows."""
     p, q = model.p, model.q
     s0, g0 = p + 1, p + 1 + q * q
     K = X.shape[0]
-    it_out = np.zeros(K, int)
-    converged_out = np.zeros(K, bool)
-    if max_iterations <= 0 or K == 0:
-        return it_out, converged_out
-    # the windows still iterating: their global indices, parameters, states and LM scalars
-    idx = np.arange(K)
-    Xc, Zc, sub = X, Z, model
     lam = np.full(K, _LM_LAMBDA0)
     scale = np.ones(K)
     it = np.zeros(K, int)
     rejected = np.zeros(K, int)
     converged = np.zeros(K, bool)
+    active = np.full(K, max_iterations > 0)
     while True:
-        Zd = Zc.copy()
-        dg = Zd[:, s0:g0:q + 1]   # a view of the diagonal: damped in place
-        dg += lam[:, None] * np.where(dg > 0, dg, 1.0)
-        try:
-            step = solve_vectors(Zd[:, s0:g0].reshape(-1, q, q), Zd[:, g0:])
-            solved = None
-        except np.linalg.LinAlgError:
-            step, solved = _solve(Zd[:, s0:g0].reshape(-1, q, q), Zd[:, g0:])
-        step /= scale[:, None]
-        mx = np.maximum.reduce(np.abs(step[:, :2] * _EDGE_MOTION), axis=1)
-        ok = mx < np.inf
-        if solved is not None:
-            ok &= solved
+        a = active.nonzero()[0]   # the windows still iterating
+        if not a.size:
+            break
+        every = a.size == K   # all windows: whole arrays, no gathers (the common case)
+        Za = Z.copy() if every else Z[a]
+        dg = Za[:, s0:g0:q + 1]   # a view of the diagonal: damped in place
+        dg += (lam if every else lam[a])[:, None] * np.where(dg > 0, dg, 1.0)
+        step, ok = _solve(Za[:, s0:g0].reshape(-1, q, q), Za[:, g0:])
+        step /= (scale if every else scale[a])[:, None]
+        mx = np.abs(step[:, :2] * _EDGE_MOTION).max(axis=1)
+        ok &= mx < np.inf
         step /= np.maximum(mx, 1.0)[:, None]   # at most 1 px of edge motion
         last = ok & (mx < tolerance_px)
         if last.any():   # at the minimum to within the tolerance: step unevaluated
-            Xc[last, :q] += step[last]
-            converged[last] = True
-            it[last] += 1
-            go = ok & ~last
-        else:
-            go = ok
+            w = a[last]
+            X[w, :q] += step[last]
+            converged[w] = True
+            it[w] += 1
         if not ok.all():   # no step: damp more
-            w = ~ok
+            w = a[~ok]
             lam[w] *= _LM_GROWTH
             rejected[w] += 1
-            tired = w & (rejected >= _LM_RETRIES)
+            tired = w[rejected[w] >= _LM_RETRIES]
             converged[tired] = True
             it[tired] += 1
-        n_go = int(np.count_nonzero(go))
-        if n_go:
-            every = n_go == go.size   # every window steps: whole arrays, no gathers
-            g = None if every else go.nonzero()[0]
-            sg, mg = (step, mx) if every else (step[g], mx[g])
-            Xt = Xc.copy() if every else Xc[g]
+        go = ok & ~last
+        if go.any():
+            every = every and bool(go.all())
+            wg, sg, mg = (a, step, mx) if every else (a[go], step[go], mx[go])
+            Xt = X.copy() if every else X[wg]
             Xt[:, :q] += sg
             if q == 3:
                 np.clip(Xt[:, 2], 0.2, 10.0, out=Xt[:, 2])
-            T = sub.evaluate(_ALL if every else g, Xt)
-            Zg = Zc if every else Zc[g]
-            acc = T[:, p] <= Zg[:, p]
+            T = model.evaluate(_ALL if every else wg, Xt)
+            acc = T[:, p] <= (Z[:, p] if every else Z[wg, p])
             all_acc = bool(acc.all())
-            if all_acc:
-                ga, D, Ta, Zo, ma = g, sg, T, Zg, mg
-            else:
-                ai = acc.nonzero()[0]
-                ga = ai if every else g[ai]
-                D, Ta, Zo, ma = sg[ai], T[ai], Zg[ai], mg[ai]
-            if Ta.shape[0]:
+            every = every and all_acc
+            wa, D, Ta = (wg, sg, T) if all_acc else (wg[acc], sg[acc], T[acc])
+            if wa.size:
                 # the cost's curvature along the step against Gauss-Newton's
+                Zo = Z if every else Z[wa]
                 den = (D[:, None, :] @ Zo[:, s0:g0].reshape(-1, q, q) @ D[..., None])[:, 0, 0]
                 num = ((Zo[:, g0:] - Ta[:, g0:]) * D).sum(axis=1)
                 ratio = np.divide(num, den, out=np.ones_like(num),
-                                  where=(den > 0) & (ma < _SECANT_NEAR))
-                sc = np.minimum(np.maximum(ratio, _SECANT_RANGE[0]), _SECANT_RANGE[1])
-                if ga is None:   # every window stepped and was accepted: the new arrays
-                    scale, Xc, Zc = sc, Xt, Ta
-                    lam = np.maximum(lam / _LM_GROWTH, _LM_LAMBDA_MIN)
+                                  where=(den > 0) & ((mg if every else mg[acc]) < _SECANT_NEAR))
+                if every:   # every window stepped and was accepted: in place
+                    np.minimum(np.maximum(ratio, _SECANT_RANGE[0]), _SECANT_RANGE[1], out=scale)
+                    X[:] = Xt
+                    Z[:] = Ta
+                    np.maximum(lam / _LM_GROWTH, _LM_LAMBDA_MIN, out=lam)
                     it += 1
                     rejected[:] = 0
                 else:
-                    scale[ga] = sc
-                    Xc[ga] = Xt if all_acc else Xt[ai]
-                    Zc[ga] = Ta
-                    lam[ga] = np.maximum(lam[ga] / _LM_GROWTH, _LM_LAMBDA_MIN)
-                    it[ga] += 1
-                    rejected[ga] = 0
-            if not all_acc:
-                rj = (~acc).nonzero()[0]
-                wr = rj if every else g[rj]
+                    scale[wa] = np.minimum(np.maximum(ratio, _SECANT_RANGE[0]),
+                                           _SECANT_RANGE[1])
+                    X[wa] = Xt[acc]
+                    Z[wa] = Ta
+                    lam[wa] = np.maximum(lam[wa] / _LM_GROWTH, _LM_LAMBDA_MIN)
+                    it[wa] += 1
+                    rejected[wa] = 0
+            if wa.size < wg.size:
+                rj = ~acc
+                wr = wg[rj]
                 # the cost along the step, c0 + slope alpha + curv alpha^2 through the trial
-                slope = -(Zc[wr, g0:] * sg[rj]).sum(axis=1)
-                curv = T[rj, p] - Zc[wr, p] - slope
+                slope = -(Z[wr, g0:] * sg[rj]).sum(axis=1)
+                curv = T[rj, p] - Z[wr, p] - slope
                 at_min = (slope < 0) & (-slope * np.minimum(mg[rj], 1.0)
                                         < 2.0 * curv * tolerance_px)
                 converged[wr[at_min]] = True
@@ -1131,24 +1095,8 @@ def _levenberg_marquardt(model: _TableModel | _GaussModel, X: FloatArray, Z: Flo
                 tired = wr[rejected[wr] >= _LM_RETRIES]
                 converged[tired] = True
                 it[tired] += 1
-        done = converged | (it >= max_iterations)
-        if done.any():
-            d = done.nonzero()[0]
-            gd = idx[d]
-            if Xc is not X:
-                X[gd] = Xc[d]
-            if Zc is not Z:
-                Z[gd] = Zc[d]
-            it_out[gd] = it[d]
-            converged_out[gd] = converged[d]
-            if d.size == idx.size:
-                return it_out, converged_out
-            keep = (~done).nonzero()[0]
-            idx = idx[keep]
-            Xc, Zc = Xc[keep], Zc[keep]
-            lam, scale, it = lam[keep], scale[keep], it[keep]
-            rejected, converged = rejected[keep], converged[keep]
-            sub = model.subset(idx)
+        active = ~converged & (it < max_iterations)
+    return it, converged
 
 
 def _fit_windows(y: FloatArray, mask: NDArray[np.bool_], rho: FloatArray, t_arc: FloatArray,
