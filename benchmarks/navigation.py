@@ -7,10 +7,13 @@ whole VBN chain in < 650 ms and < 900 kB (seed paper, PIL). The subpixel refinem
     .venv/bin/python benchmarks/navigation.py [--repeat 200] [--json out.json]
     .venv/bin/python benchmarks/navigation.py --against 4a236fa [--rounds 8] [--repeat 40]
     .venv/bin/python benchmarks/navigation.py --dataset out/demo/dataset [--rounds 5]
+    .venv/bin/python benchmarks/navigation.py --dataset DS --exposure 7.7ms --against 4a236fa
 
 ``--dataset`` times the product's own run: ``starnav navigate DATASET`` in fresh processes, the
 chain's per-frame CPU median and stage medians of its ``metrics.json`` (the numbers the command
-prints and warns about), on frames the renderer made.
+prints and warns about), on frames the renderer made; ``--exposure`` picks the dataset's
+exposure (``navigate --exposure``), and with ``--against REF`` the package at git revision
+``REF`` navigates the same dataset alternately with this checkout (``--rounds`` runs each).
 
 Frames are analytic (starnav.navigation.synthetic): a well-exposed Lambert Moon with a 0.8 px
 Gaussian PSF, thresholded at 10 % of the peak into segments. Cases: 20 000 km (more than 600
@@ -245,12 +248,8 @@ def compare_against(ref: str, rounds: int, repeat: int) -> dict:
     """The whole chain with refinement of this checkout and of git revision ``ref``, run
     alternately (module docstring)."""
     root = Path(__file__).resolve().parents[1]
-    archive = subprocess.run(["git", "-C", str(root), "archive", "--format=tar", ref,
-                              "src/starnav"], capture_output=True, check=True).stdout
     with tempfile.TemporaryDirectory() as d:
-        with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
-            tar.extractall(d, filter="data")
-        srcs = {ref: str(Path(d) / "src"), "this checkout": str(root / "src")}
+        srcs = {ref: _extract_src(root, ref, d), "this checkout": str(root / "src")}
         runs: dict[str, dict[str, dict[str, list[float]]]] = {
             k: {f"{r:.0f}": {"cpu": []} for r in RANGES_KM} for k in srcs}
         load0 = os.getloadavg()
@@ -266,25 +265,65 @@ def compare_against(ref: str, rounds: int, repeat: int) -> dict:
     return {"load_before": load0, "load_after": load1, "runs": runs}
 
 
-def product_run(dataset: str, rounds: int) -> dict:
-    """``starnav navigate DATASET`` itself, ``rounds`` times in fresh processes: the stage and
-    chain medians its ``metrics.json`` reports (what the command prints and warns about)."""
+def _extract_src(root: Path, ref: str, into: str) -> str:
+    """``src/starnav`` of git revision ``ref`` extracted under ``into``; its ``src`` path."""
+    archive = subprocess.run(["git", "-C", str(root), "archive", "--format=tar", ref,
+                              "src/starnav"], capture_output=True, check=True).stdout
+    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+        tar.extractall(into, filter="data")
+    return str(Path(into) / "src")
+
+
+def product_run(dataset: str, rounds: int, exposure: str | None = None,
+                src: str | None = None) -> dict:
+    """``starnav navigate DATASET [--exposure E]`` itself, ``rounds`` times in fresh
+    processes (the package at ``src``, default the one on this interpreter's path): the stage
+    and chain medians its ``metrics.json`` reports (what the command prints and warns
+    about)."""
     out: dict[str, list] = {"chain_cpu_median": [], "stages": []}
+    env = None if src is None else {**os.environ, "PYTHONPATH": src}
     for _ in range(rounds):
         with tempfile.TemporaryDirectory() as d:
             subprocess.run([sys.executable, "-c", "from starnav.cli.main import app; app()",
-                            "navigate", dataset, "--out", str(Path(d) / "nav"), "--no-plots"],
-                           check=True, capture_output=True, text=True)
+                            "navigate", dataset, "--out", str(Path(d) / "nav"), "--no-plots",
+                            *(["--exposure", exposure] if exposure else [])],
+                           check=True, capture_output=True, text=True, env=env)
             tm = json.loads((Path(d) / "nav" / "metrics.json").read_text())["timing_ms"]
         out["chain_cpu_median"].append(tm["chain_cpu_median"])
         out["stages"].append(tm["stage_median"])
     return out
 
 
+def product_against(dataset: str, rounds: int, exposure: str | None, ref: str) -> dict:
+    """:func:`product_run` of this checkout and of git revision ``ref``, one run each in
+    turn, ``rounds`` times (the order alternating), so both see the same load."""
+    root = Path(__file__).resolve().parents[1]
+    with tempfile.TemporaryDirectory() as d:
+        srcs = {ref: _extract_src(root, ref, d), "this checkout": str(root / "src")}
+        res = {k: {"chain_cpu_median": [], "stages": []} for k in srcs}
+        for i in range(rounds):
+            for label in (list(srcs) if i % 2 == 0 else list(srcs)[::-1]):
+                got = product_run(dataset, 1, exposure, srcs[label])
+                for key in got:
+                    res[label][key] += got[key]
+    return res
+
+
+def _print_product(res: dict, label: str = "") -> None:
+    for k, (c, st) in enumerate(zip(res["chain_cpu_median"], res["stages"], strict=True)):
+        print(f"  {label}run {k}: chain CPU median {c:.2f} ms (" + ", ".join(
+            f"{n} {v:.2f}" for n, v in st.items() if v is not None) + " ms)")
+    med = float(np.median(res["chain_cpu_median"]))
+    print(f"  {label}median of runs {med:.2f} ms vs budget {BUDGET_MS} ms: "
+          f"{'within' if med <= BUDGET_MS else 'OVER'}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--dataset", type=str, default=None,
                     help="time `starnav navigate DATASET` itself (its metrics.json medians)")
+    ap.add_argument("--exposure", type=str, default=None,
+                    help="with --dataset: its exposure (navigate --exposure, e.g. 7.7ms)")
     ap.add_argument("--repeat", type=int, default=200)
     ap.add_argument("--json", type=str, default=None, help="write the results here")
     ap.add_argument("--against", type=str, default=None,
@@ -293,15 +332,21 @@ def main() -> None:
     ap.add_argument("--chain-times", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.dataset:
-        res = product_run(args.dataset, args.rounds)
-        print(f"starnav navigate {args.dataset}, {args.rounds} runs, load "
+        load0 = os.getloadavg()
+        what = f"starnav navigate {args.dataset}" + (f" --exposure {args.exposure}"
+                                                     if args.exposure else "")
+        if args.against:
+            both = product_against(args.dataset, args.rounds, args.exposure, args.against)
+            print(f"{what}, {args.rounds} runs each, alternating, load before "
+                  f"{' '.join(f'{x:.2f}' for x in load0)}, after "
+                  f"{' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} cores:")
+            for label, res in both.items():
+                _print_product(res, f"{label}: ")
+            return
+        res = product_run(args.dataset, args.rounds, args.exposure)
+        print(f"{what}, {args.rounds} runs, load "
               f"{' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} cores:")
-        for k, (c, st) in enumerate(zip(res["chain_cpu_median"], res["stages"], strict=True)):
-            print(f"  run {k}: chain CPU median {c:.2f} ms (" + ", ".join(
-                f"{n} {v:.2f}" for n, v in st.items() if v is not None) + " ms)")
-        med = float(np.median(res["chain_cpu_median"]))
-        print(f"  median of runs {med:.2f} ms vs budget {BUDGET_MS} ms: "
-              f"{'within' if med <= BUDGET_MS else 'OVER'}")
+        _print_product(res)
         return
     if args.chain_times:   # one run of --against, in the package on PYTHONPATH
         print(json.dumps(chain_times(args.repeat)))

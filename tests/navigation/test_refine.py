@@ -399,3 +399,39 @@ def test_model_error_calibration_phase_factors():
         ModelErrorCalibration.from_dict({**doc, "fix_scale_by_phase": [1.0, 2.0]})
     pk = packaged_model_error()
     assert pk.fix_scale_by_phase is not None and len(pk.fix_scale_by_phase) == 3
+
+
+def test_each_window_fits_in_the_batch_as_it_fits_alone(monkeypatch):
+    """The batched Levenberg-Marquardt loop works on the windows still iterating (the others
+    leave it as they converge): every window's fit in the batch (edge offset, tilt,
+    amplitudes, sigma, iterations, convergence) equals, to the last bit, the fit of that
+    window alone. Saturated windows (5x over full scale) whose fits take different numbers
+    of iterations, and the weighted second pass."""
+    from starnav.detector.schema import AberrationPsfConfig
+    from starnav.navigation import refine as refine_mod
+    from starnav.navigation.refine import EdgeSpread
+
+    cam, dn, noise, c, R = _detector_disc(20000.0, 1)
+    ang = np.linspace(0, 2 * math.pi, 16, endpoint=False) + 0.2
+    pts = c + R * np.column_stack([np.cos(ang), np.sin(ang)])
+    models = RefineModels(spread=EdgeSpread(AberrationPsfConfig()), noise=noise)
+    wins = cut_windows(dn, plan_windows(pts, c, shape=dn.shape))
+    calls = []
+    fit = refine_mod._fit_windows
+
+    def spy(*args, **kw):
+        calls.append((args, kw))
+        return fit(*args, **kw)
+
+    monkeypatch.setattr(refine_mod, "_fit_windows", spy)
+    refine_limb(wins, c + 0.3, R + 0.4, models=models, camera=cam)
+    (args, kw), = calls
+    y, mask, rho, t_arc, radius, edge, psf, noise_, tables = args
+    batch = fit(*args, **kw)
+    assert len(set(batch.iterations.tolist())) > 1   # windows leave the loop at different times
+    for i in range(y.shape[0]):
+        one = fit(y[i:i + 1], mask[i:i + 1], rho[i:i + 1], t_arc[i:i + 1], radius, edge, psf,
+                  noise_, tables[i:i + 1], **kw)
+        for name in batch._fields:
+            assert np.array_equal(getattr(one, name)[0], getattr(batch, name)[i],
+                                  equal_nan=True), (i, name)

@@ -829,6 +829,14 @@ def _solve(A: FloatArray, b: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]
         return out, ok
 
 
+def _solve_x(A: FloatArray, b: FloatArray) -> FloatArray:
+    """:func:`_solve`'s solution alone (``b`` ``(K, n, m)``)."""
+    try:
+        return solve(A, b)
+    except np.linalg.LinAlgError:
+        return _solve(A, b)[0]
+
+
 _ALL = slice(None)
 
 #: Weights of the offset and tilt steps in the edge motion they cause anywhere in a window
@@ -874,7 +882,7 @@ class _TableModel:
         self.C = np.stack([sw, self.y * sw], axis=1)   # rows 0 and p of Y
 
     def _values(self, k: NDArray[np.intp] | slice, X: FloatArray) -> FloatArray:
-        u = self.u0[k] - (X[:, 0] / self.stack.h)[:, None]
+        u = self.u0[k] - X[:, 0:1] / self.stack.h
         u -= X[:, 1:2] * self.th[k]
         return self.stack.values(k, u)
 
@@ -888,7 +896,7 @@ class _TableModel:
             np.multiply(v[1], W[:, 0], out=Y[:, 2])                 # ramp
         np.multiply(v[2][:, None], W, out=Y[:, p + 1:])             # lsf w {1, t, t^2}
         G = Y @ Y.transpose(0, 2, 1)
-        P, _ = _solve(G[:, :p, :p], G[:, :p, p:])
+        P = _solve_x(G[:, :p, :p], G[:, :p, p:])
         Gp = G[:, p:, p:] - G[:, p:, :p] @ P
         Z = np.empty((n, p + 7))
         Z[:, :p] = lin = P[:, :, 0]
