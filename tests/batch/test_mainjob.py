@@ -30,6 +30,14 @@ def test_main_job_makes_dataset_navigation_and_report(tmp_path):
     # the consistency over Monte Carlo runs, next to the accuracy
     assert "Can the 3-sigma bounds be trusted? (2 Monte Carlo runs)" in text
     assert "over 2 runs: time-averaged NEES" in text
+    # ... conditional on the dataset's one terrain; the scored record beside it
+    from starnav.batch.scores import recorded_scores
+
+    assert "conditional on this arc's terrain" in text
+    for t in (1.5e-5, 7.7e-3):
+        rows = [r for r in recorded_scores()["scores"] if r["exposure_s"] == t]
+        k = round(sum(r["epochs_in_band"] * r["epochs"] for r in rows))
+        assert f"{t * 1e3:g} ms {k}/{sum(r['epochs'] for r in rows)}" in text
     for e in ("exposure_0.015ms", "exposure_7.7ms"):
         assert (tmp_path / "demo" / "navigation" / e / "montecarlo" / "metrics.json").is_file()
     assert s["0.015 ms: filter (2 runs)"] in ("consistent", "overconfident", "pessimistic")

@@ -39,6 +39,7 @@ from starnav.batch.presets import (
     paper_case,
 )
 from starnav.batch.report import _g, describe_scenario
+from starnav.batch.scores import scored_line
 from starnav.config import Scenario, scenario_from_dict, write_resolved
 from starnav.dataset import DatasetOptions, generate
 from starnav.dataset import format as F
@@ -236,6 +237,8 @@ def _write_report(out: Path, sc: Scenario, ds: Any, nav: dict[float, dict[str, A
               "`navigation/exposure_*/montecarlo/`).", ""]
         for t, m in consistency.items():
             L.append(f"- **{t * 1e3:g} ms**: " + verdict_line(m))
+        L += ["", "Every run sees the dataset's one terrain, so these verdicts are conditional on "
+              "this arc's terrain. " + scored_line()]
     L += ["", "## Against the paper", "", f"Source: {PAPER_CITATION}.", ""]
     for t, s in nav.items():
         c = paper_case(t)

@@ -8,7 +8,8 @@ scoring set.
 
 Index
 -----
-:func:`defaults_fingerprint`, :func:`recorded_scores`, :data:`EXPOSURES`, :data:`TARGETS`.
+:func:`defaults_fingerprint`, :func:`recorded_scores`, :func:`scored_line`, :data:`EXPOSURES`,
+:data:`TARGETS`.
 """
 
 from __future__ import annotations
@@ -52,3 +53,21 @@ def defaults_fingerprint() -> str:
 def recorded_scores() -> dict:
     """The record :data:`SCORES_FILE`."""
     return json.loads(packaged_path(SCORES_FILE).read_text())
+
+
+def scored_line() -> str:
+    """One sentence for reports: the released defaults' recorded score per exposure (epochs
+    inside their 95 % band, pooled over the scoring arcs, each run on its own terrain)."""
+    rec = recorded_scores()
+    parts = []
+    for t in EXPOSURES:
+        rows = [r for r in rec["scores"] if r["exposure_s"] == t]
+        n = sum(r["epochs"] for r in rows)
+        k = round(sum(r["epochs_in_band"] * r["epochs"] for r in rows))
+        parts.append(f"{t * 1e3:g} ms {k}/{n}")
+    seeds = ", ".join(a.split("=", 1)[1] for arc in rec["scoring_arcs"] for a in arc
+                      if a.startswith("seed="))
+    return (f"Over terrain draws, on arcs that tuned nothing (seeds {seeds}, each run on its "
+            f"own terrain), the released defaults have their epochs inside the 95 % band at "
+            f"{', '.join(parts)} (`starnav/data/navigation/scores.json`; docs/navigation.md, "
+            f"\"Tuning apart from scoring\").")
