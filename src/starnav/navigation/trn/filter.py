@@ -43,7 +43,7 @@ Index
 -----
 :func:`run_filter` (the estimator), :class:`TrnFilterConfig`, :class:`ShapePrior`,
 :class:`FlybyRun`;
-measurement models :func:`feature_model`, :func:`features_model`, :func:`centroid_model`,
+measurement models :func:`features_model`, :func:`centroid_model`,
 :func:`radius_model`, :func:`silhouette_scale`, :func:`shape_error_term`,
 :func:`crescent_term`, :func:`map_error_factor`, :func:`silhouette_offset`;
 :func:`propagate`, :func:`landmark_births`, :func:`gate_rows`, :func:`validate_inputs`.
@@ -599,21 +599,6 @@ def propagate(x: FloatArray, dt: float, gm: float, q: float) -> tuple[FloatArray
     return x, Phi, Q
 
 
-def feature_model(camera: Camera, r: FloatArray, landmark: FloatArray, R_m: FloatArray,
-                  R_bi: FloatArray, dtheta: FloatArray | None = None
-                  ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Predicted pixel of a body-fixed landmark (module step 4) and its Jacobians with respect
-    to ``r`` (2, 3), the landmark (2, 3) and the attitude error ``dtheta`` (2, 3)."""
-    p_m = R_m.T @ (R_bi @ landmark - r)
-    dth = np.zeros(3) if dtheta is None else np.asarray(dtheta, float)
-    p = rotation_vector_matrix(-dth) @ p_m
-    if p[2] <= 0:
-        raise GeometryError("landmark behind the camera")
-    J = camera.project_jacobian(p)
-    E = rotation_vector_matrix(-dth)
-    return camera.project(p), -J @ E @ R_m.T, J @ E @ R_m.T @ R_bi, J @ skew(p)
-
-
 def rotation_vector_matrix(w: ArrayLike) -> FloatArray:
     """Rotation matrix ``exp([w]x)`` of a rotation vector [rad] (Rodrigues)."""
     w = np.asarray(w, float)
@@ -627,9 +612,10 @@ def rotation_vector_matrix(w: ArrayLike) -> FloatArray:
 def features_model(camera: Camera, r: FloatArray, landmarks: FloatArray, R_m: FloatArray,
                    R_bi: FloatArray, dtheta: FloatArray
                    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, NDArray[np.bool_]]:
-    """:func:`feature_model` for landmarks ``(N, 3)`` at once: pixels (N, 2), Jacobians
-    (N, 2, 3) with respect to ``r``, the landmark and ``dtheta``, and whether each landmark is
-    in front of the camera (a landmark behind gets a dummy prediction)."""
+    """Predicted pixels of body-fixed landmarks ``(N, 3)`` (module step 4): pixels (N, 2),
+    Jacobians (N, 2, 3) with respect to ``r``, the landmark and the attitude error ``dtheta``,
+    and whether each landmark is in front of the camera (a landmark behind gets a dummy
+    prediction)."""
     E = rotation_vector_matrix(-np.asarray(dtheta, float))
     C = E @ R_m.T
     p = (landmarks @ R_bi.T - r) @ C.T
