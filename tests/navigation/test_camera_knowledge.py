@@ -188,27 +188,3 @@ def test_consider_jacobian_matches_central_differences(frame, truth_camera):
     C = np.asarray(cal.covariance)
     assert np.sqrt(np.diag(J @ C @ J.T)) == pytest.approx(np.sqrt(np.diag(fd @ C @ fd.T)),
                                                          rel=0.02)
-
-
-def test_pixel_shift_interpolation_is_bilinear_through_the_grid():
-    """The moved cameras' pixel shifts are read off their grid bilinearly (regression test
-    of ``_bilinear`` against SciPy's ``RegularGridInterpolator``, whose numbers the consider
-    Jacobian used before: equal to the last bit), and the interpolation is exact on a field
-    linear in ``u`` and ``v`` inside and outside the grid (linear extrapolation)."""
-    from scipy.interpolate import RegularGridInterpolator
-
-    from starnav.navigation.pipeline import _bilinear
-
-    rng = np.random.default_rng(5)
-    u, v = np.linspace(-0.5, 1023.5, 65), np.linspace(-0.5, 767.5, 49)
-    table = rng.normal(size=(u.size, v.size, 6, 2))
-    nodes = np.stack(np.meshgrid(u[::9], v[::7], indexing="ij"), -1).reshape(-1, 2)
-    pts = np.concatenate([rng.uniform(-40.0, 1100.0, (400, 2)), nodes,
-                          [[-0.5, -0.5], [1023.5, 767.5], [2000.0, -30.0]]])
-    ref = RegularGridInterpolator((u, v), table, method="linear", bounds_error=False,
-                                  fill_value=None)(pts)
-    assert np.array_equal(_bilinear(u, v, table, pts), ref)
-    a, b, c = 0.3, -1.7, 2.5
-    plane = (a * u[:, None] + b * v[None, :] + c)[:, :, None]
-    got = _bilinear(u, v, plane, pts)[:, 0]
-    assert got == pytest.approx(a * pts[:, 0] + b * pts[:, 1] + c, rel=1e-12, abs=1e-9)

@@ -472,34 +472,16 @@ def _pixel_shifts(known: Camera, moved: Sequence[Camera]
     unproject_moved(uv)) - uv`` [px], where the calibrated camera reads the pixel the moved
     one reads at ``uv``. Smooth fields over the detector (each camera differs by one
     parameter), tabulated once on a grid of :data:`SHIFT_GRID_PX` and interpolated
-    bilinearly (:func:`_bilinear`)."""
+    bilinearly (extrapolated linearly outside the grid)."""
+    from scipy.interpolate import RegularGridInterpolator
+
     u = np.linspace(-0.5, known.width - 0.5, int(np.ceil(known.width / SHIFT_GRID_PX)) + 1)
     v = np.linspace(-0.5, known.height - 0.5, int(np.ceil(known.height / SHIFT_GRID_PX)) + 1)
     grid = np.stack(np.meshgrid(u, v, indexing="ij"), -1)
     d = np.stack([known.project(cam.unproject(grid)) - grid for cam in moved], axis=2)
-    return lambda uv: _bilinear(u, v, d, np.asarray(uv, float))
-
-
-def _bilinear(u: FloatArray, v: FloatArray, table: FloatArray, uv: FloatArray) -> FloatArray:
-    """``table (len(u), len(v), ...)`` interpolated bilinearly at the points ``uv (N, 2)``,
-    extrapolated linearly from the edge cells outside the grid: what
-    ``scipy.interpolate.RegularGridInterpolator((u, v), table, bounds_error=False,
-    fill_value=None)`` returns (the same cells, weights and sum, so the same bits), without
-    its per-call checks."""
-    x, y = uv[:, 0], uv[:, 1]
-    i = np.searchsorted(u, x, side="right") - 1   # u[i] <= x < u[i + 1], edge cells outside
-    np.clip(i, 0, u.size - 2, out=i)
-    j = np.searchsorted(v, y, side="right") - 1
-    np.clip(j, 0, v.size - 2, out=j)
-    tx = (x - u[i]) / (u[i + 1] - u[i])
-    ty = (y - v[j]) / (v[j + 1] - v[j])
-    sx, sy = 1.0 - tx, 1.0 - ty
-    tail = (slice(None),) + (None,) * (table.ndim - 2)
-    out = 0.0 + table[i, j] * (sx * sy)[tail]
-    out += table[i, j + 1] * (sx * ty)[tail]
-    out += table[i + 1, j] * (tx * sy)[tail]
-    out += table[i + 1, j + 1] * (tx * ty)[tail]
-    return out
+    f = RegularGridInterpolator((u, v), d, method="linear", bounds_error=False,
+                                fill_value=None)
+    return lambda uv: f(np.asarray(uv, float))
 
 
 def _moved_cameras(calibration: CameraCalibration, declared: Camera

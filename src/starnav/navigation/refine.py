@@ -829,14 +829,6 @@ def _solve(A: FloatArray, b: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]
         return out, ok
 
 
-def _solve_x(A: FloatArray, b: FloatArray) -> FloatArray:
-    """:func:`_solve`'s solution alone (``b`` ``(K, n, m)``)."""
-    try:
-        return solve(A, b)
-    except np.linalg.LinAlgError:
-        return _solve(A, b)[0]
-
-
 _ALL = slice(None)
 
 #: Weights of the offset and tilt steps in the edge motion they cause anywhere in a window
@@ -896,7 +888,7 @@ class _TableModel:
             np.multiply(v[1], W[:, 0], out=Y[:, 2])                 # ramp
         np.multiply(v[2][:, None], W, out=Y[:, p + 1:])             # lsf w {1, t, t^2}
         G = Y @ Y.transpose(0, 2, 1)
-        P = _solve_x(G[:, :p, :p], G[:, :p, p:])
+        P, _ = _solve(G[:, :p, :p], G[:, :p, p:])
         Gp = G[:, p:, p:] - G[:, p:, :p] @ P
         Z = np.empty((n, p + 7))
         Z[:, :p] = lin = P[:, :, 0]
